@@ -1,0 +1,1 @@
+"""The typer CLI. The only place that prints with rich, exits, or draws progress bars."""

@@ -1,0 +1,84 @@
+"""The ``lio`` entry point: the typer app, global options, and the one place errors become exit codes."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from typing import Annotated, Optional
+
+import typer
+
+from .. import __version__
+from ..errors import LioError
+from .common import err_console
+
+app = typer.Typer(
+    name="lio",
+    help=(
+        "LiDAR-inertial odometry over recorded robot logs (ROS 1 bags, ROS 2 bags, MCAP), no ROS needed.\n\n"
+        "Data goes to stdout or files, logs and progress to stderr. Exit codes: 0 ok, 1 processing failed, "
+        "2 bad input or usage."
+    ),
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="rich",
+    context_settings={"help_option_names": ["-h", "--help"]},
+    add_completion=False,
+)
+
+_state = {"debug": False}
+
+# One module per command; each exposes register(app).
+COMMANDS = ["info"]
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"lio {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[Optional[bool], typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = None,
+    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False,
+) -> None:
+    _state["debug"] = debug
+
+
+for _name in COMMANDS:
+    importlib.import_module(f"{__package__}.{_name}").register(app)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; map LioError to one stderr line and its exit code."""
+    _state["debug"] = "--debug" in (argv if argv is not None else sys.argv[1:])
+    try:
+        app(args=argv, standalone_mode=False)
+    except typer.Exit as ex:
+        return ex.exit_code
+    except LioError as err:
+        if _state["debug"]:
+            raise
+        err_console.print(f"lio: error: {err}", markup=False)
+        return err.exit_code
+    except KeyboardInterrupt:
+        err_console.print("lio: interrupted", markup=False)
+        return 130
+    except Exception as err:  # click usage errors are handled below; anything else is a bug
+        import click
+
+        if isinstance(err, click.exceptions.ClickException):
+            err.show()
+            return err.exit_code
+        if isinstance(err, click.exceptions.Abort):
+            return 1
+        if _state["debug"]:
+            raise
+        err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
+        return 1
+    return 0
+
+
+def entry() -> None:  # pragma: no cover - console script
+    sys.exit(main())

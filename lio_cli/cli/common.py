@@ -1,0 +1,88 @@
+"""Shared CLI plumbing: consoles, option types, JSON output, progress bars, error mapping."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from ..errors import ConfigError
+
+err_console = Console(stderr=True, highlight=False, soft_wrap=True)
+out_console = Console(highlight=False, soft_wrap=True)
+
+# Options many commands share, so they read the same everywhere.
+LogArg = Annotated[Path, typer.Argument(help="Log: ROS 1 .bag (or a folder of split bags), ROS 2 bag folder or metadata.yaml, or .mcap file.", show_default=False)]
+FormatOpt = Annotated[Optional[str], typer.Option("--format", help="Input format, overriding detection: ros1, ros2 or mcap.", show_default=False)]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or notes on stderr (errors still print).")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
+LidarTopicOpt = Annotated[Optional[str], typer.Option("--lidar-topic", help="PointCloud2 or LaserScan topic (default: the only one).", show_default=False)]
+ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="sensor_msgs/Imu topic (default: the only one).", show_default=False)]
+WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help="Wheel odometry topic, nav_msgs/Odometry or TwistStamped (default: the only one).", show_default=False)]
+GtTopicOpt = Annotated[Optional[str], typer.Option("--gt-topic", help="Ground-truth pose topic (default: the only PoseStamped/TransformStamped one).", show_default=False)]
+PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, or FIELD:UNIT[:abs] (UNIT s|ms|us|ns).", show_default=False)]
+
+
+def print_json(obj: Any) -> None:
+    """JSON on stdout (numpy scalars and arrays converted)."""
+    sys.stdout.write(json.dumps(obj, indent=2, default=_json_default) + "\n")
+    sys.stdout.flush()
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def note(msg: str, quiet: bool = False) -> None:
+    """A line for people on stderr."""
+    if not quiet:
+        err_console.print(msg)
+
+
+def warn(msg: str) -> None:
+    """A warning on stderr; shown even with --quiet."""
+    err_console.print(f"[yellow]lio: warning:[/yellow] {msg}")
+
+
+def fmt_stamp(ns: int) -> str:
+    return f"{ns // 10**9}.{ns % 10**9:09d}"
+
+
+@contextmanager
+def progress_bar(description: str, total: float | None, quiet: bool) -> Iterator[Callable[[float], None]]:
+    """Yield ``advance(n)``; a rich bar on stderr only when it is a terminal and not --quiet."""
+    if quiet or not sys.stderr.isatty():
+        yield lambda n=1.0: None
+        return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=True) as prog:
+        task = prog.add_task(description, total=total)
+        yield lambda n=1.0: prog.advance(task, n)
+
+
+def parse_key_values(items: list[str], what: str) -> dict[str, str]:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"{what} '{item}' is not KEY=VALUE")
+        out[key] = value
+    return out

@@ -1,0 +1,177 @@
+"""SO(3), SE(3) and SE(2) helpers on numpy arrays.
+
+Conventions (DESIGN.md): poses are float64 (4,4) or (N,4,4); ``T_a_b`` maps points from frame b to frame a;
+quaternions are xyzw. This is the only module that touches ``scipy.spatial.transform.Rotation``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+_SMALL_ANGLE_RAD = 1e-8
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrix [v]x of a 3-vector (or (N,3) -> (N,3,3))."""
+    v = np.asarray(v, dtype=np.float64)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def so3_exp(rotvec_rad: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3,3) or (N,3,3) of a rotation vector (axis * angle)."""
+    return Rotation.from_rotvec(np.asarray(rotvec_rad, dtype=np.float64)).as_matrix()
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of a rotation matrix (3,3) or (N,3,3)."""
+    return Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
+
+
+def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Right Jacobian Jr(phi) of SO(3): exp(phi + d) ~ exp(phi) exp(Jr(phi) d)."""
+    phi = np.asarray(phi, dtype=np.float64)
+    theta = float(np.linalg.norm(phi))
+    K = skew(phi)
+    if theta < 1e-6:
+        return np.eye(3) - 0.5 * K + K @ K / 6.0
+    return (
+        np.eye(3)
+        - (1.0 - np.cos(theta)) / theta**2 * K
+        + (theta - np.sin(theta)) / theta**3 * K @ K
+    )
+
+
+def quat_xyzw_to_rot(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Rotation matrix from quaternion(s) in xyzw order (normalised on the way)."""
+    return Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)).as_matrix()
+
+
+def rot_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
+    """Quaternion(s) xyzw of rotation matrix(es), with w >= 0."""
+    q = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
+    sign = np.where(q[..., 3:4] < 0.0, -1.0, 1.0)
+    return q * sign
+
+
+def make_pose(R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
+    """A (4,4) pose from rotation R (3,3) and translation t (3,)."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = R
+    if t is not None:
+        T[:3, 3] = t
+    return T
+
+
+def pose_from_xyz_quat(xyz: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
+    """Pose(s) (4,4)/(N,4,4) from translation(s) and xyzw quaternion(s)."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    R = quat_xyzw_to_rot(quat_xyzw)
+    T = np.zeros(xyz.shape[:-1] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = xyz
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def pose_to_xyz_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation(s) and xyzw quaternion(s) of pose(s)."""
+    T = np.asarray(T, dtype=np.float64)
+    return T[..., :3, 3].copy(), rot_to_quat_xyzw(T[..., :3, :3])
+
+
+def inv_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid pose(s) (4,4) or (N,4,4), using R^T."""
+    T = np.asarray(T, dtype=np.float64)
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply one pose (4,4) to points (N,3), or per-point poses (N,4,4) to points (N,3)."""
+    T = np.asarray(T, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64)
+    if T.ndim == 2:
+        return points @ T[:3, :3].T + T[:3, 3]
+    return np.einsum("nij,nj->ni", T[:, :3, :3], points) + T[:, :3, 3]
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """Decoupled log of pose(s): (rho_xyz, phi_rotvec) stacked as (...,6). Translation is taken as is."""
+    T = np.asarray(T, dtype=np.float64)
+    return np.concatenate([T[..., :3, 3], so3_log(T[..., :3, :3])], axis=-1)
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`se3_log` (decoupled: translation and rotation vector)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    T = np.zeros(xi.shape[:-1] + (4, 4))
+    T[..., :3, :3] = so3_exp(xi[..., 3:6])
+    T[..., :3, 3] = xi[..., :3]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.ndarray) -> np.ndarray:
+    """Poses at ``query_ns`` by linear interpolation of translation and slerp of rotation.
+
+    ``stamps_ns`` must be strictly increasing; queries outside are clamped to the ends.
+    """
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    query_ns = np.asarray(query_ns, dtype=np.int64)
+    if len(stamps_ns) == 1:
+        return np.repeat(poses[:1], len(query_ns), axis=0)
+    idx = np.clip(np.searchsorted(stamps_ns, query_ns, side="right") - 1, 0, len(stamps_ns) - 2)
+    t0 = stamps_ns[idx]
+    span = (stamps_ns[idx + 1] - t0).astype(np.float64)
+    alpha = np.clip((query_ns - t0).astype(np.float64) / span, 0.0, 1.0)
+    P0, P1 = poses[idx], poses[idx + 1]
+    rel = np.einsum("nji,njk->nik", P0[:, :3, :3], P1[:, :3, :3])
+    dphi = so3_log(rel) * alpha[:, None]
+    out = np.zeros((len(query_ns), 4, 4))
+    out[:, :3, :3] = P0[:, :3, :3] @ so3_exp(dphi)
+    out[:, :3, 3] = P0[:, :3, 3] + alpha[:, None] * (P1[:, :3, 3] - P0[:, :3, 3])
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def yaw_of(R: np.ndarray) -> np.ndarray:
+    """Heading (rad) of rotation matrix(es) about world z."""
+    R = np.asarray(R, dtype=np.float64)
+    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+
+def make_se2(theta_rad: float, tx_m: float, ty_m: float) -> np.ndarray:
+    """SE(2) matrix (3,3), as in the lecture."""
+    c, s = np.cos(theta_rad), np.sin(theta_rad)
+    return np.array([[c, -s, tx_m], [s, c, ty_m], [0.0, 0.0, 1.0]])
+
+
+def se2_to_se3(T2: np.ndarray) -> np.ndarray:
+    """Embed an SE(2) matrix in SE(3) (rotation about z, z = 0)."""
+    T = np.eye(4)
+    T[:2, :2] = T2[:2, :2]
+    T[:2, 3] = T2[:2, 2]
+    return T
+
+
+def project_to_se2(T: np.ndarray) -> np.ndarray:
+    """Closest planar pose(s): keep x, y and yaw; drop z, roll and pitch."""
+    T = np.asarray(T, dtype=np.float64)
+    yaw = yaw_of(T[..., :3, :3])
+    out = np.zeros_like(T)
+    c, s = np.cos(yaw), np.sin(yaw)
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
+    out[..., 2, 2] = 1.0
+    out[..., 0, 3], out[..., 1, 3] = T[..., 0, 3], T[..., 1, 3]
+    out[..., 3, 3] = 1.0
+    return out

@@ -1,0 +1,192 @@
+"""Decode ``sensor_msgs/PointCloud2`` and ``sensor_msgs/LaserScan`` into :class:`PointCloud`.
+
+Per-point time conventions (DESIGN.md): ``time`` (Velodyne, float s relative), ``t`` (Ouster, uint32 ns
+relative), ``offset_time`` (Livox, uint32 ns relative), ``timestamp`` (Hesai, float64 s absolute),
+``stamps``/``timestamps``. Float fields are seconds, integer fields nanoseconds; a value too large to be an
+offset is absolute time. Relative offsets are added to the header stamp, which may mark the scan's start
+(offsets >= 0) or end (offsets <= 0). Without a time field, stamps are derived from azimuth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .records import PointCloud, TimeConvention
+
+# sensor_msgs/PointField datatypes -> numpy type codes
+_DATATYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+# Field names searched, in order, for per-point time, with the label used in reports.
+_TIME_FIELDS = (
+    ("t", "ouster"),
+    ("offset_time", "livox"),
+    ("time", "velodyne"),
+    ("timestamp", "hesai"),
+    ("timestamps", "stamps"),
+    ("stamps", "stamps"),
+)
+_ABSOLUTE_S = 1e6  # a float "offset" beyond 11.6 days is absolute time
+_ABSOLUTE_NS = 1e15
+
+NAMED_CONVENTIONS = {
+    "velodyne": TimeConvention("velodyne", "time", 1e9, False),
+    "ouster": TimeConvention("ouster", "t", 1.0, False),
+    "livox": TimeConvention("livox", "offset_time", 1.0, False),
+    "hesai": TimeConvention("hesai", "timestamp", 1e9, True),
+    "azimuth": TimeConvention("azimuth", None, 1.0, False),
+    "none": TimeConvention("none", None, 1.0, False),
+}
+_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
+
+DEFAULT_SCAN_PERIOD_NS = 100_000_000
+
+
+def parse_time_convention(spec: str) -> TimeConvention:
+    """``velodyne|ouster|livox|hesai|azimuth|none`` or ``FIELD:UNIT[:abs]`` (UNIT in s, ms, us, ns)."""
+    if spec in NAMED_CONVENTIONS:
+        return NAMED_CONVENTIONS[spec]
+    parts = spec.split(":")
+    if len(parts) in (2, 3) and parts[0] and parts[1] in _UNITS and (len(parts) == 2 or parts[2] in ("abs", "rel")):
+        return TimeConvention("custom", parts[0], _UNITS[parts[1]], len(parts) == 3 and parts[2] == "abs")
+    raise InputError(
+        f"unknown per-point time convention '{spec}' (use {', '.join(NAMED_CONVENTIONS)} or FIELD:UNIT[:abs|rel], "
+        "e.g. time:s or t:ns)"
+    )
+
+
+def stamp_to_ns(stamp) -> int:
+    """builtin_interfaces/Time (ROS 1 or 2) to integer ns."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def cloud_dtype(msg) -> np.dtype:
+    """The numpy structured dtype one point of ``msg`` has, from its fields, point_step and endianness."""
+    order = ">" if msg.is_bigendian else "<"
+    names, formats, offsets = [], [], []
+    for f in msg.fields:
+        code = _DATATYPES.get(int(f.datatype))
+        if code is None:
+            raise InputError(f"PointCloud2 field '{f.name}' has unknown datatype {f.datatype}")
+        names.append(f.name)
+        formats.append((order + code, (int(f.count),)) if int(f.count) > 1 else order + code)
+        offsets.append(int(f.offset))
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": int(msg.point_step)})
+
+
+def _structured(msg) -> np.ndarray:
+    dtype = cloud_dtype(msg)
+    height, width = int(msg.height), int(msg.width)
+    data = np.asarray(msg.data, dtype=np.uint8)
+    row_bytes = width * int(msg.point_step)
+    if height * width == 0:
+        return np.zeros(0, dtype=dtype)
+    row_step = int(msg.row_step) or row_bytes
+    if len(data) < (height - 1) * row_step + row_bytes:
+        raise InputError(
+            f"PointCloud2 data holds {len(data)} bytes, fewer than {height}x{width} points of {msg.point_step} bytes"
+        )
+    if row_step != row_bytes:  # rows padded: drop the padding per row
+        data = np.lib.stride_tricks.as_strided(data, (height, row_bytes), (row_step, 1)).reshape(-1)
+    else:
+        data = data[: height * row_bytes]
+    return np.frombuffer(np.ascontiguousarray(data).data, dtype=dtype, count=height * width)
+
+
+def detect_time_convention(msg) -> TimeConvention:
+    """The per-point time convention of a cloud message, from its fields (and one value's magnitude)."""
+    fields = {f.name: int(f.datatype) for f in msg.fields}
+    for name, label in _TIME_FIELDS:
+        if name in fields:
+            is_float = fields[name] in (7, 8)
+            scale = 1e9 if is_float else 1.0
+            absolute = label == "hesai"
+            if msg.width * msg.height > 0:
+                vals = _structured(msg)[name]
+                peak = float(np.nanmax(np.abs(vals[:64].astype(np.float64)))) if len(vals) else 0.0
+                absolute = peak > (_ABSOLUTE_S if is_float else _ABSOLUTE_NS)
+            return TimeConvention(label, name, scale, absolute)
+    return NAMED_CONVENTIONS["azimuth"]
+
+
+def _azimuth_offsets_ns(xyz: np.ndarray, period_ns: int, organised_width: int | None) -> np.ndarray:
+    """Offsets from scan start for a spinning sensor, from column index or unwrapped azimuth."""
+    n = len(xyz)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    if organised_width:
+        col = np.arange(n) % organised_width
+        return (col * (period_ns / organised_width)).astype(np.int64)
+    az = np.arctan2(xyz[:, 1], xyz[:, 0])
+    steps = np.diff(az)
+    steps = (steps + np.pi) % (2 * np.pi) - np.pi
+    direction = -1.0 if np.median(steps) < 0 else 1.0  # clockwise spin (Velodyne) gives decreasing azimuth
+    frac = ((direction * (az - az[0])) % (2 * np.pi)) / (2 * np.pi)
+    return (frac * period_ns).astype(np.int64)
+
+
+def decode_pointcloud2(
+    msg,
+    convention: TimeConvention | None = None,
+    scan_period_ns: int = DEFAULT_SCAN_PERIOD_NS,
+) -> PointCloud:
+    """Points (N,3) in the sensor frame with absolute per-point stamps; NaN/zero returns dropped with them."""
+    header_ns = stamp_to_ns(msg.header.stamp)
+    names = {f.name for f in msg.fields}
+    missing = {"x", "y", "z"} - names
+    if missing:
+        raise InputError(f"PointCloud2 has no {', '.join(sorted(missing))} field(s); fields are {sorted(names)}")
+    conv = convention or detect_time_convention(msg)
+    arr = _structured(msg)
+    xyz = np.empty((len(arr), 3), dtype=np.float64)
+    xyz[:, 0], xyz[:, 1], xyz[:, 2] = arr["x"], arr["y"], arr["z"]
+
+    if conv.field is not None:
+        if conv.field not in names:
+            raise InputError(
+                f"PointCloud2 has no per-point time field '{conv.field}' (fields: {', '.join(sorted(names))})"
+            )
+        raw_t = arr[conv.field]
+        if raw_t.dtype.kind == "f":
+            t_s = raw_t.astype(np.float64) * (conv.scale_ns * 1e-9)
+            if conv.absolute:  # seconds since epoch: subtract the header first to keep sub-us precision
+                t_s = t_s - header_ns * 1e-9
+            stamps = header_ns + np.rint(t_s * 1e9).astype(np.int64)
+        else:
+            t = raw_t.astype(np.int64)
+            if conv.scale_ns != 1.0:
+                t = np.rint(t * conv.scale_ns).astype(np.int64)
+            stamps = t if conv.absolute else header_ns + t
+    elif conv.name == "azimuth":
+        width = int(msg.width) if int(msg.height) > 1 else None
+        stamps = header_ns + _azimuth_offsets_ns(xyz, scan_period_ns, width)
+    else:
+        stamps = np.full(len(xyz), header_ns, dtype=np.int64)
+
+    valid = np.isfinite(xyz).all(axis=1) & (np.abs(xyz).sum(axis=1) > 0.0)
+    dropped = int(len(valid) - valid.sum())
+    if dropped:
+        xyz, stamps = xyz[valid], stamps[valid]
+    marks = _header_marks(header_ns, stamps)
+    return PointCloud(header_ns, str(msg.header.frame_id), xyz, stamps, conv, marks, dropped)
+
+
+def _header_marks(header_ns: int, stamps: np.ndarray) -> str:
+    if len(stamps) == 0:
+        return "start"
+    lo, hi = int(stamps.min()), int(stamps.max())
+    return "end" if abs(hi - header_ns) < abs(header_ns - lo) else "start"
+
+
+def decode_laserscan(msg) -> PointCloud:
+    """Planar points (z = 0) with per-beam stamps from ``time_increment``; invalid ranges dropped."""
+    header_ns = stamp_to_ns(msg.header.stamp)
+    ranges = np.asarray(msg.ranges, dtype=np.float64)
+    angles = float(msg.angle_min) + float(msg.angle_increment) * np.arange(len(ranges))
+    stamps = header_ns + np.rint(np.arange(len(ranges)) * float(msg.time_increment) * 1e9).astype(np.int64)
+    valid = np.isfinite(ranges) & (ranges >= float(msg.range_min)) & (ranges <= float(msg.range_max))
+    r, a = ranges[valid], angles[valid]
+    xyz = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=1)
+    conv = TimeConvention("laserscan", "time_increment", 1e9, False)
+    return PointCloud(
+        header_ns, str(msg.header.frame_id), xyz, stamps[valid], conv, "start", int((~valid).sum()), planar=True
+    )

@@ -1,0 +1,139 @@
+"""Typed sensor records decoded from log messages (DESIGN.md: int64 ns, float64 arrays)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TimeConvention:
+    """How a cloud carries per-point time.
+
+    ``field``: the PointCloud2 field name (``None`` when there is none and stamps come from azimuth).
+    ``scale_ns``: nanoseconds per unit of the field (1e9 for seconds, 1 for ns).
+    ``absolute``: the field holds absolute time instead of an offset from the header stamp.
+    ``name``: a short label (velodyne, ouster, livox, hesai, stamps, azimuth, none, custom).
+    """
+
+    name: str
+    field: str | None
+    scale_ns: float
+    absolute: bool = False
+
+    def describe(self) -> str:
+        if self.field is None:
+            return "none (stamps derived from azimuth)" if self.name == "azimuth" else "none (all points at header stamp)"
+        unit = {1e9: "s", 1e6: "ms", 1e3: "us", 1.0: "ns"}.get(self.scale_ns, f"x{self.scale_ns:g} ns")
+        kind = "absolute" if self.absolute else "relative to header"
+        return f"{self.name}: field '{self.field}' in {unit}, {kind}"
+
+
+@dataclass
+class PointCloud:
+    """One LiDAR scan: points in the sensor frame and each point's capture time.
+
+    ``stamp_ns`` is the header stamp; ``point_stamps_ns`` are absolute, aligned with ``points``.
+    ``header_marks`` says whether the header stamp marks the scan's ``start`` or ``end``.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    points: np.ndarray  # (N,3) float64
+    point_stamps_ns: np.ndarray  # (N,) int64
+    convention: TimeConvention
+    header_marks: str = "start"
+    dropped: int = 0  # invalid returns dropped while decoding
+    planar: bool = False  # from a LaserScan
+
+    @property
+    def start_ns(self) -> int:
+        return int(self.point_stamps_ns.min()) if len(self.point_stamps_ns) else self.stamp_ns
+
+    @property
+    def end_ns(self) -> int:
+        return int(self.point_stamps_ns.max()) if len(self.point_stamps_ns) else self.stamp_ns
+
+
+@dataclass
+class ImuBatch:
+    """Consecutive IMU samples as arrays, in the IMU frame."""
+
+    frame_id: str
+    stamps_ns: np.ndarray  # (N,) int64
+    gyro_radps: np.ndarray  # (N,3)
+    accel_mps2: np.ndarray  # (N,3)
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    @staticmethod
+    def concat(batches: list["ImuBatch"]) -> "ImuBatch":
+        if not batches:
+            return ImuBatch("", np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        return ImuBatch(
+            batches[0].frame_id,
+            np.concatenate([b.stamps_ns for b in batches]),
+            np.concatenate([b.gyro_radps for b in batches]),
+            np.concatenate([b.accel_mps2 for b in batches]),
+        )
+
+
+@dataclass
+class OdometryRecord:
+    """Wheel/robot odometry: pose of ``child_frame`` in ``frame_id`` and twist in the child frame."""
+
+    stamp_ns: int
+    frame_id: str
+    child_frame_id: str
+    pose: np.ndarray | None  # (4,4), None for a bare TwistStamped
+    linear_mps: np.ndarray  # (3,)
+    angular_radps: np.ndarray  # (3,)
+
+
+@dataclass
+class PoseRecord:
+    """A stamped pose (ground truth): ``T_frame_child``."""
+
+    stamp_ns: int
+    frame_id: str
+    child_frame_id: str
+    pose: np.ndarray  # (4,4)
+
+
+@dataclass
+class TransformRecord:
+    """One transform of a TF message: ``T_parent_child``."""
+
+    stamp_ns: int
+    parent: str
+    child: str
+    pose: np.ndarray
+
+
+@dataclass
+class TopicInfo:
+    """What a log says about one topic."""
+
+    name: str
+    msgtype: str
+    count: int
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+    @property
+    def rate_hz(self) -> float | None:
+        if self.count < 2 or self.first_ns is None or self.last_ns is None or self.last_ns <= self.first_ns:
+            return None
+        return (self.count - 1) / ((self.last_ns - self.first_ns) * 1e-9)
+
+
+@dataclass
+class Record:
+    """One item of a merged sensor stream: ``kind`` is lidar, imu, wheel or gt."""
+
+    kind: str
+    topic: str
+    stamp_ns: int
+    data: object = field(repr=False)

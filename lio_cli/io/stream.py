@@ -1,0 +1,223 @@
+"""Topic choice and one merged, time-ordered stream of typed sensor records.
+
+The log is read lazily in record-time order; each message is decoded and re-ordered by its header stamp
+through a small heap that holds at most ``reorder_window_ns`` of data, so memory stays bounded however
+long the log is. IMU samples are batched into arrays between other records.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from .decode import (
+    IMU,
+    KIND_FLAGS,
+    KIND_TYPES,
+    LASERSCAN,
+    POINTCLOUD2,
+    decode_odometry,
+    decode_pose,
+    imu_sample,
+)
+from .logs import LogReader
+from .pointcloud import DEFAULT_SCAN_PERIOD_NS, decode_laserscan, decode_pointcloud2, stamp_to_ns
+from .records import ImuBatch, Record, TimeConvention
+
+_KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth"}
+
+
+def select_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
+                 exclude: tuple[str, ...] = ()) -> str | None:
+    """The topic to read for ``kind`` (lidar, imu, wheel, gt): the one asked for, or the only candidate."""
+    accepted = KIND_TYPES[kind]
+    word = _KIND_WORDS[kind]
+    if requested is not None:
+        info = log.topics.get(requested)
+        if info is None:
+            candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
+            hint = f"; {word} topics here: {', '.join(candidates)}" if candidates else f"; it has no {word} topic"
+            raise InputError(f"{log.path}: topic {requested} not found{hint}")
+        if info.msgtype not in accepted:
+            raise InputError(
+                f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)})"
+            )
+        return requested
+    candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted and t not in exclude)
+    if kind == "gt":  # Odometry is ambiguous between wheel and ground truth: only take it when named so
+        poses = [t for t in candidates if log.topics[t].msgtype != "nav_msgs/msg/Odometry"]
+        named = [t for t in candidates if any(w in t.lower() for w in ("ground_truth", "groundtruth", "gt"))]
+        candidates = poses or named
+    if not candidates:
+        if required:
+            raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)})")
+        return None
+    if len(candidates) > 1:
+        raise InputError(
+            f"{log.path}: several {word} topics ({', '.join(candidates)}); choose one with {KIND_FLAGS[kind]}"
+        )
+    return candidates[0]
+
+
+@dataclass
+class StreamStats:
+    """What the stream dropped or repaired, for metrics and reports."""
+
+    messages: dict[str, int] = field(default_factory=dict)
+    backwards: dict[str, int] = field(default_factory=dict)
+    duplicates: dict[str, int] = field(default_factory=dict)
+    empty_clouds: int = 0
+    invalid_points: int = 0
+
+    def to_dict(self) -> dict:
+        return {
+            "messages": dict(self.messages),
+            "backwards_stamps_dropped": dict(self.backwards),
+            "duplicate_stamps_dropped": dict(self.duplicates),
+            "empty_clouds_skipped": self.empty_clouds,
+            "invalid_points_dropped": self.invalid_points,
+        }
+
+
+class SensorStream:
+    """Iterate typed records (kind lidar/imu/wheel/gt) of the chosen topics in header-stamp order.
+
+    ``strict``: stamps going backwards and clouds with no valid point raise ``InputError``; otherwise such
+    messages are dropped and counted in ``stats``.
+    """
+
+    def __init__(
+        self,
+        log: LogReader,
+        topics: dict[str, str],
+        *,
+        convention: TimeConvention | None = None,
+        scan_period_ns: int = DEFAULT_SCAN_PERIOD_NS,
+        reorder_window_ns: int = 500_000_000,
+        strict: bool = True,
+        imu_batch_size: int = 400,
+    ) -> None:
+        self.log = log
+        self.kind_of = {topic: kind for kind, topic in topics.items() if topic}
+        self.convention = convention
+        self.scan_period_ns = scan_period_ns
+        self.window_ns = reorder_window_ns
+        self.strict = strict
+        self.imu_batch_size = imu_batch_size
+        self.stats = StreamStats()
+        self._last: dict[str, int] = {}
+
+    def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
+        kind = self.kind_of[topic]
+        if kind == "lidar":
+            if msgtype == POINTCLOUD2:
+                cloud = decode_pointcloud2(msg, self.convention, self.scan_period_ns)
+            elif msgtype == LASERSCAN:
+                cloud = decode_laserscan(msg)
+            else:  # pragma: no cover - select_topic guards the type
+                raise InputError(f"{topic}: cannot read a scan from {msgtype}")
+            self.stats.invalid_points += cloud.dropped
+            if len(cloud.points) == 0:
+                if self.strict:
+                    raise InputError(
+                        f"{self.log.path}: {topic}: cloud at {_fmt_ns(cloud.stamp_ns)} has zero valid points "
+                        f"({cloud.dropped} NaN/zero returns); drop such scans or check the driver"
+                    )
+                self.stats.empty_clouds += 1
+                return None
+            return Record(kind, topic, cloud.stamp_ns, cloud)
+        if kind == "imu":
+            stamp, gyro, accel = imu_sample(msg)
+            if not (np.isfinite(gyro).all() and np.isfinite(accel).all()):
+                if self.strict:
+                    raise InputError(f"{self.log.path}: {topic}: IMU sample at {_fmt_ns(stamp)} holds NaN")
+                self.stats.invalid_points += 1
+                return None
+            return Record(kind, topic, stamp, (msg.header.frame_id, gyro, accel))
+        if kind == "wheel":
+            rec = decode_odometry(msg, msgtype)
+            return Record(kind, topic, rec.stamp_ns, rec)
+        rec = decode_pose(msg, msgtype)
+        return Record(kind, topic, rec.stamp_ns, rec)
+
+    def _accept(self, rec: Record) -> bool:
+        last = self._last.get(rec.topic)
+        if last is not None and rec.stamp_ns <= last:
+            what = "duplicated" if rec.stamp_ns == last else "going backwards"
+            if self.strict:
+                raise InputError(
+                    f"{self.log.path}: {rec.topic}: header stamps {what} ({_fmt_ns(rec.stamp_ns)} after "
+                    f"{_fmt_ns(last)}); fix the log's stamps or re-record"
+                )
+            bucket = self.stats.duplicates if rec.stamp_ns == last else self.stats.backwards
+            bucket[rec.topic] = bucket.get(rec.topic, 0) + 1
+            return False
+        self._last[rec.topic] = rec.stamp_ns
+        return True
+
+    def __iter__(self) -> Iterator[Record]:
+        heap: list[tuple[int, int, Record]] = []
+        seq = 0
+        imu: list[tuple[int, np.ndarray, np.ndarray]] = []
+        imu_topic, imu_frame = "", ""
+
+        def flush_imu() -> Iterator[Record]:
+            nonlocal imu
+            if imu:
+                batch = ImuBatch(
+                    imu_frame,
+                    np.array([s for s, _, _ in imu], dtype=np.int64),
+                    np.array([g for _, g, _ in imu]),
+                    np.array([a for _, _, a in imu]),
+                )
+                imu = []
+                yield Record("imu", imu_topic, int(batch.stamps_ns[0]), batch)
+
+        def emit(rec: Record) -> Iterator[Record]:
+            nonlocal imu_topic, imu_frame
+            if not self._accept(rec):
+                return
+            if rec.kind == "imu":
+                imu_frame, gyro, accel = rec.data
+                imu_topic = rec.topic
+                imu.append((rec.stamp_ns, gyro, accel))
+                if len(imu) >= self.imu_batch_size:
+                    yield from flush_imu()
+            else:
+                yield from flush_imu()
+                yield rec
+
+        for topic, msgtype, t_rec, msg in self.log.messages(self.kind_of):
+            self.stats.messages[topic] = self.stats.messages.get(topic, 0) + 1
+            rec = self._decode(topic, msgtype, msg)
+            if rec is None:
+                continue
+            heapq.heappush(heap, (rec.stamp_ns, seq, rec))
+            seq += 1
+            horizon = max(t_rec, rec.stamp_ns) - self.window_ns
+            while heap and heap[0][0] <= horizon:
+                yield from emit(heapq.heappop(heap)[2])
+        while heap:
+            yield from emit(heapq.heappop(heap)[2])
+        yield from flush_imu()
+
+
+def _fmt_ns(ns: int) -> str:
+    return f"{ns // 10**9}.{ns % 10**9:09d} s"
+
+
+def header_stamp_ns(msg) -> int:
+    return stamp_to_ns(msg.header.stamp)
+
+
+def read_imu(log: LogReader, topic: str, strict: bool = False) -> ImuBatch:
+    """All IMU samples of a topic, as one batch (IMU data is small: 200 Hz x 1 h is 35 MB)."""
+    stream = SensorStream(log, {"imu": topic}, strict=strict)
+    return ImuBatch.concat([r.data for r in stream if r.kind == "imu"])
+
+
+__all__ = ["SensorStream", "StreamStats", "select_topic", "read_imu", "header_stamp_ns", "IMU"]

@@ -1,0 +1,70 @@
+"""Static transforms from /tf_static: a frame tree whose chains are resolved on lookup."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..geometry import inv_pose
+from .decode import TF_MESSAGE, decode_tf
+from .logs import LogReader
+from .records import TransformRecord
+
+TF_STATIC_TOPIC = "/tf_static"
+
+
+class FrameTree:
+    """Undirected graph of rigid transforms; ``lookup(a, b)`` gives ``T_a_b`` through any chain."""
+
+    def __init__(self, transforms: list[TransformRecord] | None = None) -> None:
+        self._edges: dict[str, dict[str, np.ndarray]] = {}
+        self.transforms: list[TransformRecord] = []
+        for tr in transforms or []:
+            self.add(tr)
+
+    def add(self, tr: TransformRecord) -> None:
+        self.transforms = [t for t in self.transforms if not (t.parent == tr.parent and t.child == tr.child)]
+        self.transforms.append(tr)
+        self._edges.setdefault(tr.parent, {})[tr.child] = tr.pose  # T_parent_child
+        self._edges.setdefault(tr.child, {})[tr.parent] = inv_pose(tr.pose)
+
+    @property
+    def frames(self) -> list[str]:
+        return sorted(self._edges)
+
+    def lookup(self, target: str, source: str) -> np.ndarray | None:
+        """``T_target_source`` (maps points from ``source`` into ``target``), or None if unconnected."""
+        target, source = target.lstrip("/"), source.lstrip("/")
+        if target == source:
+            return np.eye(4)
+        if target not in self._edges or source not in self._edges:
+            return None
+        # breadth-first search from target; accumulate T_target_frame
+        seen = {target: np.eye(4)}
+        queue = deque([target])
+        while queue:
+            frame = queue.popleft()
+            for nxt, T_frame_nxt in self._edges[frame].items():
+                if nxt not in seen:
+                    seen[nxt] = seen[frame] @ T_frame_nxt
+                    if nxt == source:
+                        return seen[nxt]
+                    queue.append(nxt)
+        return None
+
+
+def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTree:
+    """All transforms on /tf_static (usually a handful of latched messages at the start)."""
+    tree = FrameTree()
+    info = log.topics.get(topic)
+    if info is None or info.msgtype != TF_MESSAGE:
+        return tree
+    seen = 0
+    for _, _, _, msg in log.messages([topic]):
+        for tr in decode_tf(msg):
+            tree.add(tr)
+        seen += 1
+        if seen >= info.count:
+            break
+    return tree
