@@ -1,0 +1,66 @@
+"""Per-point motion compensation (de-skewing).
+
+Each point was measured from the sensor pose at its own stamp. Given the base trajectory over the scan
+(``T_world_base`` at knot stamps), every point is moved into the base frame at the reference instant:
+``p_base_ref = T_world_base(t_ref)^-1 T_world_base(t_j) T_base_lidar p_lidar``.
+Only the motion within the scan matters, so a constant error in the trajectory cancels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import inv_pose, so3_exp, so3_log
+
+
+def relative_poses_at(knot_stamps_ns: np.ndarray, knot_poses: np.ndarray, query_ns: np.ndarray,
+                      t_ref_ns: int) -> np.ndarray:
+    """``T_base(ref)_base(t)`` for every query stamp, interpolating the knots (clamped at the ends)."""
+    knot_stamps_ns = np.asarray(knot_stamps_ns, dtype=np.int64)
+    ref = _pose_at(knot_stamps_ns, knot_poses, t_ref_ns)
+    rel_knots = inv_pose(ref)[None] @ knot_poses  # T_ref_knot
+    m = len(knot_stamps_ns)
+    query_ns = np.asarray(query_ns, dtype=np.int64)
+    if m == 1:
+        return np.repeat(rel_knots, len(query_ns), axis=0)
+    idx = np.clip(np.searchsorted(knot_stamps_ns, query_ns, side="right") - 1, 0, m - 2)
+    span = np.maximum(np.diff(knot_stamps_ns), 1).astype(np.float64)
+    a = np.clip((query_ns - knot_stamps_ns[idx]) / span[idx], 0.0, 1.0)
+    R0 = rel_knots[:-1, :3, :3]
+    step = so3_log(np.einsum("kji,kjl->kil", R0, rel_knots[1:, :3, :3]))  # rotation knot k -> k+1, in k's frame
+    out = np.zeros((len(query_ns), 4, 4))
+    out[:, :3, :3] = R0[idx] @ so3_exp(step[idx] * a[:, None])
+    t0, t1 = rel_knots[:-1, :3, 3], rel_knots[1:, :3, 3]
+    out[:, :3, 3] = t0[idx] + a[:, None] * (t1 - t0)[idx]
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def _pose_at(stamps_ns: np.ndarray, poses: np.ndarray, t_ns: int) -> np.ndarray:
+    if len(stamps_ns) == 1:
+        return poses[0]
+    i = int(np.clip(np.searchsorted(stamps_ns, t_ns, side="right") - 1, 0, len(stamps_ns) - 2))
+    span = max(int(stamps_ns[i + 1] - stamps_ns[i]), 1)
+    a = float(np.clip((t_ns - stamps_ns[i]) / span, 0.0, 1.0))
+    T = np.eye(4)
+    T[:3, :3] = poses[i, :3, :3] @ so3_exp(a * so3_log(poses[i, :3, :3].T @ poses[i + 1, :3, :3]))
+    T[:3, 3] = (1 - a) * poses[i, :3, 3] + a * poses[i + 1, :3, 3]
+    return T
+
+
+def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.ndarray, knot_poses: np.ndarray,
+           t_ref_ns: int, T_base_lidar: np.ndarray) -> np.ndarray:
+    """Points (N,3) in the base frame at ``t_ref_ns``, each corrected for the motion since its stamp."""
+    p_base = points_lidar @ T_base_lidar[:3, :3].T + T_base_lidar[:3, 3]
+    rel = relative_poses_at(knot_stamps_ns, knot_poses, stamps_ns, t_ref_ns)
+    return np.einsum("nij,nj->ni", rel[:, :3, :3], p_base) + rel[:, :3, 3]
+
+
+def to_base(points_lidar: np.ndarray, T_base_lidar: np.ndarray) -> np.ndarray:
+    """No motion compensation: points just moved into the base frame."""
+    return points_lidar @ T_base_lidar[:3, :3].T + T_base_lidar[:3, 3]
+
+
+def constant_velocity_knots(delta: np.ndarray, t_prev_ns: int, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Knots for de-skewing with the last inter-scan motion ``delta`` = T_base(prev)_base(ref) (relative poses)."""
+    return np.array([t_prev_ns, t_ref_ns], dtype=np.int64), np.stack([np.eye(4), delta])

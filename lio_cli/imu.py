@@ -1,0 +1,247 @@
+"""IMU model: start-up (gravity, gyro bias), and propagation of the base state between two stamps.
+
+Measurement model (lecture): gyro ``w_i = R_i_b w_b + b_g + n``, accelerometer
+``f_i = R_i_w (a_imu - g) + b_a + n`` with ``g = (0, 0, -9.81)``. The IMU sits at lever arm ``r`` in the
+base frame, so ``a_imu = a_base + R_w_b (alpha_b x r + w_b x (w_b x r))``.
+
+The propagated state is the base frame's: rotation ``R_world_base``, position and velocity in world,
+biases in the IMU frame. Covariance of the 15-dim error state [dtheta, dp, dv, dbg, dba] (rotation error
+on the right: R = R_hat exp(dtheta)) is propagated alongside for the EKF.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .io.records import ImuBatch
+
+GRAVITY_MPS2 = 9.81
+
+
+def exp_so3(phi: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for one rotation vector (fast path for the propagation loop)."""
+    theta = float(np.sqrt(phi @ phi))
+    K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if theta < 1e-9:
+        return np.eye(3) + K
+    return np.eye(3) + (np.sin(theta) / theta) * K + ((1.0 - np.cos(theta)) / theta**2) * (K @ K)
+
+
+def log_so3(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of one rotation matrix (fast path)."""
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    theta = float(np.arccos(c))
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if theta < 1e-6:
+        return 0.5 * w
+    if np.pi - theta < 1e-3:  # near pi the antisymmetric part vanishes: use the robust general routine
+        from .geometry import so3_log
+
+        return so3_log(R)
+    return theta / (2.0 * np.sin(theta)) * w
+
+
+def hat(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+@dataclass
+class NavState:
+    """Base state at ``stamp_ns`` with its error-state covariance ``P`` (15x15)."""
+
+    stamp_ns: int
+    R: np.ndarray  # R_world_base
+    p: np.ndarray  # base origin in world
+    v: np.ndarray  # base velocity in world
+    bg: np.ndarray  # gyro bias, IMU frame
+    ba: np.ndarray  # accel bias, IMU frame
+    P: np.ndarray = field(default_factory=lambda: np.eye(15) * 1e-6)
+
+    def pose(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R, self.p
+        return T
+
+    def copy(self) -> "NavState":
+        return NavState(self.stamp_ns, self.R.copy(), self.p.copy(), self.v.copy(), self.bg.copy(), self.ba.copy(),
+                        self.P.copy())
+
+
+@dataclass
+class StartUp:
+    """How the state was initialised."""
+
+    static: bool
+    R_world_base: np.ndarray
+    gyro_bias: np.ndarray
+    samples: int
+    reason: str
+
+
+def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
+    """R_world_base whose world z is 'up' as the specific force ``f_base`` (at rest) says; yaw zero."""
+    up = f_base / np.linalg.norm(f_base)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(up @ z)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    R = exp_so3(axis / s * np.arctan2(s, c))  # rotates up (base) onto world z
+    yaw = np.arctan2(R[1, 0], R[0, 0])
+    Rz = exp_so3(np.array([0.0, 0.0, -yaw]))
+    return Rz @ R
+
+
+def start_up(imu: ImuBatch, R_base_imu: np.ndarray, window_ns: int, gravity_mps2: float = GRAVITY_MPS2,
+             gyro_still_radps: float = 0.05, accel_still_mps2: float = 0.3) -> StartUp:
+    """Estimate gravity direction and gyro bias from a standing start, or fall back to a moving start."""
+    if len(imu) == 0:
+        return StartUp(False, np.eye(3), np.zeros(3), 0, "no IMU data before the first scan: level start assumed")
+    sel = imu.stamps_ns <= imu.stamps_ns[0] + window_ns
+    gyro, accel = imu.gyro_radps[sel], imu.accel_mps2[sel]
+    n = int(sel.sum())
+    f_base = R_base_imu @ accel.mean(axis=0)
+    gyro_dev = float(np.linalg.norm(gyro - gyro.mean(axis=0), axis=1).max()) if n else np.inf
+    accel_dev = float(np.abs(np.linalg.norm(accel, axis=1) - gravity_mps2).max()) if n else np.inf
+    R = gravity_aligned_rotation(f_base)
+    if n >= 10 and gyro_dev < gyro_still_radps and accel_dev < accel_still_mps2:
+        return StartUp(True, R, gyro.mean(axis=0), n,
+                       f"standing start: gravity and gyro bias from {n} IMU samples")
+    return StartUp(False, R, np.zeros(3), n,
+                   f"moving start (gyro spread {gyro_dev:.3f} rad/s, accel spread {accel_dev:.2f} m/s^2): "
+                   "gravity from mean specific force, gyro bias zero")
+
+
+@dataclass
+class Extrinsics:
+    """Rigid mounting of IMU and LiDAR on the base."""
+
+    T_base_imu: np.ndarray
+    T_base_lidar: np.ndarray
+
+    @property
+    def R_base_imu(self) -> np.ndarray:
+        return self.T_base_imu[:3, :3]
+
+    @property
+    def lever_m(self) -> np.ndarray:
+        return self.T_base_imu[:3, 3]
+
+
+@dataclass
+class Propagation:
+    """Base poses along the propagated interval (for deskew) and the final state."""
+
+    stamps_ns: np.ndarray
+    poses: np.ndarray  # (M,4,4) T_world_base
+    state: NavState
+    gap: bool  # the interval had an IMU gap or no IMU at all
+
+
+def interpolate_imu(imu: ImuBatch, t_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gyro and accel at ``t_ns`` by linear interpolation (held at the ends)."""
+    st = imu.stamps_ns
+    i = int(np.searchsorted(st, t_ns))
+    if i <= 0:
+        return imu.gyro_radps[0], imu.accel_mps2[0]
+    if i >= len(st):
+        return imu.gyro_radps[-1], imu.accel_mps2[-1]
+    a = (t_ns - st[i - 1]) / (st[i] - st[i - 1])
+    return ((1 - a) * imu.gyro_radps[i - 1] + a * imu.gyro_radps[i],
+            (1 - a) * imu.accel_mps2[i - 1] + a * imu.accel_mps2[i])
+
+
+def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
+              gravity_mps2: float = GRAVITY_MPS2, noise=None, max_gap_ns: int = 50_000_000,
+              planar: bool = False) -> Propagation:
+    """Integrate the IMU from ``state.stamp_ns`` to ``t_end_ns`` (midpoint rule, lever arm included).
+
+    ``imu`` should hold samples spanning the interval; where it does not (a gap, or no data), the last
+    angular rate is held and acceleration taken as zero, and ``gap`` is set.
+    """
+    t0 = state.stamp_ns
+    g = np.array([0.0, 0.0, -gravity_mps2])
+    R_bi, r = ext.R_base_imu, ext.lever_m
+    s = state.copy()
+    if len(imu) == 0:
+        return _hold(s, t_end_ns)
+    inside = (imu.stamps_ns > t0) & (imu.stamps_ns < t_end_ns)
+    times = np.concatenate([[t0], imu.stamps_ns[inside], [t_end_ns]])
+    gyro0, acc0 = interpolate_imu(imu, t0)
+    gyro1, acc1 = interpolate_imu(imu, t_end_ns)
+    gyros = np.vstack([gyro0, imu.gyro_radps[inside], gyro1])
+    accs = np.vstack([acc0, imu.accel_mps2[inside], acc1])
+    gap = bool(np.diff(times).max(initial=0) > max_gap_ns) or imu.stamps_ns[-1] < t_end_ns - max_gap_ns \
+        or imu.stamps_ns[0] > t0 + max_gap_ns
+    w_b = (gyros - s.bg) @ R_bi.T  # base angular rate at each time
+    f_b = (accs - s.ba) @ R_bi.T  # specific force at the IMU, base axes
+    n = len(times)
+    poses = np.zeros((n, 4, 4))
+    poses[:, 3, 3] = 1.0
+    poses[0, :3, :3], poses[0, :3, 3] = s.R, s.p
+    dts = np.diff(times) * 1e-9
+    Pn = _noise_matrix(noise)
+    for k in range(n - 1):
+        dt = dts[k]
+        if dt <= 0:
+            poses[k + 1] = poses[k]
+            continue
+        alpha = (w_b[k + 1] - w_b[k]) / dt
+        a0 = s.R @ (f_b[k] - np.cross(alpha, r) - np.cross(w_b[k], np.cross(w_b[k], r))) + g
+        w_mid = 0.5 * (w_b[k] + w_b[k + 1])
+        R1 = s.R @ exp_so3(w_mid * dt)
+        a1 = R1 @ (f_b[k + 1] - np.cross(alpha, r) - np.cross(w_b[k + 1], np.cross(w_b[k + 1], r))) + g
+        a = 0.5 * (a0 + a1)
+        if Pn is not None:
+            s.P = _propagate_cov(s.P, s.R, R_bi, w_mid, 0.5 * (f_b[k] + f_b[k + 1]), dt, Pn)
+        s.p = s.p + s.v * dt + 0.5 * a * dt * dt
+        s.v = s.v + a * dt
+        s.R = R1
+        if planar:
+            _flatten(s)
+        poses[k + 1, :3, :3], poses[k + 1, :3, 3] = s.R, s.p
+    s.stamp_ns = int(t_end_ns)
+    return Propagation(times, poses, s, gap)
+
+
+def _hold(s: NavState, t_end_ns: int) -> Propagation:
+    """No IMU: constant velocity, no rotation."""
+    dt = (t_end_ns - s.stamp_ns) * 1e-9
+    start = s.pose()
+    s.p = s.p + s.v * dt
+    s.stamp_ns = int(t_end_ns)
+    s.P = s.P + np.diag([1e-4] * 3 + [1e-3] * 3 + [1e-2] * 3 + [0.0] * 6) * max(dt, 0.0)
+    return Propagation(np.array([t_end_ns - int(dt * 1e9), t_end_ns], dtype=np.int64), np.stack([start, s.pose()]), s, True)
+
+
+def _flatten(s: NavState) -> None:
+    """Keep a planar state in SE(2): no roll, pitch, z or vertical speed."""
+    yaw = np.arctan2(s.R[1, 0], s.R[0, 0])
+    c, si = np.cos(yaw), np.sin(yaw)
+    s.R = np.array([[c, -si, 0.0], [si, c, 0.0], [0.0, 0.0, 1.0]])
+    s.p[2] = 0.0
+    s.v[2] = 0.0
+
+
+def _noise_matrix(noise) -> np.ndarray | None:
+    if noise is None:
+        return None
+    return np.array([noise.gyro_noise_radps, noise.accel_noise_mps2, noise.gyro_bias_walk, noise.accel_bias_walk]) ** 2
+
+
+def _propagate_cov(P: np.ndarray, R: np.ndarray, R_bi: np.ndarray, w_b: np.ndarray, f_b: np.ndarray, dt: float,
+                   q: np.ndarray) -> np.ndarray:
+    F = np.eye(15)
+    F[0:3, 0:3] = exp_so3(-w_b * dt)
+    F[0:3, 9:12] = -R_bi * dt
+    F[3:6, 6:9] = np.eye(3) * dt
+    F[6:9, 0:3] = -R @ hat(f_b) * dt
+    F[6:9, 12:15] = -R @ R_bi * dt
+    Q = np.zeros(15)
+    Q[0:3] = q[0] * dt
+    Q[6:9] = q[1] * dt
+    Q[9:12] = q[2] * dt
+    Q[12:15] = q[3] * dt
+    return F @ P @ F.T + np.diag(Q)

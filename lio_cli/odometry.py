@@ -1,0 +1,332 @@
+"""IMU-primed scan matching: the lecture's LIO pipeline on kiss-icp's registration and voxel map.
+
+Per scan: propagate the IMU state to the scan's reference instant (its end by default), de-skew every
+point with the propagated pose at its own stamp, register the de-skewed scan to the local map starting
+from the IMU prediction, check the geometry for degenerate directions, then correct the state (EKF or
+complementary filter) so the corrected velocity and biases prime the next scan.
+
+This is the only module that imports kiss_icp.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from kiss_icp.mapping import VoxelHashMap
+from kiss_icp.registration import Registration
+from kiss_icp.threshold import AdaptiveThreshold
+from kiss_icp.voxelization import voxel_down_sample
+from scipy.spatial import cKDTree
+
+from .config import OdomConfig
+from .deskew import constant_velocity_knots, deskew, relative_poses_at, to_base
+from .fusion import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
+from .geometry import inv_pose, project_to_se2
+from .imu import Extrinsics, NavState, StartUp, propagate
+from .io.records import ImuBatch, OdometryRecord, PointCloud
+
+_MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
+_MAX_JUMP_RAD = 0.35
+
+
+@dataclass
+class ScanResult:
+    stamp_ns: int  # the reference instant the scan was de-skewed to
+    pose: np.ndarray  # T_world_base after correction
+    degenerate: bool
+    failed: bool
+
+
+@dataclass
+class OdomStats:
+    scans: int = 0
+    used: int = 0
+    skipped_few_points: int = 0
+    registration_failures: int = 0
+    degenerate: int = 0
+    imu_gaps: int = 0
+    wheel_updates: int = 0
+    times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
+                                                               "degeneracy": 0.0, "fuse": 0.0})
+
+
+class _KissMap:
+    """kiss-icp's voxel map, adaptive threshold and registration, driven with our own initial guesses."""
+
+    def __init__(self, cfg: OdomConfig, voxel_size_m: float) -> None:
+        rc = cfg.registration
+        self.voxel = voxel_size_m
+        self.map = VoxelHashMap(voxel_size_m, rc.max_range_m, rc.max_points_per_voxel)
+        self.registration = Registration(rc.max_iterations, rc.convergence, rc.threads)
+
+        class _Cfg:  # AdaptiveThreshold reads these three fields only
+            class adaptive_threshold:  # noqa: N801
+                initial_threshold = rc.initial_threshold_m
+                min_motion_th = rc.min_motion_m
+
+            class data:  # noqa: N801
+                max_range = rc.max_range_m
+
+        self.threshold = AdaptiveThreshold(_Cfg)
+
+    def downsample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        frame = voxel_down_sample(points, self.voxel * 0.5)
+        source = voxel_down_sample(frame, self.voxel * 1.5)
+        return frame, source
+
+    def register(self, source: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        if self.map.empty():
+            return guess
+        sigma = self.threshold.get_threshold()
+        return self.registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
+
+
+def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 10) -> list[np.ndarray]:
+    """Translation directions the scan's surfaces do not constrain (base frame).
+
+    Normals from local PCA give the point-to-plane information ``sum n n^T`` on translation; an eigenvalue
+    below ``ratio`` times the largest marks its eigenvector as degenerate (a corridor's axis).
+    """
+    dims = 2 if planar else 3
+    pts = points[:, :dims]
+    if len(pts) < k + 1:
+        return []
+    _, nn = cKDTree(pts).query(pts, k=k)
+    nb = pts[nn]
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", centred, centred) / k
+    w, v = np.linalg.eigh(cov)
+    normals = v[:, :, 0]  # smallest eigenvalue's vector
+    # weight by how flat the neighbourhood is (lines and blobs give no reliable normal)
+    flat = 1.0 - w[:, 0] / np.maximum(w[:, 1], 1e-12)
+    info = np.einsum("n,ni,nj->ij", flat, normals, normals)
+    lam, vec = np.linalg.eigh(info)
+    if lam[-1] <= 0:
+        return []
+    out = []
+    for i in range(dims):
+        if lam[i] < ratio * lam[-1]:
+            d = np.zeros(3)
+            d[:dims] = vec[:, i]
+            out.append(d)
+    return out
+
+
+class LioOdometry:
+    """Feed IMU batches, wheel records and scans (in time order); get one pose per scan."""
+
+    def __init__(self, cfg: OdomConfig, ext: Extrinsics, *, use_imu: bool, planar: bool) -> None:
+        self.cfg = cfg
+        self.ext = ext
+        self.use_imu = use_imu
+        self.planar = planar
+        self.stats = OdomStats()
+        self.start: StartUp | None = None
+        self.state: NavState | None = None
+        self._imu: list[ImuBatch] = []
+        self._wheel: list[OdometryRecord] = []
+        self._kiss: _KissMap | None = None
+        self._last_pose = np.eye(4)
+        self._last_delta = np.eye(4)
+        self._last_ns: int | None = None
+
+    # ---- inputs -------------------------------------------------------------------------------
+    def add_imu(self, batch: ImuBatch) -> None:
+        self._imu.append(batch)
+
+    def add_wheel(self, rec: OdometryRecord) -> None:
+        self._wheel.append(rec)
+
+    def imu_until_ns(self) -> int | None:
+        return int(self._imu[-1].stamps_ns[-1]) if self._imu else None
+
+    def _imu_window(self, t0_ns: int) -> ImuBatch:
+        """IMU samples from just before ``t0_ns`` on; older batches are dropped (bounded memory)."""
+        imu = ImuBatch.concat(self._imu)
+        if len(imu):
+            keep = max(0, int(np.searchsorted(imu.stamps_ns, t0_ns)) - 2)
+            imu = ImuBatch(imu.frame_id, imu.stamps_ns[keep:], imu.gyro_radps[keep:], imu.accel_mps2[keep:])
+        self._imu = [imu] if len(imu) else []
+        return imu
+
+    # ---- start-up -----------------------------------------------------------------------------
+    def _initialise(self, t0_ns: int, start: StartUp) -> None:
+        self.start = start
+        P = np.diag([1e-4, 1e-4, 1e-2] + [1e-6] * 3 + ([1e-4] * 3 if start.static else [1.0] * 3)
+                    + ([1e-6] * 3 if start.static else [1e-4] * 3) + [1e-2] * 3)
+        self.state = NavState(t0_ns, start.R_world_base.copy(), np.zeros(3), np.zeros(3), start.gyro_bias.copy(),
+                              np.zeros(3), P)
+        self._last_pose = self.state.pose()
+
+    # ---- one scan -----------------------------------------------------------------------------
+    def process(self, cloud: PointCloud) -> ScanResult | None:
+        from .imu import start_up
+
+        cfg, st = self.cfg, self.stats
+        st.scans += 1
+        if len(cloud.points) < cfg.registration.min_points:
+            st.skipped_few_points += 1
+            return None
+        t_ref = cloud.end_ns if cfg.scan_reference == "end" else cloud.start_ns
+        if self._last_ns is not None and t_ref <= self._last_ns:
+            st.skipped_few_points += 1  # a scan not after the previous one cannot be placed
+            return None
+        if self.state is None:
+            imu = ImuBatch.concat(self._imu)
+            R_bi = self.ext.R_base_imu
+            window = int(cfg.static_init_s * 1e9)
+            start = start_up(imu, R_bi, window, cfg.gravity_mps2) if self.use_imu else \
+                StartUp(False, np.eye(3), np.zeros(3), 0, "no IMU in use: level start at the origin")
+            self._initialise(cloud.start_ns, start)
+        t_prev = self.state.stamp_ns if self._last_ns is None else self._last_ns
+
+        # 1. predict the motion over [t_prev, t_ref]
+        tick = time.perf_counter()
+        prop = None
+        if self.use_imu:
+            imu = self._imu_window(t_prev)
+            prop = propagate(self.state, imu, t_ref, self.ext, gravity_mps2=cfg.gravity_mps2,
+                             noise=cfg.fusion.imu if cfg.fusion.method == "ekf" else None, planar=self.planar)
+            st.imu_gaps += int(prop.gap)
+            self.state = prop.state
+            self._wheel_update(t_prev, t_ref)
+        st.times_s["propagate"] += time.perf_counter() - tick
+
+        # 2. de-skew
+        tick = time.perf_counter()
+        dt_scan = (t_ref - t_prev) * 1e-9
+        cv_delta = self._cv_delta(dt_scan)
+        if cfg.deskew == "imu" and prop is not None:
+            points = deskew(cloud.points, cloud.point_stamps_ns, prop.stamps_ns, prop.poses, t_ref, self.ext.T_base_lidar)
+        elif cfg.deskew in ("constant-velocity", "imu"):
+            knots, poses = constant_velocity_knots(cv_delta, t_prev, t_ref)
+            points = deskew(cloud.points, cloud.point_stamps_ns, knots, poses, t_ref, self.ext.T_base_lidar)
+        else:
+            points = to_base(cloud.points, self.ext.T_base_lidar)
+        rng = np.linalg.norm(points, axis=1)
+        points = points[(rng >= cfg.registration.min_range_m) & (rng <= cfg.registration.max_range_m)]
+        if len(points) < cfg.registration.min_points:
+            st.skipped_few_points += 1
+            return None
+        st.times_s["deskew"] += time.perf_counter() - tick
+
+        # 3. register, seeded with the prediction
+        tick = time.perf_counter()
+        if self._kiss is None:
+            self._kiss = _KissMap(cfg, cfg.registration.voxel_size_m or _auto_voxel(rng))
+        guess = self._guess(cv_delta, t_prev, t_ref)
+        frame, source = self._kiss.downsample(points)
+        measured = self._kiss.register(source, guess)
+        st.times_s["register"] += time.perf_counter() - tick
+
+        tick = time.perf_counter()
+        dirs_b = degenerate_directions(source, self.planar, cfg.fusion.degeneracy_ratio) if not self._kiss.map.empty() else []
+        st.times_s["degeneracy"] += time.perf_counter() - tick
+        if self.planar:
+            measured = project_to_se2(measured)
+        jump = inv_pose(guess) @ measured
+        failed = not np.isfinite(measured).all() or (
+            self.use_imu and not self._kiss.map.empty()
+            and (np.linalg.norm(jump[:3, 3]) > _MAX_JUMP_M
+                 or np.arccos(np.clip((np.trace(jump[:3, :3]) - 1) / 2, -1, 1)) > _MAX_JUMP_RAD))
+        if failed:
+            st.registration_failures += 1
+            measured = guess
+        st.degenerate += int(bool(dirs_b))
+
+        # 4. correct the state
+        tick = time.perf_counter()
+        pose = self._correct(measured, guess, dirs_b, dt_scan, failed)
+        st.times_s["fuse"] += time.perf_counter() - tick
+
+        if not failed:
+            self._kiss.threshold.update_model_deviation(inv_pose(guess) @ measured)
+        self._kiss.map.update(frame, pose)
+        self._last_delta = inv_pose(self._last_pose) @ pose
+        self._last_pose = pose
+        self._last_ns = t_ref
+        st.used += 1
+        return ScanResult(t_ref, pose, bool(dirs_b), failed)
+
+    def _cv_delta(self, dt_s: float) -> np.ndarray:
+        """The last inter-scan motion, rescaled to this interval's length (constant velocity)."""
+        return self._last_delta
+
+    def _guess(self, cv_delta: np.ndarray, t_prev: int, t_ref: int) -> np.ndarray:
+        prior = self.cfg.prior
+        if prior == "imu" and self.use_imu:
+            return self.state.pose()
+        if prior == "constant-velocity":
+            return self._last_pose @ cv_delta
+        if prior == "wheel":
+            return self._last_pose @ self._wheel_delta(t_prev, t_ref)
+        return self._last_pose.copy()
+
+    def _wheel_records(self, t0: int, t1: int) -> list[OdometryRecord]:
+        recs = [w for w in self._wheel if t0 <= w.stamp_ns <= t1]
+        self._wheel = [w for w in self._wheel if w.stamp_ns > t0 - 1_000_000_000]
+        return recs
+
+    def _wheel_delta(self, t0: int, t1: int) -> np.ndarray:
+        """Planar motion integrated from wheel speed and yaw rate over [t0, t1] (lecture's kinematics)."""
+        recs = [w for w in self._wheel if t0 - 100_000_000 <= w.stamp_ns <= t1]
+        if not recs:
+            return self._last_delta
+        v = float(np.mean([w.linear_mps[0] for w in recs]))
+        om = float(np.mean([w.angular_radps[2] for w in recs]))
+        dt = (t1 - t0) * 1e-9
+        th = om * dt
+        T = np.eye(4)
+        T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
+        T[0, 3], T[1, 3] = v * dt * np.cos(th / 2), v * dt * np.sin(th / 2)
+        return T
+
+    def _wheel_update(self, t0: int, t1: int) -> None:
+        if not (self.cfg.use_wheel and self.cfg.fusion.method == "ekf") or not self._wheel:
+            return
+        recs = [w for w in self._wheel if t0 <= w.stamp_ns <= t1 + 20_000_000]
+        self._wheel = [w for w in self._wheel if w.stamp_ns > t0 - 1_000_000_000]
+        if not recs:
+            return
+        v = np.mean([w.linear_mps for w in recs], axis=0)
+        s = self.cfg.fusion.wheel_speed_sigma_mps
+        ekf_body_velocity_update(self.state, np.array([v[0], 0.0, 0.0]), np.array([s, 2 * s, 2 * s]))
+        self.stats.wheel_updates += 1
+
+    def _correct(self, measured: np.ndarray, guess: np.ndarray, dirs_b: list[np.ndarray], dt_s: float,
+                 failed: bool) -> np.ndarray:
+        fc = self.cfg.fusion
+        if not self.use_imu:
+            pose = measured.copy()
+            if dirs_b and not failed:  # lean on the prior along unconstrained directions
+                R = guess[:3, :3]
+                dp = measured[:3, 3] - guess[:3, 3]
+                for d in dirs_b:
+                    dw = R @ d
+                    dp = dp - dw * (dw @ dp)
+                pose[:3, 3] = guess[:3, 3] + dp
+            return project_to_se2(pose) if self.planar else pose
+        if failed:
+            return self.state.pose()
+        dirs_w = [self.state.R @ d for d in dirs_b]
+        if fc.method == "ekf":
+            cov = position_noise(fc.position_sigma_m, dirs_w, fc.degenerate_sigma_m)
+            ekf_pose_update(self.state, measured, fc.rotation_sigma_rad, cov)
+        else:
+            complementary_update(self.state, measured, fc.alpha, dt_s, self.ext.R_base_imu, dirs_w)
+        if self.planar:
+            from .imu import _flatten
+
+            _flatten(self.state)
+        return self.state.pose()
+
+
+def _auto_voxel(ranges_m: np.ndarray) -> float:
+    """Map voxel size from the first scan: ~1% of the far ranges (kiss-icp's rule), within [0.25, 1.0] m."""
+    far = float(np.percentile(ranges_m, 95)) if len(ranges_m) else 100.0
+    return float(np.clip(far / 50.0, 0.25, 1.0))
+
+
+__all__ = ["LioOdometry", "ScanResult", "OdomStats", "degenerate_directions", "relative_poses_at"]
