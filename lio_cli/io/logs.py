@@ -7,7 +7,9 @@ third-party error is re-raised as ``InputError`` naming the file.
 
 from __future__ import annotations
 
+import re
 import sqlite3
+import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -126,6 +128,14 @@ class LogReader:
             raise self._wrap("cannot read messages", err) from err
 
 
+class _BagPath(type(Path())):
+    """A path that reports the .bag suffix, so rosbags' AnyReader reads it as a ROS 1 bag."""
+
+    @property
+    def suffix(self) -> str:
+        return ".bag"
+
+
 class _RosbagsLog(LogReader):
     """ROS 1 and ROS 2 bags through rosbags' AnyReader."""
 
@@ -135,21 +145,41 @@ class _RosbagsLog(LogReader):
         from rosbags.typesys import Stores, get_typestore
 
         default = get_typestore(Stores.ROS2_HUMBLE if fmt == "ros2" else Stores.ROS1_NOETIC)
+        if fmt == "ros1":
+            # AnyReader tells ROS 1 from ROS 2 by the .bag suffix; a bag named otherwise is ROS 1 by content
+            paths = [p if p.suffix == ".bag" else _BagPath(p) for p in paths]
         try:
             self._reader = AnyReader(paths, default_typestore=default)
             self._reader.open()
         except _READ_ERRORS as err:
-            raise InputError(f"{path}: cannot open as {fmt} log ({_first_line(err)})") from err
+            raise InputError(
+                f"{path}: cannot open as {fmt} log ({_first_line(err)}); the log may be truncated or corrupted"
+            ) from err
         r = self._reader
         if r.message_count:
-            self.start_ns, self.end_ns = int(r.start_time), int(r.end_time)
+            # rosbags' end_time is one past the last message
+            self.start_ns, self.end_ns = int(r.start_time), int(r.end_time) - 1
         counts: dict[str, TopicInfo] = {}
         for conn in r.connections:
             info = counts.setdefault(conn.topic, TopicInfo(conn.topic, conn.msgtype, 0))
             info.count += int(conn.msgcount)
+        try:
+            spans = self._ros1_spans() if fmt == "ros1" else _ros2_spans(paths[0])
+        except (OSError, sqlite3.Error, struct.error, ValueError, KeyError, TypeError, AttributeError):
+            spans = {}  # per-topic spans are a nicety for rates; the log's own span stands in
         for info in counts.values():
-            info.first_ns, info.last_ns = self.start_ns, self.end_ns
+            first, last = spans.get(info.name, (self.start_ns, self.end_ns))
+            info.first_ns, info.last_ns = (first, last) if info.count else (None, None)
         self.topics = counts
+
+    def _ros1_spans(self) -> dict[str, tuple[int, int]]:
+        """First and last record time per topic, from the bag index rosbags already holds in memory."""
+        spans: dict[str, tuple[int, int]] = {}
+        for conn in self._reader.connections:
+            idx = conn.owner.indexes.get(conn.id)
+            if idx:
+                _merge_span(spans, conn.topic, int(idx[0].time), int(idx[-1].time))
+        return spans
 
     def _iter_raw(self, topics: set[str] | None):
         conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
@@ -180,34 +210,51 @@ class _McapLog(LogReader):
         self._registered: set[str] = set()
         try:
             self._file = paths[0].open("rb")
-            self._reader = make_reader(self._file)
+            self._reader = make_reader(self._file, validate_crcs=True)
             summary = self._reader.get_summary()
         except _READ_ERRORS as err:
-            raise InputError(f"{path}: cannot open as MCAP ({_first_line(err)})") from err
-        if summary is None:
-            # No summary section (e.g. a recording cut short): count by scanning once.
+            raise InputError(
+                f"{path}: cannot open as MCAP ({_first_line(err)}); the file may be truncated or corrupted"
+            ) from err
+        if summary is None or summary.statistics is None:
+            # No summary section or no statistics (legal in MCAP): count by scanning once.
             self._scan_without_summary()
             return
         stats = summary.statistics
-        if stats is not None and stats.message_count:
+        if stats.message_count:
             self.start_ns, self.end_ns = int(stats.message_start_time), int(stats.message_end_time)
-        counts = stats.channel_message_counts if stats is not None else {}
+        counts = stats.channel_message_counts
+        try:
+            spans = _mcap_channel_spans(self._file, summary)
+        except (OSError, struct.error, ValueError):
+            spans = {}
         for cid, channel in summary.channels.items():
             schema = summary.schemas.get(channel.schema_id)
             msgtype = schema.name if schema else "unknown"
             info = self.topics.setdefault(channel.topic, TopicInfo(channel.topic, msgtype, 0))
             info.count += int(counts.get(cid, 0))
+            if cid in spans:
+                first, last = spans[cid]
+                info.first_ns = first if info.first_ns is None else min(info.first_ns, first)
+                info.last_ns = last if info.last_ns is None else max(info.last_ns, last)
         for info in self.topics.values():
-            info.first_ns, info.last_ns = self.start_ns, self.end_ns
+            if info.count and info.first_ns is None:
+                info.first_ns, info.last_ns = self.start_ns, self.end_ns
 
     def _scan_without_summary(self) -> None:
         start, end = None, None
         try:
-            for schema, channel, message in self._reader.iter_messages(log_time_order=False):
+            self._file.seek(0)
+            from mcap.reader import make_reader
+
+            reader = make_reader(self._file, validate_crcs=True)
+            for schema, channel, message in reader.iter_messages(log_time_order=False):
                 msgtype = schema.name if schema else "unknown"
                 info = self.topics.setdefault(channel.topic, TopicInfo(channel.topic, msgtype, 0))
                 info.count += 1
                 t = int(message.log_time)
+                info.first_ns = t if info.first_ns is None else min(info.first_ns, t)
+                info.last_ns = t if info.last_ns is None else max(info.last_ns, t)
                 start = t if start is None else min(start, t)
                 end = t if end is None else max(end, t)
         except _READ_ERRORS as err:
@@ -215,14 +262,12 @@ class _McapLog(LogReader):
                 f"{self.path}: MCAP file is truncated or corrupted ({_first_line(err)}); re-record or repair it"
             ) from err
         self.start_ns, self.end_ns = start or 0, end or 0
-        for info in self.topics.values():
-            info.first_ns, info.last_ns = self.start_ns, self.end_ns
 
     def _iter_raw(self, topics: set[str] | None):
         self._file.seek(0)
         from mcap.reader import make_reader
 
-        reader = make_reader(self._file)
+        reader = make_reader(self._file, validate_crcs=True)
         kwargs = {"topics": sorted(topics)} if topics is not None else {}
         if topics is not None and not topics:
             return
@@ -267,21 +312,127 @@ def _types_from_ros2msg(text: str, name: str, get_types_from_msg) -> dict:
     return types
 
 
+def _merge_span(spans: dict, key, first: int, last: int) -> None:
+    if key in spans:
+        f0, l0 = spans[key]
+        first, last = min(first, f0), max(last, l0)
+    spans[key] = (first, last)
+
+
+def _ros2_spans(folder: Path) -> dict[str, tuple[int, int]]:
+    """First and last record time per topic of a ROS 2 bag, from its storage files' indexes.
+
+    sqlite3: one aggregate query (it touches row headers, not message blobs; rosbags' own open does the
+    same to count). mcap: chunk and message indexes. Compressed bags ('file' mode) give no spans.
+    """
+    import yaml
+
+    meta = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    if meta.get("compression_mode", "") == "file":
+        return {}
+    spans: dict[str, tuple[int, int]] = {}
+    for rel in meta.get("relative_file_paths", []):
+        storage = folder / rel
+        if storage.suffix == ".db3":
+            con = sqlite3.connect(f"{storage.resolve().as_uri()}?mode=ro", uri=True)
+            try:
+                rows = con.execute(
+                    "SELECT topics.name, min(messages.timestamp), max(messages.timestamp) FROM messages "
+                    "JOIN topics ON messages.topic_id = topics.id GROUP BY topics.name"
+                ).fetchall()
+            finally:
+                con.close()
+            for name, first, last in rows:
+                _merge_span(spans, name, int(first), int(last))
+        elif storage.suffix == ".mcap":
+            from mcap.reader import make_reader
+
+            with storage.open("rb") as f:
+                summary = make_reader(f).get_summary()
+                if summary is None:
+                    continue
+                for cid, (first, last) in _mcap_channel_spans(f, summary).items():
+                    _merge_span(spans, summary.channels[cid].topic, first, last)
+    return spans
+
+
+def _mcap_message_index_times(f, offset: int) -> list[int]:
+    """Log times listed in the MessageIndex record at ``offset``."""
+    f.seek(offset)
+    head = f.read(9)
+    opcode, length = head[0], struct.unpack("<Q", head[1:9])[0]
+    if opcode != 0x07 or length > 1 << 32:
+        raise ValueError(f"no message index at offset {offset}")
+    body = f.read(length)
+    (nbytes,) = struct.unpack_from("<I", body, 2)
+    return [t for t, _ in struct.iter_unpack("<QQ", body[6 : 6 + nbytes])]
+
+
+def _mcap_channel_spans(f, summary) -> dict[int, tuple[int, int]]:
+    """First and last log time per channel id, reading the message indexes of the few edge chunks only."""
+    spans: dict[int, tuple[int, int]] = {}
+    chunks = list(summary.chunk_indexes)
+    for cid in summary.channels:
+        have = [c for c in chunks if cid in c.message_index_offsets]
+        if not have:
+            continue
+        first = last = None
+        for c in sorted(have, key=lambda c: c.message_start_time):
+            if first is not None and c.message_start_time > first:
+                break
+            times = _mcap_message_index_times(f, c.message_index_offsets[cid])
+            if times:
+                first = min(times) if first is None else min(first, min(times))
+        for c in sorted(have, key=lambda c: c.message_end_time, reverse=True):
+            if last is not None and c.message_end_time < last:
+                break
+            times = _mcap_message_index_times(f, c.message_index_offsets[cid])
+            if times:
+                last = max(times) if last is None else max(last, max(times))
+        if first is not None and last is not None:
+            spans[cid] = (first, last)
+    return spans
+
+
 def _first_line(err: BaseException) -> str:
     text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
+    line = text.splitlines()[0] if text else type(err).__name__
+    return re.sub(r"\('(.*)',\)", r"\1", line)  # rosbags wraps messages as "...: ('detail',)"
+
+
+def _paths_for(path: Path, fmt: str) -> list[Path]:
+    """What to open for a format forced with ``--format`` (no content sniffing)."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    if fmt == "ros1":
+        if path.is_dir():
+            bags = sorted(path.glob("*.bag"))
+            if not bags:
+                raise InputError(f"{path}: folder holds no .bag files to read as ROS 1")
+            return bags
+        return [path]
+    if fmt == "ros2":
+        folder = path if path.is_dir() else path.parent
+        if not (folder / "metadata.yaml").exists():
+            raise InputError(f"{path}: a ROS 2 bag needs its folder with metadata.yaml; none found in {folder}")
+        return [folder]
+    if path.is_dir():
+        mcaps = sorted(path.glob("*.mcap"))
+        if len(mcaps) != 1:
+            raise InputError(f"{path}: give the .mcap file itself (the folder holds {len(mcaps)} .mcap files)")
+        return mcaps
+    return [path]
 
 
 def open_log(path: str | Path, fmt: str | None = None) -> LogReader:
     """Open a log for reading. ``fmt`` (ros1, ros2, mcap) overrides detection."""
     path = Path(path)
-    detected, paths = detect_format(path)
-    if fmt is not None:
+    if fmt is None:
+        detected, paths = detect_format(path)
+    else:
         if fmt not in FORMATS:
             raise InputError(f"unknown log format '{fmt}' (choose from {', '.join(FORMATS)})")
-        if fmt != detected:
-            paths = [path]
-        detected = fmt
+        detected, paths = fmt, _paths_for(path, fmt)
     if detected == "mcap":
         return _McapLog(path, detected, paths)
     return _RosbagsLog(path, detected, paths)
