@@ -37,14 +37,24 @@ class LogWriter:
 
             self.typestore.register(get_types_from_msg(TF_MESSAGE_DEF, "tf2_msgs/msg/TFMessage"))
         self.make = MessageFactory(self.typestore)
-        self._tmp = temp_sibling(self.path)
+        # rosbags names a ROS 2 bag's storage file after its folder, so a ROS 2 bag is written under its
+        # final name inside a temporary sibling folder (not as a hidden temp name that would stick).
+        self._tmpdir = temp_sibling(self.path) if fmt in ("ros2", "ros2-mcap") else None
+        if self._tmpdir is not None:
+            self._tmpdir.mkdir()
+            self._tmp = self._tmpdir / self.path.name
+        else:
+            self._tmp = temp_sibling(self.path)
         self._topics: dict[str, tuple[str, object]] = {}
         self._seq: dict[str, int] = {}
         try:
             self._open()
         except Exception as err:
-            remove_path(self._tmp)
+            self._discard()
             raise InputError(f"{self.path}: cannot create log ({err})") from err
+
+    def _discard(self) -> None:
+        remove_path(self._tmpdir if self._tmpdir is not None else self._tmp)
 
     def _open(self) -> None:
         if self.format == "ros1":
@@ -112,6 +122,8 @@ class LogWriter:
             self.abort()
             raise InputError(f"{self.path}: cannot finish writing log ({err})") from err
         replace_path(self._tmp, self.path)
+        if self._tmpdir is not None:
+            remove_path(self._tmpdir)
 
     def abort(self) -> None:
         try:
@@ -121,7 +133,7 @@ class LogWriter:
                 self._w.close()
         except Exception:  # noqa: BLE001 - the temp output is discarded anyway
             pass
-        remove_path(self._tmp)
+        self._discard()
 
     def __enter__(self) -> "LogWriter":
         return self
