@@ -64,13 +64,21 @@ def cloud_dtype(msg) -> np.dtype:
     order = ">" if msg.is_bigendian else "<"
     names, formats, offsets = [], [], []
     for f in msg.fields:
+        if not f.name or f.name in names:  # unnamed padding fields, or a repeated name: keep the first
+            continue
         code = _DATATYPES.get(int(f.datatype))
         if code is None:
             raise InputError(f"PointCloud2 field '{f.name}' has unknown datatype {f.datatype}")
         names.append(f.name)
         formats.append((order + code, (int(f.count),)) if int(f.count) > 1 else order + code)
         offsets.append(int(f.offset))
-    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": int(msg.point_step)})
+    try:
+        return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": int(msg.point_step)})
+    except (ValueError, TypeError) as err:
+        layout = ", ".join(f"{n}@{o}" for n, o in zip(names, offsets))
+        raise InputError(
+            f"PointCloud2 fields ({layout}) do not fit its point_step of {msg.point_step} bytes ({err})"
+        ) from err
 
 
 def _structured(msg) -> np.ndarray:
@@ -101,8 +109,9 @@ def detect_time_convention(msg) -> TimeConvention:
             scale = 1e9 if is_float else 1.0
             absolute = label == "hesai"
             if msg.width * msg.height > 0:
-                vals = _structured(msg)[name]
-                peak = float(np.nanmax(np.abs(vals[:64].astype(np.float64)))) if len(vals) else 0.0
+                vals = np.abs(_structured(msg)[name][:256].astype(np.float64))
+                vals = vals[np.isfinite(vals)]
+                peak = float(vals.max()) if len(vals) else 0.0
                 absolute = peak > (_ABSOLUTE_S if is_float else _ABSOLUTE_NS)
             return TimeConvention(label, name, scale, absolute)
     return NAMED_CONVENTIONS["azimuth"]
@@ -146,11 +155,22 @@ def decode_pointcloud2(
                 f"PointCloud2 has no per-point time field '{conv.field}' (fields: {', '.join(sorted(names))})"
             )
         raw_t = arr[conv.field]
+        if raw_t.ndim > 1:  # a time field with count > 1: the first element is the point's time
+            raw_t = raw_t[:, 0]
         if raw_t.dtype.kind == "f":
-            t_s = raw_t.astype(np.float64) * (conv.scale_ns * 1e-9)
-            if conv.absolute:  # seconds since epoch: subtract the header first to keep sub-us precision
-                t_s = t_s - header_ns * 1e-9
-            stamps = header_ns + np.rint(t_s * 1e9).astype(np.int64)
+            t = raw_t.astype(np.float64)
+            finite_t = np.isfinite(t)
+            t = np.where(finite_t, t, 0.0)
+            if conv.absolute and conv.scale_ns == 1e9:
+                # seconds since epoch: subtract the header's whole seconds first (exact in float64), then
+                # its fraction, so only the field's own rounding remains (~0.1 us at today's epoch)
+                sec, nsec = divmod(header_ns, 1_000_000_000)
+                offsets = np.rint((t - float(sec)) * 1e9 - float(nsec)).astype(np.int64)
+            elif conv.absolute:
+                offsets = np.rint(t * conv.scale_ns - float(header_ns)).astype(np.int64)
+            else:
+                offsets = np.rint(t * conv.scale_ns).astype(np.int64)
+            stamps = header_ns + offsets
         else:
             t = raw_t.astype(np.int64)
             if conv.scale_ns != 1.0:
@@ -163,6 +183,8 @@ def decode_pointcloud2(
         stamps = np.full(len(xyz), header_ns, dtype=np.int64)
 
     valid = np.isfinite(xyz).all(axis=1) & (np.abs(xyz).sum(axis=1) > 0.0)
+    if conv.field is not None and raw_t.dtype.kind == "f":
+        valid &= finite_t  # a point without a usable time cannot be deskewed
     dropped = int(len(valid) - valid.sum())
     if dropped:
         xyz, stamps = xyz[valid], stamps[valid]
