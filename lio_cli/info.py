@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .errors import InputError
 from .geometry import pose_to_xyz_quat, so3_log
 from .io.decode import KIND_TYPES, LASERSCAN, POINTCLOUD2
 from .io.logs import LogReader
@@ -22,9 +23,13 @@ _TYPE_NAMES = {1: "int8", 2: "uint8", 3: "int16", 4: "uint16", 5: "int32", 6: "u
 
 
 def _first_message(log: LogReader, topic: str):
-    for _, _, _, msg in log.messages([topic]):
-        return msg
-    return None
+    messages = log.messages([topic])
+    try:
+        for _, _, _, msg in messages:
+            return msg
+        return None
+    finally:
+        messages.close()  # release the reader's cursor now, not at garbage collection
 
 
 def describe_scan_topic(log: LogReader, topic: str, convention: TimeConvention | None = None) -> dict:
@@ -34,7 +39,14 @@ def describe_scan_topic(log: LogReader, topic: str, convention: TimeConvention |
     out: dict = {"topic": topic, "type": info.msgtype}
     if msg is None:
         return out
-    if info.msgtype == POINTCLOUD2:
+    try:
+        return _describe_scan(msg, info.msgtype, out, convention)
+    except InputError as err:
+        raise InputError(f"{log.path}: {topic}: {err}") from err
+
+
+def _describe_scan(msg, msgtype: str, out: dict, convention: TimeConvention | None) -> dict:
+    if msgtype == POINTCLOUD2:
         conv = convention or detect_time_convention(msg)
         cloud = decode_pointcloud2(msg, conv)
         out["fields"] = [
@@ -64,7 +76,13 @@ def describe_scan_topic(log: LogReader, topic: str, convention: TimeConvention |
 
 
 def describe_log(log: LogReader, convention: TimeConvention | None = None) -> dict:
-    """A summary of the log as a JSON-able dict (the data behind ``lio info``)."""
+    """A summary of the log as a JSON-able dict (the data behind ``lio info``).
+
+    An empty log (no messages at all) is bad input: ``InputError``.
+    """
+    if not any(t.count for t in log.topics.values()):
+        what = f"{len(log.topics)} topic(s) but" if log.topics else "no topics and"
+        raise InputError(f"{log.path}: empty log ({what} 0 messages); nothing to read, check the recording")
     topics = []
     for name in sorted(log.topics):
         t = log.topics[name]
@@ -108,8 +126,9 @@ def check_log(log: LogReader, convention: TimeConvention | None = None,
             stream = SensorStream(log, {kind: name}, convention=convention, strict=True)
             n = 0
             for rec in stream:
-                n += len(rec.data) if kind == "imu" else 1
+                k = len(rec.data) if kind == "imu" else 1
+                n += k
                 if progress:
-                    progress(1)
+                    progress(k)
             checked[name] = n
     return {"checked": checked}

@@ -43,8 +43,11 @@ def select_topic(log: LogReader, kind: str, requested: str | None = None, requir
             hint = f"; {word} topics here: {', '.join(candidates)}" if candidates else f"; it has no {word} topic"
             raise InputError(f"{log.path}: topic {requested} not found{hint}")
         if info.msgtype not in accepted:
+            candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
+            hint = (f"; {word} topics here: {', '.join(candidates)}" if candidates
+                    else f"; the log has no {word} topic")
             raise InputError(
-                f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)})"
+                f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)}){hint}"
             )
         return requested
     candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted and t not in exclude)
@@ -193,7 +196,12 @@ class SensorStream:
 
         for topic, msgtype, t_rec, msg in self.log.messages(self.kind_of):
             self.stats.messages[topic] = self.stats.messages.get(topic, 0) + 1
-            rec = self._decode(topic, msgtype, msg)
+            try:
+                rec = self._decode(topic, msgtype, msg)
+            except InputError as err:
+                if str(err).startswith(f"{self.log.path}:"):
+                    raise
+                raise InputError(f"{self.log.path}: {topic}: {err}") from err
             if rec is None:
                 continue
             heapq.heappush(heap, (rec.stamp_ns, seq, rec))

@@ -1,0 +1,191 @@
+"""Topic choice and the merged, header-stamp-ordered SensorStream."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lio_cli.errors import InputError
+from lio_cli.io.logs import open_log
+from lio_cli.io.records import ImuBatch, OdometryRecord, PointCloud, PoseRecord
+from lio_cli.io.stream import SensorStream, read_imu, select_topic
+
+IMU = "sensor_msgs/msg/Imu"
+CLOUD = "sensor_msgs/msg/PointCloud2"
+
+
+def two_imus_and_two_clouds(w):
+    for topic, typ in (("/imu", IMU), ("/imu2", IMU), ("/points", CLOUD), ("/scan_b", CLOUD)):
+        w.add_topic(topic, typ)
+    w.add_topic("/odom", "nav_msgs/msg/Odometry")
+
+
+def test_select_topic_picks_the_only_one(logs):
+    path = logs.sensor_log("ros1", duration_s=0.2)
+    with open_log(path) as log:
+        assert select_topic(log, "lidar") == "/points"
+        assert select_topic(log, "imu") == "/imu"
+        assert select_topic(log, "wheel") == "/odom"
+        assert select_topic(log, "gt") == "/ground_truth"  # PoseStamped; /odom is wheel odometry
+
+
+def test_select_topic_with_several_lists_them_and_names_the_flag(logs):
+    path = logs.write("mcap", two_imus_and_two_clouds)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            select_topic(log, "imu")
+        assert str(err.value) == f"{path}: several IMU topics (/imu, /imu2); choose one with --imu-topic"
+        with pytest.raises(InputError) as err:
+            select_topic(log, "lidar")
+        assert str(err.value) == f"{path}: several LiDAR topics (/points, /scan_b); choose one with --lidar-topic"
+        assert select_topic(log, "imu", "/imu2") == "/imu2"
+        assert select_topic(log, "gt", required=False) is None  # Odometry not named as ground truth
+
+
+def test_select_topic_unknown_and_wrong_type(logs):
+    path = logs.write("ros2", two_imus_and_two_clouds)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            select_topic(log, "imu", "/imu_nope")
+        assert str(err.value) == f"{path}: topic /imu_nope not found; IMU topics here: /imu, /imu2"
+        with pytest.raises(InputError) as err:
+            select_topic(log, "lidar", "/imu")
+        assert str(err.value) == (
+            f"{path}: topic /imu is sensor_msgs/msg/Imu, not a LiDAR type (sensor_msgs/msg/PointCloud2, "
+            "sensor_msgs/msg/LaserScan); LiDAR topics here: /points, /scan_b")
+        with pytest.raises(InputError) as err:
+            select_topic(log, "gt")
+        assert str(err.value) == (f"{path}: no ground-truth topic (none of type geometry_msgs/msg/PoseStamped, "
+                                  "geometry_msgs/msg/TransformStamped, nav_msgs/msg/Odometry)")
+
+
+def test_stream_merges_topics_in_header_stamp_order(logs, write_format):
+    # clouds are recorded 40 ms after their header stamp, IMU 1 us after: record order != stamp order
+    path = logs.sensor_log(write_format, duration_s=0.5, lidar_delay_ns=40_000_000)
+    with open_log(path) as log:
+        stream = SensorStream(log, {"lidar": "/points", "imu": "/imu", "wheel": "/odom", "gt": "/ground_truth"})
+        recs = list(stream)
+    kinds = {r.kind for r in recs}
+    assert kinds == {"lidar", "imu", "wheel", "gt"}
+    # every IMU sample, every record, in non-decreasing header stamp
+    firsts = [r.stamp_ns for r in recs]
+    assert firsts == sorted(firsts)
+    imu = ImuBatch.concat([r.data for r in recs if r.kind == "imu"])
+    assert len(imu) == 50 and np.all(np.diff(imu.stamps_ns) > 0)
+    for r in recs:
+        if r.kind == "imu":  # a batch never spans another record
+            later = [q.stamp_ns for q in recs if q.kind != "imu" and q.stamp_ns > r.stamp_ns]
+            assert not later or r.data.stamps_ns[-1] <= min(later)
+    clouds = [r.data for r in recs if r.kind == "lidar"]
+    assert [c.stamp_ns for c in clouds] == [logs.T0_NS + i * 100_000_000 for i in range(5)]
+    assert all(isinstance(c, PointCloud) and len(c.points) == 52 for c in clouds)
+    assert all(isinstance(r.data, OdometryRecord) for r in recs if r.kind == "wheel")
+    assert all(isinstance(r.data, PoseRecord) for r in recs if r.kind == "gt")
+    assert stream.stats.messages == {"/points": 5, "/imu": 50, "/odom": 10, "/ground_truth": 5}
+
+
+def test_stream_reorders_messages_recorded_out_of_stamp_order(logs):
+    stamps = [0, 20, 10, 30, 50, 40, 60]  # ms; recorded in this order, each 1 ms after the previous
+
+    def build(w):
+        w.add_topic("/imu", IMU)
+        for i, s in enumerate(stamps):
+            w.write("/imu", logs.T0_NS + i * 1_000_000, w.make.imu(logs.T0_NS + s * 1_000_000, "imu", [s, 0, 0], [0, 0, 9.8]))
+
+    path = logs.write("ros1", build)
+    with open_log(path) as log:
+        batch = read_imu(log, "/imu", strict=True)
+    np.testing.assert_array_equal(batch.stamps_ns, logs.T0_NS + np.array(sorted(stamps)) * 1_000_000)
+    np.testing.assert_array_equal(batch.gyro_radps[:, 0], sorted(stamps))
+
+
+def test_imu_batches_are_bounded_and_carry_frame_and_units(logs):
+    path = logs.sensor_log("ros2", duration_s=1.0, lidar_hz=1)
+    with open_log(path) as log:
+        recs = [r for r in SensorStream(log, {"imu": "/imu"}, imu_batch_size=32) if r.kind == "imu"]
+    assert [len(r.data) for r in recs] == [32, 32, 32, 4]
+    assert recs[0].data.frame_id == "imu_link" and recs[0].topic == "/imu"
+    allb = ImuBatch.concat([r.data for r in recs])
+    assert allb.gyro_radps.shape == (100, 3) and allb.accel_mps2.dtype == np.float64
+    np.testing.assert_allclose(allb.accel_mps2[:, 2], 9.81)
+    np.testing.assert_allclose(allb.gyro_radps[:, 0], 0.01 * np.arange(100))
+
+
+def backwards_imu(logs):
+    def build(w):
+        w.add_topic("/imu", IMU)
+        for i, s in enumerate([0, 10, 20, 900, 30, 40]):  # 900 ms jumps ahead, then stamps go back
+            w.write("/imu", logs.T0_NS + i * 1_000_000_000, w.make.imu(logs.T0_NS + s * 1_000_000, "imu", [0, 0, 0], [0, 0, 9.8]))
+    return logs.write("ros1", build)
+
+
+def test_strict_stream_rejects_backwards_stamps_naming_topic(logs):
+    path = backwards_imu(logs)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            list(SensorStream(log, {"imu": "/imu"}))
+    assert str(err.value) == (f"{path}: /imu: header stamps going backwards (1700000000.030000000 s after "
+                              "1700000000.900000000 s); fix the log's stamps or re-record")
+
+
+def test_lenient_stream_drops_and_counts_backwards_stamps(logs):
+    path = backwards_imu(logs)
+    with open_log(path) as log:
+        stream = SensorStream(log, {"imu": "/imu"}, strict=False)
+        batch = ImuBatch.concat([r.data for r in stream])
+    assert len(batch) == 4 and stream.stats.backwards == {"/imu": 2}
+    assert stream.stats.to_dict()["backwards_stamps_dropped"] == {"/imu": 2}
+
+
+def empty_cloud_log(logs):
+    def build(w):
+        w.add_topic("/points", CLOUD)
+        for i in range(3):
+            arr, _ = logs.velodyne_cloud(8)
+            if i == 1:
+                arr["x"] = np.nan
+            t = logs.T0_NS + i * 100_000_000
+            w.write("/points", t, w.make.pointcloud2(t, "lidar", arr))
+    return logs.write("mcap", build)
+
+
+def test_strict_stream_rejects_cloud_with_zero_valid_points(logs):
+    path = empty_cloud_log(logs)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            list(SensorStream(log, {"lidar": "/points"}))
+    assert str(err.value).startswith(f"{path}: /points: cloud at 1700000000.100000000 s has zero valid points (8 NaN/zero returns)")
+
+
+def test_lenient_stream_skips_empty_clouds(logs):
+    path = empty_cloud_log(logs)
+    with open_log(path) as log:
+        stream = SensorStream(log, {"lidar": "/points"}, strict=False)
+        assert len(list(stream)) == 2
+    assert stream.stats.empty_clouds == 1 and stream.stats.invalid_points == 8
+
+
+def test_decode_errors_name_file_and_topic(logs):
+    def build(w):
+        w.add_topic("/points", CLOUD)
+        arr = np.zeros(4, dtype=[("a", "<f4")])
+        w.write("/points", logs.T0_NS, w.make.pointcloud2(logs.T0_NS, "lidar", arr))
+    path = logs.write("ros2-mcap", build)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            list(SensorStream(log, {"lidar": "/points"}))
+    assert str(err.value) == f"{path}: /points: PointCloud2 has no x, y, z field(s); fields are ['a']"
+
+
+def test_laserscan_topic_streams_as_planar_clouds(logs):
+    def build(w):
+        w.add_topic("/scan", "sensor_msgs/msg/LaserScan")
+        for i in range(3):
+            t = logs.T0_NS + i * 100_000_000
+            w.write("/scan", t, w.make.laserscan(t, "laser", -1.0, 0.5, 1e-3, 0.1, 0.1, 10.0, [1.0, 2.0, np.inf, 3.0, 4.0]))
+    path = logs.write("ros1", build)
+    with open_log(path) as log:
+        assert select_topic(log, "lidar") == "/scan"
+        clouds = [r.data for r in SensorStream(log, {"lidar": "/scan"})]
+    assert len(clouds) == 3 and all(c.planar and len(c.points) == 4 for c in clouds)
+    np.testing.assert_array_equal(clouds[0].point_stamps_ns - logs.T0_NS, [0, 1_000_000, 3_000_000, 4_000_000])

@@ -1,0 +1,56 @@
+"""FrameTree chains and /tf_static reading."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lio_cli.geometry import inv_pose, make_pose, so3_exp
+from lio_cli.io.logs import open_log
+from lio_cli.io.records import TransformRecord
+from lio_cli.io.tf import FrameTree, read_static_frames
+
+POSE_TOL = 1e-12
+
+
+def pose(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return make_pose(so3_exp(rng.normal(size=3)), rng.normal(size=3))
+
+
+def test_chains_resolve_in_both_directions():
+    A, B, C = pose(1), pose(2), pose(3)
+    tree = FrameTree([TransformRecord(0, "base", "imu", A), TransformRecord(0, "imu", "lidar", B),
+                      TransformRecord(0, "base", "wheel", C)])
+    np.testing.assert_allclose(tree.lookup("base", "lidar"), A @ B, atol=POSE_TOL)
+    np.testing.assert_allclose(tree.lookup("lidar", "base"), inv_pose(A @ B), atol=POSE_TOL)
+    np.testing.assert_allclose(tree.lookup("wheel", "lidar"), inv_pose(C) @ A @ B, atol=POSE_TOL)
+    np.testing.assert_array_equal(tree.lookup("/imu", "imu"), np.eye(4))
+    assert tree.frames == ["base", "imu", "lidar", "wheel"]
+
+
+def test_unconnected_or_unknown_frames_give_none():
+    tree = FrameTree([TransformRecord(0, "a", "b", pose(1)), TransformRecord(0, "c", "d", pose(2))])
+    assert tree.lookup("a", "d") is None
+    assert tree.lookup("a", "nowhere") is None
+
+
+def test_a_repeated_transform_replaces_the_old_one():
+    tree = FrameTree([TransformRecord(0, "a", "b", pose(1)), TransformRecord(5, "a", "b", pose(2))])
+    assert len(tree.transforms) == 1
+    np.testing.assert_allclose(tree.lookup("a", "b"), pose(2), atol=POSE_TOL)
+
+
+def test_read_static_frames_from_every_format(logs, write_format):
+    path = logs.sensor_log(write_format, duration_s=0.2)
+    with open_log(path) as log:
+        tree = read_static_frames(log)
+    np.testing.assert_allclose(tree.lookup("base_link", "velodyne"), logs.T_BASE_IMU @ logs.T_IMU_LIDAR, atol=1e-9)
+    assert tree.frames == ["base_link", "imu_link", "velodyne"]
+
+
+def test_log_without_tf_static_gives_empty_tree(logs):
+    path = logs.write("ros1", lambda w: w.add_topic("/imu", "sensor_msgs/msg/Imu"))
+    with open_log(path) as log:
+        tree = read_static_frames(log)
+    assert tree.frames == [] and tree.lookup("a", "b") is None
