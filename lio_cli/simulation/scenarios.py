@@ -1,0 +1,273 @@
+"""The four scenarios: a world, a trajectory through it that never enters an obstacle, the sensor rig.
+
+Worlds are fixed (their clutter comes from a fixed internal seed, placed away from the paths), so the
+same scenario always happens in the same place; ``--seed`` only drives sensor noise and biases.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry import make_pose
+from .motion import Path2D, Progress, Sines, Trajectory, ypr_to_matrix
+from .sensors import LaserSpec, LidarSpec, WheelSpec
+from .world import World, footprint_clearance
+
+SCENARIOS = ("handheld", "drive", "corridor", "planar")
+
+_WALL_M = 0.2
+_STOREY_M = 2.8
+
+
+@dataclass
+class Scenario:
+    name: str
+    description: str
+    world: World
+    trajectory: Trajectory
+    T_base_imu: np.ndarray
+    T_base_lidar: np.ndarray
+    lidar: LidarSpec | LaserSpec
+    wheels: WheelSpec | None
+    clearance_m: float  # the platform's half-width: the path keeps at least this from every obstacle
+    body_z_m: tuple[float, float] = (0.0, 1.9)  # height band the platform occupies (for the clearance check)
+    extras: dict = field(default_factory=dict)
+
+
+def _pose(rpy_rad: tuple[float, float, float], xyz_m: tuple[float, float, float]) -> np.ndarray:
+    roll, pitch, yaw = rpy_rad
+    return make_pose(ypr_to_matrix(np.array(yaw), np.array(pitch), np.array(roll)), np.asarray(xyz_m, float))
+
+
+def _wall_x(world: World, y: float, x0: float, x1: float, doors: list[float], door_w: float = 1.2) -> None:
+    """A wall along x at ``y`` from x0 to x1, with doorways (lintel above 2.1 m) centred at ``doors``."""
+    edges = [x0]
+    for d in sorted(doors):
+        edges += [d - door_w / 2, d + door_w / 2]
+        world.add_box((d - door_w / 2, y - _WALL_M / 2, 2.1), (d + door_w / 2, y + _WALL_M / 2, _STOREY_M), 0.6)
+    edges.append(x1)
+    for a, b in zip(edges[::2], edges[1::2]):
+        world.add_box((a, y - _WALL_M / 2, 0.0), (b, y + _WALL_M / 2, _STOREY_M), 0.6)
+
+
+def _wall_y(world: World, x: float, y0: float, y1: float) -> None:
+    world.add_box((x - _WALL_M / 2, y0, 0.0), (x + _WALL_M / 2, y1, _STOREY_M), 0.6)
+
+
+# Office floor: 36 x 16 m, a 3 m hallway (y 7..10) between four south rooms and three north rooms.
+_HALL_Y = (7.0, 10.0)
+_SOUTH_DOORS = [6.0, 13.5, 22.5, 31.5]
+_NORTH_DOORS = [8.0, 18.0, 30.0]
+
+HANDHELD_WAYPOINTS = np.array([
+    (4.0, 3.6), (5.3, 5.0), (6.0, 6.1), (6.0, 7.0), (6.5, 8.2), (8.5, 8.6), (14.0, 8.4), (20.0, 8.7),
+    (26.0, 8.5), (29.2, 8.9), (30.0, 10.0), (30.4, 11.6), (32.6, 13.2), (30.5, 14.8), (27.4, 13.6),
+    (28.6, 11.6), (30.0, 10.0), (29.0, 8.6), (24.0, 8.3), (17.0, 8.6), (14.3, 8.2), (13.5, 7.0),
+    (13.6, 5.6), (15.8, 3.6), (13.5, 1.6), (11.2, 3.6), (13.4, 5.6), (13.5, 7.0), (12.4, 8.5),
+    (8.0, 8.7), (6.2, 8.2), (6.0, 7.0), (5.7, 5.6), (3.6, 2.2), (2.6, 2.8),
+])
+
+PLANAR_WAYPOINTS = np.array([
+    (5.0, 13.0), (7.2, 11.6), (8.0, 10.0), (8.8, 8.5), (12.0, 8.2), (16.2, 8.4), (18.0, 10.0),
+    (18.4, 11.8), (21.0, 13.4), (18.0, 14.6), (15.2, 13.2), (16.8, 11.5), (18.0, 10.0), (17.2, 8.7),
+    (12.0, 8.6), (9.6, 8.9), (8.0, 10.0), (7.6, 12.4), (5.0, 14.6), (3.0, 13.6),
+])
+
+
+def office_world(keep_clear: list[np.ndarray], clear_m: float = 0.9, seed: int = 7) -> World:
+    """Rooms, doorways, a long hallway, furniture and clutter; nothing within ``clear_m`` of the paths."""
+    w = World("office")
+    w.add_plane(0.0, 0.25)
+    w.add_plane(_STOREY_M, 0.45)
+    x0, x1, y0, y1 = 0.0, 36.0, 0.0, 16.0
+    _wall_x(w, y0, x0, x1, [])
+    _wall_x(w, y1, x0, x1, [])
+    _wall_y(w, x0, y0, y1)
+    _wall_y(w, x1, y0, y1)
+    _wall_x(w, _HALL_Y[0], x0, x1, _SOUTH_DOORS)
+    _wall_x(w, _HALL_Y[1], x0, x1, _NORTH_DOORS)
+    for x in (9.0, 18.0, 27.0):
+        _wall_y(w, x, y0, _HALL_Y[0])
+    for x in (12.0, 24.0):
+        _wall_y(w, x, _HALL_Y[1], y1)
+    rng = np.random.default_rng(seed)
+    path_xy = np.vstack(keep_clear)
+    rooms = [(0, 9, 0, 7), (9, 18, 0, 7), (18, 27, 0, 7), (27, 36, 0, 7), (0, 12, 10, 16), (12, 24, 10, 16), (24, 36, 10, 16)]
+    door_pts = np.array([(d, _HALL_Y[0]) for d in _SOUTH_DOORS] + [(d, _HALL_Y[1]) for d in _NORTH_DOORS])
+
+    def free(lo, hi, margin):
+        probe = World("probe")
+        probe.add_box(lo, hi)
+        pts = np.vstack([path_xy, door_pts])
+        return footprint_clearance(probe, pts).min() > margin
+
+    for rx0, rx1, ry0, ry1 in rooms:
+        placed, tries = 0, 0
+        while placed < 12 and tries < 500:
+            tries += 1
+            kind = rng.choice(["desk", "shelf", "cabinet", "box", "pillar", "bin"], p=[0.25, 0.2, 0.15, 0.2, 0.1, 0.1])
+            if kind in ("pillar", "bin"):
+                r = 0.2 if kind == "pillar" else 0.25
+                cx, cy = rng.uniform(rx0 + 0.5, rx1 - 0.5), rng.uniform(ry0 + 0.5, ry1 - 0.5)
+                if np.min(np.linalg.norm(np.vstack([path_xy, door_pts]) - (cx, cy), axis=1)) - r > clear_m:
+                    w.add_cylinder(cx, cy, r, 0.0, _STOREY_M if kind == "pillar" else 0.7, 0.7 if kind == "bin" else 0.5)
+                    placed += 1
+                continue
+            sx, sy, h = {"desk": (1.6, 0.8, 0.75), "shelf": (1.2, 0.4, 2.0), "cabinet": (0.8, 0.6, 1.2),
+                         "box": (0.6, 0.5, 0.5)}[kind]
+            if rng.random() < 0.5:
+                sx, sy = sy, sx
+            if kind == "shelf":  # against a wall
+                side = rng.integers(4)
+                cx = rng.uniform(rx0 + 1, rx1 - 1) if side < 2 else (rx0 + _WALL_M / 2 + sx / 2 if side == 2 else rx1 - _WALL_M / 2 - sx / 2)
+                cy = (ry0 + _WALL_M / 2 + sy / 2 if side == 0 else ry1 - _WALL_M / 2 - sy / 2) if side < 2 else rng.uniform(ry0 + 1, ry1 - 1)
+            else:
+                cx, cy = rng.uniform(rx0 + 0.6, rx1 - 0.6), rng.uniform(ry0 + 0.6, ry1 - 0.6)
+            lo, hi = (cx - sx / 2, cy - sy / 2, 0.0), (cx + sx / 2, cy + sy / 2, h)
+            if free(lo, hi, clear_m):
+                w.add_box(lo, hi, float(rng.uniform(0.2, 0.9)))
+                placed += 1
+    # ceiling lights: small boxes hanging from the ceiling, above head height
+    for x in np.arange(3.0, 36.0, 4.5):
+        for y in (3.5, 8.5, 13.0):
+            w.add_box((x - 0.3, y - 0.3, _STOREY_M - 0.08), (x + 0.3, y + 0.3, _STOREY_M), 0.95)
+    return w
+
+
+def corridor_world(length_m: float = 300.0, width_m: float = 2.4, height_m: float = 2.6) -> World:
+    """A long straight corridor, smooth walls, no features: geometry leaves motion along x unconstrained."""
+    w = World("corridor")
+    w.add_plane(0.0, 0.3)
+    w.add_plane(height_m, 0.5)
+    half = length_m / 2
+    w.add_box((-half, width_m / 2, 0.0), (half, width_m / 2 + _WALL_M, height_m), 0.6)
+    w.add_box((-half, -width_m / 2 - _WALL_M, 0.0), (half, -width_m / 2, height_m), 0.6)
+    return w
+
+
+def _rounded_rectangle(x0: float, y0: float, x1: float, y1: float, r: float, step: float = 20.0) -> np.ndarray:
+    """Waypoints around a rectangle (counter-clockwise) with corners rounded to radius ``r``."""
+    pts = []
+    corners = [(x1, y0, 0.0), (x1, y1, 0.5 * np.pi), (x0, y1, np.pi), (x0, y0, 1.5 * np.pi)]
+    prev = (x0, y0, 1.5 * np.pi)
+    for cx, cy, heading in corners:
+        px, py, _ = prev
+        # straight part from previous corner to this one
+        d = np.array([np.cos(heading), np.sin(heading)])
+        start = np.array([px, py]) + d * r
+        end = np.array([cx, cy]) - d * r
+        n = max(1, int(np.linalg.norm(end - start) // step))
+        for a in np.linspace(0.0, 1.0, n + 1)[:-1]:
+            pts.append(start + a * (end - start))
+        centre = np.array([cx, cy]) - d * r + np.array([-d[1], d[0]]) * r
+        for ang in np.linspace(-0.5 * np.pi, 0.0, 4)[:-1]:
+            a = heading + ang
+            pts.append(centre + r * np.array([np.cos(a), np.sin(a)]))
+        prev = (cx, cy, heading)
+    return np.array(pts)
+
+
+DRIVE_WAYPOINTS = _rounded_rectangle(0.0, 0.0, 160.0, 100.0, 14.0)
+
+
+def town_world(path_xy: np.ndarray, seed: int = 11) -> World:
+    """Ground, blocks of buildings on both sides of a road loop, poles and parked cars by the kerb."""
+    w = World("town")
+    w.add_plane(0.0, 0.25)
+    rng = np.random.default_rng(seed)
+
+    def clear(lo, hi, margin):
+        probe = World("probe")
+        probe.add_box(lo, hi)
+        return footprint_clearance(probe, path_xy).min() > margin
+
+    # buildings along the loop, outside and inside, set back from the road
+    for x in np.arange(-40.0, 200.0, 14.0):
+        for y in np.arange(-40.0, 140.0, 14.0):
+            sx, sy = rng.uniform(8.0, 13.0), rng.uniform(8.0, 13.0)
+            cx, cy = x + rng.uniform(-1.5, 1.5), y + rng.uniform(-1.5, 1.5)
+            lo, hi = (cx - sx / 2, cy - sy / 2, 0.0), (cx + sx / 2, cy + sy / 2, rng.uniform(5.0, 22.0))
+            if clear(lo, hi, 9.0) and not clear(lo, hi, 30.0) and rng.random() < 0.8:
+                w.add_box(lo, hi, float(rng.uniform(0.3, 0.8)))
+    # poles and parked cars along the road sides
+    dense = Path2D(path_xy, closed=True)
+    for s in np.arange(0.0, dense.length_m, 17.0):
+        p, t = dense.derivs(np.array([s]), 0)[0], dense.derivs(np.array([s]), 1)[0]
+        t = t / np.linalg.norm(t)
+        n = np.array([-t[1], t[0]])
+        for side in (-1.0, 1.0):
+            q = p + side * n * rng.uniform(5.5, 6.5)
+            if footprint_clearance_cyl(path_xy, q, 0.15) > 4.0:
+                w.add_cylinder(q[0], q[1], 0.15, 0.0, rng.uniform(4.0, 7.0), 0.8)
+        if rng.random() < 0.5:
+            side = 1.0 if rng.random() < 0.5 else -1.0
+            q = p + side * n * 3.8
+            yaw = np.arctan2(t[1], t[0])
+            along = abs(np.cos(yaw)) > abs(np.sin(yaw))
+            hx, hy = (2.2, 0.9) if along else (0.9, 2.2)
+            lo, hi = (q[0] - hx, q[1] - hy, 0.0), (q[0] + hx, q[1] + hy, 1.5)
+            if clear(lo, hi, 2.2):
+                w.add_box(lo, hi, float(rng.uniform(0.4, 0.9)))
+    return w
+
+
+def footprint_clearance_cyl(path_xy: np.ndarray, centre: np.ndarray, radius: float) -> float:
+    return float(np.min(np.linalg.norm(path_xy - centre, axis=1)) - radius)
+
+
+def _dense(path: Path2D, step_m: float = 0.05) -> np.ndarray:
+    return path.derivs(np.arange(0.0, path.length_m, step_m), 0)
+
+
+def build_scenario(name: str, beams: int | None = None, columns: int | None = None) -> Scenario:
+    """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``."""
+    if name in ("handheld", "planar"):
+        hh, pl = Path2D(HANDHELD_WAYPOINTS), Path2D(PLANAR_WAYPOINTS)
+        world = office_world([_dense(hh, 0.1), _dense(pl, 0.1)])
+    if name == "handheld":
+        traj = Trajectory(
+            hh, Progress(1.2, wobble=Sines((0.15, 0.05), (0.13, 0.31), (0.0, 1.0))), z0_m=1.35,
+            z_wobble=Sines((0.03,), (1.8,), (0.0,)),
+            yaw_offset=Sines((0.5, 0.08), (0.95, 2.1), (0.0, 0.7)),
+            pitch=Sines((0.08, 0.03), (0.45, 1.8), (0.3, 0.0)), roll=Sines((0.06, 0.02), (0.9, 1.7), (1.0, 2.0)),
+        )
+        return Scenario(
+            name, "person walking indoors through rooms and doorways with fast yaw sweeps; 16-beam spinning LiDAR",
+            world, traj, _pose((0.02, -0.03, 0.5 * np.pi), (0.04, -0.02, 0.03)), _pose((0, 0, 0), (0.0, 0.0, 0.10)),
+            LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0), None, clearance_m=0.3,
+        )
+    if name == "planar":
+        traj = Trajectory(pl, Progress(0.7, t_rest_s=1.5, ramp_s=1.5, wobble=Sines((0.1,), (0.1,), (0.0,))))
+        return Scenario(
+            name, "differential-drive robot in an office: 2D LaserScan, wheel encoders, IMU", world, traj,
+            _pose((0.0, 0.0, 0.5 * np.pi), (0.05, 0.02, 0.15)), _pose((0, 0, 0), (0.15, 0.0, 0.30)),
+            LaserSpec(beams=columns or 720), WheelSpec(radius_m=0.08, baseline_m=0.42), clearance_m=0.3,
+            body_z_m=(0.0, 0.5),
+        )
+    if name == "corridor":
+        xs = np.arange(-60.0, 150.0, 2.5)
+        path = Path2D(np.column_stack([xs, 0.4 * np.sin(2 * np.pi * xs / 12.5)]), closed=False)
+        traj = Trajectory(path, Progress(1.0, s0_m=30.0, wobble=Sines((0.2,), (0.08,), (0.0,))))
+        return Scenario(
+            name, "robot in a long featureless corridor: geometry does not constrain motion along it",
+            corridor_world(), traj, _pose((0.0, 0.02, 0.5 * np.pi), (0.1, 0.05, 0.25)), _pose((0, 0, 0), (0.2, 0.0, 0.5)),
+            LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0), WheelSpec(radius_m=0.1, baseline_m=0.5),
+            clearance_m=0.3, body_z_m=(0.0, 0.8),
+        )
+    if name == "drive":
+        path = Path2D(DRIVE_WAYPOINTS)
+        world = town_world(_dense(path, 0.5))
+        traj = Trajectory(
+            path, Progress(7.5, t_rest_s=1.5, ramp_s=3.0, wobble=Sines((6.0,), (0.05,), (0.0,))), z0_m=0.0,
+            z_wobble=Sines((0.015,), (1.3,), (0.0,)), pitch=Sines((0.012, 0.004), (0.2, 1.1), (0.0, 0.5)),
+            roll=Sines((0.015, 0.004), (0.15, 0.9), (1.0, 0.0)),
+        )
+        return Scenario(
+            name, "car driving a loop through a town of buildings, poles and parked cars at 5-10 m/s",
+            world, traj, _pose((0.01, 0.02, -0.5 * np.pi), (0.8, 0.1, 0.6)), _pose((0, 0, 0), (1.2, 0.0, 1.9)),
+            LidarSpec(beams=beams or 32, columns=columns or 1024, max_range_m=120.0),
+            WheelSpec(radius_m=0.32, baseline_m=1.6), clearance_m=1.1, body_z_m=(0.0, 1.6),
+        )
+    raise KeyError(name)
