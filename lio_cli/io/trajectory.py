@@ -1,13 +1,30 @@
-"""Trajectory files. TUM: ``stamp tx ty tz qx qy qz qw`` per line, stamp in seconds written from int ns."""
+"""Trajectory files and trajectory sources.
+
+TUM: ``stamp tx ty tz qx qy qz qw`` per line, stamp in seconds written from int ns.
+KITTI: 12 values per line, the row-major 3x4 matrix ``[R | t]`` of ``T_world_body``; stamps come from a
+separate times file (one stamp in seconds per line, as KITTI's ``times.txt``) or a fixed rate.
+
+``load_trajectory`` resolves what a user typed on the command line: a TUM or KITTI file, or a topic of a
+log (``LOG:/topic``, ``LOG#/topic``, ``LOG:tf:parent.child`` for a chain of /tf and /tf_static).
+Every problem is an ``InputError`` naming the file and, for text files, the line.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import pose_from_xyz_quat, pose_to_xyz_quat
+from ..geometry import interpolate_poses, inv_pose, pose_from_xyz_quat, pose_to_xyz_quat
+
+_INT64_MAX = np.iinfo(np.int64).max
+# Quaternions further than this from unit length are rejected (TUM files written with 6 decimals are ~1e-6 off).
+QUAT_NORM_TOL = 1e-3
+# KITTI rotation blocks further than this from orthonormal are rejected.
+KITTI_ORTHO_TOL = 1e-3
+STAMP_UNITS_NS = {"s": 1, "ms": 10**3, "us": 10**6, "ns": 10**9}  # divisor applied to the seconds parse
 
 
 def format_stamp(ns: int) -> str:
@@ -43,38 +60,350 @@ def format_tum(stamps_ns: np.ndarray, poses: np.ndarray) -> str:
     return "\n".join(lines) + ("\n" if lines else "")
 
 
-def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps_ns (N,), poses (N,4,4)) of a TUM file; bad lines raise InputError with the line number."""
-    path = Path(path)
+def format_kitti(poses: np.ndarray) -> str:
+    """KITTI pose lines (row-major 3x4) of poses (N,4,4)."""
+    rows = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :].reshape(-1, 12)
+    return "".join(" ".join(f"{v:.9e}" for v in r) + "\n" for r in rows)
+
+
+def _read_text(path: Path) -> str:
     try:
-        text = path.read_text()
+        return path.read_text()
     except FileNotFoundError as err:
         raise InputError(f"{path}: no such file") from err
+    except IsADirectoryError as err:
+        raise InputError(f"{path}: is a folder, not a trajectory file") from err
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: cannot read ({err})") from err
-    stamps, rows = [], []
+
+
+def _data_lines(text: str) -> tuple[list[int], list[list[str]]]:
+    """(1-based line numbers, tokens) of the non-empty, non-comment lines."""
+    numbers, tokens = [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        parts = line.replace(",", " ").split()
+        numbers.append(lineno)
+        tokens.append(line.replace(",", " ").split())
+    return numbers, tokens
+
+
+def _unit_hint(path: Path, lineno: int, text: str, what: str) -> InputError:
+    return InputError(
+        f"{path}:{lineno}: {what} {text} is too large for seconds (beyond year 2262); the file's stamps look "
+        f"like ms, us or ns: say so with --gt-stamp-unit/--est-stamp-unit"
+    )
+
+
+def _stamps_ns(path: Path, numbers: list[int], texts: list[str], unit: str) -> np.ndarray:
+    divisor = STAMP_UNITS_NS[unit]
+    out = np.empty(len(texts), dtype=np.int64)
+    for k, (lineno, text) in enumerate(zip(numbers, texts)):
+        try:
+            ns = parse_stamp_ns(text)
+        except (ValueError, OverflowError) as err:
+            raise InputError(f"{path}:{lineno}: stamp '{text}' is not a number") from err
+        ns //= divisor
+        if abs(ns) > _INT64_MAX:
+            raise _unit_hint(path, lineno, text, "stamp")
+        out[k] = ns
+    return out
+
+
+def _check_increasing(path: Path, numbers: list[int], stamps_ns: np.ndarray, texts: list[str]) -> None:
+    bad = np.flatnonzero(np.diff(stamps_ns) <= 0)
+    if len(bad):
+        k = int(bad[0]) + 1
+        what = "repeats" if stamps_ns[k] == stamps_ns[k - 1] else "goes backwards from"
+        raise InputError(
+            f"{path}:{numbers[k]}: timestamp {texts[k]} {what} the previous line's ({texts[k - 1]}); "
+            f"stamps must increase strictly"
+        )
+
+
+def _floats(path: Path, numbers: list[int], rows: list[list[str]]) -> np.ndarray:
+    try:
+        return np.array(rows, dtype=np.float64)
+    except ValueError:
+        for lineno, row in zip(numbers, rows):
+            for v in row:
+                try:
+                    float(v)
+                except ValueError as err:
+                    raise InputError(f"{path}:{lineno}: '{v}' is not a number") from err
+        raise  # pragma: no cover - np.array failed, yet every value parses
+
+
+def _check_finite(path: Path, numbers: list[int], vals: np.ndarray) -> None:
+    bad = np.flatnonzero(~np.isfinite(vals).all(axis=1))
+    if len(bad):
+        raise InputError(f"{path}:{numbers[int(bad[0])]}: NaN or infinite value")
+
+
+def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.ndarray]:
+    """(stamps_ns (N,), poses (N,4,4)) of a TUM file; bad lines raise InputError with the line number.
+
+    ``stamp_unit`` (s, ms, us, ns) says what the first column counts; seconds are parsed exactly.
+    """
+    path = Path(path)
+    numbers, tokens = _data_lines(_read_text(path))
+    if not tokens:
+        raise InputError(f"{path}: no poses in file")
+    for lineno, parts in zip(numbers, tokens):
         if len(parts) != 8:
             raise InputError(f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), found {len(parts)}")
-        try:
-            stamp = parse_stamp_ns(parts[0])
-            vals = [float(v) for v in parts[1:]]
-        except ValueError as err:
-            raise InputError(f"{path}:{lineno}: not a number ({err})") from err
-        if not np.isfinite(vals).all():
-            raise InputError(f"{path}:{lineno}: NaN or infinite value")
-        qn = float(np.linalg.norm(vals[3:]))
-        if abs(qn - 1.0) > 1e-3:
-            raise InputError(f"{path}:{lineno}: quaternion is not unit length (norm {qn:.6f})")
-        if stamps and stamp <= stamps[-1]:
-            raise InputError(f"{path}:{lineno}: timestamp {parts[0]} is not after the previous line's")
-        stamps.append(stamp)
-        rows.append(vals)
-    if not rows:
+    texts = [p[0] for p in tokens]
+    stamps = _stamps_ns(path, numbers, texts, stamp_unit)
+    vals = _floats(path, numbers, [p[1:] for p in tokens])
+    _check_finite(path, numbers, vals)
+    qn = np.linalg.norm(vals[:, 3:], axis=1)
+    bad = np.flatnonzero(np.abs(qn - 1.0) > QUAT_NORM_TOL)
+    if len(bad):
+        k = int(bad[0])
+        raise InputError(f"{path}:{numbers[k]}: quaternion is not unit length (norm {qn[k]:.6f})")
+    _check_increasing(path, numbers, stamps, texts)
+    return stamps, pose_from_xyz_quat(vals[:, :3], vals[:, 3:])
+
+
+def read_kitti(path: str | Path) -> np.ndarray:
+    """Poses (N,4,4) of a KITTI pose file (12 values per line: row-major [R | t])."""
+    path = Path(path)
+    numbers, tokens = _data_lines(_read_text(path))
+    if not tokens:
         raise InputError(f"{path}: no poses in file")
-    arr = np.asarray(rows)
-    return np.asarray(stamps, dtype=np.int64), pose_from_xyz_quat(arr[:, :3], arr[:, 3:])
+    for lineno, parts in zip(numbers, tokens):
+        if len(parts) != 12:
+            raise InputError(f"{path}:{lineno}: expected 12 values (KITTI row-major 3x4 pose), found {len(parts)}")
+    vals = _floats(path, numbers, tokens)
+    _check_finite(path, numbers, vals)
+    poses = np.zeros((len(vals), 4, 4))
+    poses[:, :3, :] = vals.reshape(-1, 3, 4)
+    poses[:, 3, 3] = 1.0
+    R = poses[:, :3, :3]
+    ortho = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((ortho > KITTI_ORTHO_TOL) | (np.linalg.det(R) <= 0.0))
+    if len(bad):
+        k = int(bad[0])
+        raise InputError(f"{path}:{numbers[k]}: the 3x3 block is not a rotation (|R^T R - I| = {ortho[k]:.2e})")
+    return poses
+
+
+def read_times(path: str | Path) -> np.ndarray:
+    """Stamps (int64 ns) of a KITTI times file: one stamp in seconds per line."""
+    path = Path(path)
+    numbers, tokens = _data_lines(_read_text(path))
+    if not tokens:
+        raise InputError(f"{path}: no stamps in file")
+    for lineno, parts in zip(numbers, tokens):
+        if len(parts) != 1:
+            raise InputError(f"{path}:{lineno}: expected one stamp per line, found {len(parts)} values")
+    texts = [p[0] for p in tokens]
+    stamps = _stamps_ns(path, numbers, texts, "s")
+    _check_increasing(path, numbers, stamps, texts)
+    return stamps
+
+
+def sniff_columns(path: str | Path) -> int:
+    """Number of values on the first data line of a text trajectory (8 TUM, 12 KITTI)."""
+    path = Path(path)
+    try:
+        with path.open() as f:
+            for line in f:
+                line = line.strip()
+                if line and not line.startswith("#"):
+                    return len(line.replace(",", " ").split())
+    except FileNotFoundError as err:
+        raise InputError(f"{path}: no such file") from err
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"{path}: cannot read ({err})") from err
+    raise InputError(f"{path}: no poses in file")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# trajectory sources: files or log topics
+
+
+@dataclass
+class LoadedTrajectory:
+    """A trajectory read from a source: ``poses[i]`` is ``T_frame_body`` at ``stamps_ns[i]``."""
+
+    name: str
+    stamps_ns: np.ndarray  # (N,) int64, strictly increasing
+    poses: np.ndarray  # (N,4,4)
+    kind: str  # tum, kitti, topic, tf
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+
+def split_source(spec: str) -> tuple[str, str | None]:
+    """(path, topic spec or None) of ``LOG:/topic``, ``LOG#topic``, ``LOG:tf:a.b``, or a plain path."""
+    if Path(spec).exists():
+        return spec, None
+    if "#" in spec:
+        path, _, topic = spec.rpartition("#")
+        return path, topic
+    for marker in (":/", ":tf:"):
+        pos = spec.find(marker)
+        if pos > 0:
+            return spec[:pos], spec[pos + 1:]
+    return spec, None
+
+
+def _is_log(path: Path) -> bool:
+    if path.is_dir():
+        return True
+    try:
+        with path.open("rb") as f:
+            head = f.read(16)
+    except OSError:
+        return False
+    return head.startswith((b"#ROSBAG", b"\x89MCAP", b"SQLite format 3"))
+
+
+def load_trajectory(
+    spec: str,
+    *,
+    topic: str | None = None,
+    times: str | Path | None = None,
+    rate_hz: float | None = None,
+    stamp_unit: str = "s",
+) -> LoadedTrajectory:
+    """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path."""
+    path_text, topic_spec = split_source(spec)
+    path = Path(path_text)
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    if topic_spec is None and _is_log(path):
+        return read_log_trajectory(path, topic, required_kind="gt")
+    if topic_spec is not None:
+        return read_log_trajectory(path, topic_spec)
+    cols = sniff_columns(path)
+    if cols == 12:
+        poses = read_kitti(path)
+        if times is not None:
+            stamps = read_times(times)
+            if len(stamps) != len(poses):
+                raise InputError(
+                    f"{path}: {len(poses)} KITTI poses but {times} holds {len(stamps)} stamps; "
+                    f"lengths must match line by line"
+                )
+        elif rate_hz is not None:
+            if not rate_hz > 0:
+                raise InputError(f"--rate must be positive, got {rate_hz}")
+            stamps = np.round(np.arange(len(poses)) * (1e9 / rate_hz)).astype(np.int64)
+        else:
+            raise InputError(f"{path}: KITTI poses carry no stamps; give --times FILE (KITTI times.txt) or --rate HZ")
+        return LoadedTrajectory(str(path), stamps, poses, "kitti")
+    if cols == 8:
+        stamps, poses = read_tum(path, stamp_unit)
+        return LoadedTrajectory(str(path), stamps, poses, "tum")
+    raise InputError(
+        f"{path}: first line has {cols} values; expected 8 (TUM: stamp tx ty tz qx qy qz qw) or 12 (KITTI 3x4 pose)"
+    )
+
+
+def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt") -> LoadedTrajectory:
+    """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped) or a TF chain ``tf:a.b``."""
+    from .logs import open_log
+    from .stream import SensorStream, select_topic
+
+    with open_log(path) as log:
+        if topic_spec is not None and topic_spec.startswith("tf:"):
+            return _read_tf_chain(log, path, topic_spec[3:])
+        topic = select_topic(log, required_kind, topic_spec)
+        stamps, poses = [], []
+        for rec in SensorStream(log, {"gt": topic}, strict=True):
+            stamps.append(rec.stamp_ns)
+            poses.append(rec.data.pose)
+    if not poses:
+        raise InputError(f"{path}: topic {topic} holds no messages")
+    return LoadedTrajectory(f"{path}:{topic}", np.asarray(stamps, dtype=np.int64), np.asarray(poses), "topic")
+
+
+def _read_tf_chain(log, path: Path, chain: str) -> LoadedTrajectory:
+    """``T_parent_child`` over time from /tf (dynamic) and /tf_static, composing any chain between them.
+
+    The output stamps are those of the busiest dynamic edge on the chain; other dynamic edges are interpolated
+    there, and stamps outside any dynamic edge's span are dropped.
+    """
+    from .decode import TF_MESSAGE, decode_tf
+
+    edges: dict[tuple[str, str], list[tuple[int, np.ndarray]]] = {}
+    static: dict[tuple[str, str], np.ndarray] = {}
+    topics = [t for t in ("/tf", "/tf_static") if t in log.topics and log.topics[t].msgtype == TF_MESSAGE]
+    if not topics:
+        raise InputError(f"{path}: no /tf or /tf_static topic (tf2_msgs/TFMessage) to read tf:{chain} from")
+    for topic, _, _, msg in log.messages(topics):
+        for tr in decode_tf(msg):
+            if topic == "/tf_static":
+                static[(tr.parent, tr.child)] = tr.pose
+            else:
+                edges.setdefault((tr.parent, tr.child), []).append((tr.stamp_ns, tr.pose))
+    frames = {f for e in list(edges) + list(static) for f in e}
+    parent, child = _split_chain(chain, frames, path)
+    # breadth-first search over undirected edges; remember direction
+    graph: dict[str, list[tuple[str, tuple[str, str], bool]]] = {}
+    for key in list(edges) + list(static):
+        graph.setdefault(key[0], []).append((key[1], key, False))
+        graph.setdefault(key[1], []).append((key[0], key, True))
+    prev: dict[str, tuple[str, tuple[str, str], bool] | None] = {parent: None}
+    queue = [parent]
+    while queue:
+        frame = queue.pop(0)
+        for nxt, key, inverted in graph.get(frame, []):
+            if nxt not in prev:
+                prev[nxt] = (frame, key, inverted)
+                queue.append(nxt)
+    if child not in prev:
+        raise InputError(f"{path}: no chain of transforms connects '{parent}' to '{child}' in /tf and /tf_static")
+    steps = []
+    frame = child
+    while prev[frame] is not None:
+        before, key, inverted = prev[frame]
+        steps.append((key, inverted))
+        frame = before
+    steps.reverse()
+    series = {}
+    for key, _ in steps:
+        if key in edges:
+            recs = sorted(edges[key], key=lambda r: r[0])
+            st = np.array([r[0] for r in recs], dtype=np.int64)
+            keep = np.concatenate([[True], np.diff(st) > 0])  # drop duplicated stamps
+            series[key] = (st[keep], np.array([r[1] for r in recs])[keep])
+    if not series:
+        raise InputError(f"{path}: '{parent}' -> '{child}' is static (only /tf_static): no trajectory over time")
+    main = max(series, key=lambda k: len(series[k][0]))
+    stamps = series[main][0]
+    lo = max(s[0][0] for s in series.values())
+    hi = min(s[0][-1] for s in series.values())
+    stamps = stamps[(stamps >= lo) & (stamps <= hi)]
+    if len(stamps) == 0:
+        raise InputError(f"{path}: the dynamic transforms on '{parent}' -> '{child}' never overlap in time")
+    out = np.repeat(np.eye(4)[None], len(stamps), axis=0)
+    for key, inverted in steps:
+        if key in series:
+            st, P = series[key]
+            T = P[np.searchsorted(st, stamps)] if key == main else interpolate_poses(st, P, stamps)
+        else:
+            T = np.repeat(static[key][None], len(stamps), axis=0)
+        out = out @ (inv_pose(T) if inverted else T)
+    return LoadedTrajectory(f"{path}:tf:{parent}.{child}", stamps, out, "tf")
+
+
+def _split_chain(chain: str, frames: set[str], path: Path) -> tuple[str, str]:
+    if "->" in chain:
+        a, _, b = chain.partition("->")
+        candidates = [(a, b)]
+    else:
+        dots = [i for i, c in enumerate(chain) if c == "."]
+        candidates = [(chain[:i], chain[i + 1:]) for i in dots]
+    if not candidates:
+        raise InputError(f"tf:{chain}: expected tf:PARENT.CHILD (or tf:PARENT->CHILD)")
+    for a, b in candidates:
+        a, b = a.strip("/"), b.strip("/")
+        if a in frames and b in frames:
+            return a, b
+    known = ", ".join(sorted(frames)) or "none"
+    raise InputError(f"{path}: frames of tf:{chain} not found in /tf and /tf_static (frames there: {known})")

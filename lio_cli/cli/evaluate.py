@@ -1,0 +1,299 @@
+"""``lio evaluate``: APE/RPE (as evo computes them), KITTI segment errors and drift of estimates vs ground truth."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from ..errors import ConfigError, InputError, ProcessingError
+from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult, Trajectory, evaluate
+from ..io.files import check_writable, write_text_atomic
+from ..io.trajectory import STAMP_UNITS_NS, load_trajectory, parse_stamp_ns
+from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json
+
+HELP = """Compare one or more estimated trajectories with ground truth: APE and RPE with the statistics rmse,
+mean, median, std, min, max, sse (the same numbers evo gives on the same settings), KITTI odometry
+segment errors, final-position error and drift per distance travelled.
+
+[bold]Inputs[/bold] (GT and each EST)
+
+  file.tum                    TUM: stamp tx ty tz qx qy qz qw (stamp in s; see --est-stamp-unit)
+  poses.txt                   KITTI: 12 values per line (3x4 [R|t]); needs --times FILE or --rate HZ
+  run.bag:/ground_truth       a topic of a log (Odometry, PoseStamped, TransformStamped); '#' works
+                              as well as ':' (run.bag#/ground_truth); a bare log path uses --gt-topic
+                              or the only ground-truth topic
+  run.bag:tf:map.base_link    the chain map -> base_link composed from /tf and /tf_static
+                              (also tf:map->base_link when frame names hold dots)
+
+[bold]Steps[/bold]: stamps are paired nearest within --t-max-diff (or --interpolate: the denser trajectory
+is resampled at the other's stamps, linear + slerp, as evo does); the estimate is aligned (--align, default
+se3 Umeyama; evo's default is none); then APE, RPE over --delta, KITTI segments (100..800 m of ground-truth
+path, needs a long enough run) and drift are computed on the aligned estimate.
+
+[bold]Metric names[/bold] (for --fail-above and --csv columns): ape_REL_STAT and rpe_REL_STAT with REL trans
+(m), rot (deg), rot_rad, full (|E - I|) and STAT rmse mean median std min max sse; ape_rmse and rpe_rmse
+(= *_trans_rmse); kitti_trans_pct, kitti_rot_deg_per_100m; final_error_m, drift_pct; matches; scale.
+
+Exit codes: 0 ok, 1 a --fail-above limit exceeded, 2 bad input (message names file and line).
+
+[bold]Examples[/bold]
+
+  lio evaluate gt.tum odom.tum
+
+  lio evaluate run.bag:/ground_truth lio.tum kiss.tum --plot plots/ --csv results.csv
+
+  lio evaluate gt.txt est.txt --times times.txt --align none --delta 100 --delta-unit m
+
+  lio evaluate gt.tum est.tum --align sim3 --json | jq .estimates[0].ape.trans.rmse
+
+  lio evaluate gt.tum est.tum --fail-above ape_rmse=0.5 --fail-above kitti_trans_pct=2
+"""
+
+_DELTA_ALIASES = {"f": "frames", "frames": "frames", "frame": "frames", "m": "m", "meters": "m", "metres": "m",
+                  "s": "s", "seconds": "s", "sec": "s", "d": "deg", "deg": "deg", "degrees": "deg",
+                  "r": "rad", "rad": "rad", "radians": "rad"}
+_CSV_HEAD = ("estimate",)
+
+
+def _stamp_unit(value: str, flag: str) -> str:
+    if value not in STAMP_UNITS_NS:
+        raise ConfigError(f"{flag} must be one of {', '.join(STAMP_UNITS_NS)}, got '{value}'")
+    return value
+
+
+def _parse_limits(items: list[str]) -> dict[str, float]:
+    limits = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--fail-above '{item}' is not METRIC=VALUE (e.g. ape_rmse=0.5)")
+        try:
+            limits[key] = float(value)
+        except ValueError as err:
+            raise ConfigError(f"--fail-above {key}: '{value}' is not a number") from err
+    return limits
+
+
+def _known_metrics() -> set[str]:
+    names = {"ape_rmse", "rpe_rmse", "kitti_trans_pct", "kitti_rot_deg_per_100m", "final_error_m", "drift_pct",
+             "matches", "scale", "rpe_pairs", "kitti_segments", "path_length_m"}
+    for kind in ("ape", "rpe"):
+        for rel in RELATIONS:
+            for stat in ("rmse", "mean", "median", "std", "min", "max", "sse"):
+                names.add(f"{kind}_{rel}_{stat}")
+    return names
+
+
+def evaluate_cmd(
+    gt: Annotated[str, typer.Argument(help="Ground truth: TUM/KITTI file, LOG:/topic, LOG:tf:parent.child, or a log with --gt-topic.", show_default=False)],
+    estimates: Annotated[list[str], typer.Argument(help="One or more estimates (same forms as GT).", show_default=False)],
+    gt_topic: Annotated[Optional[str], typer.Option("--gt-topic", help="Ground-truth topic when GT is a bare log path.", show_default=False)] = None,
+    times: Annotated[Optional[Path], typer.Option("--times", help="KITTI times file (one stamp in s per line) for KITTI pose files.", show_default=False)] = None,
+    rate: Annotated[Optional[float], typer.Option("--rate", help="Stamp KITTI pose files at this rate (Hz) instead of --times.", show_default=False)] = None,
+    gt_stamp_unit: Annotated[str, typer.Option("--gt-stamp-unit", help="Unit of GT TUM stamps: s, ms, us, ns.")] = "s",
+    est_stamp_unit: Annotated[str, typer.Option("--est-stamp-unit", help="Unit of estimate TUM stamps: s, ms, us, ns.")] = "s",
+    t_max_diff: Annotated[float, typer.Option("--t-max-diff", help="Largest stamp difference (s) for a pair.")] = 0.01,
+    t_offset: Annotated[str, typer.Option("--t-offset", help="Seconds added to estimate stamps before pairing.")] = "0",
+    interpolate: Annotated[bool, typer.Option("--interpolate", help="Resample the denser trajectory at the other's stamps (linear + slerp) instead of taking the nearest pose.")] = False,
+    align_mode: Annotated[str, typer.Option("--align", help="Alignment: none, se3 (Umeyama), sim3 (Umeyama + scale), scale (scale only), origin (first poses coincide).")] = "se3",
+    n_align: Annotated[Optional[int], typer.Option("--n-align", help="Fit se3/sim3/scale on the first N paired poses only.", show_default=False)] = None,
+    delta: Annotated[float, typer.Option("--delta", help="RPE step.")] = 1.0,
+    delta_unit: Annotated[str, typer.Option("--delta-unit", help="Unit of --delta: frames, m (path), s, deg or rad (accumulated rotation).")] = "frames",
+    all_pairs: Annotated[bool, typer.Option("--all-pairs", help="RPE over every start pose instead of consecutive windows.")] = False,
+    pairs_from_reference: Annotated[bool, typer.Option("--pairs-from-reference", help="Choose RPE pairs on the ground truth (default: on the aligned estimate, as evo).")] = False,
+    delta_tol: Annotated[float, typer.Option("--delta-tol", help="Relative tolerance of --delta with --all-pairs (m, s, deg, rad).")] = 0.1,
+    as_json: JsonOpt = False,
+    csv_out: Annotated[Optional[str], typer.Option("--csv", help="Write one CSV row per estimate to FILE, or '-' for stdout.", show_default=False)] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write PNG plots (top view, APE over time and distance, RPE histogram) and metrics.json into DIR.", show_default=False)] = None,
+    fail_above: Annotated[Optional[list[str]], typer.Option("--fail-above", help="METRIC=VALUE: exit 1 when any estimate's metric exceeds VALUE (repeatable).", show_default=False)] = None,
+    force: ForceOpt = False,
+    quiet: QuietOpt = False,
+) -> None:
+    t_start = time.perf_counter()
+    unit = _DELTA_ALIASES.get(delta_unit.lower())
+    if unit is None:
+        raise ConfigError(f"--delta-unit must be frames, m, s, deg or rad, got '{delta_unit}'")
+    if align_mode not in ALIGN_MODES:
+        raise ConfigError(f"--align must be one of {', '.join(ALIGN_MODES)}, got '{align_mode}'")
+    if not (t_max_diff >= 0 and math.isfinite(t_max_diff)):
+        raise ConfigError(f"--t-max-diff must be a non-negative number of seconds, got {t_max_diff}")
+    if times is not None and rate is not None:
+        raise ConfigError("give --times or --rate, not both")
+    try:
+        offset_ns = parse_stamp_ns(t_offset)
+    except ValueError as err:
+        raise ConfigError(f"--t-offset '{t_offset}' is not a number of seconds") from err
+    limits = _parse_limits(fail_above or [])
+    unknown = sorted(set(limits) - _known_metrics())
+    if unknown:
+        raise ConfigError(f"--fail-above: unknown metric {', '.join(unknown)} (see lio evaluate --help for names)")
+    _stamp_unit(gt_stamp_unit, "--gt-stamp-unit")
+    _stamp_unit(est_stamp_unit, "--est-stamp-unit")
+    csv_path = None if csv_out in (None, "-") else Path(csv_out)
+    if csv_path is not None:
+        check_writable(csv_path, force)
+    if plot is not None:
+        _prepare_plot_dir(plot, force)
+
+    opts = EvalOptions(max_diff_ns=int(round(t_max_diff * 1e9)), offset_ns=offset_ns,
+                       method="interpolate" if interpolate else "nearest", align=align_mode, n_align=n_align,
+                       delta=delta, delta_unit=unit, all_pairs=all_pairs, pairs_from_reference=pairs_from_reference,
+                       delta_tol=delta_tol)
+    gt_traj = load_trajectory(gt, topic=gt_topic, times=times, rate_hz=rate, stamp_unit=gt_stamp_unit)
+    ref = Trajectory(gt_traj.stamps_ns, gt_traj.poses, gt)
+    results: list[EvalResult] = []
+    for spec in estimates:
+        loaded = load_trajectory(spec, times=times, rate_hz=rate, stamp_unit=est_stamp_unit)
+        if loaded.kind == "kitti" and gt_traj.kind == "kitti" and len(loaded) != len(gt_traj):
+            raise InputError(
+                f"{spec}: {len(loaded)} KITTI poses but the ground truth {gt} has {len(gt_traj)}; KITTI pose "
+                f"files pair line by line and must have the same length"
+            )
+        results.append(evaluate(ref, Trajectory(loaded.stamps_ns, loaded.poses, spec), opts))
+
+    elapsed = time.perf_counter() - t_start
+    report = {
+        "reference": {"name": gt, "poses": len(ref), "kind": gt_traj.kind},
+        "estimates": [r.summary() for r in results],
+        "metrics": [{"estimate": r.name, **r.flat_metrics()} for r in results],
+        "elapsed_s": round(elapsed, 4),
+    }
+    stdout_taken = as_json or csv_out == "-"
+    if not quiet or not stdout_taken:
+        _print_tables(results, opts, err_console if stdout_taken else out_console)
+    if csv_out is not None:
+        text = _csv_text(results)
+        if csv_path is None:
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        else:
+            write_text_atomic(csv_path, text, force)
+            note(f"wrote {csv_path}", quiet)
+    if plot is not None:
+        from ..evaluation.plots import write_plots
+        import json
+
+        paths = write_plots(ref.positions, results, plot, force)
+        write_text_atomic(plot / "metrics.json", json.dumps(_jsonable(report), indent=2) + "\n", force)
+        note(f"wrote {', '.join(str(p) for p in paths)} and {plot / 'metrics.json'}", quiet)
+    if as_json:
+        print_json(report)
+    _check_limits(results, limits)
+
+
+def _prepare_plot_dir(folder: Path, force: bool) -> None:
+    from ..evaluation.plots import PLOT_FILES
+
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: exists and is not a folder")
+    if not folder.exists():
+        if not folder.parent.exists():
+            raise InputError(f"{folder.parent}: output folder does not exist")
+        folder.mkdir()
+    for name in (*PLOT_FILES, "metrics.json"):
+        check_writable(folder / name, force)
+
+
+def _jsonable(obj):
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def _csv_text(results: list[EvalResult]) -> str:
+    rows = [r.flat_metrics() for r in results]
+    cols = list(rows[0])
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([*_CSV_HEAD, *cols])
+    for r, row in zip(results, rows):
+        w.writerow([r.name, *("" if row[c] is None else repr(float(row[c])) if isinstance(row[c], float) else row[c]
+                              for c in cols)])
+    return buf.getvalue()
+
+
+def _fmt(v: float | None, digits: int = 4) -> str:
+    if v is None:
+        return "-"
+    return f"{v:.{digits}g}" if abs(v) < 1e5 else f"{v:.3e}"
+
+
+def _print_tables(results: list[EvalResult], o: EvalOptions, console) -> None:
+    r0 = results[0]
+    assoc = "interpolated" if o.method == "interpolate" else f"nearest within {o.max_diff_ns / 1e9:g} s"
+    n_txt = f", first {r0.alignment.n_used} poses" if o.n_align else ""
+    console.print(f"[bold]reference[/bold] {r0.association.ref.name}   pairing: {assoc}   "
+                  f"alignment: {o.align}{n_txt}   RPE delta: {o.delta:g} {o.delta_unit}"
+                  f"{' (all pairs)' if o.all_pairs else ''}")
+    if len(results) == 1:
+        r = r0
+        table = Table(box=None, pad_edge=False, title=f"{r.name}  ({len(r.association.ref)} pairs"
+                      f"{f', scale {r.alignment.scale:.6g}' if o.align in ('sim3', 'scale') else ''})", title_justify="left")
+        table.add_column("metric")
+        for stat in ("rmse", "mean", "median", "std", "min", "max"):
+            table.add_column(stat, justify="right")
+        for kind in ("ape", "rpe"):
+            for rel, label in (("trans", "translation [m]"), ("rot", "rotation [deg]"), ("full", "full |E-I|")):
+                s = r.stats[kind][rel]
+                table.add_row(f"{kind.upper()} {label}", *(_fmt(s[k]) for k in ("rmse", "mean", "median", "std", "min", "max")))
+        console.print(table)
+        k, d = r.kitti, r.drift
+        if k["segments"]:
+            console.print(f"KITTI segments ({k['segments']}): translation {_fmt(k['trans_pct'])} %, "
+                          f"rotation {_fmt(k['rot_deg_per_100m'])} deg/100 m")
+        else:
+            console.print(f"KITTI segments: none ({k['note']})")
+        drift_txt = f"{_fmt(d['drift_pct'])} % of {d['path_length_m']:.1f} m" if d["drift_pct"] is not None else "-"
+        console.print(f"final-position error {_fmt(d['final_error_m'])} m, drift {drift_txt}")
+        return
+    table = Table(box=None, pad_edge=False)
+    cols = [("estimate", "left"), ("pairs", "right"), ("APE rmse m", "right"), ("APE rot deg", "right"),
+            ("RPE rmse m", "right"), ("RPE rot deg", "right"), ("KITTI %", "right"), ("KITTI deg/100m", "right"),
+            ("final m", "right"), ("drift %", "right")]
+    for name, just in cols:
+        table.add_column(name, justify=just, no_wrap=True)
+    for r in results:
+        m = r.flat_metrics()
+        table.add_row(r.name, str(m["matches"]), _fmt(m["ape_trans_rmse"]), _fmt(m["ape_rot_rmse"]),
+                      _fmt(m["rpe_trans_rmse"]), _fmt(m["rpe_rot_rmse"]), _fmt(m["kitti_trans_pct"]),
+                      _fmt(m["kitti_rot_deg_per_100m"]), _fmt(m["final_error_m"]), _fmt(m["drift_pct"]))
+    if not console.is_terminal:  # a pipe or file gets the whole table, not one cut to 80 columns
+        from rich.console import Console
+
+        console = Console(file=console.file, width=250, highlight=False, soft_wrap=True)
+    console.print(table)
+
+
+def _check_limits(results: list[EvalResult], limits: dict[str, float]) -> None:
+    failures = []
+    for r in results:
+        m = r.flat_metrics()
+        for key, limit in limits.items():
+            v = m[key]
+            if v is None:
+                failures.append(f"{r.name}: {key} is undefined (limit {limit:g})")
+            elif v > limit:
+                failures.append(f"{r.name}: {key} = {v:.6g} exceeds {limit:g}")
+    if failures:
+        raise ProcessingError("--fail-above: " + "; ".join(failures))
+
+
+def register(app: typer.Typer) -> None:
+    app.command("evaluate", help=HELP, no_args_is_help=True)(evaluate_cmd)
