@@ -29,7 +29,7 @@ app = typer.Typer(
 _state = {"debug": False}
 
 # One module per command; each exposes register(app).
-COMMANDS = ["info", "odom"]
+COMMANDS = ["info", "odom", "evaluate"]
 
 
 def _version(value: bool) -> None:
