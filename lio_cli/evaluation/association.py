@@ -130,4 +130,4 @@ def explain_no_match(ref: Trajectory, est: Trajectory, max_diff_ns: int, offset_
     i = np.clip(np.searchsorted(ref.stamps_ns, shifted), 1, len(ref) - 1) if len(ref) > 1 else np.zeros(len(est), int)
     gaps = np.minimum(np.abs(ref.stamps_ns[i] - shifted), np.abs(ref.stamps_ns[np.maximum(i - 1, 0)] - shifted))
     closest = float(gaps.min()) / 1e9
-    return f"{head}: the closest stamps are {closest:.6g} s apart; raise --t-max-diff above that or use --interpolate"
+    return f"{head}: the closest stamps are {closest:.6g} s apart; raise --t-max-diff above that (--interpolate pairs within it too)"
