@@ -29,7 +29,7 @@ app = typer.Typer(
 _state = {"debug": False}
 
 # One module per command; each exposes register(app).
-COMMANDS = ["info", "odom", "evaluate"]
+COMMANDS = ["info", "odom", "evaluate", "simulate"]
 
 
 def _version(value: bool) -> None:
