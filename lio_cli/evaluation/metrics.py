@@ -155,7 +155,7 @@ def rpe_pairs(
             pairs = _all_pairs_by_angle(poses[:, :3, :3], target, tol)
     if len(pairs) == 0:
         raise InputError(
-            f"RPE with --delta {delta} {unit} found no pose pairs among {n} poses; lower --delta"
+            f"RPE with --delta {delta:g} {unit} found no pose pairs among {n} poses; lower --delta"
             + (" or raise --delta-tol" if all_pairs and unit != "frames" else "")
         )
     return pairs.astype(np.int64)
