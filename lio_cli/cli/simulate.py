@@ -23,11 +23,9 @@ SCENARIO is one of:
 
   [bold]planar[/bold]    a differential-drive robot in an office: 2D LaserScan, wheel encoders, IMU
 
-OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess.
-Beside it go x.gt.tum (pose of base in world, TUM) and x.truth.json (true extrinsics, IMU biases, clock
-offset, wheel radius/baseline errors, slip episode). Topics: /points or /scan (frame lidar), /imu (frame imu),
-/wheel/odom (odom -> base; not for handheld), /ground_truth (PoseStamped, world), /tf_static (base -> imu,
-base -> lidar). The platform stands still for 1.5 s first. Same arguments and --seed give the same bytes.
+OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go x.gt.tum (pose of base in world, TUM) and x.truth.json (true extrinsics, IMU biases, clock offset, wheel radius/baseline errors, slip episode).
+
+Topics: /points or /scan (frame lidar, header stamp = sweep start, recorded at sweep end), /imu (frame imu), /wheel/odom (odom -> base, not for handheld), /ground_truth (PoseStamped of base in world), /tf_static (base -> imu, base -> lidar). The platform stands still for the first 1.5 s. The same arguments and --seed give the same bytes.
 
 [bold]Examples[/bold]
 
