@@ -250,3 +250,25 @@ def test_trajectory_building_blocks_are_exact():
     np.testing.assert_allclose(st.velocity_mps, 0.0, atol=1e-12)
     R = st.R_world_base
     np.testing.assert_allclose(np.einsum("nij,nkj->nik", R, R), np.tile(np.eye(3), (2, 1, 1)), atol=1e-12)
+
+
+def test_handheld_defeats_constant_velocity_but_not_the_gyro():
+    """Per sweep, extrapolating the previous sweep's rotation (constant velocity) is degrees off on the
+    handheld path; integrating the (noiseless) gyro over the sweep is within hundredths of a degree."""
+    sc = build_scenario("handheld")
+    starts = np.arange(3.0, 20.0, 0.1)
+    T = sc.trajectory.poses(np.concatenate([starts - 0.1, starts, starts + 0.1])).reshape(3, len(starts), 4, 4)
+    R_prev = np.einsum("nji,njk->nik", T[0, :, :3, :3], T[1, :, :3, :3])
+    R_cur = np.einsum("nji,njk->nik", T[1, :, :3, :3], T[2, :, :3, :3])
+    cv_err_deg = np.degrees(np.linalg.norm(so3_log(np.einsum("nji,njk->nik", R_prev, R_cur)), axis=1))
+    assert np.median(cv_err_deg) > 3.0
+    imu = synthesize_imu(sc.trajectory, sc.T_base_imu, ImuSpec(), 0, 21 * NS, 0, rng=None)
+    R_bi = sc.T_base_imu[:3, :3]
+    for s, R_true in zip(starts[::17], R_cur[::17]):
+        k0 = int(round(s * 200))
+        R = np.eye(3)
+        for k in range(k0, k0 + 20):
+            w0, w1 = imu.gyro_radps[k], imu.gyro_radps[k + 1]
+            R = R @ so3_exp((w0 + w1) / 2 * 0.005 + np.cross(w0, w1) * 0.005**2 / 12)
+        R_base = R_bi @ R @ R_bi.T
+        assert np.degrees(np.linalg.norm(so3_log(R_base.T @ R_true))) < 0.05
