@@ -141,21 +141,74 @@ def _check_finite(path: Path, numbers: list[int], vals: np.ndarray) -> None:
         raise InputError(f"{path}:{numbers[int(bad[0])]}: NaN or infinite value")
 
 
+def _fast_table(text: str, ncols: int) -> tuple[list[str], np.ndarray] | None:
+    """(first-column tokens, all values as float (N, ncols)) of a plain machine-written table, else None.
+
+    Plain means: no comments, commas or blank lines, ``ncols`` numbers on every line. Anything else (or any
+    doubt) returns None and the caller takes the line-by-line path, which names the offending line.
+    """
+    if "#" in text or "," in text or "\n\n" in text.strip() or text[:1].isspace():
+        return None
+    tokens = text.split()
+    n = text.strip().count("\n") + 1 if tokens else 0
+    if n == 0 or len(tokens) != n * ncols:
+        return None
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a bad token stops fromstring early (older numpy warns, newer raises)
+        try:
+            vals = np.fromstring(text, dtype=np.float64, sep=" ")
+        except ValueError:
+            return None
+    if len(vals) != n * ncols:
+        return None
+    return tokens[::ncols], vals.reshape(n, ncols)
+
+
+def _fast_stamps_ns(texts: list[str], unit: str) -> np.ndarray | None:
+    """Exact int ns of plain decimal stamps (``123.456``), or None if any is signed, scientific or too large."""
+    out = []
+    append = out.append
+    try:
+        for s in texts:
+            whole, _, frac = s.partition(".")
+            if len(frac) > 9 or not (whole.isdigit() and (frac.isdigit() or not frac)):
+                return None
+            append(int(whole) * 1_000_000_000 + (int(frac) * 10 ** (9 - len(frac)) if frac else 0))
+    except ValueError:
+        return None
+    divisor = STAMP_UNITS_NS[unit]
+    if divisor == 1 and max(out) > _INT64_MAX:
+        return None
+    if divisor == 1:
+        return np.array(out, dtype=np.int64)
+    return np.array([v // divisor for v in out], dtype=np.int64)
+
+
 def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.ndarray]:
     """(stamps_ns (N,), poses (N,4,4)) of a TUM file; bad lines raise InputError with the line number.
 
     ``stamp_unit`` (s, ms, us, ns) says what the first column counts; seconds are parsed exactly.
     """
     path = Path(path)
-    numbers, tokens = _data_lines(_read_text(path))
-    if not tokens:
-        raise InputError(f"{path}: no poses in file")
-    for lineno, parts in zip(numbers, tokens):
-        if len(parts) != 8:
-            raise InputError(f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), found {len(parts)}")
-    texts = [p[0] for p in tokens]
-    stamps = _stamps_ns(path, numbers, texts, stamp_unit)
-    vals = _floats(path, numbers, [p[1:] for p in tokens])
+    text = _read_text(path)
+    fast = _fast_table(text, 8)
+    stamps = _fast_stamps_ns(fast[0], stamp_unit) if fast is not None else None
+    if fast is not None and stamps is not None:
+        texts = fast[0]
+        numbers = range(1, len(texts) + 1)
+        vals = fast[1][:, 1:]
+    else:
+        numbers, tokens = _data_lines(text)
+        if not tokens:
+            raise InputError(f"{path}: no poses in file")
+        for lineno, parts in zip(numbers, tokens):
+            if len(parts) != 8:
+                raise InputError(f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), found {len(parts)}")
+        texts = [p[0] for p in tokens]
+        stamps = _stamps_ns(path, numbers, texts, stamp_unit)
+        vals = _floats(path, numbers, [p[1:] for p in tokens])
     _check_finite(path, numbers, vals)
     qn = np.linalg.norm(vals[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(qn - 1.0) > QUAT_NORM_TOL)
@@ -169,13 +222,18 @@ def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.nd
 def read_kitti(path: str | Path) -> np.ndarray:
     """Poses (N,4,4) of a KITTI pose file (12 values per line: row-major [R | t])."""
     path = Path(path)
-    numbers, tokens = _data_lines(_read_text(path))
-    if not tokens:
-        raise InputError(f"{path}: no poses in file")
-    for lineno, parts in zip(numbers, tokens):
-        if len(parts) != 12:
-            raise InputError(f"{path}:{lineno}: expected 12 values (KITTI row-major 3x4 pose), found {len(parts)}")
-    vals = _floats(path, numbers, tokens)
+    text = _read_text(path)
+    fast = _fast_table(text, 12)
+    if fast is not None:
+        numbers, vals = range(1, len(fast[1]) + 1), fast[1]
+    else:
+        numbers, tokens = _data_lines(text)
+        if not tokens:
+            raise InputError(f"{path}: no poses in file")
+        for lineno, parts in zip(numbers, tokens):
+            if len(parts) != 12:
+                raise InputError(f"{path}:{lineno}: expected 12 values (KITTI row-major 3x4 pose), found {len(parts)}")
+        vals = _floats(path, numbers, tokens)
     _check_finite(path, numbers, vals)
     poses = np.zeros((len(vals), 4, 4))
     poses[:, :3, :] = vals.reshape(-1, 3, 4)

@@ -1,0 +1,154 @@
+"""Time `lio evaluate` against evo on two simulated 100 000-pose TUM trajectories (APE + RPE).
+
+Run:  python benchmarks/bench_evaluate.py [--poses 100000] [--evo-venv /tmp/evo-venv] [--repeat 3]
+
+Both tools read the same files with the same settings (nearest association within 0.01 s, SE(3) Umeyama,
+RPE over 1 frame). Rows:
+  lio CLI      `lio evaluate GT EST --json` as a subprocess: start-up, reading, APE, RPE (+ KITTI, drift)
+  lio stages   the same work in this process, stage by stage
+  evo CLI      `evo_ape ... -a` plus `evo_rpe ... -a` as subprocesses (evo needs two runs for both metrics)
+  evo API      evo's Python API in its venv: read, sync, align, APE, RPE, in one process
+evo is installed into a scratch venv when missing (`python -m venv` + `pip install evo`). Best of --repeat.
+The APE/RPE rmse of both are printed too, as a cross-check.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from evo_agreement import ensure_evo, simulate  # noqa: E402
+
+from lio_cli.evaluation import EvalOptions, Trajectory, align, ape_errors, associate, kitti_segment_errors  # noqa: E402
+from lio_cli.evaluation import rpe_errors, rpe_pairs, statistics  # noqa: E402
+from lio_cli.io.trajectory import format_tum, read_tum  # noqa: E402
+
+EVO_API = r"""
+import json, sys, time
+t0 = time.perf_counter()
+from evo.core import metrics, sync
+from evo.tools import file_interface
+ref = file_interface.read_tum_trajectory_file(sys.argv[1])
+est = file_interface.read_tum_trajectory_file(sys.argv[2])
+t1 = time.perf_counter()
+ref, est = sync.associate_trajectories(ref, est, max_diff=0.01)
+est.align(ref)
+t2 = time.perf_counter()
+ape = metrics.APE(metrics.PoseRelation.translation_part); ape.process_data((ref, est))
+t3 = time.perf_counter()
+rpe = metrics.RPE(metrics.PoseRelation.translation_part, 1, metrics.Unit.frames); rpe.process_data((ref, est))
+t4 = time.perf_counter()
+print(json.dumps({"read": t1 - t0, "sync_align": t2 - t1, "ape": t3 - t2, "rpe": t4 - t3, "total": t4 - t0,
+                  "ape_rmse": ape.get_statistic(metrics.StatisticsType.rmse),
+                  "rpe_rmse": rpe.get_statistic(metrics.StatisticsType.rmse)}))
+"""
+
+
+def best_of(repeat: int, fn):
+    best, out = float("inf"), None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--poses", type=int, default=100_000)
+    ap.add_argument("--evo-venv", type=Path, default=Path(os.environ.get("EVO_VENV", "/tmp/evo-venv")))
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--skip-evo-cli", action="store_true", help="skip the evo_ape/evo_rpe subprocess rows")
+    args = ap.parse_args()
+    evo_py = ensure_evo(args.evo_venv)
+    # same density for both: the estimate is simulated 3x sparser, so simulate 3x the ground truth and keep N
+    ref_sim, est_sim = simulate(3 * args.poses, seed=3)
+    ref_sim = Trajectory(ref_sim.stamps_ns[::3][: args.poses], ref_sim.poses[::3][: args.poses], "ref")
+    est_sim = Trajectory(est_sim.stamps_ns[: args.poses], est_sim.poses[: args.poses], "est")
+    lio = shutil.which("lio", path=str(Path(sys.executable).parent)) or "lio"
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        gt, est = Path(tmp, "gt.tum"), Path(tmp, "est.tum")
+        gt.write_text(format_tum(ref_sim.stamps_ns, ref_sim.poses))
+        est.write_text(format_tum(est_sim.stamps_ns, est_sim.poses))
+
+        def lio_cli():
+            p = subprocess.run([lio, "evaluate", str(gt), str(est), "--json", "--quiet"], capture_output=True, text=True,
+                               check=True)
+            return json.loads(p.stdout)
+
+        t_cli, rep = best_of(args.repeat, lio_cli)
+        m = rep["metrics"][0]
+        rows.append(("lio CLI (APE+RPE+KITTI+drift)", t_cli, m["ape_trans_rmse"], m["rpe_trans_rmse"]))
+
+        stages = {}
+
+        def lio_stages():
+            t = time.perf_counter()
+            rs, rp = read_tum(gt)
+            es, ep = read_tum(est)
+            stages["read"] = time.perf_counter() - t
+            t = time.perf_counter()
+            a = associate(Trajectory(rs, rp, "gt"), Trajectory(es, ep, "est"), 10_000_000)
+            al = align(a.ref.poses, a.est.poses, "se3")
+            est_al = al.apply(a.est.poses)
+            stages["associate+align"] = time.perf_counter() - t
+            t = time.perf_counter()
+            ape = statistics(ape_errors(a.ref.poses, est_al)["trans"])
+            stages["APE (4 relations)"] = time.perf_counter() - t
+            t = time.perf_counter()
+            pairs = rpe_pairs(est_al, a.est.stamps_ns, 1, "frames")
+            rpe = statistics(rpe_errors(a.ref.poses, est_al, pairs)["trans"])
+            stages["RPE (4 relations)"] = time.perf_counter() - t
+            t = time.perf_counter()
+            kitti_segment_errors(a.ref.poses, est_al)
+            stages["KITTI segments"] = time.perf_counter() - t
+            return ape["rmse"], rpe["rmse"]
+
+        t_in, (ape_rmse, rpe_rmse) = best_of(args.repeat, lio_stages)
+        rows.append(("lio in-process total", t_in, ape_rmse, rpe_rmse))
+        for k, v in stages.items():
+            rows.append((f"  lio {k}", v, None, None))
+
+        def evo_api():
+            p = subprocess.run([str(evo_py), "-c", EVO_API, str(gt), str(est)], capture_output=True, text=True, check=True)
+            return json.loads(p.stdout)
+
+        t_evo_proc, ev = best_of(args.repeat, evo_api)
+        rows.append(("evo API in-process total", ev["total"], ev["ape_rmse"], ev["rpe_rmse"]))
+        for k in ("read", "sync_align", "ape", "rpe"):
+            rows.append((f"  evo {k}", ev[k], None, None))
+        rows.append(("evo API as a subprocess", t_evo_proc, None, None))
+        if not args.skip_evo_cli:
+            bin_dir = Path(evo_py).parent
+
+            def evo_cli():
+                for tool in ("evo_ape", "evo_rpe"):
+                    subprocess.run([str(bin_dir / tool), "tum", str(gt), str(est), "-a", "--no_warnings"],
+                                   capture_output=True, check=True)
+
+            t_evo_cli, _ = best_of(args.repeat, evo_cli)
+            rows.append(("evo CLI (evo_ape -a + evo_rpe -a)", t_evo_cli, None, None))
+    print(f"{args.poses} poses each, {rep['estimates'][0]['poses']['matched']} pairs; best of {args.repeat}")
+    print(f"{'what':<36} {'time s':>9} {'APE rmse m':>20} {'RPE rmse m':>20}")
+    for name, t, a, r in rows:
+        a_txt = f"{a:.15g}" if a is not None else ""
+        r_txt = f"{r:.15g}" if r is not None else ""
+        print(f"{name:<36} {t:>9.3f} {a_txt:>20} {r_txt:>20}")
+    ratio = (rows[-1][1] / t_cli) if not args.skip_evo_cli else None
+    if ratio:
+        print(f"\nlio CLI is {ratio:.1f}x faster than evo's two CLI runs on the same files")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
