@@ -246,3 +246,30 @@ def test_progress_reports_simulated_seconds(tmp_path):
     simulate("planar", tmp_path / "p.bag", duration_s=1.0, seed=0, progress=seen.append)
     assert len(seen) == 10
     assert sum(seen) == pytest.approx(1.0)
+
+
+SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
+SAMPLE_BUDGET_BYTES = 20_000_000
+
+
+def test_sample_logs_are_small_and_hold_what_the_readme_says():
+    files = [p for p in SAMPLE_LOGS.rglob("*") if p.is_file()]
+    assert sum(p.stat().st_size for p in files) <= SAMPLE_BUDGET_BYTES
+    readme = (SAMPLE_LOGS / "README.md").read_text()
+    for name, fmt, scenario, duration_s, lidar in [("handheld.bag", "ros1", "handheld", 7, "/points"),
+                                                    ("corridor_ros2", "ros2", "corridor", 6, "/points"),
+                                                    ("planar.mcap", "mcap", "planar", 15, "/scan")]:
+        log = SAMPLE_LOGS / name
+        assert f"lio simulate {scenario} sample_logs/{name.rstrip('/')}" in readme
+        with open_log(log) as reader:
+            assert reader.format == fmt
+            assert set(reader.topics) == expected_topics(scenario)
+            assert reader.topics[lidar].count == duration_s * 10
+            assert reader.topics["/imu"].count == duration_s * 200 + 1
+        gt, truth = output_paths(log)
+        stamps, poses = read_tum(gt)
+        assert len(stamps) == duration_s * 100 + 1
+        # the ground truth is the scenario's trajectory (no randomness in it)
+        sc = build_scenario(scenario)
+        np.testing.assert_allclose(poses, sc.trajectory.poses((stamps - START_NS) * 1e-9), atol=1e-8)
+        assert json.loads(truth.read_text())["scenario"] == scenario

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import re
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -174,11 +175,11 @@ def _truth(sc: Scenario, opts: SimulationOptions, imu, imu_spec: ImuSpec, seed: 
                  "scale_meaning": "true = nominal * scale; odometry uses the nominal values", "slip": slip}
     return {
         "scenario": sc.name, "description": sc.description, "seed": seed, "format": fmt,
-        "start_ns": start_ns, "end_ns": end_ns, "duration_s": (end_ns - start_ns) * 1e-9,
+        "start_ns": start_ns, "end_ns": end_ns, "duration_s": round((end_ns - start_ns) * 1e-9, 9),
         "gravity_mps2": [0.0, 0.0, -9.81],
         "frames": {"world": "fixed, z up; ground truth is T_world_base", "base": "x forward, y left, z up",
                    "odom": "wheel odometry origin = base pose at start"},
-        "T_base_imu": np.round(sc.T_base_imu, 12).tolist(), "T_base_lidar": np.round(sc.T_base_lidar, 12).tolist(),
+        "T_base_imu": (np.round(sc.T_base_imu, 12) + 0.0).tolist(), "T_base_lidar": (np.round(sc.T_base_lidar, 12) + 0.0).tolist(),
         "imu": {
             "topic": TOPIC_IMU, "frame_id": "imu", "rate_hz": imu_spec.rate_hz,
             "time_offset_s": imu_spec.time_offset_ns * 1e-9, "time_offset_ns": imu_spec.time_offset_ns,
@@ -303,7 +304,7 @@ def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s:
 
     write_text_atomic(gt_path, format_tum(gt_ns, gt_poses), force=force)
     truth = _truth(sc, opts, imu, imu_spec, seed, fmt, start_ns, end_ns)
-    write_text_atomic(truth_path, json.dumps(truth, indent=2) + "\n", force=force)
+    write_text_atomic(truth_path, compact_json(truth), force=force)
 
     rates = {TOPIC_IMU: imu_spec.rate_hz, TOPIC_GT: GT_RATE_HZ, lidar_topic: NS / period,
              TOPIC_WHEEL: sc.wheels.rate_hz if sc.wheels else None, TOPIC_TF_STATIC: None}
@@ -311,6 +312,12 @@ def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s:
     size = sum(f.stat().st_size for f in out.rglob("*")) if out.is_dir() else out.stat().st_size
     return SimulationResult(scenario, fmt, seed, duration_s, out, gt_path, truth_path, start_ns, end_ns, topics,
                             int(size + gt_path.stat().st_size + truth_path.stat().st_size))
+
+
+def compact_json(obj) -> str:
+    """Indented JSON with innermost lists (vectors, matrix rows) kept on one line."""
+    text = json.dumps(obj, indent=2)
+    return re.sub(r"\[\n\s+([^\[\]{}]*?)\n\s*\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text) + "\n"
 
 
 def _validate(opts: SimulationOptions, duration_s: float) -> None:
