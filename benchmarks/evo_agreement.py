@@ -131,9 +131,12 @@ def main() -> int:
     ap.add_argument("--evo-venv", type=Path, default=Path(os.environ.get("EVO_VENV", "/tmp/evo-venv")))
     ap.add_argument("--poses", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--t0", type=float, default=1000.0,
+                    help="first stamp (s); with Unix-epoch stamps (1.7e9) evo's float seconds keep only ~0.2 us, so "
+                         "its interpolation weights (not lio's, which uses int ns) move by ~1e-5 relative")
     args = ap.parse_args()
     evo_py = ensure_evo(args.evo_venv)
-    ref_sim, est_sim = simulate(args.poses, args.seed)
+    ref_sim, est_sim = simulate(args.poses, args.seed, args.t0)
     with tempfile.TemporaryDirectory() as tmp:
         ref_path, est_path = Path(tmp, "ref.tum"), Path(tmp, "est.tum")
         ref_path.write_text(format_tum(ref_sim.stamps_ns, ref_sim.poses))

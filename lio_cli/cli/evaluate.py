@@ -19,42 +19,51 @@ from ..io.files import check_writable, write_text_atomic
 from ..io.trajectory import STAMP_UNITS_NS, load_trajectory, parse_stamp_ns
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json
 
-HELP = """Compare one or more estimated trajectories with ground truth: APE and RPE with the statistics rmse,
-mean, median, std, min, max, sse (the same numbers evo gives on the same settings), KITTI odometry
-segment errors, final-position error and drift per distance travelled.
+HELP = """Trajectory errors against ground truth: APE/RPE as evo, KITTI, drift.
 
-[bold]Inputs[/bold] (GT and each EST)
+APE and RPE come with rmse, mean, median, std, min, max and sse, equal to
+evo's on the same settings; also KITTI odometry segment errors, the
+final-position error and drift per distance travelled.
 
-  file.tum                    TUM: stamp tx ty tz qx qy qz qw (stamp in s; see --est-stamp-unit)
-  poses.txt                   KITTI: 12 values per line (3x4 [R|t]); needs --times FILE or --rate HZ
-  run.bag:/ground_truth       a topic of a log (Odometry, PoseStamped, TransformStamped); '#' works
-                              as well as ':' (run.bag#/ground_truth); a bare log path uses --gt-topic
-                              or the only ground-truth topic
-  run.bag:tf:map.base_link    the chain map -> base_link composed from /tf and /tf_static
-                              (also tf:map->base_link when frame names hold dots)
+[bold]Inputs[/bold] (GT and every EST)
 
-[bold]Steps[/bold]: stamps are paired nearest within --t-max-diff (or --interpolate: the denser trajectory
-is resampled at the other's stamps, linear + slerp, as evo does); the estimate is aligned (--align, default
-se3 Umeyama; evo's default is none); then APE, RPE over --delta, KITTI segments (100..800 m of ground-truth
-path, needs a long enough run) and drift are computed on the aligned estimate.
+  gt.tum                     TUM: stamp tx ty tz qx qy qz qw, stamp in s
+                             (else --gt-stamp-unit / --est-stamp-unit)
+  poses.txt                  KITTI: 12 values per line, 3x4 [R|t];
+                             needs --times FILE or --rate HZ
+  run.bag:/ground_truth      a log topic: Odometry, PoseStamped or
+                             TransformStamped ('#' works too:
+                             run.bag#/ground_truth)
+  run.bag                    a bare log: --gt-topic, or its only
+                             ground-truth topic
+  run.bag:tf:map.base_link   map -> base_link composed from /tf and
+                             /tf_static (or tf:map->base_link)
 
-[bold]Metric names[/bold] (for --fail-above and --csv columns): ape_REL_STAT and rpe_REL_STAT with REL trans
-(m), rot (deg), rot_rad, full (|E - I|) and STAT rmse mean median std min max sse; ape_rmse and rpe_rmse
-(= *_trans_rmse); kitti_trans_pct, kitti_rot_deg_per_100m; final_error_m, drift_pct; matches; scale.
+[bold]Steps[/bold]: pair stamps (nearest within --t-max-diff; --interpolate
+resamples the denser trajectory at the other's stamps, as evo does), align
+the estimate (--align, default se3; evo's default is none), then compute
+APE, RPE over --delta, KITTI segments (100..800 m of ground-truth path)
+and drift on the aligned estimate.
 
-Exit codes: 0 ok, 1 a --fail-above limit exceeded, 2 bad input (message names file and line).
+[bold]Metric names[/bold] for --fail-above and the --csv columns:
+ape_REL_STAT, rpe_REL_STAT with REL = trans (m), rot (deg), rot_rad,
+full (|E - I|) and STAT = rmse mean median std min max sse;
+ape_rmse, rpe_rmse (translation rmse); kitti_trans_pct,
+kitti_rot_deg_per_100m; final_error_m; drift_pct; matches; scale.
+
+Exit codes: 0 ok, 1 a --fail-above limit exceeded, 2 bad input.
 
 [bold]Examples[/bold]
 
   lio evaluate gt.tum odom.tum
 
-  lio evaluate run.bag:/ground_truth lio.tum kiss.tum --plot plots/ --csv results.csv
+  lio evaluate run.bag:/ground_truth lio.tum kiss.tum --plot plots/
 
-  lio evaluate gt.txt est.txt --times times.txt --align none --delta 100 --delta-unit m
+  lio evaluate gt.txt est.txt --times times.txt --delta 100 --delta-unit m
 
-  lio evaluate gt.tum est.tum --align sim3 --json | jq .estimates[0].ape.trans.rmse
+  lio evaluate gt.tum est.tum --align sim3 --json | jq .metrics[0]
 
-  lio evaluate gt.tum est.tum --fail-above ape_rmse=0.5 --fail-above kitti_trans_pct=2
+  lio evaluate gt.tum est.tum --fail-above ape_rmse=0.5
 """
 
 _DELTA_ALIASES = {"f": "frames", "frames": "frames", "frame": "frames", "m": "m", "meters": "m", "metres": "m",
