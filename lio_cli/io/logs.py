@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from .rawmsg import RAW_PARSERS
 from .records import TopicInfo
 
 FORMATS = ("ros1", "ros2", "mcap")
@@ -28,6 +29,19 @@ _SQLITE_MAGIC = b"SQLite format 3"
 # IndexError, UnicodeDecodeError, their own error classes...). The io boundary turns all of them into
 # InputError naming the file; InputError itself passes through untouched.
 _READ_ERRORS = (Exception,)
+
+# Definitions the raw parsers (rawmsg.py) are written for: ROS 1 md5 sums and ROS 2 RIHS01 hashes. A log
+# whose connection declares another definition of the type is deserialised by the typestore instead.
+_RAW_DIGESTS = {
+    "sensor_msgs/msg/PointCloud2": {
+        "1158d486dd51d683ce2f1be655c3c181",
+        "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+    },
+    "sensor_msgs/msg/Imu": {
+        "6a62c6daae103f4ff57a132d6f95cec2",
+        "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
+    },
+}
 
 
 def _magic(path: Path) -> bytes:
@@ -116,12 +130,32 @@ class LogReader:
         except _READ_ERRORS as err:
             raise self._wrap("cannot read messages", err) from err
 
-    def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, Any]]:
-        """(topic, msgtype, record_time_ns, message object) in record-time order."""
+    def messages(self, topics: Iterable[str] | None = None, *, fast: bool = False
+                 ) -> Iterator[tuple[str, str, int, Any]]:
+        """(topic, msgtype, record_time_ns, message object) in record-time order.
+
+        ``fast``: PointCloud2 and Imu messages are parsed straight from their bytes (``rawmsg``) into light
+        records (``RawPointCloud2``, ``RawImu``) instead of typestore objects; other types are unchanged.
+        """
         wanted = set(topics) if topics is not None else None
+        cdr = self.format != "ros1"
+        parsers: dict = {}
         try:
             for topic, msgtype, t_ns, raw, handle in self._iter_raw(wanted):
-                yield topic, msgtype, t_ns, self._deserialize(raw, msgtype, handle)
+                msg = None
+                if fast:
+                    key = (msgtype, getattr(handle, "digest", "") or "")
+                    parser = parsers.get(key, 0)
+                    if parser == 0:
+                        parser = RAW_PARSERS.get(msgtype)
+                        if parser is not None and key[1] and key[1] not in _RAW_DIGESTS[msgtype]:
+                            parser = None
+                        parsers[key] = parser
+                    if parser is not None:
+                        msg = parser(raw, cdr)
+                if msg is None:
+                    msg = self._deserialize(raw, msgtype, handle)
+                yield topic, msgtype, t_ns, msg
         except InputError:
             raise
         except _READ_ERRORS as err:
@@ -141,16 +175,24 @@ class _RosbagsLog(LogReader):
 
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
-        from rosbags.highlevel import AnyReader
+        from rosbags.highlevel import AnyReader, AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
-        default = get_typestore(Stores.ROS2_HUMBLE if fmt == "ros2" else Stores.ROS1_NOETIC)
         if fmt == "ros1":
             # AnyReader tells ROS 1 from ROS 2 by the .bag suffix; a bag named otherwise is ROS 1 by content
             paths = [p if p.suffix == ".bag" else _BagPath(p) for p in paths]
         try:
-            self._reader = AnyReader(paths, default_typestore=default)
-            self._reader.open()
+            try:
+                self._reader = AnyReader(paths)
+                self._reader.open()
+            except AnyReaderError as err:
+                if "no type definitions" not in str(err):
+                    raise
+                # an old ROS 2 bag without stored definitions: use the standard ones (building a default
+                # typestore costs ~50 ms, so only when needed)
+                default = get_typestore(Stores.ROS2_HUMBLE if fmt == "ros2" else Stores.ROS1_NOETIC)
+                self._reader = AnyReader(paths, default_typestore=default)
+                self._reader.open()
         except _READ_ERRORS as err:
             raise InputError(
                 f"{path}: cannot open as {fmt} log ({_first_line(err)}); the log may be truncated or corrupted"
@@ -186,7 +228,7 @@ class _RosbagsLog(LogReader):
         if not conns:
             return
         for conn, t_ns, raw in self._reader.messages(connections=conns):
-            yield conn.topic, conn.msgtype, int(t_ns), raw, None
+            yield conn.topic, conn.msgtype, int(t_ns), raw, conn
 
     def _deserialize(self, raw, msgtype, handle):
         return self._reader.deserialize(raw, msgtype)
@@ -204,9 +246,8 @@ class _McapLog(LogReader):
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
         from mcap.reader import make_reader
-        from rosbags.typesys import Stores, get_typestore
 
-        self._typestore = get_typestore(Stores.ROS2_HUMBLE)
+        self._typestore = None  # built from the file's schemas on first deserialisation
         self._registered: set[str] = set()
         try:
             self._file = paths[0].open("rb")
@@ -281,12 +322,22 @@ class _McapLog(LogReader):
             yield channel.topic, msgtype, int(message.log_time), message.data, schema
 
     def _deserialize(self, raw, msgtype, schema):
-        if msgtype not in self._typestore.types and msgtype not in self._registered:
-            if schema is None or schema.encoding != "ros2msg":
-                raise InputError(f"{self.path}: no ROS 2 message definition stored for type {msgtype}")
-            from rosbags.typesys import get_types_from_msg
+        if self._typestore is None:
+            from rosbags.typesys import Stores, get_typestore
 
-            self._typestore.register(_types_from_ros2msg(schema.data.decode(), msgtype, get_types_from_msg))
+            self._typestore = get_typestore(Stores.EMPTY)
+        if msgtype not in self._registered:
+            if schema is None or schema.encoding != "ros2msg":
+                if msgtype not in self._typestore.types:  # no definition in the file: the standard one
+                    from rosbags.typesys import Stores, get_typestore
+
+                    self._typestore.register(get_typestore(Stores.ROS2_HUMBLE).fielddefs)
+                if msgtype not in self._typestore.types:
+                    raise InputError(f"{self.path}: no ROS 2 message definition stored for type {msgtype}")
+            else:
+                from rosbags.typesys import get_types_from_msg
+
+                self._typestore.register(_types_from_ros2msg(schema.data.decode(), msgtype, get_types_from_msg))
             self._registered.add(msgtype)
         return self._typestore.deserialize_cdr(raw, msgtype)
 

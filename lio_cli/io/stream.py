@@ -8,6 +8,7 @@ long the log is. IMU samples are batched into arrays between other records.
 from __future__ import annotations
 
 import heapq
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -25,7 +26,14 @@ from .decode import (
     imu_sample,
 )
 from .logs import LogReader
-from .pointcloud import DEFAULT_SCAN_PERIOD_NS, decode_laserscan, decode_pointcloud2, stamp_to_ns
+from .pointcloud import (
+    DEFAULT_SCAN_PERIOD_NS,
+    decode_laserscan,
+    decode_pointcloud2,
+    detect_time_convention,
+    stamp_to_ns,
+)
+from .rawmsg import RawImu
 from .records import ImuBatch, Record, TimeConvention
 
 _KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth"}
@@ -113,12 +121,19 @@ class SensorStream:
         self.imu_batch_size = imu_batch_size
         self.stats = StreamStats()
         self._last: dict[str, int] = {}
+        self._conventions: dict[tuple, TimeConvention] = {}
 
     def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
         kind = self.kind_of[topic]
         if kind == "lidar":
             if msgtype == POINTCLOUD2:
-                cloud = decode_pointcloud2(msg, self.convention, self.scan_period_ns)
+                conv = self.convention
+                if conv is None:  # detect once per topic and field layout, not per scan
+                    key = (topic, tuple((f.name, int(f.datatype), int(f.offset)) for f in msg.fields))
+                    conv = self._conventions.get(key)
+                    if conv is None:
+                        conv = self._conventions[key] = detect_time_convention(msg)
+                cloud = decode_pointcloud2(msg, conv, self.scan_period_ns)
             elif msgtype == LASERSCAN:
                 cloud = decode_laserscan(msg)
             else:  # pragma: no cover - select_topic guards the type
@@ -134,13 +149,19 @@ class SensorStream:
                 return None
             return Record(kind, topic, cloud.stamp_ns, cloud)
         if kind == "imu":
-            stamp, gyro, accel = imu_sample(msg)
-            if not (np.isfinite(gyro).all() and np.isfinite(accel).all()):
+            if isinstance(msg, RawImu):
+                stamp, frame, gyro, accel = msg
+                finite = all(map(math.isfinite, gyro)) and all(map(math.isfinite, accel))
+            else:
+                stamp, gyro, accel = imu_sample(msg)
+                frame = msg.header.frame_id
+                finite = bool(np.isfinite(gyro).all() and np.isfinite(accel).all())
+            if not finite:
                 if self.strict:
                     raise InputError(f"{self.log.path}: {topic}: IMU sample at {_fmt_ns(stamp)} holds NaN")
                 self.stats.invalid_points += 1
                 return None
-            return Record(kind, topic, stamp, (msg.header.frame_id, gyro, accel))
+            return Record(kind, topic, stamp, (frame, gyro, accel))
         if kind == "wheel":
             rec = decode_odometry(msg, msgtype)
             return Record(kind, topic, rec.stamp_ns, rec)
@@ -171,11 +192,12 @@ class SensorStream:
         def flush_imu() -> Iterator[Record]:
             nonlocal imu
             if imu:
+                stamps, gyros, accels = zip(*imu)
                 batch = ImuBatch(
                     imu_frame,
-                    np.array([s for s, _, _ in imu], dtype=np.int64),
-                    np.array([g for _, g, _ in imu]),
-                    np.array([a for _, _, a in imu]),
+                    np.array(stamps, dtype=np.int64),
+                    np.array(gyros, dtype=np.float64).reshape(-1, 3),
+                    np.array(accels, dtype=np.float64).reshape(-1, 3),
                 )
                 imu = []
                 yield Record("imu", imu_topic, int(batch.stamps_ns[0]), batch)
@@ -194,7 +216,7 @@ class SensorStream:
                 yield from flush_imu()
                 yield rec
 
-        for topic, msgtype, t_rec, msg in self.log.messages(self.kind_of):
+        for topic, msgtype, t_rec, msg in self.log.messages(self.kind_of, fast=True):
             self.stats.messages[topic] = self.stats.messages.get(topic, 0) + 1
             try:
                 rec = self._decode(topic, msgtype, msg)

@@ -189,3 +189,24 @@ def test_laserscan_topic_streams_as_planar_clouds(logs):
         clouds = [r.data for r in SensorStream(log, {"lidar": "/scan"})]
     assert len(clouds) == 3 and all(c.planar and len(c.points) == 4 for c in clouds)
     np.testing.assert_array_equal(clouds[0].point_stamps_ns - logs.T0_NS, [0, 1_000_000, 3_000_000, 4_000_000])
+
+
+def test_fast_raw_path_gives_what_the_typestore_path_gives(logs, write_format):
+    from lio_cli.io.decode import imu_sample
+    from lio_cli.io.pointcloud import decode_pointcloud2
+
+    path = logs.sensor_log(write_format, duration_s=0.3)
+    with open_log(path) as log:
+        recs = list(SensorStream(log, {"lidar": "/points", "imu": "/imu"}))
+        slow_clouds = [decode_pointcloud2(m) for _, _, _, m in log.messages(["/points"])]
+        slow_imu = [imu_sample(m) for _, _, _, m in log.messages(["/imu"])]
+    clouds = [r.data for r in recs if r.kind == "lidar"]
+    imu = ImuBatch.concat([r.data for r in recs if r.kind == "imu"])
+    assert len(clouds) == len(slow_clouds) == 3
+    for fast, slow in zip(clouds, slow_clouds):
+        np.testing.assert_array_equal(fast.points, slow.points)
+        np.testing.assert_array_equal(fast.point_stamps_ns, slow.point_stamps_ns)
+        assert (fast.frame_id, fast.stamp_ns, fast.convention) == (slow.frame_id, slow.stamp_ns, slow.convention)
+    np.testing.assert_array_equal(imu.stamps_ns, [s for s, _, _ in slow_imu])
+    np.testing.assert_array_equal(imu.gyro_radps, [g for _, g, _ in slow_imu])
+    np.testing.assert_array_equal(imu.accel_mps2, [a for _, _, a in slow_imu])
