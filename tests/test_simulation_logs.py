@@ -273,3 +273,32 @@ def test_sample_logs_are_small_and_hold_what_the_readme_says():
         sc = build_scenario(scenario)
         np.testing.assert_allclose(poses, sc.trajectory.poses((stamps - START_NS) * 1e-9), atol=1e-8)
         assert json.loads(truth.read_text())["scenario"] == scenario
+
+
+def test_cli_options_reach_the_log(tmp_path, capsys):
+    out = tmp_path / "town"
+    rc, _, err = run(capsys, "simulate", "drive", out, "--format", "ros2-mcap", "--duration", 0.5, "--beams", 64,
+                     "--columns", 32, "--imu-rate", 400, "--imu-time-offset", -0.003, "--time-convention", "ouster",
+                     "--range-noise", 0.0, "--dropout", 0.0, "--seed", 3, "--quiet")
+    assert rc == 0, err
+    assert err == ""  # --quiet: nothing on stderr
+    assert (out / "town.mcap").is_file()
+    with open_log(out) as log:
+        assert log.format == "ros2"
+        assert log.topics["/imu"].count == 201
+        clouds = [m for _, _, _, m in log.messages(["/points"])]
+        imu = [m for _, _, _, m in log.messages(["/imu"])]
+    assert len(clouds) == 5
+    cloud = decode_pointcloud2(clouds[2])
+    assert cloud.convention.name == "ouster"
+    assert 0.5 * 64 * 32 < len(cloud.points) <= 64 * 32  # no dropouts: every ray that hits within range
+    from lio_cli.io.pointcloud import cloud_dtype
+
+    rings = np.frombuffer(bytes(clouds[2].data), dtype=cloud_dtype(clouds[2]))["ring"]
+    assert rings.max() == 63
+    truth = json.loads((tmp_path / "town.truth.json").read_text())
+    assert truth["imu"]["time_offset_ns"] == -3_000_000 and truth["imu"]["rate_hz"] == 400.0
+    assert truth["lidar"]["beams"] == 64 and truth["lidar"]["time_convention"] == "ouster"
+    assert truth["lidar"]["range_noise_m"] == 0.0
+    stamps = [m.header.stamp.sec * NS + m.header.stamp.nanosec for m in imu]
+    assert stamps[0] == START_NS and stamps[1] - stamps[0] == 2_500_000

@@ -6,7 +6,7 @@ same scenario always happens in the same place; ``--seed`` only drives sensor no
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +33,6 @@ class Scenario:
     wheels: WheelSpec | None
     clearance_m: float  # the platform's half-width: the path keeps at least this from every obstacle
     body_z_m: tuple[float, float] = (0.0, 1.9)  # height band the platform occupies (for the clearance check)
-    extras: dict = field(default_factory=dict)
 
 
 def _pose(rpy_rad: tuple[float, float, float], xyz_m: tuple[float, float, float]) -> np.ndarray:
