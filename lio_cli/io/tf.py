@@ -6,6 +6,7 @@ from collections import deque
 
 import numpy as np
 
+from ..errors import InputError
 from ..geometry import inv_pose
 from .decode import TF_MESSAGE, decode_tf
 from .logs import LogReader
@@ -61,10 +62,18 @@ def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTre
     if info is None or info.msgtype != TF_MESSAGE:
         return tree
     seen = 0
-    for _, _, _, msg in log.messages([topic]):
-        for tr in decode_tf(msg):
-            tree.add(tr)
-        seen += 1
-        if seen >= info.count:
-            break
+    messages = log.messages([topic])
+    try:
+        for _, _, _, msg in messages:
+            for tr in decode_tf(msg):
+                tree.add(tr)
+            seen += 1
+            if seen >= info.count:
+                break
+    except InputError as err:
+        if str(err).startswith(f"{log.path}:"):
+            raise
+        raise InputError(f"{log.path}: {topic}: {err}") from err
+    finally:
+        messages.close()  # release the reader's cursor now, not at garbage collection
     return tree

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lio_cli.errors import InputError
 from lio_cli.geometry import inv_pose, make_pose, so3_exp
 from lio_cli.io.logs import open_log
 from lio_cli.io.records import TransformRecord
@@ -54,3 +55,17 @@ def test_log_without_tf_static_gives_empty_tree(logs):
     with open_log(path) as log:
         tree = read_static_frames(log)
     assert tree.frames == [] and tree.lookup("a", "b") is None
+
+
+def test_bad_transform_on_tf_static_names_file_and_topic(logs):
+    def build(w):
+        w.add_topic("/tf_static", "tf2_msgs/msg/TFMessage")
+        tf = w.make.transform_stamped(logs.T0_NS, "base", "imu", np.eye(4))
+        tf.transform.rotation.w = 0.0  # a zero quaternion
+        w.write("/tf_static", logs.T0_NS, w.make.tf_message([tf]))
+    path = logs.write("ros2", build)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            read_static_frames(log)
+    assert str(err.value) == (f"{path}: /tf_static: transform base->imu holds a non-finite position or a "
+                              "zero/NaN quaternion")
