@@ -235,7 +235,8 @@ def test_footprint_clearance_sign():
 def test_paths_never_enter_an_obstacle(name):
     sc = build_scenario(name)
     t = np.arange(0.0, 150.0, 0.05)  # more than a lap of every closed path
-    xy = sc.trajectory.state(t).position_m[:, :2]
+    t_long = np.arange(150.0, 3600.0, 0.5)  # up to the longest --duration allowed (the corridor is open)
+    xy = sc.trajectory.state(np.concatenate([t, t_long])).position_m[:, :2]
     clearance = footprint_clearance(sc.world, xy, *sc.body_z_m)
     assert clearance.min() > sc.clearance_m
     if sc.trajectory.path.closed:

@@ -135,8 +135,9 @@ def office_world(keep_clear: list[np.ndarray], clear_m: float = 0.9, seed: int =
     return w
 
 
-def corridor_world(length_m: float = 300.0, width_m: float = 2.4, height_m: float = 2.6) -> World:
-    """A long straight corridor, smooth walls, no features: geometry leaves motion along x unconstrained."""
+def corridor_world(length_m: float = 8000.0, width_m: float = 2.4, height_m: float = 2.6) -> World:
+    """A long straight corridor (its ends far beyond LiDAR range), smooth walls, no features: geometry leaves
+    motion along x unconstrained."""
     w = World("corridor")
     w.add_plane(0.0, 0.3)
     w.add_plane(height_m, 0.5)
@@ -246,7 +247,7 @@ def build_scenario(name: str, beams: int | None = None, columns: int | None = No
             body_z_m=(0.0, 0.5),
         )
     if name == "corridor":
-        xs = np.arange(-60.0, 150.0, 2.5)
+        xs = np.arange(-60.0, 3950.0, 2.5)  # over an hour of driving before the path ends
         path = Path2D(np.column_stack([xs, 0.4 * np.sin(2 * np.pi * xs / 12.5)]), closed=False)
         traj = Trajectory(path, Progress(1.0, s0_m=30.0, wobble=Sines((0.2,), (0.08,), (0.0,))))
         return Scenario(
