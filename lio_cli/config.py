@@ -47,8 +47,8 @@ class FusionConfig(_Strict):
     position_sigma_m: float = Field(0.03, gt=0, description="registration position noise per scan")
     rotation_sigma_rad: float = Field(0.005, gt=0, description="registration rotation noise per scan")
     degenerate_sigma_m: float = Field(2.0, gt=0, description="position noise along a degenerate direction")
-    degeneracy_ratio: float = Field(0.02, gt=0, description="eigenvalue ratio below which a direction is degenerate")
-    wheel_speed_sigma_mps: float = Field(0.05, gt=0)
+    degeneracy_ratio: float = Field(0.015, gt=0, description="eigenvalue ratio below which a direction is degenerate")
+    wheel_speed_sigma_mps: float = Field(0.2, gt=0, description="wheel speed noise (covers slip episodes)")
     imu: ImuNoise = ImuNoise()
 
 

@@ -50,10 +50,34 @@ def _pose_at(stamps_ns: np.ndarray, poses: np.ndarray, t_ns: int) -> np.ndarray:
 
 def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.ndarray, knot_poses: np.ndarray,
            t_ref_ns: int, T_base_lidar: np.ndarray) -> np.ndarray:
-    """Points (N,3) in the base frame at ``t_ref_ns``, each corrected for the motion since its stamp."""
+    """Points (N,3) in the base frame at ``t_ref_ns``, each corrected for the motion since its stamp.
+
+    Within one knot interval (an IMU period, a few ms) the pose is blended linearly between the two knots'
+    relative poses; the chord-for-arc error of that blend is below a millimetre at 30 m for 3 rad/s.
+    """
     p_base = points_lidar @ T_base_lidar[:3, :3].T + T_base_lidar[:3, 3]
-    rel = relative_poses_at(knot_stamps_ns, knot_poses, stamps_ns, t_ref_ns)
-    return np.einsum("nij,nj->ni", rel[:, :3, :3], p_base) + rel[:, :3, 3]
+    knot_stamps_ns = np.asarray(knot_stamps_ns, dtype=np.int64)
+    ref = _pose_at(knot_stamps_ns, knot_poses, t_ref_ns)
+    rel = inv_pose(ref)[None] @ knot_poses  # T_ref_knot
+    m = len(knot_stamps_ns)
+    if m == 1:
+        return p_base @ rel[0, :3, :3].T + rel[0, :3, 3]
+    idx = np.clip(np.searchsorted(knot_stamps_ns, stamps_ns, side="right") - 1, 0, m - 2)
+    span = np.maximum(np.diff(knot_stamps_ns), 1).astype(np.float64)
+    a = np.clip((stamps_ns - knot_stamps_ns[idx]) / span[idx], 0.0, 1.0)[:, None]
+    out = np.empty_like(p_base)
+    order = np.argsort(idx, kind="stable")
+    bounds = np.searchsorted(idx[order], np.arange(m))
+    bounds = np.append(bounds, len(idx))
+    for k in range(m - 1):
+        sel = order[bounds[k]:bounds[k + 1]]
+        if len(sel) == 0:
+            continue
+        q = p_base[sel]
+        q0 = q @ rel[k, :3, :3].T + rel[k, :3, 3]
+        q1 = q @ rel[k + 1, :3, :3].T + rel[k + 1, :3, 3]
+        out[sel] = q0 + a[sel] * (q1 - q0)
+    return out
 
 
 def to_base(points_lidar: np.ndarray, T_base_lidar: np.ndarray) -> np.ndarray:

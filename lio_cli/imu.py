@@ -178,32 +178,58 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     w_b = (gyros - s.bg) @ R_bi.T  # base angular rate at each time
     f_b = (accs - s.ba) @ R_bi.T  # specific force at the IMU, base axes
     n = len(times)
-    poses = np.zeros((n, 4, 4))
-    poses[:, 3, 3] = 1.0
-    poses[0, :3, :3], poses[0, :3, 3] = s.R, s.p
     dts = np.diff(times) * 1e-9
-    Pn = _noise_matrix(noise)
+    # orientation: midpoint rule, a chain of small rotations
+    w_mid = 0.5 * (w_b[1:] + w_b[:-1])
+    steps = _exp_many(w_mid * dts[:, None])
+    Rs = np.empty((n, 3, 3))
+    Rs[0] = s.R
     for k in range(n - 1):
-        dt = dts[k]
-        if dt <= 0:
-            poses[k + 1] = poses[k]
-            continue
-        alpha = (w_b[k + 1] - w_b[k]) / dt
-        a0 = s.R @ (f_b[k] - np.cross(alpha, r) - np.cross(w_b[k], np.cross(w_b[k], r))) + g
-        w_mid = 0.5 * (w_b[k] + w_b[k + 1])
-        R1 = s.R @ exp_so3(w_mid * dt)
-        a1 = R1 @ (f_b[k + 1] - np.cross(alpha, r) - np.cross(w_b[k + 1], np.cross(w_b[k + 1], r))) + g
-        a = 0.5 * (a0 + a1)
-        if Pn is not None:
-            s.P = _propagate_cov(s.P, s.R, R_bi, w_mid, 0.5 * (f_b[k] + f_b[k + 1]), dt, Pn)
-        s.p = s.p + s.v * dt + 0.5 * a * dt * dt
-        s.v = s.v + a * dt
-        s.R = R1
-        if planar:
-            _flatten(s)
-        poses[k + 1, :3, :3], poses[k + 1, :3, 3] = s.R, s.p
+        Rs[k + 1] = Rs[k] @ steps[k]
+    # acceleration of the base origin in world at every sample (lever arm removed), then trapezoids
+    safe_dt = np.where(dts > 0, dts, 1.0)
+    alpha = np.vstack([(w_b[1:] - w_b[:-1]) / safe_dt[:, None], np.zeros((1, 3))])
+    alpha[-1] = alpha[-2] if n > 2 else 0.0
+    lever = np.cross(alpha, r) + np.cross(w_b, np.cross(w_b, r))
+    a_w = np.einsum("nij,nj->ni", Rs, f_b - lever) + g
+    a_mid = 0.5 * (a_w[1:] + a_w[:-1])
+    dv = a_mid * dts[:, None]
+    v = s.v + np.vstack([np.zeros((1, 3)), np.cumsum(dv, axis=0)])
+    dp = v[:-1] * dts[:, None] + 0.5 * a_mid * (dts**2)[:, None]
+    p = s.p + np.vstack([np.zeros((1, 3)), np.cumsum(dp, axis=0)])
+    if noise is not None:
+        s.P = _propagate_cov_interval(s.P, Rs, R_bi, w_b, f_b, dts, _noise_matrix(noise))
+    s.R, s.p, s.v = Rs[-1], p[-1], v[-1]
+    if planar:
+        _flatten(s)
+        Rs, p = _flatten_many(Rs, p)
+    poses = np.zeros((n, 4, 4))
+    poses[:, :3, :3], poses[:, :3, 3], poses[:, 3, 3] = Rs, p, 1.0
     s.stamp_ns = int(t_end_ns)
     return Propagation(times, poses, s, gap)
+
+
+def _exp_many(phi: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for many rotation vectors (N,3) -> (N,3,3)."""
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-9
+    th = np.where(small, 1.0, theta)
+    A = np.where(small, 1.0, np.sin(th) / th)
+    B = np.where(small, 0.5, (1.0 - np.cos(th)) / th**2)
+    K = np.zeros((len(phi), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
+    return np.eye(3) + A[:, None, None] * K + B[:, None, None] * (K @ K)
+
+
+def _flatten_many(Rs: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    yaw = np.arctan2(Rs[:, 1, 0], Rs[:, 0, 0])
+    c, si = np.cos(yaw), np.sin(yaw)
+    out = np.zeros_like(Rs)
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1], out[:, 2, 2] = c, -si, si, c, 1.0
+    p = p.copy()
+    p[:, 2] = 0.0
+    return out, p
 
 
 def _hold(s: NavState, t_end_ns: int) -> Propagation:
@@ -231,17 +257,31 @@ def _noise_matrix(noise) -> np.ndarray | None:
     return np.array([noise.gyro_noise_radps, noise.accel_noise_mps2, noise.gyro_bias_walk, noise.accel_bias_walk]) ** 2
 
 
-def _propagate_cov(P: np.ndarray, R: np.ndarray, R_bi: np.ndarray, w_b: np.ndarray, f_b: np.ndarray, dt: float,
-                   q: np.ndarray) -> np.ndarray:
-    F = np.eye(15)
-    F[0:3, 0:3] = exp_so3(-w_b * dt)
-    F[0:3, 9:12] = -R_bi * dt
-    F[3:6, 6:9] = np.eye(3) * dt
-    F[6:9, 0:3] = -R @ hat(f_b) * dt
-    F[6:9, 12:15] = -R @ R_bi * dt
-    Q = np.zeros(15)
-    Q[0:3] = q[0] * dt
-    Q[6:9] = q[1] * dt
-    Q[9:12] = q[2] * dt
-    Q[12:15] = q[3] * dt
-    return F @ P @ F.T + np.diag(Q)
+def _propagate_cov_interval(P: np.ndarray, Rs: np.ndarray, R_bi: np.ndarray, w_b: np.ndarray, f_b: np.ndarray,
+                            dts: np.ndarray, q: np.ndarray, substep_s: float = 0.025) -> np.ndarray:
+    """Error-state covariance over the interval in sub-steps of about ``substep_s`` (mean rates per sub-step)."""
+    total = float(dts.sum())
+    if total <= 0:
+        return P
+    m = max(1, int(round(total / substep_s)))
+    edges = np.linspace(0, len(dts), m + 1).astype(int)
+    for a, b in zip(edges[:-1], edges[1:]):
+        if b <= a:
+            continue
+        dt = float(dts[a:b].sum())
+        w = w_b[a:b + 1].mean(axis=0)
+        f = f_b[a:b + 1].mean(axis=0)
+        R = Rs[a]
+        F = np.eye(15)
+        F[0:3, 0:3] = exp_so3(-w * dt)
+        F[0:3, 9:12] = -R_bi * dt
+        F[3:6, 6:9] = np.eye(3) * dt
+        F[6:9, 0:3] = -R @ hat(f) * dt
+        F[6:9, 12:15] = -R @ R_bi * dt
+        Q = np.zeros(15)
+        Q[0:3] = q[0] * dt
+        Q[6:9] = q[1] * dt
+        Q[9:12] = q[2] * dt
+        Q[12:15] = q[3] * dt
+        P = F @ P @ F.T + np.diag(Q)
+    return P

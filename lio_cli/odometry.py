@@ -83,25 +83,27 @@ class _KissMap:
         return self.registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
 
-def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 10) -> list[np.ndarray]:
-    """Translation directions the scan's surfaces do not constrain (base frame).
+def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
+                          queries: int = 500) -> list[np.ndarray]:
+    """Translation directions the scan's surfaces do not constrain (in the points' frame).
 
-    Normals from local PCA give the point-to-plane information ``sum n n^T`` on translation; an eigenvalue
-    below ``ratio`` times the largest marks its eigenvector as degenerate (a corridor's axis).
+    Normals from local PCA over ``k`` neighbours in the full scan (at up to ``queries`` sample points) give
+    the point-to-plane information ``sum n n^T`` on translation; an eigenvalue below ``ratio`` times the
+    largest marks its eigenvector as degenerate (a corridor's axis).
     """
     dims = 2 if planar else 3
     pts = points[:, :dims]
     if len(pts) < k + 1:
         return []
-    _, nn = cKDTree(pts).query(pts, k=k)
+    step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
+    _, nn = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(pts[::step], k=k)
     nb = pts[nn]
     centred = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred) / k
-    w, v = np.linalg.eigh(cov)
+    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
     normals = v[:, :, 0]  # smallest eigenvalue's vector
-    # weight by how flat the neighbourhood is (lines and blobs give no reliable normal)
-    flat = 1.0 - w[:, 0] / np.maximum(w[:, 1], 1e-12)
-    info = np.einsum("n,ni,nj->ij", flat, normals, normals)
+    # only neighbourhoods that are surfaces (not lines or blobs) carry a reliable normal
+    planar_ok = (w[:, 1] - w[:, 0]) > 0.3 * np.maximum(w[:, -1], 1e-12)
+    info = normals[planar_ok].T @ normals[planar_ok]
     lam, vec = np.linalg.eigh(info)
     if lam[-1] <= 0:
         return []
@@ -222,7 +224,7 @@ class LioOdometry:
         st.times_s["register"] += time.perf_counter() - tick
 
         tick = time.perf_counter()
-        dirs_b = degenerate_directions(source, self.planar, cfg.fusion.degeneracy_ratio) if not self._kiss.map.empty() else []
+        dirs_b = degenerate_directions(points, self.planar, cfg.fusion.degeneracy_ratio) if not self._kiss.map.empty() else []
         st.times_s["degeneracy"] += time.perf_counter() - tick
         if self.planar:
             measured = project_to_se2(measured)
@@ -324,9 +326,9 @@ class LioOdometry:
 
 
 def _auto_voxel(ranges_m: np.ndarray) -> float:
-    """Map voxel size from the first scan: ~1% of the far ranges (kiss-icp's rule), within [0.25, 1.0] m."""
+    """Map voxel size from the first scan: ~1% of the far ranges (kiss-icp's rule), within [0.5, 1.0] m."""
     far = float(np.percentile(ranges_m, 95)) if len(ranges_m) else 100.0
-    return float(np.clip(far / 50.0, 0.25, 1.0))
+    return float(np.clip(far / 40.0, 0.5, 1.0))
 
 
 __all__ = ["LioOdometry", "ScanResult", "OdomStats", "degenerate_directions", "relative_poses_at"]
