@@ -79,7 +79,7 @@ def spin_scan(world: World, traj: Trajectory, T_base_lidar: np.ndarray, spec: Li
     pose_ns = col_ns if frozen_ns is None else np.full(C, frozen_ns, np.int64)
     T_wb = traj.poses((pose_ns - traj_start_ns) * 1e-9)
     T_wl = T_wb @ T_base_lidar
-    dirs_w = np.einsum("cij,cbj->cbi", T_wl[:, :3, :3], dirs_l)
+    dirs_w = np.matmul(dirs_l, np.swapaxes(T_wl[:, :3, :3], 1, 2))  # (C,B,3): each column rotated by its pose
     origins = np.broadcast_to(T_wl[:, None, :3, 3], (C, B, 3))
     r_true, prim = raycast(world, origins.reshape(-1, 3), dirs_w.reshape(-1, 3), spec.max_range_m)
     r = r_true.copy()

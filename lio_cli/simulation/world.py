@@ -153,7 +153,9 @@ def raycast(world: World, origins: np.ndarray, dirs: np.ndarray, max_range_m: fl
     a_c = np.arctan2(corners[..., 1] - centre[1], corners[..., 0] - centre[0])
     rel = (a_c - a_mid[:, None] + np.pi) % (2 * np.pi) - np.pi
     rel_lo, rel_hi = rel.min(axis=1), rel.max(axis=1)
-    sectors = _SECTORS if n >= 4 * _SECTORS else 1
+    # sectors pay off for many rays among many primitives; otherwise one pass over everything is quicker
+    sectors = min(_SECTORS, n // 256) if n_box + n_cyl > 16 else 1
+    sectors = max(sectors, 1)
     half = np.pi / sectors
     sec_mid = -np.pi + (2 * np.arange(sectors) + 1) * half
     d_ang = (sec_mid[None, :] - a_mid[:, None] + np.pi) % (2 * np.pi) - np.pi  # (M,S)
