@@ -255,3 +255,13 @@ def test_laserscan_planar_points_per_beam_stamps_invalid_dropped(make):
     np.testing.assert_array_equal(cloud.point_stamps_ns, T0_NS + keep * STEP_NS)
     expected = np.stack([ranges[keep] * np.cos(ang), ranges[keep] * np.sin(ang), np.zeros(len(keep))], axis=1)
     np.testing.assert_allclose(cloud.points, expected, atol=XYZ_TOL_M)
+
+
+def test_azimuth_stamps_start_at_the_first_valid_point(make):
+    n = 64
+    arr = cloud_array(n)
+    arr["x"][0] = np.nan  # a no-return first: stamps must not inherit its NaN azimuth
+    cloud = decode_pointcloud2(make.pointcloud2(T0_NS, "lidar", arr), scan_period_ns=PERIOD_NS)
+    assert cloud.dropped == 1
+    expected = T0_NS + np.arange(n - 1) * PERIOD_NS // n
+    assert_stamps_close(cloud.point_stamps_ns, expected, AZIMUTH_TOL_NS)
