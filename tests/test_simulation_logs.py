@@ -219,6 +219,8 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
      "lio: error: unknown --time-convention 'sick' (choose from velodyne, ouster, livox, hesai)\n"),
     (("simulate", "handheld", "x.bag", "--beams", "24"), "lio: error: --beams must be 16, 32, 64 or 128 (got 24)\n"),
     (("simulate", "handheld", "x.bag", "--duration", "0"), "lio: error: --duration must be positive (got 0.0)\n"),
+    (("simulate", "handheld", "x.bag", "--range-noise", "-0.1"), "lio: error: --range-noise must be >= 0 m (got -0.1)\n"),
+    (("simulate", "handheld", "x.bag", "--imu-rate", "5"), "lio: error: --imu-rate must be between 10 and 2000 Hz (got 5.0)\n"),
     (("simulate", "handheld", "x.bag", "--format", "rosbag"),
      "lio: error: unknown output format 'rosbag' (choose from ros1, ros2, ros2-mcap, mcap)\n"),
 ])

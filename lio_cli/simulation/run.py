@@ -337,5 +337,12 @@ def _validate(opts: SimulationOptions, duration_s: float) -> None:
         raise ConfigError(f"--noise-scale must be >= 0 (got {opts.noise_scale})")
     if abs(opts.imu_time_offset_s) > 0.5:
         raise ConfigError(f"--imu-time-offset must be within +-0.5 s (got {opts.imu_time_offset_s})")
+    if opts.range_noise_m is not None and not opts.range_noise_m >= 0.0:
+        raise ConfigError(f"--range-noise must be >= 0 m (got {opts.range_noise_m})")
+    if opts.max_range_m is not None and not 1.0 <= opts.max_range_m <= 1000.0:
+        raise ConfigError(f"--max-range must be between 1 and 1000 m (got {opts.max_range_m})")
+    for flag, value in (("--accel-noise", opts.accel_noise_density), ("--gyro-noise", opts.gyro_noise_density)):
+        if value is not None and not value >= 0.0:
+            raise ConfigError(f"{flag} must be >= 0 (got {value})")
     if opts.dropout is not None and not 0.0 <= opts.dropout < 1.0:
         raise ConfigError(f"--dropout must be in [0, 1) (got {opts.dropout})")
