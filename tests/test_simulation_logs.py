@@ -304,3 +304,30 @@ def test_cli_options_reach_the_log(tmp_path, capsys):
     assert truth["lidar"]["range_noise_m"] == 0.0
     stamps = [m.header.stamp.sec * NS + m.header.stamp.nanosec for m in imu]
     assert stamps[0] == START_NS and stamps[1] - stamps[0] == 2_500_000
+
+
+@pytest.mark.parametrize("convention", ["velodyne", "hesai"])
+def test_header_stamp_at_sweep_end_keeps_every_point_stamp(tmp_path, convention):
+    points = {}
+    for mark in ("start", "end"):
+        out = tmp_path / f"{mark}.bag"
+        simulate("handheld", out, duration_s=0.25, seed=1, time_convention=convention, header_stamp=mark, **TINY)
+        with open_log(out) as log:
+            msgs = [(t, m) for _, _, t, m in log.messages(["/points"])]
+        clouds = [decode_pointcloud2(m) for _, m in msgs]
+        assert [c.header_marks for c in clouds] == [mark, mark]
+        assert [c.stamp_ns for c in clouds] == [START_NS + k * 100_000_000 + (mark == "end") * 100_000_000 for k in (0, 1)]
+        assert [t for t, _ in msgs] == [START_NS + 100_000_000, START_NS + 200_000_000]  # recorded at the end
+        points[mark] = clouds
+    for a, b in zip(points["start"], points["end"]):
+        tol_ns = 1000 if convention == "hesai" else 10
+        np.testing.assert_allclose(a.point_stamps_ns - START_NS, b.point_stamps_ns - START_NS, atol=tol_ns)
+        np.testing.assert_array_equal(a.points, b.points)
+
+
+def test_header_stamp_end_refused_for_unsigned_offsets(tmp_path, capsys):
+    rc, _, err = run(capsys, "simulate", "handheld", tmp_path / "x.bag", "--time-convention", "livox",
+                     "--header-stamp", "end")
+    assert rc == 2
+    assert err == ("lio: error: --header-stamp end needs negative per-point offsets, which the livox convention "
+                   "(unsigned ns) cannot hold; use --time-convention velodyne or hesai\n")

@@ -25,7 +25,7 @@ SCENARIO is one of:
 
 OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go x.gt.tum (pose of base in world, TUM) and x.truth.json (true extrinsics, IMU biases, clock offset, wheel radius/baseline errors, slip episode).
 
-Topics: /points or /scan (frame lidar, header stamp = sweep start, recorded at sweep end), /imu (frame imu), /wheel/odom (odom -> base, not for handheld), /ground_truth (PoseStamped of base in world), /tf_static (base -> imu, base -> lidar). The platform stands still for the first 1.5 s. The same arguments and --seed give the same bytes.
+Topics: /points or /scan (frame lidar, header stamp = sweep start unless --header-stamp end, recorded at sweep end), /imu (frame imu), /wheel/odom (odom -> base, not for handheld), /ground_truth (PoseStamped of base in world), /tf_static (base -> imu, base -> lidar). The platform stands still for the first 1.5 s. The same arguments and --seed give the same bytes.
 
 [bold]Examples[/bold]
 
@@ -49,6 +49,7 @@ def simulate_cmd(
     columns: Annotated[Optional[int], typer.Option("--columns", help="LiDAR columns per revolution (default 1024; planar: LaserScan beams, default 720).", show_default=False)] = None,
     imu_rate: Annotated[float, typer.Option("--imu-rate", help="IMU rate in Hz.")] = 200.0,
     time_convention: Annotated[str, typer.Option("--time-convention", help="Per-point time field: velodyne (time, s), ouster (t, ns), livox (offset_time, ns), hesai (timestamp, absolute s).")] = "velodyne",
+    header_stamp: Annotated[str, typer.Option("--header-stamp", help="What a cloud's header stamp marks: start or end of the sweep (end: relative times <= 0; velodyne or hesai only).")] = "start",
     imu_time_offset: Annotated[float, typer.Option("--imu-time-offset", help="IMU clock offset in s: IMU stamp = true time + offset.")] = 0.0,
     noise_scale: Annotated[float, typer.Option("--noise-scale", help="Multiplies every sensor noise, bias and walk; 0 gives ideal sensors (and no wheel errors).")] = 1.0,
     range_noise: Annotated[Optional[float], typer.Option("--range-noise", help="LiDAR range noise std in m (default 0.015; planar 0.01).", show_default=False)] = None,
@@ -65,7 +66,8 @@ def simulate_cmd(
     with progress_bar(f"simulating {scenario}", duration, quiet) as advance:
         res = simulate(
             scenario, out, fmt, duration_s=duration, seed=seed, force=force, progress=advance, beams=beams,
-            columns=columns, imu_rate_hz=imu_rate, time_convention=time_convention, imu_time_offset_s=imu_time_offset,
+            columns=columns, imu_rate_hz=imu_rate, time_convention=time_convention, header_stamp=header_stamp,
+            imu_time_offset_s=imu_time_offset,
             noise_scale=noise_scale, range_noise_m=range_noise, dropout=dropout, max_range_m=max_range,
             accel_noise_density=accel_noise, gyro_noise_density=gyro_noise, wheel_errors=wheel_errors,
         )

@@ -41,6 +41,7 @@ class SimulationOptions:
     columns: int | None = None
     imu_rate_hz: float = 200.0
     time_convention: str = "velodyne"
+    header_stamp: str = "start"  # what a cloud's header stamp marks: the sweep's start or its end
     imu_time_offset_s: float = 0.0
     noise_scale: float = 1.0
     range_noise_m: float | None = None
@@ -115,10 +116,10 @@ def _configure(sc: Scenario, opts: SimulationOptions, rng: np.random.Generator) 
         w.slip_left, w.slip_right = 0.25, 0.10
 
 
-def _cloud_array(scan: Scan, convention: str) -> np.ndarray:
-    """The PointCloud2 point layout of each convention (header stamp = scan start)."""
+def _cloud_array(scan: Scan, convention: str, header_ns: int) -> np.ndarray:
+    """The PointCloud2 point layout of each convention; relative times are offsets from ``header_ns``."""
     n = len(scan.points)
-    rel_ns = scan.stamps_ns - scan.start_ns
+    rel_ns = scan.stamps_ns - header_ns
     if convention == "velodyne":
         dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<u2"), ("time", "<f4")])
     elif convention == "ouster":
@@ -150,7 +151,8 @@ def _truth(sc: Scenario, opts: SimulationOptions, imu, imu_spec: ImuSpec, seed: 
     w = sc.wheels
     lidar = {"topic": TOPIC_POINTS if isinstance(lid, LidarSpec) else TOPIC_SCAN, "frame_id": "lidar",
              "period_s": lid.period_ns * 1e-9, "range_noise_m": lid.range_noise_m, "dropout": lid.dropout,
-             "max_range_m": lid.max_range_m, "min_range_m": lid.min_range_m, "header_stamp_marks": "start",
+             "max_range_m": lid.max_range_m, "min_range_m": lid.min_range_m,
+             "header_stamp_marks": opts.header_stamp if isinstance(lid, LidarSpec) else "start",
              "record_time": "scan end"}
     if isinstance(lid, LidarSpec):
         from .sensors import beam_elevations_deg
@@ -289,7 +291,9 @@ def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s:
             if spinning:
                 scan = spin_scan(sc.world, sc.trajectory, sc.T_base_lidar, sc.lidar, scan_start, start_ns,
                                  rng_lidar if noisy else None)
-                put(lidar_topic, scan_end, mk.pointcloud2(scan_start, "lidar", _cloud_array(scan, opts.time_convention)))
+                header_ns = scan_start if opts.header_stamp == "start" else scan_end
+                put(lidar_topic, scan_end,
+                    mk.pointcloud2(header_ns, "lidar", _cloud_array(scan, opts.time_convention, header_ns)))
             else:
                 lspec: LaserSpec = sc.lidar
                 ranges = laser_scan(sc.world, sc.trajectory, sc.T_base_lidar, lspec, scan_start, start_ns,
@@ -327,6 +331,11 @@ def _validate(opts: SimulationOptions, duration_s: float) -> None:
         raise ConfigError(f"--duration {duration_s} s is more than an hour; simulate shorter pieces")
     if opts.time_convention not in TIME_CONVENTIONS:
         raise ConfigError(f"unknown --time-convention '{opts.time_convention}' (choose from {', '.join(TIME_CONVENTIONS)})")
+    if opts.header_stamp not in ("start", "end"):
+        raise ConfigError(f"--header-stamp must be start or end (got '{opts.header_stamp}')")
+    if opts.header_stamp == "end" and opts.time_convention in ("ouster", "livox"):
+        raise ConfigError(f"--header-stamp end needs negative per-point offsets, which the {opts.time_convention} "
+                          "convention (unsigned ns) cannot hold; use --time-convention velodyne or hesai")
     if opts.beams is not None and opts.beams not in (16, 32, 64, 128):
         raise ConfigError(f"--beams must be 16, 32, 64 or 128 (got {opts.beams})")
     if opts.columns is not None and not 16 <= opts.columns <= 4096:
