@@ -35,7 +35,7 @@ Topics: /points or /scan (frame lidar, header stamp = sweep start unless --heade
 
   lio simulate corridor corridor_ros2 --format ros2 --imu-time-offset 0.005
 
-  lio simulate planar office.mcap --noise-scale 0 --json    # ideal sensors, machine-readable summary
+  lio simulate planar office.mcap --noise-scale 0 --json   # ideal sensors
 """
 
 
