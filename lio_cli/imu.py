@@ -99,16 +99,17 @@ def start_up(imu: ImuBatch, R_base_imu: np.ndarray, window_ns: int, gravity_mps2
     """Estimate gravity direction and gyro bias from a standing start, or fall back to a moving start."""
     if len(imu) == 0:
         return StartUp(False, np.eye(3), np.zeros(3), 0, "no IMU data before the first scan: level start assumed")
-    sel = imu.stamps_ns <= imu.stamps_ns[0] + window_ns
-    gyro, accel = imu.gyro_radps[sel], imu.accel_mps2[sel]
-    n = int(sel.sum())
-    f_base = R_base_imu @ accel.mean(axis=0)
-    gyro_dev = float(np.linalg.norm(gyro - gyro.mean(axis=0), axis=1).max()) if n else np.inf
-    accel_dev = float(np.abs(np.linalg.norm(accel, axis=1) - gravity_mps2).max()) if n else np.inf
-    R = gravity_aligned_rotation(f_base)
-    if n >= 10 and gyro_dev < gyro_still_radps and accel_dev < accel_still_mps2:
-        return StartUp(True, R, gyro.mean(axis=0), n,
-                       f"standing start: gravity and gyro bias from {n} IMU samples")
+    for win in (window_ns, window_ns // 2, window_ns // 4):  # the longest still stretch at the start
+        sel = imu.stamps_ns <= imu.stamps_ns[0] + win
+        gyro, accel = imu.gyro_radps[sel], imu.accel_mps2[sel]
+        n = int(sel.sum())
+        f_base = R_base_imu @ accel.mean(axis=0)
+        gyro_dev = float(np.linalg.norm(gyro - gyro.mean(axis=0), axis=1).max())
+        accel_dev = float(np.abs(np.linalg.norm(accel, axis=1) - gravity_mps2).max())
+        R = gravity_aligned_rotation(f_base)
+        if n >= 10 and gyro_dev < gyro_still_radps and accel_dev < accel_still_mps2:
+            return StartUp(True, R, gyro.mean(axis=0), n,
+                           f"standing start: gravity and gyro bias from {n} IMU samples over {win * 1e-9:.2f} s")
     return StartUp(False, R, np.zeros(3), n,
                    f"moving start (gyro spread {gyro_dev:.3f} rad/s, accel spread {accel_dev:.2f} m/s^2): "
                    "gravity from mean specific force, gyro bias zero")

@@ -141,6 +141,9 @@ class LioOdometry:
     def add_wheel(self, rec: OdometryRecord) -> None:
         self._wheel.append(rec)
 
+    def imu_from_ns(self) -> int:
+        return int(self._imu[0].stamps_ns[0]) if self._imu else 0
+
     def imu_until_ns(self) -> int | None:
         return int(self._imu[-1].stamps_ns[-1]) if self._imu else None
 

@@ -85,9 +85,11 @@ def run_odometry(reader: LogReader, cfg: OdomConfig, *, lidar_topic: str | None 
         while pending:
             cloud = pending[0]
             covered = odo.imu_until_ns()
-            if use_imu and now_ns is not None and (covered is None or covered < cloud.end_ns) \
-                    and now_ns - cloud.end_ns < _IMU_WAIT_NS:
-                return
+            if use_imu and now_ns is not None:
+                # wait for IMU covering the scan, and before the first scan for the start-up window
+                need = cloud.end_ns if odo.state is not None else max(cloud.end_ns, odo.imu_from_ns() + init_ns)
+                if (covered is None or covered < need) and now_ns - need < _IMU_WAIT_NS:
+                    return
             pending.popleft()
             res = odo.process(cloud)
             if progress:
@@ -96,6 +98,7 @@ def run_odometry(reader: LogReader, cfg: OdomConfig, *, lidar_topic: str | None 
                 stamps.append(res.stamp_ns)
                 poses.append(res.pose)
 
+    init_ns = int(cfg.static_init_s * 1e9)
     early_imu: list[ImuBatch] = []  # IMU before the first scan: kept for the start-up estimate
     tick = time.perf_counter()
     for rec in stream:

@@ -57,8 +57,12 @@ def select_topic(log: LogReader, kind: str, requested: str | None = None, requir
             raise InputError(
                 f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)}){hint}"
             )
+        if info.count == 0:
+            raise InputError(f"{log.path}: topic {requested} has no messages")
         return requested
-    candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted and t not in exclude)
+    # a topic declared but never published is as good as absent
+    candidates = sorted(t for t, i in log.topics.items()
+                        if i.msgtype in accepted and t not in exclude and i.count > 0)
     if kind == "gt":  # Odometry is ambiguous between wheel and ground truth: only take it when named so
         poses = [t for t in candidates if log.topics[t].msgtype != "nav_msgs/msg/Odometry"]
         named = [t for t in candidates if any(w in t.lower() for w in ("ground_truth", "groundtruth", "gt"))]

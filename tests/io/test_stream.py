@@ -15,9 +15,22 @@ CLOUD = "sensor_msgs/msg/PointCloud2"
 
 
 def two_imus_and_two_clouds(w):
+    t = 1_000_000_000
+    cloud = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
     for topic, typ in (("/imu", IMU), ("/imu2", IMU), ("/points", CLOUD), ("/scan_b", CLOUD)):
         w.add_topic(topic, typ)
+        msg = w.make.imu(t, "imu", [0, 0, 0], [0, 0, 9.81]) if typ == IMU else w.make.pointcloud2(t, "lidar", cloud)
+        w.write(topic, t, msg)
     w.add_topic("/odom", "nav_msgs/msg/Odometry")
+
+
+def test_select_topic_ignores_topics_without_messages(logs):
+    path = logs.write("ros1", lambda w: (w.add_topic("/imu", IMU), w.add_topic("/points", CLOUD)))
+    with open_log(path) as log:
+        assert select_topic(log, "imu", required=False) is None
+        with pytest.raises(InputError) as err:
+            select_topic(log, "imu", "/imu")
+        assert str(err.value) == f"{path}: topic /imu has no messages"
 
 
 def test_select_topic_picks_the_only_one(logs):
