@@ -64,9 +64,10 @@ from evo.core.units import Unit
 from evo.tools import file_interface
 cfg = json.load(sys.stdin)
 ref0 = file_interface.read_tum_trajectory_file(cfg["ref"])
-est0 = file_interface.read_tum_trajectory_file(cfg["est"])
+ests = {path: file_interface.read_tum_trajectory_file(path) for path in {job["est"] for job in cfg["jobs"]}}
 out = []
 for job in cfg["jobs"]:
+    est0 = ests[job["est"]]
     method = SyncMethod.interpolation if job["method"] == "interpolate" else SyncMethod.nearest_time
     ref, est = sync.associate_trajectories(ref0, est0, sync_method=method, max_diff=job["max_diff"],
                                            offset_2=job["offset"])
@@ -81,7 +82,7 @@ for job in cfg["jobs"]:
         ape.process_data((ref, est))
         res["ape_" + name] = ape.get_all_statistics()
         for k, (delta, unit, all_pairs) in enumerate(job["rpe"]):
-            rpe = metrics.RPE(metrics.PoseRelation[rel], delta, Unit[unit], 0.1, all_pairs)
+            rpe = metrics.RPE(metrics.PoseRelation[rel], delta, Unit[unit], 0.1, all_pairs, job["from_ref"])
             rpe.process_data((ref, est))
             res[f"rpe{k}_" + name] = rpe.get_all_statistics()
     out.append(res)
@@ -141,12 +142,23 @@ def main() -> int:
         ref_path, est_path = Path(tmp, "ref.tum"), Path(tmp, "est.tum")
         ref_path.write_text(format_tum(ref_sim.stamps_ns, ref_sim.poses))
         est_path.write_text(format_tum(est_sim.stamps_ns, est_sim.poses))
+        # the same estimate on a clock 2.5 s ahead, paired back with --t-offset -2.5
+        shifted_path = Path(tmp, "est_shifted.tum")
+        shifted_path.write_text(format_tum(est_sim.stamps_ns + 2_500_000_000, est_sim.poses))
         jobs = []
+
+        def make_job(label, method, mode, n_align, est=est_path, offset=0.0, from_ref=False, max_diff=0.01):
+            return {"label": label, "method": method, "align": mode, "n_align": n_align, "max_diff": max_diff,
+                    "offset": offset, "est": str(est), "from_ref": from_ref,
+                    "relations": [(a, b) for a, b in RELATIONS],
+                    "rpe": [(d, EVO_UNITS[u], ap_) for d, u, ap_ in RPE_DELTAS]}
+
         for method in ("nearest", "interpolate"):
             for label, mode, n_align in ALIGNMENTS:
-                jobs.append({"label": label, "method": method, "align": mode, "n_align": n_align, "max_diff": 0.01,
-                             "offset": 0.0, "relations": [(a, b) for a, b in RELATIONS],
-                             "rpe": [(d, EVO_UNITS[u], ap_) for d, u, ap_ in RPE_DELTAS]})
+                jobs.append(make_job(label, method, mode, n_align))
+            jobs.append(make_job("se3 offset -2.5s", method, "se3", None, est=shifted_path, offset=-2.5))
+        jobs.append(make_job("se3 pairs on ref", "nearest", "se3", None, from_ref=True))
+        jobs.append(make_job("se3 max_diff 2ms", "nearest", "se3", None, max_diff=0.002))
         cfg = {"ref": str(ref_path), "est": str(est_path), "jobs": jobs}
         proc = subprocess.run([str(evo_py), "-c", EVO_SNIPPET], input=json.dumps(cfg), capture_output=True, text=True)
         if proc.returncode != 0:
@@ -154,18 +166,22 @@ def main() -> int:
             return 2
         evo_out = json.loads(proc.stdout)
         rs, rp = read_tum(ref_path)
-        es, ep = read_tum(est_path)
-        ref, est = Trajectory(rs, rp, "ref"), Trajectory(es, ep, "est")
+        ref = Trajectory(rs, rp, "ref")
+        loaded = {}
+        for path in {j["est"] for j in jobs}:
+            es, ep = read_tum(path)
+            loaded[path] = Trajectory(es, ep, "est")
         worst_all = 0.0
-        print(f"{'association':<12} {'alignment':<15} {'metric':<26} {'stat':<6} {'lio':>22} {'evo':>22} {'rel diff':>9}")
+        print(f"{'association':<12} {'alignment':<17} {'metric':<26} {'stat':<6} {'lio':>22} {'evo':>22} {'rel diff':>9}")
         summary = []
         for job, ev in zip(jobs, evo_out):
             worst_job = 0.0
             mine = {}
             for k, (delta, unit, all_pairs) in enumerate(RPE_DELTAS):
                 opts = EvalOptions(method=job["method"], align=job["align"], n_align=job["n_align"], delta=delta,
-                                   delta_unit=unit, all_pairs=all_pairs)
-                r = evaluate(ref, est, opts)
+                                   delta_unit=unit, all_pairs=all_pairs, max_diff_ns=round(job["max_diff"] * 1e9),
+                                   offset_ns=round(job["offset"] * 1e9), pairs_from_reference=job["from_ref"])
+                r = evaluate(ref, loaded[job["est"]], opts)
                 for rel, _ in RELATIONS:
                     mine["ape_" + rel] = r.stats["ape"][rel]
                     mine[f"rpe{k}_" + rel] = r.stats["rpe"][rel]
@@ -185,13 +201,13 @@ def main() -> int:
                         if key.startswith("rpe"):
                             d, u, ap_ = RPE_DELTAS[int(key[3])]
                             name = f"rpe {key.split('_', 1)[1]} d={d:g}{u}{' all' if ap_ else ''}"
-                        print(f"{job['method']:<12} {job['label']:<15} {name:<26} {stat:<6} {a:>22.15g} {b:>22.15g} {rel:>9.1e}")
+                        print(f"{job['method']:<12} {job['label']:<17} {name:<26} {stat:<6} {a:>22.15g} {b:>22.15g} {rel:>9.1e}")
             summary.append((job["method"], job["label"], matches, worst_job))
             worst_all = max(worst_all, worst_job)
         print("\nsummary (worst relative difference over APE/RPE x 4 relations x 7 statistics x 6 RPE deltas)")
-        print(f"{'association':<12} {'alignment':<15} {'matches':>8} {'worst rel diff':>15}")
+        print(f"{'association':<12} {'alignment':<17} {'matches':>8} {'worst rel diff':>15}")
         for method, label, matches, worst in summary:
-            print(f"{method:<12} {label:<15} {matches:>8} {worst:>15.2e}")
+            print(f"{method:<12} {label:<17} {matches:>8} {worst:>15.2e}")
         ok = worst_all <= REL_TOL
         print(f"\n{'AGREE' if ok else 'DISAGREE'}: worst relative difference {worst_all:.2e} (limit {REL_TOL:g})")
         return 0 if ok else 1

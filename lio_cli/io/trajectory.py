@@ -179,11 +179,11 @@ def _fast_stamps_ns(texts: list[str], unit: str) -> np.ndarray | None:
     except ValueError:
         return None
     divisor = STAMP_UNITS_NS[unit]
-    if divisor == 1 and max(out) > _INT64_MAX:
-        return None
-    if divisor == 1:
-        return np.array(out, dtype=np.int64)
-    return np.array([v // divisor for v in out], dtype=np.int64)
+    if divisor != 1:
+        out = [v // divisor for v in out]
+    if max(out) > _INT64_MAX:
+        return None  # the line-by-line path names the line and the unit flag
+    return np.array(out, dtype=np.int64)
 
 
 def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.ndarray]:
