@@ -209,7 +209,7 @@ def test_plots_and_metrics_json(capsys, tmp_path):
     assert _run(capsys, gt_p, est_p, "--plot", plots, "--force", "--quiet")[0] == 0
 
 
-def test_usage_errors_exit_2(capsys, three):
+def test_usage_errors_exit_2(capsys, three, tmp_path):
     gt, est = three
     for args, message in (
         (["--align", "umeyama"], "--align must be one of none, se3, sim3, scale, origin, got 'umeyama'"),
@@ -221,5 +221,6 @@ def test_usage_errors_exit_2(capsys, three):
     ):
         code, _, err = _run(capsys, gt, est, *args)
         assert code == 2 and err.strip() == f"lio: error: {message}", args
-    code, _, err = _run(capsys, gt, "missing.tum")
+    code, _, err = _run(capsys, gt, "missing.tum", "--plot", tmp_path / "plots")
     assert code == 2 and err.strip() == "lio: error: missing.tum: no such file or folder"
+    assert not (tmp_path / "plots").exists()  # nothing is left behind by a failed run

@@ -41,6 +41,23 @@ def test_tum_round_trip_keeps_ns_stamps_exact(tmp_path: Path):
     np.testing.assert_allclose(P, poses, atol=WRITTEN)
 
 
+def test_plain_and_commented_files_read_the_same(tmp_path: Path):
+    """Plain tables take a vectorised path, anything else the line-by-line one: same result either way."""
+    stamps = np.array([5, 1_000_000_001, 2_500_000_000], dtype=np.int64)
+    text = format_tum(stamps, _poses(3, seed=4))
+    plain, commented = tmp_path / "plain.tum", tmp_path / "commented.tum"
+    plain.write_text(text)
+    commented.write_text("# stamp x y z qx qy qz qw\n" + text.replace("\n", "\n\n", 1))
+    (s1, p1), (s2, p2) = read_tum(plain), read_tum(commented)
+    np.testing.assert_array_equal(s1, stamps)
+    np.testing.assert_array_equal(s1, s2)
+    np.testing.assert_array_equal(p1, p2)
+    first, rest = text.split("\n", 1)
+    commented.write_text("# header\n" + " ".join([first.split()[0], "nan", *first.split()[2:]]) + "\n" + rest)
+    with pytest.raises(InputError, match=r"commented.tum:2: NaN or infinite value"):
+        read_tum(commented)
+
+
 def test_tum_stamp_units(tmp_path: Path):
     p = tmp_path / "t.tum"
     p.write_text("1700000000123456789 0 0 0 0 0 0 1\n1700000000223456789 1 0 0 0 0 0 1\n")

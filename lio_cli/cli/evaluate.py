@@ -191,6 +191,7 @@ def evaluate_cmd(
         from ..evaluation.plots import write_plots
         import json
 
+        plot.mkdir(exist_ok=True)
         paths = write_plots(ref.positions, results, plot, force)
         write_text_atomic(plot / "metrics.json", json.dumps(_jsonable(report), indent=2) + "\n", force)
         note(f"wrote {', '.join(str(p) for p in paths)} and {plot / 'metrics.json'}", quiet)
@@ -204,10 +205,10 @@ def _prepare_plot_dir(folder: Path, force: bool) -> None:
 
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: exists and is not a folder")
-    if not folder.exists():
-        if not folder.parent.exists():
+    if not folder.exists():  # created only once the metrics are computed
+        if not folder.parent.is_dir():
             raise InputError(f"{folder.parent}: output folder does not exist")
-        folder.mkdir()
+        return
     for name in (*PLOT_FILES, "metrics.json"):
         check_writable(folder / name, force)
 
