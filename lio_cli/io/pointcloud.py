@@ -150,9 +150,9 @@ def decode_pointcloud2(
             f"PointCloud2 has no per-point time field '{conv.field}' (fields: {', '.join(sorted(names))})"
         )
     arr = _structured(msg)
-    # Validity first, on the (strided) float columns, so that only valid points are converted: boolean
-    # masks over separate 1-D columns are several times faster than reductions over an (N,3) array.
-    x, y, z = arr["x"], arr["y"], arr["z"]
+    # Validity first, on contiguous copies of the float columns, so that only valid points are converted:
+    # boolean masks over separate 1-D columns are several times faster than reductions over an (N,3) array.
+    x, y, z = (np.ascontiguousarray(arr[c]) for c in "xyz")
     valid = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ((x != 0) | (y != 0) | (z != 0))
     raw_t = None
     if conv.field is not None:
