@@ -24,6 +24,7 @@ from lio_cli.io.writer import LogWriter
 
 EXACT = 1e-12
 WRITTEN = 1e-8  # files carry 9 decimals
+S_ = 1_000_000_000  # one second in ns
 
 
 def _poses(n: int, seed: int = 0) -> np.ndarray:
@@ -187,3 +188,24 @@ def test_tf_chain_source(tmp_path: Path):
 def test_stamp_helpers_unchanged():
     assert format_stamp(1_500_000_001) == "1.500000001"
     assert parse_stamp_ns("1.500000001") == 1_500_000_001
+
+
+def test_tf_chain_interpolates_the_slower_dynamic_edge(tmp_path: Path):
+    """map -> odom at 2 Hz drifting linearly in x, odom -> base at 20 Hz: output at the 20 Hz stamps."""
+    bag = tmp_path / "tf2.bag"
+    slow = (np.arange(3) * 500_000_000 + S_).astype(np.int64)  # 1.0, 1.5, 2.0 s
+    fast = (np.arange(21) * 50_000_000 + S_).astype(np.int64)  # 1.0 .. 2.0 s
+    with LogWriter(bag, "ros1") as w:
+        w.add_topic("/tf", "tf2_msgs/msg/TFMessage")
+        for s in np.union1d(slow, fast):
+            msgs = []
+            if s in slow:
+                msgs.append(w.make.transform_stamped(int(s), "map", "odom", make_pose(t=[(s - S_) / 1e9, 0, 0])))
+            if s in fast:
+                msgs.append(w.make.transform_stamped(int(s), "odom", "base", make_pose(t=[0, (s - S_) / 1e9, 0])))
+            w.write("/tf", int(s), w.make.tf_message(msgs))
+    t = load_trajectory(f"{bag}#tf:map.base")
+    np.testing.assert_array_equal(t.stamps_ns, fast)
+    elapsed = (fast - S_) / 1e9
+    np.testing.assert_allclose(t.poses[:, :3, 3], np.stack([elapsed, elapsed, 0 * elapsed], axis=1), atol=1e-9)
+
