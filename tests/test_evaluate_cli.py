@@ -58,6 +58,7 @@ def test_json_gives_the_hand_computed_numbers(capsys, three):
     assert r["rpe"]["rot"]["median"] == pytest.approx(45.0, rel=EXACT)
     assert r["drift"]["final_error_m"] == pytest.approx(0.4, rel=EXACT)
     assert "APE translation" in err  # the table moves to stderr when stdout carries JSON
+    assert json.loads(out)["options"]["align"] == "none"
 
 
 def test_table_and_csv(capsys, three, tmp_path):
@@ -215,6 +216,7 @@ def test_usage_errors_exit_2(capsys, three, tmp_path):
         (["--align", "umeyama"], "--align must be one of none, se3, sim3, scale, origin, got 'umeyama'"),
         (["--delta-unit", "parsecs"], "--delta-unit must be frames, m, s, deg or rad, got 'parsecs'"),
         (["--t-offset", "soon"], "--t-offset 'soon' is not a number of seconds"),
+        (["--n-align", "10", "--align", "origin"], "--n-align needs --align se3, sim3 or scale (not origin)"),
         (["--delta", "5", "--align", "none"], "RPE with --delta 5 frames found no pose pairs among 3 poses; lower --delta"),
         ([], "the trajectory is degenerate for Umeyama alignment (positions on a line or a point); "
              "use --align origin or --align none"),

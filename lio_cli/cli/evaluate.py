@@ -7,6 +7,7 @@ import io
 import math
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -135,6 +136,8 @@ def evaluate_cmd(
         raise ConfigError(f"--align must be one of {', '.join(ALIGN_MODES)}, got '{align_mode}'")
     if not (t_max_diff >= 0 and math.isfinite(t_max_diff)):
         raise ConfigError(f"--t-max-diff must be a non-negative number of seconds, got {t_max_diff}")
+    if n_align is not None and align_mode not in ("se3", "sim3", "scale"):
+        raise ConfigError(f"--n-align needs --align se3, sim3 or scale (not {align_mode})")
     if times is not None and rate is not None:
         raise ConfigError("give --times or --rate, not both")
     try:
@@ -174,6 +177,7 @@ def evaluate_cmd(
         "reference": {"name": gt, "poses": len(ref), "kind": gt_traj.kind},
         "estimates": [r.summary() for r in results],
         "metrics": [{"estimate": r.name, **r.flat_metrics()} for r in results],
+        "options": {**asdict(opts), "t_max_diff_s": t_max_diff, "t_offset_s": offset_ns / 1e9},
         "elapsed_s": round(elapsed, 4),
     }
     stdout_taken = as_json or csv_out == "-"
