@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -28,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from evo_agreement import ensure_evo, simulate  # noqa: E402
 
-from lio_cli.evaluation import EvalOptions, Trajectory, align, ape_errors, associate, kitti_segment_errors  # noqa: E402
+from lio_cli.evaluation import Trajectory, align, ape_errors, associate, kitti_segment_errors  # noqa: E402
 from lio_cli.evaluation import rpe_errors, rpe_pairs, statistics  # noqa: E402
 from lio_cli.io.trajectory import format_tum, read_tum  # noqa: E402
 
@@ -74,7 +73,9 @@ def main() -> int:
     ref_sim, est_sim = simulate(3 * args.poses, seed=3)
     ref_sim = Trajectory(ref_sim.stamps_ns[::3][: args.poses], ref_sim.poses[::3][: args.poses], "ref")
     est_sim = Trajectory(est_sim.stamps_ns[: args.poses], est_sim.poses[: args.poses], "est")
-    lio = shutil.which("lio", path=str(Path(sys.executable).parent)) or "lio"
+    # the CLI of this checkout, exactly as the `lio` console script runs it
+    repo = Path(__file__).resolve().parents[1]
+    lio = [sys.executable, "-c", "import sys; from lio_cli.cli.app import main; sys.exit(main(sys.argv[1:]))"]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         gt, est = Path(tmp, "gt.tum"), Path(tmp, "est.tum")
@@ -82,8 +83,8 @@ def main() -> int:
         est.write_text(format_tum(est_sim.stamps_ns, est_sim.poses))
 
         def lio_cli():
-            p = subprocess.run([lio, "evaluate", str(gt), str(est), "--json", "--quiet"], capture_output=True, text=True,
-                               check=True)
+            p = subprocess.run([*lio, "evaluate", str(gt), str(est), "--json", "--quiet"], capture_output=True,
+                               text=True, check=True, cwd=repo)
             return json.loads(p.stdout)
 
         t_cli, rep = best_of(args.repeat, lio_cli)
