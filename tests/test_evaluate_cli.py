@@ -216,6 +216,7 @@ def test_usage_errors_exit_2(capsys, three, tmp_path):
         (["--align", "umeyama"], "--align must be one of none, se3, sim3, scale, origin, got 'umeyama'"),
         (["--delta-unit", "parsecs"], "--delta-unit must be frames, m, s, deg or rad, got 'parsecs'"),
         (["--t-offset", "soon"], "--t-offset 'soon' is not a number of seconds"),
+        (["--json", "--csv", "-"], "--json and --csv - would both write to stdout; give --csv a file name"),
         (["--n-align", "10", "--align", "origin"], "--n-align needs --align se3, sim3 or scale (not origin)"),
         (["--delta", "5", "--align", "none"], "RPE with --delta 5 frames found no pose pairs among 3 poses; lower --delta"),
         ([], "the trajectory is degenerate for Umeyama alignment (positions on a line or a point); "

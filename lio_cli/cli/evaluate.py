@@ -136,6 +136,8 @@ def evaluate_cmd(
         raise ConfigError(f"--align must be one of {', '.join(ALIGN_MODES)}, got '{align_mode}'")
     if not (t_max_diff >= 0 and math.isfinite(t_max_diff)):
         raise ConfigError(f"--t-max-diff must be a non-negative number of seconds, got {t_max_diff}")
+    if as_json and csv_out == "-":
+        raise ConfigError("--json and --csv - would both write to stdout; give --csv a file name")
     if n_align is not None and align_mode not in ("se3", "sim3", "scale"):
         raise ConfigError(f"--n-align needs --align se3, sim3 or scale (not {align_mode})")
     if times is not None and rate is not None:
