@@ -186,3 +186,16 @@ def test_empty_log_opens_with_no_messages(logs, write_format):
         assert log.topics["/imu"].count == 0 and log.topics["/imu"].rate_hz is None
         assert list(log.messages()) == []
         assert log.duration_ns == 0
+
+
+def test_ros2_bag_without_stored_definitions_uses_the_standard_ones(logs):
+    import sqlite3
+
+    path = logs.sensor_log("ros2", duration_s=0.2)
+    con = sqlite3.connect(path / f"{path.name}.db3")  # as bags recorded before definitions were stored
+    con.execute("DELETE FROM message_definitions")
+    con.commit()
+    con.close()
+    with open_log(path) as log:
+        imu = [m for _, _, _, m in log.messages(["/imu"])]
+    assert len(imu) == 20 and imu[0].linear_acceleration.z == 9.81
