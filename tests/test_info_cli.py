@@ -281,3 +281,21 @@ def test_console_script_one_line_error_and_debug_traceback(tmp_path):
     assert res.returncode == 2 and res.stderr == f"lio: error: {missing}: no such file or folder\n"
     res = subprocess.run([str(lio), "--debug", "info", str(missing)], capture_output=True, text=True, timeout=60)
     assert res.returncode != 0 and "Traceback (most recent call last)" in res.stderr
+
+
+def test_info_laserscan_topic(logs, capsys, write_format):
+    def build(w):
+        w.add_topic("/scan", "sensor_msgs/msg/LaserScan")
+        for i in range(3):
+            t = logs.T0_NS + i * 100_000_000
+            w.write("/scan", t, w.make.laserscan(t, "laser", -1.0, 0.01, 1 / 512, 0.1, 0.1, 10.0,
+                                                 np.r_[np.full(40, 2.0), np.inf, np.nan]))
+
+    path = logs.write(write_format, build)
+    rc, out, _ = run(capsys, "info", path, "--json")
+    assert rc == 0
+    (scan,) = json.loads(out)["scans"]
+    assert (scan["beams"], scan["points"], scan["valid_points"], scan["frame_id"]) == (42, 42, 40, "laser")
+    tc = scan["time_convention"]
+    assert (tc["name"], tc["header_stamp_marks"]) == ("laserscan", "start")
+    assert tc["scan_duration_s"] == pytest.approx(39 / 512, abs=1e-9)
