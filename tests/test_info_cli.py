@@ -299,3 +299,12 @@ def test_info_laserscan_topic(logs, capsys, write_format):
     tc = scan["time_convention"]
     assert (tc["name"], tc["header_stamp_marks"]) == ("laserscan", "start")
     assert tc["scan_duration_s"] == pytest.approx(39 / 512, abs=1e-9)
+
+
+def test_check_note_goes_to_stderr_and_quiet_silences_it(logs, capsys):
+    path = logs.sensor_log("ros1", duration_s=0.2)
+    rc, out, err = run(capsys, "info", path, "--check")
+    assert rc == 0 and "/points" in out
+    assert err == "check passed: 28 sensor messages decoded, stamps in order, clouds non-empty\n"
+    rc, _, err = run(capsys, "info", path, "--check", "--quiet")
+    assert rc == 0 and err == ""

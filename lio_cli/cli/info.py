@@ -49,10 +49,10 @@ def info(
     if as_json:
         print_json(summary)
         return
-    _print_human(summary)
+    _print_human(summary, quiet)
 
 
-def _print_human(s: dict) -> None:
+def _print_human(s: dict, quiet: bool = False) -> None:
     c = out_console
     c.print(f"[bold]{s['path']}[/bold]  ({s['format']})")
     if s["messages"]:
@@ -85,7 +85,7 @@ def _print_human(s: dict) -> None:
             xyz = ", ".join(f"{v:.3f}" for v in f["xyz_m"])
             q = ", ".join(f"{v:.4f}" for v in f["quat_xyzw"])
             c.print(f"  {f['parent']} -> {f['child']}: xyz [{xyz}] m, quat_xyzw [{q}] ({f['angle_deg']:.2f} deg)")
-    if "check" in s:
+    if "check" in s and not quiet:
         n = sum(s["check"]["checked"].values())
         err_console.print(f"check passed: {n} sensor messages decoded, stamps in order, clouds non-empty")
 
