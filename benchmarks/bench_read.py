@@ -5,6 +5,8 @@ Writes synthetic logs (32-beam LiDAR at 10 Hz with per-point time, IMU at 200 Hz
 
   bare    iterate the raw serialised messages of the LiDAR and IMU topics, no deserialisation
           (rosbags AnyReader.messages for ROS 1/ROS 2 bags, the mcap reader for bare MCAP)
+  deser   the same plus rosbags' typestore deserialisation of every message (for scale: what reading
+          the log "the usual way" costs, before any numpy work)
   decode  lio's full path: open_log -> SensorStream (typed clouds with per-point ns stamps, IMU batches)
   info    open_log + describe_log, what `lio info` does (index, first scan, /tf_static)
 
@@ -117,6 +119,31 @@ def measure_bare(path: Path, fmt: str) -> dict:
             "peak_rss_mb": _peak_rss_mb()}
 
 
+def measure_deser(path: Path, fmt: str) -> dict:
+    """The usual rosbags way: iterate and deserialise every message into typestore objects (no numpy)."""
+    _import_all()
+    scans = 0
+    t0 = time.perf_counter()
+    if fmt == "mcap":
+        from mcap.reader import make_reader
+        from rosbags.typesys import Stores, get_typestore
+
+        ts = get_typestore(Stores.ROS2_HUMBLE)
+        with path.open("rb") as f:
+            for schema, channel, message in make_reader(f).iter_messages(topics=[LIDAR, IMU], log_time_order=True):
+                ts.deserialize_cdr(message.data, schema.name)
+                scans += channel.topic == LIDAR
+    else:
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([path]) as reader:
+            conns = [c for c in reader.connections if c.topic in (LIDAR, IMU)]
+            for conn, _, raw in reader.messages(connections=conns):
+                reader.deserialize(raw, conn.msgtype)
+                scans += conn.topic == LIDAR
+    return {"seconds": time.perf_counter() - t0, "scans": scans, "peak_rss_mb": _peak_rss_mb()}
+
+
 def measure_decode(path: Path, fmt: str) -> dict:
     from lio_cli.io.logs import open_log
     from lio_cli.io.stream import SensorStream
@@ -149,7 +176,7 @@ def measure_info(path: Path, fmt: str, repeat: int = 3) -> dict:
     return {"seconds": best, "peak_rss_mb": _peak_rss_mb()}
 
 
-MEASURES = {"bare": measure_bare, "decode": measure_decode, "info": measure_info}
+MEASURES = {"bare": measure_bare, "deser": measure_deser, "decode": measure_decode, "info": measure_info}
 
 
 def run_once(mode: str, path: Path, fmt: str) -> dict:
@@ -206,14 +233,15 @@ def main() -> None:
                     write_log(path, fmt, dur, args.beams, args.columns)
                     print(f"wrote {path.name} ({log_size_mb(path):.0f} MB) in {time.perf_counter() - t0:.1f} s",
                           file=sys.stderr)
-                res = run_cases(["bare", "decode", "info"], path, read_fmt, args.repeat)
-                bare, dec, info = res["bare"], res["decode"], res["info"]
+                res = run_cases(["bare", "deser", "decode", "info"], path, read_fmt, args.repeat)
+                bare, deser, dec, info = res["bare"], res["deser"], res["decode"], res["info"]
                 if dec["scans"] != bare["scans"]:
                     raise SystemExit(f"{path.name}: decode gave {dec['scans']} scans, bare {bare['scans']}")
                 mb = bare["bytes"] / 1e6
                 rows.append({
                     "format": fmt, "duration_s": dur, "scans": dec["scans"], "imu": dec["imu_samples"],
-                    "MB": round(mb, 1), "bare_s": round(bare["seconds"], 3), "decode_s": round(dec["seconds"], 3),
+                    "MB": round(mb, 1), "bare_s": round(bare["seconds"], 3), "deser_s": round(deser["seconds"], 3),
+                    "decode_s": round(dec["seconds"], 3),
                     "scans_per_s": round(dec["scans"] / dec["seconds"], 1), "MB_per_s": round(mb / dec["seconds"], 1),
                     "ratio": round(dec["seconds"] / bare["seconds"], 3),
                     "bare_peak_MB": round(bare["peak_rss_mb"]), "decode_peak_MB": round(dec["peak_rss_mb"]),
@@ -224,10 +252,10 @@ def main() -> None:
         if args.workdir is None:
             shutil.rmtree(work, ignore_errors=True)
 
-    cols = ["format", "duration_s", "scans", "MB", "bare_s", "decode_s", "scans_per_s", "MB_per_s", "ratio",
-            "bare_peak_MB", "decode_peak_MB", "info_s"]
-    head = ["format", "dur s", "scans", "MB", "bare s", "decode s", "scans/s", "MB/s", "decode/bare",
-            "bare peak MB", "decode peak MB", "info s"]
+    cols = ["format", "duration_s", "scans", "MB", "bare_s", "deser_s", "decode_s", "scans_per_s", "MB_per_s",
+            "ratio", "bare_peak_MB", "decode_peak_MB", "info_s"]
+    head = ["format", "dur s", "scans", "MB", "bare s", "rosbags deser s", "decode s", "scans/s", "MB/s",
+            "decode/bare", "bare peak MB", "decode peak MB", "info s"]
     print(f"\nlio read benchmark: {args.beams}x{args.columns} points per scan at 10 Hz, IMU 200 Hz; "
           f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs; goal decode/bare <= 1.25; "
           "peak = max RSS of the process")
