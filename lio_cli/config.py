@@ -33,7 +33,9 @@ class RegistrationConfig(_Strict):
     max_points_per_voxel: int = Field(20, gt=0)
     max_iterations: int = Field(500, gt=0)
     convergence: float = Field(1e-4, gt=0)
-    initial_threshold_m: float = Field(2.0, gt=0)
+    initial_threshold_m: float = Field(2.0, gt=0, description="adaptive threshold's start (no IMU prior)")
+    max_correspondence_m: Optional[float] = Field(
+        None, gt=0, description="fixed correspondence distance; default: 0.5 m with an IMU prior, adaptive without")
     min_motion_m: float = Field(0.1, ge=0)
     threads: int = Field(0, ge=0, description="0: all cores")
     min_points: int = Field(50, gt=0, description="scans with fewer valid points are skipped")
@@ -47,7 +49,7 @@ class FusionConfig(_Strict):
     position_sigma_m: float = Field(0.03, gt=0, description="registration position noise per scan")
     rotation_sigma_rad: float = Field(0.005, gt=0, description="registration rotation noise per scan")
     degenerate_sigma_m: float = Field(2.0, gt=0, description="position noise along a degenerate direction")
-    degeneracy_ratio: float = Field(0.015, gt=0, description="eigenvalue ratio below which a direction is degenerate")
+    degeneracy_ratio: float = Field(0.025, gt=0, description="horizontal eigenvalue ratio below which a direction is degenerate")
     wheel_speed_sigma_mps: float = Field(0.2, gt=0, description="wheel speed noise (covers slip episodes)")
     imu: ImuNoise = ImuNoise()
 

@@ -29,6 +29,7 @@ from .io.records import ImuBatch, OdometryRecord, PointCloud
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
 _MAX_JUMP_RAD = 0.35
+_IMU_PRIOR_CORRESPONDENCE_M = 0.5  # the IMU prediction is within centimetres: no need for kiss-icp's wide start
 
 
 @dataclass
@@ -76,20 +77,24 @@ class _KissMap:
         source = voxel_down_sample(frame, self.voxel * 1.5)
         return frame, source
 
-    def register(self, source: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    def register(self, source: np.ndarray, guess: np.ndarray, fixed_m: float | None) -> np.ndarray:
         if self.map.empty():
             return guess
+        if fixed_m is not None:  # a good prior: tight correspondences, few iterations
+            return self.registration.align_points_to_map(source, self.map, guess, fixed_m, fixed_m / 3.0)
         sigma = self.threshold.get_threshold()
         return self.registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
 
 def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
                           queries: int = 500) -> list[np.ndarray]:
-    """Translation directions the scan's surfaces do not constrain (in the points' frame).
+    """Horizontal translation directions the scan's surfaces do not constrain (in the points' frame).
 
     Normals from local PCA over ``k`` neighbours in the full scan (at up to ``queries`` sample points) give
-    the point-to-plane information ``sum n n^T`` on translation; an eigenvalue below ``ratio`` times the
-    largest marks its eigenvector as degenerate (a corridor's axis).
+    the point-to-plane information ``sum n n^T`` on translation. Its horizontal (x-y) block is examined: an
+    eigenvalue below ``ratio`` times the larger one marks its eigenvector as degenerate (a corridor's axis).
+    The vertical is left out on purpose: sparse spinning LiDARs see floor and ceiling only at grazing
+    angles, so z is weakly constrained in almost every scan and is better left to the registration.
     """
     dims = 2 if planar else 3
     pts = points[:, :dims]
@@ -102,18 +107,12 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
     normals = v[:, :, 0]  # smallest eigenvalue's vector
     # only neighbourhoods that are surfaces (not lines or blobs) carry a reliable normal
-    planar_ok = (w[:, 1] - w[:, 0]) > 0.3 * np.maximum(w[:, -1], 1e-12)
-    info = normals[planar_ok].T @ normals[planar_ok]
-    lam, vec = np.linalg.eigh(info)
-    if lam[-1] <= 0:
+    surface = (w[:, 1] - w[:, 0]) > 0.3 * np.maximum(w[:, -1], 1e-12)
+    info = normals[surface].T @ normals[surface]
+    lam, vec = np.linalg.eigh(info[:2, :2])
+    if lam[-1] <= 0 or lam[0] >= ratio * lam[-1]:
         return []
-    out = []
-    for i in range(dims):
-        if lam[i] < ratio * lam[-1]:
-            d = np.zeros(3)
-            d[:dims] = vec[:, i]
-            out.append(d)
-    return out
+    return [np.array([vec[0, 0], vec[1, 0], 0.0])]
 
 
 class LioOdometry:
@@ -223,7 +222,10 @@ class LioOdometry:
             self._kiss = _KissMap(cfg, cfg.registration.voxel_size_m or _auto_voxel(rng))
         guess = self._guess(cv_delta, t_prev, t_ref)
         frame, source = self._kiss.downsample(points)
-        measured = self._kiss.register(source, guess)
+        fixed = cfg.registration.max_correspondence_m
+        if fixed is None and self.use_imu and cfg.prior == "imu":
+            fixed = _IMU_PRIOR_CORRESPONDENCE_M
+        measured = self._kiss.register(source, guess, fixed)
         st.times_s["register"] += time.perf_counter() - tick
 
         tick = time.perf_counter()
@@ -232,7 +234,8 @@ class LioOdometry:
         if self.planar:
             measured = project_to_se2(measured)
         jump = inv_pose(guess) @ measured
-        failed = not np.isfinite(measured).all() or (
+        # no correspondences leaves the guess untouched (to rounding): the scan told us nothing
+        failed = not np.isfinite(measured).all() or (not self._kiss.map.empty() and np.allclose(measured, guess, rtol=0.0, atol=1e-12)) or (
             self.use_imu and not self._kiss.map.empty()
             and (np.linalg.norm(jump[:3, 3]) > _MAX_JUMP_M
                  or np.arccos(np.clip((np.trace(jump[:3, :3]) - 1) / 2, -1, 1)) > _MAX_JUMP_RAD))

@@ -149,8 +149,8 @@ def test_registration_failure_falls_back_to_prediction(base_log, tmp_path):
     def garbage(tp, t, m, w):
         if tp == SCAN_TOPIC:
             state["n"] += 1
-            if state["n"] == 25:  # a scan of a different world: 2000 points far off in a plane
-                xyz = np.column_stack([rng.uniform(5, 6, 2000), rng.uniform(-30, 30, 2000), rng.uniform(-30, 30, 2000)])
+            if state["n"] == 25:  # a scan of a different world: 2000 points high above the building
+                xyz = np.column_stack([rng.uniform(-30, 30, 2000), rng.uniform(-30, 30, 2000), rng.uniform(20, 30, 2000)])
                 return [(tp, t, _cloud(m, w, replace_xyz=xyz))]
         return [(tp, t, m)]
 
