@@ -31,7 +31,7 @@ class RegistrationConfig(_Strict):
     max_range_m: float = Field(100.0, gt=0)
     min_range_m: float = Field(0.5, ge=0)
     max_points_per_voxel: int = Field(20, gt=0)
-    max_iterations: int = Field(500, gt=0)
+    max_iterations: int = Field(100, gt=0)
     convergence: float = Field(1e-4, gt=0)
     initial_threshold_m: float = Field(2.0, gt=0, description="adaptive threshold's start (no IMU prior)")
     max_correspondence_m: Optional[float] = Field(

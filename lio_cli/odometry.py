@@ -87,7 +87,7 @@ class _KissMap:
 
 
 def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
-                          queries: int = 500) -> list[np.ndarray]:
+                          queries: int = 250) -> list[np.ndarray]:
     """Horizontal translation directions the scan's surfaces do not constrain (in the points' frame).
 
     Normals from local PCA over ``k`` neighbours in the full scan (at up to ``queries`` sample points) give

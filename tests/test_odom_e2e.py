@@ -44,10 +44,10 @@ def logs(tmp_path_factory):
     return out
 
 
-def _ate(gt_path, est_path) -> float:
+def _ate(gt_path, est_path, max_diff_ns=2_000_000) -> float:
     ref = Trajectory(*read_tum(gt_path), name="gt")
     est = Trajectory(*read_tum(est_path), name="est")
-    return evaluate(ref, est, EvalOptions(max_diff_ns=2_000_000)).stats["ape"]["trans"]["rmse"]
+    return evaluate(ref, est, EvalOptions(max_diff_ns=max_diff_ns)).stats["ape"]["trans"]["rmse"]
 
 
 def _run(log, out, extra=(), capsys=None):
@@ -105,3 +105,18 @@ def test_stdout_output_and_frame_option(logs, tmp_path, capsys):
     vals = np.array([float(v) for v in lines[0].split()[1:4]])
     # first pose of the lidar frame: base at the origin composed with the lidar offset
     np.testing.assert_allclose(vals, np.asarray(truth["T_base_lidar"])[:3, 3], atol=0.02)
+
+
+def test_gt_option_scores_against_log_topic_or_file(logs, tmp_path, capsys):
+    res = logs["corridor"]
+    out = tmp_path / "c.tum"
+    assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--gt", "/ground_truth"]) == 0
+    acc = json.loads((tmp_path / "c.metrics.json").read_text())["accuracy"]
+    # the same number lio evaluate gives on the ground-truth file (which rounds poses to 1e-9 m)
+    assert acc["ate_trans_rmse_m"] == pytest.approx(_ate(res.gt_path, out, 20_000_000), rel=1e-6)
+    assert acc["matches"] == 60
+    err = capsys.readouterr().err
+    assert err.startswith(f"against /ground_truth: ATE {acc['ate_trans_rmse_m']:.4f} m")
+    assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--force", "--gt", str(res.gt_path)]) == 0
+    acc_file = json.loads((tmp_path / "c.metrics.json").read_text())["accuracy"]
+    assert acc_file["ate_trans_rmse_m"] == pytest.approx(_ate(res.gt_path, out, 20_000_000), rel=1e-12)

@@ -46,15 +46,34 @@ def _main(
     _state["debug"] = debug
 
 
-for _name in COMMANDS:
-    importlib.import_module(f"{__package__}.{_name}").register(app)
+_registered: set[str] = set()
+
+
+def register_commands(names: list[str] | None = None) -> typer.Typer:
+    """Import and register command modules (all by default); each module registers once."""
+    for name in names or COMMANDS:
+        if name not in _registered:
+            importlib.import_module(f"{__package__}.{name}").register(app)
+            _registered.add(name)
+    return app
+
+
+def _command_in(args: list[str]) -> str | None:
+    return next((a for a in args if not a.startswith("-")), None)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; map LioError to one stderr line and its exit code."""
-    _state["debug"] = "--debug" in (argv if argv is not None else sys.argv[1:])
+    args = list(argv if argv is not None else sys.argv[1:])
+    _state["debug"] = "--debug" in args
+    # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
+    wanted = _command_in(args)
+    if wanted in COMMANDS:
+        register_commands([wanted])
+    elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
+        register_commands()
     try:
-        app(args=argv, standalone_mode=False)
+        app(args=args, standalone_mode=False)
     except typer.Exit as ex:
         return ex.exit_code
     except LioError as err:

@@ -52,6 +52,7 @@ def odom(
     alpha: Annotated[Optional[float], typer.Option("--alpha", help="Complementary filter weight of the scan match (0..1).", show_default=False)] = None,
     no_wheel: Annotated[bool, typer.Option("--no-wheel", help="Ignore wheel odometry even if the log has it.")] = False,
     frame: Annotated[Optional[str], typer.Option("--frame", help="Output the trajectory of: base | lidar | imu.", show_default=False)] = None,
+    gt: Annotated[Optional[str], typer.Option("--gt", help="Ground truth to score against at the end: a TUM/KITTI file, or a topic of LOG (e.g. /ground_truth). Prints ATE and RPE and adds them to metrics.", show_default=False)] = None,
     planar: Annotated[Optional[bool], typer.Option("--planar/--no-planar", help="Force SE(2) mode (default: on for LaserScan).", show_default=False)] = None,
     base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)] = None,
     lidar_topic: LidarTopicOpt = None,
@@ -101,6 +102,8 @@ def odom(
         warn(n)
     tum = format_tum(run.stamps_ns, run.poses)
     m = run.metrics
+    if gt is not None:
+        m["accuracy"] = _score(log, gt, run)
     if to_stdout:
         sys.stdout.write(tum)
         sys.stdout.flush()
@@ -118,8 +121,38 @@ def odom(
          f"{m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x real time"
          + ("" if to_stdout else f"; wrote {out}"), quiet)
     note(f"start: {m['initialisation']}", quiet)
+    if "accuracy" in m:
+        a = m["accuracy"]
+        rpe = "-" if a["rpe_trans_rmse_m"] is None else f"{a['rpe_trans_rmse_m']:.4f} m"
+        err_console.print(f"against {a['reference']}: ATE {a['ate_trans_rmse_m']:.4f} m, {a['ate_rot_rmse_deg']:.3f} deg "
+                          f"(SE(3)-aligned rmse over {a['matches']} poses); RPE over {a['rpe_delta']}: {rpe}", markup=False)
     if as_json:
         print_json(m)
+
+
+def _score(log: Path, gt: str, run) -> dict:
+    """ATE and RPE of the run against ground truth from a file or a topic of the log."""
+    from ..evaluation import EvalOptions, Trajectory, evaluate
+    from ..io.trajectory import load_trajectory
+
+    spec = f"{log}:{gt}" if gt.startswith("/") and not Path(gt).exists() else gt
+    ref = load_trajectory(spec)
+    ref_traj = Trajectory(ref.stamps_ns, ref.poses, name=gt)
+    est = Trajectory(run.stamps_ns, run.poses, name="odom")
+    ate = evaluate(ref_traj, est, EvalOptions(max_diff_ns=20_000_000))
+    length = ate.drift["path_length_m"] or 0.0
+    delta, unit = (10.0, "m") if length >= 20.0 else (1.0, "s")
+    rpe = evaluate(ref_traj, est, EvalOptions(max_diff_ns=20_000_000, delta=delta, delta_unit=unit))
+    return {
+        "reference": gt,
+        "matches": len(ate.association.ref),
+        "ate_trans_rmse_m": ate.stats["ape"]["trans"]["rmse"],
+        "ate_rot_rmse_deg": ate.stats["ape"]["rot"]["rmse"],
+        "rpe_delta": f"{delta:g} {unit}",
+        "rpe_trans_rmse_m": rpe.stats["rpe"]["trans"]["rmse"] if len(rpe.rpe_pairs) else None,
+        "final_error_m": ate.drift["final_error_m"],
+        "alignment": "se3",
+    }
 
 
 def _stem(log: Path) -> str:
