@@ -170,17 +170,23 @@ def decode_pointcloud2(
     if raw_t is not None:
         raw_t = raw_t[keep]
         if raw_t.dtype.kind == "f":
+            # in place: every temporary of this size is a fresh mmap (and page faults) per scan
             t = raw_t.astype(np.float64)
             if conv.absolute and conv.scale_ns == 1e9:
                 # seconds since epoch: subtract the header's whole seconds first (exact in float64), then
                 # its fraction, so only the field's own rounding remains (~0.1 us at today's epoch)
                 sec, nsec = divmod(header_ns, 1_000_000_000)
-                offsets = np.rint((t - float(sec)) * 1e9 - float(nsec)).astype(np.int64)
+                t -= float(sec)
+                t *= 1e9
+                t -= float(nsec)
             elif conv.absolute:
-                offsets = np.rint(t * conv.scale_ns - float(header_ns)).astype(np.int64)
+                t *= conv.scale_ns
+                t -= float(header_ns)
             else:
-                offsets = np.rint(t * conv.scale_ns).astype(np.int64)
-            stamps = offsets + header_ns
+                t *= conv.scale_ns
+            np.rint(t, out=t)
+            stamps = t.astype(np.int64)
+            stamps += header_ns
         else:
             t = raw_t.astype(np.int64)
             if conv.scale_ns != 1.0:
