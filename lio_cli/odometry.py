@@ -29,7 +29,10 @@ from .io.records import ImuBatch, OdometryRecord, PointCloud
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
 _MAX_JUMP_RAD = 0.35
-_IMU_PRIOR_CORRESPONDENCE_M = 0.5  # the IMU prediction is within centimetres: no need for kiss-icp's wide start
+_DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
+_IMU_PRIOR_CORRESPONDENCE_M = 0.5
+_IMU_PRIOR_ITERATIONS = 20
+_KISS_ITERATIONS = 500  # kiss-icp's own default, for runs without the IMU prior  # the IMU prediction is within centimetres: no need for kiss-icp's wide start
 
 
 @dataclass
@@ -56,11 +59,12 @@ class OdomStats:
 class _KissMap:
     """kiss-icp's voxel map, adaptive threshold and registration, driven with our own initial guesses."""
 
-    def __init__(self, cfg: OdomConfig, voxel_size_m: float) -> None:
+    def __init__(self, cfg: OdomConfig, voxel_size_m: float, imu_prior: bool) -> None:
         rc = cfg.registration
         self.voxel = voxel_size_m
         self.map = VoxelHashMap(voxel_size_m, rc.max_range_m, rc.max_points_per_voxel)
-        self.registration = Registration(rc.max_iterations, rc.convergence, rc.threads)
+        iterations = rc.max_iterations or (_IMU_PRIOR_ITERATIONS if imu_prior else _KISS_ITERATIONS)
+        self.registration = Registration(iterations, rc.convergence, rc.threads)
 
         class _Cfg:  # AdaptiveThreshold reads these three fields only
             class adaptive_threshold:  # noqa: N801
@@ -97,7 +101,7 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     angles, so z is weakly constrained in almost every scan and is better left to the registration.
     """
     dims = 2 if planar else 3
-    pts = points[:, :dims]
+    pts = points[:: max(1, len(points) // _DEGENERACY_MAX_POINTS), :dims]  # dense clouds: every n-th point
     if len(pts) < k + 1:
         return []
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
@@ -132,6 +136,7 @@ class LioOdometry:
         self._last_pose = np.eye(4)
         self._last_delta = np.eye(4)
         self._last_ns: int | None = None
+        self._imu_prior = use_imu and cfg.prior == "imu"
 
     # ---- inputs -------------------------------------------------------------------------------
     def add_imu(self, batch: ImuBatch) -> None:
@@ -219,11 +224,11 @@ class LioOdometry:
         # 3. register, seeded with the prediction
         tick = time.perf_counter()
         if self._kiss is None:
-            self._kiss = _KissMap(cfg, cfg.registration.voxel_size_m or _auto_voxel(rng))
+            self._kiss = _KissMap(cfg, cfg.registration.voxel_size_m or _auto_voxel(rng), self._imu_prior)
         guess = self._guess(cv_delta, t_prev, t_ref)
         frame, source = self._kiss.downsample(points)
         fixed = cfg.registration.max_correspondence_m
-        if fixed is None and self.use_imu and cfg.prior == "imu":
+        if fixed is None and self._imu_prior:
             fixed = _IMU_PRIOR_CORRESPONDENCE_M
         measured = self._kiss.register(source, guess, fixed)
         st.times_s["register"] += time.perf_counter() - tick
