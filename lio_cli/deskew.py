@@ -13,29 +13,6 @@ import numpy as np
 from .geometry import inv_pose, so3_exp, so3_log
 
 
-def relative_poses_at(knot_stamps_ns: np.ndarray, knot_poses: np.ndarray, query_ns: np.ndarray,
-                      t_ref_ns: int) -> np.ndarray:
-    """``T_base(ref)_base(t)`` for every query stamp, interpolating the knots (clamped at the ends)."""
-    knot_stamps_ns = np.asarray(knot_stamps_ns, dtype=np.int64)
-    ref = _pose_at(knot_stamps_ns, knot_poses, t_ref_ns)
-    rel_knots = inv_pose(ref)[None] @ knot_poses  # T_ref_knot
-    m = len(knot_stamps_ns)
-    query_ns = np.asarray(query_ns, dtype=np.int64)
-    if m == 1:
-        return np.repeat(rel_knots, len(query_ns), axis=0)
-    idx = np.clip(np.searchsorted(knot_stamps_ns, query_ns, side="right") - 1, 0, m - 2)
-    span = np.maximum(np.diff(knot_stamps_ns), 1).astype(np.float64)
-    a = np.clip((query_ns - knot_stamps_ns[idx]) / span[idx], 0.0, 1.0)
-    R0 = rel_knots[:-1, :3, :3]
-    step = so3_log(np.einsum("kji,kjl->kil", R0, rel_knots[1:, :3, :3]))  # rotation knot k -> k+1, in k's frame
-    out = np.zeros((len(query_ns), 4, 4))
-    out[:, :3, :3] = R0[idx] @ so3_exp(step[idx] * a[:, None])
-    t0, t1 = rel_knots[:-1, :3, 3], rel_knots[1:, :3, 3]
-    out[:, :3, 3] = t0[idx] + a[:, None] * (t1 - t0)[idx]
-    out[:, 3, 3] = 1.0
-    return out
-
-
 def _pose_at(stamps_ns: np.ndarray, poses: np.ndarray, t_ns: int) -> np.ndarray:
     if len(stamps_ns) == 1:
         return poses[0]

@@ -95,17 +95,23 @@ def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
 
 
 def start_up(imu: ImuBatch, R_base_imu: np.ndarray, window_ns: int, gravity_mps2: float = GRAVITY_MPS2,
-             gyro_still_radps: float = 0.05, accel_still_mps2: float = 0.3) -> StartUp:
-    """Estimate gravity direction and gyro bias from a standing start, or fall back to a moving start."""
+             gyro_still_radps: float = 0.05, accel_still_mps2: float = 0.3,
+             accel_bias: np.ndarray | None = None) -> StartUp:
+    """Estimate gravity direction and gyro bias from a standing start, or fall back to a moving start.
+
+    At rest a horizontal accelerometer bias is indistinguishable from tilt; pass ``accel_bias`` when it is
+    known (a calibration) so the gravity direction is taken from the bias-free specific force.
+    """
+    ba = np.zeros(3) if accel_bias is None else np.asarray(accel_bias, dtype=np.float64)
     if len(imu) == 0:
         return StartUp(False, np.eye(3), np.zeros(3), 0, "no IMU data before the first scan: level start assumed")
     for win in (window_ns, window_ns // 2, window_ns // 4):  # the longest still stretch at the start
         sel = imu.stamps_ns <= imu.stamps_ns[0] + win
         gyro, accel = imu.gyro_radps[sel], imu.accel_mps2[sel]
         n = int(sel.sum())
-        f_base = R_base_imu @ accel.mean(axis=0)
+        f_base = R_base_imu @ (accel.mean(axis=0) - ba)
         gyro_dev = float(np.linalg.norm(gyro - gyro.mean(axis=0), axis=1).max())
-        accel_dev = float(np.abs(np.linalg.norm(accel, axis=1) - gravity_mps2).max())
+        accel_dev = float(np.abs(np.linalg.norm(accel - ba, axis=1) - gravity_mps2).max())
         R = gravity_aligned_rotation(f_base)
         if n >= 10 and gyro_dev < gyro_still_radps and accel_dev < accel_still_mps2:
             return StartUp(True, R, gyro.mean(axis=0), n,

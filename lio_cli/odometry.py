@@ -21,7 +21,7 @@ from kiss_icp.voxelization import voxel_down_sample
 from scipy.spatial import cKDTree
 
 from .config import OdomConfig
-from .deskew import constant_velocity_knots, deskew, relative_poses_at, to_base
+from .deskew import constant_velocity_knots, deskew, to_base
 from .fusion import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
 from .geometry import inv_pose, project_to_se2
 from .imu import Extrinsics, NavState, StartUp, propagate
@@ -122,7 +122,8 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
 class LioOdometry:
     """Feed IMU batches, wheel records and scans (in time order); get one pose per scan."""
 
-    def __init__(self, cfg: OdomConfig, ext: Extrinsics, *, use_imu: bool, planar: bool) -> None:
+    def __init__(self, cfg: OdomConfig, ext: Extrinsics, *, use_imu: bool, planar: bool,
+                 gyro_bias: np.ndarray | None = None, accel_bias: np.ndarray | None = None) -> None:
         self.cfg = cfg
         self.ext = ext
         self.use_imu = use_imu
@@ -137,6 +138,7 @@ class LioOdometry:
         self._last_delta = np.eye(4)
         self._last_ns: int | None = None
         self._imu_prior = use_imu and cfg.prior == "imu"
+        self._bias_prior = (gyro_bias, accel_bias)  # from a calibration file, if any
 
     # ---- inputs -------------------------------------------------------------------------------
     def add_imu(self, batch: ImuBatch) -> None:
@@ -165,8 +167,10 @@ class LioOdometry:
         self.start = start
         P = np.diag([1e-4, 1e-4, 1e-2] + [1e-6] * 3 + ([1e-4] * 3 if start.static else [1.0] * 3)
                     + ([1e-6] * 3 if start.static else [1e-4] * 3) + [1e-2] * 3)
-        self.state = NavState(t0_ns, start.R_world_base.copy(), np.zeros(3), np.zeros(3), start.gyro_bias.copy(),
-                              np.zeros(3), P)
+        bg, ba = self._bias_prior
+        self.state = NavState(t0_ns, start.R_world_base.copy(), np.zeros(3), np.zeros(3),
+                              np.asarray(bg, dtype=np.float64) if bg is not None else start.gyro_bias.copy(),
+                              np.asarray(ba, dtype=np.float64) if ba is not None else np.zeros(3), P)
         self._last_pose = self.state.pose()
 
     # ---- one scan -----------------------------------------------------------------------------
@@ -186,7 +190,7 @@ class LioOdometry:
             imu = ImuBatch.concat(self._imu)
             R_bi = self.ext.R_base_imu
             window = int(cfg.static_init_s * 1e9)
-            start = start_up(imu, R_bi, window, cfg.gravity_mps2) if self.use_imu else \
+            start = start_up(imu, R_bi, window, cfg.gravity_mps2, accel_bias=self._bias_prior[1]) if self.use_imu else \
                 StartUp(False, np.eye(3), np.zeros(3), 0, "no IMU in use: level start at the origin")
             self._initialise(cloud.start_ns, start)
         t_prev = self.state.stamp_ns if self._last_ns is None else self._last_ns
@@ -206,7 +210,7 @@ class LioOdometry:
         # 2. de-skew
         tick = time.perf_counter()
         dt_scan = (t_ref - t_prev) * 1e-9
-        cv_delta = self._cv_delta(dt_scan)
+        cv_delta = self._last_delta  # constant velocity: the last inter-scan motion again
         if cfg.deskew == "imu" and prop is not None:
             points = deskew(cloud.points, cloud.point_stamps_ns, prop.stamps_ns, prop.poses, t_ref, self.ext.T_base_lidar)
         elif cfg.deskew in ("constant-velocity", "imu"):
@@ -263,10 +267,6 @@ class LioOdometry:
         st.used += 1
         return ScanResult(t_ref, pose, bool(dirs_b), failed)
 
-    def _cv_delta(self, dt_s: float) -> np.ndarray:
-        """The last inter-scan motion, rescaled to this interval's length (constant velocity)."""
-        return self._last_delta
-
     def _guess(self, cv_delta: np.ndarray, t_prev: int, t_ref: int) -> np.ndarray:
         prior = self.cfg.prior
         if prior == "imu" and self.use_imu:
@@ -276,11 +276,6 @@ class LioOdometry:
         if prior == "wheel":
             return self._last_pose @ self._wheel_delta(t_prev, t_ref)
         return self._last_pose.copy()
-
-    def _wheel_records(self, t0: int, t1: int) -> list[OdometryRecord]:
-        recs = [w for w in self._wheel if t0 <= w.stamp_ns <= t1]
-        self._wheel = [w for w in self._wheel if w.stamp_ns > t0 - 1_000_000_000]
-        return recs
 
     def _wheel_delta(self, t0: int, t1: int) -> np.ndarray:
         """Planar motion integrated from wheel speed and yaw rate over [t0, t1] (lecture's kinematics)."""
@@ -342,4 +337,4 @@ def _auto_voxel(ranges_m: np.ndarray) -> float:
     return float(np.clip(far / 40.0, 0.5, 1.0))
 
 
-__all__ = ["LioOdometry", "ScanResult", "OdomStats", "degenerate_directions", "relative_poses_at"]
+__all__ = ["LioOdometry", "ScanResult", "OdomStats", "degenerate_directions"]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -19,8 +18,6 @@ from .io.records import ImuBatch, PointCloud
 from .io.stream import SensorStream, select_topic
 from .io.tf import FrameTree, read_static_frames
 from .odometry import LioOdometry
-
-log = logging.getLogger(__name__)
 
 BASE_FRAME_NAMES = ("base_link", "base", "base_footprint")
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
@@ -106,7 +103,9 @@ def run_odometry(reader: LogReader, cfg: OdomConfig, *, lidar_topic: str | None 
         if odo is None and rec.kind == "lidar":
             imu_frame = early_imu[0].frame_id if early_imu else ""
             ext, extr_info = resolve_extrinsics(tree, calib, base_frame, imu_frame, rec.data.frame_id, notes)
-            odo = LioOdometry(cfg, ext, use_imu=use_imu, planar=planar)
+            odo = LioOdometry(cfg, ext, use_imu=use_imu, planar=planar,
+                              gyro_bias=calib.gyro_bias_radps if calib else None,
+                              accel_bias=calib.accel_bias_mps2 if calib else None)
             for b in early_imu:
                 odo.add_imu(b)
         if rec.kind == "imu":

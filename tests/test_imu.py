@@ -125,3 +125,16 @@ def test_fast_so3_matches_scipy(angle):
     np.testing.assert_allclose(exp_so3(phi), so3_exp(phi), atol=1e-12)
     R = so3_exp(phi)
     np.testing.assert_allclose(exp_so3(log_so3(R)), R, atol=1e-9)
+
+
+def test_known_accel_bias_is_removed_before_levelling():
+    tilt = so3_exp(np.array([0.05, 0.02, 0.0]))
+    bias = np.array([0.08, -0.06, 0.1])  # ~0.6 deg of false tilt if ignored
+    n = 300
+    accel = np.tile(tilt.T @ np.array([0.0, 0.0, G]) + bias, (n, 1))
+    imu = ImuBatch("imu", np.arange(n, dtype=np.int64) * 5_000_000, np.zeros((n, 3)), accel)
+    up_true = tilt.T @ [0, 0, 1]
+    ignored = start_up(imu, np.eye(3), 10**9).R_world_base.T @ [0, 0, 1]
+    known = start_up(imu, np.eye(3), 10**9, accel_bias=bias).R_world_base.T @ [0, 0, 1]
+    np.testing.assert_allclose(known, up_true, atol=1e-12)
+    assert np.linalg.norm(ignored - up_true) > 5e-3

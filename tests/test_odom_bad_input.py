@@ -77,10 +77,14 @@ def test_calib_file_supplies_missing_extrinsics(base_log, tmp_path, capsys):
     log = copy_log(base_log, tmp_path / "notf.bag", lambda tp, t, m, w: [] if tp == "/tf_static" else [(tp, t, m)])
     truth = json.loads(base_log.with_name("h.truth.json").read_text())
     calib = tmp_path / "calib.yaml"
-    calib.write_text(json.dumps({"T_base_imu": truth["T_base_imu"], "T_base_lidar": truth["T_base_lidar"]}))
+    accel_bias = truth["imu"]["accel_bias_mps2"]
+    calib.write_text(json.dumps({"T_base_imu": truth["T_base_imu"], "T_base_lidar": truth["T_base_lidar"],
+                                 "accel_bias_mps2": accel_bias}))
     rc, metrics = _odom(log, tmp_path, "--calib", str(calib))
     assert rc == 0
     assert metrics["extrinsics"]["T_base_imu"] == "--calib"
+    # started from the calibrated accelerometer bias, the filter stays near it over 4 s
+    np.testing.assert_allclose(metrics["final_accel_bias_mps2"], accel_bias, atol=0.05)
     assert "warning" not in capsys.readouterr().err
 
 
