@@ -30,6 +30,8 @@ class RegistrationConfig(_Strict):
     voxel_size_m: Optional[float] = Field(None, gt=0, description="map voxel size; default from the first scans' ranges")
     max_range_m: float = Field(100.0, gt=0)
     min_range_m: float = Field(0.5, ge=0)
+    source_voxel_factor: Optional[float] = Field(
+        None, gt=0, description="registration keeps one point per voxel_size x this; default 2.5 in 3D, 1.5 (kiss-icp's) for 2D scans")
     max_points_per_voxel: int = Field(5, gt=0, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
         None, gt=0, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
@@ -51,6 +53,7 @@ class FusionConfig(_Strict):
     rotation_sigma_rad: float = Field(0.005, gt=0, description="registration rotation noise per scan")
     degenerate_sigma_m: float = Field(2.0, gt=0, description="position noise along a degenerate direction")
     degeneracy_ratio: float = Field(0.025, gt=0, description="horizontal eigenvalue ratio below which a direction is degenerate")
+    degeneracy_every: int = Field(2, ge=1, description="analyse the geometry every n-th scan, reuse it between")
     wheel_speed_sigma_mps: float = Field(0.2, gt=0, description="wheel speed noise (covers slip episodes)")
     imu: ImuNoise = ImuNoise()
 
