@@ -8,6 +8,11 @@ from typing import Annotated, Optional
 
 import typer
 
+try:  # typer vendors click since 0.2x; older releases depend on it
+    from typer._click.exceptions import ClickException as _ClickException
+except ImportError:  # pragma: no cover - depends on the installed typer
+    from click.exceptions import ClickException as _ClickException
+
 from .. import __version__
 from ..errors import LioError
 from .common import err_console
@@ -84,14 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         err_console.print("lio: interrupted", markup=False)
         return 130
-    except Exception as err:  # click usage errors are handled below; anything else is a bug
-        import click
-
-        if isinstance(err, click.exceptions.ClickException):
-            err.show()
-            return err.exit_code
-        if isinstance(err, click.exceptions.Abort):
-            return 1
+    except typer.Abort:
+        return 1
+    except _ClickException as err:  # usage errors: click prints usage and the reason, exit 2
+        err.show()
+        return err.exit_code
+    except Exception as err:  # anything else is a bug
         if _state["debug"]:
             raise
         err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
