@@ -73,28 +73,37 @@ class OdomConfig(_Strict):
     fusion: FusionConfig = FusionConfig()
 
 
-def load_config(path: Path | None) -> OdomConfig:
-    """Defaults, updated from a YAML file when given."""
-    if path is None:
-        return OdomConfig()
+def _read_mapping(path: Path, what: str) -> dict:
+    """A YAML file's top-level mapping; every failure is a ConfigError naming the file."""
     try:
         data = yaml.safe_load(Path(path).read_text()) or {}
     except FileNotFoundError as err:
-        raise ConfigError(f"{path}: no such config file") from err
+        raise ConfigError(f"{path}: no such {what} file") from err
     except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: cannot read config ({str(err).splitlines()[0]})") from err
+        raise ConfigError(f"{path}: cannot read {what} ({str(err).splitlines()[0]})") from err
     if not isinstance(data, dict):
-        raise ConfigError(f"{path}: config must be a mapping of option: value")
-    return validate_config(data, str(path))
+        raise ConfigError(f"{path}: {what} must be a mapping of option: value")
+    return data
 
 
-def validate_config(data: dict, where: str) -> OdomConfig:
+def _validate(model: type[BaseModel], data: dict, where: str):
     try:
-        return OdomConfig.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as err:
         first = err.errors()[0]
         loc = ".".join(str(x) for x in first["loc"])
         raise ConfigError(f"{where}: {loc}: {first['msg']}") from err
+
+
+def load_config(path: Path | None) -> OdomConfig:
+    """Defaults, updated from a YAML file when given."""
+    if path is None:
+        return OdomConfig()
+    return validate_config(_read_mapping(path, "config"), str(path))
+
+
+def validate_config(data: dict, where: str) -> OdomConfig:
+    return _validate(OdomConfig, data, where)
 
 
 def dump_config(cfg: OdomConfig) -> str:
@@ -112,19 +121,7 @@ class Calibration(_Strict):
 
 
 def load_calibration(path: Path) -> Calibration:
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except FileNotFoundError as err:
-        raise ConfigError(f"{path}: no such calibration file") from err
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: cannot read calibration ({str(err).splitlines()[0]})") from err
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: calibration must be a mapping")
-    try:
-        cal = Calibration.model_validate(data)
-    except ValidationError as err:
-        first = err.errors()[0]
-        raise ConfigError(f"{path}: {'.'.join(str(x) for x in first['loc'])}: {first['msg']}") from err
+    cal = _validate(Calibration, _read_mapping(path, "calibration"), str(path))
     for name in ("T_base_imu", "T_base_lidar"):
         T = getattr(cal, name)
         if T is not None and (len(T) != 4 or any(len(row) != 4 for row in T)):
