@@ -91,4 +91,4 @@ def _print_human(s: dict, quiet: bool = False) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("info", help=HELP, no_args_is_help=True)(info)
+    app.command("info", help=HELP, short_help="What a log holds: topics, rates, cloud fields, per-point time, frames.", no_args_is_help=True)(info)
