@@ -32,28 +32,34 @@ def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.n
     Within one knot interval (an IMU period, a few ms) the pose is blended linearly between the two knots'
     relative poses; the chord-for-arc error of that blend is below a millimetre at 30 m for 3 rad/s.
     """
-    p_base = points_lidar @ T_base_lidar[:3, :3].T + T_base_lidar[:3, 3]
     knot_stamps_ns = np.asarray(knot_stamps_ns, dtype=np.int64)
     ref = _pose_at(knot_stamps_ns, knot_poses, t_ref_ns)
-    rel = inv_pose(ref)[None] @ knot_poses  # T_ref_knot
+    rel = inv_pose(ref)[None] @ knot_poses @ T_base_lidar  # T_base(ref)_lidar(knot): lidar points in one step
     m = len(knot_stamps_ns)
     if m == 1:
-        return p_base @ rel[0, :3, :3].T + rel[0, :3, 3]
-    idx = np.clip(np.searchsorted(knot_stamps_ns, stamps_ns, side="right") - 1, 0, m - 2)
+        return points_lidar @ rel[0, :3, :3].T + rel[0, :3, 3]
+    idx = np.searchsorted(knot_stamps_ns, stamps_ns, side="right") - 1
+    np.clip(idx, 0, m - 2, out=idx)
     span = np.maximum(np.diff(knot_stamps_ns), 1).astype(np.float64)
-    a = np.clip((stamps_ns - knot_stamps_ns[idx]) / span[idx], 0.0, 1.0)[:, None]
-    out = np.empty_like(p_base)
-    order = np.argsort(idx, kind="stable")
-    bounds = np.searchsorted(idx[order], np.arange(m))
-    bounds = np.append(bounds, len(idx))
+    a = (stamps_ns - knot_stamps_ns[idx]) / span[idx]
+    np.clip(a, 0.0, 1.0, out=a)
+    # spinning LiDARs deliver points in firing order: then every interval is a contiguous slice
+    order = None if np.all(idx[1:] >= idx[:-1]) else np.argsort(idx, kind="stable")
+    sorted_idx = idx if order is None else idx[order]
+    bounds = np.searchsorted(sorted_idx, np.arange(m))
+    out = np.empty_like(points_lidar, dtype=np.float64)
     for k in range(m - 1):
-        sel = order[bounds[k]:bounds[k + 1]]
-        if len(sel) == 0:
+        lo, hi = bounds[k], bounds[k + 1]
+        if hi <= lo:
             continue
-        q = p_base[sel]
+        sel = slice(lo, hi) if order is None else order[lo:hi]
+        q = points_lidar[sel]
         q0 = q @ rel[k, :3, :3].T + rel[k, :3, 3]
         q1 = q @ rel[k + 1, :3, :3].T + rel[k + 1, :3, 3]
-        out[sel] = q0 + a[sel] * (q1 - q0)
+        q1 -= q0
+        q1 *= a[sel, None]
+        q1 += q0
+        out[sel] = q1
     return out
 
 
