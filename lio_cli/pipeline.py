@@ -31,12 +31,16 @@ class OdomRun:
     notes: list[str] = field(default_factory=list)
 
 
-def resolve_extrinsics(tree: FrameTree, calib: Calibration | None, base_frame: str | None, imu_frame: str,
+def resolve_extrinsics(tree: FrameTree, calib: Calibration | None, base_frame: str | None, imu_frame: str | None,
                        lidar_frame: str, notes: list[str]) -> tuple[Extrinsics, dict]:
-    """T_base_imu and T_base_lidar from /tf_static by frame_id, else the calibration, else identity (noted)."""
+    """T_base_imu and T_base_lidar from /tf_static by frame_id, else the calibration, else identity (noted).
+
+    ``imu_frame`` None: the IMU is not used, so its extrinsic is not looked for.
+    """
     base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
-    found, source = {}, {}
-    for name, frame in (("T_base_imu", imu_frame), ("T_base_lidar", lidar_frame)):
+    found, source = {"T_base_imu": np.eye(4)}, {"T_base_imu": "not used (no IMU in this run)"}
+    wanted = [("T_base_lidar", lidar_frame)] if imu_frame is None else [("T_base_imu", imu_frame), ("T_base_lidar", lidar_frame)]
+    for name, frame in wanted:
         T = tree.lookup(base, frame) if frame else None
         if T is not None:
             found[name], source[name] = T, f"/tf_static ({base} -> {frame})"
@@ -101,7 +105,7 @@ def run_odometry(reader: LogReader, cfg: OdomConfig, *, lidar_topic: str | None 
     for rec in stream:
         t_read += time.perf_counter() - tick
         if odo is None and rec.kind == "lidar":
-            imu_frame = early_imu[0].frame_id if early_imu else ""
+            imu_frame = (early_imu[0].frame_id if early_imu else "") if use_imu else None
             ext, extr_info = resolve_extrinsics(tree, calib, base_frame, imu_frame, rec.data.frame_id, notes)
             odo = LioOdometry(cfg, ext, use_imu=use_imu, planar=planar,
                               gyro_bias=calib.gyro_bias_radps if calib else None,

@@ -62,6 +62,8 @@ def test_no_imu_topic_says_so_and_suggests_constant_velocity(base_log, tmp_path,
     rc, metrics = _odom(log, tmp_path, "--prior", "constant-velocity")
     assert rc == 0
     assert metrics["fusion"] == "none (no IMU)"
+    assert metrics["extrinsics"]["T_base_imu"] == "not used (no IMU in this run)"
+    assert "warning" not in capsys.readouterr().err  # no IMU extrinsic is missing when no IMU is used
 
 
 def test_missing_extrinsics_warn_and_assume_identity(base_log, tmp_path, capsys):
