@@ -186,6 +186,17 @@ def _fast_stamps_ns(texts: list[str], unit: str) -> np.ndarray | None:
     return np.array(out, dtype=np.int64)
 
 
+def _rows(path: Path, text: str, columns: int, layout: str) -> tuple[list[int], list[list[str]]]:
+    """Line numbers and tokens of the data lines, each checked to hold ``columns`` values."""
+    numbers, tokens = _data_lines(text)
+    if not tokens:
+        raise InputError(f"{path}: no poses in file")
+    for lineno, parts in zip(numbers, tokens):
+        if len(parts) != columns:
+            raise InputError(f"{path}:{lineno}: expected {columns} values ({layout}), found {len(parts)}")
+    return numbers, tokens
+
+
 def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.ndarray]:
     """(stamps_ns (N,), poses (N,4,4)) of a TUM file; bad lines raise InputError with the line number.
 
@@ -200,12 +211,7 @@ def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.nd
         numbers = range(1, len(texts) + 1)
         vals = fast[1][:, 1:]
     else:
-        numbers, tokens = _data_lines(text)
-        if not tokens:
-            raise InputError(f"{path}: no poses in file")
-        for lineno, parts in zip(numbers, tokens):
-            if len(parts) != 8:
-                raise InputError(f"{path}:{lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), found {len(parts)}")
+        numbers, tokens = _rows(path, text, 8, "stamp tx ty tz qx qy qz qw")
         texts = [p[0] for p in tokens]
         stamps = _stamps_ns(path, numbers, texts, stamp_unit)
         vals = _floats(path, numbers, [p[1:] for p in tokens])
@@ -227,12 +233,7 @@ def read_kitti(path: str | Path) -> np.ndarray:
     if fast is not None:
         numbers, vals = range(1, len(fast[1]) + 1), fast[1]
     else:
-        numbers, tokens = _data_lines(text)
-        if not tokens:
-            raise InputError(f"{path}: no poses in file")
-        for lineno, parts in zip(numbers, tokens):
-            if len(parts) != 12:
-                raise InputError(f"{path}:{lineno}: expected 12 values (KITTI row-major 3x4 pose), found {len(parts)}")
+        numbers, tokens = _rows(path, text, 12, "KITTI row-major 3x4 pose")
         vals = _floats(path, numbers, tokens)
     _check_finite(path, numbers, vals)
     poses = np.zeros((len(vals), 4, 4))
