@@ -208,7 +208,7 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
         s.P = _propagate_cov_interval(s.P, Rs, R_bi, w_b, f_b, dts, _noise_matrix(noise))
     s.R, s.p, s.v = Rs[-1], p[-1], v[-1]
     if planar:
-        _flatten(s)
+        flatten_planar(s)
         Rs, p = _flatten_many(Rs, p)
     poses = np.zeros((n, 4, 4))
     poses[:, :3, :3], poses[:, :3, 3], poses[:, 3, 3] = Rs, p, 1.0
@@ -249,7 +249,7 @@ def _hold(s: NavState, t_end_ns: int) -> Propagation:
     return Propagation(np.array([t_end_ns - int(dt * 1e9), t_end_ns], dtype=np.int64), np.stack([start, s.pose()]), s, True)
 
 
-def _flatten(s: NavState) -> None:
+def flatten_planar(s: NavState) -> None:
     """Keep a planar state in SE(2): no roll, pitch, z or vertical speed."""
     yaw = np.arctan2(s.R[1, 0], s.R[0, 0])
     c, si = np.cos(yaw), np.sin(yaw)

@@ -24,11 +24,12 @@ from .config import OdomConfig
 from .deskew import constant_velocity_knots, deskew, to_base
 from .fusion import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
 from .geometry import inv_pose, project_to_se2
-from .imu import Extrinsics, NavState, StartUp, propagate
+from .imu import Extrinsics, NavState, StartUp, flatten_planar, propagate, start_up
 from .io.records import ImuBatch, OdometryRecord, PointCloud
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
 _MAX_JUMP_RAD = 0.35
+_WHEEL_KEEP_NS = 1_000_000_000  # wheel records older than this behind the last scan are dropped
 _DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
 _IMU_PRIOR_CORRESPONDENCE_M = 0.5
 _IMU_PRIOR_ITERATIONS = 20
@@ -50,6 +51,7 @@ class OdomStats:
     scans: int = 0
     used: int = 0
     skipped_few_points: int = 0
+    skipped_out_of_order: int = 0
     registration_failures: int = 0
     degenerate: int = 0
     imu_gaps: int = 0
@@ -180,8 +182,6 @@ class LioOdometry:
 
     # ---- one scan -----------------------------------------------------------------------------
     def process(self, cloud: PointCloud) -> ScanResult | None:
-        from .imu import start_up
-
         cfg, st = self.cfg, self.stats
         st.scans += 1
         if len(cloud.points) < cfg.registration.min_points:
@@ -189,7 +189,7 @@ class LioOdometry:
             return None
         t_ref = cloud.end_ns if cfg.scan_reference == "end" else cloud.start_ns
         if self._last_ns is not None and t_ref <= self._last_ns:
-            st.skipped_few_points += 1  # a scan not after the previous one cannot be placed
+            st.skipped_out_of_order += 1  # a scan ending before the previous one cannot be placed
             return None
         if self.state is None:
             imu = ImuBatch.concat(self._imu)
@@ -253,12 +253,7 @@ class LioOdometry:
         st.times_s["degeneracy"] += time.perf_counter() - tick
         if self.planar:
             measured = project_to_se2(measured)
-        jump = inv_pose(guess) @ measured
-        # no correspondences leaves the guess untouched (to rounding): the scan told us nothing
-        failed = not np.isfinite(measured).all() or (not self._kiss.map.empty() and np.allclose(measured, guess, rtol=0.0, atol=1e-12)) or (
-            self.use_imu and not self._kiss.map.empty()
-            and (np.linalg.norm(jump[:3, 3]) > _MAX_JUMP_M
-                 or np.arccos(np.clip((np.trace(jump[:3, :3]) - 1) / 2, -1, 1)) > _MAX_JUMP_RAD))
+        failed = self._registration_failed(measured, guess)
         if failed:
             st.registration_failures += 1
             measured = guess
@@ -275,8 +270,23 @@ class LioOdometry:
         self._last_delta = inv_pose(self._last_pose) @ pose
         self._last_pose = pose
         self._last_ns = t_ref
+        self._wheel = [w for w in self._wheel if w.stamp_ns > t_ref - _WHEEL_KEEP_NS]  # bounded memory
         st.used += 1
         return ScanResult(t_ref, pose, bool(dirs_b), failed)
+
+    def _registration_failed(self, measured: np.ndarray, guess: np.ndarray) -> bool:
+        """Non-finite, untouched (no correspondence at all), or implausibly far from the IMU prediction."""
+        if not np.isfinite(measured).all():
+            return True
+        if self._kiss.map.empty():
+            return False
+        if np.allclose(measured, guess, rtol=0.0, atol=1e-12):  # ICP returns the guess itself when nothing matched
+            return True
+        if not self.use_imu:
+            return False
+        jump = inv_pose(guess) @ measured
+        angle = np.arccos(np.clip((np.trace(jump[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+        return bool(np.linalg.norm(jump[:3, 3]) > _MAX_JUMP_M or angle > _MAX_JUMP_RAD)
 
     def _guess(self, cv_delta: np.ndarray, t_prev: int, t_ref: int) -> np.ndarray:
         prior = self.cfg.prior
@@ -306,7 +316,6 @@ class LioOdometry:
         if not (self.cfg.use_wheel and self.cfg.fusion.method == "ekf") or not self._wheel:
             return
         recs = [w for w in self._wheel if t0 <= w.stamp_ns <= t1 + 20_000_000]
-        self._wheel = [w for w in self._wheel if w.stamp_ns > t0 - 1_000_000_000]
         if not recs:
             return
         v = np.mean([w.linear_mps for w in recs], axis=0)
@@ -336,9 +345,7 @@ class LioOdometry:
         else:
             complementary_update(self.state, measured, fc.alpha, dt_s, self.ext.R_base_imu, dirs_w)
         if self.planar:
-            from .imu import _flatten
-
-            _flatten(self.state)
+            flatten_planar(self.state)
         return self.state.pose()
 
 

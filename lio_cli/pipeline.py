@@ -158,6 +158,7 @@ def run_odometry(reader: LogReader, cfg: OdomConfig, *, lidar_topic: str | None 
             "total": st.scans,
             "used": st.used,
             "skipped_few_points": st.skipped_few_points,
+            "skipped_out_of_order": st.skipped_out_of_order,
             "registration_failures": st.registration_failures,
             "degenerate": st.degenerate,
             "imu_gaps": st.imu_gaps,
