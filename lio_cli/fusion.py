@@ -69,6 +69,12 @@ def ekf_body_velocity_update(state: NavState, v_body_mps: np.ndarray, sigmas_mps
     return _kalman_update(state, H, v_body_mps - vb, np.diag(np.asarray(sigmas_mps) ** 2))
 
 
+def complementary_velocity_update(state: NavState, v_body_mps: np.ndarray, beta: float) -> None:
+    """Blend a measured base-frame velocity (wheels) into the state's: ``v = beta * v_meas + (1 - beta) * v``."""
+    vb = state.R.T @ state.v
+    state.v = state.R @ ((1.0 - beta) * vb + beta * np.asarray(v_body_mps, dtype=np.float64))
+
+
 def complementary_update(state: NavState, T_meas: np.ndarray, alpha: float, dt_s: float, R_base_imu: np.ndarray,
                          degenerate_dirs_world: list[np.ndarray], bias_gain: float = 0.1) -> np.ndarray:
     """Blend the predicted and measured pose with weight ``alpha`` on the scan; correct velocity and gyro bias."""

@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 
 from .config import OdomConfig
 from .deskew import constant_velocity_knots, deskew, to_base
-from .fusion import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
+from .fusion import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
+                     position_noise)
 from .geometry import inv_pose, project_to_se2
 from .imu import Extrinsics, NavState, StartUp, flatten_planar, propagate, start_up
 from .io.records import ImuBatch, OdometryRecord, PointCloud
@@ -313,14 +314,19 @@ class LioOdometry:
         return T
 
     def _wheel_update(self, t0: int, t1: int) -> None:
-        if not (self.cfg.use_wheel and self.cfg.fusion.method == "ekf") or not self._wheel:
+        """Wheel speed over the scan (forward, no side slip) corrects the predicted velocity."""
+        if not self.cfg.use_wheel or not self._wheel:
             return
         recs = [w for w in self._wheel if t0 <= w.stamp_ns <= t1 + 20_000_000]
         if not recs:
             return
-        v = np.mean([w.linear_mps for w in recs], axis=0)
-        s = self.cfg.fusion.wheel_speed_sigma_mps
-        ekf_body_velocity_update(self.state, np.array([v[0], 0.0, 0.0]), np.array([s, 2 * s, 2 * s]))
+        v_body = np.array([np.mean([w.linear_mps[0] for w in recs]), 0.0, 0.0])
+        fc = self.cfg.fusion
+        if fc.method == "ekf":
+            s = fc.wheel_speed_sigma_mps
+            ekf_body_velocity_update(self.state, v_body, np.array([s, 2 * s, 2 * s]))
+        else:
+            complementary_velocity_update(self.state, v_body, fc.wheel_beta)
         self.stats.wheel_updates += 1
 
     def _correct(self, measured: np.ndarray, guess: np.ndarray, dirs_b: list[np.ndarray], dt_s: float,

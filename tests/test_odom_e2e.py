@@ -120,3 +120,14 @@ def test_gt_option_scores_against_log_topic_or_file(logs, tmp_path, capsys):
     assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--force", "--gt", str(res.gt_path)]) == 0
     acc_file = json.loads((tmp_path / "c.metrics.json").read_text())["accuracy"]
     assert acc_file["ate_trans_rmse_m"] == pytest.approx(_ate(res.gt_path, out, 20_000_000), rel=1e-6)
+
+
+@pytest.mark.parametrize("scenario, threshold", [("handheld", 0.08), ("corridor", 0.20)])
+def test_complementary_filter_also_beats_lidar_only(scenario, threshold, logs, tmp_path):
+    res = logs[scenario]
+    ate = {}
+    for mode, extra in (("complementary", ["--fusion", "complementary"]), ("lidar-only", MODES["lidar-only"])):
+        out = tmp_path / f"{mode}.tum"
+        assert _run(res.log_path, out, extra) == 0
+        ate[mode] = _ate(res.gt_path, out)
+    assert ate["complementary"] < threshold < ate["lidar-only"], ate
