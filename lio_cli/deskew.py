@@ -10,19 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import inv_pose, so3_exp, so3_log
-
-
-def _pose_at(stamps_ns: np.ndarray, poses: np.ndarray, t_ns: int) -> np.ndarray:
-    if len(stamps_ns) == 1:
-        return poses[0]
-    i = int(np.clip(np.searchsorted(stamps_ns, t_ns, side="right") - 1, 0, len(stamps_ns) - 2))
-    span = max(int(stamps_ns[i + 1] - stamps_ns[i]), 1)
-    a = float(np.clip((t_ns - stamps_ns[i]) / span, 0.0, 1.0))
-    T = np.eye(4)
-    T[:3, :3] = poses[i, :3, :3] @ so3_exp(a * so3_log(poses[i, :3, :3].T @ poses[i + 1, :3, :3]))
-    T[:3, 3] = (1 - a) * poses[i, :3, 3] + a * poses[i + 1, :3, 3]
-    return T
+from .geometry import interpolate_poses, inv_pose
 
 
 def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.ndarray, knot_poses: np.ndarray,
@@ -33,7 +21,7 @@ def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.n
     relative poses; the chord-for-arc error of that blend is below a millimetre at 30 m for 3 rad/s.
     """
     knot_stamps_ns = np.asarray(knot_stamps_ns, dtype=np.int64)
-    ref = _pose_at(knot_stamps_ns, knot_poses, t_ref_ns)
+    ref = interpolate_poses(knot_stamps_ns, knot_poses, np.array([t_ref_ns]))[0]
     rel = inv_pose(ref)[None] @ knot_poses @ T_base_lidar  # T_base(ref)_lidar(knot): lidar points in one step
     m = len(knot_stamps_ns)
     if m == 1:

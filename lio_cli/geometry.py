@@ -32,20 +32,6 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
 
 
-def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
-    """Right Jacobian Jr(phi) of SO(3): exp(phi + d) ~ exp(phi) exp(Jr(phi) d)."""
-    phi = np.asarray(phi, dtype=np.float64)
-    theta = float(np.linalg.norm(phi))
-    K = skew(phi)
-    if theta < 1e-6:
-        return np.eye(3) - 0.5 * K + K @ K / 6.0
-    return (
-        np.eye(3)
-        - (1.0 - np.cos(theta)) / theta**2 * K
-        + (theta - np.sin(theta)) / theta**3 * K @ K
-    )
-
-
 def quat_xyzw_to_rot(quat_xyzw: np.ndarray) -> np.ndarray:
     """Rotation matrix from quaternion(s) in xyzw order (normalised on the way)."""
     return Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)).as_matrix()
@@ -105,22 +91,6 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nj->ni", T[:, :3, :3], points) + T[:, :3, 3]
 
 
-def se3_log(T: np.ndarray) -> np.ndarray:
-    """Decoupled log of pose(s): (rho_xyz, phi_rotvec) stacked as (...,6). Translation is taken as is."""
-    T = np.asarray(T, dtype=np.float64)
-    return np.concatenate([T[..., :3, 3], so3_log(T[..., :3, :3])], axis=-1)
-
-
-def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`se3_log` (decoupled: translation and rotation vector)."""
-    xi = np.asarray(xi, dtype=np.float64)
-    T = np.zeros(xi.shape[:-1] + (4, 4))
-    T[..., :3, :3] = so3_exp(xi[..., 3:6])
-    T[..., :3, 3] = xi[..., :3]
-    T[..., 3, 3] = 1.0
-    return T
-
-
 def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.ndarray) -> np.ndarray:
     """Poses at ``query_ns`` by linear interpolation of translation and slerp of rotation.
 
@@ -148,20 +118,6 @@ def yaw_of(R: np.ndarray) -> np.ndarray:
     """Heading (rad) of rotation matrix(es) about world z."""
     R = np.asarray(R, dtype=np.float64)
     return np.arctan2(R[..., 1, 0], R[..., 0, 0])
-
-
-def make_se2(theta_rad: float, tx_m: float, ty_m: float) -> np.ndarray:
-    """SE(2) matrix (3,3), as in the lecture."""
-    c, s = np.cos(theta_rad), np.sin(theta_rad)
-    return np.array([[c, -s, tx_m], [s, c, ty_m], [0.0, 0.0, 1.0]])
-
-
-def se2_to_se3(T2: np.ndarray) -> np.ndarray:
-    """Embed an SE(2) matrix in SE(3) (rotation about z, z = 0)."""
-    T = np.eye(4)
-    T[:2, :2] = T2[:2, :2]
-    T[:2, 3] = T2[:2, 2]
-    return T
 
 
 def project_to_se2(T: np.ndarray) -> np.ndarray:

@@ -15,36 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .geometry import skew, so3_exp
 from .io.records import ImuBatch
 
 GRAVITY_MPS2 = 9.81
-
-
-def exp_so3(phi: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula for one rotation vector (fast path for the propagation loop)."""
-    theta = float(np.sqrt(phi @ phi))
-    K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    if theta < 1e-9:
-        return np.eye(3) + K
-    return np.eye(3) + (np.sin(theta) / theta) * K + ((1.0 - np.cos(theta)) / theta**2) * (K @ K)
-
-
-def log_so3(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of one rotation matrix (fast path)."""
-    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    theta = float(np.arccos(c))
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if theta < 1e-6:
-        return 0.5 * w
-    if np.pi - theta < 1e-3:  # near pi the antisymmetric part vanishes: use the robust general routine
-        from .geometry import so3_log
-
-        return so3_log(R)
-    return theta / (2.0 * np.sin(theta)) * w
-
-
-def hat(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 @dataclass
@@ -88,9 +62,9 @@ def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
     s, c = np.linalg.norm(axis), float(up @ z)
     if s < 1e-12:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    R = exp_so3(axis / s * np.arctan2(s, c))  # rotates up (base) onto world z
+    R = so3_exp(axis / s * np.arctan2(s, c))  # rotates up (base) onto world z
     yaw = np.arctan2(R[1, 0], R[0, 0])
-    Rz = exp_so3(np.array([0.0, 0.0, -yaw]))
+    Rz = so3_exp(np.array([0.0, 0.0, -yaw]))
     return Rz @ R
 
 
@@ -188,7 +162,7 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     dts = np.diff(times) * 1e-9
     # orientation: midpoint rule, a chain of small rotations
     w_mid = 0.5 * (w_b[1:] + w_b[:-1])
-    steps = _exp_many(w_mid * dts[:, None])
+    steps = so3_exp(w_mid * dts[:, None])
     Rs = np.empty((n, 3, 3))
     Rs[0] = s.R
     for k in range(n - 1):
@@ -214,19 +188,6 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     poses[:, :3, :3], poses[:, :3, 3], poses[:, 3, 3] = Rs, p, 1.0
     s.stamp_ns = int(t_end_ns)
     return Propagation(times, poses, s, gap)
-
-
-def _exp_many(phi: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula for many rotation vectors (N,3) -> (N,3,3)."""
-    theta = np.linalg.norm(phi, axis=1)
-    small = theta < 1e-9
-    th = np.where(small, 1.0, theta)
-    A = np.where(small, 1.0, np.sin(th) / th)
-    B = np.where(small, 0.5, (1.0 - np.cos(th)) / th**2)
-    K = np.zeros((len(phi), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
-    return np.eye(3) + A[:, None, None] * K + B[:, None, None] * (K @ K)
 
 
 def _flatten_many(Rs: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -280,10 +241,10 @@ def _propagate_cov_interval(P: np.ndarray, Rs: np.ndarray, R_bi: np.ndarray, w_b
         f = f_b[a:b + 1].mean(axis=0)
         R = Rs[a]
         F = np.eye(15)
-        F[0:3, 0:3] = exp_so3(-w * dt)
+        F[0:3, 0:3] = so3_exp(-w * dt)
         F[0:3, 9:12] = -R_bi * dt
         F[3:6, 6:9] = np.eye(3) * dt
-        F[6:9, 0:3] = -R @ hat(f) * dt
+        F[6:9, 0:3] = -R @ skew(f) * dt
         F[6:9, 12:15] = -R @ R_bi * dt
         Q = np.zeros(15)
         Q[0:3] = q[0] * dt

@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import InputError
 from .geometry import pose_to_xyz_quat, so3_log
-from .io.decode import KIND_TYPES, LASERSCAN, POINTCLOUD2
+from .io.decode import KIND_TYPES, POINTCLOUD2
 from .io.logs import LogReader
 from .io.pointcloud import decode_laserscan, decode_pointcloud2, detect_time_convention
 from .io.records import TimeConvention

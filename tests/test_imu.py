@@ -5,7 +5,7 @@ import pytest
 
 from lio_cli.config import ImuNoise
 from lio_cli.geometry import make_pose, so3_exp, so3_log
-from lio_cli.imu import Extrinsics, NavState, exp_so3, log_so3, propagate, start_up
+from lio_cli.imu import Extrinsics, NavState, propagate, start_up
 from lio_cli.io.records import ImuBatch
 
 G = 9.81
@@ -115,16 +115,6 @@ def test_moving_start_is_reported():
     s = start_up(ImuBatch("imu", np.arange(n, dtype=np.int64) * 5_000_000, gyro, accel), np.eye(3), 10**9)
     assert not s.static
     assert s.reason.startswith("moving start")
-
-
-@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 1.0, np.pi - 1e-6, np.pi])
-def test_fast_so3_matches_scipy(angle):
-    axis = np.array([0.3, -0.4, 0.866])
-    axis /= np.linalg.norm(axis)
-    phi = axis * angle
-    np.testing.assert_allclose(exp_so3(phi), so3_exp(phi), atol=1e-12)
-    R = so3_exp(phi)
-    np.testing.assert_allclose(exp_so3(log_so3(R)), R, atol=1e-9)
 
 
 def test_known_accel_bias_is_removed_before_levelling():

@@ -13,7 +13,6 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from ..errors import ConfigError
 
 err_console = Console(stderr=True, highlight=False, soft_wrap=True)
 out_console = Console(highlight=False, soft_wrap=True)
@@ -27,7 +26,6 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outp
 LidarTopicOpt = Annotated[Optional[str], typer.Option("--lidar-topic", help="PointCloud2 or LaserScan topic (default: the only one).", show_default=False)]
 ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="sensor_msgs/Imu topic (default: the only one).", show_default=False)]
 WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help="Wheel odometry topic, nav_msgs/Odometry or TwistStamped (default: the only one).", show_default=False)]
-GtTopicOpt = Annotated[Optional[str], typer.Option("--gt-topic", help="Ground-truth pose topic (default: the only PoseStamped/TransformStamped one).", show_default=False)]
 PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, or FIELD:UNIT[:abs] (UNIT s|ms|us|ns).", show_default=False)]
 
 
@@ -60,10 +58,6 @@ def warn(msg: str) -> None:
     err_console.print(f"[yellow]lio: warning:[/yellow] {msg}")
 
 
-def fmt_stamp(ns: int) -> str:
-    return f"{ns // 10**9}.{ns % 10**9:09d}"
-
-
 @contextmanager
 def progress_bar(description: str, total: float | None, quiet: bool) -> Iterator[Callable[[float], None]]:
     """Yield ``advance(n)``; a rich bar on stderr only when it is a terminal and not --quiet."""
@@ -76,13 +70,3 @@ def progress_bar(description: str, total: float | None, quiet: bool) -> Iterator
                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=True) as prog:
         task = prog.add_task(description, total=total)
         yield lambda n=1.0: prog.advance(task, n)
-
-
-def parse_key_values(items: list[str], what: str) -> dict[str, str]:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"{what} '{item}' is not KEY=VALUE")
-        out[key] = value
-    return out

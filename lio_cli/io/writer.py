@@ -16,10 +16,6 @@ WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"
 
 
-def default_suffix(fmt: str) -> str:
-    return {"ros1": ".bag", "mcap": ".mcap"}.get(fmt, "")
-
-
 class LogWriter:
     """``add_topic(topic, msgtype)`` then ``write(topic, time_ns, msg)`` in any order of time."""
 
