@@ -29,7 +29,7 @@ from evo_agreement import ensure_evo, simulate  # noqa: E402
 
 from lio_cli.evaluation import Trajectory, align, ape_errors, associate, kitti_segment_errors  # noqa: E402
 from lio_cli.evaluation import rpe_errors, rpe_pairs, statistics  # noqa: E402
-from lio_cli.io.trajectory import format_tum, read_tum  # noqa: E402
+from lio_cli.io.trajectory_files import format_tum, read_tum  # noqa: E402
 
 EVO_API = r"""
 import json, sys, time

@@ -90,7 +90,7 @@ def _import_all() -> None:
     import rosbags.highlevel  # noqa: F401
     import rosbags.typesys  # noqa: F401
 
-    import lio_cli.info  # noqa: F401
+    import lio_cli.jobs.info  # noqa: F401
     import lio_cli.io.stream  # noqa: F401
 
 
@@ -156,7 +156,7 @@ def measure_deser(path: Path, fmt: str) -> dict:
 
 
 def measure_decode(path: Path, fmt: str) -> dict:
-    from lio_cli.io.logs import open_log
+    from lio_cli.io.reader import open_log
     from lio_cli.io.stream import SensorStream
 
     _import_all()
@@ -176,8 +176,8 @@ def measure_decode(path: Path, fmt: str) -> dict:
 
 
 def measure_info(path: Path, fmt: str, repeat: int = 3) -> dict:
-    from lio_cli.info import describe_log
-    from lio_cli.io.logs import open_log
+    from lio_cli.jobs.info import describe_log
+    from lio_cli.io.reader import open_log
 
     _import_all()
     best = float("inf")

@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from lio_cli.deskew import deskew, to_base
-from lio_cli.fusion import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
+from lio_cli.core.motion_compensation import deskew, to_base
+from lio_cli.core.filter import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
 from lio_cli.geometry import inv_pose, make_pose, so3_exp, transform_points
-from lio_cli.imu import NavState
-from lio_cli.odometry import degenerate_directions
+from lio_cli.core.imu import NavState
+from lio_cli.core.degeneracy import degenerate_directions
 
 DESKEW_TOL_M = 1e-6
 

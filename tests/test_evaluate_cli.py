@@ -13,7 +13,7 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.geometry import make_pose, so3_exp
-from lio_cli.io.trajectory import format_kitti, format_tum
+from lio_cli.io.trajectory_files import format_kitti, format_tum
 from lio_cli.io.writer import LogWriter
 
 EXACT = 1e-9  # values go through 9-decimal files

@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 
-from lio_cli.config import ImuNoise
+from lio_cli.config.odom import ImuNoise
 from lio_cli.geometry import make_pose, so3_exp, so3_log
-from lio_cli.imu import Extrinsics, NavState, propagate, start_up
-from lio_cli.io.records import ImuBatch
+from lio_cli.core.imu import NavState, propagate
+from lio_cli.core.startup import start_up
+from lio_cli.model.calibration import Extrinsics
+from lio_cli.model.records import ImuBatch
 
 G = 9.81
 RATE_HZ = 200

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lio_cli.cli.app import main
-from lio_cli.io.logs import open_log
+from lio_cli.io.reader import open_log
 from lio_cli.io.pointcloud import cloud_dtype
 from lio_cli.io.writer import LogWriter
 from lio_cli.simulation.run import simulate

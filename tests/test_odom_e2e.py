@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 from lio_cli.cli.app import main
+from lio_cli.config import load_model
+from lio_cli.config.odom import OdomConfig
 from lio_cli.evaluation import EvalOptions, evaluate
-from lio_cli.evaluation.association import Trajectory
-from lio_cli.io.logs import open_log
+from lio_cli.model.trajectory import Trajectory
+from lio_cli.io.reader import open_log
 from lio_cli.io.stream import SensorStream
-from lio_cli.io.trajectory import read_tum
+from lio_cli.io.trajectory_files import read_tum
 from lio_cli.simulation.run import simulate
 
 DURATION_S = 6.0
@@ -74,7 +76,10 @@ def test_outputs_metrics_and_config_beside_trajectory(logs, tmp_path):
     out = tmp_path / "c.tum"
     assert _run(res.log_path, out) == 0
     metrics = json.loads((tmp_path / "c.metrics.json").read_text())
-    assert (tmp_path / "c.config.yaml").read_text().startswith("deskew: imu")
+    written = load_model(OdomConfig, tmp_path / "c.config.yaml")
+    assert (written.deskew, written.planar) == ("imu", False)  # resolved: no "auto" left
+    assert (written.input.lidar_topic, written.input.imu_topic, written.input.wheel_topic) == ("/points", "/imu", "/wheel/odom")
+    assert (written.input.format, written.input.base_frame) == ("ros2", "base")
     sc = metrics["scans"]
     assert sc["total"] == sc["used"] == 60
     assert sc["degenerate"] > 40  # a featureless corridor: the axis is unconstrained in most scans
@@ -131,3 +136,28 @@ def test_complementary_filter_also_beats_lidar_only(scenario, threshold, logs, t
         assert _run(res.log_path, out, extra) == 0
         ate[mode] = _ate(res.gt_path, out)
     assert ate["complementary"] < threshold < ate["lidar-only"], ate
+
+
+def test_written_config_repeats_the_run_byte_for_byte(logs, tmp_path):
+    """The .config.yaml holds the whole job (topics, calibration, base frame, options): --config alone repeats it."""
+    res = logs["handheld"]
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("imu_time_offset_s: 0.001\ngyro_bias_radps: [0.001, -0.002, 0.0005]\n")
+    first = tmp_path / "first.tum"
+    flags = ["--fusion", "complementary", "--alpha", "0.9", "--lidar-topic", "/points", "--calib", str(cal),
+             "--base-frame", "base", "--point-time", "velodyne", "--no-wheel"]
+    assert _run(res.log_path, first, flags) == 0
+    written = load_model(OdomConfig, tmp_path / "first.config.yaml")
+    assert written.calibration.imu_time_offset_s == 0.001 and written.input.point_time == "velodyne"
+    assert written.fusion.method == "complementary" and written.use_wheel is False
+    again = tmp_path / "again.tum"
+    assert _run(res.log_path, again, ["--config", str(tmp_path / "first.config.yaml")]) == 0
+    assert again.read_bytes() == first.read_bytes()
+    default = tmp_path / "default.tum"
+    assert _run(res.log_path, default) == 0
+    assert default.read_bytes() != first.read_bytes()  # the flags mattered, so the config carried them
+    # a flag given with --config overrides that one field only
+    over = tmp_path / "over.tum"
+    assert _run(res.log_path, over, ["--config", str(tmp_path / "first.config.yaml"), "--alpha", "0.5"]) == 0
+    cfg = load_model(OdomConfig, tmp_path / "over.config.yaml")
+    assert (cfg.fusion.alpha, cfg.fusion.method, cfg.calibration.imu_time_offset_s) == (0.5, "complementary", 0.001)

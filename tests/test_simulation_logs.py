@@ -14,9 +14,9 @@ import pytest
 from lio_cli.cli.app import main
 from lio_cli.geometry import so3_log
 from lio_cli.io.decode import decode_pose, decode_tf
-from lio_cli.io.logs import open_log
+from lio_cli.io.reader import open_log
 from lio_cli.io.pointcloud import decode_pointcloud2, decode_laserscan
-from lio_cli.io.trajectory import read_tum
+from lio_cli.io.trajectory_files import read_tum
 from lio_cli.simulation import SCENARIOS, build_scenario, output_paths, simulate
 
 NS = 1_000_000_000

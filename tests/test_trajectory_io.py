@@ -9,17 +9,8 @@ import pytest
 
 from lio_cli.errors import InputError
 from lio_cli.geometry import make_pose, so3_exp
-from lio_cli.io.trajectory import (
-    format_kitti,
-    format_stamp,
-    format_tum,
-    load_trajectory,
-    parse_stamp_ns,
-    read_kitti,
-    read_times,
-    read_tum,
-    split_source,
-)
+from lio_cli.io.sources import load_trajectory, split_source
+from lio_cli.io.trajectory_files import format_kitti, format_stamp, format_tum, parse_stamp_ns, read_kitti, read_times, read_tum
 from lio_cli.io.writer import LogWriter
 
 EXACT = 1e-12

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
-import numpy as np
 import typer
 from rich.console import Console
 
@@ -31,20 +29,10 @@ PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-p
 
 def print_json(obj: Any) -> None:
     """JSON on stdout (numpy scalars and arrays converted)."""
-    sys.stdout.write(json.dumps(obj, indent=2, default=_json_default) + "\n")
+    from ..jobs.outputs import json_text
+
+    sys.stdout.write(json_text(obj))
     sys.stdout.flush()
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.floating):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def note(msg: str, quiet: bool = False) -> None:
@@ -59,14 +47,28 @@ def warn(msg: str) -> None:
 
 
 @contextmanager
-def progress_bar(description: str, total: float | None, quiet: bool) -> Iterator[Callable[[float], None]]:
-    """Yield ``advance(n)``; a rich bar on stderr only when it is a terminal and not --quiet."""
+def _bar(description: str, total: float | None, quiet: bool):
+    """(rich Progress, task id) on stderr when it is a terminal and not --quiet, else (None, None)."""
     if quiet or not sys.stderr.isatty():
-        yield lambda n=1.0: None
+        yield None, None
         return
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=True) as prog:
-        task = prog.add_task(description, total=total)
-        yield lambda n=1.0: prog.advance(task, n)
+        yield prog, prog.add_task(description, total=total)
+
+
+@contextmanager
+def progress_bar(description: str, total: float | None, quiet: bool) -> Iterator[Callable[[float], None]]:
+    """Yield ``advance(n)``; a rich bar on stderr only when it is a terminal and not --quiet."""
+    with _bar(description, total, quiet) as (prog, task):
+        yield (lambda n=1.0: None) if prog is None else (lambda n=1.0: prog.advance(task, n))
+
+
+@contextmanager
+def job_progress(description: str, quiet: bool) -> Iterator[Callable[[int, int | None], None]]:
+    """Yield ``update(done, total)``, the progress callback jobs take (a bar as ``progress_bar``)."""
+    with _bar(description, None, quiet) as (prog, task):
+        yield (lambda done, total=None: None) if prog is None else \
+            (lambda done, total=None: prog.update(task, completed=done, total=total))

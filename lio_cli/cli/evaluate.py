@@ -17,7 +17,8 @@ from rich.table import Table
 from ..errors import ConfigError, InputError, ProcessingError
 from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult, Trajectory, evaluate
 from ..io.files import check_writable, write_text_atomic
-from ..io.trajectory import STAMP_UNITS_NS, load_trajectory, parse_stamp_ns
+from ..io.sources import load_trajectory
+from ..io.trajectory_files import STAMP_UNITS_NS, parse_stamp_ns
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json
 
 HELP = """Trajectory errors against ground truth: APE/RPE as evo, KITTI, drift.

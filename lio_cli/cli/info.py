@@ -7,9 +7,9 @@ import time
 import typer
 from rich.table import Table
 
-from ..info import check_log, describe_log
-from ..io.logs import open_log
 from ..io.pointcloud import parse_time_convention
+from ..io.reader import open_log
+from ..jobs.info import check_log, describe_log
 from .common import FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, print_json, progress_bar
 
 HELP = """Show what a log holds: format, time span, topics with types, counts and rates; for every scan topic

@@ -1,23 +1,22 @@
-"""``lio odom``: IMU-primed scan matching over a log."""
+"""``lio odom``: IMU-primed scan matching over a log (flags -> OdomJob -> run_odom -> print)."""
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from ..config import dump_config, load_calibration, load_config
+from ..config import load_calibration, load_model, with_overrides
+from ..config.odom import OdomConfig
 from ..errors import ConfigError
-from ..io.files import atomic_output, check_writable
-from ..io.logs import open_log
 from ..io.pointcloud import parse_time_convention
-from ..io.trajectory import format_tum
-from ..pipeline import run_odometry
+from ..io.trajectory_files import format_tum
+from ..jobs.odom import OdomJob, OdomResult, run_odom
+from ..jobs.outputs import check_outputs, log_stem, write_odom
 from .common import (FormatOpt, ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt, QuietOpt,
-                     WheelTopicOpt, err_console, note, print_json, progress_bar, warn)
+                     WheelTopicOpt, err_console, job_progress, note, print_json, warn)
 
 HELP = """Estimate the trajectory of the base frame from LiDAR scans primed by the IMU (and wheels).
 
@@ -27,6 +26,8 @@ complementary filter) corrects pose, velocity and IMU biases for the next scan. 
 stamped with the instant its scan was de-skewed to (the scan's end by default).
 
 Writes OUT (TUM: stamp tx ty tz qx qy qz qw), OUT-stem.metrics.json and OUT-stem.config.yaml beside it.
+The .config.yaml is the whole run (topics, calibration, base frame, options): `lio odom LOG --config
+it` repeats the run exactly; flags given with --config override its fields one by one.
 With -o - the trajectory goes to stdout and no other file is written.
 
 [bold]Examples[/bold]
@@ -64,107 +65,51 @@ def odom(
     quiet: QuietOpt = False,
     force: ForceOpt = False,
 ) -> None:
-    cfg = load_config(config)
-    overrides = {"deskew": deskew, "prior": prior, "frame": frame, "planar": planar}
-    data = cfg.model_dump()
-    for key, value in overrides.items():
-        if value is not None:
-            data[key] = value
-    if fusion is not None:
-        data["fusion"]["method"] = fusion
-    if alpha is not None:
-        data["fusion"]["alpha"] = alpha
-    if no_wheel:
-        data["use_wheel"] = False
-    if prior in ("constant-velocity", "none", "wheel") and deskew is None and cfg.deskew == "imu" and config is None:
-        data["deskew"] = "constant-velocity" if prior != "none" else "none"
-    from ..config import validate_config
-
-    cfg = validate_config(data, "options")
-    cal = load_calibration(calib) if calib else None
-    conv = parse_time_convention(point_time) if point_time else None
+    cfg = load_model(OdomConfig, config)
+    if calib is not None:  # the file's fields replace the config's, one by one
+        cal = load_calibration(calib)
+        cfg = with_overrides(cfg, {f"calibration.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    if point_time is not None:
+        parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
+    cfg = with_overrides(cfg, {
+        "deskew": deskew, "prior": prior, "frame": frame, "planar": planar, "fusion.method": fusion,
+        "fusion.alpha": alpha, "use_wheel": False if no_wheel else None, "input.format": fmt,
+        "input.lidar_topic": lidar_topic, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
+        "input.base_frame": base_frame, "input.point_time": point_time,
+    })
 
     to_stdout = output == "-"
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
-    out = None if to_stdout else Path(output) if output else Path(f"{_stem(log)}.tum")
+    out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.tum")
     if out is not None:
-        side = [out, _beside(out, ".metrics.json"), _beside(out, ".config.yaml")]
-        for p in side:
-            check_writable(p, force)
+        check_outputs(out, force)
 
-    with open_log(log, fmt) as reader:
-        total = reader.topics.get(lidar_topic or "", None)
-        with progress_bar("odometry", None if total is None else total.count, quiet) as advance:
-            run = run_odometry(reader, cfg, lidar_topic=lidar_topic, imu_topic=imu_topic, wheel_topic=wheel_topic,
-                               calib=cal, base_frame=base_frame, convention=conv, progress=advance)
-    for n in run.notes:
+    with job_progress("odometry", quiet) as update:
+        result = run_odom(OdomJob(Path(log), cfg, gt), progress=update)
+    for n in result.notes:
         warn(n)
-    tum = format_tum(run.stamps_ns, run.poses)
-    m = run.metrics
-    if gt is not None:
-        m["accuracy"] = _score(log, gt, run)
     if to_stdout:
-        sys.stdout.write(tum)
+        sys.stdout.write(format_tum(result.trajectory.stamps_ns, result.trajectory.poses))
         sys.stdout.flush()
     else:
-        m["output"] = str(out)
-        with atomic_output(out, force) as tmp:
-            tmp.write_text(tum)
-        with atomic_output(_beside(out, ".config.yaml"), force) as tmp:
-            tmp.write_text(dump_config(cfg))
-        with atomic_output(_beside(out, ".metrics.json"), force) as tmp:
-            tmp.write_text(json.dumps(m, indent=2) + "\n")
-    sc = m["scans"]
-    note(f"{sc['used']}/{sc['total']} scans used, {sc['degenerate']} degenerate, "
-         f"{sc['registration_failures']} registration failures, {sc['imu_gaps']} IMU gaps; "
-         f"{m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x real time"
-         + ("" if to_stdout else f"; wrote {out}"), quiet)
-    note(f"start: {m['initialisation']}", quiet)
-    if "accuracy" in m:
-        a = m["accuracy"]
-        rpe = "-" if a["rpe_trans_rmse_m"] is None else f"{a['rpe_trans_rmse_m']:.4f} m"
-        err_console.print(f"against {a['reference']}: ATE {a['ate_trans_rmse_m']:.4f} m, {a['ate_rot_rmse_deg']:.3f} deg "
-                          f"(SE(3)-aligned rmse over {a['matches']} poses); RPE over {a['rpe_delta']}: {rpe}", markup=False)
+        write_odom(result, out, force)
+    _report(result, None if to_stdout else out, quiet)
     if as_json:
-        print_json(m)
+        print_json(result.metrics)
 
 
-def _score(log: Path, gt: str, run) -> dict:
-    """ATE and RPE of the run against ground truth from a file or a topic of the log."""
-    from ..evaluation import EvalOptions, Trajectory, evaluate
-    from ..io.trajectory import load_trajectory
-
-    spec = f"{log}:{gt}" if gt.startswith("/") and not Path(gt).exists() else gt
-    ref = load_trajectory(spec)
-    ref_traj = Trajectory(ref.stamps_ns, ref.poses, name=gt)
-    est = Trajectory(run.stamps_ns, run.poses, name="odom")
-    ate = evaluate(ref_traj, est, EvalOptions(max_diff_ns=20_000_000))
-    length = ate.drift["path_length_m"] or 0.0
-    delta, unit = (10.0, "m") if length >= 20.0 else (1.0, "s")
-    rpe = evaluate(ref_traj, est, EvalOptions(max_diff_ns=20_000_000, delta=delta, delta_unit=unit))
-    return {
-        "reference": gt,
-        "matches": len(ate.association.ref),
-        "ate_trans_rmse_m": ate.stats["ape"]["trans"]["rmse"],
-        "ate_rot_rmse_deg": ate.stats["ape"]["rot"]["rmse"],
-        "rpe_delta": f"{delta:g} {unit}",
-        "rpe_trans_rmse_m": rpe.stats["rpe"]["trans"]["rmse"] if len(rpe.rpe_pairs) else None,
-        "final_error_m": ate.drift["final_error_m"],
-        "alignment": "se3",
-    }
-
-
-def _stem(log: Path) -> str:
-    p = Path(log)
-    if p.name == "metadata.yaml":
-        p = p.parent
-    return p.name.removesuffix(".bag").removesuffix(".mcap") or "odom"
-
-
-def _beside(out: Path, suffix: str) -> Path:
-    name = out.name[: -len(out.suffix)] if out.suffix else out.name
-    return out.with_name(name + suffix)
+def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
+    st, m = result.stats, result.metrics
+    note(f"{st.used}/{st.scans} scans used, {st.degenerate} degenerate, {st.registration_failures} registration "
+         f"failures, {st.imu_gaps} IMU gaps; {m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x "
+         "real time" + ("" if out is None else f"; wrote {out}"), quiet)
+    note(f"start: {result.initialisation}", quiet)
+    if result.score is not None:
+        a = result.score
+        rpe = "-" if a.rpe_trans_rmse_m is None else f"{a.rpe_trans_rmse_m:.4f} m"
+        err_console.print(f"against {a.reference}: ATE {a.ate_trans_rmse_m:.4f} m, {a.ate_rot_rmse_deg:.3f} deg "
+                          f"(SE(3)-aligned rmse over {a.matches} poses); RPE over {a.rpe_delta}: {rpe}", markup=False)
 
 
 def register(app: typer.Typer) -> None:

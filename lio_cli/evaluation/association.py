@@ -14,25 +14,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import interpolate_poses
+from ..model.trajectory import Trajectory
 
 METHODS = ("nearest", "interpolate")
 _NO_MATCH = np.iinfo(np.int64).max
-
-
-@dataclass
-class Trajectory:
-    """Poses ``T_world_body`` (N,4,4) at strictly increasing ``stamps_ns``."""
-
-    stamps_ns: np.ndarray
-    poses: np.ndarray
-    name: str = ""
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-    @property
-    def positions(self) -> np.ndarray:
-        return self.poses[:, :3, 3]
 
 
 @dataclass

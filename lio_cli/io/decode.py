@@ -7,7 +7,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import pose_from_xyz_quat
 from .pointcloud import stamp_to_ns
-from .records import OdometryRecord, PoseRecord, TransformRecord
+from ..model.records import OdometryRecord, PoseRecord, TransformRecord
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 LASERSCAN = "sensor_msgs/msg/LaserScan"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .records import PointCloud, TimeConvention
+from ..model.records import PointCloud, TimeConvention
 
 # sensor_msgs/PointField datatypes -> numpy type codes
 _DATATYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}

@@ -1,4 +1,4 @@
-"""Topic choice and one merged, time-ordered stream of typed sensor records.
+"""One merged, time-ordered stream of typed sensor records from the chosen topics.
 
 The log is read lazily in record-time order; each message is decoded and re-ordered by its header stamp
 through a small heap that holds at most ``reorder_window_ns`` of data, so memory stays bounded however
@@ -15,17 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .decode import (
-    IMU,
-    KIND_FLAGS,
-    KIND_TYPES,
-    LASERSCAN,
-    POINTCLOUD2,
-    decode_odometry,
-    decode_pose,
-    imu_sample,
-)
-from .logs import LogReader
+from ..model.records import ImuBatch, Record, TimeConvention
+from .decode import IMU, LASERSCAN, POINTCLOUD2, decode_odometry, decode_pose, imu_sample
+from .reader import LogReader
 from .pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,
     decode_laserscan,
@@ -34,49 +26,6 @@ from .pointcloud import (
     stamp_to_ns,
 )
 from .rawmsg import RawImu
-from .records import ImuBatch, Record, TimeConvention
-
-_KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth"}
-
-
-def select_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
-                 exclude: tuple[str, ...] = ()) -> str | None:
-    """The topic to read for ``kind`` (lidar, imu, wheel, gt): the one asked for, or the only candidate."""
-    accepted = KIND_TYPES[kind]
-    word = _KIND_WORDS[kind]
-    if requested is not None:
-        info = log.topics.get(requested)
-        if info is None:
-            candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
-            hint = f"; {word} topics here: {', '.join(candidates)}" if candidates else f"; it has no {word} topic"
-            raise InputError(f"{log.path}: topic {requested} not found{hint}")
-        if info.msgtype not in accepted:
-            candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
-            hint = (f"; {word} topics here: {', '.join(candidates)}" if candidates
-                    else f"; the log has no {word} topic")
-            raise InputError(
-                f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)}){hint}"
-            )
-        if info.count == 0:
-            raise InputError(f"{log.path}: topic {requested} has no messages")
-        return requested
-    # a topic declared but never published is as good as absent
-    candidates = sorted(t for t, i in log.topics.items()
-                        if i.msgtype in accepted and t not in exclude and i.count > 0)
-    if kind == "gt":  # Odometry is ambiguous between wheel and ground truth: only take it when named so
-        poses = [t for t in candidates if log.topics[t].msgtype != "nav_msgs/msg/Odometry"]
-        named = [t for t in candidates if any(w in t.lower() for w in ("ground_truth", "groundtruth", "gt"))]
-        candidates = poses or named
-    if not candidates:
-        if required:
-            raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)})")
-        return None
-    if len(candidates) > 1:
-        raise InputError(
-            f"{log.path}: several {word} topics ({', '.join(candidates)}); choose one with {KIND_FLAGS[kind]}"
-        )
-    return candidates[0]
-
 
 @dataclass
 class StreamStats:
@@ -254,4 +203,4 @@ def read_imu(log: LogReader, topic: str, strict: bool = False) -> ImuBatch:
     return ImuBatch.concat([r.data for r in stream if r.kind == "imu"])
 
 
-__all__ = ["SensorStream", "StreamStats", "select_topic", "read_imu", "header_stamp_ns", "IMU"]
+__all__ = ["SensorStream", "StreamStats", "read_imu", "header_stamp_ns", "IMU"]

@@ -9,8 +9,8 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import inv_pose
 from .decode import TF_MESSAGE, decode_tf
-from .logs import LogReader
-from .records import TransformRecord
+from ..model.records import TransformRecord
+from .reader import LogReader
 
 TF_STATIC_TOPIC = "/tf_static"
 
@@ -34,25 +34,42 @@ class FrameTree:
     def frames(self) -> list[str]:
         return sorted(self._edges)
 
-    def lookup(self, target: str, source: str) -> np.ndarray | None:
-        """``T_target_source`` (maps points from ``source`` into ``target``), or None if unconnected."""
+    def path(self, target: str, source: str) -> list[tuple[str, str]] | None:
+        """The hops ``[(target, f1), (f1, f2), ..., (fn, source)]`` of the shortest chain, None if unconnected."""
         target, source = target.lstrip("/"), source.lstrip("/")
         if target == source:
-            return np.eye(4)
+            return []
         if target not in self._edges or source not in self._edges:
             return None
-        # breadth-first search from target; accumulate T_target_frame
-        seen = {target: np.eye(4)}
+        prev: dict[str, str | None] = {target: None}  # breadth-first search from target
         queue = deque([target])
         while queue:
             frame = queue.popleft()
-            for nxt, T_frame_nxt in self._edges[frame].items():
-                if nxt not in seen:
-                    seen[nxt] = seen[frame] @ T_frame_nxt
+            for nxt in self._edges[frame]:
+                if nxt not in prev:
+                    prev[nxt] = frame
                     if nxt == source:
-                        return seen[nxt]
+                        hops = []
+                        while prev[nxt] is not None:
+                            hops.append((prev[nxt], nxt))
+                            nxt = prev[nxt]
+                        return hops[::-1]
                     queue.append(nxt)
         return None
+
+    def hop(self, a: str, b: str) -> np.ndarray:
+        """``T_a_b`` of one edge (either direction)."""
+        return self._edges[a][b]
+
+    def lookup(self, target: str, source: str) -> np.ndarray | None:
+        """``T_target_source`` (maps points from ``source`` into ``target``), or None if unconnected."""
+        hops = self.path(target, source)
+        if hops is None:
+            return None
+        T = np.eye(4)
+        for a, b in hops:
+            T = T @ self._edges[a][b]
+        return T
 
 
 def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTree:

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..io.files import check_writable, write_text_atomic
-from ..io.trajectory import format_tum
+from ..io.trajectory_files import format_tum
 from ..io.writer import LogWriter
 from .scenarios import SCENARIOS, Scenario, build_scenario
 from .sensors import NS, ImuSpec, LaserSpec, LidarSpec, Scan, laser_scan, spin_scan, synthesize_imu, wheel_odometry

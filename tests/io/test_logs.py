@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from lio_cli.errors import InputError
-from lio_cli.io.logs import detect_format, open_log
+from lio_cli.io.detect import detect_format
+from lio_cli.io.reader import open_log
 
 POINTS_PER_SCAN = 52
 

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from lio_cli.errors import InputError
-from lio_cli.io.logs import open_log
-from lio_cli.io.records import ImuBatch, OdometryRecord, PointCloud, PoseRecord
-from lio_cli.io.stream import SensorStream, read_imu, select_topic
+from lio_cli.io.reader import open_log
+from lio_cli.model.records import ImuBatch, OdometryRecord, PointCloud, PoseRecord
+from lio_cli.io.stream import SensorStream, read_imu
+from lio_cli.io.topics import select_topic
 
 IMU = "sensor_msgs/msg/Imu"
 CLOUD = "sensor_msgs/msg/PointCloud2"

@@ -7,8 +7,8 @@ import pytest
 
 from lio_cli.errors import InputError
 from lio_cli.geometry import inv_pose, make_pose, so3_exp
-from lio_cli.io.logs import open_log
-from lio_cli.io.records import TransformRecord
+from lio_cli.io.reader import open_log
+from lio_cli.model.records import TransformRecord
 from lio_cli.io.tf import FrameTree, read_static_frames
 
 POSE_TOL = 1e-12

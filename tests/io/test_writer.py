@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lio_cli.errors import InputError
-from lio_cli.io.logs import open_log
+from lio_cli.io.reader import open_log
 from lio_cli.io.writer import LogWriter
 
 

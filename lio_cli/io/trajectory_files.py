@@ -1,23 +1,19 @@
-"""Trajectory files and trajectory sources.
+"""Trajectory text formats.
 
 TUM: ``stamp tx ty tz qx qy qz qw`` per line, stamp in seconds written from int ns.
 KITTI: 12 values per line, the row-major 3x4 matrix ``[R | t]`` of ``T_world_body``; stamps come from a
 separate times file (one stamp in seconds per line, as KITTI's ``times.txt``) or a fixed rate.
-
-``load_trajectory`` resolves what a user typed on the command line: a TUM or KITTI file, or a topic of a
-log (``LOG:/topic``, ``LOG#/topic``, ``LOG:tf:parent.child`` for a chain of /tf and /tf_static).
-Every problem is an ``InputError`` naming the file and, for text files, the line.
+Every problem is an ``InputError`` naming the file and the line.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import interpolate_poses, inv_pose, pose_from_xyz_quat, pose_to_xyz_quat
+from ..geometry import pose_from_xyz_quat, pose_to_xyz_quat
 
 _INT64_MAX = np.iinfo(np.int64).max
 # Quaternions further than this from unit length are rejected (TUM files written with 6 decimals are ~1e-6 off).
@@ -277,192 +273,3 @@ def sniff_columns(path: str | Path) -> int:
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: cannot read ({err})") from err
     raise InputError(f"{path}: no poses in file")
-
-
-# ---------------------------------------------------------------------------------------------------------
-# trajectory sources: files or log topics
-
-
-@dataclass
-class LoadedTrajectory:
-    """A trajectory read from a source: ``poses[i]`` is ``T_frame_body`` at ``stamps_ns[i]``."""
-
-    name: str
-    stamps_ns: np.ndarray  # (N,) int64, strictly increasing
-    poses: np.ndarray  # (N,4,4)
-    kind: str  # tum, kitti, topic, tf
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-
-def split_source(spec: str) -> tuple[str, str | None]:
-    """(path, topic spec or None) of ``LOG:/topic``, ``LOG#topic``, ``LOG:tf:a.b``, or a plain path."""
-    if Path(spec).exists():
-        return spec, None
-    if "#" in spec:
-        path, _, topic = spec.rpartition("#")
-        return path, topic
-    for marker in (":/", ":tf:"):
-        pos = spec.find(marker)
-        if pos > 0:
-            return spec[:pos], spec[pos + 1:]
-    return spec, None
-
-
-def _is_log(path: Path) -> bool:
-    if path.is_dir():
-        return True
-    try:
-        with path.open("rb") as f:
-            head = f.read(16)
-    except OSError:
-        return False
-    return head.startswith((b"#ROSBAG", b"\x89MCAP", b"SQLite format 3"))
-
-
-def load_trajectory(
-    spec: str,
-    *,
-    topic: str | None = None,
-    times: str | Path | None = None,
-    rate_hz: float | None = None,
-    stamp_unit: str = "s",
-) -> LoadedTrajectory:
-    """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path."""
-    path_text, topic_spec = split_source(spec)
-    path = Path(path_text)
-    if not path.exists():
-        raise InputError(f"{path}: no such file or folder")
-    if topic_spec is None and _is_log(path):
-        return read_log_trajectory(path, topic, required_kind="gt")
-    if topic_spec is not None:
-        return read_log_trajectory(path, topic_spec)
-    cols = sniff_columns(path)
-    if cols == 12:
-        poses = read_kitti(path)
-        if times is not None:
-            stamps = read_times(times)
-            if len(stamps) != len(poses):
-                raise InputError(
-                    f"{path}: {len(poses)} KITTI poses but {times} holds {len(stamps)} stamps; "
-                    f"lengths must match line by line"
-                )
-        elif rate_hz is not None:
-            if not rate_hz > 0:
-                raise InputError(f"--rate must be positive, got {rate_hz}")
-            stamps = np.round(np.arange(len(poses)) * (1e9 / rate_hz)).astype(np.int64)
-        else:
-            raise InputError(f"{path}: KITTI poses carry no stamps; give --times FILE (KITTI times.txt) or --rate HZ")
-        return LoadedTrajectory(str(path), stamps, poses, "kitti")
-    if cols == 8:
-        stamps, poses = read_tum(path, stamp_unit)
-        return LoadedTrajectory(str(path), stamps, poses, "tum")
-    raise InputError(
-        f"{path}: first line has {cols} values; expected 8 (TUM: stamp tx ty tz qx qy qz qw) or 12 (KITTI 3x4 pose)"
-    )
-
-
-def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt") -> LoadedTrajectory:
-    """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped) or a TF chain ``tf:a.b``."""
-    from .logs import open_log
-    from .stream import SensorStream, select_topic
-
-    with open_log(path) as log:
-        if topic_spec is not None and topic_spec.startswith("tf:"):
-            return _read_tf_chain(log, path, topic_spec[3:])
-        topic = select_topic(log, required_kind, topic_spec)
-        stamps, poses = [], []
-        for rec in SensorStream(log, {"gt": topic}, strict=True):
-            stamps.append(rec.stamp_ns)
-            poses.append(rec.data.pose)
-    if not poses:
-        raise InputError(f"{path}: topic {topic} holds no messages")
-    return LoadedTrajectory(f"{path}:{topic}", np.asarray(stamps, dtype=np.int64), np.asarray(poses), "topic")
-
-
-def _read_tf_chain(log, path: Path, chain: str) -> LoadedTrajectory:
-    """``T_parent_child`` over time from /tf (dynamic) and /tf_static, composing any chain between them.
-
-    The output stamps are those of the busiest dynamic edge on the chain; other dynamic edges are interpolated
-    there, and stamps outside any dynamic edge's span are dropped.
-    """
-    from .decode import TF_MESSAGE, decode_tf
-
-    edges: dict[tuple[str, str], list[tuple[int, np.ndarray]]] = {}
-    static: dict[tuple[str, str], np.ndarray] = {}
-    topics = [t for t in ("/tf", "/tf_static") if t in log.topics and log.topics[t].msgtype == TF_MESSAGE]
-    if not topics:
-        raise InputError(f"{path}: no /tf or /tf_static topic (tf2_msgs/TFMessage) to read tf:{chain} from")
-    for topic, _, _, msg in log.messages(topics):
-        for tr in decode_tf(msg):
-            if topic == "/tf_static":
-                static[(tr.parent, tr.child)] = tr.pose
-            else:
-                edges.setdefault((tr.parent, tr.child), []).append((tr.stamp_ns, tr.pose))
-    frames = {f for e in list(edges) + list(static) for f in e}
-    parent, child = _split_chain(chain, frames, path)
-    # breadth-first search over undirected edges; remember direction
-    graph: dict[str, list[tuple[str, tuple[str, str], bool]]] = {}
-    for key in list(edges) + list(static):
-        graph.setdefault(key[0], []).append((key[1], key, False))
-        graph.setdefault(key[1], []).append((key[0], key, True))
-    prev: dict[str, tuple[str, tuple[str, str], bool] | None] = {parent: None}
-    queue = [parent]
-    while queue:
-        frame = queue.pop(0)
-        for nxt, key, inverted in graph.get(frame, []):
-            if nxt not in prev:
-                prev[nxt] = (frame, key, inverted)
-                queue.append(nxt)
-    if child not in prev:
-        raise InputError(f"{path}: no chain of transforms connects '{parent}' to '{child}' in /tf and /tf_static")
-    steps = []
-    frame = child
-    while prev[frame] is not None:
-        before, key, inverted = prev[frame]
-        steps.append((key, inverted))
-        frame = before
-    steps.reverse()
-    series = {}
-    for key, _ in steps:
-        if key in edges:
-            recs = sorted(edges[key], key=lambda r: r[0])
-            st = np.array([r[0] for r in recs], dtype=np.int64)
-            keep = np.concatenate([[True], np.diff(st) > 0])  # drop duplicated stamps
-            series[key] = (st[keep], np.array([r[1] for r in recs])[keep])
-    if not series:
-        raise InputError(f"{path}: '{parent}' -> '{child}' is static (only /tf_static): no trajectory over time")
-    main = max(series, key=lambda k: len(series[k][0]))
-    stamps = series[main][0]
-    lo = max(s[0][0] for s in series.values())
-    hi = min(s[0][-1] for s in series.values())
-    stamps = stamps[(stamps >= lo) & (stamps <= hi)]
-    if len(stamps) == 0:
-        raise InputError(f"{path}: the dynamic transforms on '{parent}' -> '{child}' never overlap in time")
-    out = np.repeat(np.eye(4)[None], len(stamps), axis=0)
-    for key, inverted in steps:
-        if key in series:
-            st, P = series[key]
-            T = P[np.searchsorted(st, stamps)] if key == main else interpolate_poses(st, P, stamps)
-        else:
-            T = np.repeat(static[key][None], len(stamps), axis=0)
-        out = out @ (inv_pose(T) if inverted else T)
-    return LoadedTrajectory(f"{path}:tf:{parent}.{child}", stamps, out, "tf")
-
-
-def _split_chain(chain: str, frames: set[str], path: Path) -> tuple[str, str]:
-    if "->" in chain:
-        a, _, b = chain.partition("->")
-        candidates = [(a, b)]
-    else:
-        dots = [i for i, c in enumerate(chain) if c == "."]
-        candidates = [(chain[:i], chain[i + 1:]) for i in dots]
-    if not candidates:
-        raise InputError(f"tf:{chain}: expected tf:PARENT.CHILD (or tf:PARENT->CHILD)")
-    for a, b in candidates:
-        a, b = a.strip("/"), b.strip("/")
-        if a in frames and b in frames:
-            return a, b
-    known = ", ".join(sorted(frames)) or "none"
-    raise InputError(f"{path}: frames of tf:{chain} not found in /tf and /tf_static (frames there: {known})")

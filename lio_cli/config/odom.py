@@ -1,21 +1,31 @@
-"""Typed configuration with sane defaults, loaded from YAML and overridden by CLI flags."""
+"""``lio odom``'s configuration: everything a run needs besides the log itself.
+
+The ``.config.yaml`` a run writes is this model after resolution (topics chosen, base frame found, deskew
+resolved), so ``lio odom LOG --config that.config.yaml`` repeats the run exactly.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Literal, Optional
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field
 
-from .errors import ConfigError
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+from ..model.calibration import Calibration
+from . import Strict
 
 
-class ImuNoise(_Strict):
+class InputConfig(Strict):
+    """Which parts of the log to read and how (None: detected; the resolved config names what was used)."""
+
+    format: Optional[Literal["ros1", "ros2", "mcap"]] = Field(None, description="log format; default: detected")
+    lidar_topic: Optional[str] = Field(None, description="PointCloud2 or LaserScan topic; default: the only one")
+    imu_topic: Optional[str] = Field(None, description="sensor_msgs/Imu topic; default: the only one")
+    wheel_topic: Optional[str] = Field(None, description="wheel odometry topic; default: the only one")
+    base_frame: Optional[str] = Field(None, description="base frame in /tf_static; default base_link, base or base_footprint")
+    point_time: Optional[str] = Field(None, description="per-point time convention (as --point-time); default: detected")
+
+
+class ImuNoise(Strict):
     """Continuous-time IMU noise densities and random walks (typical MEMS values)."""
 
     gyro_noise_radps: float = Field(2e-3, gt=0, description="gyro white noise, rad/s/sqrt(Hz)")
@@ -24,7 +34,7 @@ class ImuNoise(_Strict):
     accel_bias_walk: float = Field(1e-3, gt=0, description="accel bias random walk, m/s^3/sqrt(Hz)")
 
 
-class RegistrationConfig(_Strict):
+class RegistrationConfig(Strict):
     """kiss-icp registration and voxel map."""
 
     voxel_size_m: Optional[float] = Field(None, gt=0, description="map voxel size; default from the first scans' ranges")
@@ -44,7 +54,7 @@ class RegistrationConfig(_Strict):
     min_points: int = Field(50, gt=0, description="scans with fewer valid points are skipped")
 
 
-class FusionConfig(_Strict):
+class FusionConfig(Strict):
     """How the registration result corrects the IMU state."""
 
     method: Literal["ekf", "complementary"] = "ekf"
@@ -59,72 +69,28 @@ class FusionConfig(_Strict):
     imu: ImuNoise = ImuNoise()
 
 
-class OdomConfig(_Strict):
-    """Everything ``lio odom`` can be told; CLI flags override the YAML."""
+class OdomConfig(Strict):
+    """Everything ``lio odom`` can be told; flags override the YAML field by field."""
 
-    deskew: Literal["imu", "constant-velocity", "none"] = "imu"
+    input: InputConfig = InputConfig()
+    calibration: Calibration = Field(Calibration(), description="used where /tf_static is silent (see --calib)")
+    deskew: Literal["auto", "imu", "constant-velocity", "none"] = Field(
+        "auto", description="auto: imu when the prior is imu, else constant-velocity (none when the prior is none)")
     prior: Literal["imu", "constant-velocity", "wheel", "none"] = "imu"
     use_wheel: bool = Field(True, description="join wheel odometry to the prediction when a wheel topic exists")
     scan_reference: Literal["end", "start"] = "end"
     frame: Literal["base", "lidar", "imu"] = "base"
     planar: Optional[bool] = Field(None, description="force SE(2) mode; default: on for LaserScan input")
-    static_init_s: float = Field(1.0, gt=0, description="window examined for a standing start")
-    gravity_mps2: float = 9.81
+    static_init_s: float = Field(1.0, gt=0, le=60, description="window examined for a standing start")
+    gravity_mps2: float = Field(9.81, gt=0, le=30)
     registration: RegistrationConfig = RegistrationConfig()
     fusion: FusionConfig = FusionConfig()
 
-
-def _read_mapping(path: Path, what: str) -> dict:
-    """A YAML file's top-level mapping; every failure is a ConfigError naming the file."""
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except FileNotFoundError as err:
-        raise ConfigError(f"{path}: no such {what} file") from err
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: cannot read {what} ({str(err).splitlines()[0]})") from err
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: {what} must be a mapping of option: value")
-    return data
+    def resolved_deskew(self) -> str:
+        """``deskew`` with ``auto`` replaced by what it means for this prior."""
+        if self.deskew != "auto":
+            return self.deskew
+        return {"imu": "imu", "none": "none"}.get(self.prior, "constant-velocity")
 
 
-def _validate(model: type[BaseModel], data: dict, where: str):
-    try:
-        return model.model_validate(data)
-    except ValidationError as err:
-        first = err.errors()[0]
-        loc = ".".join(str(x) for x in first["loc"])
-        raise ConfigError(f"{where}: {loc}: {first['msg']}") from err
-
-
-def load_config(path: Path | None) -> OdomConfig:
-    """Defaults, updated from a YAML file when given."""
-    if path is None:
-        return OdomConfig()
-    return validate_config(_read_mapping(path, "config"), str(path))
-
-
-def validate_config(data: dict, where: str) -> OdomConfig:
-    return _validate(OdomConfig, data, where)
-
-
-def dump_config(cfg: OdomConfig) -> str:
-    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
-
-
-class Calibration(_Strict):
-    """What ``--calib FILE`` may hold (all optional): extrinsics as 4x4 row lists, IMU clock offset, biases."""
-
-    T_base_imu: Optional[list[list[float]]] = None
-    T_base_lidar: Optional[list[list[float]]] = None
-    imu_time_offset_s: float = Field(0.0, description="t_lidar_clock = t_imu_stamp + offset")
-    gyro_bias_radps: Optional[list[float]] = None
-    accel_bias_mps2: Optional[list[float]] = None
-
-
-def load_calibration(path: Path) -> Calibration:
-    cal = _validate(Calibration, _read_mapping(path, "calibration"), str(path))
-    for name in ("T_base_imu", "T_base_lidar"):
-        T = getattr(cal, name)
-        if T is not None and (len(T) != 4 or any(len(row) != 4 for row in T)):
-            raise ConfigError(f"{path}: {name} must be a 4x4 matrix (4 rows of 4 numbers)")
-    return cal
+__all__ = ["FusionConfig", "ImuNoise", "InputConfig", "OdomConfig", "RegistrationConfig"]

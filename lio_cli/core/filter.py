@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import skew, so3_exp, so3_log
+from ..geometry import skew, so3_exp, so3_log
 from .imu import NavState
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import interpolate_poses, inv_pose
+from ..geometry import interpolate_poses, inv_pose
 
 
 def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.ndarray, knot_poses: np.ndarray,

@@ -4,8 +4,6 @@ Per scan: propagate the IMU state to the scan's reference instant (its end by de
 point with the propagated pose at its own stamp, register the de-skewed scan to the local map starting
 from the IMU prediction, check the geometry for degenerate directions, then correct the state (EKF or
 complementary filter) so the corrected velocity and biases prime the next scan.
-
-This is the only module that imports kiss_icp.
 """
 
 from __future__ import annotations
@@ -14,29 +12,24 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from kiss_icp.mapping import VoxelHashMap
-from kiss_icp.registration import Registration
-from kiss_icp.threshold import AdaptiveThreshold
-from kiss_icp.voxelization import voxel_down_sample
-from scipy.spatial import cKDTree
 
-from .config import OdomConfig
-from .deskew import constant_velocity_knots, deskew, to_base
-from .fusion import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
+from ..config.odom import OdomConfig
+from ..geometry import inv_pose, project_to_se2
+from ..model.calibration import Extrinsics
+from ..model.records import ImuBatch, OdometryRecord, PointCloud
+from .degeneracy import degenerate_directions
+from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
                      position_noise)
-from .geometry import inv_pose, project_to_se2
-from .imu import Extrinsics, NavState, StartUp, flatten_planar, propagate, start_up
-from .io.records import ImuBatch, OdometryRecord, PointCloud
+from .imu import NavState, flatten_planar, propagate
+from .motion_compensation import constant_velocity_knots, deskew, to_base
+from .registration import ScanRegistration, auto_voxel_size
+from .startup import StartUp, start_up
+from .wheel import mean_twist, planar_delta
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
 _MAX_JUMP_RAD = 0.35
 _WHEEL_KEEP_NS = 1_000_000_000  # wheel records older than this behind the last scan are dropped
-_DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
 _IMU_PRIOR_CORRESPONDENCE_M = 0.5
-_IMU_PRIOR_ITERATIONS = 20
-_KISS_ITERATIONS = 500
-_SOURCE_FACTOR = 2.5  # kiss-icp uses 1.5; measured: 1.8x faster on 32-beam scans for ~3 mm of ATE
-_PLANAR_SOURCE_FACTOR = 1.5  # kiss-icp's own default, for runs without the IMU prior  # the IMU prediction is within centimetres: no need for kiss-icp's wide start
 
 
 @dataclass
@@ -60,70 +53,10 @@ class OdomStats:
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
                                                                "degeneracy": 0.0, "fuse": 0.0})
 
-
-class _KissMap:
-    """kiss-icp's voxel map, adaptive threshold and registration, driven with our own initial guesses."""
-
-    def __init__(self, cfg: OdomConfig, voxel_size_m: float, imu_prior: bool, planar: bool) -> None:
-        rc = cfg.registration
-        self.voxel = voxel_size_m
-        # a dense 3D scan keeps enough structure at 2.5 voxels; a 2D scan's few hundred beams do not
-        self.source_factor = rc.source_voxel_factor or (_PLANAR_SOURCE_FACTOR if planar else _SOURCE_FACTOR)
-        self.map = VoxelHashMap(voxel_size_m, rc.max_range_m, rc.max_points_per_voxel)
-        iterations = rc.max_iterations or (_IMU_PRIOR_ITERATIONS if imu_prior else _KISS_ITERATIONS)
-        self.registration = Registration(iterations, rc.convergence, rc.threads)
-
-        class _Cfg:  # AdaptiveThreshold reads these three fields only
-            class adaptive_threshold:  # noqa: N801
-                initial_threshold = rc.initial_threshold_m
-                min_motion_th = rc.min_motion_m
-
-            class data:  # noqa: N801
-                max_range = rc.max_range_m
-
-        self.threshold = AdaptiveThreshold(_Cfg)
-
-    def downsample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        frame = voxel_down_sample(points, self.voxel * 0.5)
-        source = voxel_down_sample(frame, self.voxel * self.source_factor)
-        return frame, source
-
-    def register(self, source: np.ndarray, guess: np.ndarray, fixed_m: float | None) -> np.ndarray:
-        if self.map.empty():
-            return guess
-        if fixed_m is not None:  # a good prior: tight correspondences, few iterations
-            return self.registration.align_points_to_map(source, self.map, guess, fixed_m, fixed_m / 3.0)
-        sigma = self.threshold.get_threshold()
-        return self.registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
-
-
-def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
-                          queries: int = 250) -> list[np.ndarray]:
-    """Horizontal translation directions the scan's surfaces do not constrain (in the points' frame).
-
-    Normals from local PCA over ``k`` neighbours in the full scan (at up to ``queries`` sample points) give
-    the point-to-plane information ``sum n n^T`` on translation. Its horizontal (x-y) block is examined: an
-    eigenvalue below ``ratio`` times the larger one marks its eigenvector as degenerate (a corridor's axis).
-    The vertical is left out on purpose: sparse spinning LiDARs see floor and ceiling only at grazing
-    angles, so z is weakly constrained in almost every scan and is better left to the registration.
-    """
-    dims = 2 if planar else 3
-    pts = points[:: max(1, len(points) // _DEGENERACY_MAX_POINTS), :dims]  # dense clouds: every n-th point
-    if len(pts) < k + 1:
-        return []
-    step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
-    _, nn = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(pts[::step], k=k)
-    nb = pts[nn]
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    normals = v[:, :, 0]  # smallest eigenvalue's vector
-    # only neighbourhoods that are surfaces (not lines or blobs) carry a reliable normal
-    surface = (w[:, 1] - w[:, 0]) > 0.3 * np.maximum(w[:, -1], 1e-12)
-    info = normals[surface].T @ normals[surface]
-    lam, vec = np.linalg.eigh(info[:2, :2])
-    if lam[-1] <= 0 or lam[0] >= ratio * lam[-1]:
-        return []
-    return [np.array([vec[0, 0], vec[1, 0], 0.0])]
+    def counts(self) -> dict[str, int]:
+        """Every counter (not the times), for metrics."""
+        counts = {k: v for k, v in vars(self).items() if k not in ("scans", "times_s")}
+        return {"total": self.scans, **counts}
 
 
 class LioOdometry:
@@ -140,13 +73,19 @@ class LioOdometry:
         self.state: NavState | None = None
         self._imu: list[ImuBatch] = []
         self._wheel: list[OdometryRecord] = []
-        self._kiss: _KissMap | None = None
+        self._reg: ScanRegistration | None = None
         self._last_pose = np.eye(4)
         self._last_delta = np.eye(4)
         self._last_ns: int | None = None
         self._imu_prior = use_imu and cfg.prior == "imu"
+        self._deskew = cfg.resolved_deskew()
         self._bias_prior = (gyro_bias, accel_bias)  # from a calibration file, if any
         self._dirs_b: list[np.ndarray] = []  # degenerate directions of the last analysed scan (its base frame)
+
+    @property
+    def voxel_size_m(self) -> float | None:
+        """The map's voxel size, once the first scan has set it."""
+        return self._reg.voxel_size_m if self._reg is not None else None
 
     # ---- inputs -------------------------------------------------------------------------------
     def add_imu(self, batch: ImuBatch) -> None:
@@ -217,9 +156,10 @@ class LioOdometry:
         tick = time.perf_counter()
         dt_scan = (t_ref - t_prev) * 1e-9
         cv_delta = self._last_delta  # constant velocity: the last inter-scan motion again
-        if cfg.deskew == "imu" and prop is not None:
+        mode = self._deskew
+        if mode == "imu" and prop is not None:
             points = deskew(cloud.points, cloud.point_stamps_ns, prop.stamps_ns, prop.poses, t_ref, self.ext.T_base_lidar)
-        elif cfg.deskew in ("constant-velocity", "imu"):
+        elif mode in ("constant-velocity", "imu"):
             knots, poses = constant_velocity_knots(cv_delta, t_prev, t_ref)
             points = deskew(cloud.points, cloud.point_stamps_ns, knots, poses, t_ref, self.ext.T_base_lidar)
         else:
@@ -233,19 +173,19 @@ class LioOdometry:
 
         # 3. register, seeded with the prediction
         tick = time.perf_counter()
-        if self._kiss is None:
-            self._kiss = _KissMap(cfg, cfg.registration.voxel_size_m or _auto_voxel(rng), self._imu_prior,
-                                  self.planar)
+        if self._reg is None:
+            fixed = cfg.registration.max_correspondence_m
+            if fixed is None and self._imu_prior:
+                fixed = _IMU_PRIOR_CORRESPONDENCE_M
+            self._reg = ScanRegistration(cfg.registration, cfg.registration.voxel_size_m or auto_voxel_size(rng),
+                                         imu_prior=self._imu_prior, planar=self.planar, fixed_correspondence_m=fixed)
         guess = self._guess(cv_delta, t_prev, t_ref)
-        frame, source = self._kiss.downsample(points)
-        fixed = cfg.registration.max_correspondence_m
-        if fixed is None and self._imu_prior:
-            fixed = _IMU_PRIOR_CORRESPONDENCE_M
-        measured = self._kiss.register(source, guess, fixed)
+        frame, source = self._reg.downsample(points)
+        measured = self._reg.register(source, guess)
         st.times_s["register"] += time.perf_counter() - tick
 
         tick = time.perf_counter()
-        if self._kiss.map.empty():
+        if self._reg.empty:
             dirs_b = []
         elif st.used % cfg.fusion.degeneracy_every == 0:  # geometry changes little from one scan to the next
             dirs_b = self._dirs_b = degenerate_directions(points, self.planar, cfg.fusion.degeneracy_ratio)
@@ -265,9 +205,7 @@ class LioOdometry:
         pose = self._correct(measured, guess, dirs_b, dt_scan, failed)
         st.times_s["fuse"] += time.perf_counter() - tick
 
-        if not failed:
-            self._kiss.threshold.update_model_deviation(inv_pose(guess) @ measured)
-        self._kiss.map.update(frame, pose)
+        self._reg.accept(None if failed else inv_pose(guess) @ measured, frame, pose)
         self._last_delta = inv_pose(self._last_pose) @ pose
         self._last_pose = pose
         self._last_ns = t_ref
@@ -279,7 +217,7 @@ class LioOdometry:
         """Non-finite, untouched (no correspondence at all), or implausibly far from the IMU prediction."""
         if not np.isfinite(measured).all():
             return True
-        if self._kiss.map.empty():
+        if self._reg.empty:
             return False
         if np.allclose(measured, guess, rtol=0.0, atol=1e-12):  # ICP returns the guess itself when nothing matched
             return True
@@ -301,26 +239,19 @@ class LioOdometry:
 
     def _wheel_delta(self, t0: int, t1: int) -> np.ndarray:
         """Planar motion integrated from wheel speed and yaw rate over [t0, t1] (lecture's kinematics)."""
-        recs = [w for w in self._wheel if t0 - 100_000_000 <= w.stamp_ns <= t1]
-        if not recs:
+        twist = mean_twist(self._wheel, t0 - 100_000_000, t1)
+        if twist is None:
             return self._last_delta
-        v = float(np.mean([w.linear_mps[0] for w in recs]))
-        om = float(np.mean([w.angular_radps[2] for w in recs]))
-        dt = (t1 - t0) * 1e-9
-        th = om * dt
-        T = np.eye(4)
-        T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
-        T[0, 3], T[1, 3] = v * dt * np.cos(th / 2), v * dt * np.sin(th / 2)
-        return T
+        return planar_delta(twist[0], twist[1], (t1 - t0) * 1e-9)
 
     def _wheel_update(self, t0: int, t1: int) -> None:
         """Wheel speed over the scan (forward, no side slip) corrects the predicted velocity."""
         if not self.cfg.use_wheel or not self._wheel:
             return
-        recs = [w for w in self._wheel if t0 <= w.stamp_ns <= t1 + 20_000_000]
-        if not recs:
+        twist = mean_twist(self._wheel, t0, t1 + 20_000_000)
+        if twist is None:
             return
-        v_body = np.array([np.mean([w.linear_mps[0] for w in recs]), 0.0, 0.0])
+        v_body = np.array([twist[0], 0.0, 0.0])
         fc = self.cfg.fusion
         if fc.method == "ekf":
             s = fc.wheel_speed_sigma_mps
@@ -355,10 +286,4 @@ class LioOdometry:
         return self.state.pose()
 
 
-def _auto_voxel(ranges_m: np.ndarray) -> float:
-    """Map voxel size from the first scan: ~1% of the far ranges (kiss-icp's rule), within [0.5, 1.0] m."""
-    far = float(np.percentile(ranges_m, 95)) if len(ranges_m) else 100.0
-    return float(np.clip(far / 40.0, 0.5, 1.0))
-
-
-__all__ = ["LioOdometry", "ScanResult", "OdomStats", "degenerate_directions"]
+__all__ = ["LioOdometry", "ScanResult", "OdomStats"]

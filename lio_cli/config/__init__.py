@@ -1,0 +1,81 @@
+"""Typed configuration: one pydantic model per command, loaded from YAML, overridden by flags field by field.
+
+``load_model`` reads a YAML mapping and validates it into a model; ``with_overrides`` applies flags (dotted field
+names, ``None`` meaning "not given"); ``dump_model`` writes the YAML a run leaves beside its outputs, which
+loads back into the same model.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from ..errors import ConfigError
+from ..model.calibration import Calibration
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class Strict(BaseModel):
+    """Base of every config model: unknown keys are errors, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+def read_mapping(path: Path, what: str) -> dict:
+    """A YAML file's top-level mapping; every failure is a ConfigError naming the file."""
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except FileNotFoundError as err:
+        raise ConfigError(f"{path}: no such {what} file") from err
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: cannot read {what} ({str(err).splitlines()[0]})") from err
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: {what} must be a mapping of option: value")
+    return data
+
+
+def validate(model: type[M], data: dict, where: str) -> M:
+    """``data`` as ``model``; the first validation problem becomes one ConfigError line naming the field."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        first = err.errors()[0]
+        loc = ".".join(str(x) for x in first["loc"])
+        msg = first["msg"].removeprefix("Value error, ")
+        raise ConfigError(f"{where}: {loc}: {msg}" if loc else f"{where}: {msg}") from err
+
+
+def load_model(model: type[M], path: Path | None, what: str = "config") -> M:
+    """Defaults, updated from a YAML file when given."""
+    if path is None:
+        return model()
+    return validate(model, read_mapping(path, what), str(path))
+
+
+def with_overrides(cfg: M, overrides: dict[str, Any], where: str = "options") -> M:
+    """A copy of ``cfg`` with each given field (dotted name -> value, None = not given) replaced, re-validated."""
+    data = cfg.model_dump()
+    for dotted, value in overrides.items():
+        if value is None:
+            continue
+        node = data
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = value
+    return validate(type(cfg), data, where)
+
+
+def dump_model(cfg: BaseModel) -> str:
+    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
+
+
+def load_calibration(path: Path) -> Calibration:
+    return validate(Calibration, read_mapping(path, "calibration"), str(path))
+
+
+__all__ = ["Strict", "dump_model", "load_calibration", "load_model", "read_mapping", "validate", "with_overrides"]

@@ -1,0 +1,37 @@
+"""Degenerate geometry: translation directions a scan's surfaces do not constrain (a corridor's axis)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+_DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
+
+
+def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
+                          queries: int = 250) -> list[np.ndarray]:
+    """Horizontal translation directions the scan's surfaces do not constrain (in the points' frame).
+
+    Normals from local PCA over ``k`` neighbours in the full scan (at up to ``queries`` sample points) give
+    the point-to-plane information ``sum n n^T`` on translation. Its horizontal (x-y) block is examined: an
+    eigenvalue below ``ratio`` times the larger one marks its eigenvector as degenerate (a corridor's axis).
+    The vertical is left out on purpose: sparse spinning LiDARs see floor and ceiling only at grazing
+    angles, so z is weakly constrained in almost every scan and is better left to the registration.
+    """
+    dims = 2 if planar else 3
+    pts = points[:: max(1, len(points) // _DEGENERACY_MAX_POINTS), :dims]  # dense clouds: every n-th point
+    if len(pts) < k + 1:
+        return []
+    step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
+    _, nn = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(pts[::step], k=k)
+    nb = pts[nn]
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    normals = v[:, :, 0]  # smallest eigenvalue's vector
+    # only neighbourhoods that are surfaces (not lines or blobs) carry a reliable normal
+    surface = (w[:, 1] - w[:, 0]) > 0.3 * np.maximum(w[:, -1], 1e-12)
+    info = normals[surface].T @ normals[surface]
+    lam, vec = np.linalg.eigh(info[:2, :2])
+    if lam[-1] <= 0 or lam[0] >= ratio * lam[-1]:
+        return []
+    return [np.array([vec[0, 0], vec[1, 0], 0.0])]

@@ -1,0 +1,46 @@
+"""Scoring a run against ground truth with ``lio evaluate``'s defaults (what ``odom --gt`` reports)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+
+from ..model.trajectory import Trajectory
+from . import EvalOptions, evaluate
+
+RPE_METRES_FROM_M = 20.0  # paths at least this long get RPE over 10 m, shorter ones over 1 s
+
+
+@dataclass(frozen=True)
+class Score:
+    """ATE (SE(3)-aligned APE translation rmse) and RPE of one trajectory against a reference."""
+
+    reference: str
+    matches: int
+    ate_trans_rmse_m: float
+    ate_rot_rmse_deg: float
+    rpe_delta: str
+    rpe_trans_rmse_m: float | None
+    final_error_m: float | None
+    alignment: str = "se3"
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def score(ref: Trajectory, est: Trajectory, options: EvalOptions | None = None) -> Score:
+    """ATE and RPE of ``est`` against ``ref``; RPE over 10 m on paths of 20 m or more, else over 1 s."""
+    o = options or EvalOptions()
+    ate = evaluate(ref, est, o)
+    length = ate.drift["path_length_m"] or 0.0
+    delta, unit = (10.0, "m") if length >= RPE_METRES_FROM_M else (1.0, "s")
+    rpe = evaluate(ref, est, replace(o, delta=delta, delta_unit=unit))
+    return Score(
+        reference=ref.name,
+        matches=len(ate.association.ref),
+        ate_trans_rmse_m=ate.stats["ape"]["trans"]["rmse"],
+        ate_rot_rmse_deg=ate.stats["ape"]["rot"]["rmse"],
+        rpe_delta=f"{delta:g} {unit}",
+        rpe_trans_rmse_m=rpe.stats["rpe"]["trans"]["rmse"] if len(rpe.rpe_pairs) else None,
+        final_error_m=ate.drift["final_error_m"],
+        alignment=o.align,
+    )

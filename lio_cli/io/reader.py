@@ -1,0 +1,146 @@
+"""Open any supported log: ROS 1 bag(s), ROS 2 bag folder (sqlite3 or mcap storage), bare MCAP file.
+
+``open_log`` detects the format from the path (``fmt`` overrides) and returns a ``LogReader`` whose
+``messages()`` yields deserialised messages in record-time order, lazily (bounded memory). Every
+third-party error is re-raised as ``InputError`` naming the file. The backends live in ``rosbags_log``
+and ``mcap_log``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from ..model.records import TopicInfo
+from .detect import FORMATS, detect_format, paths_for
+from .rawmsg import RAW_PARSERS
+
+# Corrupted bytes can surface as almost any exception inside rosbags, mcap or sqlite3 (struct.error,
+# IndexError, UnicodeDecodeError, their own error classes...). The io boundary turns all of them into
+# InputError naming the file; InputError itself passes through untouched.
+_READ_ERRORS = (Exception,)
+
+# Definitions the raw parsers (rawmsg.py) are written for: ROS 1 md5 sums and ROS 2 RIHS01 hashes. A log
+# whose connection declares another definition of the type is deserialised by the typestore instead.
+_RAW_DIGESTS = {
+    "sensor_msgs/msg/PointCloud2": {
+        "1158d486dd51d683ce2f1be655c3c181",
+        "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+    },
+    "sensor_msgs/msg/Imu": {
+        "6a62c6daae103f4ff57a132d6f95cec2",
+        "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
+    },
+}
+
+
+class LogReader:
+    """A read-only, lazily iterated view of one log."""
+
+    def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
+        self.path = path
+        self.format = fmt
+        self.paths = paths
+        self.topics: dict[str, TopicInfo] = {}
+        self.start_ns: int = 0
+        self.end_ns: int = 0
+
+    # subclasses implement these
+    def _iter_raw(self, topics: set[str] | None) -> Iterator[tuple[str, str, int, Any, Any]]:
+        raise NotImplementedError
+
+    def _deserialize(self, raw: Any, msgtype: str, handle: Any) -> Any:
+        raise NotImplementedError
+
+    def close(self) -> None:  # pragma: no cover - trivial
+        pass
+
+    def __enter__(self) -> "LogReader":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def duration_ns(self) -> int:
+        return max(0, self.end_ns - self.start_ns)
+
+    def _wrap(self, what: str, err: BaseException) -> InputError:
+        detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        return InputError(f"{self.path}: {what} ({detail}); the log may be truncated or corrupted")
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """(topic, msgtype, record_time_ns, serialised bytes) in record-time order."""
+        wanted = set(topics) if topics is not None else None
+        try:
+            for topic, msgtype, t_ns, raw, _ in self._iter_raw(wanted):
+                yield topic, msgtype, t_ns, raw
+        except InputError:
+            raise
+        except _READ_ERRORS as err:
+            raise self._wrap("cannot read messages", err) from err
+
+    def messages(self, topics: Iterable[str] | None = None, *, fast: bool = False
+                 ) -> Iterator[tuple[str, str, int, Any]]:
+        """(topic, msgtype, record_time_ns, message object) in record-time order.
+
+        ``fast``: PointCloud2 and Imu messages are parsed straight from their bytes (``rawmsg``) into light
+        records (``RawPointCloud2``, ``RawImu``) instead of typestore objects; other types are unchanged.
+        """
+        wanted = set(topics) if topics is not None else None
+        cdr = self.format != "ros1"
+        parsers: dict = {}
+        try:
+            for topic, msgtype, t_ns, raw, handle in self._iter_raw(wanted):
+                msg = None
+                if fast:
+                    key = (msgtype, getattr(handle, "digest", "") or "")
+                    parser = parsers.get(key, 0)
+                    if parser == 0:
+                        parser = RAW_PARSERS.get(msgtype)
+                        if parser is not None and key[1] and key[1] not in _RAW_DIGESTS[msgtype]:
+                            parser = None
+                        parsers[key] = parser
+                    if parser is not None:
+                        msg = parser(raw, cdr)
+                if msg is None:
+                    msg = self._deserialize(raw, msgtype, handle)
+                yield topic, msgtype, t_ns, msg
+        except InputError:
+            raise
+        except _READ_ERRORS as err:
+            raise self._wrap("cannot read messages", err) from err
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    line = text.splitlines()[0] if text else type(err).__name__
+    return re.sub(r"\('(.*)',\)", r"\1", line)  # rosbags wraps messages as "...: ('detail',)"
+
+
+def _merge_span(spans: dict, key, first: int, last: int) -> None:
+    if key in spans:
+        f0, l0 = spans[key]
+        first, last = min(first, f0), max(last, l0)
+    spans[key] = (first, last)
+
+
+def open_log(path: str | Path, fmt: str | None = None) -> LogReader:
+    """Open a log for reading. ``fmt`` (ros1, ros2, mcap) overrides detection."""
+    path = Path(path)
+    if fmt is None:
+        detected, paths = detect_format(path)
+    else:
+        if fmt not in FORMATS:
+            raise InputError(f"unknown log format '{fmt}' (choose from {', '.join(FORMATS)})")
+        detected, paths = fmt, paths_for(path, fmt)
+    if detected == "mcap":
+        from .mcap_log import McapLog
+
+        return McapLog(path, detected, paths)
+    from .rosbags_log import RosbagsLog
+
+    return RosbagsLog(path, detected, paths)

@@ -1,0 +1,76 @@
+"""Where a run's files go and how they are written: the trajectory plus ``.metrics.json`` and
+``.config.yaml`` beside it, each atomically, after every location was checked before the work started."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..config import dump_model
+from ..io.files import atomic_output, check_writable
+from ..io.trajectory_files import format_tum
+
+LOG_SUFFIXES = (".bag", ".mcap", ".db3")
+
+
+def log_stem(log: Path) -> str:
+    """A log's name without its format suffix (a ROS 2 bag's folder name for its metadata.yaml)."""
+    p = Path(log)
+    if p.name == "metadata.yaml":
+        p = p.parent
+    name = p.name
+    for suffix in LOG_SUFFIXES:
+        name = name.removesuffix(suffix)
+    return name or "odom"
+
+
+def beside(out: Path, suffix: str) -> Path:
+    """``out`` with its suffix replaced by ``suffix`` (``walk.tum`` -> ``walk.metrics.json``)."""
+    name = out.name[: -len(out.suffix)] if out.suffix else out.name
+    return out.with_name(name + suffix)
+
+
+def run_outputs(out: Path) -> list[Path]:
+    """The files a run writing ``out`` produces: ``out`` itself, its metrics and its resolved config."""
+    return [out, beside(out, ".metrics.json"), beside(out, ".config.yaml")]
+
+
+def check_outputs(out: Path, force: bool) -> None:
+    for path in run_outputs(out):
+        check_writable(path, force)
+
+
+def json_text(obj) -> str:
+    return json.dumps(obj, indent=2, default=_json_default) + "\n"
+
+
+def _json_default(o):
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_run(out: Path, text: str, config, metrics: dict, force: bool) -> None:
+    """Write ``text`` to ``out`` and the resolved ``config`` and ``metrics`` beside it (each atomically)."""
+    traj, metrics_path, config_path = run_outputs(out)
+    with atomic_output(traj, force) as tmp:
+        tmp.write_text(text)
+    with atomic_output(config_path, force) as tmp:
+        tmp.write_text(dump_model(config))
+    with atomic_output(metrics_path, force) as tmp:
+        tmp.write_text(json_text(metrics))
+
+
+def write_odom(result, out: Path, force: bool) -> None:
+    """The odom run's TUM trajectory, resolved config and metrics."""
+    result.metrics["output"] = str(out)
+    write_run(out, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
+              result.metrics, force)

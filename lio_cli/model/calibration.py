@@ -1,0 +1,84 @@
+"""Sensor calibration: extrinsics, IMU clock offset and biases, as read from ``--calib`` or a config."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+# |imu_time_offset_s| beyond this would overflow int64 ns stamps (clock offsets of epoch-sized clocks still fit).
+MAX_CLOCK_OFFSET_S = 4e9
+_ORTHO_TOL = 1e-3
+
+
+class Calibration(BaseModel):
+    """What a calibration may hold (all optional): extrinsics as 4x4 row lists, IMU clock offset, biases.
+
+    ``T_base_imu``/``T_base_lidar`` map sensor points into the base frame; ``imu_time_offset_s`` is added to
+    IMU stamps to put them on the LiDAR's clock.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    T_base_imu: Optional[list[list[float]]] = None
+    T_base_lidar: Optional[list[list[float]]] = None
+    imu_time_offset_s: float = Field(0.0, description="t_lidar_clock = t_imu_stamp + offset")
+    gyro_bias_radps: Optional[list[float]] = None
+    accel_bias_mps2: Optional[list[float]] = None
+
+    @field_validator("T_base_imu", "T_base_lidar")
+    @classmethod
+    def _rigid(cls, T: list[list[float]] | None) -> list[list[float]] | None:
+        if T is None:
+            return T
+        if len(T) != 4 or any(len(row) != 4 for row in T):
+            raise ValueError("must be a 4x4 matrix (4 rows of 4 numbers)")
+        M = np.asarray(T, dtype=np.float64)
+        if not np.isfinite(M).all():
+            raise ValueError("holds a non-finite number")
+        R = M[:3, :3]
+        if np.abs(R.T @ R - np.eye(3)).max() > _ORTHO_TOL or np.linalg.det(R) <= 0 or \
+                np.abs(M[3] - [0, 0, 0, 1]).max() > _ORTHO_TOL:
+            raise ValueError("is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
+        return T
+
+    @field_validator("imu_time_offset_s")
+    @classmethod
+    def _offset(cls, v: float) -> float:
+        if not np.isfinite(v) or abs(v) > MAX_CLOCK_OFFSET_S:
+            raise ValueError(f"must be a finite number of seconds within +-{MAX_CLOCK_OFFSET_S:g}")
+        return v
+
+    @field_validator("gyro_bias_radps", "accel_bias_mps2")
+    @classmethod
+    def _bias(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and (len(v) != 3 or not np.isfinite(v).all()):
+            raise ValueError("must be 3 finite numbers (x, y, z in the IMU frame)")
+        return v
+
+    @property
+    def imu_time_offset_ns(self) -> int:
+        return int(round(self.imu_time_offset_s * 1e9))
+
+    def matrix(self, name: str) -> np.ndarray | None:
+        """``T_base_imu`` or ``T_base_lidar`` as a (4,4) array, None when not given."""
+        T = getattr(self, name)
+        return None if T is None else np.asarray(T, dtype=np.float64)
+
+
+@dataclass
+class Extrinsics:
+    """Rigid mounting of IMU and LiDAR on the base."""
+
+    T_base_imu: np.ndarray
+    T_base_lidar: np.ndarray
+
+    @property
+    def R_base_imu(self) -> np.ndarray:
+        return self.T_base_imu[:3, :3]
+
+    @property
+    def lever_m(self) -> np.ndarray:
+        return self.T_base_imu[:3, 3]

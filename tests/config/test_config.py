@@ -1,0 +1,89 @@
+"""Configuration and calibration files: defaults, overrides field by field, and one-line errors."""
+
+import pytest
+
+from lio_cli.config import dump_model, load_calibration, load_model, with_overrides
+from lio_cli.config.odom import OdomConfig
+from lio_cli.errors import ConfigError
+
+
+def test_defaults_and_round_trip_through_written_yaml(tmp_path):
+    cfg = OdomConfig()
+    assert (cfg.deskew, cfg.prior, cfg.fusion.method) == ("auto", "imu", "ekf")
+    assert cfg.input.lidar_topic is None and cfg.calibration.T_base_imu is None
+    path = tmp_path / "c.yaml"
+    path.write_text(dump_model(cfg))
+    assert load_model(OdomConfig, path) == cfg
+
+
+def test_yaml_overrides_nested_fields(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("fusion:\n  method: complementary\n  alpha: 0.9\nregistration:\n  voxel_size_m: 0.4\n"
+                    "input:\n  imu_topic: /imu/data\n")
+    cfg = load_model(OdomConfig, path)
+    assert (cfg.fusion.method, cfg.fusion.alpha, cfg.registration.voxel_size_m) == ("complementary", 0.9, 0.4)
+    assert cfg.input.imu_topic == "/imu/data"
+
+
+def test_flags_override_one_field_each_and_never_another():
+    base = OdomConfig().model_copy(update={"deskew": "imu"})
+    cfg = with_overrides(base, {"prior": "constant-velocity", "fusion.alpha": 0.5, "input.lidar_topic": "/p",
+                                "frame": None})
+    assert (cfg.prior, cfg.fusion.alpha, cfg.input.lidar_topic) == ("constant-velocity", 0.5, "/p")
+    assert cfg.deskew == "imu"  # untouched by the prior flag: no hidden rule
+    assert cfg.frame == "base" and cfg.fusion.method == "ekf"
+
+
+@pytest.mark.parametrize("prior, deskew", [("imu", "imu"), ("constant-velocity", "constant-velocity"),
+                                           ("wheel", "constant-velocity"), ("none", "none")])
+def test_auto_deskew_follows_the_prior(prior, deskew):
+    assert OdomConfig(prior=prior).resolved_deskew() == deskew
+    assert OdomConfig(prior=prior, deskew="imu").resolved_deskew() == "imu"
+
+
+@pytest.mark.parametrize("text, message", [
+    ("fusion:\n  alpha: 1.5\n", "fusion.alpha: Input should be less than or equal to 1"),
+    ("deskew: sometimes\n", "deskew: Input should be 'auto', 'imu', 'constant-velocity' or 'none'"),
+    ("unknown_option: 1\n", "unknown_option: Extra inputs are not permitted"),
+    ("input:\n  lidar: /points\n", "input.lidar: Extra inputs are not permitted"),
+    ("- a\n- b\n", "config must be a mapping of option: value"),
+    ("fusion: [\n", "cannot read config (while parsing a flow node)"),
+])
+def test_bad_config_is_one_line_naming_file_and_field(tmp_path, text, message):
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_model(OdomConfig, path)
+    assert str(err.value).startswith(f"{path}: {message}")
+
+
+def test_missing_files(tmp_path):
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_model(OdomConfig, tmp_path / "nope.yaml")
+    with pytest.raises(ConfigError, match="no such calibration file"):
+        load_calibration(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize("text, message", [
+    ("T_base_imu: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n", "T_base_imu: must be a 4x4 matrix (4 rows of 4 numbers)"),
+    ("T_base_lidar: [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n",
+     "T_base_lidar: is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)"),
+    ("T_base_lidar: [[1, 0, 0, .nan], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n", "T_base_lidar: holds a non-finite number"),
+    ("imu_time_offset_s: 1.0e12\n", "imu_time_offset_s: must be a finite number of seconds within +-4e+09"),
+    ("imu_time_offset_s: .inf\n", "imu_time_offset_s: must be a finite number of seconds within +-4e+09"),
+    ("gyro_bias_radps: [0.1, 0.2]\n", "gyro_bias_radps: must be 3 finite numbers (x, y, z in the IMU frame)"),
+])
+def test_calibration_fields_are_checked(tmp_path, text, message):
+    path = tmp_path / "cal.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_calibration(path)
+    assert str(err.value) == f"{path}: {message}"
+
+
+def test_calibration_values_load(tmp_path):
+    path = tmp_path / "cal.yaml"
+    path.write_text("imu_time_offset_s: 0.002\nT_base_imu: [[0, -1, 0, 0.1], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n")
+    cal = load_calibration(path)
+    assert cal.imu_time_offset_s == 0.002 and cal.imu_time_offset_ns == 2_000_000
+    assert cal.matrix("T_base_imu")[0, 3] == 0.1 and cal.matrix("T_base_lidar") is None
