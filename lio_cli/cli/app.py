@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 from typing import Annotated, Optional
 
@@ -67,9 +68,33 @@ def _command_in(args: list[str]) -> str | None:
     return next((a for a in args if not a.startswith("-")), None)
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived: unwind like Ctrl-C (temporary files removed on the way), exit 143."""
+
+
+def _on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    raise Terminated()
+
+
+def _interrupted(what: str, code: int) -> int:
+    err_console.print(f"lio: {what}; nothing half-written was left behind", markup=False)
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; map LioError to one stderr line and its exit code."""
+    """Run the CLI; map LioError to one stderr line and its exit code (Ctrl-C 130, SIGTERM 143)."""
     args = list(argv if argv is not None else sys.argv[1:])
+    previous_term = signal.getsignal(signal.SIGTERM)
+    if previous_term is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _main_guarded(args)
+    finally:
+        if previous_term is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, previous_term)
+
+
+def _main_guarded(args: list[str]) -> int:
     _state["debug"] = "--debug" in args
     # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
     wanted = _command_in(args)
@@ -78,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
         register_commands()
     try:
-        app(args=args, standalone_mode=False)
+        rc = app(args=args, standalone_mode=False)
     except typer.Exit as ex:
         return ex.exit_code
     except LioError as err:
@@ -87,8 +112,9 @@ def main(argv: list[str] | None = None) -> int:
         err_console.print(f"lio: error: {err}", markup=False)
         return err.exit_code
     except KeyboardInterrupt:
-        err_console.print("lio: interrupted", markup=False)
-        return 130
+        return _interrupted("interrupted", 130)
+    except Terminated:
+        return _interrupted("terminated", 143)
     except typer.Abort:
         return 1
     except _ClickException as err:  # usage errors: click prints usage and the reason, exit 2
@@ -99,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
         return 1
-    return 0
+    if rc == 130:  # typer turns Ctrl-C inside a command into a return value of 130
+        return _interrupted("interrupted", 130)
+    return rc if isinstance(rc, int) else 0
 
 
 def entry() -> None:  # pragma: no cover - console script

@@ -17,7 +17,7 @@ from rich.table import Table
 from ..errors import ConfigError, InputError, ProcessingError
 from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult, Trajectory, evaluate
 from ..io.files import check_writable, write_text_atomic
-from ..io.sources import load_trajectory
+from ..io.sources import load_trajectory, split_source
 from ..io.trajectory_files import STAMP_UNITS_NS, parse_stamp_ns
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json
 
@@ -154,10 +154,11 @@ def evaluate_cmd(
     _stamp_unit(gt_stamp_unit, "--gt-stamp-unit")
     _stamp_unit(est_stamp_unit, "--est-stamp-unit")
     csv_path = None if csv_out in (None, "-") else Path(csv_out)
+    inputs = [Path(split_source(spec)[0]) for spec in (gt, *estimates)] + ([times] if times is not None else [])
     if csv_path is not None:
-        check_writable(csv_path, force)
+        check_writable(csv_path, force, inputs)
     if plot is not None:
-        _prepare_plot_dir(plot, force)
+        _prepare_plot_dir(plot, force, inputs)
 
     opts = EvalOptions(max_diff_ns=int(round(t_max_diff * 1e9)), offset_ns=offset_ns,
                        method="interpolate" if interpolate else "nearest", align=align_mode, n_align=n_align,
@@ -207,17 +208,16 @@ def evaluate_cmd(
     _check_limits(results, limits)
 
 
-def _prepare_plot_dir(folder: Path, force: bool) -> None:
+def _prepare_plot_dir(folder: Path, force: bool, inputs: list[Path]) -> None:
     from ..evaluation.plots import PLOT_FILES
 
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: exists and is not a folder")
     if not folder.exists():  # created only once the metrics are computed
-        if not folder.parent.is_dir():
-            raise InputError(f"{folder.parent}: output folder does not exist")
+        check_writable(folder, force, inputs)
         return
     for name in (*PLOT_FILES, "metrics.json"):
-        check_writable(folder / name, force)
+        check_writable(folder / name, force, inputs)
 
 
 def _jsonable(obj):

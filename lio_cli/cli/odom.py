@@ -11,6 +11,7 @@ import typer
 from ..config import load_calibration, load_model, with_overrides
 from ..config.odom import OdomConfig
 from ..errors import ConfigError
+from ..io.detect import input_paths
 from ..io.pointcloud import parse_time_convention
 from ..io.trajectory_files import format_tum
 from ..jobs.odom import OdomJob, OdomResult, run_odom
@@ -83,7 +84,10 @@ def odom(
         raise ConfigError("-o - and --json both write to stdout; choose one")
     out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.tum")
     if out is not None:
-        check_outputs(out, force)
+        inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
+        if gt is not None and Path(gt).exists():
+            inputs.append(Path(gt))
+        check_outputs(out, force, inputs)
 
     with job_progress("odometry", quiet) as update:
         result = run_odom(OdomJob(Path(log), cfg, gt), progress=update)

@@ -90,3 +90,12 @@ def paths_for(path: Path, fmt: str) -> list[Path]:
     return [path]
 
 
+
+
+def input_paths(log: Path) -> list[Path]:
+    """Every path a log occupies: the path given, and the bag folder when a ROS 2 bag was named by a file in it."""
+    log = Path(log)
+    out = [log]
+    if not log.is_dir() and (log.parent / "metadata.yaml").exists():
+        out.append(log.parent)
+    return out

@@ -5,19 +5,49 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import InputError
 
 
-def check_writable(path: Path, force: bool) -> None:
-    """Refuse to overwrite an existing output unless ``force``; the parent folder must exist."""
+def check_writable(path: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
+    """Before any work: ``path`` is no input (``--force`` or not), may be replaced, and its folder takes files.
+
+    Refused: an output that is one of ``inputs`` (same path, same file through a link), lies inside an input
+    folder, or is a folder holding an input; an existing output without ``force``; a folder that does not
+    exist, is not a folder, or cannot be written (read-only file system, /proc, no permission).
+    """
+    path = Path(path)
+    for inp in inputs:
+        _refuse_input(path, Path(inp))
     if path.exists() and not force:
         raise InputError(f"{path}: already exists; pass --force to overwrite it")
-    if not path.parent.exists():
-        raise InputError(f"{path.parent}: output folder does not exist")
+    parent = path.parent
+    if not parent.exists():
+        raise InputError(f"{parent}: output folder does not exist")
+    if not parent.is_dir():
+        raise InputError(f"{parent}: is not a folder, so {path.name} cannot be written there")
+    try:  # the only reliable test of writability: create a file there
+        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
+    except OSError as err:
+        raise InputError(f"{path}: cannot write there ({err.strerror or err})") from err
+    os.close(fd)
+    os.unlink(probe)
+
+
+def _refuse_input(out: Path, inp: Path) -> None:
+    if not inp.exists():
+        return
+    out_real, inp_real = os.path.realpath(out), os.path.realpath(inp)
+    same = out_real == inp_real or (out.exists() and os.path.samefile(out, inp))
+    inside = inp.is_dir() and out_real.startswith(inp_real.rstrip(os.sep) + os.sep)
+    holds = out.is_dir() and inp_real.startswith(out_real.rstrip(os.sep) + os.sep)
+    if same or inside or holds:
+        what = "the input" if same else "inside the input folder" if inside else "a folder holding the input"
+        raise InputError(f"{out}: is {what} {inp}; lio never writes over its inputs (--force or not): "
+                         "choose another output")
 
 
 def temp_sibling(path: Path) -> Path:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -37,9 +38,11 @@ def run_outputs(out: Path) -> list[Path]:
     return [out, beside(out, ".metrics.json"), beside(out, ".config.yaml")]
 
 
-def check_outputs(out: Path, force: bool) -> None:
+def check_outputs(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
+    """Every file of ``run_outputs(out)`` may be written and is none of ``inputs`` (before any work)."""
+    inputs = list(inputs)
     for path in run_outputs(out):
-        check_writable(path, force)
+        check_writable(path, force, inputs)
 
 
 def json_text(obj) -> str:
