@@ -53,7 +53,7 @@ def test_deskew_static_is_identity():
 
 
 def _state(pvar=0.01, rvar=1e-4):
-    P = np.eye(15) * 1e-6
+    P = np.eye(18) * 1e-6
     P[0:3, 0:3] = np.eye(3) * rvar
     P[3:6, 3:6] = np.eye(3) * pvar
     return NavState(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), P)

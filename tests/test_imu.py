@@ -5,7 +5,7 @@ import pytest
 
 from lio_cli.config.odom import ImuNoise
 from lio_cli.geometry import make_pose, so3_exp, so3_log
-from lio_cli.core.imu import NavState, propagate
+from lio_cli.core.imu import NavState, gravity_vector, propagate
 from lio_cli.core.startup import start_up
 from lio_cli.model.calibration import Extrinsics
 from lio_cli.model.records import ImuBatch
@@ -33,7 +33,7 @@ IDENTITY = Extrinsics(np.eye(4), np.eye(4))
 def test_constant_rotation_rate_matches_closed_form(omega):
     # rotating in place: gyro reads omega; accelerometer reads gravity rotated into the body
     imu = _imu(1.0, lambda t: omega, lambda t: so3_exp(omega * t).T @ np.array([0.0, 0.0, G]))
-    prop = propagate(_state(), imu, 10**9, IDENTITY, gravity_mps2=G)
+    prop = propagate(_state(), imu, 10**9, IDENTITY, g_world=gravity_vector(G))
     np.testing.assert_allclose(so3_log(prop.state.R.T @ so3_exp(omega * 1.0)), 0.0, atol=ROT_TOL_RAD)
     np.testing.assert_allclose(prop.state.p, 0.0, atol=POS_TOL_M)
     np.testing.assert_allclose(prop.state.v, 0.0, atol=POS_TOL_M)
@@ -42,7 +42,7 @@ def test_constant_rotation_rate_matches_closed_form(omega):
 def test_constant_acceleration_gives_parabola():
     a = np.array([1.0, 0.5, -0.2])
     imu = _imu(2.0, lambda t: np.zeros(3), lambda t: a + np.array([0.0, 0.0, G]))
-    prop = propagate(_state(), imu, 2 * 10**9, IDENTITY, gravity_mps2=G)
+    prop = propagate(_state(), imu, 2 * 10**9, IDENTITY, g_world=gravity_vector(G))
     np.testing.assert_allclose(prop.state.p, 0.5 * a * 4.0, atol=POS_TOL_M)
     np.testing.assert_allclose(prop.state.v, a * 2.0, atol=POS_TOL_M)
     # the knots trace the same parabola
@@ -62,7 +62,7 @@ def test_lever_arm_and_rotated_imu_keep_spinning_base_in_place():
         return R_bi.T @ f_b
 
     imu = _imu(1.5, lambda t: R_bi.T @ w, accel)
-    prop = propagate(_state(), imu, int(1.5e9), ext, gravity_mps2=G)
+    prop = propagate(_state(), imu, int(1.5e9), ext, g_world=gravity_vector(G))
     np.testing.assert_allclose(prop.state.p, 0.0, atol=2 * POS_TOL_M)
     np.testing.assert_allclose(so3_log(prop.state.R.T @ so3_exp(w * 1.5)), 0.0, atol=ROT_TOL_RAD)
 
@@ -72,7 +72,7 @@ def test_bias_is_removed_before_integration():
     imu = _imu(1.0, lambda t: bg, lambda t: np.array([0.0, 0.0, G]) + ba)
     s = _state()
     s.bg, s.ba = bg, ba
-    prop = propagate(s, imu, 10**9, IDENTITY, gravity_mps2=G)
+    prop = propagate(s, imu, 10**9, IDENTITY, g_world=gravity_vector(G))
     np.testing.assert_allclose(prop.state.p, 0.0, atol=1e-9)
     np.testing.assert_allclose(prop.state.R, np.eye(3), atol=1e-12)
 
@@ -88,7 +88,7 @@ def test_gap_in_imu_is_flagged():
 def test_covariance_grows_with_time():
     imu = _imu(1.0, lambda t: np.zeros(3), lambda t: np.array([0.0, 0.0, G]))
     s = _state()
-    s.P = np.eye(15) * 1e-9
+    s.P = np.eye(18) * 1e-9
     p_half = propagate(s, imu, 5 * 10**8, IDENTITY, noise=ImuNoise()).state.P
     p_full = propagate(s, imu, 10**9, IDENTITY, noise=ImuNoise()).state.P
     assert p_full[3, 3] > p_half[3, 3] > 1e-9  # position variance grows

@@ -148,7 +148,9 @@ def test_sparse_empty_and_nan_scans_are_skipped_and_counted(base_log, tmp_path):
     assert metrics["scans"]["used"] == 38
 
 
-def test_registration_failure_falls_back_to_prediction(base_log, tmp_path):
+def test_a_bad_scan_is_not_a_bad_state(base_log, tmp_path):
+    """A scan of another world fails against the IMU prediction and LiDAR-only alike: the scan is bad, the
+    prediction stands for it, it stays out of the map, and the IMU state is kept."""
     rng = np.random.default_rng(0)
     state = {"n": 0}
 
@@ -162,8 +164,40 @@ def test_registration_failure_falls_back_to_prediction(base_log, tmp_path):
 
     rc, metrics = _odom(copy_log(base_log, tmp_path / "garbage.bag", garbage), tmp_path)
     assert rc == 0
-    assert metrics["scans"]["registration_failures"] == 1
-    assert metrics["scans"]["used"] == metrics["scans"]["total"] == 40
+    sc = metrics["scans"]
+    assert (sc["registration_failures"], sc["recoveries"]) == (1, 0)
+    assert sc["used"] == sc["total"] == 40
+    assert metrics["events"] == []
+
+
+def test_a_bad_imu_state_restarts_from_the_lidar(base_log, tmp_path):
+    """0.3 s of accelerometer garbage throws the IMU state off: registration disagrees with the prediction
+    while LiDAR-only registration still works, so the run drops the state, registers LiDAR-only scans,
+    starts the state again from them and stays accurate."""
+    t_bad = {}
+
+    def kick(tp, t, m, w):
+        if tp == "/imu":
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            t_bad.setdefault("t0", stamp + int(1.8e9))
+            if t_bad["t0"] <= stamp < t_bad["t0"] + int(0.3e9):
+                a = m.linear_acceleration
+                return [(tp, t, w.make.imu(stamp, m.header.frame_id, [m.angular_velocity.x, m.angular_velocity.y,
+                                                                       m.angular_velocity.z], [a.x + 40.0, a.y, a.z]))]
+        return [(tp, t, m)]
+
+    log = copy_log(base_log, tmp_path / "kick.bag", kick)
+    rc, metrics = _odom(log, tmp_path, "--gt", "/ground_truth")
+    assert rc == 0
+    sc = metrics["scans"]
+    assert sc["recoveries"] >= 1 and sc["used"] == sc["total"] == 40
+    kinds = [e["kind"] for e in metrics["events"]]
+    assert kinds[0] == "recovery" and "recovered" in kinds, metrics["events"]
+    rc, lidar_only = _odom(log, tmp_path, "--gt", "/ground_truth", "--prior", "constant-velocity", "--force")
+    assert rc == 0
+    # the IMU run never ends far worse than the same run without the IMU (without the kick it is ~2 cm)
+    assert metrics["accuracy"]["ate_trans_rmse_m"] < 1.2 * lidar_only["accuracy"]["ate_trans_rmse_m"]
+    assert metrics["accuracy"]["ate_trans_rmse_m"] < 0.15, metrics["accuracy"]
 
 
 def test_unknown_topic_and_bad_option_values(base_log, tmp_path, capsys):

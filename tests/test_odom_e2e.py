@@ -83,8 +83,10 @@ def test_outputs_metrics_and_config_beside_trajectory(logs, tmp_path):
     sc = metrics["scans"]
     assert sc["total"] == sc["used"] == 60
     assert sc["degenerate"] > 40  # a featureless corridor: the axis is unconstrained in most scans
-    assert sc["wheel_updates"] == 60
+    assert sc["wheel_updates"] == 60  # every scan: the wheel speed over its interval (the first: its sweep)
+    assert sc["lidar_only_scans"] == 0  # the start-up window was replayed IMU-primed
     assert metrics["initialisation_static"] is True
+    assert metrics["start"]["kind"] == "standing" and metrics["start"]["scans"] == 11
     assert metrics["extrinsics"]["T_base_imu"].startswith("/tf_static")
     assert metrics["real_time_factor"] > 0
     assert set(metrics["time_s"]) >= {"read_decode", "propagate", "deskew", "register", "fuse", "total"}

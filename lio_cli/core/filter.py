@@ -1,6 +1,6 @@
 """Correct the IMU-propagated state with a scan-matching pose: error-state EKF or complementary filter.
 
-EKF (lecture, 'Extended Kalman Filter'): the error state [dtheta, dp, dv, dbg, dba] (15) with covariance P
+EKF (lecture, 'Extended Kalman Filter'): the error state [dtheta, dp, dv, dbg, dba, dg] (18) with covariance P
 from propagation; the measurement is the registered pose, residual ``(log(R_hat^T R_meas), p_meas - p_hat)``,
 with noise inflated along directions the scan geometry leaves unconstrained. The update corrects pose,
 velocity and both biases, which then prime the next scan.
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import skew, so3_exp, so3_log
-from .imu import NavState
+from .imu import STATE_DIM, NavState
 
 
 def pose_residual(state: NavState, T_meas: np.ndarray) -> np.ndarray:
@@ -37,6 +37,8 @@ def _inject(state: NavState, dx: np.ndarray) -> None:
     state.v = state.v + dx[6:9]
     state.bg = state.bg + dx[9:12]
     state.ba = state.ba + dx[12:15]
+    g = state.g + dx[15:18]  # the direction is estimated, the magnitude is known
+    state.g = g * (np.linalg.norm(state.g) / np.linalg.norm(g))
 
 
 def _kalman_update(state: NavState, H: np.ndarray, r: np.ndarray, Rn: np.ndarray) -> np.ndarray:
@@ -44,27 +46,39 @@ def _kalman_update(state: NavState, H: np.ndarray, r: np.ndarray, Rn: np.ndarray
     S = H @ P @ H.T + Rn
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
     dx = K @ r
-    IKH = np.eye(15) - K @ H
+    IKH = np.eye(STATE_DIM) - K @ H
     state.P = IKH @ P @ IKH.T + K @ Rn @ K.T
     _inject(state, dx)
     return dx
 
 
-def ekf_pose_update(state: NavState, T_meas: np.ndarray, rot_sigma_rad: float, pos_cov: np.ndarray) -> np.ndarray:
-    """EKF update of ``state`` in place with a measured pose; returns the applied error-state correction."""
-    H = np.zeros((6, 15))
+def _pose_model(rot_sigma_rad: float, pos_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    H = np.zeros((6, STATE_DIM))
     H[0:3, 0:3] = np.eye(3)
     H[3:6, 3:6] = np.eye(3)
     Rn = np.zeros((6, 6))
     Rn[0:3, 0:3] = np.eye(3) * rot_sigma_rad**2
     Rn[3:6, 3:6] = pos_cov
+    return H, Rn
+
+
+def ekf_pose_update(state: NavState, T_meas: np.ndarray, rot_sigma_rad: float, pos_cov: np.ndarray) -> np.ndarray:
+    """EKF update of ``state`` in place with a measured pose; returns the applied error-state correction."""
+    H, Rn = _pose_model(rot_sigma_rad, pos_cov)
     return _kalman_update(state, H, pose_residual(state, T_meas), Rn)
+
+
+def pose_innovation_nis(state: NavState, T_meas: np.ndarray, rot_sigma_rad: float, pos_cov: np.ndarray) -> float:
+    """Normalised innovation squared ``r^T S^-1 r`` of a pose measurement (chi-square, 6 dof, if consistent)."""
+    H, Rn = _pose_model(rot_sigma_rad, pos_cov)
+    r = pose_residual(state, T_meas)
+    return float(r @ np.linalg.solve(H @ state.P @ H.T + Rn, r))
 
 
 def ekf_body_velocity_update(state: NavState, v_body_mps: np.ndarray, sigmas_mps: np.ndarray) -> np.ndarray:
     """EKF update with a velocity measured in the base frame (wheel odometry: forward speed, no side slip)."""
     vb = state.R.T @ state.v
-    H = np.zeros((3, 15))
+    H = np.zeros((3, STATE_DIM))
     H[:, 0:3] = skew(vb)
     H[:, 6:9] = state.R.T
     return _kalman_update(state, H, v_body_mps - vb, np.diag(np.asarray(sigmas_mps) ** 2))

@@ -5,8 +5,10 @@ Measurement model (lecture): gyro ``w_i = R_i_b w_b + b_g + n``, accelerometer
 base frame, so ``a_imu = a_base + R_w_b (alpha_b x r + w_b x (w_b x r))``.
 
 The propagated state is the base frame's: rotation ``R_world_base``, position and velocity in world,
-biases in the IMU frame. Covariance of the 15-dim error state [dtheta, dp, dv, dbg, dba] (rotation error
-on the right: R = R_hat exp(dtheta)) is propagated alongside for the EKF.
+biases in the IMU frame, and gravity in world (the world frame is the first scan's, not levelled, so the
+filter refines gravity's direction as it does the biases). Covariance of the 18-dim error state
+[dtheta, dp, dv, dbg, dba, dg] (rotation error on the right: R = R_hat exp(dtheta)) is propagated alongside
+for the EKF.
 """
 
 from __future__ import annotations
@@ -20,11 +22,17 @@ from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
 
 GRAVITY_MPS2 = 9.81
+STATE_DIM = 18  # error state: rotation, position, velocity, gyro bias, accel bias, gravity (3 each)
+
+
+def gravity_vector(gravity_mps2: float = GRAVITY_MPS2) -> np.ndarray:
+    """Gravity in a z-up world: (0, 0, -g)."""
+    return np.array([0.0, 0.0, -gravity_mps2])
 
 
 @dataclass
 class NavState:
-    """Base state at ``stamp_ns`` with its error-state covariance ``P`` (15x15)."""
+    """Base state at ``stamp_ns`` with its error-state covariance ``P`` (18x18)."""
 
     stamp_ns: int
     R: np.ndarray  # R_world_base
@@ -32,7 +40,8 @@ class NavState:
     v: np.ndarray  # base velocity in world
     bg: np.ndarray  # gyro bias, IMU frame
     ba: np.ndarray  # accel bias, IMU frame
-    P: np.ndarray = field(default_factory=lambda: np.eye(15) * 1e-6)
+    P: np.ndarray = field(default_factory=lambda: np.eye(STATE_DIM) * 1e-6)
+    g: np.ndarray = field(default_factory=gravity_vector)  # gravity in world
 
     def pose(self) -> np.ndarray:
         T = np.eye(4)
@@ -41,7 +50,7 @@ class NavState:
 
     def copy(self) -> "NavState":
         return NavState(self.stamp_ns, self.R.copy(), self.p.copy(), self.v.copy(), self.bg.copy(), self.ba.copy(),
-                        self.P.copy())
+                        self.P.copy(), self.g.copy())
 
 
 @dataclass
@@ -68,15 +77,17 @@ def interpolate_imu(imu: ImuBatch, t_ns: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
-              gravity_mps2: float = GRAVITY_MPS2, noise=None, max_gap_ns: int = 50_000_000,
-              planar: bool = False) -> Propagation:
+              g_world: np.ndarray | None = None, noise=None, max_gap_ns: int = 50_000_000,
+              planar: bool = False, accel: bool = True) -> Propagation:
     """Integrate the IMU from ``state.stamp_ns`` to ``t_end_ns`` (midpoint rule, lever arm included).
 
+    ``g_world``: gravity in the state's world frame (default: the state's own ``g``). ``accel=False`` integrates
+    the gyro only and keeps the velocity constant (the motion prior while gravity is not yet known).
     ``imu`` should hold samples spanning the interval; where it does not (a gap, or no data), the last
     angular rate is held and acceleration taken as zero, and ``gap`` is set.
     """
     t0 = state.stamp_ns
-    g = np.array([0.0, 0.0, -gravity_mps2])
+    g = state.g if g_world is None else np.asarray(g_world, dtype=np.float64)
     R_bi, r = ext.R_base_imu, ext.lever_m
     s = state.copy()
     if len(imu) == 0:
@@ -104,8 +115,11 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     safe_dt = np.where(dts > 0, dts, 1.0)
     alpha = np.vstack([(w_b[1:] - w_b[:-1]) / safe_dt[:, None], np.zeros((1, 3))])
     alpha[-1] = alpha[-2] if n > 2 else 0.0
-    lever = np.cross(alpha, r) + np.cross(w_b, np.cross(w_b, r))
-    a_w = np.einsum("nij,nj->ni", Rs, f_b - lever) + g
+    if accel:
+        lever = np.cross(alpha, r) + np.cross(w_b, np.cross(w_b, r))
+        a_w = np.einsum("nij,nj->ni", Rs, f_b - lever) + g
+    else:
+        a_w = np.zeros((n, 3))
     a_mid = 0.5 * (a_w[1:] + a_w[:-1])
     dv = a_mid * dts[:, None]
     v = s.v + np.vstack([np.zeros((1, 3)), np.cumsum(dv, axis=0)])
@@ -139,7 +153,7 @@ def _hold(s: NavState, t_end_ns: int) -> Propagation:
     start = s.pose()
     s.p = s.p + s.v * dt
     s.stamp_ns = int(t_end_ns)
-    s.P = s.P + np.diag([1e-4] * 3 + [1e-3] * 3 + [1e-2] * 3 + [0.0] * 6) * max(dt, 0.0)
+    s.P = s.P + np.diag([1e-4] * 3 + [1e-3] * 3 + [1e-2] * 3 + [0.0] * 9) * max(dt, 0.0)
     return Propagation(np.array([t_end_ns - int(dt * 1e9), t_end_ns], dtype=np.int64), np.stack([start, s.pose()]), s, True)
 
 
@@ -173,13 +187,14 @@ def _propagate_cov_interval(P: np.ndarray, Rs: np.ndarray, R_bi: np.ndarray, w_b
         w = w_b[a:b + 1].mean(axis=0)
         f = f_b[a:b + 1].mean(axis=0)
         R = Rs[a]
-        F = np.eye(15)
+        F = np.eye(STATE_DIM)
         F[0:3, 0:3] = so3_exp(-w * dt)
         F[0:3, 9:12] = -R_bi * dt
         F[3:6, 6:9] = np.eye(3) * dt
         F[6:9, 0:3] = -R @ skew(f) * dt
         F[6:9, 12:15] = -R @ R_bi * dt
-        Q = np.zeros(15)
+        F[6:9, 15:18] = np.eye(3) * dt
+        Q = np.zeros(STATE_DIM)
         Q[0:3] = q[0] * dt
         Q[6:9] = q[1] * dt
         Q[9:12] = q[2] * dt

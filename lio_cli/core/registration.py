@@ -47,6 +47,12 @@ class ScanRegistration:
         self.map = VoxelHashMap(voxel_size_m, rc.max_range_m, rc.max_points_per_voxel)
         self._registration = get_registration(kiss)
         self._threshold = get_threshold_estimator(kiss)
+        # without a good prior (start-up window, recovery): kiss-icp's own adaptive gate and iterations
+        wide = kiss.model_copy(deep=True)
+        wide.adaptive_threshold.fixed_threshold = None
+        wide.registration.max_num_iterations = rc.max_iterations or _KISS_ITERATIONS
+        self._wide_registration = get_registration(wide)
+        self._adaptive = get_threshold_estimator(wide)
 
     @property
     def empty(self) -> bool:
@@ -58,21 +64,28 @@ class ScanRegistration:
         source = voxel_down_sample(frame, self.voxel_size_m * self.source_factor)
         return frame, source
 
-    def register(self, source: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        """T_world_base that best aligns ``source`` (base frame) to the map, starting from ``guess``."""
+    def register(self, source: np.ndarray, guess: np.ndarray, adaptive: bool = False,
+                 gate_m: float | None = None) -> np.ndarray:
+        """T_world_base that best aligns ``source`` (base frame) to the map, starting from ``guess``.
+
+        ``adaptive``: the guess may be coarse, so kiss-icp's full iterations are used, with correspondences
+        gated at ``gate_m`` or, when None, by kiss-icp's adaptive threshold.
+        """
         if self.map.empty():
             return guess
+        if adaptive:
+            sigma = self._adaptive.get_threshold() if gate_m is None else gate_m / 3.0
+            return self._wide_registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
         sigma = self._threshold.get_threshold()
         return self._registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
-    def accept(self, correction: np.ndarray, frame: np.ndarray, pose: np.ndarray) -> None:
-        """Feed the registration's deviation from its guess to the threshold model and add ``frame`` at ``pose``."""
+    def accept(self, correction: np.ndarray | None, frame: np.ndarray, pose: np.ndarray) -> None:
+        """Feed the registration's deviation from its guess to the threshold models and add ``frame`` at ``pose``."""
         if correction is not None:
             self._threshold.update_model_deviation(correction)
+            self._adaptive.update_model_deviation(correction)
         self.map.update(frame, pose)
 
-    def update_map(self, frame: np.ndarray, pose: np.ndarray) -> None:
-        self.map.update(frame, pose)
 
 
 def auto_voxel_size(ranges_m: np.ndarray) -> float:

@@ -17,8 +17,8 @@ import numpy as np
 
 from ..config import with_overrides
 from ..config.odom import OdomConfig
-from ..core.odometry import LioOdometry, OdomStats
-from ..errors import InputError
+from ..core.odometry import Diverged, LioOdometry, OdomStats
+from ..errors import InputError, ProcessingError
 from ..evaluation.scoring import Score, score
 from ..io.decode import LASERSCAN
 from ..io.pointcloud import parse_time_convention
@@ -27,7 +27,7 @@ from ..io.sources import load_trajectory
 from ..io.stream import SensorStream
 from ..io.tf import FrameTree, read_static_frames
 from ..io.topics import select_topic
-from ..model.calibration import Calibration, Extrinsics
+from ..model.calibration import Calibration
 from ..model.records import ImuBatch, PointCloud
 from ..model.trajectory import Trajectory
 
@@ -57,25 +57,24 @@ class OdomResult:
     score: Score | None = None
 
 
-def resolve_extrinsics(tree: FrameTree, calib: Calibration, base_frame: str | None, imu_frame: str | None,
-                       lidar_frame: str, notes: list[str]) -> tuple[Extrinsics, dict]:
-    """T_base_imu and T_base_lidar from /tf_static by frame_id, else the calibration, else identity (noted).
+def resolve_extrinsic(tree: FrameTree, calib: Calibration, base: str, name: str, frame: str,
+                      notes: list[str]) -> tuple[np.ndarray, str]:
+    """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity."""
+    T = tree.lookup(base, frame) if frame else None
+    if T is not None:
+        return T, f"/tf_static ({base} -> {frame})"
+    if calib.matrix(name) is not None:
+        return calib.matrix(name), "--calib"
+    notes.append(f"no extrinsic {name} ({base} -> {frame or '?'}) in /tf_static or --calib: identity assumed")
+    return np.eye(4), "identity (assumed)"
 
-    ``imu_frame`` None: the IMU is not used, so its extrinsic is not looked for.
-    """
-    base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
-    found, source = {"T_base_imu": np.eye(4)}, {"T_base_imu": "not used (no IMU in this run)"}
-    wanted = [("T_base_lidar", lidar_frame)] if imu_frame is None else [("T_base_imu", imu_frame), ("T_base_lidar", lidar_frame)]
-    for name, frame in wanted:
-        T = tree.lookup(base, frame) if frame else None
-        if T is not None:
-            found[name], source[name] = T, f"/tf_static ({base} -> {frame})"
-        elif calib.matrix(name) is not None:
-            found[name], source[name] = calib.matrix(name), "--calib"
-        else:
-            found[name], source[name] = np.eye(4), "identity (assumed)"
-            notes.append(f"no extrinsic {name} ({base} -> {frame or '?'}) in /tf_static or --calib: identity assumed")
-    return Extrinsics(found["T_base_imu"], found["T_base_lidar"]), {"base_frame": base, **source}
+
+class DivergedRun(ProcessingError):
+    """The track was lost for good; ``partial`` holds the trajectory up to there (None if no scan was used)."""
+
+    def __init__(self, message: str, partial: OdomResult | None) -> None:
+        super().__init__(message)
+        self.partial = partial
 
 
 def run_odom(job: OdomJob, progress: Progress | None = None) -> OdomResult:
@@ -117,10 +116,11 @@ def _run(reader: LogReader, cfg: OdomConfig, progress: Progress | None) -> OdomR
                           convention=convention, strict=False)
     offset_ns = cfg.calibration.imu_time_offset_ns
     tree = read_static_frames(reader)
+    base = inp.base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
+    extr_info: dict = {"base_frame": base, "T_base_imu": "not used (no IMU in this run)"}
     odo: LioOdometry | None = None
-    extr_info: dict = {}
     pending: deque[PointCloud] = deque()
-    stamps, poses = [], []
+    early_imu: list[ImuBatch] = []  # IMU that arrived before the first scan
     t_read = 0.0
     done = 0
 
@@ -129,77 +129,94 @@ def _run(reader: LogReader, cfg: OdomConfig, progress: Progress | None) -> OdomR
         while pending:
             cloud = pending[0]
             covered = odo.imu_until_ns()
-            if use_imu and now_ns is not None:
-                # wait for IMU covering the scan, and before the first scan for the start-up window
-                need = cloud.end_ns if odo.state is not None else max(cloud.end_ns, odo.imu_from_ns() + init_ns)
-                if (covered is None or covered < need) and now_ns - need < _IMU_WAIT_NS:
-                    return
+            # wait (a bounded stretch of log time) for IMU covering the scan, so its motion can be predicted
+            if use_imu and now_ns is not None and (covered is None or covered < cloud.end_ns) \
+                    and now_ns - cloud.end_ns < _IMU_WAIT_NS:
+                return
             pending.popleft()
-            res = odo.process(cloud)
+            odo.process(cloud)
             done += 1
             if progress:
                 progress(done, total)
-            if res is not None:
-                stamps.append(res.stamp_ns)
-                poses.append(res.pose)
 
-    init_ns = int(cfg.static_init_s * 1e9)
-    early_imu: list[ImuBatch] = []  # IMU before the first scan: kept for the start-up estimate
+    def mount_imu(batch: ImuBatch) -> None:
+        # the IMU's extrinsic by its own frame_id, whenever its first message arrives
+        T, extr_info["T_base_imu"] = resolve_extrinsic(tree, cfg.calibration, base, "T_base_imu", batch.frame_id, notes)
+        odo.set_imu_extrinsic(T)
+
     tick = time.perf_counter()
-    for rec in stream:
-        t_read += time.perf_counter() - tick
-        if odo is None and rec.kind == "lidar":
-            imu_frame = (early_imu[0].frame_id if early_imu else "") if use_imu else None
-            ext, extr_info = resolve_extrinsics(tree, cfg.calibration, inp.base_frame, imu_frame, rec.data.frame_id, notes)
-            odo = LioOdometry(cfg, ext, use_imu=use_imu, planar=planar,
-                              gyro_bias=cfg.calibration.gyro_bias_radps, accel_bias=cfg.calibration.accel_bias_mps2)
-            for b in early_imu:
-                odo.add_imu(b)
-        if rec.kind == "imu":
-            batch: ImuBatch = rec.data
-            if offset_ns:
-                batch = ImuBatch(batch.frame_id, batch.stamps_ns + offset_ns, batch.gyro_radps, batch.accel_mps2)
-            if odo is None:
-                early_imu.append(batch)
-            else:
-                odo.add_imu(batch)
-        elif rec.kind == "wheel" and odo is not None:
-            odo.add_wheel(rec.data)
-        elif rec.kind == "lidar":
-            pending.append(rec.data)
-        if odo is not None:
-            process_ready(rec.stamp_ns)
-        tick = time.perf_counter()
-    if odo is None:
-        raise InputError(f"{reader.path}: {lidar}: no scan with valid points in the log")
-    process_ready(None)
-    wall = time.perf_counter() - t_wall
-    if not stamps:
+    try:
+        for rec in stream:
+            t_read += time.perf_counter() - tick
+            if odo is None and rec.kind == "lidar":
+                T_bl, extr_info["T_base_lidar"] = resolve_extrinsic(tree, cfg.calibration, base, "T_base_lidar",
+                                                                    rec.data.frame_id, notes)
+                odo = LioOdometry(cfg, T_bl, use_imu=use_imu, planar=planar,
+                                  gyro_bias=cfg.calibration.gyro_bias_radps, accel_bias=cfg.calibration.accel_bias_mps2)
+                if early_imu:
+                    mount_imu(early_imu[0])
+                for b in early_imu:
+                    odo.add_imu(b)
+            if rec.kind == "imu":
+                batch: ImuBatch = rec.data
+                if offset_ns:
+                    batch = ImuBatch(batch.frame_id, batch.stamps_ns + offset_ns, batch.gyro_radps, batch.accel_mps2)
+                if odo is None:
+                    early_imu.append(batch)
+                else:
+                    if not odo.imu_mounted:
+                        mount_imu(batch)
+                    odo.add_imu(batch)
+            elif rec.kind == "wheel" and odo is not None:
+                odo.add_wheel(rec.data)
+            elif rec.kind == "lidar":
+                pending.append(rec.data)
+            if odo is not None:
+                process_ready(rec.stamp_ns)
+            tick = time.perf_counter()
+        if odo is None:
+            raise InputError(f"{reader.path}: {lidar}: no scan with valid points in the log")
+        process_ready(None)
+    except Diverged as err:
+        partial = _result(reader, cfg, odo, stream, lidar, imu if use_imu else None, wheel, deskew, planar,
+                          extr_info, notes, t_read, time.perf_counter() - t_wall) if odo.poses else None
+        raise DivergedRun(f"{reader.path}: {err}", partial) from err
+    if not odo.poses:
         raise InputError(f"{reader.path}: {lidar}: no scan could be used (all had fewer than "
                          f"{cfg.registration.min_points} valid points)")
-    P = np.stack(poses)
+    return _result(reader, cfg, odo, stream, lidar, imu if use_imu else None, wheel, deskew, planar,
+                   extr_info, notes, t_read, time.perf_counter() - t_wall)
+
+
+def _result(reader, cfg: OdomConfig, odo: LioOdometry, stream: SensorStream, lidar, imu, wheel, deskew, planar,
+            extr_info, notes, t_read, wall) -> OdomResult:
+    stamps = odo.stamps_ns
+    P = odo.output_alignment() @ np.stack(odo.poses)
     if cfg.frame == "lidar":
         P = P @ odo.ext.T_base_lidar
     elif cfg.frame == "imu":
         P = P @ odo.ext.T_base_imu
     resolved = with_overrides(cfg, {
-        "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu if use_imu else None,
+        "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu,
         "input.wheel_topic": wheel, "input.base_frame": extr_info["base_frame"], "deskew": deskew, "planar": planar,
     }, "resolved configuration")
     st = odo.stats
+    start = _start_summary(odo, imu is not None)
     span_s = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
     metrics = {
         "log": str(reader.path),
         "format": reader.format,
-        "topics": {"lidar": lidar, "imu": imu if use_imu else None, "wheel": wheel},
+        "topics": {"lidar": lidar, "imu": imu, "wheel": wheel},
         "mode": "planar (SE(2))" if planar else "3D (SE(3))",
         "frame": cfg.frame,
         "pose_stamp": f"scan {cfg.scan_reference}: each pose is at the instant its scan was de-skewed to",
         "deskew": deskew,
         "prior": cfg.prior,
-        "fusion": cfg.fusion.method if use_imu else "none (no IMU)",
-        "initialisation": odo.start.reason if odo.start else None,
-        "initialisation_static": bool(odo.start.static) if odo.start else None,
+        "fusion": cfg.fusion.method if imu else "none (no IMU)",
+        "initialisation": start["reason"],
+        "initialisation_static": start["static"],
+        "start": start,
+        "events": odo.events,
         "extrinsics": extr_info,
         "scans": st.counts(),
         "stream": stream.stats.to_dict(),
@@ -213,4 +230,18 @@ def _run(reader: LogReader, cfg: OdomConfig, progress: Progress | None) -> OdomR
         "notes": notes,
     }
     traj = Trajectory(np.asarray(stamps, dtype=np.int64), P, f"{reader.path}:odom", "odom")
-    return OdomResult(traj, resolved, st, odo.start.reason if odo.start else None, metrics, notes)
+    return OdomResult(traj, resolved, st, start["reason"], metrics, notes)
+
+
+def _start_summary(odo: LioOdometry, with_imu: bool) -> dict:
+    """Which start happened, after how many LiDAR-only scans, and the initial velocity (output world frame)."""
+    b = odo.start
+    if b is None:
+        reason = ("LiDAR only (no IMU in this run): level start at the origin" if not with_imu else
+                  "the IMU state never started (the log is shorter than the start-up window or the IMU never "
+                  "covered it): LiDAR-only scans, levelled by the mean specific force")
+        return {"kind": "lidar-only", "static": None, "scans": 0, "initial_velocity_mps": None, "reason": reason}
+    v = odo.output_alignment()[:3, :3] @ b.v_world
+    return {"kind": "standing" if b.static else "moving", "static": b.static, "scans": b.scans,
+            "initial_velocity_mps": [round(float(x), 4) for x in v], "speed_mps": round(float(np.linalg.norm(v)), 4),
+            "stamp_ns": b.stamp_ns, "reason": b.reason}
