@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ProcessingError
 from ..io.writer import LogWriter
 from .motion import MotionState, Trajectory
 from .options import SimulationOptions
@@ -42,7 +43,7 @@ class ImuEncoder:
         def where(pattern: bytes) -> int:
             at = raw.find(pattern)
             if at < 0 or raw.find(pattern, at + 1) >= 0:
-                raise RuntimeError("Imu template: a patch value is not unique in the serialised message")
+                raise ProcessingError("cannot bulk-serialise Imu messages: a patch value is not unique in the template")
             return at
 
         self.sec_at = where(np.array(self._SEC, "<u4").tobytes())
