@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from lio_cli.io.decode import imu_sample
-from lio_cli.io.logs import open_log
-from lio_cli.io.trajectory import read_tum
+from lio_cli.io.reader import open_log
+from lio_cli.io.trajectory_files import read_tum
 from lio_cli.io.writer import LogWriter
 from lio_cli.simulation import build_scenario, metrics_path_for, output_paths, simulate
 from lio_cli.simulation.sensors import ImuSpec, synthesize_imu
