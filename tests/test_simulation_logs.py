@@ -214,7 +214,7 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (("simulate", "flying", "x.bag"), "lio: error: unknown scenario 'flying' (choose from handheld, drive, corridor, planar)\n"),
+    (("simulate", "flying", "x.bag"), "lio: error: unknown scenario 'flying' (choose from handheld, drive, corridor, planar, static)\n"),
     (("simulate", "handheld", "x.bag", "--time-convention", "sick"),
      "lio: error: unknown --time-convention 'sick' (choose from velodyne, ouster, livox, hesai)\n"),
     (("simulate", "handheld", "x.bag", "--beams", "24"), "lio: error: --beams must be 16, 32, 64 or 128 (got 24)\n"),

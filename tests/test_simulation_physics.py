@@ -231,9 +231,10 @@ def test_footprint_clearance_sign():
     assert d[2] > 4.0
 
 
+@pytest.mark.parametrize("start", ["still", "moving"])
 @pytest.mark.parametrize("name", SCENARIOS)
-def test_paths_never_enter_an_obstacle(name):
-    sc = build_scenario(name)
+def test_paths_never_enter_an_obstacle(name, start):
+    sc = build_scenario(name, start=start)
     t = np.arange(0.0, 150.0, 0.05)  # more than a lap of every closed path
     t_long = np.arange(150.0, 3600.0, 0.5)  # up to the longest --duration allowed (the corridor is open)
     xy = sc.trajectory.state(np.concatenate([t, t_long])).position_m[:, :2]

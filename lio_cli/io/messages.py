@@ -92,6 +92,18 @@ class MessageFactory:
             ),
         )
 
+    def navsatfix(self, stamp_ns: int, frame_id: str, status: int, lat_deg: float, lon_deg: float, alt_m: float,
+                  covariance_m2, covariance_type: int, service: int = 1):
+        """sensor_msgs/NavSatFix; ``covariance_m2`` the 3x3 ENU position covariance (9 values, row-major);
+        ``service`` 1 = GPS."""
+        return self.T["sensor_msgs/msg/NavSatFix"](
+            header=self.header(stamp_ns, frame_id),
+            status=self.T["sensor_msgs/msg/NavSatStatus"](status=int(status), service=int(service)),
+            latitude=float(lat_deg), longitude=float(lon_deg), altitude=float(alt_m),
+            position_covariance=np.asarray(covariance_m2, dtype=np.float64).reshape(9),
+            position_covariance_type=int(covariance_type),
+        )
+
     def twist_stamped(self, stamp_ns: int, frame_id: str, linear_mps, angular_radps):
         return self.T["geometry_msgs/msg/TwistStamped"](
             header=self.header(stamp_ns, frame_id),

@@ -2,6 +2,11 @@
 
 Worlds are fixed (their clutter comes from a fixed internal seed, placed away from the paths), so the
 same scenario always happens in the same place; ``--seed`` only drives sensor noise and biases.
+
+``start="still"``: the platform stands still for 1.5 s, then ramps up. ``start="moving"``: every ramp and
+fade-in is over before t = 0, so each sensor's first sample already sees the full motion; the drive instead
+starts cruising straight at 7.5 m/s with its sway fading in over 3 s, so its IMU first looks still.
+``static`` is an IMU at rest on a table for hours (no LiDAR, no wheels): the noise model alone.
 """
 
 from __future__ import annotations
@@ -15,7 +20,8 @@ from .motion import Path2D, Progress, Sines, Trajectory, ypr_to_matrix
 from .sensors import LaserSpec, LidarSpec, WheelSpec
 from .world import World, footprint_clearance
 
-SCENARIOS = ("handheld", "drive", "corridor", "planar")
+SCENARIOS = ("handheld", "drive", "corridor", "planar")  # the LiDAR scenarios
+ALL_SCENARIOS = SCENARIOS + ("static",)
 
 _WALL_M = 0.2
 _STOREY_M = 2.8
@@ -28,11 +34,13 @@ class Scenario:
     world: World
     trajectory: Trajectory
     T_base_imu: np.ndarray
-    T_base_lidar: np.ndarray
-    lidar: LidarSpec | LaserSpec
+    T_base_lidar: np.ndarray | None
+    lidar: LidarSpec | LaserSpec | None
     wheels: WheelSpec | None
     clearance_m: float  # the platform's half-width: the path keeps at least this from every obstacle
     body_z_m: tuple[float, float] = (0.0, 1.9)  # height band the platform occupies (for the clearance check)
+    rest_s: float = 1.5  # standing still for this long at the start (0: moving from the first sample)
+    gps_antenna_m: tuple[float, float, float] = (0.0, 0.0, 0.3)  # GPS antenna position in base
 
 
 def _pose(rpy_rad: tuple[float, float, float], xyz_m: tuple[float, float, float]) -> np.ndarray:
@@ -221,53 +229,85 @@ def _dense(path: Path2D, step_m: float = 0.05) -> np.ndarray:
     return path.derivs(np.arange(0.0, path.length_m, step_m), 0)
 
 
-def build_scenario(name: str, beams: int | None = None, columns: int | None = None) -> Scenario:
-    """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``."""
+def _start_times(start: str, ramp_s: float = 1.5, fade_s: float = 1.5) -> tuple[float, float, float]:
+    """(Progress.t_rest_s, Trajectory.t_rest_s, Scenario.rest_s): 1.5 s at rest, or (moving) the speed ramp,
+    the progress wobble's fade-in (2 ramps long) and the sway fade-in all over by t = 0."""
+    if start == "still":
+        return 1.5, 1.5, 1.5
+    if start == "moving":
+        return -3.0 * ramp_s, -fade_s, 0.0
+    raise KeyError(start)
+
+
+def build_scenario(name: str, beams: int | None = None, columns: int | None = None, start: str = "still") -> Scenario:
+    """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``, starting ``start``
+    (still or moving)."""
+    p_rest, t_rest, rest = _start_times(start)
     if name in ("handheld", "planar"):
         hh, pl = Path2D(HANDHELD_WAYPOINTS), Path2D(PLANAR_WAYPOINTS)
         world = office_world([_dense(hh, 0.1), _dense(pl, 0.1)])
     if name == "handheld":
         traj = Trajectory(
-            hh, Progress(1.2, wobble=Sines((0.15, 0.05), (0.13, 0.31), (0.0, 1.0))), z0_m=1.35,
+            hh, Progress(1.2, t_rest_s=p_rest, wobble=Sines((0.15, 0.05), (0.13, 0.31), (0.0, 1.0))), z0_m=1.35,
             z_wobble=Sines((0.03,), (1.8,), (0.0,)),
             yaw_offset=Sines((0.5, 0.08), (0.95, 2.1), (0.0, 0.7)),
             pitch=Sines((0.08, 0.03), (0.45, 1.8), (0.3, 0.0)), roll=Sines((0.06, 0.02), (0.9, 1.7), (1.0, 2.0)),
+            t_rest_s=t_rest,
         )
         return Scenario(
             name, "person walking indoors through rooms and doorways with fast yaw sweeps; 16-beam spinning LiDAR",
             world, traj, _pose((0.02, -0.03, 0.5 * np.pi), (0.04, -0.02, 0.03)), _pose((0, 0, 0), (0.0, 0.0, 0.10)),
             LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0), None, clearance_m=0.3,
+            rest_s=rest, gps_antenna_m=(0.0, 0.0, 0.25),
         )
     if name == "planar":
-        traj = Trajectory(pl, Progress(0.7, t_rest_s=1.5, ramp_s=1.5, wobble=Sines((0.1,), (0.1,), (0.0,))))
+        traj = Trajectory(pl, Progress(0.7, t_rest_s=p_rest, ramp_s=1.5, wobble=Sines((0.1,), (0.1,), (0.0,))),
+                          t_rest_s=t_rest)
         return Scenario(
             name, "differential-drive robot in an office: 2D LaserScan, wheel encoders, IMU", world, traj,
             _pose((0.0, 0.0, 0.5 * np.pi), (0.05, 0.02, 0.15)), _pose((0, 0, 0), (0.15, 0.0, 0.30)),
             LaserSpec(beams=columns or 720), WheelSpec(radius_m=0.08, baseline_m=0.42), clearance_m=0.3,
-            body_z_m=(0.0, 0.5),
+            body_z_m=(0.0, 0.5), rest_s=rest, gps_antenna_m=(-0.1, 0.0, 0.45),
         )
     if name == "corridor":
         xs = np.arange(-60.0, 3950.0, 2.5)  # over an hour of driving before the path ends
         path = Path2D(np.column_stack([xs, 0.4 * np.sin(2 * np.pi * xs / 12.5)]), closed=False)
-        traj = Trajectory(path, Progress(1.0, s0_m=30.0, wobble=Sines((0.2,), (0.08,), (0.0,))))
+        traj = Trajectory(path, Progress(1.0, t_rest_s=p_rest, s0_m=30.0, wobble=Sines((0.2,), (0.08,), (0.0,))),
+                          t_rest_s=t_rest)
         return Scenario(
             name, "robot in a long featureless corridor: geometry does not constrain motion along it",
             corridor_world(), traj, _pose((0.0, 0.02, 0.5 * np.pi), (0.1, 0.05, 0.25)), _pose((0, 0, 0), (0.2, 0.0, 0.5)),
             LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0), WheelSpec(radius_m=0.1, baseline_m=0.5),
-            clearance_m=0.3, body_z_m=(0.0, 0.8),
+            clearance_m=0.3, body_z_m=(0.0, 0.8), rest_s=rest, gps_antenna_m=(0.0, 0.0, 0.6),
         )
     if name == "drive":
         path = Path2D(DRIVE_WAYPOINTS)
         world = town_world(_dense(path, 0.5))
+        # moving: cruising at 7.5 m/s from 56 m into the first straight (curvature < 0.0015/m for the next
+        # 30 m: yaw rate < 0.01 rad/s); speed wobble (6.2..8.9 m/s) and sway fade in from t = 0
+        wobble = Sines((6.0,), (0.05,), (0.0,))
+        p_rest, fade, s0 = 1.5, 1.5, 0.0
+        if start == "moving":
+            wobble, p_rest, fade, s0 = Sines((4.2,), (0.05,), (-0.94,)), -3.0, 3.0, 56.0 - 7.5 * 1.5
         traj = Trajectory(
-            path, Progress(7.5, t_rest_s=1.5, ramp_s=3.0, wobble=Sines((6.0,), (0.05,), (0.0,))), z0_m=0.0,
+            path, Progress(7.5, t_rest_s=p_rest, ramp_s=3.0, wobble=wobble, s0_m=s0), z0_m=0.0,
             z_wobble=Sines((0.015,), (1.3,), (0.0,)), pitch=Sines((0.012, 0.004), (0.2, 1.1), (0.0, 0.5)),
-            roll=Sines((0.015, 0.004), (0.15, 0.9), (1.0, 0.0)),
+            roll=Sines((0.015, 0.004), (0.15, 0.9), (1.0, 0.0)), fade_in_s=fade, t_rest_s=max(t_rest, 0.0),
         )
         return Scenario(
             name, "car driving a loop through a town of buildings, poles and parked cars at 5-10 m/s",
             world, traj, _pose((0.01, 0.02, -0.5 * np.pi), (0.8, 0.1, 0.6)), _pose((0, 0, 0), (1.2, 0.0, 1.9)),
             LidarSpec(beams=beams or 32, columns=columns or 1024, max_range_m=120.0),
-            WheelSpec(radius_m=0.32, baseline_m=1.6), clearance_m=1.1, body_z_m=(0.0, 1.6),
+            WheelSpec(radius_m=0.32, baseline_m=1.6), clearance_m=1.1, body_z_m=(0.0, 1.6), rest_s=rest,
+            gps_antenna_m=(-0.5, 0.0, 1.55),
+        )
+    if name == "static":
+        world = World("table")
+        world.add_plane(0.0, 0.3)
+        traj = Trajectory(Path2D(np.array([(0.0, 0.0), (10.0, 0.0)]), closed=False), Progress(0.0), z0_m=0.8)
+        return Scenario(
+            name, "an IMU at rest on a table for hours: white noise and bias random walks only (no LiDAR, no wheels)",
+            world, traj, _pose((0.01, -0.02, 0.0), (0.0, 0.0, 0.05)), None, None, None, clearance_m=0.0,
+            body_z_m=(0.0, 0.0), rest_s=float("inf"),
         )
     raise KeyError(name)

@@ -173,9 +173,11 @@ def imu_truth(traj: Trajectory, T_base_imu: np.ndarray, t_s: np.ndarray) -> tupl
 
 
 def synthesize_imu(traj: Trajectory, T_base_imu: np.ndarray, spec: ImuSpec, start_ns: int, end_ns: int,
-                   traj_start_ns: int, rng: np.random.Generator | None) -> ImuData:
+                   traj_start_ns: int, rng: np.random.Generator | None, continue_walk: bool = False) -> ImuData:
     """IMU samples stamped on a regular grid from ``start_ns`` to ``end_ns`` (inclusive) of the IMU clock;
-    the true sampling instant of stamp s is ``s - time_offset_ns``. ``rng`` None: no noise, no walk."""
+    the true sampling instant of stamp s is ``s - time_offset_ns``. ``rng`` None: no noise, no walk.
+    The first sample's bias is ``spec``'s initial bias, or (``continue_walk``, for the next piece of a run
+    made in pieces) one random-walk step after it."""
     period_ns = int(round(NS / spec.rate_hz))
     stamps = np.arange(start_ns, end_ns + 1, period_ns, dtype=np.int64)
     t_true = (stamps - spec.time_offset_ns - traj_start_ns) * 1e-9
@@ -186,7 +188,8 @@ def synthesize_imu(traj: Trajectory, T_base_imu: np.ndarray, spec: ImuSpec, star
     if rng is not None:
         walk_a = rng.normal(0.0, 1.0, (n, 3)) * spec.accel_bias_walk * np.sqrt(dt)
         walk_g = rng.normal(0.0, 1.0, (n, 3)) * spec.gyro_bias_walk * np.sqrt(dt)
-        walk_a[0] = walk_g[0] = 0.0
+        if not continue_walk:
+            walk_a[0] = walk_g[0] = 0.0
         ba += np.cumsum(walk_a, axis=0)
         bg += np.cumsum(walk_g, axis=0)
         noise_a = rng.normal(0.0, 1.0, (n, 3)) * spec.accel_noise_density / np.sqrt(dt)
