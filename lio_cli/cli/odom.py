@@ -93,6 +93,8 @@ def odom(
         result = run_odom(OdomJob(Path(log), cfg, gt), progress=update)
     for n in result.notes:
         warn(n)
+    for role, choice in result.roles.items():
+        note(f"{role}: {choice['topic'] or '-'} ({choice['why']})", quiet)
     if to_stdout:
         sys.stdout.write(format_tum(result.trajectory.stamps_ns, result.trajectory.poses))
         sys.stdout.flush()

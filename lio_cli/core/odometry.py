@@ -45,6 +45,8 @@ _GYRO_PRIOR_JUMP_RAD = np.radians(10.0)
 _NIS_LIMIT = 100.0  # a pose innovation this far outside its covariance (chi-square 6 dof: 22 at 99.9 %; a 15 ms IMU
 # clock offset on fast yaw sweeps reaches 80)...
 _NIS_SCANS = 3  # ...this many scans in a row means the IMU state no longer explains the scans
+_MOVING_MPS = 0.3  # faster than this, an exactly-zero wheel twist is not a wheel at rest
+_MOVING_M = 0.3
 _MAX_BIAS_GYRO_RADPS = 0.5
 _MAX_BIAS_ACCEL_MPS2 = 3.0
 
@@ -71,6 +73,7 @@ class OdomStats:
     degenerate: int = 0
     imu_gaps: int = 0
     wheel_updates: int = 0
+    wheel_zero_skipped: int = 0
     lidar_only_scans: int = 0  # registered without the IMU state: start-up window, recoveries, no IMU
     recoveries: int = 0
     time_gaps: int = 0
@@ -332,6 +335,8 @@ class LioOdometry:
             return
         poses = np.stack([w.pose for w in win])
         wheel = np.array([w.wheel_mps for w in win])
+        if np.all(np.nan_to_num(wheel) == 0.0) and np.linalg.norm(poses[-1, :3, 3] - poses[0, :3, 3]) > _MOVING_M:
+            wheel = np.full(len(win), np.nan)  # wheels that read exactly zero while the LiDAR moves are no wheels
         bg, ba = self._bias_prior
         ba = np.zeros(3) if ba is None else np.asarray(ba, dtype=np.float64)
         boot = align(stamps, poses, imu, self.ext, gravity_mps2=self.cfg.gravity_mps2, accel_bias=ba, gyro_bias=bg,
@@ -521,6 +526,9 @@ class LioOdometry:
             return
         twist = mean_twist(self._wheel, t0, t1 + 20_000_000)
         if twist is None:
+            return
+        if twist == (0.0, 0.0) and np.linalg.norm(self.state.v) > _MOVING_MPS:
+            self.stats.wheel_zero_skipped += 1  # an all-zero twist while moving: a pose source, not wheels
             return
         v_body = np.array([twist[0], 0.0, 0.0])
         fc = self.cfg.fusion

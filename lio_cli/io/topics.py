@@ -1,48 +1,195 @@
-"""Which topic of a log plays which role (lidar, imu, wheel, gt): the one asked for, or the only candidate."""
+"""Which topic of a log plays which role (lidar, imu, wheel, gt), and why.
+
+A topic asked for is checked and taken. Otherwise the candidates are the topics of the role's message types
+that carry messages, minus those that cannot play it:
+
+- wheel odometry never comes from a topic whose name or frames say ground truth (ground_truth, gt, vicon,
+  mocap, optitrack...) or another estimator's output (filtered, ekf, slam, visual or stereo odometry...); of
+  several left, one whose twist is not all zero is preferred, then one named for wheels (the odometry also
+  ignores all-zero twists while the platform moves: a pose source would drag the velocity to zero);
+- an IMU whose rates and accelerations are all zero is not an IMU;
+- ground truth prefers a topic named so; an Odometry topic is ground truth only when named so.
+
+One candidate left is taken; several are refused with the flag that chooses (unless one is plainly named
+for the role, such as ``wheel``). Every choice comes with its reason, for notes and metrics.
+"""
 
 from __future__ import annotations
 
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
 from ..errors import InputError
-from .decode import KIND_FLAGS, KIND_TYPES
+from .decode import IMU, KIND_FLAGS, KIND_TYPES, ODOMETRY
 from .reader import LogReader
 
 _KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth"}
+_GT_TOKENS = {"gt", "groundtruth", "truth", "vicon", "mocap", "optitrack", "qualisys", "motioncapture"}
+_GT_PHRASES = ("ground_truth", "ground-truth", "groundtruth", "motion_capture")
+_ESTIMATE_TOKENS = {"filtered", "ekf", "ukf", "fused", "fusion", "slam", "lio", "loam", "liom", "estimate",
+                    "estimated", "localization", "localisation", "amcl", "vo", "vio", "visual", "stereo", "camera",
+                    "icp", "kiss", "lidar", "laser", "scan", "orb", "vins", "rtabmap", "cartographer"}
+_WHEEL_TOKENS = {"wheel", "wheels", "encoder", "encoders", "controller", "diff", "drive", "odom_wheel", "base"}
+_PEEK = 20  # messages looked at per candidate
+_PEEK_TWIST = 300  # a wheel topic's first messages may all be at rest: look further before calling it all zero
+
+
+@dataclass(frozen=True)
+class TopicChoice:
+    """The topic taken for a role (None: none) and the reason, in words."""
+
+    topic: str | None
+    why: str
+
+
+def _tokens(text: str) -> set[str]:
+    return {t for t in re.split(r"[^a-z0-9]+", text.lower()) if t}
+
+
+def says_ground_truth(*names: str) -> bool:
+    """A topic or frame name that marks ground truth (ground_truth, gt, vicon, mocap, optitrack...)."""
+    text = " ".join(names).lower()
+    return any(p in text for p in _GT_PHRASES) or bool(_tokens(text) & _GT_TOKENS)
+
+
+def says_estimate(name: str) -> bool:
+    """A topic name that marks another estimator's output (odometry/filtered, ekf, slam, visual odometry...)."""
+    return bool(_tokens(name) & _ESTIMATE_TOKENS)
+
+
+def _peek(log: LogReader, topic: str, n: int = _PEEK) -> list:
+    out = []
+    messages = log.messages([topic])
+    try:
+        for _, _, _, msg in messages:
+            out.append(msg)
+            if len(out) >= n:
+                break
+    except InputError:
+        return out  # a damaged topic shows itself when it is read for real
+    finally:
+        messages.close()
+    return out
+
+
+def _twist(msg, msgtype: str) -> np.ndarray:
+    tw = msg.twist.twist if msgtype == ODOMETRY else msg.twist
+    return np.array([tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y, tw.angular.z], float)
+
+
+def _frames(msg, msgtype: str) -> tuple[str, str]:
+    return msg.header.frame_id, getattr(msg, "child_frame_id", "") if msgtype == ODOMETRY else ""
+
+
+def imu_is_all_zero(log: LogReader, topic: str) -> bool:
+    """The first messages of an IMU topic hold nothing but zeros (rates and accelerations)."""
+    msgs = _peek(log, topic)
+    if not msgs:
+        return False
+    vals = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z, m.linear_acceleration.x,
+                      m.linear_acceleration.y, m.linear_acceleration.z] for m in msgs], dtype=float)
+    return bool(np.all(vals == 0.0))
+
+
+def _wheel_verdict(log: LogReader, topic: str) -> str | None:
+    """Why ``topic`` cannot be wheel odometry, or None when it can."""
+    msgtype = log.topics[topic].msgtype
+    if says_ground_truth(topic):
+        return "named as ground truth"
+    if says_estimate(topic):
+        return "named as another estimator's output"
+    msgs = _peek(log, topic, 1)
+    if msgs and says_ground_truth(*_frames(msgs[0], msgtype)):
+        return "its frames are named as ground truth"
+    return None
+
+
+def _twist_all_zero(log: LogReader, topic: str) -> bool:
+    msgtype = log.topics[topic].msgtype
+    msgs = _peek(log, topic, _PEEK_TWIST)
+    return bool(msgs) and not any(np.abs(_twist(m, msgtype)).sum() > 0 for m in msgs)
+
+
+def choose_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
+                 exclude: tuple[str, ...] = ()) -> TopicChoice:
+    """The topic for ``kind`` (lidar, imu, wheel, gt) and why; see the module's rules."""
+    accepted = KIND_TYPES[kind]
+    word = _KIND_WORDS[kind]
+    if requested is not None:
+        _check_requested(log, kind, requested)
+        return TopicChoice(requested, f"asked for with {KIND_FLAGS[kind]}")
+    # a topic declared but never published is as good as absent
+    candidates = sorted(t for t, i in log.topics.items()
+                        if i.msgtype in accepted and t not in exclude and i.count > 0)
+    refused: dict[str, str] = {}
+    if kind == "wheel":
+        for t in candidates:
+            verdict = _wheel_verdict(log, t)
+            if verdict is not None:
+                refused[t] = verdict
+    elif kind == "imu":
+        refused = {t: "its rates and accelerations are all zero" for t in candidates if imu_is_all_zero(log, t)}
+    elif kind == "gt":
+        named = [t for t in candidates if says_ground_truth(t)]
+        poses = [t for t in candidates if log.topics[t].msgtype != ODOMETRY]
+        keep = named or poses  # Odometry is ground truth only when named so
+        refused = {t: "an Odometry topic not named as ground truth" for t in candidates if t not in keep}
+    left = [t for t in candidates if t not in refused]
+    left_out = "; ".join(f"{t}: {why}" for t, why in refused.items())
+    if not left:
+        if kind == "imu" and refused and required:
+            raise InputError(f"{log.path}: IMU topic {', '.join(refused)} carries only zeros (rates and accelerations): "
+                             "not an IMU; run LiDAR-only with --prior constant-velocity --deskew constant-velocity")
+        if required:
+            extra = f" ({left_out})" if left_out else ""
+            raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)}){extra}")
+        return TopicChoice(None, f"none found{f' ({left_out})' if left_out else ''}")
+    if len(left) > 1 and kind == "wheel":
+        moving = [t for t in left if not _twist_all_zero(log, t)]
+        for t in left:
+            if t not in moving:
+                refused[t] = "its twist is all zero (a pose source)"
+        left = moving or left
+        left_out = "; ".join(f"{t}: {why}" for t, why in refused.items())
+        plain = [t for t in left if _tokens(t) & _WHEEL_TOKENS]
+        if len(left) == 1:
+            return TopicChoice(left[0], f"the only {word} topic with a moving twist (left out {left_out})")
+        if len(plain) == 1:
+            others = [t for t in left if t != plain[0]]
+            return TopicChoice(plain[0], f"named as wheel odometry (also present: {', '.join(others)})"
+                               + (f"; left out {left_out}" if left_out else ""))
+    if len(left) > 1:
+        raise InputError(
+            f"{log.path}: several {word} topics ({', '.join(left)}); choose one with {KIND_FLAGS[kind]}"
+        )
+    why = f"the only {word} topic" if not refused else f"the only {word} topic left (left out {left_out})"
+    if kind == "gt" and says_ground_truth(left[0]):
+        why = "named as ground truth" + (f" (left out {left_out})" if refused else "")
+    return TopicChoice(left[0], why)
+
+
+def _check_requested(log: LogReader, kind: str, requested: str) -> None:
+    accepted = KIND_TYPES[kind]
+    word = _KIND_WORDS[kind]
+    info = log.topics.get(requested)
+    candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
+    if info is None:
+        hint = f"; {word} topics here: {', '.join(candidates)}" if candidates else f"; it has no {word} topic"
+        raise InputError(f"{log.path}: topic {requested} not found{hint}")
+    if info.msgtype not in accepted:
+        hint = f"; {word} topics here: {', '.join(candidates)}" if candidates else f"; the log has no {word} topic"
+        raise InputError(
+            f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)}){hint}"
+        )
+    if info.count == 0:
+        raise InputError(f"{log.path}: topic {requested} has no messages")
+    if info.msgtype == IMU and imu_is_all_zero(log, requested):
+        raise InputError(f"{log.path}: IMU topic {requested} carries only zeros (rates and accelerations): not an IMU")
 
 
 def select_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
                  exclude: tuple[str, ...] = ()) -> str | None:
-    """The topic to read for ``kind`` (lidar, imu, wheel, gt): the one asked for, or the only candidate."""
-    accepted = KIND_TYPES[kind]
-    word = _KIND_WORDS[kind]
-    if requested is not None:
-        info = log.topics.get(requested)
-        if info is None:
-            candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
-            hint = f"; {word} topics here: {', '.join(candidates)}" if candidates else f"; it has no {word} topic"
-            raise InputError(f"{log.path}: topic {requested} not found{hint}")
-        if info.msgtype not in accepted:
-            candidates = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
-            hint = (f"; {word} topics here: {', '.join(candidates)}" if candidates
-                    else f"; the log has no {word} topic")
-            raise InputError(
-                f"{log.path}: topic {requested} is {info.msgtype}, not a {word} type ({', '.join(accepted)}){hint}"
-            )
-        if info.count == 0:
-            raise InputError(f"{log.path}: topic {requested} has no messages")
-        return requested
-    # a topic declared but never published is as good as absent
-    candidates = sorted(t for t, i in log.topics.items()
-                        if i.msgtype in accepted and t not in exclude and i.count > 0)
-    if kind == "gt":  # Odometry is ambiguous between wheel and ground truth: only take it when named so
-        poses = [t for t in candidates if log.topics[t].msgtype != "nav_msgs/msg/Odometry"]
-        named = [t for t in candidates if any(w in t.lower() for w in ("ground_truth", "groundtruth", "gt"))]
-        candidates = poses or named
-    if not candidates:
-        if required:
-            raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)})")
-        return None
-    if len(candidates) > 1:
-        raise InputError(
-            f"{log.path}: several {word} topics ({', '.join(candidates)}); choose one with {KIND_FLAGS[kind]}"
-        )
-    return candidates[0]
+    """The topic to read for ``kind``: ``choose_topic`` without the reason."""
+    return choose_topic(log, kind, requested, required, exclude).topic

@@ -20,18 +20,15 @@ from ..config.odom import OdomConfig
 from ..core.odometry import Diverged, LioOdometry, OdomStats
 from ..errors import InputError, ProcessingError
 from ..evaluation.scoring import Score, score
-from ..io.decode import LASERSCAN
 from ..io.pointcloud import parse_time_convention
 from ..io.reader import LogReader, open_log
 from ..io.sources import load_trajectory
 from ..io.stream import SensorStream
-from ..io.tf import FrameTree, read_static_frames
-from ..io.topics import select_topic
-from ..model.calibration import Calibration
+from ..io.tf import read_static_frames
 from ..model.records import ImuBatch, PointCloud
 from ..model.trajectory import Trajectory
+from .odom_inputs import Mounting, OdomInputs, choose_inputs
 
-BASE_FRAME_NAMES = ("base_link", "base", "base_footprint")
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
 
 Progress = Callable[[int, int | None], None]  # (scans done, scans in the log or None)
@@ -53,20 +50,9 @@ class OdomResult:
     stats: OdomStats
     initialisation: str | None
     metrics: dict
-    notes: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # warnings: things the user should fix or know
+    roles: dict[str, dict] = field(default_factory=dict)  # topic taken per role, and why
     score: Score | None = None
-
-
-def resolve_extrinsic(tree: FrameTree, calib: Calibration, base: str, name: str, frame: str,
-                      notes: list[str]) -> tuple[np.ndarray, str]:
-    """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity."""
-    T = tree.lookup(base, frame) if frame else None
-    if T is not None:
-        return T, f"/tf_static ({base} -> {frame})"
-    if calib.matrix(name) is not None:
-        return calib.matrix(name), "--calib"
-    notes.append(f"no extrinsic {name} ({base} -> {frame or '?'}) in /tf_static or --calib: identity assumed")
-    return np.eye(4), "identity (assumed)"
 
 
 class DivergedRun(ProcessingError):
@@ -80,7 +66,7 @@ class DivergedRun(ProcessingError):
 def run_odom(job: OdomJob, progress: Progress | None = None) -> OdomResult:
     """Run odometry over ``job.log``; score against ``job.gt`` when given."""
     with open_log(job.log, job.config.input.format) as reader:
-        result = _run(reader, job.config, progress)
+        result = _OdomRun(reader, job.config, progress).run()
     if job.gt is not None:
         spec = f"{job.log}:{job.gt}" if job.gt.startswith("/") and not Path(job.gt).exists() else job.gt
         ref = load_trajectory(spec)
@@ -90,147 +76,136 @@ def run_odom(job: OdomJob, progress: Progress | None = None) -> OdomResult:
     return result
 
 
-def _run(reader: LogReader, cfg: OdomConfig, progress: Progress | None) -> OdomResult:
-    notes: list[str] = []
-    t_wall = time.perf_counter()
-    inp = cfg.input
-    lidar = select_topic(reader, "lidar", inp.lidar_topic)
-    deskew = cfg.resolved_deskew()
-    needs_imu = cfg.prior == "imu" or deskew == "imu"
-    imu = select_topic(reader, "imu", inp.imu_topic, required=False)
-    if imu is None and needs_imu:
-        what = "--prior imu" if cfg.prior == "imu" else "--deskew imu"
-        raise InputError(
-            f"{reader.path}: no IMU topic (sensor_msgs/Imu) for {what}; run LiDAR-only with "
-            "--prior constant-velocity --deskew constant-velocity, or name the topic with --imu-topic"
-        )
-    use_imu = imu is not None and needs_imu
-    wheel = None
-    if cfg.use_wheel or cfg.prior == "wheel":
-        wheel = select_topic(reader, "wheel", inp.wheel_topic, required=cfg.prior == "wheel")
-    planar = cfg.planar if cfg.planar is not None else reader.topics[lidar].msgtype == LASERSCAN
-    convention = parse_time_convention(inp.point_time) if inp.point_time else None
-    total = reader.topics[lidar].count
+class _OdomRun:
+    """One pass over a log's merged stream, feeding ``LioOdometry`` in time order."""
 
-    stream = SensorStream(reader, {"lidar": lidar, "imu": imu if use_imu else None, "wheel": wheel},
-                          convention=convention, strict=False)
-    offset_ns = cfg.calibration.imu_time_offset_ns
-    tree = read_static_frames(reader)
-    base = inp.base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
-    extr_info: dict = {"base_frame": base, "T_base_imu": "not used (no IMU in this run)"}
-    odo: LioOdometry | None = None
-    pending: deque[PointCloud] = deque()
-    early_imu: list[ImuBatch] = []  # IMU that arrived before the first scan
-    t_read = 0.0
-    done = 0
+    def __init__(self, reader: LogReader, cfg: OdomConfig, progress: Progress | None) -> None:
+        self.reader, self.cfg, self.progress = reader, cfg, progress
+        self.t_wall = time.perf_counter()
+        self.notes: list[str] = []
+        self.inputs: OdomInputs = choose_inputs(reader, cfg)
+        self.mounting = Mounting.of(read_static_frames(reader), cfg.calibration, cfg.input.base_frame, self.notes)
+        self.odo: LioOdometry | None = None
+        self.pending: deque[PointCloud] = deque()
+        self.early_imu: list[ImuBatch] = []  # IMU that arrived before the first scan
+        self.t_read = 0.0
+        self.done = 0
 
-    def process_ready(now_ns: int | None) -> None:
-        nonlocal done
-        while pending:
-            cloud = pending[0]
-            covered = odo.imu_until_ns()
-            # wait (a bounded stretch of log time) for IMU covering the scan, so its motion can be predicted
-            if use_imu and now_ns is not None and (covered is None or covered < cloud.end_ns) \
-                    and now_ns - cloud.end_ns < _IMU_WAIT_NS:
-                return
-            pending.popleft()
-            odo.process(cloud)
-            done += 1
-            if progress:
-                progress(done, total)
+    def run(self) -> OdomResult:
+        cfg, inputs = self.cfg, self.inputs
+        convention = parse_time_convention(cfg.input.point_time) if cfg.input.point_time else None
+        self.stream = SensorStream(self.reader, {"lidar": inputs.lidar, "imu": inputs.imu, "wheel": inputs.wheel},
+                                   convention=convention, strict=False)
+        try:
+            self._feed()
+        except Diverged as err:
+            partial = self._result() if self.odo is not None and self.odo.poses else None
+            raise DivergedRun(f"{self.reader.path}: {err}", partial) from err
+        if not self.odo.poses:
+            raise InputError(f"{self.reader.path}: {inputs.lidar}: no scan could be used (all had fewer than "
+                             f"{cfg.registration.min_points} valid points)")
+        return self._result()
 
-    def mount_imu(batch: ImuBatch) -> None:
-        # the IMU's extrinsic by its own frame_id, whenever its first message arrives
-        T, extr_info["T_base_imu"] = resolve_extrinsic(tree, cfg.calibration, base, "T_base_imu", batch.frame_id, notes)
-        odo.set_imu_extrinsic(T)
-
-    tick = time.perf_counter()
-    try:
-        for rec in stream:
-            t_read += time.perf_counter() - tick
-            if odo is None and rec.kind == "lidar":
-                T_bl, extr_info["T_base_lidar"] = resolve_extrinsic(tree, cfg.calibration, base, "T_base_lidar",
-                                                                    rec.data.frame_id, notes)
-                odo = LioOdometry(cfg, T_bl, use_imu=use_imu, planar=planar,
-                                  gyro_bias=cfg.calibration.gyro_bias_radps, accel_bias=cfg.calibration.accel_bias_mps2)
-                if early_imu:
-                    mount_imu(early_imu[0])
-                for b in early_imu:
-                    odo.add_imu(b)
+    def _feed(self) -> None:
+        offset_ns = self.cfg.calibration.imu_time_offset_ns
+        tick = time.perf_counter()
+        for rec in self.stream:
+            self.t_read += time.perf_counter() - tick
+            if self.odo is None and rec.kind == "lidar":
+                self._start(rec.data)
             if rec.kind == "imu":
                 batch: ImuBatch = rec.data
                 if offset_ns:
                     batch = ImuBatch(batch.frame_id, batch.stamps_ns + offset_ns, batch.gyro_radps, batch.accel_mps2)
-                if odo is None:
-                    early_imu.append(batch)
+                if self.odo is None:
+                    self.early_imu.append(batch)
                 else:
-                    if not odo.imu_mounted:
-                        mount_imu(batch)
-                    odo.add_imu(batch)
-            elif rec.kind == "wheel" and odo is not None:
-                odo.add_wheel(rec.data)
+                    self._add_imu(batch)
+            elif rec.kind == "wheel" and self.odo is not None:
+                self.odo.add_wheel(rec.data)
             elif rec.kind == "lidar":
-                pending.append(rec.data)
-            if odo is not None:
-                process_ready(rec.stamp_ns)
+                self.pending.append(rec.data)
+            if self.odo is not None:
+                self._process_ready(rec.stamp_ns)
             tick = time.perf_counter()
-        if odo is None:
-            raise InputError(f"{reader.path}: {lidar}: no scan with valid points in the log")
-        process_ready(None)
-    except Diverged as err:
-        partial = _result(reader, cfg, odo, stream, lidar, imu if use_imu else None, wheel, deskew, planar,
-                          extr_info, notes, t_read, time.perf_counter() - t_wall) if odo.poses else None
-        raise DivergedRun(f"{reader.path}: {err}", partial) from err
-    if not odo.poses:
-        raise InputError(f"{reader.path}: {lidar}: no scan could be used (all had fewer than "
-                         f"{cfg.registration.min_points} valid points)")
-    return _result(reader, cfg, odo, stream, lidar, imu if use_imu else None, wheel, deskew, planar,
-                   extr_info, notes, t_read, time.perf_counter() - t_wall)
+        if self.odo is None:
+            raise InputError(f"{self.reader.path}: {self.inputs.lidar}: no scan with valid points in the log")
+        self._process_ready(None)
 
+    def _start(self, cloud: PointCloud) -> None:
+        cal = self.cfg.calibration
+        self.odo = LioOdometry(self.cfg, self.mounting.resolve("T_base_lidar", cloud.frame_id),
+                               use_imu=self.inputs.use_imu, planar=self.inputs.planar,
+                               gyro_bias=cal.gyro_bias_radps, accel_bias=cal.accel_bias_mps2)
+        for batch in self.early_imu:
+            self._add_imu(batch)
 
-def _result(reader, cfg: OdomConfig, odo: LioOdometry, stream: SensorStream, lidar, imu, wheel, deskew, planar,
-            extr_info, notes, t_read, wall) -> OdomResult:
-    stamps = odo.stamps_ns
-    P = odo.output_alignment() @ np.stack(odo.poses)
-    if cfg.frame == "lidar":
-        P = P @ odo.ext.T_base_lidar
-    elif cfg.frame == "imu":
-        P = P @ odo.ext.T_base_imu
-    resolved = with_overrides(cfg, {
-        "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu,
-        "input.wheel_topic": wheel, "input.base_frame": extr_info["base_frame"], "deskew": deskew, "planar": planar,
-    }, "resolved configuration")
-    st = odo.stats
-    start = _start_summary(odo, imu is not None)
-    span_s = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
-    metrics = {
-        "log": str(reader.path),
-        "format": reader.format,
-        "topics": {"lidar": lidar, "imu": imu, "wheel": wheel},
-        "mode": "planar (SE(2))" if planar else "3D (SE(3))",
-        "frame": cfg.frame,
-        "pose_stamp": f"scan {cfg.scan_reference}: each pose is at the instant its scan was de-skewed to",
-        "deskew": deskew,
-        "prior": cfg.prior,
-        "fusion": cfg.fusion.method if imu else "none (no IMU)",
-        "initialisation": start["reason"],
-        "initialisation_static": start["static"],
-        "start": start,
-        "events": odo.events,
-        "extrinsics": extr_info,
-        "scans": st.counts(),
-        "stream": stream.stats.to_dict(),
-        "voxel_size_m": odo.voxel_size_m,
-        "final_gyro_bias_radps": odo.state.bg.tolist() if odo.state is not None else None,
-        "final_accel_bias_mps2": odo.state.ba.tolist() if odo.state is not None else None,
-        "time_s": {"read_decode": round(t_read, 4), **{k: round(v, 4) for k, v in st.times_s.items()},
-                   "total": round(wall, 4)},
-        "trajectory_span_s": span_s,
-        "real_time_factor": (span_s / wall) if wall > 0 else None,
-        "notes": notes,
-    }
-    traj = Trajectory(np.asarray(stamps, dtype=np.int64), P, f"{reader.path}:odom", "odom")
-    return OdomResult(traj, resolved, st, start["reason"], metrics, notes)
+    def _add_imu(self, batch: ImuBatch) -> None:
+        if not self.odo.imu_mounted:  # the IMU's extrinsic by its own frame_id, whenever its first message arrives
+            self.odo.set_imu_extrinsic(self.mounting.resolve("T_base_imu", batch.frame_id))
+        self.odo.add_imu(batch)
+
+    def _process_ready(self, now_ns: int | None) -> None:
+        odo = self.odo
+        while self.pending:
+            cloud = self.pending[0]
+            covered = odo.imu_until_ns()
+            # wait (a bounded stretch of log time) for IMU covering the scan, so its motion can be predicted
+            if self.inputs.use_imu and now_ns is not None and (covered is None or covered < cloud.end_ns) \
+                    and now_ns - cloud.end_ns < _IMU_WAIT_NS:
+                return
+            self.pending.popleft()
+            odo.process(cloud)
+            self.done += 1
+            if self.progress:
+                self.progress(self.done, self.reader.topics[self.inputs.lidar].count)
+
+    def _result(self) -> OdomResult:
+        cfg, odo, inputs = self.cfg, self.odo, self.inputs
+        wall = time.perf_counter() - self.t_wall
+        stamps = odo.stamps_ns
+        P = odo.output_alignment() @ np.stack(odo.poses)
+        if cfg.frame == "lidar":
+            P = P @ odo.ext.T_base_lidar
+        elif cfg.frame == "imu":
+            P = P @ odo.ext.T_base_imu
+        resolved = with_overrides(cfg, {
+            "input.format": self.reader.format, "input.lidar_topic": inputs.lidar, "input.imu_topic": inputs.imu,
+            "input.wheel_topic": inputs.wheel, "input.base_frame": self.mounting.base, "deskew": inputs.deskew,
+            "planar": inputs.planar,
+        }, "resolved configuration")
+        st = odo.stats
+        start = _start_summary(odo, inputs.use_imu)
+        span_s = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
+        metrics = {
+            "log": str(self.reader.path),
+            "format": self.reader.format,
+            "topics": {"lidar": inputs.lidar, "imu": inputs.imu, "wheel": inputs.wheel},
+            "topic_roles": inputs.describe(),
+            "mode": "planar (SE(2))" if inputs.planar else "3D (SE(3))",
+            "frame": cfg.frame,
+            "pose_stamp": f"scan {cfg.scan_reference}: each pose is at the instant its scan was de-skewed to",
+            "deskew": inputs.deskew,
+            "prior": cfg.prior,
+            "fusion": cfg.fusion.method if inputs.use_imu else "none (no IMU)",
+            "initialisation": start["reason"],
+            "initialisation_static": start["static"],
+            "start": start,
+            "events": odo.events,
+            "extrinsics": self.mounting.describe(),
+            "scans": st.counts(),
+            "stream": self.stream.stats.to_dict(),
+            "voxel_size_m": odo.voxel_size_m,
+            "final_gyro_bias_radps": odo.state.bg.tolist() if odo.state is not None else None,
+            "final_accel_bias_mps2": odo.state.ba.tolist() if odo.state is not None else None,
+            "time_s": {"read_decode": round(self.t_read, 4), **{k: round(v, 4) for k, v in st.times_s.items()},
+                       "total": round(wall, 4)},
+            "trajectory_span_s": span_s,
+            "real_time_factor": (span_s / wall) if wall > 0 else None,
+            "notes": self.notes,
+        }
+        traj = Trajectory(np.asarray(stamps, dtype=np.int64), P, f"{self.reader.path}:odom", "odom")
+        return OdomResult(traj, resolved, st, start["reason"], metrics, self.notes, inputs.describe())
 
 
 def _start_summary(odo: LioOdometry, with_imu: bool) -> dict:

@@ -1,0 +1,105 @@
+"""What an odom run reads: topics by role (with reasons), clocks checked, extrinsics by frame id."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config.odom import OdomConfig
+from ..errors import InputError
+from ..io.clocks import check_overlap, check_same_clock
+from ..io.decode import IMU, LASERSCAN
+from ..io.reader import LogReader
+from ..io.tf import FrameTree
+from ..io.topics import TopicChoice, choose_topic
+from ..model.calibration import Calibration
+
+BASE_FRAME_NAMES = ("base_link", "base", "base_footprint")
+
+
+@dataclass
+class OdomInputs:
+    """The topics an odom run reads, why each was taken, and whether the IMU is used."""
+
+    roles: dict[str, TopicChoice]
+    use_imu: bool
+    planar: bool
+    deskew: str
+
+    @property
+    def lidar(self) -> str:
+        return self.roles["lidar"].topic
+
+    @property
+    def imu(self) -> str | None:
+        return self.roles["imu"].topic if self.use_imu else None
+
+    @property
+    def wheel(self) -> str | None:
+        choice = self.roles.get("wheel")
+        return choice.topic if choice else None
+
+    def describe(self) -> dict:
+        return {role: {"topic": c.topic, "why": c.why} for role, c in self.roles.items()}
+
+
+def choose_inputs(reader: LogReader, cfg: OdomConfig) -> OdomInputs:
+    """Topics by role (one line, exit 2, when a needed one is missing, bogus or on another clock)."""
+    inp = cfg.input
+    roles = {"lidar": choose_topic(reader, "lidar", inp.lidar_topic)}
+    lidar = roles["lidar"].topic
+    deskew = cfg.resolved_deskew()
+    needs_imu = cfg.prior == "imu" or deskew == "imu"
+    has_imu_type = any(i.msgtype == IMU and i.count > 0 for i in reader.topics.values())
+    roles["imu"] = choose_topic(reader, "imu", inp.imu_topic, required=needs_imu and has_imu_type)
+    imu = roles["imu"].topic
+    if imu is None and needs_imu:
+        what = "--prior imu" if cfg.prior == "imu" else "--deskew imu"
+        raise InputError(
+            f"{reader.path}: no IMU topic (sensor_msgs/Imu) for {what}; run LiDAR-only with "
+            "--prior constant-velocity --deskew constant-velocity, or name the topic with --imu-topic"
+        )
+    use_imu = imu is not None and needs_imu
+    if use_imu:
+        check_same_clock(reader, lidar, imu, cfg.calibration.imu_time_offset_ns)
+        check_overlap(reader, lidar, imu, "IMU")
+    if cfg.use_wheel or cfg.prior == "wheel":
+        roles["wheel"] = choose_topic(reader, "wheel", inp.wheel_topic, required=cfg.prior == "wheel")
+        if roles["wheel"].topic is not None:
+            check_same_clock(reader, lidar, roles["wheel"].topic, 0, "--no-wheel (and a wheel log on the LiDAR's clock)")
+    planar = cfg.planar if cfg.planar is not None else reader.topics[lidar].msgtype == LASERSCAN
+    return OdomInputs(roles, use_imu, planar, deskew)
+
+
+@dataclass
+class Mounting:
+    """Extrinsics as they are resolved (the LiDAR's at the first scan, the IMU's at its first message)."""
+
+    tree: FrameTree
+    calibration: Calibration
+    base: str
+    notes: list[str]
+    sources: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, tree: FrameTree, calibration: Calibration, base_frame: str | None, notes: list[str]) -> "Mounting":
+        base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
+        return cls(tree, calibration, base, notes, {"T_base_imu": "not used (no IMU in this run)"})
+
+    def resolve(self, name: str, frame: str) -> np.ndarray:
+        """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity."""
+        T = self.tree.lookup(self.base, frame) if frame else None
+        if T is not None:
+            self.sources[name] = f"/tf_static ({self.base} -> {frame})"
+            return T
+        if self.calibration.matrix(name) is not None:
+            self.sources[name] = "--calib"
+            return self.calibration.matrix(name)
+        self.notes.append(f"no extrinsic {name} ({self.base} -> {frame or '?'}) in /tf_static or --calib: "
+                          "identity assumed")
+        self.sources[name] = "identity (assumed)"
+        return np.eye(4)
+
+    def describe(self) -> dict:
+        return {"base_frame": self.base, **self.sources}
