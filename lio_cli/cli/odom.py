@@ -56,6 +56,7 @@ def odom(
     frame: Annotated[Optional[str], typer.Option("--frame", help="Output the trajectory of: base | lidar | imu.", show_default=False)] = None,
     gt: Annotated[Optional[str], typer.Option("--gt", help="Ground truth to score against at the end: a TUM/KITTI file, or a topic of LOG (e.g. /ground_truth). Prints ATE and RPE and adds them to metrics.", show_default=False)] = None,
     planar: Annotated[Optional[bool], typer.Option("--planar/--no-planar", help="Force SE(2) mode (default: on for LaserScan).", show_default=False)] = None,
+    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
     base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)] = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
@@ -77,6 +78,7 @@ def odom(
         "fusion.alpha": alpha, "use_wheel": False if no_wheel else None, "input.format": fmt,
         "input.lidar_topic": lidar_topic, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
         "input.base_frame": base_frame, "input.point_time": point_time,
+        "calibration.imu_time_offset_s": imu_time_offset,
     })
 
     to_stdout = output == "-"

@@ -1,23 +1,52 @@
-"""Bare MCAP files (ROS 2 CDR messages), read with the mcap package; MCAP index helpers."""
+"""Bare MCAP files, read with the mcap package: ROS 2 (CDR) or ROS 1 encoded messages; MCAP index helpers.
+
+Type names are given the ``pkg/msg/Type`` form whatever the encoding (ROS 1 schemas say ``pkg/Type``).
+"""
 
 from __future__ import annotations
 
 import struct
 from pathlib import Path
+from typing import NamedTuple
 
 from ..errors import InputError
 from ..model.records import TopicInfo
 from .reader import _READ_ERRORS, LogReader, _first_line
 
+_ENCODINGS = ("cdr", "ros1")
+
+
+class _Handle(NamedTuple):
+    """What ``messages`` needs to decode one channel's bytes."""
+
+    schema: object
+    encoding: str  # cdr or ros1
+
+    @property
+    def cdr(self) -> bool:
+        return self.encoding == "cdr"
+
+
+def _msgtype(schema) -> str:
+    """``pkg/msg/Type`` of a schema (ROS 1 schemas name ``pkg/Type``)."""
+    if schema is None:
+        return "unknown"
+    name = schema.name
+    if "/msg/" not in name and name.count("/") == 1:
+        pkg, _, typ = name.partition("/")
+        name = f"{pkg}/msg/{typ}"
+    return name
+
+
 class McapLog(LogReader):
-    """A bare MCAP file with ROS 2 (CDR) messages, read with the mcap package."""
+    """A bare MCAP file with ROS 2 (CDR) or ROS 1 encoded messages, read with the mcap package."""
 
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
         from mcap.reader import make_reader
 
-        self._typestore = None  # built from the file's schemas on first deserialisation
-        self._registered: set[str] = set()
+        self._typestores: dict[str, object] = {}  # per encoding, built from the file's schemas when needed
+        self._registered: set[tuple[str, str]] = set()
         try:
             self._file = paths[0].open("rb")
             self._reader = make_reader(self._file, validate_crcs=True)
@@ -39,8 +68,7 @@ class McapLog(LogReader):
         except (OSError, struct.error, ValueError):
             spans = {}
         for cid, channel in summary.channels.items():
-            schema = summary.schemas.get(channel.schema_id)
-            msgtype = schema.name if schema else "unknown"
+            msgtype = _msgtype(summary.schemas.get(channel.schema_id))
             info = self.topics.setdefault(channel.topic, TopicInfo(channel.topic, msgtype, 0))
             info.count += int(counts.get(cid, 0))
             if cid in spans:
@@ -59,7 +87,7 @@ class McapLog(LogReader):
 
             reader = make_reader(self._file, validate_crcs=True)
             for schema, channel, message in reader.iter_messages(log_time_order=False):
-                msgtype = schema.name if schema else "unknown"
+                msgtype = _msgtype(schema)
                 info = self.topics.setdefault(channel.topic, TopicInfo(channel.topic, msgtype, 0))
                 info.count += 1
                 t = int(message.log_time)
@@ -82,33 +110,34 @@ class McapLog(LogReader):
         if topics is not None and not topics:
             return
         for schema, channel, message in reader.iter_messages(log_time_order=True, **kwargs):
-            if channel.message_encoding != "cdr":
+            if channel.message_encoding not in _ENCODINGS:
                 raise InputError(
                     f"{self.path}: topic {channel.topic} uses '{channel.message_encoding}' encoding; "
-                    "lio reads ROS 2 CDR messages only"
+                    "lio reads ROS 2 (cdr) and ROS 1 (ros1) messages"
                 )
-            msgtype = schema.name if schema else "unknown"
-            yield channel.topic, msgtype, int(message.log_time), message.data, schema
+            yield channel.topic, _msgtype(schema), int(message.log_time), message.data, \
+                _Handle(schema, channel.message_encoding)
 
-    def _deserialize(self, raw, msgtype, schema):
-        if self._typestore is None:
-            from rosbags.typesys import Stores, get_typestore
+    def _deserialize(self, raw, msgtype, handle: _Handle):
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-            self._typestore = get_typestore(Stores.EMPTY)
-        if msgtype not in self._registered:
-            if schema is None or schema.encoding != "ros2msg":
-                if msgtype not in self._typestore.types:  # no definition in the file: the standard one
-                    from rosbags.typesys import Stores, get_typestore
-
-                    self._typestore.register(get_typestore(Stores.ROS2_HUMBLE).fielddefs)
-                if msgtype not in self._typestore.types:
-                    raise InputError(f"{self.path}: no ROS 2 message definition stored for type {msgtype}")
-            else:
-                from rosbags.typesys import get_types_from_msg
-
-                self._typestore.register(_types_from_ros2msg(schema.data.decode(), msgtype, get_types_from_msg))
-            self._registered.add(msgtype)
-        return self._typestore.deserialize_cdr(raw, msgtype)
+        ros1 = handle.encoding == "ros1"
+        store = self._typestores.get(handle.encoding)
+        if store is None:
+            store = self._typestores[handle.encoding] = get_typestore(Stores.EMPTY)
+        schema = handle.schema
+        if (handle.encoding, msgtype) not in self._registered:
+            if schema is not None and schema.encoding in ("ros2msg", "ros1msg"):
+                text = schema.data.decode()
+                store.register(get_types_from_msg(text, msgtype) if ros1 else
+                               _types_from_ros2msg(text, msgtype, get_types_from_msg))
+            elif msgtype not in store.types:  # no definition in the file: the standard one
+                store.register(get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE).fielddefs)
+            if msgtype not in store.types:
+                raise InputError(f"{self.path}: no {'ROS 1' if ros1 else 'ROS 2'} message definition stored "
+                                 f"for type {msgtype}")
+            self._registered.add((handle.encoding, msgtype))
+        return store.deserialize_ros1(raw, msgtype) if ros1 else store.deserialize_cdr(raw, msgtype)
 
     def close(self) -> None:
         self._file.close()

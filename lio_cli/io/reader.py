@@ -105,7 +105,7 @@ class LogReader:
                             parser = None
                         parsers[key] = parser
                     if parser is not None:
-                        msg = parser(raw, cdr)
+                        msg = parser(raw, getattr(handle, "cdr", cdr))
                 if msg is None:
                     msg = self._deserialize(raw, msgtype, handle)
                 yield topic, msgtype, t_ns, msg
