@@ -8,7 +8,8 @@ it, each as a subprocess with a timeout and a memory cap. A run fails when it sh
 error, a timeout, a signal, numpy/Python warning text on stderr, a leftover or unexpected file, a modified
 input, more than one line on stderr with exit 2 (warnings aside), NaN in a written trajectory, or costs more
 than --slow-s seconds or --max-rss-mb of memory; ``info --check`` passing a log with a value it must report
-(a hostile sensor stamp, a non-finite or absurd IMU sample, a finite but absurd point time) is counted
+(a hostile sensor stamp, a non-finite or absurd IMU sample or wheel speed, a finite but absurd point
+time) is counted
 as ``check missed``. Trials are deterministic per seed (trial i only depends on --seed and i).
 
     python benchmarks/fuzz --trials 300 --seed 0 --jobs 2 --out /tmp/lio-fuzz

@@ -99,8 +99,8 @@ def m_record_time(c: Case) -> str:
 
 def m_imu_gap(c: Case) -> str:
     idx = c.indices("Imu")
-    a = int(c.rng.integers(len(idx) // 2))
-    n = int(c.rng.integers(20, len(idx) // 2))
+    a = int(c.rng.integers(max(1, len(idx) // 2)))
+    n = int(c.rng.integers(20, max(21, len(idx) // 2)))
     drop = set(idx[a:a + n])
     c.msgs = [m for j, m in enumerate(c.msgs) if j not in drop]
     return f"IMU: {n} samples dropped from sample {a}"
@@ -132,6 +132,7 @@ def m_odometry(c: Case) -> str:
         q.x = q.y = q.z = q.w = 0.0
     elif what.startswith("twist"):
         msg.twist.twist.linear.x = float("nan") if "NaN" in what else 1e300
+        c.expect_check_fail = True
     else:
         msg.child_frame_id = ""
     return f"wheel odometry message {i}: {what}"
@@ -286,6 +287,8 @@ def m_tf_static(c: Case) -> str:
     i = c.indices("TFMessage")[0]
     msg = c.edit(i)
     trs = msg.transforms
+    if not trs:
+        return "/tf_static: left empty (nothing to edit)"
     tr = trs[int(c.rng.integers(len(trs)))]
     what = c.choice(["cycle", "contradiction", "duplicate child", "self loop", "quaternion x2", "quaternion x1.001",
                      "quaternion 0", "translation NaN", "empty", "second message"])

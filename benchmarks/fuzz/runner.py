@@ -140,8 +140,10 @@ def make_input(trial: int, seed: int, bases: dict[str, Path], dest: Path) -> tup
     if name not in _CACHE:
         _CACHE[name] = logs.decode_log(src, fmt)
     case = fm.Case(*_CACHE[name], rng)
-    todo = [case.choice(fm.applicable(case)) for _ in range(int(rng.choice([1, 2, 3], p=[0.6, 0.3, 0.1])))]
-    desc = "; ".join(fm.FIELD_MUTATIONS[m][0](case) for m in todo)
+    parts = []
+    for _ in range(int(rng.choice([1, 2, 3], p=[0.6, 0.3, 0.1]))):  # what applies after the previous edits
+        parts.append(fm.FIELD_MUTATIONS[case.choice(fm.applicable(case))][0](case))
+    desc = "; ".join(parts)
     logs.write_log(path, fmt, case.conns, case.msgs)
     return name, path, desc, case.expect_check_fail
 
