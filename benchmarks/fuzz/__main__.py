@@ -9,8 +9,7 @@ error, a timeout, a signal, numpy/Python warning text on stderr, a leftover or u
 input, more than one line on stderr with exit 2 (warnings aside), NaN in a written trajectory, or costs more
 than --slow-s seconds or --max-rss-mb of memory; ``info --check`` passing a log with a value it must report
 (a hostile sensor stamp, a non-finite or absurd IMU sample or wheel speed, a finite but absurd point
-time) is counted
-as ``check missed``. Trials are deterministic per seed (trial i only depends on --seed and i).
+time) is counted as ``check missed``. Trials are deterministic per seed (trial i only depends on --seed and i).
 
     python benchmarks/fuzz --trials 300 --seed 0 --jobs 2 --out /tmp/lio-fuzz
 
@@ -49,6 +48,9 @@ def summarise(results: list[dict]) -> tuple[str, str]:
     for key in ["runs", "exit 0", "exit 1", "exit 2", "exit other", *CATEGORIES]:
         vals = [rows[c][key] for c in cmds]
         lines.append(f"| {key} | " + " | ".join(map(str, vals)) + f" | {sum(vals)} |")
+    for key, label in (("wall_s", "longest run s"), ("peak_rss_mb", "largest peak RSS MB")):
+        vals = [max((run[key] for r in results for run in r["runs"] if run["command"] == c), default=0) for c in cmds]
+        lines.append(f"| {label} | " + " | ".join(f"{v:g}" for v in vals) + f" | {max(vals):g} |")
     by_family: dict[str, Counter] = {}
     for r in results:
         for part in r.get("mutation", "harness error").split("; "):

@@ -6,7 +6,6 @@ import argparse
 import hashlib
 import os
 import re
-import resource
 import shutil
 import signal
 import subprocess
@@ -31,7 +30,6 @@ BASES = [
     ("planar_mcap", "planar", "mcap", "planar.mcap", []),
 ]
 DURATION_S = "2.5"
-LIO = [sys.executable, "-c", "import sys; sys.argv[0] = 'lio'; from lio_cli.cli.app import entry; entry()"]
 CATEGORIES = ["traceback", "internal error", "timeout", "signal", "warning text", "leftover file",
               "modified input", "exit-2 multiline", "nan output", "slow", "high memory", "check missed"]
 _WARNING = re.compile(r"\b[A-Z]\w*Warning\b|encountered in|SVD did not converge|warnings\.warn")
@@ -42,7 +40,7 @@ def simulate_bases(base_dir: Path, timeout_s: float) -> dict[str, Path]:
     out = {}
     for name, scenario, fmt, fname, extra in BASES:
         path = base_dir / fname
-        cmd = LIO + ["simulate", scenario, str(path), "--duration", DURATION_S, "--format", fmt, "--seed", "1",
+        cmd = lio_command(4096) + ["simulate", scenario, str(path), "--duration", DURATION_S, "--format", fmt, "--seed", "1",
                      "--force", "-q", *extra]
         res = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=timeout_s)
         if res.returncode != 0:
@@ -59,32 +57,44 @@ def _env(pywarnings: str | None = None) -> dict:
     return env
 
 
-def _limit_memory(max_as_bytes: int):
-    def pre() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (max_as_bytes, max_as_bytes))
-    return pre
+def lio_command(max_as_mb: int) -> list[str]:
+    """``lio`` from this checkout, capping its own address space (no preexec_fn: the child is not a fork of
+    this process's memory, so its peak RSS is its own)."""
+    code = ("import resource, sys; cap = int(sys.argv.pop(1)); resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); "
+            "sys.argv[0] = 'lio'; from lio_cli.cli.app import entry; entry()")
+    return [sys.executable, "-c", code, str(max_as_mb << 20)]
+
+
+def vm_hwm_kb(pid: int) -> int:
+    """Peak resident memory of a running process (VmHWM), 0 once it has exited."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next((int(ln.split()[1]) for ln in f if ln.startswith("VmHWM:")), 0)
+    except OSError:
+        return 0
 
 
 def run_lio(args: list[str], cwd: Path, timeout_s: float, max_as_mb: int, pywarnings: str | None = None) -> dict:
-    """Run ``lio ARGS`` in ``cwd``; exit code (or 'timeout'), stderr, wall time and peak RSS (wait4)."""
+    """Run ``lio ARGS`` in ``cwd``: exit code (or 'timeout'), stderr, wall time and peak RSS (sampled VmHWM)."""
     t0 = time.perf_counter()
     with open(cwd.parent / "stdout.txt", "wb") as fo, open(cwd.parent / "stderr.txt", "wb") as fe:
-        p = subprocess.Popen(LIO + args, cwd=cwd, env=_env(pywarnings), stdout=fo, stderr=fe, stdin=subprocess.DEVNULL,
-                             start_new_session=True, preexec_fn=_limit_memory(max_as_mb << 20))
-        code, rss_kb = None, 0
+        p = subprocess.Popen(lio_command(max_as_mb) + args, cwd=cwd, env=_env(pywarnings), stdout=fo, stderr=fe,
+                             stdin=subprocess.DEVNULL, start_new_session=True)
+        code, peak_kb = None, 0
         while code is None:
-            pid, status, ru = os.wait4(p.pid, os.WNOHANG)
+            peak_kb = max(peak_kb, vm_hwm_kb(p.pid))
+            pid, status = os.waitpid(p.pid, os.WNOHANG)
             if pid:
-                code, rss_kb = os.waitstatus_to_exitcode(status), ru.ru_maxrss
+                code = os.waitstatus_to_exitcode(status)
             elif time.perf_counter() - t0 > timeout_s:
                 os.killpg(p.pid, signal.SIGKILL)
-                _, status, ru = os.wait4(p.pid, 0)
-                code, rss_kb = "timeout", ru.ru_maxrss
+                os.waitpid(p.pid, 0)
+                code = "timeout"
             else:
                 time.sleep(0.02)
         p.returncode = -1 if code == "timeout" else code  # reaped here: keep Popen from waiting again
     err = (cwd.parent / "stderr.txt").read_text(errors="replace")
-    return {"exit": code, "stderr": err, "wall_s": round(time.perf_counter() - t0, 2), "peak_rss_mb": rss_kb // 1024}
+    return {"exit": code, "stderr": err, "wall_s": round(time.perf_counter() - t0, 2), "peak_rss_mb": peak_kb // 1024}
 
 
 def tree_hash(path: Path) -> str:
