@@ -1,0 +1,200 @@
+"""LiDAR-IMU translation (lever arm) from accelerations, refining the rotation on the way.
+
+No differentiation of noisy positions: over three scans a < b < c the second divided difference of a position
+is exactly the hat-kernel average of its acceleration (peak at b, zero at a and c). The IMU's position is
+``p_lidar + R_world_lidar t`` (``t`` the lever arm, in the LiDAR frame), its acceleration ``R_world_imu f + g``
+(``f`` the specific force minus its bias), so for every window
+
+    DD(p_lidar) + DD(R_world_lidar) t = R_world_lidar(b) R_lidar_imu (A - C b_a) + g_world
+
+with ``A``, ``C`` the hat averages of ``G(b)^T G(s) f(s)`` and ``G(b)^T G(s)`` (``G`` the gyro's orientation,
+so the IMU's rotation within the window comes from the gyro, not from interpolated poses). Unknowns: the lever
+arm, the accelerometer bias, gravity in the trajectory's world frame (LiDAR odometry's world is its first
+scan, not levelled) and, when the rotation's covariance is given, a correction to the rotation (its prior):
+accelerations see the mounting's yaw that a vehicle turning about the vertical hides from the gyro.
+Gauss-Newton, whitened by the residual scatter, outlying windows left out once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import InputError
+from ...geometry import skew, so3_exp
+from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, sandwich_covariance
+from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
+from .handeye import interval_pairs, lidar_increments
+from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
+
+OUTLIER_SIGMAS = 4.0
+
+
+@dataclass(frozen=True, eq=False)
+class LeverArmCalib(CalibrationResult):
+    t_lidar_imu_m: np.ndarray  # (3,) the IMU origin in the LiDAR frame (translation of T_lidar_imu)
+    sigma_m: np.ndarray  # (3,) along the LiDAR x, y, z axes
+    covariance_m2: np.ndarray  # (3,3)
+    observable: np.ndarray  # (3,) bool per LiDAR axis
+    R_lidar_imu: np.ndarray  # (3,3): refined when a rotation covariance was given, else the one given
+    rotation_sigma_rad: np.ndarray  # (3,) about the LiDAR axes (NaN when not refined)
+    rotation_covariance_rad2: np.ndarray  # (3,3)
+    accel_bias_mps2: np.ndarray  # (3,) IMU frame
+    accel_bias_sigma_mps2: np.ndarray
+    gravity_world_mps2: np.ndarray  # (3,) in the trajectory's world frame
+    windows: int
+    rms_residual_mps2: float
+    notes: tuple[str, ...]
+
+
+def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, imu_stamps_ns: np.ndarray,
+                       gyro_radps: np.ndarray, accel_mps2: np.ndarray, *, R_lidar_imu: np.ndarray,
+                       rotation_covariance_rad2: np.ndarray | None = None, imu_time_offset_s: float = 0.0,
+                       gyro_bias_radps: np.ndarray | None = None, half_windows_s: tuple[float, ...] = (0.3, 0.5, 0.8),
+                       t_prior_m: np.ndarray | None = None, prior_sigma_m: float = 1.0,
+                       max_sigma_m: float = 0.05, frame: str = "LiDAR") -> LeverArmCalib:
+    """Lever arm (and, with ``rotation_covariance_rad2``, a refined rotation) from a LiDAR odometry trajectory
+    and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock). Windows span +-h around each scan, for each h
+    in ``half_windows_s`` (short ones keep fast motion, long ones average the position noise down).
+    ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not show;
+    those (1-sigma above ``max_sigma_m``) are flagged and named in the notes (keep a measured value for them),
+    and InputError when none is shown."""
+    ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
+    istamps, gyro, accel = check_imu(imu_stamps_ns, gyro_radps, accel_mps2)
+    check_overlap(istamps, ls, imu_time_offset_s)
+    R0 = np.asarray(R_lidar_imu, np.float64)
+    refine = rotation_covariance_rad2 is not None
+    step_ns = float(np.median(np.diff(ls)))
+    spans = sorted({max(1, int(round(h * NS_PER_S / step_ns))) for h in np.atleast_1d(half_windows_s)})
+    off_ns = int(round(imu_time_offset_s * NS_PER_S))
+    fam = []
+    for k in spans:
+        a, c = interval_pairs(ls, 2 * k)
+        inside = (ls[a] >= istamps[0] + off_ns) & (ls[c] <= istamps[-1] + off_ns)
+        fam.append((a[inside], c[inside], k))
+    ia = np.concatenate([a for a, _, _ in fam])
+    ic = np.concatenate([c for _, c, _ in fam])
+    ib = np.concatenate([a + k for a, _, k in fam])
+    family = np.concatenate([np.full(len(a), j) for j, (a, _, _) in enumerate(fam)])
+    order = np.argsort(ib, kind="stable")
+    ia, ib, ic, family = ia[order], ib[order], ic[order], family[order]
+    if len(fam[0][0]) < 20:
+        raise InputError(f"{frame}-IMU lever arm: only {len(fam[0][0])} windows of {2 * spans[0] * step_ns / NS_PER_S:g} s "
+                         f"overlap the IMU data (need 20)")
+    notes: list[str] = []
+    w = _Windows(ls, poses, istamps, gyro, accel, gyro_bias_radps, imu_time_offset_s, ia, ib, ic, family)
+
+    prior_t = np.zeros(3) if t_prior_m is None else np.asarray(t_prior_m, np.float64)
+    keep = np.ones(len(ia), bool)
+    for attempt in range(2):
+        x, R, r, J, H, info, noise = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
+        rn = np.linalg.norm(r, axis=1)
+        bad = rn > OUTLIER_SIGMAS * np.sqrt(3.0)  # r is whitened: per-component 1-sigma is 1
+        if attempt == 1 or not bad.any():
+            break
+        keep[np.flatnonzero(keep)[bad]] = False
+        notes.append(f"{int(bad.sum())} windows left out: their accelerations disagree with the IMU's (bad "
+                     f"registrations?)")
+    cov = _covariance(J, r, H, info, ib[keep], len(ls), 2 * spans[-1])
+    sigma, observable = per_axis(cov[:3, :3], max_sigma_m)
+    cov_t = cov[:3, :3]
+    _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes)
+    rcov = cov[9:12, 9:12] if refine else np.full((3, 3), np.nan)
+    return LeverArmCalib(
+        t_lidar_imu_m=x[:3], sigma_m=sigma, covariance_m2=cov_t, observable=observable, R_lidar_imu=R,
+        rotation_sigma_rad=np.sqrt(np.diag(rcov)) if refine else np.full(3, np.nan), rotation_covariance_rad2=rcov,
+        accel_bias_mps2=x[3:6], accel_bias_sigma_mps2=np.sqrt(np.diag(cov[3:6, 3:6])), gravity_world_mps2=x[6:9],
+        windows=int(keep.sum()), rms_residual_mps2=float(np.sqrt(((r * noise) ** 2).mean())), notes=tuple(notes))
+
+
+class _Windows:
+    """Per window: DD of LiDAR position and rotation, the LiDAR rotation at b, and the IMU's hat averages."""
+
+    def __init__(self, ls, poses, istamps, gyro, accel, gyro_bias, offset_s, ia, ib, ic, family) -> None:
+        self.family = family  # which window length each window has (their noise differs)
+        t = [(ls[i] - ls[0]) / NS_PER_S for i in (ia, ib, ic)]  # LiDAR clock, relative
+        self.dd_p = second_divided_difference(poses[ia, :3, 3], poses[ib, :3, 3], poses[ic, :3, 3], *t)
+        self.dd_R = second_divided_difference(poses[ia, :3, :3], poses[ib, :3, :3], poses[ic, :3, :3], *t)
+        self.R_b = poses[ib, :3, :3]
+        g = GyroOrientation(istamps, gyro, gyro_bias)
+        s = [g.relative_s(ls[i], offset_s) for i in (ia, ib, ic)]  # IMU clock
+        Gt = np.swapaxes(g.at(s[1]), 1, 2)
+        F = PiecewiseLinear(g.t_s, np.einsum("nij,nj->ni", g.G, accel))
+        Gs = PiecewiseLinear(g.t_s, g.G)
+        self.A = np.einsum("nij,nj->ni", Gt, F.hat_average(*s))
+        self.C = Gt @ Gs.hat_average(*s)
+
+
+def _rows(w: _Windows, sel: np.ndarray, x: np.ndarray, R: np.ndarray, refine: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (n,3) and Jacobian (n,3,p) at x = [t, b_a, g(, d)], unwhitened."""
+    t, ba, g = x[:3], x[3:6], x[6:9]
+    Rb = w.R_b[sel]
+    A = w.A[sel] - np.einsum("nij,j->ni", w.C[sel], ba)
+    v = A @ R.T  # R (A - C b_a), LiDAR frame
+    r = w.dd_p[sel] + np.einsum("nij,j->ni", w.dd_R[sel], t) - np.einsum("nij,nj->ni", Rb, v) - g
+    cols = [w.dd_R[sel], (Rb @ R) @ w.C[sel], np.broadcast_to(-np.eye(3), (len(v), 3, 3))]
+    if refine:
+        cols.append(Rb @ skew(v))
+    return r, np.concatenate(cols, axis=2)
+
+
+def _covariance(J: np.ndarray, r: np.ndarray, H: np.ndarray, info: np.ndarray, centre: np.ndarray, n_scans: int,
+                lag: int) -> np.ndarray:
+    scores = np.zeros((n_scans, J.shape[2]))  # windows centred on the same scan summed: their noise is shared
+    np.add.at(scores, centre, np.einsum("nji,nj->ni", J, r))
+    return sandwich_covariance(H, scores, lag=lag, prior_info=info)
+
+
+def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov: np.ndarray | None,
+           prior_t: np.ndarray, prior_sigma_m: float, iterations: int = 4):
+    """Gauss-Newton; returns (x, R, whitened residuals, whitened Jacobian, H with priors, prior information,
+    residual scatter used to whiten)."""
+    p = 12 if refine else 9
+    x = np.zeros(p)
+    x[:3] = prior_t
+    R = R0.copy()
+    # the model is linear in lever arm, bias and gravity: one unweighted solve gives the residual scatter
+    r, J = _rows(w, keep, x, R, False)
+    step = -np.linalg.lstsq(J.reshape(-1, 9), r.reshape(-1), rcond=None)[0]
+    r, _ = _rows(w, keep, x[:9] + step, R, False)
+    fam = w.family[keep]
+    per_family = np.array([np.sqrt((r[fam == j] ** 2).mean()) if (fam == j).any() else 1.0 for j in range(fam.max() + 1)])
+    noise = np.maximum(per_family[fam], 1e-9)[:, None]  # per window, per component
+    info = np.zeros((p, p))
+    info[:3, :3] = np.eye(3) / prior_sigma_m**2
+    if refine:
+        info[9:, 9:] = np.linalg.inv(rot_cov)
+    for it in range(iterations + 1):
+        r, J = _rows(w, keep, x, R, refine)
+        r, J = r / noise, J / noise[:, :, None]
+        H = np.einsum("nji,njk->ik", J, J) + info
+        if it == iterations:
+            return x, R, r, J, H, info, noise
+        g = np.einsum("nji,nj->i", J, r)
+        g[:3] += info[:3, :3] @ (x[:3] - prior_t)
+        if refine:
+            g[9:] += info[9:, 9:] @ x[9:]
+        step = -np.linalg.solve(H, g)
+        x = x + step
+        if refine:  # fold the rotation correction into R; x[9:] keeps the total departure from the prior
+            R = so3_exp(step[9:]) @ R
+        if not refine and it >= 1:  # linear: one step is exact
+            r, J = _rows(w, keep, x, R, refine)
+            r, J = r / noise, J / noise[:, :, None]
+            return x, R, r, J, np.einsum("nji,njk->ik", J, J) + info, info, noise
+    raise AssertionError("unreachable")
+
+
+def _explain(cov: np.ndarray, phi: np.ndarray, max_sigma_m: float, frame: str, notes: list[str]) -> None:
+    weak = weak_directions(cov, max_sigma_m)
+    if len(weak) == 3:
+        raise InputError(f"too little rotation to estimate the {frame}-IMU lever arm (1-sigma {100 * weak[-1][1]:.0f} cm "
+                         f"or worse along every axis): rotate the sensor briskly about all three axes (sweeps of +-30 "
+                         f"deg at about 1 Hz) while recording")
+    axis, share = dominant_rotation_axis(phi)
+    for v, s in weak:
+        why = ("the platform turned only about that axis, as a ground vehicle turning about the vertical does"
+               if abs(float(v @ axis)) > 0.9 and share > 0.9 else "the motion barely turned about the other axes")
+        notes.append(f"the lever arm along {axis_name(v, frame)} is not observable (1-sigma {100 * s:.0f} cm; keep a "
+                     f"measured value for it): {why}; tilt or roll the sensor while moving, or measure that component")
