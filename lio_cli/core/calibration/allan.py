@@ -35,6 +35,7 @@ FLICKER_AVAR = 2.0 * np.log(2.0) / np.pi  # AVAR of bias instability B is FLICKE
 BIAS_INSTABILITY_FACTOR = 0.664  # sqrt(FLICKER_AVAR)
 DOMINANT_SHARE = 0.8  # a term "dominates" a tau where it holds this share of the model AVAR
 MIN_SLOPE_POINTS = 4
+MIN_DURATION_S = 60.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,13 +201,13 @@ def estimate_allan(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2: np
     if moving > 0.01:
         notes.append(f"the IMU moves during {100 * moving:.1f}% of the log: Allan deviation needs a static "
                      f"recording, the values are suspect")
-    if duration_s < 1800:
+    if duration_s < 3600:
         notes.append(f"the log lasts {duration_s / 60:.0f} min: the random walk needs hours (its slope +1/2 shows "
                      f"only at long taus), read it with its uncertainty")
     taus, g_adev, counts = allan_deviation(gyro_radps, dt_s, points_per_decade)
     _, a_adev, _ = allan_deviation(accel_mps2, dt_s, points_per_decade)
     ms = np.round(taus / dt_s).astype(np.int64)
-    if (taus >= tau_min_samples * dt_s).sum() < 6:
+    if duration_s < MIN_DURATION_S or (taus >= tau_min_samples * dt_s).sum() < 6:
         raise InputError(f"IMU log too short for an Allan deviation ({duration_s:.1f} s at {1 / dt_s:.0f} Hz): "
                          f"record at least a few minutes, ideally hours, standing still")
     n_phase = len(stamps_ns) + 1

@@ -121,7 +121,10 @@ def sandwich_covariance(H: np.ndarray, scores: np.ndarray, lag: int, prior_info:
         S += w * (C + C.T)
     if prior_info is not None:
         S = S + prior_info
-    Hi = np.linalg.pinv(H)
+    try:  # not pinv: its relative cutoff would zero well-posed but small blocks beside huge ones
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        Hi = np.linalg.pinv(H)
     return Hi @ S @ Hi
 
 

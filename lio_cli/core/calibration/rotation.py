@@ -82,7 +82,7 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
     _explain(cov[:3, :3], phi_l, max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
     return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:, 3:])), len(ia),
-                         float(np.sqrt((r * r).mean())), tuple(notes))
+                         float(noise * np.sqrt((r * r).mean())), tuple(notes))
 
 
 def _gauss_newton(R: np.ndarray, phi_l: np.ndarray, phi_i: np.ndarray, dt: np.ndarray, noise: float,

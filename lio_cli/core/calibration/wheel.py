@@ -9,7 +9,7 @@ error ``(r_r - r_l) b0 / (4 r0) w``, included when b0 is given).
 
 Over consecutive windows of ``window_s`` the wheel speeds, corrected, are integrated on the plane into a
 relative pose and compared with the base's relative pose from the trajectory (forward, lateral, yaw): exact
-for any path shape, so long windows average the LiDAR's per-pose noise away. A robust fit (Cauchy loss) finds the
+for any path shape. A robust fit (Cauchy loss) finds the
 factors, windows whose residual is far out (slip: the wheels turn, the ground does not follow) are left out
 and named, and a plain least squares on the rest gives the values and their 1-sigma (adjacent windows share a
 pose: accounted for).
@@ -55,7 +55,7 @@ class WheelCalib(CalibrationResult):
 def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, angular_radps: np.ndarray,
                           traj_stamps_ns: np.ndarray, T_world_traj: np.ndarray, *,
                           T_base_traj: np.ndarray | None = None, radius_m: float | None = None,
-                          baseline_m: float | None = None, window_s: float = 2.0) -> WheelCalib:
+                          baseline_m: float | None = None, window_s: float = 1.0) -> WheelCalib:
     """Scale factors of wheel odometry (forward speed and yaw rate of the base, on the trajectory's clock)
     against a trajectory of the frame ``traj`` (LiDAR odometry: pass ``T_base_traj`` = T_base_lidar; default:
     the trajectory is of the base)."""
