@@ -12,7 +12,11 @@ so the IMU's rotation within the window comes from the gyro, not from interpolat
 arm, the accelerometer bias, gravity in the trajectory's world frame (LiDAR odometry's world is its first
 scan, not levelled) and, when the rotation's covariance is given, a correction to the rotation (its prior):
 accelerations see the mounting's yaw that a vehicle turning about the vertical hides from the gyro.
-Gauss-Newton, whitened by the residual scatter, outlying windows left out once.
+
+Windows are consecutive scan triples. Their position noise is large (a second difference of centimetre noise
+over 0.1 s) but shared: neighbouring windows use the same poses, so it cancels over longer spans, and
+generalised least squares with that covariance (per-pose position noise plus a white part for the IMU side,
+both at their maximum-likelihood levels) recovers the information. Outlying windows are left out once.
 """
 
 from __future__ import annotations
@@ -20,15 +24,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import cholesky_banded, solve_banded
+from scipy.optimize import minimize
 
 from ...errors import InputError
 from ...geometry import skew, so3_exp
-from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, sandwich_covariance
+from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory
 from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
 from .handeye import interval_pairs, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
 OUTLIER_SIGMAS = 4.0
+NOISE_ROUNDS = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,13 +58,11 @@ class LeverArmCalib(CalibrationResult):
 def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, imu_stamps_ns: np.ndarray,
                        gyro_radps: np.ndarray, accel_mps2: np.ndarray, *, R_lidar_imu: np.ndarray,
                        rotation_covariance_rad2: np.ndarray | None = None, imu_time_offset_s: float = 0.0,
-                       gyro_bias_radps: np.ndarray | None = None, half_windows_s: tuple[float, ...] = (0.3, 0.5, 0.8),
+                       gyro_bias_radps: np.ndarray | None = None,
                        t_prior_m: np.ndarray | None = None, prior_sigma_m: float = 1.0,
                        max_sigma_m: float = 0.05, frame: str = "LiDAR") -> LeverArmCalib:
     """Lever arm (and, with ``rotation_covariance_rad2``, a refined rotation) from a LiDAR odometry trajectory
-    and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock). Windows span +-h around each scan, for each h
-    in ``half_windows_s`` (short ones keep fast motion, long ones average the position noise down).
-    ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not show;
+    and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock). ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not show;
     those (1-sigma above ``max_sigma_m``) are flagged and named in the notes (keep a measured value for them),
     and InputError when none is shown."""
     ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
@@ -65,38 +70,29 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
     check_overlap(istamps, ls, imu_time_offset_s)
     R0 = np.asarray(R_lidar_imu, np.float64)
     refine = rotation_covariance_rad2 is not None
-    step_ns = float(np.median(np.diff(ls)))
-    spans = sorted({max(1, int(round(h * NS_PER_S / step_ns))) for h in np.atleast_1d(half_windows_s)})
+    ia, ic = interval_pairs(ls, 2)
     off_ns = int(round(imu_time_offset_s * NS_PER_S))
-    fam = []
-    for k in spans:
-        a, c = interval_pairs(ls, 2 * k)
-        inside = (ls[a] >= istamps[0] + off_ns) & (ls[c] <= istamps[-1] + off_ns)
-        fam.append((a[inside], c[inside], k))
-    ia = np.concatenate([a for a, _, _ in fam])
-    ic = np.concatenate([c for _, c, _ in fam])
-    ib = np.concatenate([a + k for a, _, k in fam])
-    family = np.concatenate([np.full(len(a), j) for j, (a, _, _) in enumerate(fam)])
-    order = np.argsort(ib, kind="stable")
-    ia, ib, ic, family = ia[order], ib[order], ic[order], family[order]
-    if len(fam[0][0]) < 20:
-        raise InputError(f"{frame}-IMU lever arm: only {len(fam[0][0])} windows of {2 * spans[0] * step_ns / NS_PER_S:g} s "
-                         f"overlap the IMU data (need 20)")
+    inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ic] <= istamps[-1] + off_ns)
+    ia, ic = ia[inside], ic[inside]
+    ib = ia + 1
+    if len(ia) < 20:
+        raise InputError(f"{frame}-IMU lever arm: only {len(ia)} scan triples overlap the IMU data (need 20)")
     notes: list[str] = []
-    w = _Windows(ls, poses, istamps, gyro, accel, gyro_bias_radps, imu_time_offset_s, ia, ib, ic, family)
+    w = _Windows(ls, poses, istamps, gyro, accel, gyro_bias_radps, imu_time_offset_s, ia, ib, ic)
 
     prior_t = np.zeros(3) if t_prior_m is None else np.asarray(t_prior_m, np.float64)
     keep = np.ones(len(ia), bool)
     for attempt in range(2):
-        x, R, r, J, H, info, noise = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
-        rn = np.linalg.norm(r, axis=1)
-        bad = rn > OUTLIER_SIGMAS * np.sqrt(3.0)  # r is whitened: per-component 1-sigma is 1
+        x, R, r, J, H, info = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
+        raw, _ = _rows(w, keep, x, R, refine)  # outliers judged unwhitened: whitening spreads one bad pose
+        rn = np.linalg.norm(raw, axis=1)
+        bad = rn > OUTLIER_SIGMAS * np.sqrt(3.0) * 1.4826 * np.median(rn) / np.sqrt(np.log(4.0))
         if attempt == 1 or not bad.any():
             break
         keep[np.flatnonzero(keep)[bad]] = False
         notes.append(f"{int(bad.sum())} windows left out: their accelerations disagree with the IMU's (bad "
                      f"registrations?)")
-    cov = _covariance(J, r, H, info, ib[keep], len(ls), 2 * spans[-1])
+    cov = np.linalg.inv(H)
     sigma, observable = per_axis(cov[:3, :3], max_sigma_m)
     cov_t = cov[:3, :3]
     _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes)
@@ -105,18 +101,21 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
         t_lidar_imu_m=x[:3], sigma_m=sigma, covariance_m2=cov_t, observable=observable, R_lidar_imu=R,
         rotation_sigma_rad=np.sqrt(np.diag(rcov)) if refine else np.full(3, np.nan), rotation_covariance_rad2=rcov,
         accel_bias_mps2=x[3:6], accel_bias_sigma_mps2=np.sqrt(np.diag(cov[3:6, 3:6])), gravity_world_mps2=x[6:9],
-        windows=int(keep.sum()), rms_residual_mps2=float(np.sqrt(((r * noise) ** 2).mean())), notes=tuple(notes))
+        windows=int(keep.sum()), rms_residual_mps2=float(np.sqrt((raw * raw).mean())), notes=tuple(notes))
 
 
 class _Windows:
-    """Per window: DD of LiDAR position and rotation, the LiDAR rotation at b, and the IMU's hat averages."""
+    """Per scan triple: DD of LiDAR position and rotation, the LiDAR rotation at b, the IMU's hat averages, and
+    the poses and weights of the DD (for the noise the triples share)."""
 
-    def __init__(self, ls, poses, istamps, gyro, accel, gyro_bias, offset_s, ia, ib, ic, family) -> None:
-        self.family = family  # which window length each window has (their noise differs)
+    def __init__(self, ls, poses, istamps, gyro, accel, gyro_bias, offset_s, ia, ib, ic) -> None:
         t = [(ls[i] - ls[0]) / NS_PER_S for i in (ia, ib, ic)]  # LiDAR clock, relative
         self.dd_p = second_divided_difference(poses[ia, :3, 3], poses[ib, :3, 3], poses[ic, :3, 3], *t)
         self.dd_R = second_divided_difference(poses[ia, :3, :3], poses[ib, :3, :3], poses[ic, :3, :3], *t)
         self.R_b = poses[ib, :3, :3]
+        wa, wc = 2.0 / ((t[2] - t[0]) * (t[1] - t[0])), 2.0 / ((t[2] - t[0]) * (t[2] - t[1]))
+        self.pose_idx = np.column_stack([ia, ib, ic])
+        self.pose_w = np.column_stack([wa, -(wa + wc), wc])
         g = GyroOrientation(istamps, gyro, gyro_bias)
         s = [g.relative_s(ls[i], offset_s) for i in (ia, ib, ic)]  # IMU clock
         Gt = np.swapaxes(g.at(s[1]), 1, 2)
@@ -124,6 +123,42 @@ class _Windows:
         Gs = PiecewiseLinear(g.t_s, g.G)
         self.A = np.einsum("nij,nj->ni", Gt, F.hat_average(*s))
         self.C = Gt @ Gs.hat_average(*s)
+
+
+class _Whitener:
+    """Covariance of the windows' residuals (the same for each world axis): per-pose position noise through the
+    DD weights (windows sharing poses correlate) plus white noise, both levels maximum-likelihood."""
+
+    def __init__(self, idx: np.ndarray, wts: np.ndarray, r: np.ndarray) -> None:
+        n = len(idx)
+        self.D = np.zeros((3, n))  # lower bands of D D^T: [d, j] = (D D^T)[j + d, j]
+        for d in range(3):
+            for s1 in range(3):
+                for s2 in range(3):
+                    same = idx[: n - d, s1] == idx[d:, s2]
+                    self.D[d, : n - d] += np.where(same, wts[: n - d, s1] * wts[d:, s2], 0.0)
+        v = max(float((r * r).mean()), 1e-12)
+        x0 = np.log([0.9 * v / self.D[0].mean(), 0.1 * v])
+        best = minimize(lambda q: self._nll(q, r), x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-6})
+        self.L = self._cholesky(np.exp(best.x))
+        self.levels = np.sqrt(np.exp(best.x))  # (position sigma, white sigma)
+
+    def _cholesky(self, q: np.ndarray) -> np.ndarray:
+        ab = q[0] * self.D
+        ab[0] = ab[0] + q[1]
+        return cholesky_banded(ab, lower=True)
+
+    def _nll(self, q: np.ndarray, r: np.ndarray) -> float:
+        try:
+            L = self._cholesky(np.exp(q))
+        except np.linalg.LinAlgError:
+            return 1e300
+        z = solve_banded((2, 0), L, r)
+        return float(r.shape[1] * np.log(L[0]).sum() + 0.5 * (z * z).sum())
+
+    def __call__(self, M: np.ndarray) -> np.ndarray:
+        """Whiten (n, ...) along the windows."""
+        return solve_banded((2, 0), self.L, M.reshape(len(M), -1)).reshape(M.shape)
 
 
 def _rows(w: _Windows, sel: np.ndarray, x: np.ndarray, R: np.ndarray, refine: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -139,38 +174,37 @@ def _rows(w: _Windows, sel: np.ndarray, x: np.ndarray, R: np.ndarray, refine: bo
     return r, np.concatenate(cols, axis=2)
 
 
-def _covariance(J: np.ndarray, r: np.ndarray, H: np.ndarray, info: np.ndarray, centre: np.ndarray, n_scans: int,
-                lag: int) -> np.ndarray:
-    scores = np.zeros((n_scans, J.shape[2]))  # windows centred on the same scan summed: their noise is shared
-    np.add.at(scores, centre, np.einsum("nji,nj->ni", J, r))
-    return sandwich_covariance(H, scores, lag=lag, prior_info=info)
-
-
 def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov: np.ndarray | None,
            prior_t: np.ndarray, prior_sigma_m: float, iterations: int = 4):
-    """Gauss-Newton; returns (x, R, whitened residuals, whitened Jacobian, H with priors, prior information,
-    residual scatter used to whiten)."""
+    """Gauss-Newton under the windows' noise covariance; returns (x, R, whitened residuals, whitened
+    Jacobian, H with priors, prior information)."""
     p = 12 if refine else 9
     x = np.zeros(p)
     x[:3] = prior_t
     R = R0.copy()
-    # the model is linear in lever arm, bias and gravity: one unweighted solve gives the residual scatter
+    # linear in lever arm, bias and gravity: solve, take the noise levels from the residuals, solve under them,
+    # and again (the unweighted fit's residuals overstate the white part)
     r, J = _rows(w, keep, x, R, False)
-    step = -np.linalg.lstsq(J.reshape(-1, 9), r.reshape(-1), rcond=None)[0]
-    r, _ = _rows(w, keep, x[:9] + step, R, False)
-    fam = w.family[keep]
-    per_family = np.array([np.sqrt((r[fam == j] ** 2).mean()) if (fam == j).any() else 1.0 for j in range(fam.max() + 1)])
-    noise = np.maximum(per_family[fam], 1e-9)[:, None]  # per window, per component
+    x[:9] += -np.linalg.lstsq(J.reshape(-1, 9), r.reshape(-1), rcond=None)[0]
+    for _ in range(NOISE_ROUNDS):
+        r, J = _rows(w, keep, x, R, False)
+        whiten = _Whitener(w.pose_idx[keep], w.pose_w[keep], r)
+        rw, Jw = whiten(r), whiten(J)
+        H9 = np.einsum("nji,njk->ik", Jw, Jw)
+        H9[:3, :3] += np.eye(3) / prior_sigma_m**2
+        g9 = np.einsum("nji,nj->i", Jw, rw)
+        g9[:3] += (x[:3] - prior_t) / prior_sigma_m**2
+        x[:9] -= np.linalg.solve(H9, g9)
     info = np.zeros((p, p))
     info[:3, :3] = np.eye(3) / prior_sigma_m**2
     if refine:
         info[9:, 9:] = np.linalg.inv(rot_cov)
     for it in range(iterations + 1):
         r, J = _rows(w, keep, x, R, refine)
-        r, J = r / noise, J / noise[:, :, None]
+        r, J = whiten(r), whiten(J)
         H = np.einsum("nji,njk->ik", J, J) + info
         if it == iterations:
-            return x, R, r, J, H, info, noise
+            return x, R, r, J, H, info
         g = np.einsum("nji,nj->i", J, r)
         g[:3] += info[:3, :3] @ (x[:3] - prior_t)
         if refine:
@@ -179,10 +213,6 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
         x = x + step
         if refine:  # fold the rotation correction into R; x[9:] keeps the total departure from the prior
             R = so3_exp(step[9:]) @ R
-        if not refine and it >= 1:  # linear: one step is exact
-            r, J = _rows(w, keep, x, R, refine)
-            r, J = r / noise, J / noise[:, :, None]
-            return x, R, r, J, np.einsum("nji,njk->ik", J, J) + info, info, noise
     raise AssertionError("unreachable")
 
 

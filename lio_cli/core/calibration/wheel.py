@@ -20,11 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.linalg import cholesky_banded, solve_banded
+from scipy.optimize import least_squares, minimize
 
 from ...errors import InputError
 from ...geometry import inv_pose, yaw_of
-from .common import NS_PER_S, CalibrationResult, check_stamps, check_trajectory, sandwich_covariance, true_runs
+from .common import NS_PER_S, CalibrationResult, check_stamps, check_trajectory, true_runs
 
 OUTLIER_SIGMAS = 4.0
 MIN_DISTANCE_M = 2.0
@@ -103,12 +104,14 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
         good = new_good
         fit = least_squares(lambda s: resid(s, scale).reshape(-1, 3)[good].ravel(), fit.x)
     bad = ~good
-    rg = resid(fit.x, scale).reshape(-1, 3)[good]
-    Jg = fit.jac.reshape(-1, 3, 3)
-    H = fit.jac.T @ fit.jac
-    scores = np.zeros((len(ia), 3))
-    scores[np.flatnonzero(good)] = np.einsum("nji,nj->ni", Jg, rg)
-    cov = sandwich_covariance(H, scores, lag=1)
+    # generalised least squares: consecutive windows share a pose, so their position and heading noise cancel
+    # along the path (what makes the whole distance, not each window's, set the speed scale's precision)
+    gi = np.flatnonzero(good)
+    adjacent = ib[gi[:-1]] == ia[gi[1:]]
+    for _ in range(2):  # noise levels from the residuals, the scales under them, once more
+        whiten = _Whitener(resid(fit.x, np.ones(3)).reshape(-1, 3)[good], T_wb[ia[gi], :3, :3], adjacent)
+        fit = least_squares(lambda s: whiten(resid(s, np.ones(3)).reshape(-1, 3)[good]), fit.x)
+    cov = np.linalg.inv(fit.jac.T @ fit.jac)
     s_v, s_w, d_w = fit.x
     sv_sig, sw_sig, dw_sig = np.sqrt(np.diag(cov))
     notes: list[str] = []
@@ -165,3 +168,43 @@ class _Plane:
         c, s = np.cos(tha), np.sin(tha)
         dx, dy = xb - xa, yb - ya
         return np.column_stack([c * dx + s * dy, -s * dx + c * dy, thb - tha])
+
+
+class _Whitener:
+    """Whitens stacked window residuals (n,3) = (forward, lateral, yaw) under per-pose noise that adjacent
+    windows share (position sigma_p, heading sigma_h: they cancel along the path) plus white noise per window.
+    The four noise levels are the maximum-likelihood ones for the residuals given."""
+
+    def __init__(self, r: np.ndarray, R_start: np.ndarray, adjacent: np.ndarray) -> None:
+        self.n = len(r)
+        self.P = np.einsum("nji,njk->nik", R_start[:-1], R_start[1:])[:, :2, :2]  # frame k -> frame k+1 (plane)
+        self.adj = np.flatnonzero(adjacent)
+        v = np.array([0.5 * (r[:, :2] ** 2).sum(axis=1).mean(), (r[:, 2] ** 2).mean()])
+        v = np.maximum(v, 1e-12)
+        x0 = np.log(np.concatenate([0.4 * v, 0.2 * v]))  # [sigma_p^2, sigma_h^2, white_xy, white_yaw]
+        best = minimize(lambda x: self._nll(x, r), x0, method="Nelder-Mead",
+                        options={"xatol": 1e-3, "fatol": 1e-6, "maxiter": 800})
+        self.L = self._cholesky(np.exp(best.x))
+
+    def _cholesky(self, q: np.ndarray) -> np.ndarray:
+        sp2, sh2, wxy, wh = q
+        ab = np.zeros((6, 3 * self.n))  # lower band storage: ab[d, j] = S[j + d, j]
+        ab[0] = np.tile([2 * sp2 + wxy, 2 * sp2 + wxy, 2 * sh2 + wh], self.n)
+        k = self.adj
+        j0 = 3 * k
+        for di in range(2):  # block (k+1, k): -sigma_p^2 (R_k^T R_k+1)^T in the plane, -sigma_h^2 in yaw
+            for dj in range(2):
+                ab[3 + di - dj, j0 + dj] = -sp2 * self.P[k, dj, di]
+        ab[3, j0 + 2] = -sh2
+        return cholesky_banded(ab, lower=True)
+
+    def _nll(self, x: np.ndarray, r: np.ndarray) -> float:
+        try:
+            L = self._cholesky(np.exp(x))
+        except np.linalg.LinAlgError:
+            return 1e300
+        z = solve_banded((5, 0), L, r.reshape(-1))
+        return float(np.log(L[0]).sum() + 0.5 * z @ z)
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        return solve_banded((5, 0), self.L, r.reshape(-1))
