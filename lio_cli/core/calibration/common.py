@@ -128,6 +128,12 @@ def sandwich_covariance(H: np.ndarray, scores: np.ndarray, lag: int, prior_info:
     return Hi @ S @ Hi
 
 
+def outliers_3d(norms: np.ndarray, floor: float, sigmas: float = 5.0) -> np.ndarray:
+    """Mask of 3-vector residuals whose norm exceeds ``sigmas`` per-axis sigmas, the sigma read robustly from the
+    median norm (a 3-D Gaussian's norm has median 1.538 sigma) but never below ``floor`` (noise-free data)."""
+    return norms > sigmas * max(float(np.median(norms)) / 1.5382, floor)
+
+
 def time_ranges_text(stamps_ns: np.ndarray, mask: np.ndarray, t0_ns: int, limit: int = 4) -> str:
     """'2.0-5.5 s, 7.1-9.0 s' for the runs where ``mask`` holds, in seconds after ``t0_ns``."""
     runs = true_runs(mask)

@@ -29,13 +29,13 @@ from scipy.optimize import minimize
 
 from ...errors import InputError
 from ...geometry import skew, so3_exp
-from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory
+from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d
 from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
 from .handeye import interval_pairs, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
-OUTLIER_SIGMAS = 4.0
 NOISE_ROUNDS = 3
+OUTLIER_FLOOR_MPS2 = 1e-3  # residual sigma below which nothing is an outlier
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,7 +51,7 @@ class LeverArmCalib(CalibrationResult):
     accel_bias_sigma_mps2: np.ndarray
     gravity_world_mps2: np.ndarray  # (3,) in the trajectory's world frame
     windows: int
-    rms_residual_mps2: float
+    rms_residual_mps2: float  # of the windows' accelerations, dominated by the trajectory's position noise
     notes: tuple[str, ...]
 
 
@@ -62,9 +62,10 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
                        t_prior_m: np.ndarray | None = None, prior_sigma_m: float = 1.0,
                        max_sigma_m: float = 0.05, frame: str = "LiDAR") -> LeverArmCalib:
     """Lever arm (and, with ``rotation_covariance_rad2``, a refined rotation) from a LiDAR odometry trajectory
-    and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock). ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not show;
-    those (1-sigma above ``max_sigma_m``) are flagged and named in the notes (keep a measured value for them),
-    and InputError when none is shown."""
+    and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock; ``gyro_bias_radps`` as estimate_rotation found
+    it). ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not
+    show; those (1-sigma above ``max_sigma_m``) are flagged and named in the notes (keep a measured value for
+    them), and InputError when none is shown."""
     ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
     istamps, gyro, accel = check_imu(imu_stamps_ns, gyro_radps, accel_mps2)
     check_overlap(istamps, ls, imu_time_offset_s)
@@ -83,10 +84,9 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
     prior_t = np.zeros(3) if t_prior_m is None else np.asarray(t_prior_m, np.float64)
     keep = np.ones(len(ia), bool)
     for attempt in range(2):
-        x, R, r, J, H, info = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
+        x, R, H = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
         raw, _ = _rows(w, keep, x, R, refine)  # outliers judged unwhitened: whitening spreads one bad pose
-        rn = np.linalg.norm(raw, axis=1)
-        bad = rn > OUTLIER_SIGMAS * np.sqrt(3.0) * 1.4826 * np.median(rn) / np.sqrt(np.log(4.0))
+        bad = outliers_3d(np.linalg.norm(raw, axis=1), OUTLIER_FLOOR_MPS2)
         if attempt == 1 or not bad.any():
             break
         keep[np.flatnonzero(keep)[bad]] = False
@@ -176,8 +176,8 @@ def _rows(w: _Windows, sel: np.ndarray, x: np.ndarray, R: np.ndarray, refine: bo
 
 def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov: np.ndarray | None,
            prior_t: np.ndarray, prior_sigma_m: float, iterations: int = 4):
-    """Gauss-Newton under the windows' noise covariance; returns (x, R, whitened residuals, whitened
-    Jacobian, H with priors, prior information)."""
+    """Gauss-Newton under the windows' noise covariance; returns (x = [t, b_a, g(, d)], R, normal matrix with
+    the priors, whose inverse is the covariance)."""
     p = 12 if refine else 9
     x = np.zeros(p)
     x[:3] = prior_t
@@ -204,7 +204,7 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
         r, J = whiten(r), whiten(J)
         H = np.einsum("nji,njk->ik", J, J) + info
         if it == iterations:
-            return x, R, r, J, H, info
+            return x, R, H
         g = np.einsum("nji,nj->i", J, r)
         g[:3] += info[:3, :3] @ (x[:3] - prior_t)
         if refine:

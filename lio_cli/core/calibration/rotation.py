@@ -19,13 +19,15 @@ import numpy as np
 
 from ...errors import InputError
 from ...geometry import skew, so3_exp, so3_log
-from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, sandwich_covariance
+from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
+                     sandwich_covariance)
 from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
 from .signals import GyroOrientation
 
 REG_SIGMA_RAD = 1.0  # regularisation of directions nothing observes (keeps the normal matrix invertible)
 REG_SIGMA_BIAS_RADPS = 1.0
+OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,20 +70,27 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     notes: list[str] = []
 
     R = None
-    for _ in range(3):  # re-integrate the gyro with the bias found so far
-        phi_i = imu_increments(GyroOrientation(istamps, gyro, bias), ta, tb, imu_time_offset_s)
+    keep = np.ones(len(ia), bool)
+    for rnd in range(4):  # re-integrate the gyro with the bias found so far; after the first, drop outliers once
+        phi_i = imu_increments(GyroOrientation(istamps, gyro, bias), ta[keep], tb[keep], imu_time_offset_s)
         if R is None:
             R, _, r0 = align(phi_l, phi_i, dt)
             noise = max(float(np.sqrt((r0 * r0).mean())), 1e-9)  # per-component residual: whitens the problem
             if R_lidar_imu_prior is not None:
                 R = np.asarray(R_lidar_imu_prior, np.float64)
-        R, b, r, H, J, prior_info = _gauss_newton(R, phi_l, phi_i, dt, noise, R_lidar_imu_prior, prior_sigma_rad)
+        R, b, r, H, J, prior_info = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior,
+                                                  prior_sigma_rad)
         bias = bias + b
+        bad = outliers_3d(noise * np.linalg.norm(r, axis=1), OUTLIER_FLOOR_RAD)  # r is whitened
+        if rnd == 0 and bad.any():
+            keep[np.flatnonzero(keep)[bad]] = False
+            notes.append(f"{int(bad.sum())} windows left out: their rotation disagrees with the gyro's (bad "
+                         f"registrations?)")
     scores = np.einsum("nji,nj->ni", J, r)
     cov = sandwich_covariance(H, scores, lag=span, prior_info=prior_info)
     sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
-    _explain(cov[:3, :3], phi_l, max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
-    return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:, 3:])), len(ia),
+    _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
+    return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:, 3:])), int(keep.sum()),
                          float(noise * np.sqrt((r * r).mean())), tuple(notes))
 
 

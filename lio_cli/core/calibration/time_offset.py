@@ -20,14 +20,15 @@ from scipy.optimize import minimize_scalar
 
 from ...errors import InputError
 from ...geometry import skew
-from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, sandwich_covariance
+from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
+                     sandwich_covariance)
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear
 
 MIN_PEAK_RATE_RADPS = np.radians(10.0)
 MIN_ALIGNMENT = 0.5
-OUTLIER_SIGMAS = 4.0
 WEAK_SIGMA_S = 0.001
+OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier
 MOVE_HINT = ("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; on a vehicle, "
              "drive a slalom")
 
@@ -92,19 +93,16 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
 
     gyro_int = GyroOrientation(istamps, gyro, bias0)
     keep = np.ones(len(ia), bool)
-    for _ in range(2):
+    for attempt in range(2):
         cost = _Cost(gyro_int, ta[keep], tb[keep], dt[keep], phi_l[keep])
         res = minimize_scalar(cost, bounds=(grid[k] - 2 * coarse_step_s, grid[k] + 2 * coarse_step_s),
                               method="bounded", options={"xatol": 1e-6})
         off = float(res.x)
         R, b, r = cost.solve(off)
-        rn = np.linalg.norm(r, axis=1)
-        scale = 1.4826 * np.median(rn) / np.sqrt(np.log(4.0))  # per-axis sigma from the median 3D norm
-        bad = rn > OUTLIER_SIGMAS * np.sqrt(3.0) * scale
-        if not bad.any():
+        bad = outliers_3d(np.linalg.norm(r, axis=1), OUTLIER_FLOOR_RAD)
+        if attempt == 1 or not bad.any():
             break
-        idx = np.flatnonzero(keep)
-        keep[idx[bad]] = False
+        keep[np.flatnonzero(keep)[bad]] = False
         notes.append(f"{int(bad.sum())} scan intervals left out: their rotation disagrees with the gyro's (bad "
                      f"registrations?)")
     sigma = _offset_sigma(cost, off, R, b, r)
@@ -118,7 +116,7 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
 
 
 def _alignment(phi_l: np.ndarray, phi_i: np.ndarray) -> float:
-    """1 - (sum |phi_l - R phi_i|^2 at the best R) / (sum |phi_l|^2 + |phi_i|^2) * 2, in [-1, 1]."""
+    """1 - min_R sum |phi_l - R phi_i|^2 / sum (|phi_l|^2 + |phi_i|^2): 1 when one rotation explains all."""
     s = np.linalg.svd(phi_i.T @ phi_l, compute_uv=False)
     return float(2.0 * s.sum() / ((phi_l**2).sum() + (phi_i**2).sum()))
 

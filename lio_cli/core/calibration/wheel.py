@@ -102,7 +102,7 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
         if it > 0 and (new_good == good).all():
             break
         good = new_good
-        fit = least_squares(lambda s: resid(s, scale).reshape(-1, 3)[good].ravel(), fit.x)
+        fit = least_squares(lambda s, sc=scale, g=good: resid(s, sc).reshape(-1, 3)[g].ravel(), fit.x)
     bad = ~good
     # generalised least squares: consecutive windows share a pose, so their position and heading noise cancel
     # along the path (what makes the whole distance, not each window's, set the speed scale's precision)
@@ -110,7 +110,7 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
     adjacent = ib[gi[:-1]] == ia[gi[1:]]
     for _ in range(2):  # noise levels from the residuals, the scales under them, once more
         whiten = _Whitener(resid(fit.x, np.ones(3)).reshape(-1, 3)[good], T_wb[ia[gi], :3, :3], adjacent)
-        fit = least_squares(lambda s: whiten(resid(s, np.ones(3)).reshape(-1, 3)[good]), fit.x)
+        fit = least_squares(lambda s, wh=whiten: wh(resid(s, np.ones(3)).reshape(-1, 3)[good]), fit.x)
     cov = np.linalg.inv(fit.jac.T @ fit.jac)
     s_v, s_w, d_w = fit.x
     sv_sig, sw_sig, dw_sig = np.sqrt(np.diag(cov))

@@ -8,7 +8,7 @@ import pytest
 from lio_cli.core.calibration.lever_arm import estimate_lever_arm
 from lio_cli.core.calibration.rotation import estimate_rotation
 from lio_cli.errors import InputError
-from lio_cli.geometry import so3_exp, so3_log
+from lio_cli.geometry import so3_log
 
 QUIET_TOL_M = 0.01  # 0.5 cm trajectory noise: the lever arm within 1 cm (it is 8 cm long)
 HANDHELD_TOL_M = 0.03  # 1.5 cm noise: the vertical component is the weak one (~1.2 cm 1-sigma)
@@ -66,3 +66,14 @@ def test_no_rotation_is_refused(handheld):
                        r"briskly about all three axes \(sweeps of \+-30 deg at about 1 Hz\) while recording$"):
         estimate_lever_arm(handheld.lidar_stamps_ns, T, handheld.imu.stamps_ns, handheld.imu.gyro_radps * 0.0,
                            handheld.imu.accel_mps2, R_lidar_imu=np.eye(3))
+
+
+def test_a_bad_registration_is_left_out(handheld_quiet):
+    d = handheld_quiet
+    rot = _rotation(d)
+    poses = d.T_world_lidar.copy()
+    poses[150, :3, 3] += [0.0, 0.3, 0.0]  # one scan registered 30 cm off
+    r = estimate_lever_arm(d.lidar_stamps_ns, poses, d.imu.stamps_ns, d.imu.gyro_radps, d.imu.accel_mps2,
+                           R_lidar_imu=rot.R_lidar_imu, gyro_bias_radps=rot.gyro_bias_radps)
+    np.testing.assert_allclose(r.t_lidar_imu_m, d.T_lidar_imu[:3, 3], atol=QUIET_TOL_M)
+    assert r.notes == ("3 windows left out: their accelerations disagree with the IMU's (bad registrations?)",)

@@ -66,3 +66,12 @@ def test_no_rotation_at_all_is_refused(handheld):
     with pytest.raises(InputError, match=re.escape(msg) + r".* deg or worse on every axis\): rotate the sensor about all "
                        r"three axes \(yaw, pitch and roll sweeps of \+-30 deg\)$"):
         estimate_rotation(handheld.lidar_stamps_ns, still, handheld.imu.stamps_ns, np.zeros((n, 3)))
+
+
+def test_a_bad_registration_is_left_out(handheld):
+    poses = handheld.T_world_lidar.copy()
+    poses[150, :3, :3] = poses[150, :3, :3] @ so3_exp([0.0, 0.1, 0.0])  # one scan registered 6 deg off
+    r = estimate_rotation(handheld.lidar_stamps_ns, poses, handheld.imu.stamps_ns, handheld.imu.gyro_radps,
+                          imu_time_offset_s=handheld.imu_time_offset_s)
+    assert np.linalg.norm(_err_deg(r.R_lidar_imu, handheld)) < HANDHELD_TOL_DEG
+    assert r.notes == ("2 windows left out: their rotation disagrees with the gyro's (bad registrations?)",)
