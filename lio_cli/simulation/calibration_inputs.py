@@ -9,7 +9,7 @@ stamps to put them on the LiDAR's clock (the simulator's ``ImuSpec.time_offset_n
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -52,11 +52,11 @@ def calibration_inputs(scenario: str | Scenario = "handheld", duration_s: float 
     the scenario's IMU mounting; ``wheel_spec`` the scenario's wheels (scale errors, slip)."""
     sc = build_scenario(scenario) if isinstance(scenario, str) else scenario
     if T_base_imu is not None:
-        sc.T_base_imu = np.asarray(T_base_imu, np.float64)
+        sc = replace(sc, T_base_imu=np.asarray(T_base_imu, np.float64))
     rng = np.random.default_rng(seed)
     if imu_spec is None:
         imu_spec = ImuSpec(accel_bias0_mps2=rng.normal(0.0, 0.04, 3), gyro_bias0_radps=rng.normal(0.0, 0.003, 3))
-    imu_spec.time_offset_ns = -int(round(imu_time_offset_s * NS))
+    imu_spec = replace(imu_spec, time_offset_ns=-int(round(imu_time_offset_s * NS)))
     end_ns = START_NS + int(round(duration_s * NS))
     lidar_ns = np.arange(START_NS, end_ns + 1, int(round(NS / lidar_rate_hz)), dtype=np.int64)
     T_wl = sc.trajectory.poses((lidar_ns - START_NS) * 1e-9) @ sc.T_base_lidar

@@ -83,7 +83,8 @@ def allan_deviation(rate: np.ndarray, dt_s: float, points_per_decade: int = 12) 
     th = np.zeros((x.shape[1], n + 1))  # axes in rows: contiguous passes
     np.cumsum((x - x.mean(axis=0)).T, axis=1, out=th[:, 1:])
     m_max = max(1, (n - 1) // 3)  # at least as many overlapping pairs as the cluster is long
-    ms = np.unique(np.round(np.logspace(0.0, np.log10(m_max), max(2, int(np.log10(m_max) * points_per_decade) + 1))).astype(np.int64))
+    count = max(2, int(np.log10(m_max) * points_per_decade) + 1)
+    ms = np.unique(np.round(np.logspace(0.0, np.log10(m_max), count)).astype(np.int64))
     ms = ms[(ms >= 1) & (ms <= m_max)]
     avar = np.empty((len(ms), x.shape[1]))
     d = np.empty_like(th)
@@ -193,6 +194,9 @@ def estimate_allan(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2: np
     d = np.diff(stamps_ns)
     dt_s = float(np.median(d)) / NS_PER_S
     duration_s = (stamps_ns[-1] - stamps_ns[0]) / NS_PER_S
+    if duration_s < max(MIN_DURATION_S, 100 * tau_min_samples * dt_s):
+        raise InputError(f"IMU log too short for an Allan deviation ({duration_s:.1f} s at {1 / dt_s:.0f} Hz): "
+                         f"record at least a few minutes, ideally hours, standing still")
     notes = []
     gaps = int((d > 1.5 * np.median(d)).sum())
     if gaps:
@@ -207,9 +211,6 @@ def estimate_allan(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2: np
     taus, g_adev, counts = allan_deviation(gyro_radps, dt_s, points_per_decade)
     _, a_adev, _ = allan_deviation(accel_mps2, dt_s, points_per_decade)
     ms = np.round(taus / dt_s).astype(np.int64)
-    if duration_s < MIN_DURATION_S or (taus >= tau_min_samples * dt_s).sum() < 6:
-        raise InputError(f"IMU log too short for an Allan deviation ({duration_s:.1f} s at {1 / dt_s:.0f} Hz): "
-                         f"record at least a few minutes, ideally hours, standing still")
     n_phase = len(stamps_ns) + 1
     gyro = _fit_sensor(taus, g_adev, ms, n_phase, dt_s, tau_min_samples * dt_s)
     accel = _fit_sensor(taus, a_adev, ms, n_phase, dt_s, tau_min_samples * dt_s)

@@ -82,3 +82,12 @@ def test_too_short_a_log_is_refused():
            "standing still")
     with pytest.raises(InputError, match=re.escape(msg)):
         estimate_allan(stamps, x, x + [0.0, 0.0, 9.81])
+
+
+def test_a_log_that_moves_is_flagged(static_log):
+    imu, _ = static_log
+    n = 60_000
+    gyro = imu.gyro_radps[:n].copy()
+    gyro[20_000:21_000, 2] += 0.5  # picked up and turned for 10 s
+    r = estimate_allan(imu.stamps_ns[:n], gyro, imu.accel_mps2[:n])
+    assert r.notes[0] == "the IMU moves during 1.7% of the log: Allan deviation needs a static recording, the values are suspect"
