@@ -139,9 +139,11 @@ class _Whitener:
                     self.D[d, : n - d] += np.where(same, wts[: n - d, s1] * wts[d:, s2], 0.0)
         v = max(float((r * r).mean()), 1e-12)
         x0 = np.log([0.9 * v / self.D[0].mean(), 0.1 * v])
+        self.lo = x0 + np.log(1e-6)  # a level vanishing would make the whitening blow up
         best = minimize(lambda q: self._nll(q, r), x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-6})
-        self.L = self._cholesky(np.exp(best.x))
-        self.levels = np.sqrt(np.exp(best.x))  # (position sigma, white sigma)
+        q = np.exp(np.maximum(best.x, self.lo))
+        self.L = self._cholesky(q)
+        self.levels = np.sqrt(q)  # (position sigma, white sigma)
 
     def _cholesky(self, q: np.ndarray) -> np.ndarray:
         ab = q[0] * self.D
@@ -150,7 +152,7 @@ class _Whitener:
 
     def _nll(self, q: np.ndarray, r: np.ndarray) -> float:
         try:
-            L = self._cholesky(np.exp(q))
+            L = self._cholesky(np.exp(np.maximum(q, self.lo)))
         except np.linalg.LinAlgError:
             return 1e300
         z = solve_banded((2, 0), L, r)

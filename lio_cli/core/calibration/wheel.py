@@ -111,7 +111,7 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
     for _ in range(2):  # noise levels from the residuals, the scales under them, once more
         whiten = _Whitener(resid(fit.x, np.ones(3)).reshape(-1, 3)[good], T_wb[ia[gi], :3, :3], adjacent)
         fit = least_squares(lambda s, wh=whiten: wh(resid(s, np.ones(3)).reshape(-1, 3)[good]), fit.x)
-    cov = np.linalg.inv(fit.jac.T @ fit.jac)
+    cov = np.linalg.inv(fit.jac.T @ fit.jac + np.eye(3))  # + a unit prior: a factor the motion never shows stays finite
     s_v, s_w, d_w = fit.x
     sv_sig, sw_sig, dw_sig = np.sqrt(np.diag(cov))
     notes: list[str] = []
@@ -182,9 +182,10 @@ class _Whitener:
         v = np.array([0.5 * (r[:, :2] ** 2).sum(axis=1).mean(), (r[:, 2] ** 2).mean()])
         v = np.maximum(v, 1e-12)
         x0 = np.log(np.concatenate([0.4 * v, 0.2 * v]))  # [sigma_p^2, sigma_h^2, white_xy, white_yaw]
+        self.lo = np.log(np.concatenate([v, v]) * 1e-6)  # a level vanishing would make the whitening blow up
         best = minimize(lambda x: self._nll(x, r), x0, method="Nelder-Mead",
                         options={"xatol": 1e-3, "fatol": 1e-6, "maxiter": 800})
-        self.L = self._cholesky(np.exp(best.x))
+        self.L = self._cholesky(np.exp(np.maximum(best.x, self.lo)))
 
     def _cholesky(self, q: np.ndarray) -> np.ndarray:
         sp2, sh2, wxy, wh = q
@@ -200,7 +201,7 @@ class _Whitener:
 
     def _nll(self, x: np.ndarray, r: np.ndarray) -> float:
         try:
-            L = self._cholesky(np.exp(x))
+            L = self._cholesky(np.exp(np.maximum(x, self.lo)))
         except np.linalg.LinAlgError:
             return 1e300
         z = solve_banded((5, 0), L, r.reshape(-1))
