@@ -1,0 +1,140 @@
+"""LiDAR-IMU rotation by hand-eye on rotation increments.
+
+Over windows of ``window_s`` (all start scans, so windows overlap) the LiDAR trajectory's rotation increments
+``phi_lidar`` and the gyro's ``phi_imu`` (integrated over the same LiDAR-clock interval, shifted by the time
+offset) obey ``phi_lidar = R_lidar_imu (phi_imu - b dt)``. Kabsch gives a start; Gauss-Newton on the
+rotation and the gyro bias correction ``b`` (the gyro re-integrated with the bias each round, so long windows
+stay exact) gives the estimate, with an optional prior (e.g. /tf_static) that only matters along directions
+the motion does not show. Longer windows hold more rotation against the same per-pose noise.
+
+Errors are ``R_est = exp(e) R_true`` with ``e`` in the LiDAR frame: ``sigma_rad`` is the 1-sigma of e about
+the LiDAR's x, y, z axes. Pass the trajectory of the base instead and everything reads base for LiDAR.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import InputError
+from ...geometry import skew, so3_exp, so3_log
+from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
+                     sandwich_covariance)
+from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
+from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
+from .signals import GyroOrientation
+
+REG_SIGMA_RAD = 1.0  # regularisation of directions nothing observes (keeps the normal matrix invertible)
+REG_SIGMA_BIAS_RADPS = 1.0
+OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier
+
+
+@dataclass(frozen=True, eq=False)
+class RotationCalib(CalibrationResult):
+    R_lidar_imu: np.ndarray  # (3,3): maps IMU vectors into the LiDAR frame
+    sigma_rad: np.ndarray  # (3,) about the LiDAR x, y, z axes
+    covariance_rad2: np.ndarray  # (3,3)
+    observable: np.ndarray  # (3,) bool per LiDAR axis: sigma below the threshold
+    gyro_bias_radps: np.ndarray  # (3,) IMU frame, fitted alongside
+    gyro_bias_sigma_radps: np.ndarray
+    windows: int
+    rms_residual_rad: float
+    notes: tuple[str, ...]
+
+
+def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, imu_stamps_ns: np.ndarray,
+                      gyro_radps: np.ndarray, *, imu_time_offset_s: float = 0.0,
+                      gyro_bias_radps: np.ndarray | None = None, window_s: float = 1.0,
+                      R_lidar_imu_prior: np.ndarray | None = None, prior_sigma_rad: float = np.radians(10.0),
+                      max_sigma_rad: float = np.radians(1.0), frame: str = "LiDAR") -> RotationCalib:
+    """R_lidar_imu from a LiDAR odometry trajectory and the gyro (IMU stamps + ``imu_time_offset_s`` = LiDAR
+    clock). Axes whose 1-sigma exceeds ``max_sigma_rad`` are reported unobservable (with the motion that would
+    show them); when none is observable, InputError."""
+    ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
+    istamps, gyro, _ = check_imu(imu_stamps_ns, gyro_radps)
+    check_overlap(istamps, ls, imu_time_offset_s)
+    bias = np.zeros(3) if gyro_bias_radps is None else np.asarray(gyro_bias_radps, np.float64).copy()
+    span = max(1, int(round(window_s * NS_PER_S / np.median(np.diff(ls)))))
+    ia, ib = interval_pairs(ls, span)
+    off_ns = int(round(imu_time_offset_s * NS_PER_S))
+    inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ib] <= istamps[-1] + off_ns)
+    ia, ib = ia[inside], ib[inside]
+    phi_l = lidar_increments(poses, ia, ib)
+    ok = keep_finite_increments(phi_l)
+    ia, ib, phi_l = ia[ok], ib[ok], phi_l[ok]
+    if len(ia) < 10:
+        raise InputError(f"{frame}-IMU rotation: only {len(ia)} windows of {window_s:g} s overlap the IMU data (need 10)")
+    ta, tb = ls[ia], ls[ib]
+    dt = (tb - ta) / NS_PER_S
+    notes: list[str] = []
+
+    R = None
+    keep = np.ones(len(ia), bool)
+    for rnd in range(4):  # re-integrate the gyro with the bias found so far; after the first, drop outliers once
+        phi_i = imu_increments(GyroOrientation(istamps, gyro, bias), ta[keep], tb[keep], imu_time_offset_s)
+        if R is None:
+            R, _, r0 = align(phi_l, phi_i, dt)
+            noise = max(float(np.sqrt((r0 * r0).mean())), 1e-9)  # per-component residual: whitens the problem
+            if R_lidar_imu_prior is not None:
+                R = np.asarray(R_lidar_imu_prior, np.float64)
+        R, b, r, H, J, prior_info = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior,
+                                                  prior_sigma_rad)
+        bias = bias + b
+        bad = outliers_3d(noise * np.linalg.norm(r, axis=1), OUTLIER_FLOOR_RAD)  # r is whitened
+        if rnd == 0 and bad.any():
+            keep[np.flatnonzero(keep)[bad]] = False
+            notes.append(f"{int(bad.sum())} windows left out: their rotation disagrees with the gyro's (bad "
+                         f"registrations?)")
+    scores = np.einsum("nji,nj->ni", J, r)
+    cov = sandwich_covariance(H, scores, lag=span, prior_info=prior_info)
+    sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
+    _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
+    return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:, 3:])), int(keep.sum()),
+                         float(noise * np.sqrt((r * r).mean())), tuple(notes))
+
+
+def _gauss_newton(R: np.ndarray, phi_l: np.ndarray, phi_i: np.ndarray, dt: np.ndarray, noise: float,
+                  R_prior: np.ndarray | None, prior_sigma_rad: float, iterations: int = 4):
+    """Minimise sum |phi_l - R (phi_i - b dt)|^2 / noise^2 (+ prior on R) over R = exp(d) R and b.
+
+    Returns (R, b, whitened residuals, normal matrix with prior, whitened Jacobian, the prior's information)."""
+    b = np.zeros(3)
+    Rp = R if R_prior is None else np.asarray(R_prior, np.float64)
+    prior_info = np.zeros((6, 6))
+    prior_info[:3, :3] = np.eye(3) / (prior_sigma_rad if R_prior is not None else REG_SIGMA_RAD) ** 2
+    prior_info[3:, 3:] = np.eye(3) / REG_SIGMA_BIAS_RADPS**2
+    for it in range(iterations + 1):
+        u = (phi_i - b * dt[:, None]) @ R.T
+        r = (phi_l - u) / noise
+        J = np.concatenate([skew(u), np.broadcast_to(R, (len(u), 3, 3)) * dt[:, None, None]], axis=2) / noise
+        H = np.einsum("nji,njk->ik", J, J) + prior_info
+        if it == iterations:
+            return R, b, r, H, J, prior_info
+        g = np.einsum("nji,nj->i", J, r)
+        g[:3] += prior_info[0, 0] * so3_log(R @ Rp.T)
+        step = -np.linalg.solve(H, g)
+        R = so3_exp(step[:3]) @ R
+        b = b + step[3:]
+    raise AssertionError("unreachable")
+
+
+def _explain(cov: np.ndarray, phi_l: np.ndarray, max_sigma_rad: float, frame: str, notes: list[str],
+             has_prior: bool) -> None:
+    weak = weak_directions(cov, max_sigma_rad)
+    axis, share = dominant_rotation_axis(phi_l)
+    if len(weak) == 3:
+        raise InputError(f"too little rotation to estimate the {frame}-IMU rotation (1-sigma {np.degrees(weak[-1][1]):.1f} "
+                         f"deg or worse on every axis): rotate the sensor about all three axes (yaw, pitch and roll "
+                         f"sweeps of +-30 deg)")
+    kept = "stays at the prior" if has_prior else "is arbitrary"
+    for v, s in weak:
+        about = axis_name(v, frame)
+        if abs(float(v @ axis)) > 0.9 and share > 0.9:
+            why = (f"the platform turned only about that axis ({100 * share:.0f}% of its rotation), as a ground "
+                   f"vehicle turning about the vertical does")
+        else:
+            why = "the motion barely turned about the other axes"
+        notes.append(f"the mounting's rotation about {about} is not observable from rotations (1-sigma "
+                     f"{np.degrees(s):.1f} deg; it {kept}): {why}; tilt or roll the platform too (a vehicle: drive over "
+                     f"ramps or bumps), or take that angle from accelerations (lever_arm refines it) or the drawing")
