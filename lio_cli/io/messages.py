@@ -108,5 +108,16 @@ class MessageFactory:
             transform=self.T["geometry_msgs/msg/Transform"](translation=self.vector3(xyz), rotation=self.quaternion(q)),
         )
 
+    def navsatfix(self, stamp_ns: int, frame_id: str, lat_deg: float, lon_deg: float, alt_m: float, *,
+                  status: int = 0, service: int = 1, covariance_m2=None, covariance_type: int = 0):
+        """sensor_msgs/NavSatFix; ``covariance_m2`` (3,3) or (9,) in ENU, zeros (type 0, unknown) by default."""
+        cov = _COV0.copy() if covariance_m2 is None else np.asarray(covariance_m2, dtype=np.float64).reshape(9)
+        return self.T["sensor_msgs/msg/NavSatFix"](
+            header=self.header(stamp_ns, frame_id),
+            status=self.T["sensor_msgs/msg/NavSatStatus"](status=int(status), service=int(service)),
+            latitude=float(lat_deg), longitude=float(lon_deg), altitude=float(alt_m),
+            position_covariance=cov, position_covariance_type=int(covariance_type),
+        )
+
     def tf_message(self, transforms: list):
         return self.T["tf2_msgs/msg/TFMessage"](transforms=list(transforms))

@@ -21,6 +21,7 @@ from .decode import (
     KIND_TYPES,
     LASERSCAN,
     POINTCLOUD2,
+    decode_navsatfix,
     decode_odometry,
     decode_pose,
     imu_sample,
@@ -36,7 +37,7 @@ from .pointcloud import (
 from .rawmsg import RawImu
 from .records import ImuBatch, Record, TimeConvention
 
-_KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth"}
+_KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth", "gps": "GPS (NavSatFix)"}
 
 
 def select_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
@@ -99,7 +100,7 @@ class StreamStats:
 
 
 class SensorStream:
-    """Iterate typed records (kind lidar/imu/wheel/gt) of the chosen topics in header-stamp order.
+    """Iterate typed records (kind lidar/imu/wheel/gt/gps) of the chosen topics in header-stamp order.
 
     ``strict``: stamps going backwards and clouds with no valid point raise ``InputError``; otherwise such
     messages are dropped and counted in ``stats``.
@@ -168,6 +169,9 @@ class SensorStream:
             return Record(kind, topic, stamp, (frame, gyro, accel))
         if kind == "wheel":
             rec = decode_odometry(msg, msgtype)
+            return Record(kind, topic, rec.stamp_ns, rec)
+        if kind == "gps":
+            rec = decode_navsatfix(msg)
             return Record(kind, topic, rec.stamp_ns, rec)
         rec = decode_pose(msg, msgtype)
         return Record(kind, topic, rec.stamp_ns, rec)

@@ -5,7 +5,8 @@ KITTI: 12 values per line, the row-major 3x4 matrix ``[R | t]`` of ``T_world_bod
 separate times file (one stamp in seconds per line, as KITTI's ``times.txt``) or a fixed rate.
 
 ``load_trajectory`` resolves what a user typed on the command line: a TUM or KITTI file, or a topic of a
-log (``LOG:/topic``, ``LOG#/topic``, ``LOG:tf:parent.child`` for a chain of /tf and /tf_static).
+log (``LOG:/topic``, ``LOG#/topic``, ``LOG:tf:parent.child`` for a chain of /tf and /tf_static). A NavSatFix
+topic becomes a position-only trajectory in a local ENU frame (``io.gps``).
 Every problem is an ``InputError`` naming the file and, for text files, the line.
 """
 
@@ -13,11 +14,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from ..geometry import interpolate_poses, inv_pose, pose_from_xyz_quat, pose_to_xyz_quat
+
+if TYPE_CHECKING:
+    from ..geodesy import EnuFrame
+    from .gps import GpsTrack
 
 _INT64_MAX = np.iinfo(np.int64).max
 # Quaternions further than this from unit length are rejected (TUM files written with 6 decimals are ~1e-6 off).
@@ -290,10 +296,16 @@ class LoadedTrajectory:
     name: str
     stamps_ns: np.ndarray  # (N,) int64, strictly increasing
     poses: np.ndarray  # (N,4,4)
-    kind: str  # tum, kitti, topic, tf
+    kind: str  # tum, kitti, topic, tf, gps
+    gps: GpsTrack | None = None  # kind gps: the fixes behind the positions
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
+
+    @property
+    def position_only(self) -> bool:
+        """Only positions are known (GPS): the rotations are identity placeholders."""
+        return self.kind == "gps"
 
 
 def split_source(spec: str) -> tuple[str, str | None]:
@@ -328,16 +340,20 @@ def load_trajectory(
     times: str | Path | None = None,
     rate_hz: float | None = None,
     stamp_unit: str = "s",
+    origin: EnuFrame | None = None,
 ) -> LoadedTrajectory:
-    """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path."""
+    """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path.
+
+    ``origin``: the ENU origin of a NavSatFix topic (default: its first valid fix).
+    """
     path_text, topic_spec = split_source(spec)
     path = Path(path_text)
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
     if topic_spec is None and _is_log(path):
-        return read_log_trajectory(path, topic, required_kind="gt")
+        return read_log_trajectory(path, topic, required_kind="gt", origin=origin)
     if topic_spec is not None:
-        return read_log_trajectory(path, topic_spec)
+        return read_log_trajectory(path, topic_spec, origin=origin)
     cols = sniff_columns(path)
     if cols == 12:
         poses = read_kitti(path)
@@ -363,14 +379,27 @@ def load_trajectory(
     )
 
 
-def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt") -> LoadedTrajectory:
-    """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped) or a TF chain ``tf:a.b``."""
+def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt",
+                        origin: EnuFrame | None = None) -> LoadedTrajectory:
+    """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped), a TF chain ``tf:a.b``, or the
+    ENU positions of a NavSatFix topic (named, or the log's only one when it has no pose topic)."""
+    from .decode import NAVSATFIX
     from .logs import open_log
     from .stream import SensorStream, select_topic
 
     with open_log(path) as log:
         if topic_spec is not None and topic_spec.startswith("tf:"):
             return _read_tf_chain(log, path, topic_spec[3:])
+        info = log.topics.get(topic_spec) if topic_spec is not None else None
+        gps_topic = topic_spec if info is not None and info.msgtype == NAVSATFIX else None
+        if topic_spec is None and select_topic(log, required_kind, None, required=False) is None:
+            gps = sorted(t for t, i in log.topics.items() if i.msgtype == NAVSATFIX and i.count > 0)
+            if len(gps) > 1:
+                raise InputError(f"{path}: no ground-truth pose topic and several GPS topics ({', '.join(gps)}); "
+                                 f"name one as LOG:/topic")
+            gps_topic = gps[0] if gps else None
+        if gps_topic is not None:
+            return _read_gps(log, path, select_topic(log, "gps", gps_topic), origin)
         topic = select_topic(log, required_kind, topic_spec)
         stamps, poses = [], []
         for rec in SensorStream(log, {"gt": topic}, strict=True):
@@ -379,6 +408,13 @@ def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str =
     if not poses:
         raise InputError(f"{path}: topic {topic} holds no messages")
     return LoadedTrajectory(f"{path}:{topic}", np.asarray(stamps, dtype=np.int64), np.asarray(poses), "topic")
+
+
+def _read_gps(log, path: Path, topic: str, origin: EnuFrame | None) -> LoadedTrajectory:
+    from .gps import gps_poses, read_gps_track
+
+    track = read_gps_track(log, topic, origin)
+    return LoadedTrajectory(f"{path}:{topic}", track.stamps_ns, gps_poses(track), "gps", gps=track)
 
 
 def _read_tf_chain(log, path: Path, chain: str) -> LoadedTrajectory:
