@@ -44,6 +44,8 @@ FLAT_RISE = 0.05  # a rise below this fraction of the minimum (or FLAT_RISE_M) m
 FLAT_RISE_M = 1e-4
 ZOOM_S = 0.25  # the plotted close-up covers this far either side of the estimate
 ZOOM_HALF = 25
+NOISE_SAMPLE = 5000  # poses used to judge which trajectory is smoother
+_CHI2_3_MEDIAN_OVER_3 = 2.365974 / 3.0  # median of a chi-square with 3 dof, per axis
 
 
 @dataclass
@@ -81,11 +83,48 @@ def _even(n: int, k: int) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, min(n, k)).round().astype(np.int64))
 
 
+def noise_level_m(stamps_s: np.ndarray, positions: np.ndarray, limit: int = NOISE_SAMPLE) -> float:
+    """Robust white-noise level (m per axis) of sampled positions, irregular stamps allowed.
+
+    Each position is compared with the cubic through its two neighbours on either side; smooth motion cancels
+    to its fourth derivative, noise does not. The residual is normalised by the noise it would have, so sides
+    sampled at different rates compare. NaN with fewer than five poses.
+    """
+    n = len(stamps_s)
+    if n < 5:
+        return float("nan")
+    i = _even(n - 4, limit) + 2
+    t = stamps_s[i]
+    ks = (-2, -1, 1, 2)
+    weights = []
+    for a in ks:
+        w = np.ones(len(i))
+        for b in ks:
+            if b != a:
+                w *= (t - stamps_s[i + b]) / (stamps_s[i + a] - stamps_s[i + b])
+        weights.append(w)
+    pred = sum(w[:, None] * positions[i + a] for a, w in zip(ks, weights))
+    r2 = np.sum((positions[i] - pred) ** 2, axis=1) / (1.0 + sum(w**2 for w in weights)) / 3.0
+    return float(np.sqrt(np.median(r2) / _CHI2_3_MEDIAN_OVER_3))
+
+
+def _tangents(t: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Central-difference velocities (one-sided at the ends) for cubic Hermite interpolation."""
+    m = np.empty_like(p)
+    m[1:-1] = (p[2:] - p[:-2]) / (t[2:] - t[:-2])[:, None]
+    m[0] = (p[1] - p[0]) / (t[1] - t[0])
+    m[-1] = (p[-1] - p[-2]) / (t[-1] - t[-2])
+    return m
+
+
 class _Problem:
-    """Both trajectories on one time axis: seconds since the reference's first stamp, estimate shifted by x.
+    """Both trajectories on one time axis: seconds since each first stamp, the estimate shifted by x.
 
     ``delta_ns = base_ns + x * 1e9``, where ``base_ns`` puts the two first stamps together; floats only ever
-    hold relative seconds, so clocks 1e9 s apart lose nothing.
+    hold relative seconds, so clocks 1e9 s apart lose nothing. Matching pairs the sparser trajectory's stamps
+    with the denser one's (as association does). The cost interpolates the smoother trajectory (lower
+    ``noise_level_m``) at the other's stamps, with a cubic: interpolating the noisier one would make the
+    error depend on where its samples fall (noise averages out between samples), which biases the offset.
     """
 
     def __init__(self, ref: Trajectory, est: Trajectory, align: str) -> None:
@@ -94,6 +133,11 @@ class _Problem:
         self.t_est = (est.stamps_ns - est.stamps_ns[0]) / 1e9
         self.p_ref, self.p_est = ref.positions, est.positions
         self.est_sparse = len(est) <= len(ref)
+        noise_ref, noise_est = noise_level_m(self.t_ref, self.p_ref), noise_level_m(self.t_est, self.p_est)
+        # est queried (ref interpolated) unless the reference is the noisier one; density decides a tie or NaN
+        self.query_est = not noise_est < noise_ref if noise_ref == noise_ref and noise_est == noise_est else self.est_sparse
+        t_d, p_d = (self.t_ref, self.p_ref) if self.query_est else (self.t_est, self.p_est)
+        self.m_d = _tangents(t_d, p_d) if len(t_d) > 1 else np.zeros_like(p_d)
         self.align = COST_ALIGNMENT[align]
         self.need = 2 if self.align in ("none", "posyaw") else 3
 
@@ -103,15 +147,15 @@ class _Problem:
     def x_s(self, delta_ns: int) -> float:
         return (int(delta_ns) - self.base_ns) / 1e9
 
-    def _sides(self):
-        """(sparse times, sparse positions, dense times, dense positions, sign): sparse + sign * x is dense time."""
-        if self.est_sparse:
+    def _sides(self, query_est: bool):
+        """(query times, positions, interpolated times, positions, sign): query + sign * x is the other's time."""
+        if query_est:
             return self.t_est, self.p_est, self.t_ref, self.p_ref, 1.0
         return self.t_ref, self.p_ref, self.t_est, self.p_est, -1.0
 
     def matches(self, xs: np.ndarray, max_diff_s: float) -> tuple[np.ndarray, int]:
         """Sampled sparse stamps with a dense stamp within ``max_diff_s``, per offset; and the sample size."""
-        t_s, _, t_d, _, sign = self._sides()
+        t_s, _, t_d, _, sign = self._sides(self.est_sparse)
         sample = t_s[_even(len(t_s), MATCH_SAMPLE)]
         counts = np.zeros(len(xs), dtype=np.int64)
         rows = max(1, 2_000_000 // len(sample))
@@ -123,18 +167,18 @@ class _Problem:
         return counts, len(sample)
 
     def subset(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """(times, positions) of at most ``k`` evenly spread stamps of the sparser trajectory."""
-        t_s, p_s = self._sides()[:2]
+        """(times, positions) of at most ``k`` evenly spread stamps of the queried trajectory."""
+        t_s, p_s = self._sides(self.query_est)[:2]
         idx = _even(len(t_s), k)
         return t_s[idx], np.ascontiguousarray(p_s[idx])
 
     def cost(self, x: float, sample: tuple[np.ndarray, np.ndarray], fixed: tuple[float, float] | None = None) -> float:
         """Aligned translation RMSE of the pairs at offset ``x`` (inf with too few pairs or a degenerate fit).
 
-        ``fixed``: keep only the sparse stamps that stay inside the dense span for every x in this interval,
+        ``fixed``: keep only the queried stamps that stay inside the other's span for every x in this interval,
         so a scan over it compares the same pairs.
         """
-        _, _, t_d, p_d, sign = self._sides()
+        _, _, t_d, p_d, sign = self._sides(self.query_est)
         t, p = sample
         lo, hi = (x, x) if fixed is None else fixed
         inside = np.ones(len(t), dtype=bool)
@@ -145,9 +189,12 @@ class _Problem:
             return float("inf")
         q = t[inside] + sign * x
         j = np.clip(np.searchsorted(t_d, q), 1, len(t_d) - 1)
-        w = ((q - t_d[j - 1]) / (t_d[j] - t_d[j - 1]))[:, None]
-        dense = p_d[j - 1] + w * (p_d[j] - p_d[j - 1])  # linear interpolation, all three axes at once
-        src, dst = (p[inside], dense) if self.est_sparse else (dense, p[inside])  # the estimate is aligned
+        h = t_d[j] - t_d[j - 1]
+        u = ((q - t_d[j - 1]) / h)[:, None]
+        u2, u3 = u * u, u * u * u
+        other = ((2 * u3 - 3 * u2 + 1) * p_d[j - 1] + (u3 - 2 * u2 + u) * h[:, None] * self.m_d[j - 1]
+                 + (3 * u2 - 2 * u3) * p_d[j] + (u3 - u2) * h[:, None] * self.m_d[j])  # cubic Hermite
+        src, dst = (p[inside], other) if self.query_est else (other, p[inside])  # the estimate is aligned
         try:
             if self.align == "none":
                 res = dst - src
