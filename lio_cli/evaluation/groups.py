@@ -118,8 +118,9 @@ def _stats(values: list[float]) -> dict[str, float | int | None]:
     n = len(values)
     if n == 0:
         return {"n": 0, **dict.fromkeys(GROUP_STATS)}
-    mean = math.fsum(values) / n
-    std = math.sqrt(math.fsum((v - mean) ** 2 for v in values) / (n - 1)) if n > 1 else None
+    d = [v - values[0] for v in values]  # shifted data: equal runs give a std of exactly 0
+    mean = values[0] + math.fsum(d) / n
+    std = math.sqrt(max(math.fsum(x * x for x in d) - math.fsum(d) ** 2 / n, 0.0) / (n - 1)) if n > 1 else None
     return {"n": n, "mean": mean, "std": std, "min": min(values), "max": max(values)}
 
 
