@@ -137,7 +137,8 @@ def evaluate(ref: Trajectory, est: Trajectory, options: EvalOptions | None = Non
     if o.translation_only and o.align == "origin":
         raise InputError(f"--align origin needs orientations, and {ref.name} or {est.name} has positions only "
                          f"(GPS); use se3, sim3, scale, posyaw or none")
-    offset = estimate_offset(ref, est, o.max_diff_ns, o.align, o.offset_range_ns) if o.estimate_offset else None
+    offset = (estimate_offset(ref, est, o.max_diff_ns, o.align, o.offset_range_ns, rotations=not o.translation_only)
+              if o.estimate_offset else None)
     offset_ns = offset.offset_ns if offset is not None else o.offset_ns
     assoc = associate(ref, est, o.max_diff_ns, offset_ns, o.method)
     n = len(assoc.ref)

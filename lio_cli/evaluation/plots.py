@@ -133,18 +133,18 @@ def plot_offsets(results: list[EvalResult], path: Path, force: bool = False) -> 
     for k, r in enumerate(runs):
         f, color = r.offset, _COLORS[k % len(_COLORS)]
         ax_m.plot(f.grid_ns / 1e9, f.grid_matches / max(f.sampled, 1) * 100.0, color=color, lw=1.0, alpha=0.45)
-        ax_e.plot(f.curve_ns / 1e9, f.curve_rmse_m, ".", color=color, ms=4, label=_label(r.name))
+        ax_e.semilogy(f.curve_ns / 1e9, f.curve_cost, ".", color=color, ms=4, label=_label(r.name))
         rel_ms = (f.zoom_ns - f.offset_ns) / 1e6
-        ax_z.plot(rel_ms, f.zoom_rmse_m, color=color, lw=1.5,
+        ax_z.plot(rel_ms, f.zoom_cost, color=color, lw=1.5,
                   label=f"{_label(r.name)}: {f.offset_s:+.6f} s, rmse {f.rmse_m:.3g} m")
         ax_z.axvline(0.0, color=color, lw=0.8, ls=":")
     ax_m.set_xlabel("offset added to the estimate's stamps [s]")
     ax_m.set_ylabel("sampled stamps paired [%] (lines)")
-    ax_e.set_ylabel("aligned translation rmse [m] (dots)")
+    ax_e.set_ylabel("aligned error / its minimum (dots)")
     ax_e.legend(loc="upper right")
     ax_m.set_title("Time-offset search: pairs, then aligned error")
     ax_z.set_xlabel("offset relative to each estimate [ms]")
-    ax_z.set_ylabel("aligned translation rmse [m]")
+    ax_z.set_ylabel("aligned error / its minimum")
     ax_z.legend(loc="upper center")
     fig.tight_layout()
     try:

@@ -27,16 +27,19 @@ def _motion(t: np.ndarray) -> np.ndarray:
 
 
 def _pair(seed: int, shift_s: float, est_clock_ns: int = 0, ref_hz: float = 100.0, est_n: int = 1200,
-          duration_s: float = 60.0, noise_m: float = 0.005, tilt: bool = True) -> tuple[Trajectory, Trajectory]:
+          duration_s: float = 60.0, noise_m: float = 0.005, tilt: bool = True, drift_m: float = 0.0,
+          rot_noise_rad: float = 0.0005) -> tuple[Trajectory, Trajectory]:
     """Reference sampled regularly; estimate at random instants, in another world frame, with noise; its stamps
     read ``true time - shift`` on a clock ``est_clock_ns`` ahead, so the right offset is ``shift - clock``.
-    ``tilt=False``: the two world frames differ by a yaw and a translation only (what posyaw can undo)."""
+    ``tilt=False``: the two world frames differ by a yaw and a translation only (what posyaw can undo).
+    ``drift_m``: a random walk of this step added to the estimate's positions, as odometry drifts."""
     rng = np.random.default_rng(seed)
     t_ref = np.arange(0.0, duration_s, 1.0 / ref_hz)
     t_est = np.sort(rng.uniform(0.5, duration_s - 0.5, est_n))
     T = make_pose(so3_exp(np.array([0.1, -0.2, 0.7]) if tilt else np.array([0.0, 0.0, 0.7])), np.array([3.0, -1.0, 0.5]))
     est = T @ _motion(t_est)
-    est[:, :3, 3] += rng.normal(0, noise_m, (est_n, 3))
+    est[:, :3, 3] += rng.normal(0, noise_m, (est_n, 3)) + np.cumsum(rng.normal(0, drift_m, (est_n, 3)), axis=0)
+    est[:, :3, :3] = est[:, :3, :3] @ so3_exp(rng.normal(0, rot_noise_rad, (est_n, 3)))
     ref_ns = T0_NS + np.round(t_ref * 1e9).astype(np.int64)
     est_ns = T0_NS + est_clock_ns + np.round((t_est - shift_s) * 1e9).astype(np.int64)
     return Trajectory(ref_ns, _motion(t_ref), "ref"), Trajectory(est_ns, est, "est")
@@ -62,6 +65,21 @@ def test_recovers_across_clocks_an_epoch_apart_and_with_a_sparse_reference():
     f = estimate_offset(ref, est, 10_000_000, "posyaw")
     assert f.alignment == "posyaw"
     assert abs(f.offset_ns - round(SHIFT_S * 1e9)) < RECOVERY_TOL_NS
+
+
+def test_drifting_positions_leave_the_offset_to_the_rotations():
+    ref, est = _pair(6, SHIFT_S, est_n=2000, drift_m=0.01)  # 1 cm steps: ~45 cm of drift, correlated with the motion
+    f = estimate_offset(ref, est, 10_000_000, "se3")
+    assert f.decided_by == "rotations" and set(f.by_term) == {"positions", "rotations"}
+    assert abs(f.offset_ns - round(SHIFT_S * 1e9)) < RECOVERY_TOL_NS
+    pos, rot = f.by_term["positions"], f.by_term["rotations"]
+    assert rot["precision_s"] < pos["precision_s"] and f.precision_s == rot["precision_s"]
+    # the precisions are honest: each term's own error stays within a few of its sigmas
+    for term in (pos, rot):
+        assert abs(term["offset_s"] - SHIFT_S) < 4 * term["precision_s"] + 1e-5
+    # without orientations (GPS) only positions remain
+    f = estimate_offset(ref, est, 10_000_000, "se3", rotations=False)
+    assert f.decided_by == "positions" and set(f.by_term) == {"positions"} and f.rot_rmse_deg is None
 
 
 def test_default_range_overlaps_by_half_the_shorter_span():
