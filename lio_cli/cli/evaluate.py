@@ -330,8 +330,9 @@ def _print_tables(results: list[EvalResult], o: EvalOptions, console) -> None:
     for r in results:
         if r.offset is not None:
             f = r.offset
-            console.print(f"time offset {r.name}: {f.offset_s:+.6f} s (aligned rmse {f.rmse_m:.4g} m; searched "
-                          f"{f.range_ns[0] / 1e9:.6g}..{f.range_ns[1] / 1e9:.6g} s)")
+            pm = f" +- {f.precision_s * 1e3:.2g} ms" if f.precision_s is not None else ""
+            console.print(f"time offset {r.name}: {f.offset_s:+.6f} s{pm} (from {f.decided_by}; aligned rmse "
+                          f"{f.rmse_m:.4g} m; searched {f.range_ns[0] / 1e9:.6g}..{f.range_ns[1] / 1e9:.6g} s)")
     if len(results) == 1:
         r = r0
         o_r = r.options
