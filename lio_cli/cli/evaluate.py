@@ -55,8 +55,9 @@ yaw only (4 DoF), for estimates whose roll and pitch see gravity.
 
 [bold]Time offset[/bold]: --estimate-offset searches the constant offset of
 each estimate's clock (most stamp pairs first, then the smallest aligned
-error, to about 0.1 ms) within --offset-range (default: every offset that
-overlaps the time ranges by half), reports it and evaluates with it.
+error, refined to a microsecond) within --offset-range (default: every
+offset that overlaps the time ranges by half), prints it with its
+precision and evaluates with it.
 
 [bold]Runs[/bold]: --group NAME=EST,EST... (or a quoted glob, NAME='lio_*.tum')
 and --group-by REGEX (the first capture group of each file name names
@@ -239,6 +240,8 @@ def evaluate_cmd(
     if group_stats is not None:
         report["groups"] = [g.summary() for g in group_stats]
         report["ungrouped"] = ungrouped
+        if ungrouped:
+            note(f"--group-by left out: {', '.join(ungrouped)}", quiet)
     stdout_taken = as_json or csv_out == "-"
     for t in (gt_traj, *loaded_all):
         if t.gps is not None:
