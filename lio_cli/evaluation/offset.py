@@ -247,7 +247,7 @@ def estimate_offset(ref: Trajectory, est: Trajectory, max_diff_ns: int = 10_000_
                 f"offset: the motion barely determines it")
         precision = None
     zoom = x_best + ZOOM_S * np.linspace(-1.0, 1.0, 2 * ZOOM_HALF + 1)
-    zoom_j = single.combine(single.raw(zoom, coarse))
+    zoom_j = single.combine(single.raw(zoom, full))
     return OffsetEstimate(
         offset_ns=cost.delta_ns(x_best), range_ns=(int(lo_ns), int(hi_ns)), alignment=cost.align,
         rmse_m=float(np.sqrt(raw[0, 0])), rot_rmse_deg=float(np.rad2deg(np.sqrt(raw[0, 1] / 2.0))) if rotations else None,
