@@ -226,3 +226,11 @@ def test_plots_for_gps_offset_and_groups(capsys, gps, tmp_path):
     code, _, err = _run(capsys, f"{bag}:/fix", *ests, "--align", "posyaw", "--estimate-offset", "--interpolate",
                         "--t-max-diff", "0.1", "--plot", plots)
     assert code == 2 and "already exists; pass --force to overwrite it" in err
+
+
+def test_a_far_origin_is_warned_about(capsys, gps, tmp_path):
+    bag, enu = gps
+    est = _tum(tmp_path / "est.tum", T0_NS + np.arange(12) * S // 2, [make_pose(t=p) for p in enu])
+    code, _, err = _run(capsys, f"{bag}:/fix", est, "--align", "posyaw", "--origin", "48.5,11.576124,519")
+    assert code == 0, err  # 40 km north of the fixes: the ENU axes there tilt by 0.36 deg
+    assert f"lio: warning: {bag}:/fix: fixes lie up to 40 km from the ENU origin, whose axes tilt by 0.36 deg" in err

@@ -11,6 +11,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
+import numpy as np
 import typer
 from rich.table import Table
 
@@ -95,6 +96,7 @@ _DELTA_ALIASES = {"f": "frames", "frames": "frames", "frame": "frames", "m": "m"
                   "s": "s", "seconds": "s", "sec": "s", "d": "deg", "deg": "deg", "degrees": "deg",
                   "r": "rad", "rad": "rad", "radians": "rad"}
 _CSV_HEAD = ("estimate",)
+FAR_ORIGIN_M = 20_000.0  # GPS fixes farther than this from the ENU origin get a warning
 
 
 def _stamp_unit(value: str, flag: str) -> str:
@@ -246,6 +248,9 @@ def evaluate_cmd(
     for t in (gt_traj, *loaded_all):
         if t.gps is not None:
             note(t.gps.describe(), quiet)
+            if t.gps.farthest_m > FAR_ORIGIN_M:
+                warn(f"{t.name}: fixes lie up to {t.gps.farthest_m / 1e3:.0f} km from the ENU origin, whose axes "
+                     f"tilt by {np.rad2deg(t.gps.farthest_m / 6.371e6):.2g} deg there; is --origin right?")
     for r in results:
         if r.offset is not None and r.offset.note:
             warn(f"{r.name}: --estimate-offset: {r.offset.note}")

@@ -39,6 +39,11 @@ class GpsTrack:
         return len(self.stamps_ns)
 
     @property
+    def farthest_m(self) -> float:
+        """Largest horizontal distance of a fix from the origin (a far origin tilts the ENU axes)."""
+        return float(np.max(np.hypot(self.enu_m[:, 0], self.enu_m[:, 1])))
+
+    @property
     def dropped(self) -> int:
         return self.no_fix + self.bad_coordinates + self.bad_stamps
 
