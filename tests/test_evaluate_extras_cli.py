@@ -234,3 +234,16 @@ def test_a_far_origin_is_warned_about(capsys, gps, tmp_path):
     code, _, err = _run(capsys, f"{bag}:/fix", est, "--align", "posyaw", "--origin", "48.5,11.576124,519")
     assert code == 0, err  # 40 km north of the fixes: the ENU axes there tilt by 0.36 deg
     assert f"lio: warning: {bag}:/fix: fixes lie up to 40 km from the ENU origin, whose axes tilt by 0.36 deg" in err
+
+
+def test_gps_as_an_estimate(capsys, gps, tmp_path):
+    bag, enu = gps
+    stamps = T0_NS + np.arange(12) * S // 2
+    T = make_pose(so3_exp(np.array([0, 0, -0.4])), np.array([1.0, 2.0, 0.0]))
+    gt = _tum(tmp_path / "gt.tum", stamps, [T @ make_pose(so3_exp(np.array([0, 0, 0.2 * k])), p)
+                                            for k, p in enumerate(enu)])
+    code, out, err = _run(capsys, gt, f"{bag}:/fix", "--align", "posyaw", "--json")
+    assert code == 0, err
+    r = json.loads(out)["estimates"][0]
+    assert r["translation_only"] is True and r["gps"]["used"] == 10 and r["ape"]["rot"]["max"] is None
+    assert r["ape"]["trans"]["max"] < 1e-5  # the ENU frame at fix 1 is a yaw and a shift away
