@@ -213,11 +213,11 @@ def test_plots_and_metrics_json(capsys, tmp_path):
 def test_usage_errors_exit_2(capsys, three, tmp_path):
     gt, est = three
     for args, message in (
-        (["--align", "umeyama"], "--align must be one of none, se3, sim3, scale, origin, got 'umeyama'"),
+        (["--align", "umeyama"], "--align must be one of none, se3, sim3, scale, origin, posyaw, got 'umeyama'"),
         (["--delta-unit", "parsecs"], "--delta-unit must be frames, m, s, deg or rad, got 'parsecs'"),
         (["--t-offset", "soon"], "--t-offset 'soon' is not a number of seconds"),
         (["--json", "--csv", "-"], "--json and --csv - would both write to stdout; give --csv a file name"),
-        (["--n-align", "10", "--align", "origin"], "--n-align needs --align se3, sim3 or scale (not origin)"),
+        (["--n-align", "10", "--align", "origin"], "--n-align needs --align se3, sim3, scale or posyaw (not origin)"),
         (["--delta", "5", "--align", "none"], "RPE with --delta 5 frames found no pose pairs among 3 poses; lower --delta"),
         ([], "the trajectory is degenerate for Umeyama alignment (positions on a line or a point); "
              "use --align origin or --align none"),

@@ -7,10 +7,11 @@ import io
 import math
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
+import numpy as np
 import typer
 from rich.table import Table
 
@@ -19,7 +20,8 @@ from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult, Trajec
 from ..io.files import check_writable, write_text_atomic
 from ..io.sources import load_trajectory, split_source
 from ..io.trajectory_files import STAMP_UNITS_NS, parse_stamp_ns
-from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json
+from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
+from .evaluate_extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
 
 HELP = """Trajectory errors against ground truth: APE/RPE as evo, KITTI, drift.
 
@@ -40,18 +42,35 @@ final-position error and drift per distance travelled.
                              ground-truth topic
   run.bag:tf:map.base_link   map -> base_link composed from /tf and
                              /tf_static (or tf:map->base_link)
+  run.bag:/fix               a GPS topic (NavSatFix): positions in a
+                             local east-north-up frame around the first
+                             valid fix (or --origin); fixes without a
+                             valid status are dropped and counted;
+                             translation metrics only
 
 [bold]Steps[/bold]: pair stamps (nearest within --t-max-diff; --interpolate
 resamples the denser trajectory at the other's stamps, as evo does), align
 the estimate (--align, default se3; evo's default is none), then compute
 APE, RPE over --delta, KITTI segments (100..800 m of ground-truth path)
-and drift on the aligned estimate.
+and drift on the aligned estimate. --align posyaw fits translation and
+yaw only (4 DoF), for estimates whose roll and pitch see gravity.
+
+[bold]Time offset[/bold]: --estimate-offset searches the constant offset of
+each estimate's clock (most stamp pairs first, then the smallest aligned
+error, refined to a microsecond) within --offset-range (default: every
+offset that overlaps the time ranges by half), prints it with its
+precision and evaluates with it.
+
+[bold]Runs[/bold]: --group NAME=EST,EST... (or a quoted glob, NAME='lio_*.tum')
+and --group-by REGEX (the first capture group of each file name names
+its group) give n, mean, std, min and max of every metric per group.
 
 [bold]Metric names[/bold] for --fail-above and the --csv columns:
 ape_REL_STAT, rpe_REL_STAT with REL = trans (m), rot (deg), rot_rad,
 full (|E - I|) and STAT = rmse mean median std min max sse;
 ape_rmse, rpe_rmse (translation rmse); kitti_trans_pct,
-kitti_rot_deg_per_100m; final_error_m; drift_pct; matches; scale.
+kitti_rot_deg_per_100m; final_error_m; drift_pct; matches; scale;
+t_offset_s. With groups the CSV starts estimate,group,statistic.
 
 Exit codes: 0 ok, 1 a --fail-above limit exceeded, 2 bad input.
 
@@ -66,12 +85,19 @@ Exit codes: 0 ok, 1 a --fail-above limit exceeded, 2 bad input.
   lio evaluate gt.tum est.tum --align sim3 --json | jq .metrics[0]
 
   lio evaluate gt.tum est.tum --fail-above ape_rmse=0.5
+
+  lio evaluate run.bag:/fix lio.tum --align posyaw --interpolate
+
+  lio evaluate gt.tum est.tum --estimate-offset --offset-range -1,1
+
+  lio evaluate gt.tum --group lio='lio_*.tum' --group kiss='kiss_*.tum'
 """
 
 _DELTA_ALIASES = {"f": "frames", "frames": "frames", "frame": "frames", "m": "m", "meters": "m", "metres": "m",
                   "s": "s", "seconds": "s", "sec": "s", "d": "deg", "deg": "deg", "degrees": "deg",
                   "r": "rad", "rad": "rad", "radians": "rad"}
 _CSV_HEAD = ("estimate",)
+FAR_ORIGIN_M = 20_000.0  # GPS fixes farther than this from the ENU origin get a warning
 
 
 def _stamp_unit(value: str, flag: str) -> str:
@@ -96,7 +122,7 @@ def _parse_limits(items: list[str]) -> dict[str, float]:
 
 def _known_metrics() -> set[str]:
     names = {"ape_rmse", "rpe_rmse", "kitti_trans_pct", "kitti_rot_deg_per_100m", "final_error_m", "drift_pct",
-             "matches", "scale", "rpe_pairs", "kitti_segments", "path_length_m"}
+             "matches", "scale", "rpe_pairs", "kitti_segments", "path_length_m", "t_offset_s"}
     for kind in ("ape", "rpe"):
         for rel in RELATIONS:
             for stat in ("rmse", "mean", "median", "std", "min", "max", "sse"):
@@ -106,7 +132,7 @@ def _known_metrics() -> set[str]:
 
 def evaluate_cmd(
     gt: Annotated[str, typer.Argument(help="Ground truth: TUM/KITTI file, LOG:/topic, LOG:tf:parent.child, or a log with --gt-topic.", show_default=False)],
-    estimates: Annotated[list[str], typer.Argument(help="One or more estimates (same forms as GT).", show_default=False)],
+    estimates: Annotated[Optional[list[str]], typer.Argument(help="One or more estimates (same forms as GT); may be left to --group.", show_default=False)] = None,
     gt_topic: Annotated[Optional[str], typer.Option("--gt-topic", help="Ground-truth topic when GT is a bare log path.", show_default=False)] = None,
     times: Annotated[Optional[Path], typer.Option("--times", help="KITTI times file (one stamp in s per line) for KITTI pose files.", show_default=False)] = None,
     rate: Annotated[Optional[float], typer.Option("--rate", help="Stamp KITTI pose files at this rate (Hz) instead of --times.", show_default=False)] = None,
@@ -115,8 +141,13 @@ def evaluate_cmd(
     t_max_diff: Annotated[float, typer.Option("--t-max-diff", help="Largest stamp difference (s) for a pair.")] = 0.01,
     t_offset: Annotated[str, typer.Option("--t-offset", help="Seconds added to estimate stamps before pairing.")] = "0",
     interpolate: Annotated[bool, typer.Option("--interpolate", help="Resample the denser trajectory at the other's stamps (linear + slerp) instead of taking the nearest pose.")] = False,
-    align_mode: Annotated[str, typer.Option("--align", help="Alignment: none, se3 (Umeyama), sim3 (Umeyama + scale), scale (scale only), origin (first poses coincide).")] = "se3",
-    n_align: Annotated[Optional[int], typer.Option("--n-align", help="Fit se3/sim3/scale on the first N paired poses only.", show_default=False)] = None,
+    align_mode: Annotated[str, typer.Option("--align", help="Alignment: none, se3 (Umeyama), sim3 (Umeyama + scale), scale (scale only), origin (first poses coincide), posyaw (translation + yaw, 4 DoF).")] = "se3",
+    n_align: Annotated[Optional[int], typer.Option("--n-align", help="Fit se3/sim3/scale/posyaw on the first N paired poses only.", show_default=False)] = None,
+    origin: Annotated[Optional[str], typer.Option("--origin", help="ENU origin LAT,LON,ALT (deg, deg, m above the WGS84 ellipsoid) for GPS topics (default: the reference's first valid fix).", show_default=False)] = None,
+    estimate_offset: Annotated[bool, typer.Option("--estimate-offset", help="Find each estimate's constant time offset (most pairs, then least aligned error) and evaluate with it.")] = False,
+    offset_range: Annotated[Optional[str], typer.Option("--offset-range", help="LO,HI seconds searched by --estimate-offset (default: offsets overlapping the time ranges by half).", show_default=False)] = None,
+    group: Annotated[Optional[list[str]], typer.Option("--group", help="NAME=EST[,EST...]: statistics over these runs (EST may be a quoted glob); repeatable.", show_default=False)] = None,
+    group_by: Annotated[Optional[str], typer.Option("--group-by", help="REGEX on the estimates' file names; the first capture group (or the match) names each run's group.", show_default=False)] = None,
     delta: Annotated[float, typer.Option("--delta", help="RPE step.")] = 1.0,
     delta_unit: Annotated[str, typer.Option("--delta-unit", help="Unit of --delta: frames, m (path), s, deg or rad (accumulated rotation).")] = "frames",
     all_pairs: Annotated[bool, typer.Option("--all-pairs", help="RPE over every start pose instead of consecutive windows.")] = False,
@@ -139,14 +170,23 @@ def evaluate_cmd(
         raise ConfigError(f"--t-max-diff must be a non-negative number of seconds, got {t_max_diff}")
     if as_json and csv_out == "-":
         raise ConfigError("--json and --csv - would both write to stdout; give --csv a file name")
-    if n_align is not None and align_mode not in ("se3", "sim3", "scale"):
-        raise ConfigError(f"--n-align needs --align se3, sim3 or scale (not {align_mode})")
+    if n_align is not None and align_mode not in ("se3", "sim3", "scale", "posyaw"):
+        raise ConfigError(f"--n-align needs --align se3, sim3, scale or posyaw (not {align_mode})")
     if times is not None and rate is not None:
         raise ConfigError("give --times or --rate, not both")
     try:
         offset_ns = parse_stamp_ns(t_offset)
     except ValueError as err:
         raise ConfigError(f"--t-offset '{t_offset}' is not a number of seconds") from err
+    if estimate_offset and offset_ns != 0:
+        raise ConfigError("give --t-offset or --estimate-offset, not both")
+    if offset_range is not None and not estimate_offset:
+        raise ConfigError("--offset-range needs --estimate-offset")
+    range_ns = parse_offset_range(offset_range) if offset_range is not None else None
+    enu_origin = parse_origin(origin) if origin is not None else None
+    groups, estimates, ungrouped = resolve_groups(group or [], group_by, list(estimates or []))
+    if not estimates:
+        raise ConfigError("give at least one estimate (EST arguments or --group NAME=EST,...)")
     limits = _parse_limits(fail_above or [])
     unknown = sorted(set(limits) - _known_metrics())
     if unknown:
@@ -158,37 +198,71 @@ def evaluate_cmd(
     if csv_path is not None:
         check_writable(csv_path, force, inputs)
     if plot is not None:
-        _prepare_plot_dir(plot, force, inputs)
+        from ..evaluation.plots import GROUPS_PLOT, OFFSET_PLOT
+
+        _prepare_plot_dir(plot, force, inputs, (OFFSET_PLOT,) * estimate_offset + (GROUPS_PLOT,) * bool(groups))
 
     opts = EvalOptions(max_diff_ns=int(round(t_max_diff * 1e9)), offset_ns=offset_ns,
                        method="interpolate" if interpolate else "nearest", align=align_mode, n_align=n_align,
                        delta=delta, delta_unit=unit, all_pairs=all_pairs, pairs_from_reference=pairs_from_reference,
-                       delta_tol=delta_tol)
-    gt_traj = load_trajectory(gt, topic=gt_topic, times=times, rate_hz=rate, stamp_unit=gt_stamp_unit)
+                       delta_tol=delta_tol, estimate_offset=estimate_offset, offset_range_ns=range_ns)
+    gt_traj = load_trajectory(gt, topic=gt_topic, times=times, rate_hz=rate, stamp_unit=gt_stamp_unit, origin=enu_origin)
     ref = Trajectory(gt_traj.stamps_ns, gt_traj.poses, gt)
-    results: list[EvalResult] = []
+    # a GPS estimate shares the reference's ENU origin, so --align none compares like with like
+    est_origin = enu_origin or (gt_traj.gps.origin if gt_traj.gps is not None else None)
+    loaded_all = []
     for spec in estimates:
-        loaded = load_trajectory(spec, times=times, rate_hz=rate, stamp_unit=est_stamp_unit)
+        loaded = load_trajectory(spec, times=times, rate_hz=rate, stamp_unit=est_stamp_unit, origin=est_origin)
         if loaded.kind == "kitti" and gt_traj.kind == "kitti" and len(loaded) != len(gt_traj):
             raise InputError(
                 f"{spec}: {len(loaded)} KITTI poses but the ground truth {gt} has {len(gt_traj)}; KITTI pose "
                 f"files pair line by line and must have the same length"
             )
-        results.append(evaluate(ref, Trajectory(loaded.stamps_ns, loaded.poses, spec), opts))
+        loaded_all.append(loaded)
+    if enu_origin is not None and not any(t.position_only for t in (gt_traj, *loaded_all)):
+        raise ConfigError(f"--origin applies to GPS (NavSatFix) topics, and neither {gt} nor an estimate is one")
+    results: list[EvalResult] = []
+    for spec, loaded in zip(estimates, loaded_all):
+        o = replace(opts, translation_only=True) if gt_traj.position_only or loaded.position_only else opts
+        results.append(evaluate(ref, Trajectory(loaded.stamps_ns, loaded.poses, spec), o))
+    group_stats = None
+    if groups:
+        from ..evaluation.groups import group_statistics
+
+        group_stats = group_statistics(groups, {r.name: r.flat_metrics() for r in results})
 
     elapsed = time.perf_counter() - t_start
     report = {
-        "reference": {"name": gt, "poses": len(ref), "kind": gt_traj.kind},
-        "estimates": [r.summary() for r in results],
+        "reference": {"name": gt, "poses": len(ref), "kind": gt_traj.kind, "position_only": gt_traj.position_only,
+                      **({"gps": gt_traj.gps.summary()} if gt_traj.gps is not None else {})},
+        "estimates": [{**r.summary(), **({"gps": t.gps.summary()} if t.gps is not None else {})}
+                      for r, t in zip(results, loaded_all)],
         "metrics": [{"estimate": r.name, **r.flat_metrics()} for r in results],
         "options": {**asdict(opts), "t_max_diff_s": t_max_diff, "t_offset_s": offset_ns / 1e9},
         "elapsed_s": round(elapsed, 4),
     }
+    if group_stats is not None:
+        report["groups"] = [g.summary() for g in group_stats]
+        report["ungrouped"] = ungrouped
+        if ungrouped:
+            note(f"--group-by left out: {', '.join(ungrouped)}", quiet)
     stdout_taken = as_json or csv_out == "-"
+    for t in (gt_traj, *loaded_all):
+        if t.gps is not None:
+            note(t.gps.describe(), quiet)
+            if t.gps.farthest_m > FAR_ORIGIN_M:
+                warn(f"{t.name}: fixes lie up to {t.gps.farthest_m / 1e3:.0f} km from the ENU origin, whose axes "
+                     f"tilt by {np.rad2deg(t.gps.farthest_m / 6.371e6):.2g} deg there; is --origin right?")
+    for r in results:
+        if r.offset is not None and r.offset.note:
+            warn(f"{r.name}: --estimate-offset: {r.offset.note}")
     if not quiet or not stdout_taken:
-        _print_tables(results, opts, err_console if stdout_taken else out_console)
+        console = err_console if stdout_taken else out_console
+        _print_tables(results, opts, console)
+        if group_stats is not None:
+            print_group_table(group_stats, console, estimate_offset, align_mode in ("sim3", "scale"))
     if csv_out is not None:
-        text = _csv_text(results)
+        text = _csv_text(results) if group_stats is None else csv_with_groups(results, groups, group_stats)
         if csv_path is None:
             sys.stdout.write(text)
             sys.stdout.flush()
@@ -200,7 +274,8 @@ def evaluate_cmd(
         import json
 
         plot.mkdir(exist_ok=True)
-        paths = write_plots(ref.positions, results, plot, force)
+        paths = write_plots(ref.positions, results, plot, force, ref_as_points=gt_traj.position_only,
+                            groups=group_stats)
         write_text_atomic(plot / "metrics.json", json.dumps(_jsonable(report), indent=2) + "\n", force)
         note(f"wrote {', '.join(str(p) for p in paths)} and {plot / 'metrics.json'}", quiet)
     if as_json:
@@ -208,7 +283,7 @@ def evaluate_cmd(
     _check_limits(results, limits)
 
 
-def _prepare_plot_dir(folder: Path, force: bool, inputs: list[Path]) -> None:
+def _prepare_plot_dir(folder: Path, force: bool, inputs: list[Path], extra: tuple[str, ...] = ()) -> None:
     from ..evaluation.plots import PLOT_FILES
 
     if folder.exists() and not folder.is_dir():
@@ -216,7 +291,7 @@ def _prepare_plot_dir(folder: Path, force: bool, inputs: list[Path]) -> None:
     if not folder.exists():  # created only once the metrics are computed
         check_writable(folder, force, inputs)
         return
-    for name in (*PLOT_FILES, "metrics.json"):
+    for name in (*PLOT_FILES, *extra, "metrics.json"):
         check_writable(folder / name, force, inputs)
 
 
@@ -259,15 +334,25 @@ def _print_tables(results: list[EvalResult], o: EvalOptions, console) -> None:
     console.print(f"[bold]reference[/bold] {r0.association.ref.name}   pairing: {assoc}   "
                   f"alignment: {o.align}{n_txt}   RPE delta: {o.delta:g} {o.delta_unit}"
                   f"{' (all pairs)' if o.all_pairs else ''}")
+    if any(r.options.translation_only for r in results):
+        console.print("translation metrics only: positions without orientations (GPS) carry no rotation error")
+    for r in results:
+        if r.offset is not None:
+            f = r.offset
+            pm = f" +- {f.precision_s * 1e3:.2g} ms" if f.precision_s is not None else ""
+            console.print(f"time offset {r.name}: {f.offset_s:+.6f} s{pm} (from {f.decided_by}; aligned rmse "
+                          f"{f.rmse_m:.4g} m; searched {f.range_ns[0] / 1e9:.6g}..{f.range_ns[1] / 1e9:.6g} s)")
     if len(results) == 1:
         r = r0
+        o_r = r.options
         table = Table(box=None, pad_edge=False, title=f"{r.name}  ({len(r.association.ref)} pairs"
                       f"{f', scale {r.alignment.scale:.6g}' if o.align in ('sim3', 'scale') else ''})", title_justify="left")
         table.add_column("metric")
         for stat in ("rmse", "mean", "median", "std", "min", "max"):
             table.add_column(stat, justify="right")
+        rels = (("trans", "translation [m]"), ("rot", "rotation [deg]"), ("full", "full |E-I|"))
         for kind in ("ape", "rpe"):
-            for rel, label in (("trans", "translation [m]"), ("rot", "rotation [deg]"), ("full", "full |E-I|")):
+            for rel, label in rels[:1] if o_r.translation_only else rels:
                 s = r.stats[kind][rel]
                 table.add_row(f"{kind.upper()} {label}", *(_fmt(s[k]) for k in ("rmse", "mean", "median", "std", "min", "max")))
         console.print(table)

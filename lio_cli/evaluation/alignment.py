@@ -1,8 +1,10 @@
-"""Aligning an estimate to the reference: Umeyama SE(3)/Sim(3)/scale, origin, or none.
+"""Aligning an estimate to the reference: Umeyama SE(3)/Sim(3)/scale, 4-DoF position + yaw, origin, or none.
 
 Definitions follow evo (and Umeyama, PAMI 1991): the alignment ``S`` maps the estimate's world frame into the
 reference's, ``p_ref ~ s R p_est + t``; applied to poses it scales translations by ``s``, then left-multiplies
-by ``[R | t]``. ``n_align`` restricts the fit to the first N associated poses.
+by ``[R | t]``. ``n_align`` restricts the fit to the first N associated poses. ``posyaw`` fits a translation
+and a rotation about world z only (4 DoF, as rpg_trajectory_evaluation does for visual/LiDAR-inertial
+estimates, whose roll and pitch are observable through gravity).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import inv_pose
 
-MODES = ("none", "se3", "sim3", "scale", "origin")
+MODES = ("none", "se3", "sim3", "scale", "origin", "posyaw")
 
 
 @dataclass
@@ -70,6 +72,30 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[np.ndar
     return R, t, s
 
 
+def posyaw(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R about z, t) minimising sum |dst_i - (R src_i + t)|^2 over points (N,3), R a rotation about world z.
+
+    Closed form: with centred points a = src - mean, b = dst - mean, the cost is minimal at
+    yaw = atan2(sum(a_x b_y - a_y b_x), sum(a_x b_x + a_y b_y)), and t = mean(dst) - R mean(src).
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    mu_src, mu_dst = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - mu_src, dst - mu_dst
+    sin_sum = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    cos_sum = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    spread = float(np.sqrt(np.sum(a[:, :2] ** 2) * np.sum(b[:, :2] ** 2)))
+    if not spread > 0.0 or np.hypot(sin_sum, cos_sum) <= 1e-12 * spread:
+        raise InputError(
+            "the trajectory is degenerate for posyaw alignment (no horizontal extent to fix the yaw); "
+            "use --align none"
+        )
+    yaw = np.arctan2(sin_sum, cos_sum)
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return R, mu_dst - R @ mu_src
+
+
 def align(ref_poses: np.ndarray, est_poses: np.ndarray, mode: str = "se3", n_align: int | None = None) -> Alignment:
     """The alignment of ``est_poses`` onto ``ref_poses`` (paired, same length)."""
     if mode not in MODES:
@@ -80,6 +106,9 @@ def align(ref_poses: np.ndarray, est_poses: np.ndarray, mode: str = "se3", n_ali
     if mode == "origin":
         T = ref_poses[0] @ inv_pose(est_poses[0])
         return Alignment(mode, T[:3, :3].copy(), T[:3, 3].copy(), 1.0, 1)
+    if mode == "posyaw":
+        R, t = posyaw(est_poses[:n, :3, 3], ref_poses[:n, :3, 3])
+        return Alignment(mode, R, t, 1.0, n)
     R, t, s = umeyama(est_poses[:n, :3, 3], ref_poses[:n, :3, 3], with_scale=mode in ("sim3", "scale"))
     if mode == "scale":
         return Alignment(mode, np.eye(3), np.zeros(3), s, n)

@@ -1,4 +1,4 @@
-"""Decode IMU, odometry, pose and TF messages into typed records; dispatch by message type."""
+"""Decode IMU, odometry, pose, TF and NavSatFix messages into typed records; dispatch by message type."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import pose_from_xyz_quat
 from .pointcloud import stamp_to_ns
-from ..model.records import OdometryRecord, PoseRecord, TransformRecord
+from ..model.records import NavSatFixRecord, OdometryRecord, PoseRecord, TransformRecord
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 LASERSCAN = "sensor_msgs/msg/LaserScan"
@@ -17,6 +17,7 @@ TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 
 # Which message types can feed which role.
 KIND_TYPES: dict[str, tuple[str, ...]] = {
@@ -24,8 +25,10 @@ KIND_TYPES: dict[str, tuple[str, ...]] = {
     "imu": (IMU,),
     "wheel": (ODOMETRY, TWIST_STAMPED),
     "gt": (POSE_STAMPED, TRANSFORM_STAMPED, ODOMETRY),
+    "gps": (NAVSATFIX,),
 }
-KIND_FLAGS = {"lidar": "--lidar-topic", "imu": "--imu-topic", "wheel": "--wheel-topic", "gt": "--gt-topic"}
+KIND_FLAGS = {"lidar": "--lidar-topic", "imu": "--imu-topic", "wheel": "--wheel-topic", "gt": "--gt-topic",
+              "gps": "--gps-topic"}
 
 
 def _vec(v) -> np.ndarray:
@@ -81,3 +84,13 @@ def decode_tf(msg) -> list[TransformRecord]:
         pose = _pose_of(tf.translation, tf.rotation, f"transform {ts.header.frame_id}->{ts.child_frame_id}")
         out.append(TransformRecord(stamp_to_ns(ts.header.stamp), ts.header.frame_id.lstrip("/"), ts.child_frame_id.lstrip("/"), pose))
     return out
+
+
+def decode_navsatfix(msg) -> NavSatFixRecord:
+    """A sensor_msgs/NavSatFix as it is (no validity check: see ``NavSatFixRecord.invalid_reason``)."""
+    cov = np.asarray(msg.position_covariance, dtype=np.float64)
+    if cov.size != 9:
+        raise InputError(f"NavSatFix position_covariance has {cov.size} values, expected 9")
+    return NavSatFixRecord(stamp_to_ns(msg.header.stamp), msg.header.frame_id, int(msg.status.status),
+                           int(msg.status.service), float(msg.latitude), float(msg.longitude), float(msg.altitude),
+                           cov.reshape(3, 3), int(msg.position_covariance_type))

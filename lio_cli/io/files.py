@@ -46,8 +46,8 @@ def _refuse_input(out: Path, inp: Path) -> None:
     holds = out.is_dir() and inp_real.startswith(out_real.rstrip(os.sep) + os.sep)
     if same or inside or holds:
         what = "the input" if same else "inside the input folder" if inside else "a folder holding the input"
-        raise InputError(f"{out}: is {what} {inp}; lio never writes over its inputs (--force or not): "
-                         "choose another output")
+        raise InputError(f"{out}: is an input of this run ({what} {inp}); lio never writes over its inputs "
+                         "(--force or not): choose another output")
 
 
 def temp_sibling(path: Path) -> Path:

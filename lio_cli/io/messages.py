@@ -92,18 +92,6 @@ class MessageFactory:
             ),
         )
 
-    def navsatfix(self, stamp_ns: int, frame_id: str, status: int, lat_deg: float, lon_deg: float, alt_m: float,
-                  covariance_m2, covariance_type: int, service: int = 1):
-        """sensor_msgs/NavSatFix; ``covariance_m2`` the 3x3 ENU position covariance (9 values, row-major);
-        ``service`` 1 = GPS."""
-        return self.T["sensor_msgs/msg/NavSatFix"](
-            header=self.header(stamp_ns, frame_id),
-            status=self.T["sensor_msgs/msg/NavSatStatus"](status=int(status), service=int(service)),
-            latitude=float(lat_deg), longitude=float(lon_deg), altitude=float(alt_m),
-            position_covariance=np.asarray(covariance_m2, dtype=np.float64).reshape(9),
-            position_covariance_type=int(covariance_type),
-        )
-
     def twist_stamped(self, stamp_ns: int, frame_id: str, linear_mps, angular_radps):
         return self.T["geometry_msgs/msg/TwistStamped"](
             header=self.header(stamp_ns, frame_id),
@@ -118,6 +106,17 @@ class MessageFactory:
         return self.T["geometry_msgs/msg/TransformStamped"](
             header=self.header(stamp_ns, parent), child_frame_id=child,
             transform=self.T["geometry_msgs/msg/Transform"](translation=self.vector3(xyz), rotation=self.quaternion(q)),
+        )
+
+    def navsatfix(self, stamp_ns: int, frame_id: str, lat_deg: float, lon_deg: float, alt_m: float, *,
+                  status: int = 0, service: int = 1, covariance_m2=None, covariance_type: int = 0):
+        """sensor_msgs/NavSatFix; ``covariance_m2`` (3,3) or (9,) in ENU, zeros (type 0, unknown) by default."""
+        cov = _COV0.copy() if covariance_m2 is None else np.asarray(covariance_m2, dtype=np.float64).reshape(9)
+        return self.T["sensor_msgs/msg/NavSatFix"](
+            header=self.header(stamp_ns, frame_id),
+            status=self.T["sensor_msgs/msg/NavSatStatus"](status=int(status), service=int(service)),
+            latitude=float(lat_deg), longitude=float(lon_deg), altitude=float(alt_m),
+            position_covariance=cov, position_covariance_type=int(covariance_type),
         )
 
     def tf_message(self, transforms: list):

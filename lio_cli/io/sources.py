@@ -1,12 +1,14 @@
 """Trajectory sources: what a user names on the command line, read into a ``Trajectory``.
 
 A TUM or KITTI file, or a topic of a log (``LOG:/topic``, ``LOG#/topic``), or a chain of /tf and /tf_static
-(``LOG:tf:parent.child``). Every problem is an ``InputError`` naming the file.
+(``LOG:tf:parent.child``). A NavSatFix topic becomes a position-only trajectory in a local ENU frame
+(``io.gps``). Every problem is an ``InputError`` naming the file.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +19,9 @@ from ..model.trajectory import Trajectory
 from .detect import looks_like_log
 from .tf import FrameTree
 from .trajectory_files import read_kitti, read_times, read_tum, sniff_columns
+
+if TYPE_CHECKING:
+    from ..geodesy import EnuFrame
 
 
 def split_source(spec: str) -> tuple[str, str | None]:
@@ -40,16 +45,20 @@ def load_trajectory(
     times: str | Path | None = None,
     rate_hz: float | None = None,
     stamp_unit: str = "s",
+    origin: EnuFrame | None = None,
 ) -> Trajectory:
-    """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path."""
+    """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path.
+
+    ``origin``: the ENU origin of a NavSatFix topic (default: its first valid fix).
+    """
     path_text, topic_spec = split_source(spec)
     path = Path(path_text)
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
     if topic_spec is None and looks_like_log(path):
-        return read_log_trajectory(path, topic, required_kind="gt")
+        return read_log_trajectory(path, topic, required_kind="gt", origin=origin)
     if topic_spec is not None:
-        return read_log_trajectory(path, topic_spec)
+        return read_log_trajectory(path, topic_spec, origin=origin)
     cols = sniff_columns(path)
     if cols == 12:
         poses = read_kitti(path)
@@ -75,8 +84,11 @@ def load_trajectory(
     )
 
 
-def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt") -> Trajectory:
-    """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped) or a TF chain ``tf:a.b``."""
+def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt",
+                        origin: EnuFrame | None = None) -> Trajectory:
+    """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped), a TF chain ``tf:a.b``, or the
+    ENU positions of a NavSatFix topic (named, or the log's only one when it has no pose topic)."""
+    from .decode import NAVSATFIX
     from .reader import open_log
     from .stream import SensorStream
     from .topics import select_topic
@@ -84,6 +96,16 @@ def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str =
     with open_log(path) as log:
         if topic_spec is not None and topic_spec.startswith("tf:"):
             return _read_tf_chain(log, path, topic_spec[3:])
+        info = log.topics.get(topic_spec) if topic_spec is not None else None
+        gps_topic = topic_spec if info is not None and info.msgtype == NAVSATFIX else None
+        if topic_spec is None and select_topic(log, required_kind, None, required=False) is None:
+            gps = sorted(t for t, i in log.topics.items() if i.msgtype == NAVSATFIX and i.count > 0)
+            if len(gps) > 1:
+                raise InputError(f"{path}: no ground-truth pose topic and several GPS topics ({', '.join(gps)}); "
+                                 f"name one as LOG:/topic")
+            gps_topic = gps[0] if gps else None
+        if gps_topic is not None:
+            return _read_gps(log, path, select_topic(log, "gps", gps_topic), origin)
         topic = select_topic(log, required_kind, topic_spec)
         stamps, poses = [], []
         for rec in SensorStream(log, {"gt": topic}, strict=True):
@@ -92,6 +114,13 @@ def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str =
     if not poses:
         raise InputError(f"{path}: topic {topic} holds no messages")
     return Trajectory(np.asarray(stamps, dtype=np.int64), np.asarray(poses), f"{path}:{topic}", "topic")
+
+
+def _read_gps(log, path: Path, topic: str, origin: EnuFrame | None) -> Trajectory:
+    from .gps import gps_poses, read_gps_track
+
+    track = read_gps_track(log, topic, origin)
+    return Trajectory(track.stamps_ns, gps_poses(track), f"{path}:{topic}", "gps", gps=track)
 
 
 def _read_tf_chain(log, path: Path, chain: str) -> Trajectory:

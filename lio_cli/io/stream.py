@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..model.records import ImuBatch, Record, TimeConvention
-from .decode import IMU, LASERSCAN, POINTCLOUD2, decode_odometry, decode_pose, imu_sample
+from .decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odometry, decode_pose, imu_sample
 from .reader import LogReader
 from .pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,
@@ -48,7 +48,7 @@ class StreamStats:
 
 
 class SensorStream:
-    """Iterate typed records (kind lidar/imu/wheel/gt) of the chosen topics in header-stamp order.
+    """Iterate typed records (kind lidar/imu/wheel/gt/gps) of the chosen topics in header-stamp order.
 
     ``strict``: stamps going backwards and clouds with no valid point raise ``InputError``; otherwise such
     messages are dropped and counted in ``stats``.
@@ -117,6 +117,9 @@ class SensorStream:
             return Record(kind, topic, stamp, (frame, gyro, accel))
         if kind == "wheel":
             rec = decode_odometry(msg, msgtype)
+            return Record(kind, topic, rec.stamp_ns, rec)
+        if kind == "gps":
+            rec = decode_navsatfix(msg)
             return Record(kind, topic, rec.stamp_ns, rec)
         rec = decode_pose(msg, msgtype)
         return Record(kind, topic, rec.stamp_ns, rec)

@@ -25,7 +25,7 @@ from ..errors import InputError
 from .decode import IMU, KIND_FLAGS, KIND_TYPES, ODOMETRY
 from .reader import LogReader
 
-_KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth"}
+_KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth", "gps": "GPS (NavSatFix)"}
 _GT_TOKENS = {"gt", "groundtruth", "truth", "vicon", "mocap", "optitrack", "qualisys", "motioncapture"}
 _GT_PHRASES = ("ground_truth", "ground-truth", "groundtruth", "motion_capture")
 _ESTIMATE_TOKENS = {"filtered", "ekf", "ukf", "fused", "fusion", "slam", "lio", "loam", "liom", "estimate",

@@ -102,6 +102,49 @@ class PoseRecord:
     pose: np.ndarray  # (4,4)
 
 
+# sensor_msgs/NavSatStatus values
+NAVSAT_STATUS_NO_FIX = -1
+NAVSAT_STATUS_FIX = 0
+NAVSAT_STATUS_SBAS_FIX = 1
+NAVSAT_STATUS_GBAS_FIX = 2
+NAVSAT_COVARIANCE_TYPES = ("unknown", "approximated", "diagonal_known", "known")
+
+
+@dataclass
+class NavSatFixRecord:
+    """One sensor_msgs/NavSatFix: the WGS84 position of the antenna frame ``frame_id``, as the receiver said.
+
+    ``status``: -1 no fix, 0 fix, 1 SBAS-augmented, 2 ground-based augmentation (e.g. RTK); ``service``: the
+    constellations used (bit mask: 1 GPS, 2 GLONASS, 4 COMPASS, 8 GALILEO). ``altitude_m`` is above the WGS84
+    ellipsoid. ``position_covariance_m2`` is (3,3) in the local east-north-up frame at the fix;
+    ``covariance_type`` indexes ``NAVSAT_COVARIANCE_TYPES`` (0 unknown ... 3 known). Nothing is checked when
+    decoding: ``invalid_reason`` says why a fix is unusable.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    status: int
+    service: int
+    latitude_deg: float
+    longitude_deg: float
+    altitude_m: float
+    position_covariance_m2: np.ndarray  # (3,3)
+    covariance_type: int
+
+    @property
+    def invalid_reason(self) -> str | None:
+        """None for a usable fix; else ``no fix`` or what is wrong with its coordinates."""
+        from ..geodesy import check_geodetic
+
+        if self.status < NAVSAT_STATUS_FIX:
+            return "no fix"
+        return check_geodetic(self.latitude_deg, self.longitude_deg, self.altitude_m)
+
+    @property
+    def valid(self) -> bool:
+        return self.invalid_reason is None
+
+
 @dataclass
 class TransformRecord:
     """One transform of a TF message: ``T_parent_child``."""
@@ -131,7 +174,7 @@ class TopicInfo:
 
 @dataclass
 class Record:
-    """One item of a merged sensor stream: ``kind`` is lidar, imu, wheel or gt."""
+    """One item of a merged sensor stream: ``kind`` is lidar, imu, wheel, gt or gps."""
 
     kind: str
     topic: str

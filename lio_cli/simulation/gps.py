@@ -17,7 +17,7 @@ import numpy as np
 from .motion import Trajectory
 from .options import DEFAULT_GPS_ORIGIN
 from .sensors import NS
-from .wgs84 import enu_to_geodetic
+from ..geodesy import EnuFrame
 
 STATUS_FIX, STATUS_NO_FIX = 0, -1
 COVARIANCE_TYPE_UNKNOWN, COVARIANCE_TYPE_DIAGONAL_KNOWN = 0, 2
@@ -87,7 +87,7 @@ def gps_fixes(traj: Trajectory, spec: GpsSpec, start_ns: int, end_ns: int, traj_
             invalid[before[-1]] = True  # the receiver loses lock ...
         if len(after):
             invalid[after[0]] = True  # ... and needs one more epoch to get it back
-    lat, lon, alt = enu_to_geodetic(antenna + err, spec.origin)
+    lat, lon, alt = EnuFrame(*spec.origin).to_geodetic(antenna + err)
     lat, lon, alt = (np.where(invalid, np.nan, v) for v in (lat, lon, alt))
     status = np.where(invalid, STATUS_NO_FIX, STATUS_FIX).astype(np.int8)
     return GpsFixes(stamps[keep], lat[keep], lon[keep], alt[keep], status[keep], antenna[keep],

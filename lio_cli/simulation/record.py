@@ -70,9 +70,10 @@ def gt_message(mk, gt_type: str, twist: bool, t_ns: int, st: MotionState, i: int
 def gps_message(mk, gps: GpsFixes, i: int):
     t = int(gps.stamps_ns[i])
     if gps.status[i] == STATUS_FIX:
-        return mk.navsatfix(t, "gps", STATUS_FIX, gps.lat_deg[i], gps.lon_deg[i], gps.alt_m[i],
-                            np.diag(gps.covariance_enu_m2), COVARIANCE_TYPE_DIAGONAL_KNOWN)
-    return mk.navsatfix(t, "gps", int(gps.status[i]), np.nan, np.nan, np.nan, np.zeros(9), COVARIANCE_TYPE_UNKNOWN)
+        return mk.navsatfix(t, "gps", gps.lat_deg[i], gps.lon_deg[i], gps.alt_m[i], status=STATUS_FIX,
+                            covariance_m2=np.diag(gps.covariance_enu_m2), covariance_type=COVARIANCE_TYPE_DIAGONAL_KNOWN)
+    return mk.navsatfix(t, "gps", np.nan, np.nan, np.nan, status=int(gps.status[i]), covariance_m2=np.zeros(9),
+                        covariance_type=COVARIANCE_TYPE_UNKNOWN)
 
 
 def cloud_array(scan: Scan, convention: str, header_ns: int) -> np.ndarray:

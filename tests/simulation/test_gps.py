@@ -14,7 +14,7 @@ from lio_cli.io.reader import open_log
 from lio_cli.io.trajectory_files import read_tum
 from lio_cli.simulation import build_scenario, output_paths, simulate
 from lio_cli.simulation.gps import GpsSpec, gauss_markov, gps_fixes
-from lio_cli.simulation.wgs84 import geodetic_to_enu
+from lio_cli.geodesy import EnuFrame
 
 NS = 1_000_000_000
 START_NS = 1_700_000_000 * NS
@@ -29,7 +29,7 @@ def test_fix_errors_have_the_requested_spread_and_correlation():
     fixes = gps_fixes(sc.trajectory, spec, 0, 3600 * NS, 0, np.random.default_rng(1))
     valid = fixes.status == 0
     # converted back to ENU, each valid fix sits at the true antenna position plus its recorded error
-    enu = geodetic_to_enu(fixes.lat_deg[valid], fixes.lon_deg[valid], fixes.alt_m[valid], ORIGIN)
+    enu = EnuFrame(*ORIGIN).to_enu(fixes.lat_deg[valid], fixes.lon_deg[valid], fixes.alt_m[valid])
     np.testing.assert_allclose(enu - fixes.antenna_enu_m[valid], fixes.error_enu_m[valid], atol=1e-6)
     err = enu - fixes.antenna_enu_m[valid]
     np.testing.assert_allclose(err.std(axis=0), [0.8, 0.8, 1.6], rtol=STD_RTOL)
@@ -84,8 +84,8 @@ def test_navsatfix_messages_convert_back_to_the_ground_truth(tmp_path):
         assert m.header.frame_id == "gps" and m.status.service == 1 and m.position_covariance_type == 2
         np.testing.assert_allclose(m.position_covariance, np.diag([0.25, 0.25, 1.0]).ravel())
     ok = np.array(fixes)[~invalid]
-    enu = geodetic_to_enu(np.array([m.latitude for m in ok]), np.array([m.longitude for m in ok]),
-                          np.array([m.altitude for m in ok]), ORIGIN)
+    enu = EnuFrame(*ORIGIN).to_enu(np.array([m.latitude for m in ok]), np.array([m.longitude for m in ok]),
+                                    np.array([m.altitude for m in ok]))
     idx = np.searchsorted(gt_ns, stamps[~invalid])
     assert (gt_ns[idx] == stamps[~invalid]).all()
     antenna = np.stack([transform_points(gt_poses[i], tf["gps"].pose[:3, 3][None])[0] for i in idx])

@@ -1,11 +1,13 @@
-"""WGS84 conversions of the simulated GPS: published ECEF values, exact up offsets, round trips."""
+"""WGS84 conversions: published ECEF values, exact up offsets, round trips, local radii of curvature."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lio_cli.simulation.wgs84 import A_M, B_M, ecef_to_geodetic, enu_to_geodetic, geodetic_to_ecef, geodetic_to_enu
+from lio_cli.geodesy import WGS84_A_M as A_M
+from lio_cli.geodesy import WGS84_B_M as B_M
+from lio_cli.geodesy import EnuFrame, ecef_to_geodetic, geodetic_to_ecef
 
 ECEF_TOL_M = 1e-3
 ROUND_TRIP_TOL_M = 1e-6
@@ -29,14 +31,15 @@ def test_geodetic_to_ecef_matches_published_values():
 def test_enu_round_trip_and_pure_up_offset(origin):
     rng = np.random.default_rng(4)
     enu = np.column_stack([rng.uniform(-50e3, 50e3, 200), rng.uniform(-50e3, 50e3, 200), rng.uniform(-500, 3000, 200)])
-    lat, lon, alt = enu_to_geodetic(enu, origin)
-    np.testing.assert_allclose(geodetic_to_enu(lat, lon, alt, origin), enu, atol=ROUND_TRIP_TOL_M)
+    frame = EnuFrame(*origin)
+    lat, lon, alt = frame.to_geodetic(enu)
+    np.testing.assert_allclose(frame.to_enu(lat, lon, alt), enu, atol=ROUND_TRIP_TOL_M)
     ecef = geodetic_to_ecef(lat, lon, alt)
     lat2, lon2, alt2 = ecef_to_geodetic(ecef)
     np.testing.assert_allclose(np.column_stack([lat2, lon2]), np.column_stack([lat, lon]), atol=ANGLE_TOL_DEG)
     np.testing.assert_allclose(alt2, alt, atol=ROUND_TRIP_TOL_M)
     # straight up from the origin is along the ellipsoid normal: latitude and longitude stay, height grows
-    lat, lon, alt = enu_to_geodetic(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 123.4]]), origin)
+    lat, lon, alt = frame.to_geodetic(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 123.4]]))
     np.testing.assert_allclose(lat, origin[0], atol=ANGLE_TOL_DEG)
     np.testing.assert_allclose(lon, origin[1], atol=ANGLE_TOL_DEG)
     np.testing.assert_allclose(alt, [origin[2], origin[2] + 123.4], atol=ROUND_TRIP_TOL_M)
@@ -50,6 +53,6 @@ def test_small_offsets_follow_the_local_radii_of_curvature():
     s = np.sin(np.radians(lat0))
     n = A_M / np.sqrt(1 - e2 * s * s)
     m = A_M * (1 - e2) / (1 - e2 * s * s) ** 1.5
-    lat, lon, _ = enu_to_geodetic(np.array([[0.0, 100.0, 0.0], [100.0, 0.0, 0.0]]), (lat0, lon0, h0))
+    lat, lon, _ = EnuFrame(lat0, lon0, h0).to_geodetic(np.array([[0.0, 100.0, 0.0], [100.0, 0.0, 0.0]]))
     assert np.radians(lat[0] - lat0) * (m + h0) == pytest.approx(100.0, abs=1e-3)
     assert np.radians(lon[1] - lon0) * (n + h0) * np.cos(np.radians(lat0)) == pytest.approx(100.0, abs=1e-3)
