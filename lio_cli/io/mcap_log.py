@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 from ..errors import InputError
 from ..model.records import TopicInfo
-from .reader import _READ_ERRORS, LogReader, _first_line
+from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, _first_line
 
 _ENCODINGS = ("cdr", "ros1")
 
@@ -47,6 +47,8 @@ class McapLog(LogReader):
 
         self._typestores: dict[str, object] = {}  # per encoding, built from the file's schemas when needed
         self._registered: set[tuple[str, str]] = set()
+        self._channels: dict[int, tuple[LogConnection, _Handle]] = {}  # channel id -> its connection
+        self._summary = None
         try:
             self._file = paths[0].open("rb")
             self._reader = make_reader(self._file, validate_crcs=True)
@@ -55,6 +57,7 @@ class McapLog(LogReader):
             raise InputError(
                 f"{path}: cannot open as MCAP ({_first_line(err)}); the file may be truncated or corrupted"
             ) from err
+        self._summary = summary
         if summary is None or summary.statistics is None:
             # No summary section or no statistics (legal in MCAP): count by scanning once.
             self._scan_without_summary()
@@ -117,6 +120,49 @@ class McapLog(LogReader):
                 )
             yield channel.topic, _msgtype(schema), int(message.log_time), message.data, \
                 _Handle(schema, channel.message_encoding)
+
+    def _channel(self, schema, channel) -> tuple[LogConnection, _Handle]:
+        """The ``LogConnection`` (and decoding handle) of an MCAP channel, made once per channel."""
+        found = self._channels.get(channel.id)
+        if found is None:
+            text, fmt = "", ""
+            if schema is not None and schema.encoding in ("ros1msg", "ros2msg", "ros2idl"):
+                text, fmt = schema.data.decode(), schema.encoding
+            conn = LogConnection(channel.id, channel.topic, _msgtype(schema), channel.message_encoding, text, fmt,
+                                 metadata=tuple(sorted(channel.metadata.items())),
+                                 schema_name=schema.name if schema is not None else "")
+            found = self._channels[channel.id] = (conn, _Handle(schema, channel.message_encoding))
+        return found
+
+    @property
+    def connections(self) -> list[LogConnection]:
+        summary = self._summary
+        if summary is None:  # no summary section: the channels met so far (all of them after one pass)
+            return [c for c, _ in self._channels.values()]
+        return [self._channel(summary.schemas.get(ch.schema_id), ch)[0]
+                for _, ch in sorted(summary.channels.items())]
+
+    def _iter_records(self, topics: set[str] | None):
+        self._file.seek(0)
+        from mcap.reader import make_reader
+
+        if topics is not None and not topics:
+            return
+        reader = make_reader(self._file, validate_crcs=True)
+        kwargs = {"topics": sorted(topics)} if topics is not None else {}
+        for schema, channel, message in reader.iter_messages(log_time_order=True, **kwargs):
+            if channel.message_encoding not in _ENCODINGS:
+                raise InputError(
+                    f"{self.path}: topic {channel.topic} uses '{channel.message_encoding}' encoding; "
+                    "lio reads ROS 2 (cdr) and ROS 1 (ros1) messages"
+                )
+            conn, _ = self._channel(schema, channel)
+            yield RawRecord(conn, int(message.log_time), message.data, int(message.publish_time),
+                            int(message.sequence))
+
+    def _deserialize_record(self, rec: RawRecord):
+        _, handle = self._channels[rec.connection.key]
+        return self._deserialize(rec.data, rec.connection.msgtype, handle)
 
     def _deserialize(self, raw, msgtype, handle: _Handle):
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from ..errors import InputError
 from ..model.records import TopicInfo
@@ -37,6 +38,42 @@ _RAW_DIGESTS = {
 }
 
 
+@dataclass(frozen=True)
+class LogConnection:
+    """One connection (ROS bag) or channel (MCAP) of a log, with what a copy needs to recreate it exactly.
+
+    ``encoding``: ``ros1`` or ``cdr``. ``msgdef``: the message definition as stored (``msgdef_format``:
+    ``ros1msg``, ``ros2msg``, ``ros2idl``; empty when the log stores none); ``digest``: the ROS 1 md5 or the
+    ROS 2 RIHS01 hash ("" when the log has none). ROS 1 bags add ``callerid`` and ``latching``, ROS 2 bags
+    their offered QoS profiles (rosbags ``Qos`` objects), MCAP files the channel ``metadata`` and the schema
+    name.
+    """
+
+    key: int  # unique within the log
+    topic: str
+    msgtype: str
+    encoding: str
+    msgdef: str = ""
+    msgdef_format: str = ""
+    digest: str = ""
+    callerid: str | None = None
+    latching: int | None = None
+    qos: tuple = ()
+    metadata: tuple[tuple[str, str], ...] = ()
+    schema_name: str = ""
+
+
+class RawRecord(NamedTuple):
+    """One message as stored: its connection, record (log) time and serialised bytes; MCAP adds its publish
+    time and sequence number."""
+
+    connection: LogConnection
+    log_time_ns: int
+    data: bytes
+    publish_time_ns: int | None = None
+    sequence: int | None = None
+
+
 class LogReader:
     """A read-only, lazily iterated view of one log."""
 
@@ -53,6 +90,17 @@ class LogReader:
         raise NotImplementedError
 
     def _deserialize(self, raw: Any, msgtype: str, handle: Any) -> Any:
+        raise NotImplementedError
+
+    def _iter_records(self, topics: set[str] | None) -> Iterator[RawRecord]:
+        raise NotImplementedError
+
+    def _deserialize_record(self, rec: RawRecord) -> Any:
+        raise NotImplementedError
+
+    @property
+    def connections(self) -> list[LogConnection]:
+        """Every connection (channel) of the log, with or without messages, in the log's own order."""
         raise NotImplementedError
 
     def close(self) -> None:  # pragma: no cover - trivial
@@ -82,6 +130,25 @@ class LogReader:
             raise
         except _READ_ERRORS as err:
             raise self._wrap("cannot read messages", err) from err
+
+    def records(self, topics: Iterable[str] | None = None) -> Iterator[RawRecord]:
+        """Every message of ``topics`` (all by default) as stored, with its connection, in record-time order."""
+        wanted = set(topics) if topics is not None else None
+        try:
+            yield from self._iter_records(wanted)
+        except InputError:
+            raise
+        except _READ_ERRORS as err:
+            raise self._wrap("cannot read messages", err) from err
+
+    def deserialize(self, rec: RawRecord) -> Any:
+        """The typestore message object of one record (by its connection's stored definition)."""
+        try:
+            return self._deserialize_record(rec)
+        except InputError:
+            raise
+        except _READ_ERRORS as err:
+            raise self._wrap(f"cannot decode a {rec.connection.msgtype} message on {rec.connection.topic}", err) from err
 
     def messages(self, topics: Iterable[str] | None = None, *, fast: bool = False
                  ) -> Iterator[tuple[str, str, int, Any]]:

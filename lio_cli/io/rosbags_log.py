@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..model.records import TopicInfo
 from .mcap_log import mcap_channel_spans
-from .reader import _READ_ERRORS, LogReader, _first_line, _merge_span
+from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, _first_line, _merge_span
 
 class _BagPath(type(Path())):
     """A path that reports the .bag suffix, so rosbags' AnyReader reads it as a ROS 1 bag."""
@@ -24,6 +24,7 @@ class RosbagsLog(LogReader):
 
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
+        self._conn_cache: dict[int, LogConnection] = {}  # id(rosbags connection) -> its LogConnection
         from rosbags.highlevel import AnyReader, AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
@@ -81,6 +82,39 @@ class RosbagsLog(LogReader):
 
     def _deserialize(self, raw, msgtype, handle):
         return self._reader.deserialize(raw, msgtype)
+
+    @property
+    def connections(self) -> list[LogConnection]:
+        return [self._connection(c) for c in self._reader.connections]
+
+    def _connection(self, conn) -> LogConnection:
+        """The ``LogConnection`` of a rosbags connection (made once per connection)."""
+        cache = self._conn_cache
+        found = cache.get(id(conn))
+        if found is not None:
+            return found
+        from rosbags.interfaces import ConnectionExtRosbag1, MessageDefinitionFormat
+
+        ext, msgdef = conn.ext, conn.msgdef
+        if isinstance(ext, ConnectionExtRosbag1):
+            info = LogConnection(len(cache), conn.topic, conn.msgtype, "ros1", msgdef.data, "ros1msg", conn.digest or "",
+                                 callerid=ext.callerid, latching=ext.latching)
+        else:
+            fmt = "ros2idl" if msgdef.format == MessageDefinitionFormat.IDL else "ros2msg"
+            info = LogConnection(len(cache), conn.topic, conn.msgtype, "cdr", msgdef.data or "",
+                                 fmt if msgdef.data else "", conn.digest or "", qos=tuple(ext.offered_qos_profiles))
+        cache[id(conn)] = info
+        return info
+
+    def _iter_records(self, topics: set[str] | None):
+        conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
+        if not conns:
+            return
+        for conn, t_ns, raw in self._reader.messages(connections=conns):
+            yield RawRecord(self._connection(conn), int(t_ns), raw)
+
+    def _deserialize_record(self, rec: RawRecord):
+        return self._reader.deserialize(rec.data, rec.connection.msgtype)
 
     def close(self) -> None:
         try:

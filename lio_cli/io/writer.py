@@ -2,6 +2,10 @@
 
 The log is written to a temporary sibling and renamed into place on ``close()``; on error (``abort()`` or
 an exception inside ``with``) nothing is left behind and an existing output is untouched.
+
+Two ways to add a connection: ``add_topic`` (a standard type, defined by the writer's typestore) and
+``add_mirror`` (a copy of another log's connection: its definition, hash and the metadata the output format
+holds), whose messages are then written as stored with ``write_record``.
 """
 
 from __future__ import annotations
@@ -11,15 +15,18 @@ from pathlib import Path
 from ..errors import InputError
 from .files import check_writable, remove_path, replace_path, temp_sibling
 from .messages import MessageFactory
+from .reader import LogConnection
 
 WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"
+# the message encodings each output format holds
+FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), "mcap": ("cdr", "ros1")}
 
 
 class LogWriter:
     """``add_topic(topic, msgtype)`` then ``write(topic, time_ns, msg)`` in any order of time."""
 
-    def __init__(self, path: str | Path, fmt: str, force: bool = False) -> None:
+    def __init__(self, path: str | Path, fmt: str, force: bool = False, mcap_profile: str = "ros2") -> None:
         from rosbags.typesys import Stores, get_typestore
 
         if fmt not in WRITE_FORMATS:
@@ -43,6 +50,9 @@ class LogWriter:
             self._tmp = temp_sibling(self.path)
         self._topics: dict[str, tuple[str, object]] = {}
         self._seq: dict[str, int] = {}
+        self._mcap_profile = mcap_profile
+        self._mirrors: list[list] = []  # per key: [output connection, encoding, next sequence number]
+        self._mirror_keys: dict[tuple, int] = {}  # identical connections share one output connection
         try:
             self._open()
         except Exception as err:
@@ -69,7 +79,7 @@ class LogWriter:
 
             self._file = self._tmp.open("wb")
             self._w = Writer(self._file)
-            self._w.start(profile="ros2", library="lio")
+            self._w.start(profile=self._mcap_profile, library="lio")
             self._schemas: dict[str, int] = {}
 
     def add_topic(self, topic: str, msgtype: str, latching: bool = False) -> None:
@@ -87,6 +97,100 @@ class LogWriter:
             conn = self._w.register_channel(topic, "cdr", self._schemas[msgtype])
         self._topics[topic] = (msgtype, conn)
         self._seq[topic] = 0
+
+    @property
+    def encoding(self) -> str:
+        """The encoding of messages added with ``add_topic``: ``ros1`` for a ROS 1 bag, ``cdr`` otherwise."""
+        return "ros1" if self.format == "ros1" else "cdr"
+
+    def add_mirror(self, conn: LogConnection, topic: str | None = None) -> int:
+        """A connection like ``conn`` (renamed to ``topic`` when given), for its messages as stored; returns the
+        key ``write_record`` takes. ``conn.encoding`` must be one this format holds (``FORMAT_ENCODINGS``).
+
+        Kept: type, definition and hash; ROS 1 caller id and latching; ROS 2 QoS profiles; MCAP schema and
+        channel metadata (ROS 1 caller id/latching and ROS 2 QoS travel there as MCAP's profiles name them).
+        """
+        if conn.encoding not in FORMAT_ENCODINGS[self.format]:
+            raise InputError(f"{self.path}: a {self.format} log cannot hold {conn.encoding}-encoded messages "
+                             f"({conn.topic}); convert them first")
+        topic = topic or conn.topic
+        sig = (topic, conn.msgtype, conn.encoding, conn.msgdef, conn.digest, conn.callerid, conn.latching,
+               repr(conn.qos), conn.metadata)
+        if sig in self._mirror_keys:
+            return self._mirror_keys[sig]
+        try:
+            out = self._mirror_connection(conn, topic)
+        except InputError:
+            raise
+        except Exception as err:  # rosbags/mcap refuse a definition they cannot use
+            raise InputError(f"{self.path}: cannot copy the connection of {conn.topic} ({conn.msgtype}): {err}") from err
+        self._mirrors.append([out, conn.encoding, 0])
+        key = self._mirror_keys[sig] = len(self._mirrors) - 1
+        return key
+
+    def _standard_msgdef(self, msgtype: str, topic: str, ros_version: int) -> tuple[str, str]:
+        if msgtype not in self.typestore.types:
+            raise InputError(f"{self.path}: {topic}: the input stores no definition of {msgtype} and it is not a "
+                             "standard type")
+        if ros_version == 1:
+            return self.typestore.generate_msgdef(msgtype)
+        return self.typestore.generate_msgdef(msgtype, ros_version=2)[0], self.typestore.hash_rihs01(msgtype)
+
+    def _mirror_connection(self, conn: LogConnection, topic: str):
+        meta = dict(conn.metadata)
+        if self.format == "ros1":
+            msgdef, digest = conn.msgdef, conn.digest
+            if not (msgdef and digest):
+                msgdef, digest = self._standard_msgdef(conn.msgtype, topic, 1)
+            callerid = conn.callerid if conn.callerid is not None else meta.get("callerid")
+            latching = conn.latching if conn.latching is not None else (
+                int(meta["latching"]) if meta.get("latching", "").isdigit() else None)
+            return self._w.add_connection(topic, conn.msgtype, msgdef=msgdef, md5sum=digest, callerid=callerid,
+                                          latching=latching)
+        if self.format in ("ros2", "ros2-mcap"):
+            msgdef, digest = conn.msgdef, conn.digest
+            if not msgdef or not digest:
+                std_def, std_hash = self._standard_msgdef(conn.msgtype, topic, 2)
+                msgdef, digest = msgdef or std_def, digest or std_hash
+            qos = list(conn.qos)
+            if not qos and meta.get("offered_qos_profiles"):
+                from rosbags.rosbag2.metadata import parse_qos
+
+                qos = parse_qos(meta["offered_qos_profiles"])
+            return self._w.add_connection(topic, conn.msgtype, msgdef=msgdef, rihs01=digest,
+                                          offered_qos_profiles=qos)
+        msgdef, fmt = conn.msgdef, conn.msgdef_format
+        if not msgdef:
+            msgdef, _ = self._standard_msgdef(conn.msgtype, topic, 1 if conn.encoding == "ros1" else 2)
+            fmt = "ros1msg" if conn.encoding == "ros1" else "ros2msg"
+        name = conn.schema_name or (conn.msgtype.replace("/msg/", "/") if conn.encoding == "ros1" else conn.msgtype)
+        schema_key = (name, fmt, msgdef)
+        if schema_key not in self._schemas:
+            self._schemas[schema_key] = self._w.register_schema(name, fmt, msgdef.encode())
+        if conn.callerid is not None:
+            meta["callerid"] = conn.callerid
+        if conn.latching is not None:
+            meta["latching"] = str(int(conn.latching))
+        if conn.qos and "offered_qos_profiles" not in meta:
+            from rosbags.rosbag2.metadata import dump_qos_v8
+
+            meta["offered_qos_profiles"] = dump_qos_v8(list(conn.qos))
+        return self._w.register_channel(topic, conn.encoding, self._schemas[schema_key], metadata=meta)
+
+    def write_record(self, key: int, time_ns: int, data: bytes, publish_time_ns: int | None = None,
+                     sequence: int | None = None) -> None:
+        """Write stored bytes on a connection from ``add_mirror`` at record time ``time_ns`` (MCAP also keeps
+        the publish time and sequence number when given)."""
+        mirror = self._mirrors[key]
+        out = mirror[0]
+        if self.format == "mcap":
+            seq = mirror[2] if sequence is None else sequence
+            self._w.add_message(out, log_time=int(time_ns), data=data,
+                                publish_time=int(time_ns if publish_time_ns is None else publish_time_ns),
+                                sequence=int(seq))
+        else:
+            self._w.write(out, int(time_ns), data)
+        mirror[2] += 1
 
     def serialize(self, msg, msgtype: str) -> bytes:
         if self.format == "ros1":
