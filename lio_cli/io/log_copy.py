@@ -1,12 +1,14 @@
 """Copy a log's connections and messages into a ``LogWriter``: as stored wherever the output format holds the
 input's encoding, converted otherwise.
 
-A ROS 1 bag holds ROS 1 encoded messages, a ROS 2 bag CDR, a bare MCAP file either. Messages whose encoding
-the output holds are copied byte for byte with their record times (MCAP: publish times and sequence numbers
-too) on connections that keep the input's definition, hash and metadata (``LogWriter.add_mirror``). A ROS 1
-bag written as a ROS 2 bag (or back) has its messages converted by rosbags' own converter to the standard
-definitions of the other ROS version (a ROS 1 header's ``seq`` is dropped, or added as 0): equal field for
-field, not byte for byte, and counted in ``converted``.
+A ROS 1 bag holds ROS 1 encoded messages, a ROS 2 bag CDR; a bare MCAP file is written with CDR (the ros2
+profile, which rosbags and most MCAP tools read) unless the input is itself an MCAP file with ROS 1 encoded
+channels, which are then kept so. Messages whose encoding the output holds are copied byte for byte with
+their record times (MCAP: publish times and sequence numbers too) on connections that keep the input's
+definition, hash and metadata (``LogWriter.add_mirror``). The others (a ROS 1 bag written as a ROS 2 bag or
+MCAP file, or back) are converted by rosbags' own converter to the standard definitions of the other ROS
+version (a ROS 1 header's ``seq`` is dropped, or added as 0): equal field for field, not byte for byte, and
+counted in ``converted``.
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ from .writer import FORMAT_ENCODINGS, LogWriter
 
 
 def mcap_profile(reader: LogReader) -> str:
-    """``ros1`` when every connection of ``reader`` is ROS 1 encoded (a bare MCAP copy keeps them so), else ``ros2``."""
+    """The profile of a bare MCAP copy of ``reader``: ``ros1`` for an MCAP file whose channels are all ROS 1
+    encoded (kept so), else ``ros2``."""
     conns = reader.connections
-    return "ros1" if conns and all(c.encoding == "ros1" for c in conns) else "ros2"
+    return "ros1" if reader.format == "mcap" and conns and all(c.encoding == "ros1" for c in conns) else "ros2"
 
 
 class LogCopy:
@@ -39,6 +42,8 @@ class LogCopy:
 
     def holds(self, conn: LogConnection) -> bool:
         """The output format holds ``conn``'s encoding (its messages are copied as stored)."""
+        if self.writer.format == "mcap" and conn.encoding == "ros1":
+            return self.reader.format == "mcap"  # ROS 1 encoded MCAP stays so; a ROS 1 bag becomes ROS 2 MCAP
         return conn.encoding in FORMAT_ENCODINGS[self.writer.format]
 
     def output(self, conn: LogConnection, topic: str | None = None) -> tuple[int, bool]:

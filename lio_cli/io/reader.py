@@ -150,6 +150,21 @@ class LogReader:
         except _READ_ERRORS as err:
             raise self._wrap(f"cannot decode a {rec.connection.msgtype} message on {rec.connection.topic}", err) from err
 
+    def decode(self, rec: RawRecord) -> Any:
+        """The message of one record as ``messages(fast=True)`` gives it: PointCloud2 and Imu parsed straight
+        from their bytes (``RawPointCloud2``, ``RawImu``) when their definition is the standard one, anything
+        else by the typestore."""
+        conn = rec.connection
+        parser = RAW_PARSERS.get(conn.msgtype)
+        if parser is not None and (not conn.digest or conn.digest in _RAW_DIGESTS[conn.msgtype]):
+            try:
+                msg = parser(rec.data, conn.encoding == "cdr")
+            except _READ_ERRORS as err:
+                raise self._wrap(f"cannot decode a {conn.msgtype} message on {conn.topic}", err) from err
+            if msg is not None:
+                return msg
+        return self.deserialize(rec)
+
     def messages(self, topics: Iterable[str] | None = None, *, fast: bool = False
                  ) -> Iterator[tuple[str, str, int, Any]]:
         """(topic, msgtype, record_time_ns, message object) in record-time order.

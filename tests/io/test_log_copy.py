@@ -43,22 +43,39 @@ def test_same_format_copy_is_byte_identical_with_connections_and_empty_topics(lo
     assert copy.converted == {} and sum(copy.copied.values()) == len(stored(src))
 
 
-@pytest.mark.parametrize("src_fmt,out_fmt", [("ros1", "mcap"), ("ros2", "mcap"), ("mcap", "ros2-mcap"),
-                                              ("ros2-mcap", "ros2")])
+@pytest.mark.parametrize("src_fmt,out_fmt", [("ros2", "mcap"), ("mcap", "ros2-mcap"), ("ros2-mcap", "ros2")])
 def test_an_output_that_holds_the_encoding_copies_bytes_across_formats(logs, tmp_path, src_fmt, out_fmt):
     src = logs.sensor_log(src_fmt)
     out = tmp_path / f"copy{SUFFIX[out_fmt]}"
     copy_all(src, out, out_fmt)
     strip = lambda rows: [r[:3] for r in rows]  # noqa: E731 - publish time/sequence exist in MCAP only
     assert strip(stored(out)) == strip(stored(src))
-    if src_fmt == "ros1":  # ROS 1 messages in MCAP: ros1 encoding, ros1 profile, latching as channel metadata
-        with open_log(out) as r:
-            conns = {c.topic: c for c in r.connections}
-        assert conns["/tf_static"].encoding == "ros1" and ("latching", "1") in conns["/tf_static"].metadata
-        with out.open("rb") as f:
-            from mcap.reader import make_reader
 
-            assert make_reader(f).get_header().profile == "ros1"
+
+def test_ros1_encoded_mcap_stays_ros1_encoded(logs, tmp_path):
+    """An MCAP file with ROS 1 channels (mcap's ros1 profile) is copied as it is: encoding, profile, metadata."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    msgdef, _ = ts.generate_msgdef("std_msgs/msg/String")
+    src = tmp_path / "ros1.mcap"
+    with src.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="ros1", library="test")
+        sid = w.register_schema("std_msgs/String", "ros1msg", msgdef.encode())
+        cid = w.register_channel("/chatter", "ros1", sid, metadata={"callerid": "/talker", "latching": "1"})
+        for i in range(3):
+            w.add_message(cid, log_time=100 + i, publish_time=90 + i, sequence=i,
+                          data=bytes(ts.serialize_ros1(ts.types["std_msgs/msg/String"](data=f"m{i}"), "std_msgs/msg/String")))
+        w.finish()
+    out = tmp_path / "out.mcap"
+    copy = copy_all(src, out, "mcap")
+    assert stored(out) == stored(src) and copy.converted == {}
+    assert connections(out) == connections(src)
+    with out.open("rb") as f:
+        assert make_reader(f).get_header().profile == "ros1"
 
 
 def test_mcap_publish_times_and_sequence_numbers_are_kept(tmp_path):
@@ -111,7 +128,7 @@ def test_two_publishers_on_one_topic_stay_two_connections(tmp_path):
     assert [(c[0], c[5], c[6]) for c in connections(out)] == [("/chatter", "/talker_a", None), ("/chatter", "/talker_b", 1)]
 
 
-@pytest.mark.parametrize("src_fmt,out_fmt", [("ros1", "ros2"), ("ros2", "ros1"), ("mcap", "ros1")])
+@pytest.mark.parametrize("src_fmt,out_fmt", [("ros1", "ros2"), ("ros1", "mcap"), ("ros2", "ros1"), ("mcap", "ros1")])
 def test_ros1_and_ros2_bags_convert_field_for_field(logs, tmp_path, src_fmt, out_fmt):
     src = logs.sensor_log(src_fmt)
     out = tmp_path / f"copy{SUFFIX[out_fmt]}"
