@@ -2,7 +2,7 @@
 
 Three sources, each ending in a ``PoseSpline`` of the base:
 - ``trajectory``: a trajectory file or topic (``--trajectory``, e.g. lio odom's), interpolated (cubic by
-  default); a sweep it does not cover is reported, never extrapolated;
+  default); a sweep it does not cover (beyond 1 ms of slack at its ends) is reported, not extrapolated;
 - ``imu``: lio's IMU-primed odometry run in-process (a first pass over the log) gives the corrected pose at
   every scan's end and the gyro bias; within each sweep the rotation is integrated from the gyro and the
   translation follows the cubic through the scan poses (extrapolated by at most one scan interval at the
@@ -36,6 +36,9 @@ from .odom import OdomJob, run_odom
 from .odom_inputs import Mounting
 
 _IMU_MARGIN_NS = 50_000_000  # IMU kept around a sweep for interpolation at its ends
+# a trajectory is continued this far beyond its ends: a sweep sampled on the trajectory's own clock grid may
+# start a few ns before it once its offsets went through a float32 time field (7.5 ns at 0.1 s)
+_TRAJECTORY_SLACK_NS = 1_000_000
 
 Progress = Callable[[int, int | None], None]
 
@@ -131,7 +134,7 @@ def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> Motion:
     if traj.position_only:
         raise InputError(f"{tc.path}: a GPS track has positions only; de-skewing needs orientations too")
     poses = traj.poses @ inv_pose(T_base_lidar) if tc.frame == "lidar" else traj.poses
-    spline = PoseSpline(traj.stamps_ns, poses, cubic=tc.interpolation == "cubic",
+    spline = PoseSpline(traj.stamps_ns, poses, cubic=tc.interpolation == "cubic", extrapolate_ns=_TRAJECTORY_SLACK_NS,
                         max_gap_ns=int(round(tc.max_gap_s * 1e9)))
     span = (traj.stamps_ns[-1] - traj.stamps_ns[0]) * 1e-9
     return Motion("trajectory", f"trajectory {tc.path} ({len(traj)} poses of the {tc.frame} over {span:.1f} s, "
