@@ -109,8 +109,9 @@ def _report(result: DeskewResult, quiet: bool) -> None:
     note(f"motion: {m['motion']['description']}", quiet)
     copied = m["copied_topics"]
     as_stored, converted = sum(copied["as_stored"].values()), sum(copied["converted"].values())
-    note(f"other topics: {as_stored} messages copied as stored" + (f", {converted} converted to {result.format}"
-                                                                     if converted else ""), quiet)
+    parts = ([f"{as_stored} messages copied as stored"] if as_stored or not converted else []) + \
+        ([f"{converted} messages converted to {result.format}"] if converted else [])
+    note(f"other topics: {', '.join(parts)}", quiet)
     extra = f" and {m['map']['path']} ({m['map']['points']} points)" if "map" in m else ""
     note(f"wrote {result.out} ({result.format}){extra}; {m['time_s']['total']:.1f} s wall, "
          f"{m['real_time_factor'] or 0:.1f}x real time", quiet)

@@ -1,0 +1,143 @@
+"""``lio deskew`` from the command line: outputs, summary, exit codes and one-line errors."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from lio_cli.cli.app import main
+from lio_cli.io.reader import open_log
+from lio_cli.io.trajectory_files import format_tum, read_tum
+from lio_cli.simulation.run import simulate
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("logs")
+    bag = simulate("handheld", root / "walk.bag", "ros1", duration_s=2.0, seed=4, columns=128, start="moving")
+    ros2 = simulate("handheld", root / "walk_ros2", "ros2", duration_s=1.0, seed=4, columns=64, start="moving")
+    return bag, ros2
+
+
+def records(path):
+    with open_log(path) as r:
+        return [(x.connection.topic, x.log_time_ns, bytes(x.data)) for x in r.records()]
+
+
+def err_line(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs, tmp_path, capsys):
+    bag, _ = logs
+    out, ply = tmp_path / "walk_deskewed.mcap", tmp_path / "walk.ply"
+    rc = main(["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "--map", str(ply)])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "/points: 20/20 scans de-skewed to the scan end" in err
+    assert f"motion: trajectory {bag.gt_path} (201 poses of the base over 2.0 s, cubic interpolation)" in err
+    assert "other topics: 603 messages converted to mcap" in err  # a ROS 1 bag written as MCAP (ros2 profile)
+    assert f"wrote {out} (mcap) and {ply} (" in err
+    for p in (out, ply, tmp_path / "walk_deskewed.metrics.json", tmp_path / "walk_deskewed.config.yaml"):
+        assert p.exists()
+    metrics = json.loads((tmp_path / "walk_deskewed.metrics.json").read_text())
+    assert metrics["scans"]["deskewed"] == 20 and metrics["output_format"] == "mcap"
+    assert metrics["motion"]["source"] == "trajectory" and metrics["time_s"]["total"] > 0
+    # the written configuration repeats the run
+    again = tmp_path / "again.mcap"
+    assert main(["deskew", str(bag.log_path), str(again), "--config", str(tmp_path / "walk_deskewed.config.yaml"),
+                 "-q"]) == 0
+    assert records(again) == records(out)
+    assert capsys.readouterr().err == ""
+
+
+def test_json_summary_on_stdout(logs, tmp_path, capsys):
+    bag, _ = logs
+    rc = main(["deskew", str(bag.log_path), str(tmp_path / "o.bag"), "--trajectory", str(bag.gt_path), "--json", "-q",
+               "--topic-suffix", "_deskewed", "--reference", "start"])
+    assert rc == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["output_topic"] == "/points_deskewed" and m["reference"].startswith("scan start")
+
+
+def test_an_existing_output_is_kept_without_force(logs, tmp_path, capsys):
+    bag, _ = logs
+    out = tmp_path / "o.bag"
+    out.write_bytes(b"precious")
+    args = ["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "-q"]
+    assert main(args) == 2
+    assert err_line(capsys) == f"lio: error: {out}: already exists; pass --force to overwrite it"
+    assert out.read_bytes() == b"precious" and sorted(p.name for p in tmp_path.iterdir()) == ["o.bag"]
+    assert main(args + ["--force"]) == 0
+    assert records(out)
+
+
+def test_the_output_is_never_the_input_or_inside_it(logs, tmp_path, capsys):
+    bag, ros2 = logs
+    log = bag.log_path
+    for extra in ([], ["--force"]):
+        assert main(["deskew", str(log), str(log), "--trajectory", str(bag.gt_path), *extra]) == 2
+        assert err_line(capsys) == (f"lio: error: {log}: is an input of this run (the input {log}); lio never writes "
+                                    "over its inputs (--force or not): choose another output")
+    inside = ros2.log_path / "deskewed"
+    assert main(["deskew", str(ros2.log_path), str(inside), "--trajectory", str(ros2.gt_path)]) == 2
+    assert err_line(capsys) == (f"lio: error: {inside}: is an input of this run (inside the input folder "
+                                f"{ros2.log_path}); lio never writes over its inputs (--force or not): choose another "
+                                "output")
+    assert not inside.exists()
+    tum = tmp_path / "t.tum"
+    tum.write_text(format_tum(*read_tum(bag.gt_path)))
+    assert main(["deskew", str(log), str(tum), "--trajectory", str(tum), "--force"]) == 2
+    assert "is an input of this run" in err_line(capsys)
+
+
+def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, capsys):
+    bag, _ = logs
+    stamps, poses = read_tum(bag.gt_path)
+    half = tmp_path / "half.tum"
+    half.write_text(format_tum(stamps[:100], poses[:100]))
+    out = tmp_path / "o.bag"
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(half), "--strict"]) == 2
+    # the first scan missed: from 0.9 s to its last column, 127/128 of 0.1 s later (1 ns off in the float32 time)
+    assert err_line(capsys) == (f"lio: error: {bag.log_path}: /points: the scan of 1700000000.900000000 s to "
+                                "1700000000.999218749 s is after the trajectory ends (1700000000.000000000 s to "
+                                "1700000000.990000000 s); without --strict such scans are copied unchanged and counted")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["half.tum"]  # nothing half-written
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(half)]) == 0
+    assert "copied unchanged (11 not covered by the motion: after the trajectory ends)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args,line", [
+    (["--map", "m.xyz"], "lio: error: m.xyz: a map is written as .ply or .pcd; name the file with one of those suffixes"),
+    (["--topic-suffix", "a b"], "lio: error: options: topic_suffix: 'a b' is not a topic-name suffix (letters, "
+                                "digits, _ and / only, e.g. _deskewed)"),
+    (["--format", "zip"], "lio: error: options: output_format: Input should be 'ros1', 'ros2', 'ros2-mcap' or 'mcap'"),
+    (["--reference", "middle"], "lio: error: options: reference: Input should be 'end' or 'start'"),
+    (["--point-time", "tick"], "lio: error: unknown per-point time convention 'tick' (use velodyne, ouster, livox, "
+                               "hesai, azimuth, none or FIELD:UNIT[:abs|rel], e.g. time:s or t:ns)"),
+    (["--motion", "imu"], "lio: error: --trajectory gives the motion; it cannot be combined with --motion imu"),
+])
+def test_bad_options_are_one_line_and_exit_2(logs, tmp_path, capsys, args, line):
+    bag, _ = logs
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        rc = main(["deskew", str(bag.log_path), "o.bag", "--trajectory", str(bag.gt_path), *args])
+    finally:
+        os.chdir(cwd)
+    assert rc == 2
+    assert err_line(capsys) == line
+    assert not list(Path(tmp_path).iterdir())
+
+
+def test_help_states_the_rules_of_the_de_skewed_cloud(capsys):
+    assert main(["deskew", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for phrase in ("same frame_id, same fields, point order and count", "invalid points stay invalid",
+                   "sensor frame at one reference instant", "--reference end", "header stamp is set to that instant",
+                   "rewritten relative to it", "A LaserScan topic is written as a PointCloud2", "--topic-suffix",
+                   "--trajectory", "--motion constant-velocity", "--strict", "--map"):
+        assert phrase in text, phrase
