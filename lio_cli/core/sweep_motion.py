@@ -129,7 +129,8 @@ def gyro_sweep_poses(spline: PoseSpline, imu: ImuBatch, t0_ns: int, t1_ns: int, 
     R_gyro = prop.poses[:, :3, :3]
     poses = spline.at(knots)
     k_ref = int(np.argmin(np.abs(knots - t_ref_ns)))
-    R_anchor = spline.at(np.array([t_ref_ns]))[0, :3, :3] @ R_gyro[k_ref].T
+    R_ref = poses[k_ref, :3, :3] if knots[k_ref] == t_ref_ns else spline.at(np.array([t_ref_ns]))[0, :3, :3]
+    R_anchor = R_ref @ R_gyro[k_ref].T
     poses[:, :3, :3] = R_anchor @ R_gyro
     return knots, poses
 

@@ -15,7 +15,6 @@ second of IMU, not the log's.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,23 +67,32 @@ class ImuWindow:
     def __init__(self, log: Path, fmt: str | None, topic: str, offset_ns: int) -> None:
         self.reader = open_log(log, fmt)
         self._stream = iter(SensorStream(self.reader, {"imu": topic}, strict=False))
-        self._batches: deque[ImuBatch] = deque()
+        self._imu = ImuBatch("", np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))  # samples held
         self._done = False
         self.offset_ns = offset_ns
 
     def covering(self, t0_ns: int, t1_ns: int) -> ImuBatch:
-        while not self._done and (not self._batches or self._batches[-1].stamps_ns[-1] < t1_ns + _IMU_MARGIN_NS):
+        """The samples from ``t0_ns`` to ``t1_ns`` and a margin around; older ones are let go."""
+        imu = self._imu
+        fresh: list[ImuBatch] = []
+        while not self._done:
+            last = fresh[-1].stamps_ns[-1] if fresh else imu.stamps_ns[-1] if len(imu) else None
+            if last is not None and last >= t1_ns + _IMU_MARGIN_NS:
+                break
             rec = next(self._stream, None)
             if rec is None:
                 self._done = True
                 break
             b: ImuBatch = rec.data
-            self._batches.append(ImuBatch(b.frame_id, b.stamps_ns + self.offset_ns, b.gyro_radps, b.accel_mps2))
-        while len(self._batches) > 1 and self._batches[1].stamps_ns[0] < t0_ns - _IMU_MARGIN_NS:
-            self._batches.popleft()
-        imu = ImuBatch.concat(list(self._batches))
-        keep = (imu.stamps_ns >= t0_ns - _IMU_MARGIN_NS) & (imu.stamps_ns <= t1_ns + _IMU_MARGIN_NS)
-        return ImuBatch(imu.frame_id, imu.stamps_ns[keep], imu.gyro_radps[keep], imu.accel_mps2[keep])
+            fresh.append(ImuBatch(b.frame_id, b.stamps_ns + self.offset_ns, b.gyro_radps, b.accel_mps2))
+        lo = int(np.searchsorted(imu.stamps_ns, t0_ns - _IMU_MARGIN_NS))
+        if fresh or lo:  # new samples joined, old ones let go (a batch holds about two seconds)
+            kept = ImuBatch(imu.frame_id, imu.stamps_ns[lo:], imu.gyro_radps[lo:], imu.accel_mps2[lo:])
+            imu = self._imu = ImuBatch.concat([kept, *fresh]) if fresh else kept
+            if fresh and not imu.frame_id:
+                imu.frame_id = fresh[0].frame_id
+        hi = int(np.searchsorted(imu.stamps_ns, t1_ns + _IMU_MARGIN_NS, side="right"))
+        return ImuBatch(imu.frame_id, imu.stamps_ns[:hi], imu.gyro_radps[:hi], imu.accel_mps2[:hi])
 
     def close(self) -> None:
         self.reader.close()
