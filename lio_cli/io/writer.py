@@ -179,17 +179,15 @@ class LogWriter:
 
     def write_record(self, key: int, time_ns: int, data: bytes, publish_time_ns: int | None = None,
                      sequence: int | None = None) -> None:
-        """Write stored bytes on a connection from ``add_mirror`` at record time ``time_ns`` (MCAP also keeps
-        the publish time and sequence number when given)."""
+        """Write stored bytes on a connection from ``add_mirror`` at record time ``time_ns`` (integer ns; MCAP
+        also keeps the publish time and sequence number when given)."""
         mirror = self._mirrors[key]
-        out = mirror[0]
-        if self.format == "mcap":
-            seq = mirror[2] if sequence is None else sequence
-            self._w.add_message(out, log_time=int(time_ns), data=data,
-                                publish_time=int(time_ns if publish_time_ns is None else publish_time_ns),
-                                sequence=int(seq))
-        else:
-            self._w.write(out, int(time_ns), data)
+        if self.format != "mcap":  # the hot path of a copy: straight to rosbags
+            self._w.write(mirror[0], time_ns, data)
+            return
+        seq = mirror[2] if sequence is None else sequence
+        self._w.add_message(mirror[0], log_time=time_ns, data=data,
+                            publish_time=time_ns if publish_time_ns is None else publish_time_ns, sequence=seq)
         mirror[2] += 1
 
     def serialize(self, msg, msgtype: str) -> bytes:
