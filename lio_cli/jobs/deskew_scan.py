@@ -30,6 +30,8 @@ from ..model.records import PointCloud, TimeConvention
 from .deskew_motion import Motion
 
 _SPIN_AGREEMENT = 0.9  # share of azimuth steps turning one way for an unorganised cloud to be a spinning sweep
+MAX_SWEEP_NS = 1_000_000_000  # a scan whose point times span longer is no sweep (broken or hostile times):
+# copied unchanged, so its cost does not follow what its times claim
 
 
 def _fmt_ns(ns: int) -> str:
@@ -156,6 +158,8 @@ class ScanWriter:
         self._times["decode"] += time.perf_counter() - tick
         if len(cloud.points) == 0:
             return self._unchanged(rec, msg, cloud, "no valid point")
+        if cloud.end_ns - cloud.start_ns > MAX_SWEEP_NS:
+            return self._unchanged(rec, msg, cloud, f"point times span more than {MAX_SWEEP_NS * 1e-9:g} s")
         t_ref = cloud.end_ns if self.cfg.reference == "end" else cloud.start_ns
         tick = time.perf_counter()
         got = self.motion.sweep(cloud.start_ns, cloud.end_ns, t_ref)

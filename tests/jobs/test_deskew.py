@@ -309,6 +309,21 @@ def test_invalid_points_stay_invalid_byte_for_byte(sim, tmp_path):
         assert np.isfinite(vb["x"][~bad]).all()
 
 
+def test_a_scan_with_absurd_point_times_is_copied_unchanged(sim, tmp_path):
+    """Point times spanning hours cost nothing extra: the scan is left as it is and counted."""
+    s = sim("ros1")
+
+    def absurd(k, arr):
+        if k == 5:
+            arr["time"][-1] = 7200.0
+        return arr
+
+    log = _rewrite(s.log_path, tmp_path / "absurd.bag", absurd)
+    res = deskew(log, tmp_path / "out.bag", **gt(s))
+    assert res.metrics["scans"]["unchanged_why"] == {"point times span more than 1 s": 1}
+    assert bytes(clouds(log)[5].data) == bytes(clouds(tmp_path / "out.bag")[5].data)
+
+
 def test_map_lies_in_the_office_and_config_repeats_the_run(sim, tmp_path):
     s = sim("ros1")
     out, ply = tmp_path / "out.bag", tmp_path / "map.ply"
