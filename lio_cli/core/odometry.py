@@ -26,6 +26,7 @@ from ..geometry import inv_pose, project_to_se2, so3_exp, so3_log
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch, OdometryRecord, PointCloud
 from .bootstrap import Bootstrap, align
+from .clock_offset import ClockOffsetTracker
 from .degeneracy import degenerate_directions
 from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
                      pose_innovation_nis, position_noise)
@@ -117,15 +118,30 @@ class LioOdometry:
         self.poses: list[np.ndarray] = []  # LiDAR-only poses are replaced once the IMU state starts
         self._first_f_base: np.ndarray | None = None  # mean specific force (base axes) around the first scan
         self._lost = 0  # LiDAR-only registrations failed in a row
+        self.clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
+        self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:
         self.ext = Extrinsics(np.asarray(T_base_imu, dtype=np.float64), self.ext.T_base_lidar)
         self.imu_mounted = True
+        if self.cfg.estimate_time_offset and not self.planar:
+            self.clock = ClockOffsetTracker(inv_pose(self.ext.T_base_lidar) @ self.ext.T_base_imu)
 
     def add_imu(self, batch: ImuBatch) -> None:
+        if self._shift_ns:
+            batch = ImuBatch(batch.frame_id, batch.stamps_ns + self._shift_ns, batch.gyro_radps, batch.accel_mps2)
         self._imu.append(batch)
+        if self.clock is not None:
+            self.clock.add_imu(batch.stamps_ns, batch.gyro_radps)
+
+    def _shift_imu(self, delta_ns: int) -> None:
+        """Move every IMU sample, buffered and to come, by ``delta_ns`` onto the LiDAR's clock."""
+        self._shift_ns += delta_ns
+        self._imu = [ImuBatch(b.frame_id, b.stamps_ns + delta_ns, b.gyro_radps, b.accel_mps2) for b in self._imu]
+        self._event("clock offset", f"IMU stamps moved by {delta_ns * 1e-6:+.2f} ms onto the LiDAR's clock "
+                                    f"(estimated online; {self._shift_ns * 1e-6:+.2f} ms in all)")
 
     def add_wheel(self, rec: OdometryRecord) -> None:
         self._wheel.append(rec)
@@ -192,6 +208,8 @@ class LioOdometry:
 
     def _lose_imu_state(self) -> None:
         self.state = None  # gravity survives in _g_world, as the last healthy state had it
+        if self.clock is not None:
+            self.clock.reset()
         self._window = []
         self._doubt = 0
 
@@ -442,6 +460,7 @@ class LioOdometry:
             reason = reason or self._state_implausible()
             if reason is None:
                 self._g_world = self.state.g.copy()  # the latest gravity of a healthy state
+                self._track_clock(t_ref, measured)
         st.times_s["fuse"] += time.perf_counter() - tick
         result = self._finish(t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False)
         if reason is not None:
@@ -468,6 +487,14 @@ class LioOdometry:
             self._event("recovery", reason + ": back to LiDAR-only scans")
             self._lose_imu_state()
         return res
+
+    def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
+        if self.clock is None or self.clock.done:
+            return
+        self.clock.add_pose(t_ref, measured @ self.ext.T_base_lidar)
+        delta = self.clock.propose(self.state.bg, self.stats.scans)
+        if delta:
+            self._shift_imu(delta)
 
     def _implausible(self, measured: np.ndarray, dirs_b: list) -> str | None:
         """A pose innovation far outside its covariance for several scans in a row (EKF only)."""
