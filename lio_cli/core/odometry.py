@@ -320,10 +320,7 @@ class LioOdometry:
         st.lidar_only_scans += 1
         if failed:
             st.registration_failures += 1
-            self._lost += 1
-            if self._lost >= self.cfg.max_lost_scans:
-                raise Diverged(f"lost track at scan {st.scans} (stamp {t_ref * 1e-9:.3f} s): LiDAR-only "
-                               f"registration failed for {self._lost} scans in a row")
+            self._count_lost(t_ref)
         else:
             self._lost = 0
         result = self._finish(t_ref, pose, None if failed else frame,
@@ -336,6 +333,13 @@ class LioOdometry:
             self._window.append(_WindowScan(t_prev, t_ref, pose, self._wheel_speed(t_ref), cloud, len(self.poses) - 1))
             self._try_bootstrap()
         return result
+
+    def _count_lost(self, t_ref: int) -> None:
+        """One more scan in a row that no registration could place; too many end the run."""
+        self._lost += 1
+        if self._lost >= self.cfg.max_lost_scans:
+            raise Diverged(f"lost track at scan {self.stats.scans} (stamp {t_ref * 1e-9:.3f} s): no registration, "
+                           f"IMU-primed or LiDAR-only, could place {self._lost} scans in a row")
 
     def _wheel_speed(self, t_ns: int) -> float:
         twist = mean_twist(self._wheel, t_ns - 60_000_000, t_ns + 60_000_000) if self.cfg.use_wheel else None
@@ -449,6 +453,7 @@ class LioOdometry:
                                         "correspondences), LiDAR-only registration could: back to LiDAR-only scans")
                 return res
             self.state, self._g_world = kept, g_world
+            self._count_lost(t_ref)
             return self._finish(t_ref, self.state.pose(), None, None, dirs_b, True)
         tick = time.perf_counter()
         reason = self._implausible(measured, dirs_b)
@@ -462,6 +467,7 @@ class LioOdometry:
                 self._g_world = self.state.g.copy()  # the latest gravity of a healthy state
                 self._track_clock(t_ref, measured)
         st.times_s["fuse"] += time.perf_counter() - tick
+        self._lost = 0
         result = self._finish(t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False)
         if reason is not None:
             st.recoveries += 1
