@@ -1,0 +1,1 @@
+"""Pure estimation: never imports lio_cli.io."""
