@@ -100,13 +100,16 @@ class Complementary:
             Z = T_fused_prev @ inv_pose(od.poses[j]) @ T
         j, t_prev, T_prev = self.odom_prev
         dt = (t - t_prev) * 1e-9
+        e = Z[:3, 3] - self.p
         if dt > 0:
             Zp = self.T_world_odom @ od.poses[j] if self.T_world_odom is not None else T_prev
-            self.v_odom = (Z[:3, 3] - Zp[:3, 3]) / dt
             self.w_odom = so3_log_one(Zp[:3, :3].T @ Z[:3, :3]) / dt
-            self.v = self.v + a * (self.v_odom - self.v)
+            if self.vb_wheel is None and not self.accel:
+                self.v = self.v + a * ((Z[:3, 3] - Zp[:3, 3]) / dt - self.v)
+            else:  # second-order complementary filter: the position error also steers the velocity
+                self.v = self.v + (0.25 * a * a) * e / dt
         self.R = blend_rotation(self.R, Z[:3, :3], a)
-        self.p = self.p + a * (Z[:3, 3] - self.p)
+        self.p = self.p + a * e
         rep.updates += 1
         self.odom_prev = (i, t, self._pose())
 

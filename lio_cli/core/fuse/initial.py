@@ -17,6 +17,7 @@ from ...geometry import so3_exp_one, yaw_of
 from .timeline import Prepared
 
 GYRO_STILL_RADPS = 0.05
+MAX_GYRO_BIAS_RADPS = 0.05  # about 3 deg/s: more than any usable MEMS gyro's bias
 ACCEL_STILL_MPS2 = 0.3
 STANDING_VELOCITY_SIGMA_MPS = 0.02
 
@@ -63,7 +64,9 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
         if len(w) >= 10:
             gyro_dev = float(np.linalg.norm(w - w.mean(axis=0), axis=1).max())
             acc_dev = float(np.abs(np.linalg.norm(f, axis=1) - gravity_mps2).max())
-            standing = gyro_dev < GYRO_STILL_RADPS and acc_dev < ACCEL_STILL_MPS2
+            # a steady turn looks like a gyro bias: a "bias" above MAX_GYRO_BIAS_RADPS is taken as motion
+            standing = (gyro_dev < GYRO_STILL_RADPS and acc_dev < ACCEL_STILL_MPS2
+                        and float(np.linalg.norm(w.mean(axis=0))) < MAX_GYRO_BIAS_RADPS)
             if standing:
                 bg = w.mean(axis=0)
                 why.append(f"standing start: gyro bias and zero velocity from {len(w)} samples")

@@ -89,15 +89,7 @@ class PlanarEkf:
         return x, np.diag(d)
 
     def _propagate(self, x: np.ndarray, P: np.ndarray, dt: float) -> np.ndarray:
-        c, s = math.cos(x[TH]), math.sin(x[TH])
-        v = x[V]
-        F = np.eye(self.n)
-        F[X, TH], F[X, V] = -v * s * dt, c * dt
-        F[Y, TH], F[Y, V] = v * c * dt, s * dt
-        F[TH, W] = dt
-        x[X] += v * c * dt
-        x[Y] += v * s * dt
-        x[TH] = wrap(x[TH] + x[W] * dt)
+        F = predict(x, dt, self.n)
         P = F @ P @ F.T
         P.flat[:: self.n + 1] += self.q_rate * dt
         if self.o.smooth:
@@ -170,16 +162,7 @@ class PlanarEkf:
             rep.note("anchor")
         else:
             j = self.odom_prev
-            D = inv_pose(_flat(od.poses[j])) @ _flat(T)
-            c, s = math.cos(x[8]), math.sin(x[8])
-            dx, dy = x[X] - x[6], x[Y] - x[7]
-            h = np.array([c * dx + s * dy, -s * dx + c * dy, wrap(x[TH] - x[8])])
-            H = np.zeros((3, self.n))
-            H[0:2, 0:2] = [[c, s], [-s, c]]
-            H[0:2, 6:8] = [[-c, -s], [s, -c]]
-            H[0, 8], H[1, 8] = -s * dx + c * dy, -c * dx - s * dy
-            H[2, TH], H[2, 8] = 1.0, -1.0
-            r = np.array([D[0, 3] - h[0], D[1, 3] - h[1], wrap(float(yaw_of(D[:3, :3])) - h[2])])
+            r, H = delta_residual(x, inv_pose(_flat(od.poses[j])) @ _flat(T))
             var_p, var_r = pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2
             P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom")
         self.odom_prev = i
@@ -232,6 +215,36 @@ class PlanarEkf:
                 self.log.mark_output()
         self.log.close(x, 0.5 * (P + P.T))
         return self.log.arrays()
+
+
+def predict(x: np.ndarray, dt: float, n: int) -> np.ndarray:
+    """The lecture's step ``x += v cos(theta) dt``, ``y += v sin(theta) dt``, ``theta += omega dt`` in
+    place; returns its Jacobian F (n x n)."""
+    c, s = math.cos(x[TH]), math.sin(x[TH])
+    v = x[V]
+    F = np.eye(n)
+    F[X, TH], F[X, V] = -v * s * dt, c * dt
+    F[Y, TH], F[Y, V] = v * c * dt, s * dt
+    F[TH, W] = dt
+    x[X] += v * c * dt
+    x[Y] += v * s * dt
+    x[TH] = wrap(x[TH] + x[W] * dt)
+    return F
+
+
+def delta_residual(x: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual and Jacobian of a measured planar increment ``D`` (4x4) from the clone ``x[6:9]`` to the
+    current pose: ``h = (R(theta_c)^T (p - p_c), theta - theta_c)``."""
+    c, s = math.cos(x[8]), math.sin(x[8])
+    dx, dy = x[X] - x[6], x[Y] - x[7]
+    h = np.array([c * dx + s * dy, -s * dx + c * dy, wrap(x[TH] - x[8])])
+    H = np.zeros((3, len(x)))
+    H[0:2, 0:2] = [[c, s], [-s, c]]
+    H[0:2, 6:8] = [[-c, -s], [s, -c]]
+    H[0, 8], H[1, 8] = -s * dx + c * dy, -c * dx - s * dy
+    H[2, TH], H[2, 8] = 1.0, -1.0
+    r = np.array([D[0, 3] - h[0], D[1, 3] - h[1], wrap(float(yaw_of(D[:3, :3])) - h[2])])
+    return r, H
 
 
 def _se2(x: float, y: float, th: float) -> np.ndarray:

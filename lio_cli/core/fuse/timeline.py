@@ -153,17 +153,20 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
 
 
 def _check_clocks(prep: Prepared) -> None:
-    """A selected source whose stamps all lie outside the motion span is on another clock: say so."""
-    t0, t1 = prep.t0_ns, prep.t1_ns
+    """A selected source whose stamps all lie outside the others' span is on another clock: say so."""
+    spans = {}
     for name in ("imu", "wheel", "odom", "gps"):
         s = getattr(prep, name)
-        if s is None or len(s) == 0:
+        if s is not None and len(s):
+            spans[name] = (int(s.stamps_ns[0]), int(s.stamps_ns[-1]))
+    for name, (a, b) in spans.items():
+        others = [v for k, v in spans.items() if k != name]
+        if not others:
             continue
-        st = s.stamps_ns
-        if st[-1] < t0 or st[0] > t1:
-            raise InputError(
-                f"{name} stamps {st[0] / 1e9:.3f}..{st[-1] / 1e9:.3f} s do not overlap the motion sources' "
-                f"{t0 / 1e9:.3f}..{t1 / 1e9:.3f} s: the sources are on different clocks")
+        lo, hi = min(v[0] for v in others), max(v[1] for v in others)
+        if b < lo or a > hi:
+            raise InputError(f"{name} stamps {a / 1e9:.3f}..{b / 1e9:.3f} s do not overlap the other sources' "
+                             f"{lo / 1e9:.3f}..{hi / 1e9:.3f} s: the sources are on different clocks")
 
 
 def _output(prep: Prepared, options: FuseOptions) -> None:
