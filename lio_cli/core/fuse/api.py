@@ -47,6 +47,7 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
         "covered_s": sum(b - a for a, b in prep.coverage) * 1e-9,
         "motion_gaps": len(prep.coverage) - 1,
         "outputs_dropped_outside_data": prep.out_dropped,
+        "notes": list(prep.notes),
     }
 
 
@@ -69,7 +70,7 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
 
 
 def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
-    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, P_))
+    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, slice(P_.start, P_.start + 2)))
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
     if o.smooth and len(x):

@@ -151,6 +151,9 @@ class FuseOptions:
     not the sensor, is assumed wrong) and counted as ``gate_reset``.
     ``gap_periods``: a pause longer than this many median sample periods of a source is a gap; it is
     bridged in one step of the constant-velocity model, never integrated sample by sample.
+    ``snap_ns``: a wheel message stamped at most this far from an IMU sample is applied at that sample (one
+    propagation step less per message on high-rate twist; the error is the motion over ``snap_ns``); 0
+    applies every one at its own stamp.
     """
 
     estimator: str = "ekf"
@@ -163,6 +166,7 @@ class FuseOptions:
     gate_max_rejects: int = 5
     gap_periods: float = 5.0
     min_gap_ns: int = 20_000_000
+    snap_ns: int = 1_000_000
     gravity_mps2: float = 9.81
     standing_window_ns: int = 1_000_000_000
     # complementary filter weights (lecture: alpha ~ 0.98 on the scan-matching pose)

@@ -23,6 +23,7 @@ NOTE_REASONS = {
     "gate_reset": "accepted after too many rejections in a row (the filter was assumed off)",
     "anchor": "used to tie the source's frame to the fused world frame",
     "orientation_absent": "the message carried no valid orientation (quaternion 0 or covariance -1)",
+    "snapped": "applied at an IMU sample at most FuseOptions.snap_ns away instead of at its own stamp",
 }
 
 

@@ -39,6 +39,7 @@ class Prepared:
     times: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     kinds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    notes: list[str] = field(default_factory=list)
 
     @property
     def t0_ns(self) -> int:
@@ -124,7 +125,15 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     if "imu" in use:
         prep.imu = clean_imu(inputs.imu, noise, reports["imu"])
         if len(prep.imu) == 0:
-            raise InputError("the IMU has no usable sample (all NaN, all zero or duplicated)")
+            if not ({"wheel", "odom"} & set(use)):
+                raise InputError("the IMU has no usable sample (all NaN, all zero or duplicated) and there is no "
+                                 "other motion source")
+            prep.notes.append("IMU ignored: no usable sample (all NaN, all zero or duplicated)")
+            prep.imu = None
+            del use["imu"]
+            if options.use is None and "wheel" in use:  # the default selection without a gyro
+                use["wheel"].add("yaw_rate")
+    if prep.imu is not None:
         prep.imu_w_b, prep.imu_f_b = imu_in_base(prep.imu)
         if "orientation" in use["imu"] and prep.imu.orientation_xyzw is not None:
             prep.imu_R_wb = orientation_to_base(prep.imu)
@@ -148,7 +157,7 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
         raise InputError("no usable sample in any motion source")
     _check_clocks(prep)
     _output(prep, options)
-    _events(prep)
+    _events(prep, options.snap_ns)
     return prep
 
 
@@ -183,9 +192,21 @@ def _output(prep: Prepared, options: FuseOptions) -> None:
     prep.out_stamps, prep.out_dropped = req[ok], int(np.count_nonzero(~ok))
 
 
-def _events(prep: Prepared) -> None:
+def snap_to(stamps: np.ndarray, grid: np.ndarray, tol_ns: int) -> tuple[np.ndarray, int]:
+    """``stamps`` moved onto the nearest ``grid`` stamp where that is at most ``tol_ns`` away."""
+    if tol_ns <= 0 or len(grid) == 0 or len(stamps) == 0:
+        return stamps, 0
+    j = np.clip(np.searchsorted(grid, stamps), 1, max(len(grid) - 1, 1))
+    lo, hi = grid[j - 1], grid[np.minimum(j, len(grid) - 1)]
+    near = np.where(stamps - lo <= hi - stamps, lo, hi)
+    ok = np.abs(near - stamps) <= tol_ns
+    return np.where(ok, near, stamps), int(np.count_nonzero(ok & (near != stamps)))
+
+
+def _events(prep: Prepared, snap_ns: int) -> None:
     t0, t1 = prep.t0_ns, prep.t1_ns
     times, kinds, index = [], [], []
+    imu_grid = prep.imu.stamps_ns if prep.imu is not None and "gyro" in prep.use.get("imu", ()) else np.zeros(0, np.int64)
     for kind, name in SOURCE_OF_KIND.items():
         s = getattr(prep, name)
         if s is None:
@@ -194,7 +215,11 @@ def _events(prep: Prepared) -> None:
         inside = (st >= t0) & (st <= t1)
         prep.reports[name].reject("outside_span", int(np.count_nonzero(~inside)))
         idx = np.flatnonzero(inside)
-        times.append(st[idx])
+        st = st[idx]
+        if kind == WHEEL:  # the high-rate twist only: two odometry poses must never share a stamp
+            st, n = snap_to(st, imu_grid, snap_ns)
+            prep.reports[name].note("snapped", n)
+        times.append(st)
         kinds.append(np.full(len(idx), kind, np.int8))
         index.append(idx)
     times.append(prep.out_stamps)

@@ -82,3 +82,29 @@ def test_unknown_measurement_and_bad_combinations_are_config_errors():
         with pytest.raises(ConfigError) as err:
             prepare(inputs, options)
         assert str(err.value) == message
+
+
+def test_an_all_zero_imu_is_ignored_beside_another_motion_source_and_refused_alone():
+    st = T0 + np.arange(11) * 10 * MS
+    zero = ImuSeries(st, np.zeros((11, 3)), np.zeros((11, 3)), np.eye(4))
+    wheel = WheelSeries(st.copy(), np.tile([1.0, np.nan, np.nan], (11, 1)), np.full(11, 0.1))
+    prep = prepare(FuseInputs(imu=zero, wheel=wheel), FuseOptions())
+    assert prep.use == {"wheel": {"speed", "yaw_rate"}}
+    assert prep.notes == ["IMU ignored: no usable sample (all NaN, all zero or duplicated)"]
+    assert prep.reports["imu"].rejected == {"all_zero": 11}
+    with pytest.raises(InputError) as err:
+        prepare(FuseInputs(imu=zero), FuseOptions())
+    assert str(err.value) == ("the IMU has no usable sample (all NaN, all zero or duplicated) and there is no "
+                              "other motion source")
+
+
+def test_snap_moves_stamps_onto_the_nearest_grid_stamp_within_tolerance():
+    from lio_cli.core.fuse.timeline import snap_to
+
+    grid = np.array([0, 10, 20], dtype=np.int64)
+    out, n = snap_to(np.array([1, 4, 6, 14, 25, 10], dtype=np.int64), grid, 4)
+    np.testing.assert_array_equal(out, [0, 0, 10, 10, 25, 10])
+    assert n == 4  # 10 was already on the grid; 25 is too far
+    same, n0 = snap_to(np.array([1, 4]), grid, 0)
+    np.testing.assert_array_equal(same, [1, 4])
+    assert n0 == 0
