@@ -113,7 +113,7 @@ class NoiseOptions:
     """Noise model. IMU values are continuous-time densities (per sqrt(Hz)), as ``lio calibrate`` writes."""
 
     gyro_noise_density: float = 1.0e-3  # rad/s/sqrt(Hz)
-    accel_noise_density: float = 1.0e-2  # m/s^2/sqrt(Hz)
+    accel_noise_density: float = 5.0e-2  # m/s^2/sqrt(Hz); a few times a MEMS datasheet: vehicle vibration
     gyro_bias_walk: float = 1.0e-4  # rad/s^2/sqrt(Hz)
     accel_bias_walk: float = 1.0e-3  # m/s^3/sqrt(Hz)
     # motion model without an IMU (and inside IMU gaps): white acceleration / angular acceleration densities

@@ -50,13 +50,19 @@ class Gate:
 
 
 def small_inv(S: np.ndarray) -> np.ndarray:
-    """Inverse of a small symmetric matrix: closed form up to 3x3 (numpy's per-call overhead dominates a
-    filter step there), numpy beyond. Raises LinAlgError when singular."""
+    """Inverse of a small matrix: closed form up to 3x3 (numpy's per-call overhead dominates a filter step
+    there), numpy beyond. Raises LinAlgError when singular."""
     m = len(S)
     if m == 1:
         if S[0, 0] == 0.0:
             raise np.linalg.LinAlgError("singular")
         return np.array([[1.0 / S[0, 0]]])
+    if m == 2:
+        a, b, c, d = S.ravel().tolist()
+        det = a * d - b * c
+        if det == 0.0 or not np.isfinite(det):
+            raise np.linalg.LinAlgError("singular")
+        return np.array([[d, -b], [-c, a]]) / det
     if m == 3:
         a, b, c, d, e, f, g, h, i = S.ravel().tolist()
         A, B, C = e * i - f * h, f * g - d * i, d * h - e * g

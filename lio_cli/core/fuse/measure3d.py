@@ -25,11 +25,11 @@ def orientation(x: np.ndarray, R_meas: np.ndarray, cov_world: np.ndarray, L: Lay
 def body_velocity(x: np.ndarray, z: np.ndarray, comps: list[int], var: np.ndarray, L: Layout):
     """Components ``comps`` of the base-frame velocity ``R^T v`` (wheel odometry; 0 for the non-holonomic
     constraint)."""
-    R = rot(x)
-    vb = R.T @ x[V_]
+    Rt = rot(x).T
+    vb = Rt @ x[V_]
     H = np.zeros((len(comps), L.n))
     H[:, TH] = skew3(vb)[comps]
-    H[:, DV] = R.T[comps]
+    H[:, DV] = Rt[comps]
     return z - vb[comps], H, np.diag(var)
 
 
