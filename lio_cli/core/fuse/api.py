@@ -14,9 +14,9 @@ from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
 from .planar import PlanarEkf, run_planar
-from .result import FuseResult, anchor_to_origin, reorder_pose_covariance
+from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
-from .state3d import DP, P_, R_, TH, V_
+from .state3d import P_, R_, V_
 from .timeline import Prepared, prepare
 
 
@@ -76,13 +76,18 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
     if o.smooth and len(x):
         x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
     sel = knots["output"]
-    x, P = x[sel], P[sel]
+    cov = None
+    if o.smooth:
+        x, P = x[sel], P[sel]
+        if o.want_covariance:
+            cov = P[:, ekf.cov_index][:, :, ekf.cov_index]
+    elif o.want_covariance:
+        cov = P  # already the pose block, in COVARIANCE_LAYOUT order
     poses = np.zeros((len(x), 4, 4))
     if len(x):
         poses[:, :3, :3] = x[:, R_].reshape(-1, 3, 3)
         poses[:, :3, 3] = x[:, P_]
         poses[:, 3, 3] = 1.0
-    cov = reorder_pose_covariance(P, TH, DP) if o.want_covariance and len(x) else None
     s = ekf.start
     info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}

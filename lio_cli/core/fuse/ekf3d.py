@@ -20,9 +20,10 @@ from . import measure3d as m3
 from .initial import Start, initial_state
 from .inputs import FuseOptions
 from .kalman import Gate, KnotLog, kalman_update
+from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, P_, R_, Layout, ProcessNoise, boxminus, boxplus, cv_step, gyro_step, hold_step, ins_step,
+    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, boxplus, cv_step, gyro_step, hold_step, ins_step,
     new_state, pose,
 )
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared
@@ -53,7 +54,8 @@ class Ekf3d:
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
         self.smooth = options.smooth
-        self.log = KnotLog(for_smoother=options.smooth)
+        self.cov_index = pose_covariance_index(TH, DP)
+        self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
         self.inject = lambda x, dx: boxplus(x, dx, self.L)
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None

@@ -111,10 +111,13 @@ def kalman_update(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn
 
 class KnotLog:
     """Filter states at knots. With ``for_smoother`` every knot keeps predicted and filtered state and
-    covariance and ``Phi``; without, only output knots keep their filtered state and covariance."""
+    covariance and ``Phi``; without, only output knots keep their filtered state and the block
+    ``P[keep, keep]`` of their covariance (``keep`` None: no covariance), so a long run at a high output
+    rate holds a few hundred bytes per pose, not the full covariance."""
 
-    def __init__(self, for_smoother: bool):
+    def __init__(self, for_smoother: bool, keep: np.ndarray | None = None):
         self.for_smoother = for_smoother
+        self.keep = None if keep is None else np.ix_(keep, keep)
         self.t_ns: list[int] = []
         self.output: list[bool] = []
         self.x_pred: list[np.ndarray] = []
@@ -148,9 +151,13 @@ class KnotLog:
         if not self._open:
             return
         self._open = False
-        if self.for_smoother or self.output[-1]:
+        if self.for_smoother:
             self.x_filt.append(x.copy())
             self.P_filt.append(P.copy())
+        elif self.output[-1]:
+            self.x_filt.append(x.copy())
+            if self.keep is not None:
+                self.P_filt.append(P[self.keep])
         else:
             self.t_ns.pop()
             self.output.pop()
@@ -159,7 +166,7 @@ class KnotLog:
         out = {"t_ns": np.asarray(self.t_ns, dtype=np.int64), "output": np.asarray(self.output, dtype=bool)}
         n = len(self.t_ns)
         out["x_filt"] = np.asarray(self.x_filt) if n else np.zeros((0, 0))
-        out["P_filt"] = np.asarray(self.P_filt) if n else np.zeros((0, 0, 0))
+        out["P_filt"] = np.asarray(self.P_filt) if n and self.P_filt else np.zeros((0, 0, 0))
         if self.for_smoother:
             out["x_pred"] = np.asarray(self.x_pred) if n else np.zeros((0, 0))
             out["P_pred"] = np.asarray(self.P_pred) if n else np.zeros((0, 0, 0))

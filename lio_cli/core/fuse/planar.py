@@ -49,7 +49,7 @@ class PlanarEkf:
         self.q_rate[V], self.q_rate[W] = nz.cv_accel_density**2, nz.cv_angular_accel_density**2
         self.q_rate[BW] = max(nz.gyro_bias_walk**2, 1e-16)
         self.q_rate[X] = self.q_rate[Y] = self.q_rate[TH] = 1e-16  # keeps P_pred invertible for the smoother
-        self.log = KnotLog(for_smoother=options.smooth)
+        self.log = KnotLog(options.smooth, np.array([X, Y, TH]) if options.want_covariance else None)
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
@@ -265,15 +265,13 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
     if o.smooth and len(x):
         x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
     sel = knots["output"]
-    x, P = x[sel], P[sel]
+    if o.smooth:
+        x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
     poses = np.stack([_se2(a[X], a[Y], a[TH]) for a in x]) if len(x) else np.zeros((0, 4, 4))
     cov = None
-    if o.want_covariance:
+    if o.want_covariance:  # x, y, yaw into the 6x6 layout; z, roll, pitch are exactly known (planar)
         cov = np.zeros((len(x), 6, 6))
-        idx = [X, Y, TH]
-        for a, b in zip((0, 1, 5), idx):
-            for c, d in zip((0, 1, 5), idx):
-                cov[:, a, c] = P[:, b, d]
+        cov[np.ix_(np.arange(len(x)), [0, 1, 5], [0, 1, 5])] = P
     vel = np.column_stack([x[:, V] * np.cos(x[:, TH]), x[:, V] * np.sin(x[:, TH]), np.zeros(len(x))]) if len(x) else None
     info = {"model": "planar", "start": ekf.start.reason, "world_yaw_from": ekf.start.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}

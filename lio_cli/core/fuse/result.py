@@ -46,7 +46,6 @@ def anchor_to_origin(poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def reorder_pose_covariance(P: np.ndarray, rot_idx: slice, pos_idx: slice) -> np.ndarray:
-    """(N,6,6) in COVARIANCE_LAYOUT from error-state covariances (N,n,n)."""
-    idx = np.r_[np.arange(pos_idx.start, pos_idx.stop), np.arange(rot_idx.start, rot_idx.stop)]
-    return P[:, idx][:, :, idx]
+def pose_covariance_index(rot_idx: slice, pos_idx: slice) -> np.ndarray:
+    """Error-state indices that put a covariance in COVARIANCE_LAYOUT order (position, then rotation)."""
+    return np.r_[np.arange(pos_idx.start, pos_idx.stop), np.arange(rot_idx.start, rot_idx.stop)]

@@ -69,8 +69,8 @@ def test_small_inverse_matches_numpy(m):
 
 
 def test_knot_log_keeps_only_outputs_without_smoother():
-    log = KnotLog(for_smoother=False)
-    x, P = np.zeros(2), np.eye(2)
+    log = KnotLog(for_smoother=False, keep=np.array([1]))
+    x, P = np.zeros(2), np.array([[1.0, 0.5], [0.5, 2.0]])
     log.open(1, x, P, None)
     log.close(x, P)  # an update-only knot: dropped
     log.open(2, x, P, None)
@@ -79,3 +79,4 @@ def test_knot_log_keeps_only_outputs_without_smoother():
     out = log.arrays()
     np.testing.assert_array_equal(out["t_ns"], [2])
     np.testing.assert_allclose(out["x_filt"], [[1.0, 1.0]])
+    np.testing.assert_allclose(out["P_filt"], [[[2.0]]])  # only the kept block
