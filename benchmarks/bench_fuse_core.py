@@ -75,8 +75,10 @@ def section_odom(duration: float, seed: int) -> bool:
         print(f"{scen:<9} {'odometry at its stamps':<30} {odom_ate:>8.4f} {'':>9}")
         print(f"{'':<9} {'odometry interpolated (100 Hz)':<30} {ate(gt, q, interpolate_poses(od.stamps_ns, od.poses, q)):>8.4f} "
               f"{interp_rpe:>9.4f}")
+        delta = {"imu": {"gyro", "accel"}, "odom": {"delta"}}
         runs = [("EKF filter", FuseOptions()), ("EKF + RTS smoother", FuseOptions(smooth=True)),
-                ("EKF odom delta + smoother", FuseOptions(smooth=True, use={"imu": {"gyro", "accel"}, "odom": {"delta"}})),
+                ("EKF odom delta, filter", FuseOptions(use=delta)),
+                ("EKF odom delta + smoother", FuseOptions(smooth=True, use=delta)),
                 ("complementary a=0.3", FuseOptions(estimator="complementary", alpha_odom=0.3))]
         for name, opts in runs:
             res, cpu, _ = timed(lambda o=opts: fuse(case.inputs, o))

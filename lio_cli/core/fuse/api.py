@@ -19,6 +19,8 @@ from .smoother import rts_smooth
 from .state3d import P_, R_, V_
 from .timeline import Prepared, prepare
 
+_EKF_XY = slice(P_.start, P_.start + 2)  # x, y of the 3D filter's nominal state
+
 
 def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     """Fuse the sources into one trajectory at the output stamps (see ``FuseOptions``).
@@ -31,8 +33,8 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     prep = prepare(inputs, o)
     if o.estimator == "planar":
         result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
-    elif o.estimator == "complementary":
-        result = run_complementary(prep, o)
+    elif o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
+        result = run_complementary(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
     else:
         result = _run_ekf3d(prep, o)
     result.info.update(_common_info(prep, o))
@@ -70,7 +72,7 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
 
 
 def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
-    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, slice(P_.start, P_.start + 2)))
+    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
     if o.smooth and len(x):

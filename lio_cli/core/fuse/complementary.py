@@ -8,6 +8,7 @@ accelerometer (``v += (R f + g) dt``). Each odometry pose then blends in with we
 (``R <- R exp(alpha log(R^T R_scan))``, ``p <- p + alpha (p_scan - p)``; with relative odometry the
 "scan" pose is the fused pose at the previous odometry stamp composed with the increment), the IMU's
 orientation with ``alpha_orientation`` and GPS positions with ``alpha_gps``. No covariance.
+With GPS and no absolute heading, the start heading comes from an EKF pass over the first fixes.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...geometry import inv_pose, so3_exp_one, so3_log_one
-from .initial import initial_state
+from .initial import Start, initial_state
 from .inputs import FuseOptions
 from .result import FuseResult, anchor_to_origin
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared
@@ -27,9 +28,9 @@ def blend_rotation(R_pred: np.ndarray, R_meas: np.ndarray, alpha: float) -> np.n
 
 
 class Complementary:
-    def __init__(self, prep: Prepared, options: FuseOptions):
+    def __init__(self, prep: Prepared, options: FuseOptions, start: Start | None = None):
         self.prep, self.o = prep, options
-        self.start = initial_state(prep, options.standing_window_ns, options.gravity_mps2, options.noise)
+        self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, options.noise)
         imu_use = prep.use.get("imu", set())
         self.gyro = prep.imu is not None and "gyro" in imu_use
         self.accel = prep.imu is not None and "accel" in imu_use
@@ -142,12 +143,11 @@ class Complementary:
                 self._odom(t, i)
             elif kind == GPS:
                 z = prep.gps.position_enu_m[i]
-                if self.gps_offset is None:
+                if self.gps_offset is None:  # ENU about the first fix, where the state is then
                     self.gps_offset = self.p - z
                     prep.reports["gps"].note("anchor")
-                else:
-                    self.p = self.p + o.alpha_gps * (z + self.gps_offset - self.p)
-                    prep.reports["gps"].updates += 1
+                self.p = self.p + o.alpha_gps * (z + self.gps_offset - self.p)
+                prep.reports["gps"].updates += 1
             elif kind == OUT:
                 stamps.append(t)
                 poses.append(self._pose())
@@ -155,8 +155,8 @@ class Complementary:
         return np.asarray(stamps, np.int64), np.asarray(poses).reshape(-1, 4, 4), np.asarray(vels).reshape(-1, 3)
 
 
-def run_complementary(prep: Prepared, o: FuseOptions) -> FuseResult:
-    cf = Complementary(prep, o)
+def run_complementary(prep: Prepared, o: FuseOptions, start: Start | None = None) -> FuseResult:
+    cf = Complementary(prep, o, start)
     stamps, poses, vels = cf.run()
     info = {"model": "complementary", "start": cf.start.reason, "world_yaw_from": cf.start.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None),

@@ -7,7 +7,8 @@ gap threshold, or time outside the IMU's data) is crossed in ONE hold step with 
 its length. Updates: odometry poses (absolute, tied to the fused world at the first one) or increments
 between consecutive odometry poses (a clone of the pose at the previous odometry stamp joins the state),
 wheel body velocity (forward speed with the non-holonomic constraint, or the measured components) and yaw
-rate, GPS position (tied to the world at the first fix), the IMU's orientation. Each update passes a
+rate, GPS position (ENU about the first fix; the start position is then estimated, not pinned), the IMU's
+orientation. Each update passes a
 chi-square gate (``FuseOptions.gate_probability``); rejections are counted per source and reason.
 """
 
@@ -31,6 +32,7 @@ from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared
 CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
 CV_OMEGA_SIGMA_RADPS = 0.5
 GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_heading)
+GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
 
 
 def model_for(use: dict[str, set[str]]) -> str:
@@ -76,7 +78,7 @@ class Ekf3d:
             d[2] = GPS_HEADING_SIGMA_RAD**2
         if s.yaw_from == "imu_orientation":
             d[0:3] = np.diag(s.R.T @ self.prep.imu.orientation_cov[self._first_valid_orientation()] @ s.R)
-        d[3:6] = 1e-12
+        d[3:6] = GPS_START_POSITION_SIGMA_M**2 if "gps" in self.prep.use else 1e-12
         d[6:9] = s.v_sigma_mps**2
         d[9:12] = (CV_OMEGA_SIGMA_RADPS if L.model == "cv" else s.bg_sigma_radps) ** 2
         if L.core == 15:
@@ -194,10 +196,9 @@ class Ekf3d:
 
     def _gps(self, t: int, i: int, x, P):
         z = self.prep.gps.position_enu_m[i]
-        if self.gps_offset is None:
-            self.gps_offset = x[P_] - z
+        if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-            return P
         r, H, Rn = m3.position(x, z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
         return self._update(t, x, P, r, H, Rn, "gps", "gps")
 

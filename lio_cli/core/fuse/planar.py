@@ -27,6 +27,7 @@ X, Y, TH, V, W, BW = range(6)
 CLONE_DUMMY_VAR = 1.0
 OMEGA0_SIGMA_RADPS = 0.5
 GPS_HEADING_SIGMA_RAD = 0.1
+GPS_START_POSITION_SIGMA_M = 10.0
 
 
 def wrap(a: float) -> float:
@@ -78,6 +79,8 @@ class PlanarEkf:
         x[BW] = s.bg[2] if self.use_gyro else 0.0
         d = np.full(self.n, CLONE_DUMMY_VAR)
         d[X] = d[Y] = d[TH] = 1e-12
+        if "gps" in self.prep.use:
+            d[X] = d[Y] = GPS_START_POSITION_SIGMA_M**2
         if s.yaw_from == "gps":
             d[TH] = GPS_HEADING_SIGMA_RAD**2
         if s.yaw_from == "imu_orientation":
@@ -171,10 +174,9 @@ class PlanarEkf:
 
     def _gps(self, t, i, x, P):
         z = self.prep.gps.position_enu_m[i, :2]
-        if self.gps_offset is None:
-            self.gps_offset = x[0:2] - z
+        if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-            return P
         H = np.zeros((2, self.n))
         H[0, X] = H[1, Y] = 1.0
         return self._update(t, x, P, z + self.gps_offset - x[0:2], H, self.prep.gps.cov_m2[i][:2, :2], "gps", "gps")

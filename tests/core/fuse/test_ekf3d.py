@@ -156,14 +156,15 @@ def test_imu_orientation_defines_the_world_heading():
 
 def test_gps_gives_the_heading_and_bounds_the_drift():
     case = simulate_case("planar", 60.0, seed=1, gps_sigma_m=0.5)
-    res = fuse(case.inputs, FuseOptions(rate_hz=10.0))
+    res = fuse(case.inputs, FuseOptions(rate_hz=10.0, smooth=True))
     assert res.info["world_yaw_from"] == "gps"
     truth = interpolate_poses(case.truth_stamps_ns, case.truth_poses, res.stamps_ns)
     err = res.poses[:, :3, 3] - (truth[:, :3, 3] - truth[0, :3, 3])  # world = ENU shifted to the start
-    assert np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1))) < 0.5
+    # 0.5 m fixes at 5 Hz: the smoothed path (start included) is far better than one fix (measured 0.14 m)
+    assert np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1))) < 0.25
     dyaw = np.angle(np.exp(1j * (yaw_of(res.poses[0, :3, :3]) - yaw_of(truth[0, :3, :3]))))
     assert abs(dyaw) < np.radians(3.0)
-    assert res.reports["gps"].updates == len(case.inputs.gps) - 1
+    assert res.reports["gps"].updates == len(case.inputs.gps) and res.reports["gps"].notes == {"anchor": 1}
 
 
 def test_wheel_twist_without_imu_uses_the_constant_velocity_model():
