@@ -69,7 +69,8 @@ class WheelSeries:
 @dataclass
 class PoseSeries:
     """Poses ``T_odomworld_base`` (N,4,4) from LiDAR (or other) odometry, with optional per-pose sigmas
-    ``position_sigma_m`` (N,) and ``rotation_sigma_rad`` (N,)."""
+    ``position_sigma_m`` (N,) and ``rotation_sigma_rad`` (N,) (isotropic; an increment between two poses
+    gets the sum of both poses' variances)."""
 
     stamps_ns: np.ndarray
     poses: np.ndarray
@@ -110,7 +111,9 @@ class FuseInputs:
 
 @dataclass
 class NoiseOptions:
-    """Noise model. IMU values are continuous-time densities (per sqrt(Hz)), as ``lio calibrate`` writes."""
+    """Noise model. IMU values are continuous-time densities (per sqrt(Hz)), as ``lio calibrate`` writes.
+    Sigmas are the defaults for messages without a usable covariance; ``use_message_covariance=False``
+    applies them to every message."""
 
     gyro_noise_density: float = 1.0e-3  # rad/s/sqrt(Hz)
     accel_noise_density: float = 5.0e-2  # m/s^2/sqrt(Hz); a few times a MEMS datasheet: vehicle vibration
@@ -147,8 +150,9 @@ class FuseOptions:
     outside the data are not output (counted in ``FuseResult.info``).
     ``gate_probability``: a measurement whose Mahalanobis distance exceeds the chi-square quantile of
     ``1 - gate_probability`` is rejected as an outlier (``0`` disables the gate); after
-    ``gate_max_rejects`` rejections in a row of one measurement kind the next one is accepted (the filter,
-    not the sensor, is assumed wrong) and counted as ``gate_reset``.
+    ``gate_max_rejects`` rejections in a row of one measurement kind the next one is accepted with the
+    covariance of the states it touches inflated (the filter, not the sensor, is assumed wrong) and
+    counted as ``gate_reset`` -- except a wheel yaw rate that disagrees with the gyro, never forced in.
     ``gap_periods``: a pause longer than this many median sample periods of a source is a gap; it is
     bridged in one step of the constant-velocity model, never integrated sample by sample.
     ``snap_ns``: a wheel message stamped at most this far from an IMU sample is applied at that sample (one
