@@ -49,7 +49,8 @@ def _wheel_spec(spec: WheelSpec, duration_s: float, errors: bool) -> WheelSpec:
 
 def simulate_case(scenario: str, duration_s: float, seed: int = 0, *, imu_rate_hz: float = 200.0,
                   imu_noise_scale: float = 1.0, wheels: bool = True, wheel_errors: bool = True,
-                  odom: OdomNoise | None = None, gps_sigma_m: float | None = None, gps_rate_hz: float = 5.0) -> FusionCase:
+                  odom: OdomNoise | None = None, gps_sigma_m: float | None = None,
+                  gps_rate_hz: float = 5.0) -> FusionCase:
     """A scenario's first ``duration_s`` as fusion inputs (IMU always; wheels, odometry, GPS on request)."""
     rng = np.random.default_rng(seed)
     sc = build_scenario(scenario)

@@ -128,13 +128,7 @@ class Ekf3d:
     def _update(self, t: int, x, P, r, H, Rn, source: str, kind: str, allow_reset: bool = True):
         self._open(t, x, P)
         P, status = kalman_update(x, P, r, H, Rn, self.inject, self.gate, kind, allow_reset)
-        rep = self.prep.reports[source]
-        if status == "outlier":
-            rep.reject("outlier")
-        else:
-            rep.updates += 1
-            if status == "reset":
-                rep.note("gate_reset")
+        self.prep.reports[source].outcome(kind, status)
         return P
 
     def _open(self, t: int, x, P) -> None:

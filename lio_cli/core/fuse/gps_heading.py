@@ -38,7 +38,8 @@ def prefix_without_gps(prep: Prepared, t_end_ns: int) -> Prepared:
     index = np.concatenate([prep.index[keep], np.arange(len(gps_t))])
     order = np.lexsort((kinds, times))
     use = {k: v for k, v in prep.use.items() if k != "gps"}
-    reports = {k: replace(v, rejected=dict(v.rejected), notes=dict(v.notes)) for k, v in prep.reports.items()}
+    reports = {k: replace(v, rejected=dict(v.rejected), notes=dict(v.notes), by_kind={})
+               for k, v in prep.reports.items()}
     return replace(prep, use=use, reports=reports, times=times[order], kinds=kinds[order], index=index[order],
                    out_stamps=gps_t)
 

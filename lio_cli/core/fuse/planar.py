@@ -108,13 +108,7 @@ class PlanarEkf:
     def _update(self, t, x, P, r, H, Rn, source, kind, allow_reset=True):
         self._open(t, x, P)
         P, status = kalman_update(x, P, r, H, Rn, self.boxplus, self.gate, kind, allow_reset)
-        rep = self.prep.reports[source]
-        if status == "outlier":
-            rep.reject("outlier")
-        else:
-            rep.updates += 1
-            if status == "reset":
-                rep.note("gate_reset")
+        self.prep.reports[source].outcome(kind, status)
         return P
 
     def _row(self, cols: dict[int, float]) -> np.ndarray:
@@ -274,7 +268,9 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
     if o.want_covariance:  # x, y, yaw into the 6x6 layout; z, roll, pitch are exactly known (planar)
         cov = np.zeros((len(x), 6, 6))
         cov[np.ix_(np.arange(len(x)), [0, 1, 5], [0, 1, 5])] = P
-    vel = np.column_stack([x[:, V] * np.cos(x[:, TH]), x[:, V] * np.sin(x[:, TH]), np.zeros(len(x))]) if len(x) else None
+    vel = None
+    if len(x):
+        vel = np.column_stack([x[:, V] * np.cos(x[:, TH]), x[:, V] * np.sin(x[:, TH]), np.zeros(len(x))])
     info = {"model": "planar", "start": ekf.start.reason, "world_yaw_from": ekf.start.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info)

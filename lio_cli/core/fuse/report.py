@@ -29,14 +29,30 @@ NOTE_REASONS = {
 
 @dataclass
 class SourceReport:
-    """Counters of one source. ``updates`` counts measurement updates applied (one per message, however
-    many components it carries); IMU samples used as the motion model count as ``predictions``."""
+    """Counters of one source. ``updates`` counts measurement updates applied: one per measurement kind
+    of a message (a wheel message with velocity and yaw rate makes two), broken down in ``by_kind``
+    (kind -> {"updates": n, "outlier": m}); IMU samples used as the motion model count as
+    ``predictions``."""
 
     received: int = 0
     updates: int = 0
     predictions: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
     notes: dict[str, int] = field(default_factory=dict)
+    by_kind: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    def outcome(self, kind: str, status: str) -> None:
+        """Count one update attempt of measurement ``kind``: ``ok``, ``reset`` (forced after a streak of
+        rejections) or ``outlier``."""
+        k = self.by_kind.setdefault(kind, {"updates": 0, "outlier": 0})
+        if status == "outlier":
+            self.reject("outlier")
+            k["outlier"] += 1
+            return
+        self.updates += 1
+        k["updates"] += 1
+        if status == "reset":
+            self.note("gate_reset")
 
     def reject(self, reason: str, n: int = 1) -> None:
         if n:
@@ -52,4 +68,5 @@ class SourceReport:
 
     def to_dict(self) -> dict:
         return {"received": self.received, "updates": self.updates, "predictions": self.predictions,
-                "rejected": dict(self.rejected), "notes": dict(self.notes)}
+                "rejected": dict(self.rejected), "notes": dict(self.notes),
+                "by_kind": {k: dict(v) for k, v in self.by_kind.items()}}

@@ -60,10 +60,14 @@ def clean_imu(imu: ImuSeries, noise: NoiseOptions, report: SourceReport) -> ImuS
     q = valid = cov = None
     if imu.orientation_xyzw is not None:
         q = np.asarray(imu.orientation_xyzw, dtype=np.float64).reshape(n, 4)[keep]
-        valid = np.ones(len(keep), bool) if imu.orientation_valid is None else np.asarray(imu.orientation_valid, bool)[keep]
+        valid = np.ones(len(keep), bool)
+        if imu.orientation_valid is not None:
+            valid &= np.asarray(imu.orientation_valid, bool)[keep]
         norm = np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1)
         valid &= np.all(np.isfinite(q), axis=1) & (norm > 0.5)
-        raw = None if imu.orientation_cov is None else np.asarray(imu.orientation_cov, np.float64).reshape(n, 3, 3)[keep]
+        raw = None
+        if imu.orientation_cov is not None:
+            raw = np.asarray(imu.orientation_cov, np.float64).reshape(n, 3, 3)[keep]
         if raw is not None:
             valid &= ~(raw[:, 0, 0] == -1.0)  # ROS: orientation_covariance[0] = -1 means "no orientation"
         report.note("orientation_absent", int(np.count_nonzero(~valid)))
@@ -123,11 +127,14 @@ def clean_odom(odom: PoseSeries, noise: NoiseOptions, report: SourceReport) -> P
     keep = order_and_dedupe(odom.stamps_ns, ok, report)
     m = len(keep)
     use_msg = noise.use_message_covariance
-    ps = _variance(None if odom.position_sigma_m is None else np.asarray(odom.position_sigma_m, np.float64)[keep] ** 2,
-                   m, 1, noise.odom_position_sigma_m**2, use_msg, report, np.ones((m, 1), bool))
-    rs = _variance(None if odom.rotation_sigma_rad is None else np.asarray(odom.rotation_sigma_rad, np.float64)[keep] ** 2,
-                   m, 1, noise.odom_rotation_sigma_rad**2, use_msg, report, np.ones((m, 1), bool))
-    return PoseSeries(np.asarray(odom.stamps_ns, np.int64)[keep], T[keep], np.sqrt(ps[:, 0]), np.sqrt(rs[:, 0]))
+
+    def sigma(values, default: float) -> np.ndarray:
+        var = None if values is None else np.asarray(values, np.float64)[keep] ** 2
+        return np.sqrt(_variance(var, m, 1, default**2, use_msg, report, np.ones((m, 1), bool))[:, 0])
+
+    ps, rs = sigma(odom.position_sigma_m, noise.odom_position_sigma_m), sigma(odom.rotation_sigma_rad,
+                                                                               noise.odom_rotation_sigma_rad)
+    return PoseSeries(np.asarray(odom.stamps_ns, np.int64)[keep], T[keep], ps, rs)
 
 
 def clean_gps(gps: GpsSeries, noise: NoiseOptions, report: SourceReport) -> GpsSeries:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...errors import ConfigError, InputError
+from ...errors import InputError
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
@@ -116,8 +116,6 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     motion = [s for s in MOTION_SOURCES if s in use and (s != "imu" or "gyro" in use["imu"])]
     if not motion:
         raise InputError("no motion source: fuse needs an odometry trajectory, an IMU (gyro) or wheel odometry")
-    if options.estimator == "planar" and "imu" in use and "gyro" not in use["imu"] and not ({"wheel", "odom"} & set(use)):
-        raise ConfigError("the planar EKF needs the gyro, wheel odometry or an odometry trajectory")
     noise = options.noise
     reports = {s: SourceReport() for s in use}
     prep = Prepared(use, reports)
@@ -206,7 +204,8 @@ def snap_to(stamps: np.ndarray, grid: np.ndarray, tol_ns: int) -> tuple[np.ndarr
 def _events(prep: Prepared, snap_ns: int) -> None:
     t0, t1 = prep.t0_ns, prep.t1_ns
     times, kinds, index = [], [], []
-    imu_grid = prep.imu.stamps_ns if prep.imu is not None and "gyro" in prep.use.get("imu", ()) else np.zeros(0, np.int64)
+    imu_predicts = prep.imu is not None and "gyro" in prep.use.get("imu", ())
+    imu_grid = prep.imu.stamps_ns if imu_predicts else np.zeros(0, np.int64)
     for kind, name in SOURCE_OF_KIND.items():
         s = getattr(prep, name)
         if s is None:

@@ -38,6 +38,7 @@ def test_summary_is_json_and_says_what_was_used():
     assert s["estimator"] == "ekf" and s["poses"] == len(res) == 61
     assert s["use"] == {"imu": ["accel", "gyro"], "odom": ["pose"]}
     assert s["sources"]["odom"]["updates"] == len(case.inputs.odom) - 1
+    assert s["sources"]["odom"]["by_kind"] == {"odom": {"updates": len(case.inputs.odom) - 1, "outlier": 0}}
     assert s["sources"]["imu"]["predictions"] == len(case.inputs.imu)
     np.testing.assert_allclose(res.poses[0, :3, 3], 0.0)
     assert np.all(np.linalg.eigvalsh(res.covariances) > 0.0)
