@@ -13,13 +13,16 @@ With GPS and no absolute heading, the start heading comes from an EKF pass over 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ...geometry import inv_pose, so3_exp_one, so3_log_one
 from .initial import Start, initial_state
 from .inputs import FuseOptions
 from .result import FuseResult, anchor_to_origin
-from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared
+from .state3d import GAP_TAU_S
+from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
 
 def blend_rotation(R_pred: np.ndarray, R_meas: np.ndarray, alpha: float) -> np.ndarray:
@@ -45,6 +48,7 @@ class Complementary:
         self.odom_prev: tuple[int, int, np.ndarray] | None = None  # (index, stamp, fused pose there)
         self.gps_offset: np.ndarray | None = None
         self.ii = -1
+        self.cover_starts, self.cover_ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
 
     def _imu_rate(self, t_a: int, t_b: int):
         st = self.prep.imu.stamps_ns
@@ -57,6 +61,12 @@ class Complementary:
 
     def _predict(self, t_a: int, t_b: int) -> None:
         dt = (t_b - t_a) * 1e-9
+        if in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):
+            e = math.exp(-dt / GAP_TAU_S)  # no motion data: the last speed fades, as in the EKFs
+            self.p = self.p + self.v * (GAP_TAU_S * (1.0 - e))
+            self.v = self.v * e
+            self.vb_wheel = None
+            return
         u = self._imu_rate(t_a, t_b) if (self.gyro or self.accel) else None
         if self.gyro and u is not None:
             w = u[0] - self.bg

@@ -24,10 +24,10 @@ from .kalman import Gate, KnotLog, kalman_update
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, boxplus, cv_step, gyro_step, hold_step, ins_step,
-    new_state, pose,
+    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, boxplus, cv_step, gap_noise, gyro_step, hold_step,
+    ins_step, new_state, pose,
 )
-from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared
+from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
 CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
 CV_OMEGA_SIGMA_RADPS = 0.5
@@ -46,7 +46,9 @@ class Ekf3d:
     def __init__(self, prep: Prepared, options: FuseOptions, start: Start | None = None):
         self.prep, self.o, self.noise = prep, options, options.noise
         self.L = Layout(model_for(prep.use), clone="delta" in prep.use.get("odom", ()))
-        self.q, self.q_gap = ProcessNoise(self.L, self.noise), ProcessNoise(self.L, self.noise, gap=True)
+        self.q = ProcessNoise(self.L, self.noise)
+        self.cover_starts = [a for a, _ in prep.coverage]
+        self.cover_ends = [b for _, b in prep.coverage]
         self.g = np.array([0.0, 0.0, -options.gravity_mps2])
         self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
@@ -108,12 +110,14 @@ class Ekf3d:
     def _propagate(self, x: np.ndarray, P: np.ndarray, t_a: int, t_b: int) -> np.ndarray:
         dt = (t_b - t_a) * 1e-9
         L = self.L
-        if L.model == "cv":
+        if in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data in [t_a, t_b]
+            F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
+        elif L.model == "cv":
             F, q = cv_step(x, dt, L), self.q(dt)
         else:
             u = self._imu_at(t_a, t_b)
             if u is None:
-                F, q = hold_step(x, dt, L), self.q_gap(dt)
+                F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
             elif L.model == "ins":
                 F, q = ins_step(x, dt, u[0], u[1], L, self.g), self.q(dt)
             else:

@@ -21,7 +21,8 @@ from .kalman import Gate, KnotLog, kalman_update
 from .result import FuseResult, anchor_to_origin
 from .sanitize import median_period_ns
 from .smoother import rts_smooth
-from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared
+from .state3d import GAP_TAU_S
+from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
 X, Y, TH, V, W, BW = range(6)
 CLONE_DUMMY_VAR = 1.0
@@ -91,13 +92,26 @@ class PlanarEkf:
         d[BW] = s.bg_sigma_radps**2 if self.use_gyro else 1e-6
         return x, np.diag(d)
 
-    def _propagate(self, x: np.ndarray, P: np.ndarray, dt: float) -> np.ndarray:
-        F = predict(x, dt, self.n)
+    def _propagate(self, x: np.ndarray, P: np.ndarray, dt: float, gap: bool = False) -> np.ndarray:
+        if gap:  # no motion data: speed and turn rate decay (Gauss-Markov), as in the 3D filter
+            F, q = predict_gap(x, dt, self.n), self._gap_noise(dt)
+        else:
+            F, q = predict(x, dt, self.n), self.q_rate * dt
         P = F @ P @ F.T
-        P.flat[:: self.n + 1] += self.q_rate * dt
+        P.flat[:: self.n + 1] += q
         if self.o.smooth:
             self.Phi = F @ self.Phi
         return P
+
+    def _gap_noise(self, dt: float) -> np.ndarray:
+        nz, tau = self.nz, GAP_TAU_S
+        qa, qw = nz.cv_accel_density**2, nz.cv_angular_accel_density**2
+        q = self.q_rate * dt
+        e2 = math.exp(-2.0 * dt / tau)
+        q[V], q[W] = 0.5 * qa * tau * (1.0 - e2), 0.5 * qw * tau * (1.0 - e2)
+        q[X] = q[Y] = min(qa * dt**3 / 3.0, qa * tau * tau * dt)
+        q[TH] = min(qw * dt**3 / 3.0, math.pi**2)
+        return q
 
     def _open(self, t: int, x, P) -> None:
         if not self.log.is_open:
@@ -189,6 +203,7 @@ class PlanarEkf:
         x, P = self._initial()
         self.Phi = np.eye(self.n)
         t_cur = prep.t0_ns
+        starts, ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
             if t > t_cur:
                 P = 0.5 * (P + P.T)
@@ -196,7 +211,8 @@ class PlanarEkf:
                 if self.pending_clone:
                     P = self._apply_clone(x, P)
                     self.pending_clone = False
-                P = self._propagate(x, P, (t - t_cur) * 1e-9)
+                gap = in_coverage_gap(starts, ends, t_cur, t)
+                P = self._propagate(x, P, (t - t_cur) * 1e-9, gap)
                 t_cur = t
             if kind == IMU:
                 P = self._imu(t, i, x, P)
@@ -225,6 +241,26 @@ def predict(x: np.ndarray, dt: float, n: int) -> np.ndarray:
     x[X] += v * c * dt
     x[Y] += v * s * dt
     x[TH] = wrap(x[TH] + x[W] * dt)
+    return F
+
+
+def predict_gap(x: np.ndarray, dt: float, n: int, tau_s: float = GAP_TAU_S) -> np.ndarray:
+    """Across a gap of every motion source: ``v`` and ``omega`` decay with ``e = exp(-dt/tau)``, the pose
+    moves ``v tau (1 - e)`` along the heading and turns ``omega tau (1 - e)``; returns F."""
+    e = math.exp(-dt / tau_s)
+    k = tau_s * (1.0 - e)
+    c, s = math.cos(x[TH]), math.sin(x[TH])
+    v = x[V]
+    F = np.eye(n)
+    F[X, TH], F[X, V] = -v * s * k, c * k
+    F[Y, TH], F[Y, V] = v * c * k, s * k
+    F[TH, W] = k
+    F[V, V] = F[W, W] = e
+    x[X] += v * c * k
+    x[Y] += v * s * k
+    x[TH] = wrap(x[TH] + x[W] * k)
+    x[V] *= e
+    x[W] *= e
     return F
 
 

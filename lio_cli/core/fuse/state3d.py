@@ -16,6 +16,8 @@ Models (lecture: predict from the IMU, or from a motion model when there is none
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ...geometry import so3_exp_one, so3_log_one
@@ -107,18 +109,17 @@ def skew3(v: np.ndarray) -> np.ndarray:
 class ProcessNoise:
     """Diagonal process noise ``q = rate * dt + cube * dt^3 / 3`` per error-state component."""
 
-    def __init__(self, L: Layout, noise, gap: bool = False):
+    def __init__(self, L: Layout, noise):
         rate, cube = np.zeros(L.n), np.zeros(L.n)
         qa, qw = noise.cv_accel_density**2, noise.cv_angular_accel_density**2
-        if L.model == "cv" or gap:
+        if L.model == "cv":
             rate[DV], cube[DP] = qa, qa
             cube[TH] = qw
-            if L.model == "cv":
-                rate[DB] = qw
-        if L.model == "gyro" and not gap:
+            rate[DB] = qw
+        if L.model == "gyro":
             rate[TH] = noise.gyro_noise_density**2
             rate[DV], cube[DP] = qa, qa
-        if L.model == "ins" and not gap:
+        if L.model == "ins":
             rate[TH] = noise.gyro_noise_density**2
             rate[DV] = noise.accel_noise_density**2
         if L.model in ("ins", "gyro"):
@@ -179,9 +180,40 @@ def cv_step(x: np.ndarray, dt: float, L: Layout) -> np.ndarray:
     return F
 
 
-def hold_step(x: np.ndarray, dt: float, L: Layout) -> np.ndarray:
-    """Across a gap of the IMU: rotation held, constant velocity (noise from ``ProcessNoise(gap=True)``)."""
-    x[P_] += x[V_] * dt
+GAP_TAU_S = 2.0  # velocity memory across a gap (first-order Gauss-Markov)
+
+
+def hold_step(x: np.ndarray, dt: float, L: Layout, tau_s: float = GAP_TAU_S) -> np.ndarray:
+    """Across a gap (of the IMU, or of every motion source): rotation held, velocity decaying as a
+    first-order Gauss-Markov process, ``v <- v e``, ``p <- p + v tau (1 - e)`` with ``e = exp(-dt/tau)``:
+    constant velocity over a short gap, at most ``v tau`` of travel over an hour-long one."""
+    e = math.exp(-dt / tau_s)
+    x[P_] += x[V_] * (tau_s * (1.0 - e))
+    x[V_] *= e
+    if L.model == "cv":
+        x[B_] *= e
     F = L.eye.copy()
-    F[3, 6] = F[4, 7] = F[5, 8] = dt
+    F[3, 6] = F[4, 7] = F[5, 8] = tau_s * (1.0 - e)
+    F[6, 6] = F[7, 7] = F[8, 8] = e
+    if L.model == "cv":
+        F[9, 9] = F[10, 10] = F[11, 11] = e
     return F
+
+
+def gap_noise(L: Layout, noise, dt: float, tau_s: float = GAP_TAU_S) -> np.ndarray:
+    """Process noise of ``hold_step``: the Gauss-Markov velocity (stationary variance ``q tau / 2``), its
+    position random walk (``q dt^3 / 3`` at first, ``q tau^2 dt`` in the long run), a rotation error
+    capped at pi^2 (any heading), and the biases' random walks."""
+    qa, qw = noise.cv_accel_density**2, noise.cv_angular_accel_density**2
+    q = np.full(L.n, 1e-16)
+    e2 = math.exp(-2.0 * dt / tau_s)
+    q[DV] = 0.5 * qa * tau_s * (1.0 - e2)
+    q[DP] = min(qa * dt**3 / 3.0, qa * tau_s * tau_s * dt)
+    q[TH] = min(qw * dt**3 / 3.0, math.pi**2)
+    if L.model == "cv":
+        q[DB] = 0.5 * qw * tau_s * (1.0 - e2)
+    else:
+        q[DB] = noise.gyro_bias_walk**2 * dt
+    if L.core == 15:
+        q[DBA] = noise.accel_bias_walk**2 * dt
+    return q

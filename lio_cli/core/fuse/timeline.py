@@ -7,6 +7,7 @@ stamp sees the propagated state; outputs last, so they see every update at their
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -80,6 +81,12 @@ def _merge(intervals: list[tuple[int, int]]) -> list[tuple[int, int]]:
         else:
             out.append([a, b])
     return [(a, b) for a, b in out]
+
+
+def in_coverage_gap(starts: list[int], ends: list[int], t_a: int, t_b: int) -> bool:
+    """True when [t_a, t_b] lies between two covered stretches (no motion source has data there)."""
+    k = bisect_right(starts, t_a) - 1
+    return 0 <= k < len(starts) - 1 and t_a >= ends[k] and t_b <= starts[k + 1] and t_b > t_a
 
 
 def _inside(stamps: np.ndarray, coverage: list[tuple[int, int]]) -> np.ndarray:

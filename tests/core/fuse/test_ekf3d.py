@@ -196,3 +196,18 @@ def test_imu_mounting_rotation_is_applied_on_a_real_path():
     assert not np.allclose(T[:3, :3], np.eye(3)) and np.any(T[:3, 3])
     res = fuse(case.inputs, FuseOptions(rate_hz=50.0))
     assert ate(case, res.stamps_ns, res.poses) < 0.02
+
+
+def test_a_robot_seen_again_an_hour_later_has_not_travelled_an_hour_at_its_last_speed():
+    from lio_cli.core.fuse.state3d import GAP_TAU_S
+
+    seg = np.arange(101, dtype=np.int64) * 20 * MS  # 2 s of wheel twist at 1 m/s, straight, twice
+    st = np.concatenate([START_NS + seg, START_NS + 3600 * 10**9 + seg])
+    n = len(st)
+    wheel = WheelSeries(st, np.tile([1.0, np.nan, np.nan], (n, 1)), np.zeros(n))
+    for estimator in ("ekf", "planar", "complementary"):  # (every estimator bridges gaps the same way)
+        res = fuse(FuseInputs(wheel=wheel), FuseOptions(estimator=estimator))
+        before, after = res.poses[100, :3, 3], res.poses[101, :3, 3]
+        assert res.info["motion_gaps"] == 1
+        assert np.linalg.norm(after - before) <= 1.0 * GAP_TAU_S + 0.05  # not 3600 m
+        np.testing.assert_allclose(res.poses[100, 0, 3], 2.0, atol=0.05)  # before the gap: the wheels

@@ -84,3 +84,24 @@ def test_relative_odometry_gyro_and_smoother_on_a_planar_robot():
     assert filt.reports["odom"].updates == len(od) - 1
     assert ate(case, filt) < 0.8 * odom_ate  # measured 0.67
     assert ate(case, smooth) < 0.5 * odom_ate  # measured 0.31
+
+
+def test_gap_prediction_jacobian_and_bounded_travel():
+    from lio_cli.core.fuse.planar import predict_gap
+    from lio_cli.core.fuse.state3d import GAP_TAU_S
+
+    x = np.array([0.0, 0.0, 0.3, 1.5, 0.2, 0.0])
+    F = predict_gap(x.copy(), 3600.0, 6)
+    y = x.copy()
+    predict_gap(y, 3600.0, 6)
+    assert np.hypot(y[0], y[1]) <= 1.5 * GAP_TAU_S + 1e-9 and abs(y[3]) < 1e-12
+    eps, Fn = 1e-7, np.zeros((6, 6))
+    for k in range(6):
+        xp = x.copy()
+        xp[k] += eps
+        predict_gap(xp, 0.5, 6)
+        base = x.copy()
+        predict_gap(base, 0.5, 6)
+        Fn[:, k] = (xp - base) / eps
+    np.testing.assert_allclose(Fn, predict_gap(x.copy(), 0.5, 6), atol=1e-6)
+    assert F.shape == (6, 6)
