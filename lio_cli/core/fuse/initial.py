@@ -8,12 +8,12 @@ velocity known to be zero; a moving start takes the first wheel velocity when th
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ...geometry import so3_exp_one, yaw_of
+from ..startup import gravity_aligned_rotation
 from .timeline import Prepared
 
 GYRO_STILL_RADPS = 0.05
@@ -32,14 +32,6 @@ class Start:
     standing: bool
     yaw_from: str  # "imu_orientation" or "start" (yaw zero at the start)
     reason: str
-
-
-def level_rotation(f_base: np.ndarray) -> np.ndarray:
-    """R_world_base with yaw zero whose world z is 'up' as a specific force ``f_base`` at rest says."""
-    fx, fy, fz = (float(c) for c in f_base)
-    roll = math.atan2(fy, fz)
-    pitch = math.atan2(-fx, math.hypot(fy, fz))
-    return so3_exp_one(np.array([0.0, pitch, 0.0])) @ so3_exp_one(np.array([roll, 0.0, 0.0]))
 
 
 def without_yaw(R: np.ndarray) -> np.ndarray:
@@ -76,7 +68,7 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
             near = (imu.stamps_ns >= t0) & (imu.stamps_ns <= t0 + (window_ns if standing else window_ns // 5))
             f_mean = prep.imu_f_b[near].mean(axis=0) if near.any() else prep.imu_f_b[0]
             if np.linalg.norm(f_mean) > 0.5 * gravity_mps2:
-                R = level_rotation(f_mean)
+                R = gravity_aligned_rotation(f_mean)
                 why.append("roll and pitch from gravity")
     elif yaw_from == "start" and prep.odom is not None and len(prep.odom):
         R = without_yaw(prep.odom.poses[0, :3, :3])

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lio_cli.core.fuse.initial import level_rotation, without_yaw
+from lio_cli.core.fuse.initial import without_yaw
+from lio_cli.core.startup import gravity_aligned_rotation
 from lio_cli.geometry import so3_exp, yaw_of
 
 ROT_TOL = 1e-12
@@ -14,14 +15,14 @@ def test_level_rotation_puts_the_specific_force_on_world_z_with_zero_yaw():
     R_true = so3_exp(np.array([0.2, -0.3, 0.0]))
     R_true = without_yaw(R_true)
     f_base = R_true.T @ np.array([0.0, 0.0, 9.81])
-    R = level_rotation(f_base)
+    R = gravity_aligned_rotation(f_base)
     np.testing.assert_allclose(R @ f_base, [0.0, 0.0, 9.81], atol=1e-12)
     np.testing.assert_allclose(yaw_of(R), 0.0, atol=ROT_TOL)
     np.testing.assert_allclose(R, R_true, atol=1e-12)
 
 
 def test_level_rotation_upside_down():
-    R = level_rotation(np.array([0.0, 0.0, -9.81]))
+    R = gravity_aligned_rotation(np.array([0.0, 0.0, -9.81]))
     np.testing.assert_allclose(R @ np.array([0.0, 0.0, -1.0]), [0.0, 0.0, 1.0], atol=ROT_TOL)
 
 
