@@ -170,3 +170,17 @@ def so3_log_one(R: np.ndarray) -> np.ndarray:
         return so3_log(R)
     th = math.acos(c)
     return v * (0.5 * th / math.sin(th))
+
+
+def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
+    """R_world_base whose world z is 'up' as the specific force ``f_base`` (at rest) says; yaw zero."""
+    up = f_base / np.linalg.norm(f_base)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(up @ z)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    R = so3_exp(axis / s * np.arctan2(s, c))  # rotates up (base) onto world z
+    yaw = np.arctan2(R[1, 0], R[0, 0])
+    Rz = so3_exp(np.array([0.0, 0.0, -yaw]))
+    return Rz @ R

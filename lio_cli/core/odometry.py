@@ -22,7 +22,7 @@ import numpy as np
 
 from ..config.odom import OdomConfig
 from ..errors import ProcessingError
-from ..geometry import inv_pose, project_to_se2, so3_exp, so3_log
+from ..geometry import gravity_aligned_rotation, inv_pose, project_to_se2, so3_exp, so3_log
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch, OdometryRecord, PointCloud
 from .bootstrap import Bootstrap, align
@@ -33,7 +33,6 @@ from .filter import (complementary_update, complementary_velocity_update, ekf_bo
 from .imu import NavState, flatten_planar, gravity_vector, propagate
 from .motion_compensation import constant_velocity_knots, deskew, to_base
 from .registration import ScanRegistration, auto_voxel_size
-from .startup import gravity_aligned_rotation
 from .wheel import mean_twist, planar_delta
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
@@ -392,7 +391,7 @@ class LioOdometry:
         self._window = []
         # replay the window IMU-primed on a fresh map
         st = self.stats
-        used, degenerate, lidar_only = st.used, st.degenerate, st.lidar_only_scans
+        used, degenerate = st.used, st.degenerate
         del self.stamps_ns[first.out_index:], self.poses[first.out_index:]
         self._reg, self._dirs_b = None, []
         self._last_pose, self._last_ns, self._last_delta, self._last_dt_s = self.state.pose(), None, np.eye(4), 0.0

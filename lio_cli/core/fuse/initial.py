@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...geometry import so3_exp_one, yaw_of
-from ..startup import gravity_aligned_rotation
+from ...geometry import gravity_aligned_rotation, so3_exp_one, yaw_of
 from .timeline import Prepared
 
 GYRO_STILL_RADPS = 0.05

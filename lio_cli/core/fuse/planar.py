@@ -72,7 +72,7 @@ class PlanarEkf:
         return d
 
     def _initial(self) -> tuple[np.ndarray, np.ndarray]:
-        s, nz = self.start, self.nz
+        s = self.start
         x = np.zeros(self.n)
         x[TH] = float(yaw_of(s.R))
         vb = s.R.T @ s.v

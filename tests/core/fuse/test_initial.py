@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lio_cli.core.fuse.initial import without_yaw
-from lio_cli.core.startup import gravity_aligned_rotation
+from lio_cli.geometry import gravity_aligned_rotation
 from lio_cli.geometry import so3_exp, yaw_of
 
 ROT_TOL = 1e-12
