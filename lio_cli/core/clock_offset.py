@@ -3,8 +3,8 @@
 Registration poses carry the LiDAR's timing; the gyro its own. Over a window of healthy IMU-primed scans the
 rotation increments of the registered poses are aligned in time with the gyro (``calibration.time_offset``),
 and an offset that is clearly there and sharply determined is applied to every later IMU sample. Windows
-without enough rotation to time anything are simply skipped. The rotation found alongside checks the IMU
-extrinsic in use.
+without enough rotation to time anything are simply skipped. (The rotation the alignment finds alongside is
+not used to judge the extrinsic: a vehicle turning about one axis leaves it undetermined about that axis.)
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import so3_log
 from .calibration.time_offset import estimate_time_offset
 
 WINDOW_S = 5.0  # registration poses per estimate
@@ -22,17 +21,14 @@ MAX_OFFSET_S = 0.1  # larger offsets are a clock mismatch, refused before the ru
 APPLY_SIGMA_S = 0.002  # apply only a sharply determined offset...
 APPLY_MIN_S = 0.001  # ...that is clearly there (and at least 3 sigma)
 ROUNDS = 6  # estimates at most (each later one measures what the earlier left)
-EXTRINSIC_WARN_RAD = np.radians(5.0)
 
 
 @dataclass
 class ClockOffsetTracker:
     """Collects registration poses (T_world_lidar) and gyro samples; proposes offset corrections."""
 
-    T_lidar_imu: np.ndarray  # the extrinsic in use, to check the rotation found
     applied_s: float = 0.0  # total correction applied so far
     estimates: list[dict] = field(default_factory=list)
-    extrinsic_warning: str | None = None
     _stamps: list[int] = field(default_factory=list)
     _poses: list[np.ndarray] = field(default_factory=list)
     _imu_stamps: list[np.ndarray] = field(default_factory=list)
@@ -77,13 +73,8 @@ class ClockOffsetTracker:
             return 0
         offset, sigma = est.imu_time_offset_s, est.sigma_s
         apply = sigma <= APPLY_SIGMA_S and abs(offset) >= max(APPLY_MIN_S, 3.0 * sigma)
-        angle = float(np.linalg.norm(so3_log(self.T_lidar_imu[:3, :3].T @ est.R_lidar_imu)))
-        if angle > EXTRINSIC_WARN_RAD and self.extrinsic_warning is None:
-            self.extrinsic_warning = (f"the gyro's rotations match the LiDAR's only with the IMU turned "
-                                      f"{np.degrees(angle):.1f} deg from the extrinsic in use; check T_base_imu "
-                                      "(lio calibrate estimates it)")
         self.estimates.append({"scan": at_scan, "offset_s": round(offset, 6), "sigma_s": round(sigma, 6),
-                               "applied": bool(apply), "extrinsic_rotation_error_deg": round(np.degrees(angle), 3)})
+                               "applied": bool(apply)})
         if not apply:
             if abs(offset) < max(APPLY_MIN_S, 3.0 * sigma) and sigma <= APPLY_SIGMA_S:
                 self._rounds = ROUNDS  # the clocks agree: nothing left to measure

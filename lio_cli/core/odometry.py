@@ -126,7 +126,7 @@ class LioOdometry:
         self.ext = Extrinsics(np.asarray(T_base_imu, dtype=np.float64), self.ext.T_base_lidar)
         self.imu_mounted = True
         if self.cfg.estimate_time_offset and not self.planar:
-            self.clock = ClockOffsetTracker(inv_pose(self.ext.T_base_lidar) @ self.ext.T_base_imu)
+            self.clock = ClockOffsetTracker()
 
     def add_imu(self, batch: ImuBatch) -> None:
         if self._shift_ns:

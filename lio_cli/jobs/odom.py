@@ -205,8 +205,6 @@ class _OdomRun:
             "real_time_factor": (span_s / wall) if wall > 0 else None,
             "notes": self.notes,
         }
-        if odo.clock is not None and odo.clock.extrinsic_warning and odo.clock.extrinsic_warning not in self.notes:
-            self.notes.append(odo.clock.extrinsic_warning)
         traj = Trajectory(np.asarray(stamps, dtype=np.int64), P, f"{self.reader.path}:odom", "odom")
         return OdomResult(traj, resolved, st, start["reason"], metrics, self.notes, inputs.describe())
 
