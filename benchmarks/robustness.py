@@ -59,17 +59,17 @@ def cell(work: Path, scenario: str, start: str, mount: str, offset_s: float, dur
 
     for tool, extra in (("lio", []), ("lio_lidar_only", LIO_ONLY)):
         out = d / f"{tool}.tum"
-        wall, _, code = run([str(BIN / "lio"), "odom", str(res.log_path), "-o", str(out), "-q", "--force", *extra], d)
-        row[tool], row[f"{tool}_wall_s"] = ate(out, code), wall
+        wall, _, code, cpu = run([str(BIN / "lio"), "odom", str(res.log_path), "-o", str(out), "-q", "--force", *extra], d)
+        row[tool], row[f"{tool}_wall_s"], row[f"{tool}_cpu_s"] = ate(out, code), wall, cpu
     if lidar == "/points":
-        wall, _, code = run([str(BIN / "kiss_icp_pipeline"), "--topic", lidar, str(res.log_path)], d)
+        wall, _, code, cpu = run([str(BIN / "kiss_icp_pipeline"), "--topic", lidar, str(res.log_path)], d)
         found = sorted((d / "results").glob("*/*_tum.txt"))
         row["kiss_icp"] = ate(lidar_to_base(found[-1], T_bl, d / "kiss_base.tum") if found else None, code)
         if rko is not None:
-            wall, _, code = run([str(rko), str(d / "bag"), "--imu", "/imu", "--lidar", lidar, "--base_frame", "base",
-                                 "-o", str(d / "rko")], d)
+            wall, _, code, cpu = run([str(rko), str(d / "bag"), "--imu", "/imu", "--lidar", lidar, "--base_frame", "base",
+                                      "-o", str(d / "rko")], d)
             found = sorted((d / "rko").glob("*/*_tum.txt"))
-            row["rko_lio"], row["rko_lio_wall_s"] = ate(found[-1] if found else None, code), wall
+            row["rko_lio"], row["rko_lio_wall_s"], row["rko_lio_cpu_s"] = ate(found[-1] if found else None, code), wall, cpu
     return row
 
 
@@ -90,18 +90,21 @@ def verdict(r: dict) -> tuple[str, str]:
 
 def print_table(rows: list[dict]) -> None:
     print("| scenario | start | IMU | offset ms | lio ATE m | lio LiDAR-only | kiss-icp | RKO-LIO | lio / better peer "
-          "| lio wall / RKO-LIO | target |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| lio wall / RKO-LIO | lio CPU / RKO-LIO | target |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio, ok = verdict(r)
         wall = (_f(r["lio_wall_s"] / r["rko_lio_wall_s"], ".2f") if r.get("rko_lio_wall_s") else "-")
+        cpu = (_f(r["lio_cpu_s"] / r["rko_lio_cpu_s"], ".2f") if r.get("rko_lio_cpu_s") else "-")
         print(f"| {r['scenario']} | {r['start']} | {r['imu']} | {r['offset_ms']:.0f} | {_f(r.get('lio'))} | "
-              f"{_f(r.get('lio_lidar_only'))} | {_f(r.get('kiss_icp'))} | {_f(r.get('rko_lio'))} | {ratio} | {wall} | {ok} |")
+              f"{_f(r.get('lio_lidar_only'))} | {_f(r.get('kiss_icp'))} | {_f(r.get('rko_lio'))} | {ratio} | {wall} | "
+              f"{cpu} | {ok} |")
     passed = sum(verdict(r)[1] == "pass" for r in rows)
     walls = [r["lio_wall_s"] / r["rko_lio_wall_s"] for r in rows if r.get("rko_lio_wall_s")]
+    cpus = [r["lio_cpu_s"] / r["rko_lio_cpu_s"] for r in rows if r.get("rko_lio_cpu_s")]
     print(f"\n{passed}/{len(rows)} cells meet both targets"
-          + (f"; lio wall / RKO-LIO wall: median {np.median(walls):.2f}, range {min(walls):.2f}-{max(walls):.2f}"
-             if walls else ""))
+          + (f"; lio / RKO-LIO wall time: median {np.median(walls):.2f} ({min(walls):.2f}-{max(walls):.2f}), CPU time: "
+             f"median {np.median(cpus):.2f} ({min(cpus):.2f}-{max(cpus):.2f})" if walls else ""))
 
 
 def main() -> int:
