@@ -6,6 +6,8 @@ quaternions are xyzw. This is the only module that touches ``scipy.spatial.trans
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -131,3 +133,54 @@ def project_to_se2(T: np.ndarray) -> np.ndarray:
     out[..., 0, 3], out[..., 1, 3] = T[..., 0, 3], T[..., 1, 3]
     out[..., 3, 3] = 1.0
     return out
+
+
+def so3_exp_one(rotvec_rad: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3,3) of ONE rotation vector by Rodrigues' formula, without scipy's per-call overhead.
+
+    Same result as :func:`so3_exp` for a single vector; meant for per-sample filter loops, where scipy's
+    object construction (about 10 us) would dominate the step.
+    """
+    x, y, z = float(rotvec_rad[0]), float(rotvec_rad[1]), float(rotvec_rad[2])
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-12:  # second-order series: exact to double precision below 1e-6 rad
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    return np.array([
+        [1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
+        [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
+        [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)],
+    ])
+
+
+def so3_log_one(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of ONE rotation matrix (3,3); scipy-free like :func:`so3_exp_one`.
+
+    Angles near pi (where the antisymmetric part vanishes) fall back to :func:`so3_log`.
+    """
+    c = 0.5 * (float(R[0, 0] + R[1, 1] + R[2, 2]) - 1.0)
+    c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if c > 0.999999:  # small angle: th / (2 sin th) ~ 1/2 + th^2/12
+        th2 = 2.0 * (1.0 - c)
+        return v * (0.5 + th2 / 12.0)
+    if c < -0.99:
+        return so3_log(R)
+    th = math.acos(c)
+    return v * (0.5 * th / math.sin(th))
+
+
+def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
+    """R_world_base whose world z is 'up' as the specific force ``f_base`` (at rest) says; yaw zero."""
+    up = f_base / np.linalg.norm(f_base)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(up @ z)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    R = so3_exp(axis / s * np.arctan2(s, c))  # rotates up (base) onto world z
+    yaw = np.arctan2(R[1, 0], R[0, 0])
+    Rz = so3_exp(np.array([0.0, 0.0, -yaw]))
+    return Rz @ R

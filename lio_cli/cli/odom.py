@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..io.detect import input_paths
 from ..io.pointcloud import parse_time_convention
 from ..io.trajectory_files import format_tum
-from ..jobs.odom import OdomJob, OdomResult, run_odom
+from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom
 from ..jobs.outputs import check_outputs, log_stem, write_odom
 from .common import (FormatOpt, ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt, QuietOpt,
                      WheelTopicOpt, err_console, job_progress, note, print_json, warn)
@@ -92,7 +92,18 @@ def odom(
         check_outputs(out, force, inputs)
 
     with job_progress("odometry", quiet) as update:
-        result = run_odom(OdomJob(Path(log), cfg, gt), progress=update)
+        try:
+            result = run_odom(OdomJob(Path(log), cfg, gt), progress=update)
+        except DivergedRun as err:  # the trajectory up to where the track was lost is still written
+            if err.partial is not None:
+                traj = err.partial.trajectory
+                if out is None:
+                    sys.stdout.write(format_tum(traj.stamps_ns, traj.poses))
+                    sys.stdout.flush()
+                else:
+                    write_odom(err.partial, out, force)
+                    err.args = (f"{err}; the trajectory up to there is in {out}",)
+            raise
     for n in result.notes:
         warn(n)
     for role, choice in result.roles.items():

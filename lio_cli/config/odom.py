@@ -85,6 +85,8 @@ class OdomConfig(Strict):
         1.0, gt=0, le=60, description="LiDAR-only scans over this long start the IMU state (standing or moving start)")
     max_gap_s: float = Field(1.0, gt=0, description="a longer pause between scans restarts from the LiDAR instead of integrating")
     max_lost_scans: int = Field(20, ge=1, description="LiDAR-only registration failing this many scans in a row ends the run (exit 1)")
+    estimate_time_offset: bool = Field(
+        True, description="estimate a small IMU-LiDAR clock offset while running (on top of the calibration's) and apply it")
     max_speed_mps: float = Field(70.0, gt=0, description="a faster IMU state is implausible and is started again from the LiDAR")
     gravity_mps2: float = Field(9.81, gt=0, le=30)
     registration: RegistrationConfig = RegistrationConfig()

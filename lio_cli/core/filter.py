@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import skew, so3_exp, so3_log
+from ..geometry import skew, so3_exp_one, so3_log_one
 from .imu import STATE_DIM, NavState
 
 
 def pose_residual(state: NavState, T_meas: np.ndarray) -> np.ndarray:
     """(dtheta, dp): rotation error in the body frame (right perturbation) and position error in world."""
-    return np.concatenate([so3_log(state.R.T @ T_meas[:3, :3]), T_meas[:3, 3] - state.p])
+    return np.concatenate([so3_log_one(state.R.T @ T_meas[:3, :3]), T_meas[:3, 3] - state.p])
 
 
 def position_noise(sigma_m: float, degenerate_dirs_world: list[np.ndarray], degenerate_sigma_m: float) -> np.ndarray:
@@ -32,7 +32,7 @@ def position_noise(sigma_m: float, degenerate_dirs_world: list[np.ndarray], dege
 
 
 def _inject(state: NavState, dx: np.ndarray) -> None:
-    state.R = state.R @ so3_exp(dx[0:3])
+    state.R = state.R @ so3_exp_one(dx[0:3])
     state.p = state.p + dx[3:6]
     state.v = state.v + dx[6:9]
     state.bg = state.bg + dx[9:12]
@@ -97,7 +97,7 @@ def complementary_update(state: NavState, T_meas: np.ndarray, alpha: float, dt_s
     dtheta, dp = alpha * r[0:3], alpha * r[3:6]
     for d in degenerate_dirs_world:  # no information along d: keep the prediction there
         dp = dp - d * (d @ dp)
-    state.R = state.R @ so3_exp(dtheta)
+    state.R = state.R @ so3_exp_one(dtheta)
     state.p = state.p + dp
     if dt_s > 0:
         state.v = state.v + dp / dt_s

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import skew, so3_exp
+from ..geometry import skew, so3_exp, so3_exp_one
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
 
@@ -188,7 +188,7 @@ def _propagate_cov_interval(P: np.ndarray, Rs: np.ndarray, R_bi: np.ndarray, w_b
         f = f_b[a:b + 1].mean(axis=0)
         R = Rs[a]
         F = np.eye(STATE_DIM)
-        F[0:3, 0:3] = so3_exp(-w * dt)
+        F[0:3, 0:3] = so3_exp_one(-w * dt)
         F[0:3, 9:12] = -R_bi * dt
         F[3:6, 6:9] = np.eye(3) * dt
         F[6:9, 0:3] = -R @ skew(f) * dt

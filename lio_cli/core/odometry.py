@@ -22,17 +22,17 @@ import numpy as np
 
 from ..config.odom import OdomConfig
 from ..errors import ProcessingError
-from ..geometry import inv_pose, project_to_se2, so3_exp, so3_log
+from ..geometry import gravity_aligned_rotation, inv_pose, project_to_se2, so3_exp, so3_log
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch, OdometryRecord, PointCloud
 from .bootstrap import Bootstrap, align
+from .clock_offset import ClockOffsetTracker
 from .degeneracy import degenerate_directions
 from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
                      pose_innovation_nis, position_noise)
 from .imu import NavState, flatten_planar, gravity_vector, propagate
 from .motion_compensation import constant_velocity_knots, deskew, to_base
 from .registration import ScanRegistration, auto_voxel_size
-from .startup import gravity_aligned_rotation
 from .wheel import mean_twist, planar_delta
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
@@ -117,15 +117,30 @@ class LioOdometry:
         self.poses: list[np.ndarray] = []  # LiDAR-only poses are replaced once the IMU state starts
         self._first_f_base: np.ndarray | None = None  # mean specific force (base axes) around the first scan
         self._lost = 0  # LiDAR-only registrations failed in a row
+        self.clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
+        self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:
         self.ext = Extrinsics(np.asarray(T_base_imu, dtype=np.float64), self.ext.T_base_lidar)
         self.imu_mounted = True
+        if self.cfg.estimate_time_offset and not self.planar:
+            self.clock = ClockOffsetTracker()
 
     def add_imu(self, batch: ImuBatch) -> None:
+        if self._shift_ns:
+            batch = ImuBatch(batch.frame_id, batch.stamps_ns + self._shift_ns, batch.gyro_radps, batch.accel_mps2)
         self._imu.append(batch)
+        if self.clock is not None:
+            self.clock.add_imu(batch.stamps_ns, batch.gyro_radps)
+
+    def _shift_imu(self, delta_ns: int) -> None:
+        """Move every IMU sample, buffered and to come, by ``delta_ns`` onto the LiDAR's clock."""
+        self._shift_ns += delta_ns
+        self._imu = [ImuBatch(b.frame_id, b.stamps_ns + delta_ns, b.gyro_radps, b.accel_mps2) for b in self._imu]
+        self._event("clock offset", f"IMU stamps moved by {delta_ns * 1e-6:+.2f} ms onto the LiDAR's clock "
+                                    f"(estimated online; {self._shift_ns * 1e-6:+.2f} ms in all)")
 
     def add_wheel(self, rec: OdometryRecord) -> None:
         self._wheel.append(rec)
@@ -192,6 +207,8 @@ class LioOdometry:
 
     def _lose_imu_state(self) -> None:
         self.state = None  # gravity survives in _g_world, as the last healthy state had it
+        if self.clock is not None:
+            self.clock.reset()
         self._window = []
         self._doubt = 0
 
@@ -302,10 +319,7 @@ class LioOdometry:
         st.lidar_only_scans += 1
         if failed:
             st.registration_failures += 1
-            self._lost += 1
-            if self._lost >= self.cfg.max_lost_scans:
-                raise Diverged(f"lost track at scan {st.scans} (stamp {t_ref * 1e-9:.3f} s): LiDAR-only "
-                               f"registration failed for {self._lost} scans in a row")
+            self._count_lost(t_ref)
         else:
             self._lost = 0
         result = self._finish(t_ref, pose, None if failed else frame,
@@ -318,6 +332,13 @@ class LioOdometry:
             self._window.append(_WindowScan(t_prev, t_ref, pose, self._wheel_speed(t_ref), cloud, len(self.poses) - 1))
             self._try_bootstrap()
         return result
+
+    def _count_lost(self, t_ref: int) -> None:
+        """One more scan in a row that no registration could place; too many end the run."""
+        self._lost += 1
+        if self._lost >= self.cfg.max_lost_scans:
+            raise Diverged(f"lost track at scan {self.stats.scans} (stamp {t_ref * 1e-9:.3f} s): no registration, "
+                           f"IMU-primed or LiDAR-only, could place {self._lost} scans in a row")
 
     def _wheel_speed(self, t_ns: int) -> float:
         twist = mean_twist(self._wheel, t_ns - 60_000_000, t_ns + 60_000_000) if self.cfg.use_wheel else None
@@ -370,7 +391,7 @@ class LioOdometry:
         self._window = []
         # replay the window IMU-primed on a fresh map
         st = self.stats
-        used, degenerate, lidar_only = st.used, st.degenerate, st.lidar_only_scans
+        used, degenerate = st.used, st.degenerate
         del self.stamps_ns[first.out_index:], self.poses[first.out_index:]
         self._reg, self._dirs_b = None, []
         self._last_pose, self._last_ns, self._last_delta, self._last_dt_s = self.state.pose(), None, np.eye(4), 0.0
@@ -431,6 +452,7 @@ class LioOdometry:
                                         "correspondences), LiDAR-only registration could: back to LiDAR-only scans")
                 return res
             self.state, self._g_world = kept, g_world
+            self._count_lost(t_ref)
             return self._finish(t_ref, self.state.pose(), None, None, dirs_b, True)
         tick = time.perf_counter()
         reason = self._implausible(measured, dirs_b)
@@ -442,7 +464,9 @@ class LioOdometry:
             reason = reason or self._state_implausible()
             if reason is None:
                 self._g_world = self.state.g.copy()  # the latest gravity of a healthy state
+                self._track_clock(t_ref, measured)
         st.times_s["fuse"] += time.perf_counter() - tick
+        self._lost = 0
         result = self._finish(t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False)
         if reason is not None:
             st.recoveries += 1
@@ -468,6 +492,14 @@ class LioOdometry:
             self._event("recovery", reason + ": back to LiDAR-only scans")
             self._lose_imu_state()
         return res
+
+    def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
+        if self.clock is None or self.clock.done:
+            return
+        self.clock.add_pose(t_ref, measured @ self.ext.T_base_lidar)
+        delta = self.clock.propose(self.state.bg, self.stats.scans)
+        if delta:
+            self._shift_imu(delta)
 
     def _implausible(self, measured: np.ndarray, dirs_b: list) -> str | None:
         """A pose innovation far outside its covariance for several scans in a row (EKF only)."""

@@ -58,7 +58,7 @@ def check_same_clock(log: LogReader, reference: str, other: str, other_offset_ns
     raise InputError(
         f"{log.path}: {other} and {reference} are stamped on different clocks ({other} from "
         f"{_fmt_s(h_oth[0] + other_offset_ns)} s, {reference} from {_fmt_s(h_ref[0])} s: {abs(apart) * 1e-9:.6g} s "
-        f"apart beyond their recording times); if {other} runs on a shifted clock give {option} {shift:.6f}"
+        f"apart beyond their recording times); if {other} runs on a shifted clock give {option} {shift:.3f}"
     )
 
 

@@ -4,9 +4,10 @@ A topic asked for is checked and taken. Otherwise the candidates are the topics 
 that carry messages, minus those that cannot play it:
 
 - wheel odometry never comes from a topic whose name or frames say ground truth (ground_truth, gt, vicon,
-  mocap, optitrack...) or another estimator's output (filtered, ekf, slam, visual or stereo odometry...); of
-  several left, one whose twist is not all zero is preferred, then one named for wheels (the odometry also
-  ignores all-zero twists while the platform moves: a pose source would drag the velocity to zero);
+  mocap, optitrack...) or another estimator's output (filtered, ekf, slam, visual or stereo odometry...), nor
+  from one whose twist is all zero over its first messages (a pose source: it would drag the velocity to
+  zero); of several left, one named for wheels is preferred (the odometry also ignores all-zero twists
+  while the platform moves);
 - an IMU whose rates and accelerations are all zero is not an IMU;
 - ground truth prefers a topic named so; an Odometry topic is ground truth only when named so.
 
@@ -33,7 +34,7 @@ _ESTIMATE_TOKENS = {"filtered", "ekf", "ukf", "fused", "fusion", "slam", "lio", 
                     "icp", "kiss", "lidar", "laser", "scan", "orb", "vins", "rtabmap", "cartographer"}
 _WHEEL_TOKENS = {"wheel", "wheels", "encoder", "encoders", "controller", "diff", "drive", "odom_wheel", "base"}
 _PEEK = 20  # messages looked at per candidate
-_PEEK_TWIST = 300  # a wheel topic's first messages may all be at rest: look further before calling it all zero
+_PEEK_TWIST = 1000  # a wheel topic's first messages may all be at rest: look further before calling it all zero
 
 
 @dataclass(frozen=True)
@@ -100,16 +101,12 @@ def _wheel_verdict(log: LogReader, topic: str) -> str | None:
         return "named as ground truth"
     if says_estimate(topic):
         return "named as another estimator's output"
-    msgs = _peek(log, topic, 1)
+    msgs = _peek(log, topic, _PEEK_TWIST)
     if msgs and says_ground_truth(*_frames(msgs[0], msgtype)):
         return "its frames are named as ground truth"
+    if msgs and not any(np.abs(_twist(m, msgtype)).sum() > 0 for m in msgs):
+        return f"its twist is all zero over its first {len(msgs)} messages (a pose source)"
     return None
-
-
-def _twist_all_zero(log: LogReader, topic: str) -> bool:
-    msgtype = log.topics[topic].msgtype
-    msgs = _peek(log, topic, _PEEK_TWIST)
-    return bool(msgs) and not any(np.abs(_twist(m, msgtype)).sum() > 0 for m in msgs)
 
 
 def choose_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
@@ -147,15 +144,7 @@ def choose_topic(log: LogReader, kind: str, requested: str | None = None, requir
             raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)}){extra}")
         return TopicChoice(None, f"none found{f' ({left_out})' if left_out else ''}")
     if len(left) > 1 and kind == "wheel":
-        moving = [t for t in left if not _twist_all_zero(log, t)]
-        for t in left:
-            if t not in moving:
-                refused[t] = "its twist is all zero (a pose source)"
-        left = moving or left
-        left_out = "; ".join(f"{t}: {why}" for t, why in refused.items())
         plain = [t for t in left if _tokens(t) & _WHEEL_TOKENS]
-        if len(left) == 1:
-            return TopicChoice(left[0], f"the only {word} topic with a moving twist (left out {left_out})")
         if len(plain) == 1:
             others = [t for t in left if t != plain[0]]
             return TopicChoice(plain[0], f"named as wheel odometry (also present: {', '.join(others)})"

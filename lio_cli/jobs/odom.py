@@ -192,6 +192,7 @@ class _OdomRun:
             "initialisation_static": start["static"],
             "start": start,
             "events": odo.events,
+            "imu_time_offset": _clock_summary(odo, cfg),
             "extrinsics": self.mounting.describe(),
             "scans": st.counts(),
             "stream": self.stream.stats.to_dict(),
@@ -206,6 +207,15 @@ class _OdomRun:
         }
         traj = Trajectory(np.asarray(stamps, dtype=np.int64), P, f"{self.reader.path}:odom", "odom")
         return OdomResult(traj, resolved, st, start["reason"], metrics, self.notes, inputs.describe())
+
+
+def _clock_summary(odo: LioOdometry, cfg: OdomConfig) -> dict | None:
+    """The IMU clock offset used: the calibration's plus what was estimated online."""
+    if odo.clock is None:
+        return None
+    given = cfg.calibration.imu_time_offset_s
+    return {"calibration_s": given, "estimated_online_s": round(odo.clock.applied_s, 6),
+            "total_s": round(given + odo.clock.applied_s, 6), "estimates": odo.clock.estimates}
 
 
 def _start_summary(odo: LioOdometry, with_imu: bool) -> dict:

@@ -250,7 +250,7 @@ def test_progress_reports_simulated_seconds(tmp_path):
     assert sum(seen) == pytest.approx(1.0)
 
 
-SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
+SAMPLE_LOGS = Path(__file__).resolve().parents[2] / "sample_logs"
 SAMPLE_BUDGET_BYTES = 20_000_000
 
 

@@ -6,7 +6,6 @@ import pytest
 from lio_cli.config.odom import ImuNoise
 from lio_cli.geometry import make_pose, so3_exp, so3_log
 from lio_cli.core.imu import NavState, gravity_vector, propagate
-from lio_cli.core.startup import start_up
 from lio_cli.model.calibration import Extrinsics
 from lio_cli.model.records import ImuBatch
 
@@ -93,40 +92,3 @@ def test_covariance_grows_with_time():
     p_full = propagate(s, imu, 10**9, IDENTITY, noise=ImuNoise()).state.P
     assert p_full[3, 3] > p_half[3, 3] > 1e-9  # position variance grows
     assert p_full[0, 0] > p_half[0, 0]
-
-
-def test_standing_start_recovers_tilt_and_gyro_bias():
-    rng = np.random.default_rng(3)
-    tilt = so3_exp(np.array([0.1, -0.05, 0.0]))  # R_world_base
-    bias = np.array([0.004, -0.002, 0.001])
-    n = 400
-    gyro = bias + rng.normal(0, 1e-3, (n, 3))
-    accel = tilt.T @ np.array([0.0, 0.0, G]) + rng.normal(0, 1e-2, (n, 3))
-    imu = ImuBatch("imu", np.arange(n, dtype=np.int64) * 5_000_000, gyro, accel)
-    s = start_up(imu, np.eye(3), 2 * 10**9)
-    assert s.static
-    np.testing.assert_allclose(s.gyro_bias, bias, atol=3e-4)
-    # gravity direction (roll/pitch) recovered: world z of the estimate matches the true one
-    np.testing.assert_allclose(s.R_world_base.T @ [0, 0, 1], tilt.T @ [0, 0, 1], atol=2e-3)
-
-
-def test_moving_start_is_reported():
-    n = 200
-    gyro = np.column_stack([np.zeros(n), np.zeros(n), np.linspace(0, 2, n)])
-    accel = np.tile([0.0, 0.0, G], (n, 1))
-    s = start_up(ImuBatch("imu", np.arange(n, dtype=np.int64) * 5_000_000, gyro, accel), np.eye(3), 10**9)
-    assert not s.static
-    assert s.reason.startswith("moving start")
-
-
-def test_known_accel_bias_is_removed_before_levelling():
-    tilt = so3_exp(np.array([0.05, 0.02, 0.0]))
-    bias = np.array([0.08, -0.06, 0.1])  # ~0.6 deg of false tilt if ignored
-    n = 300
-    accel = np.tile(tilt.T @ np.array([0.0, 0.0, G]) + bias, (n, 1))
-    imu = ImuBatch("imu", np.arange(n, dtype=np.int64) * 5_000_000, np.zeros((n, 3)), accel)
-    up_true = tilt.T @ [0, 0, 1]
-    ignored = start_up(imu, np.eye(3), 10**9).R_world_base.T @ [0, 0, 1]
-    known = start_up(imu, np.eye(3), 10**9, accel_bias=bias).R_world_base.T @ [0, 0, 1]
-    np.testing.assert_allclose(known, up_true, atol=1e-12)
-    assert np.linalg.norm(ignored - up_true) > 5e-3

@@ -1,0 +1,97 @@
+"""``fuse(inputs, options)``: the one entry point of the estimation core of ``lio fuse``."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ...geometry import so3_exp_one
+from .complementary import run_complementary
+from .ekf3d import Ekf3d
+from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
+from .initial import Start, initial_state
+from .inputs import FuseInputs, FuseOptions
+from .planar import PlanarEkf, run_planar
+from .result import FuseResult, anchor_to_origin
+from .smoother import rts_smooth
+from .state3d import P_, R_, V_
+from .timeline import Prepared, prepare
+
+_EKF_XY = slice(P_.start, P_.start + 2)  # x, y of the 3D filter's nominal state
+
+
+def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
+    """Fuse the sources into one trajectory at the output stamps (see ``FuseOptions``).
+
+    Raises ``InputError`` (no motion source, nothing usable, sources on different clocks) or
+    ``ConfigError`` (an option no run can use) with one line.
+    """
+    o = options or FuseOptions()
+    t_start = time.perf_counter()
+    prep = prepare(inputs, o)
+    if o.estimator == "planar":
+        result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
+    elif o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
+        result = run_complementary(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
+    else:
+        result = _run_ekf3d(prep, o)
+    result.info.update(_common_info(prep, o))
+    result.info["run_time_s"] = time.perf_counter() - t_start
+    return result
+
+
+def _common_info(prep: Prepared, o: FuseOptions) -> dict:
+    return {
+        "use": {k: sorted(v) for k, v in prep.use.items()},
+        "span_ns": [prep.t0_ns, prep.t1_ns],
+        "covered_s": sum(b - a for a, b in prep.coverage) * 1e-9,
+        "motion_gaps": len(prep.coverage) - 1,
+        "outputs_dropped_outside_data": prep.out_dropped,
+        "notes": list(prep.notes),
+    }
+
+
+def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
+    """The initial state; with GPS and no absolute heading, its yaw from a GPS-free first pass."""
+    start = initial_state(prep, o.standing_window_ns, o.gravity_mps2, o.noise)
+    if "gps" not in prep.use or start.yaw_from != "start":
+        return start
+    t_end = heading_prefix_end(prep)
+    if t_end is None:
+        start.reason += "; GPS never spread enough to give the heading: yaw zero at the start"
+        return start
+    knots = filter_cls(prefix_without_gps(prep, t_end), replace(o, smooth=False), start).run()
+    k = np.searchsorted(prep.gps.stamps_ns, knots["t_ns"])
+    yaw = yaw_onto(knots["x_filt"][:, xy], prep.gps.position_enu_m[k, :2])
+    Rz = so3_exp_one(np.array([0.0, 0.0, yaw]))
+    start.R, start.v, start.yaw_from = Rz @ start.R, Rz @ start.v, "gps"
+    start.reason += f"; heading {np.degrees(yaw):.1f} deg from GPS over the first {len(k)} fixes"
+    return start
+
+
+def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
+    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
+    knots = ekf.run()
+    x, P = knots["x_filt"], knots["P_filt"]
+    if o.smooth and len(x):
+        x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
+    sel = knots["output"]
+    cov = None
+    if o.smooth:
+        x, P = x[sel], P[sel]
+        if o.want_covariance:
+            cov = P[:, ekf.cov_index][:, :, ekf.cov_index]
+    elif o.want_covariance:
+        cov = P  # already the pose block, in COVARIANCE_LAYOUT order
+    poses = np.zeros((len(x), 4, 4))
+    if len(x):
+        poses[:, :3, :3] = x[:, R_].reshape(-1, 3, 3)
+        poses[:, :3, 3] = x[:, P_]
+        poses[:, 3, 3] = 1.0
+    s = ekf.start
+    info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
+            "odom_mode": next(iter(prep.use.get("odom", ())), None)}
+    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
+                      o.smooth, prep.reports, info)

@@ -1,0 +1,251 @@
+"""The 3D error-state EKF over a prepared event stream (lecture: predict from the IMU, update from scan
+matching; robot_localization's sensor set: wheel twist, IMU orientation, GPS).
+
+Prediction: the IMU (``ins``: gyro + accelerometer, midpoint of the two samples around each step), the
+gyro alone (``gyro``), or constant velocity without an IMU (``cv``). An IMU gap (a pause longer than the
+gap threshold, or time outside the IMU's data) is crossed in ONE hold step with inflated noise, whatever
+its length. Updates: odometry poses (absolute, tied to the fused world at the first one) or increments
+between consecutive odometry poses (a clone of the pose at the previous odometry stamp joins the state),
+wheel body velocity (forward speed with the non-holonomic constraint, or the measured components) and yaw
+rate, GPS position (ENU about the first fix; the start position is then estimated, not pinned), the IMU's
+orientation. Each update passes a
+chi-square gate (``FuseOptions.gate_probability``); rejections are counted per source and reason.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...geometry import inv_pose
+from . import measure3d as m3
+from .initial import Start, initial_state
+from .inputs import FuseOptions
+from .kalman import Gate, KnotLog, kalman_update
+from .result import pose_covariance_index
+from .sanitize import median_period_ns
+from .state3d import (
+    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, boxplus, cv_step, gap_noise, gyro_step, hold_step,
+    ins_step, new_state, pose,
+)
+from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
+
+CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
+CV_OMEGA_SIGMA_RADPS = 0.5
+GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_heading)
+GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
+
+
+def model_for(use: dict[str, set[str]]) -> str:
+    imu = use.get("imu", set())
+    return "ins" if "accel" in imu else ("gyro" if "gyro" in imu else "cv")
+
+
+class Ekf3d:
+    """One filter pass. ``run()`` returns the knot record (see ``kalman.KnotLog``)."""
+
+    def __init__(self, prep: Prepared, options: FuseOptions, start: Start | None = None):
+        self.prep, self.o, self.noise = prep, options, options.noise
+        self.L = Layout(model_for(prep.use), clone="delta" in prep.use.get("odom", ()))
+        self.q = ProcessNoise(self.L, self.noise)
+        self.cover_starts = [a for a, _ in prep.coverage]
+        self.cover_ends = [b for _, b in prep.coverage]
+        self.g = np.array([0.0, 0.0, -options.gravity_mps2])
+        self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
+        self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
+        imu = prep.imu
+        self.imu_list = imu.stamps_ns.tolist() if imu is not None else []
+        self.imu_w, self.imu_f, self.imu_gap = prep.imu_w_b, prep.imu_f_b, prep.imu_gap_ns
+        period = median_period_ns(imu.stamps_ns) if imu is not None else 0
+        self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
+        self.smooth = options.smooth
+        self.cov_index = pose_covariance_index(TH, DP)
+        self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
+        self.inject = lambda x, dx: boxplus(x, dx, self.L)
+        self.T_world_odom: np.ndarray | None = None
+        self.odom_prev: int | None = None
+        self.gps_offset: np.ndarray | None = None
+        self.pending_clone = False
+        self.J = self.L.clone_matrix() if self.L.clone else None
+        self.ii = -1  # index of the last IMU sample at or before the current time
+
+    # -- state -------------------------------------------------------------------------------------
+    def _initial(self) -> tuple[np.ndarray, np.ndarray]:
+        s, L, nz = self.start, self.L, self.noise
+        b = s.bg if L.model != "cv" else np.zeros(3)
+        x = new_state(s.R, np.zeros(3), s.v, b, np.zeros(3) if L.core == 15 else None)
+        d = np.zeros(L.n)
+        d[0:2] = nz.init_tilt_sigma_rad**2
+        d[2] = 1e-12  # the start fixes the world's yaw (or the IMU's orientation does, tightly)
+        if s.yaw_from == "gps":
+            d[2] = GPS_HEADING_SIGMA_RAD**2
+        if s.yaw_from == "imu_orientation":
+            d[0:3] = np.diag(s.R.T @ self.prep.imu.orientation_cov[self._first_valid_orientation()] @ s.R)
+        d[3:6] = GPS_START_POSITION_SIGMA_M**2 if "gps" in self.prep.use else 1e-12
+        d[6:9] = s.v_sigma_mps**2
+        d[9:12] = (CV_OMEGA_SIGMA_RADPS if L.model == "cv" else s.bg_sigma_radps) ** 2
+        if L.core == 15:
+            d[12:15] = nz.init_accel_bias_sigma_mps2**2
+        if L.clone:
+            d[L.core:] = CLONE_DUMMY_VAR
+        return x, np.diag(d)
+
+    def _first_valid_orientation(self) -> int:
+        imu = self.prep.imu
+        return int(np.flatnonzero(imu.orientation_valid & (imu.stamps_ns >= self.prep.t0_ns))[0])
+
+    def _imu_at(self, t_a: int, t_b: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Base rate and specific force at the midpoint of [t_a, t_b] (inside one IMU interval), or None
+        where the IMU has a gap or no data."""
+        i, st = self.ii, self.imu_list
+        if i < 0:
+            return None
+        if i + 1 >= len(st) or st[i + 1] - st[i] > self.imu_gap or t_b > st[i + 1]:
+            if t_a == t_b == st[i]:
+                return self.imu_w[i], self.imu_f[i]
+            return None
+        a = (0.5 * (t_a + t_b) - st[i]) / (st[i + 1] - st[i])
+        W, Fb = self.imu_w, self.imu_f
+        return W[i] + a * (W[i + 1] - W[i]), Fb[i] + a * (Fb[i + 1] - Fb[i])
+
+    def _propagate(self, x: np.ndarray, P: np.ndarray, t_a: int, t_b: int) -> np.ndarray:
+        dt = (t_b - t_a) * 1e-9
+        L = self.L
+        if in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data in [t_a, t_b]
+            F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
+        elif L.model == "cv":
+            F, q = cv_step(x, dt, L), self.q(dt)
+        else:
+            u = self._imu_at(t_a, t_b)
+            if u is None:
+                F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
+            elif L.model == "ins":
+                F, q = ins_step(x, dt, u[0], u[1], L, self.g), self.q(dt)
+            else:
+                F, q = gyro_step(x, dt, u[0], L), self.q(dt)
+        P = F @ P @ F.T
+        P.flat[:: L.n + 1] += q
+        if self.smooth:
+            self.Phi = F @ self.Phi
+        return P
+
+    # -- updates ---------------------------------------------------------------------------------
+    def _update(self, t: int, x, P, r, H, Rn, source: str, kind: str, allow_reset: bool = True):
+        self._open(t, x, P)
+        P, status = kalman_update(x, P, r, H, Rn, self.inject, self.gate, kind, allow_reset)
+        self.prep.reports[source].outcome(kind, status)
+        return P
+
+    def _open(self, t: int, x, P) -> None:
+        if not self.log.is_open:
+            self.log.open(t, x, P, self.Phi if self.smooth else None)
+            if self.smooth:
+                self.Phi = np.eye(self.L.n)
+
+    def _wheel(self, t: int, i: int, x, P):
+        w, use, nz = self.prep.wheel, self.prep.use["wheel"], self.noise
+        vel, vvar = w.velocity_mps[i], w.velocity_var[i]
+        comps, z, var = [], [], []
+        if "velocity" in use:
+            for c in range(3):
+                if np.isfinite(vel[c]):
+                    comps.append(c), z.append(vel[c]), var.append(vvar[c])
+        if "speed" in use and np.isfinite(vel[0]):
+            for c in range(3):
+                if c not in comps:
+                    comps.append(c)
+                    z.append(vel[0] if c == 0 else 0.0)
+                    var.append(vvar[0] if c == 0 else nz.nonholonomic_sigma_mps**2)
+        if comps:
+            r, H, Rn = m3.body_velocity(x, np.array(z), comps, np.array(var), self.L)
+            P = self._update(t, x, P, r, H, Rn, "wheel", "wheel_velocity")
+        if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
+            u = None if self.L.model == "cv" else self._imu_at(t, t)
+            if self.L.model != "cv" and u is None:
+                self.prep.reports["wheel"].reject("in_gap")
+            else:
+                r, H, Rn = m3.yaw_rate(x, w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
+                                       self.gyro_var, self.L)
+                P = self._update(t, x, P, r, H, Rn, "wheel", "wheel_yaw_rate", allow_reset=self.L.model == "cv")
+        return P
+
+    def _odom(self, t: int, i: int, x, P):
+        od, rep = self.prep.odom, self.prep.reports["odom"]
+        T = od.poses[i]
+        pv, rv = od.position_sigma_m[i] ** 2, od.rotation_sigma_rad[i] ** 2
+        if "pose" in self.prep.use["odom"]:
+            if self.T_world_odom is None:
+                self.T_world_odom = pose(x) @ inv_pose(T)
+                rep.note("anchor")
+                return P
+            r, H, Rn = m3.pose_absolute(x, self.T_world_odom @ T, pv, rv, self.L)
+            return self._update(t, x, P, r, H, Rn, "odom", "odom")
+        self._open(t, x, P)
+        if self.odom_prev is None:
+            rep.note("anchor")
+        else:
+            j = self.odom_prev
+            T_rel = inv_pose(od.poses[j]) @ T
+            r, H, Rn = m3.pose_delta(x, T_rel, pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2,
+                                     self.L)
+            P = self._update(t, x, P, r, H, Rn, "odom", "odom")
+        self.odom_prev = i
+        self.pending_clone = True
+        return P
+
+    def _gps(self, t: int, i: int, x, P):
+        z = self.prep.gps.position_enu_m[i]
+        if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            self.gps_offset = -z
+            self.prep.reports["gps"].note("anchor")
+        r, H, Rn = m3.position(x, z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
+        return self._update(t, x, P, r, H, Rn, "gps", "gps")
+
+    def _orientation(self, t: int, i: int, x, P):
+        r, H, Rn = m3.orientation(x, self.prep.imu_R_wb[i], self.prep.imu.orientation_cov[i], self.L)
+        return self._update(t, x, P, r, H, Rn, "imu", "orientation")
+
+    # -- loop -------------------------------------------------------------------------------------
+    def run(self) -> dict[str, np.ndarray]:
+        prep = self.prep
+        x, P = self._initial()
+        self.Phi = np.eye(self.L.n)
+        use_orientation = prep.imu_R_wb is not None
+        imu_rep = prep.reports.get("imu")
+        imu_predicts = self.L.model != "cv"
+        valid_or = prep.imu.orientation_valid if use_orientation else None
+        t_cur = prep.t0_ns
+        for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
+            if t > t_cur:
+                P = 0.5 * (P + P.T)
+                self.log.close(x, P)
+                if self.pending_clone:
+                    x[CR_], x[CP_] = x[R_], x[P_]
+                    P = self.J @ P @ self.J.T
+                    if self.smooth:
+                        self.Phi = self.J @ self.Phi
+                    self.pending_clone = False
+                P = self._propagate(x, P, t_cur, t)
+                t_cur = t
+            if kind == IMU:
+                self.ii = i
+                if imu_predicts:
+                    imu_rep.predictions += 1
+                if use_orientation and valid_or[i]:
+                    P = self._orientation(t, i, x, P)
+            elif kind == WHEEL:
+                P = self._wheel(t, i, x, P)
+            elif kind == ODOM:
+                P = self._odom(t, i, x, P)
+            elif kind == GPS:
+                P = self._gps(t, i, x, P)
+            elif kind == OUT:
+                self._open(t, x, P)
+                self.log.mark_output()
+        self.log.close(x, 0.5 * (P + P.T))
+        return self.log.arrays()
+
+    def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
+        boxplus(x, dx, self.L)
+
+    def boxminus(self, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+        return boxminus(xa, xb, self.L)

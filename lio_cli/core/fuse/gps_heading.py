@@ -1,0 +1,53 @@
+"""The world's heading when GPS fixes define it and nothing else measures absolute yaw.
+
+A first, GPS-free pass of the filter over the start of the run gives the path in the start's own frame
+(yaw zero at the start); the rotation about z that best maps that path onto the GPS fixes (2D Kabsch) is
+the start heading in ENU. Offline this look-ahead is free, and it spares the EKF a linearisation from a
+heading that may be wrong by up to pi.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from .timeline import GPS, OUT, Prepared
+
+MIN_SPAN_M = 10.0  # the fixes must spread at least this far (and 10 GPS sigmas) to give a heading
+
+
+def heading_prefix_end(prep: Prepared) -> int | None:
+    """Stamp of the first fix far enough from the first one to fix the heading, or None (never)."""
+    g = prep.gps
+    if g is None or len(g) < 3:
+        return None
+    sigma = float(np.sqrt(np.median(np.einsum("nii->n", g.cov_m2[:, :2, :2]) / 2.0)))
+    d = np.linalg.norm(g.position_enu_m[:, :2] - g.position_enu_m[0, :2], axis=1)
+    far = np.flatnonzero(d > max(MIN_SPAN_M, 10.0 * sigma))
+    return int(g.stamps_ns[far[0]]) if len(far) else None
+
+
+def prefix_without_gps(prep: Prepared, t_end_ns: int) -> Prepared:
+    """A copy of ``prep`` up to ``t_end_ns`` with GPS removed and outputs at the GPS stamps."""
+    keep = (prep.times <= t_end_ns) & (prep.kinds != GPS) & (prep.kinds != OUT)
+    gps_t = prep.gps.stamps_ns[(prep.gps.stamps_ns >= prep.t0_ns) & (prep.gps.stamps_ns <= t_end_ns)]
+    times = np.concatenate([prep.times[keep], gps_t])
+    kinds = np.concatenate([prep.kinds[keep], np.full(len(gps_t), OUT, np.int8)])
+    index = np.concatenate([prep.index[keep], np.arange(len(gps_t))])
+    order = np.lexsort((kinds, times))
+    use = {k: v for k, v in prep.use.items() if k != "gps"}
+    reports = {k: replace(v, rejected=dict(v.rejected), notes=dict(v.notes), by_kind={})
+               for k, v in prep.reports.items()}
+    return replace(prep, use=use, reports=reports, times=times[order], kinds=kinds[order], index=index[order],
+                   out_stamps=gps_t)
+
+
+def yaw_onto(path_xy: np.ndarray, fixes_xy: np.ndarray) -> float:
+    """Rotation angle about z that best maps ``path_xy`` onto ``fixes_xy`` (both (N,2), centred here)."""
+    a = path_xy - path_xy.mean(axis=0)
+    b = fixes_xy - fixes_xy.mean(axis=0)
+    s = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    c = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    return math.atan2(s, c)

@@ -1,0 +1,83 @@
+"""The first state of a fusion run: attitude, velocity, gyro bias, and how they were found.
+
+Attitude: the IMU's own orientation where it is used (then the world's yaw is the IMU's, as in
+robot_localization), else roll and pitch from gravity (yaw zero), else those of the first odometry pose.
+A standing start (gyro and accelerometer still over the first window) also gives the gyro bias and a
+velocity known to be zero; a moving start takes the first wheel velocity when there is one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...geometry import gravity_aligned_rotation, so3_exp_one, yaw_of
+from .timeline import Prepared
+
+GYRO_STILL_RADPS = 0.05
+MAX_GYRO_BIAS_RADPS = 0.05  # about 3 deg/s: more than any usable MEMS gyro's bias
+ACCEL_STILL_MPS2 = 0.3
+STANDING_VELOCITY_SIGMA_MPS = 0.02
+
+
+@dataclass
+class Start:
+    R: np.ndarray  # R_world_base
+    v: np.ndarray  # world velocity
+    bg: np.ndarray  # gyro bias, base frame
+    v_sigma_mps: float
+    bg_sigma_radps: float
+    standing: bool
+    yaw_from: str  # "imu_orientation" or "start" (yaw zero at the start)
+    reason: str
+
+
+def without_yaw(R: np.ndarray) -> np.ndarray:
+    return so3_exp_one(np.array([0.0, 0.0, -float(yaw_of(R))])) @ R
+
+
+def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) -> Start:
+    t0 = prep.t0_ns
+    R = np.eye(3)
+    yaw_from, why = "start", []
+    bg, standing = np.zeros(3), False
+    imu_use = prep.use.get("imu", set())
+    imu = prep.imu
+    if imu is not None and prep.imu_R_wb is not None:
+        ok = np.flatnonzero(imu.orientation_valid & (imu.stamps_ns >= t0))
+        if len(ok):
+            R, yaw_from = prep.imu_R_wb[ok[0]].copy(), "imu_orientation"
+            why.append("attitude from the IMU's orientation")
+    if imu is not None and "gyro" in imu_use:
+        sel = (imu.stamps_ns >= t0) & (imu.stamps_ns <= t0 + window_ns)
+        w, f = prep.imu_w_b[sel], prep.imu_f_b[sel]
+        if len(w) >= 10:
+            gyro_dev = float(np.linalg.norm(w - w.mean(axis=0), axis=1).max())
+            acc_dev = float(np.abs(np.linalg.norm(f, axis=1) - gravity_mps2).max())
+            # a steady turn looks like a gyro bias: a "bias" above MAX_GYRO_BIAS_RADPS is taken as motion
+            standing = (gyro_dev < GYRO_STILL_RADPS and acc_dev < ACCEL_STILL_MPS2
+                        and float(np.linalg.norm(w.mean(axis=0))) < MAX_GYRO_BIAS_RADPS)
+            if standing:
+                bg = w.mean(axis=0)
+                why.append(f"standing start: gyro bias and zero velocity from {len(w)} samples")
+            else:
+                why.append(f"moving start (gyro spread {gyro_dev:.3f} rad/s, accel spread {acc_dev:.2f} m/s^2)")
+        if yaw_from == "start" and "accel" in imu_use:
+            near = (imu.stamps_ns >= t0) & (imu.stamps_ns <= t0 + (window_ns if standing else window_ns // 5))
+            f_mean = prep.imu_f_b[near].mean(axis=0) if near.any() else prep.imu_f_b[0]
+            if np.linalg.norm(f_mean) > 0.5 * gravity_mps2:
+                R = gravity_aligned_rotation(f_mean)
+                why.append("roll and pitch from gravity")
+    elif yaw_from == "start" and prep.odom is not None and len(prep.odom):
+        R = without_yaw(prep.odom.poses[0, :3, :3])
+        why.append("roll and pitch of the first odometry pose")
+    v = np.zeros(3)
+    v_sigma = STANDING_VELOCITY_SIGMA_MPS if standing else noise.init_velocity_sigma_mps
+    if not standing and prep.wheel is not None and len(prep.wheel):
+        k = int(np.searchsorted(prep.wheel.stamps_ns, t0))
+        if k < len(prep.wheel) and prep.wheel.stamps_ns[k] - t0 < window_ns:
+            v = R @ np.nan_to_num(prep.wheel.velocity_mps[k])
+            why.append("velocity from the first wheel message")
+    bg_sigma = min(noise.init_gyro_bias_sigma_radps, 0.002) if standing else noise.init_gyro_bias_sigma_radps
+    return Start(R, v, bg, v_sigma, bg_sigma, standing, yaw_from, "; ".join(why) or "level start at rest assumed")

@@ -1,0 +1,174 @@
+"""The Kalman update shared by the 3D and planar filters, the chi-square gate, and the record of filter
+states ("knots") that the output and the RTS smoother read.
+
+A knot is an instant where the filter updated or an output was asked. Between two knots there are only
+predictions, so the record holds, per knot: the predicted state and covariance (before the updates at
+that instant), the filtered ones (after), and the transition ``Phi`` of the error state from the previous
+knot. That is exactly what a Rauch-Tung-Striebel pass needs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.special import gammaincinv
+
+
+def chi2_thresholds(probability: float, max_dim: int = 8) -> np.ndarray:
+    """``thr[m]``: the chi-square quantile of ``1 - probability`` with m degrees of freedom (inf: no gate)."""
+    thr = np.full(max_dim + 1, np.inf)
+    if probability > 0.0:
+        for m in range(1, max_dim + 1):
+            thr[m] = 2.0 * gammaincinv(0.5 * m, 1.0 - probability)
+    return thr
+
+
+class Gate:
+    """Chi-square gate with a reset: after ``max_rejects`` rejections in a row of one measurement kind the
+    next one passes (the filter, not the sensor, is then assumed to be off)."""
+
+    def __init__(self, probability: float, max_rejects: int):
+        self.thr = chi2_thresholds(probability)
+        self.max_rejects = max_rejects
+        self.streak: dict[str, int] = {}
+
+    def check(self, kind: str, d2: float, m: int, allow_reset: bool = True) -> tuple[bool, bool]:
+        """(accept, was_reset). ``allow_reset=False`` for measurements that disagree with a sensor rather
+        than with the state (a wheel yaw rate against the gyro): those are never forced in."""
+        if not np.isfinite(d2):
+            return False, False
+        if d2 <= self.thr[min(m, len(self.thr) - 1)]:
+            self.streak[kind] = 0
+            return True, False
+        n = self.streak.get(kind, 0) + 1
+        if n > self.max_rejects and allow_reset:
+            self.streak[kind] = 0
+            return True, True
+        self.streak[kind] = n
+        return False, False
+
+
+def small_inv(S: np.ndarray) -> np.ndarray:
+    """Inverse of a small matrix: closed form up to 3x3 (numpy's per-call overhead dominates a filter step
+    there), numpy beyond. Raises LinAlgError when singular."""
+    m = len(S)
+    if m == 1:
+        if S[0, 0] == 0.0:
+            raise np.linalg.LinAlgError("singular")
+        return np.array([[1.0 / S[0, 0]]])
+    if m == 2:
+        a, b, c, d = S.ravel().tolist()
+        det = a * d - b * c
+        if det == 0.0 or not np.isfinite(det):
+            raise np.linalg.LinAlgError("singular")
+        return np.array([[d, -b], [-c, a]]) / det
+    if m == 3:
+        a, b, c, d, e, f, g, h, i = S.ravel().tolist()
+        A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+        det = a * A + b * B + c * C
+        if det == 0.0 or not np.isfinite(det):
+            raise np.linalg.LinAlgError("singular")
+        return np.array([[A, c * h - b * i, b * f - c * e],
+                         [B, a * i - c * g, c * d - a * f],
+                         [C, b * g - a * h, a * e - b * d]]) / det
+    return np.linalg.inv(S)
+
+
+def kalman_update(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn: np.ndarray,
+                  inject: Callable[[np.ndarray, np.ndarray], None], gate: Gate | None, kind: str,
+                  allow_reset: bool = True) -> tuple[np.ndarray, str]:
+    """Update ``x`` (via ``inject(x, dx)``) and return the new P and ``"ok"``, ``"reset"`` or ``"outlier"``
+    (then P is returned unchanged and x untouched).
+
+    On a gate reset the filter was overconfident: the covariance of the states the measurement touches is
+    scaled up (``D P D`` with D = sqrt(d2/m) on those states, which keeps P positive definite) until the
+    innovation is typical, so the reset measurement actually pulls the state back.
+    """
+    PHt = P @ H.T
+    S = H @ PHt + Rn
+    try:
+        Sinv = small_inv(S)
+    except np.linalg.LinAlgError:
+        return P, "outlier"
+    status = "ok"
+    if gate is not None:
+        d2 = float(r @ Sinv @ r)
+        ok, reset = gate.check(kind, d2, len(r), allow_reset)
+        if not ok:
+            return P, "outlier"
+        if reset:
+            status = "reset"
+            scale = np.ones(len(P))
+            scale[np.any(H != 0.0, axis=0)] = np.sqrt(max(1.0, d2 / len(r)))
+            P = P * np.outer(scale, scale)
+            PHt = P @ H.T
+            Sinv = np.linalg.inv(H @ PHt + Rn)
+    K = PHt @ Sinv
+    inject(x, K @ r)
+    return P - K @ PHt.T, status  # symmetric up to rounding; callers symmetrise once per time step
+
+
+class KnotLog:
+    """Filter states at knots. With ``for_smoother`` every knot keeps predicted and filtered state and
+    covariance and ``Phi``; without, only output knots keep their filtered state and the block
+    ``P[keep, keep]`` of their covariance (``keep`` None: no covariance), so a long run at a high output
+    rate holds a few hundred bytes per pose, not the full covariance."""
+
+    def __init__(self, for_smoother: bool, keep: np.ndarray | None = None):
+        self.for_smoother = for_smoother
+        self.keep = None if keep is None else np.ix_(keep, keep)
+        self.t_ns: list[int] = []
+        self.output: list[bool] = []
+        self.x_pred: list[np.ndarray] = []
+        self.P_pred: list[np.ndarray] = []
+        self.x_filt: list[np.ndarray] = []
+        self.P_filt: list[np.ndarray] = []
+        self.Phi: list[np.ndarray] = []
+        self._open = False
+
+    def open(self, t_ns: int, x: np.ndarray, P: np.ndarray, Phi: np.ndarray | None) -> None:
+        """Start a knot at ``t_ns`` (the predicted state); no-op when one is already open."""
+        if self._open:
+            return
+        self._open = True
+        self.t_ns.append(t_ns)
+        self.output.append(False)
+        if self.for_smoother:
+            self.x_pred.append(x.copy())
+            self.P_pred.append(P.copy())
+            self.Phi.append(Phi.copy() if Phi is not None else np.eye(len(P)))
+
+    def mark_output(self) -> None:
+        self.output[-1] = True
+
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    def close(self, x: np.ndarray, P: np.ndarray) -> None:
+        """End the open knot with the filtered state; output-only logs drop non-output knots."""
+        if not self._open:
+            return
+        self._open = False
+        if self.for_smoother:
+            self.x_filt.append(x.copy())
+            self.P_filt.append(P.copy())
+        elif self.output[-1]:
+            self.x_filt.append(x.copy())
+            if self.keep is not None:
+                self.P_filt.append(P[self.keep])
+        else:
+            self.t_ns.pop()
+            self.output.pop()
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {"t_ns": np.asarray(self.t_ns, dtype=np.int64), "output": np.asarray(self.output, dtype=bool)}
+        n = len(self.t_ns)
+        out["x_filt"] = np.asarray(self.x_filt) if n else np.zeros((0, 0))
+        out["P_filt"] = np.asarray(self.P_filt) if n and self.P_filt else np.zeros((0, 0, 0))
+        if self.for_smoother:
+            out["x_pred"] = np.asarray(self.x_pred) if n else np.zeros((0, 0))
+            out["P_pred"] = np.asarray(self.P_pred) if n else np.zeros((0, 0, 0))
+            out["Phi"] = np.asarray(self.Phi) if n else np.zeros((0, 0, 0))
+        return out

@@ -1,0 +1,312 @@
+"""The lecture's planar EKF for ground robots: state ``[x, y, theta, v, omega, b_omega]``.
+
+Predict (lecture, wheel odometry kinematics): ``x += v cos(theta) dt``, ``y += v sin(theta) dt``,
+``theta += omega dt``; ``v``, ``omega`` and the gyro bias ``b_omega`` are random walks. Updates: the gyro's
+yaw rate ``omega + b_omega`` (each IMU sample, base z axis), wheel speed ``v`` and yaw rate ``omega``,
+odometry poses ``(x, y, theta)`` (absolute, or increments via a clone ``[x_c, y_c, theta_c]``), GPS
+``(x, y)``, the IMU orientation's yaw. The accelerometer is not used. Output poses are planar (z, roll and
+pitch zero) with covariance only in x, y and yaw.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...geometry import inv_pose, yaw_of
+from .initial import Start, initial_state
+from .inputs import FuseOptions
+from .kalman import Gate, KnotLog, kalman_update
+from .result import FuseResult, anchor_to_origin
+from .sanitize import median_period_ns
+from .smoother import rts_smooth
+from .state3d import GAP_TAU_S
+from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
+
+X, Y, TH, V, W, BW = range(6)
+CLONE_DUMMY_VAR = 1.0
+OMEGA0_SIGMA_RADPS = 0.5
+GPS_HEADING_SIGMA_RAD = 0.1
+GPS_START_POSITION_SIGMA_M = 10.0
+
+
+def wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class PlanarEkf:
+    def __init__(self, prep: Prepared, options: FuseOptions, start: Start | None = None):
+        self.prep, self.o, self.nz = prep, options, options.noise
+        self.clone = "delta" in prep.use.get("odom", ())
+        self.n = 9 if self.clone else 6
+        self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.nz)
+        self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
+        imu_use = prep.use.get("imu", set())
+        self.use_gyro = prep.imu is not None and "gyro" in imu_use
+        period = median_period_ns(prep.imu.stamps_ns) if prep.imu is not None else 0
+        self.gyro_var = self.nz.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
+        nz = self.nz
+        self.q_rate = np.zeros(self.n)
+        self.q_rate[V], self.q_rate[W] = nz.cv_accel_density**2, nz.cv_angular_accel_density**2
+        self.q_rate[BW] = max(nz.gyro_bias_walk**2, 1e-16)
+        self.q_rate[X] = self.q_rate[Y] = self.q_rate[TH] = 1e-16  # keeps P_pred invertible for the smoother
+        self.log = KnotLog(options.smooth, np.array([X, Y, TH]) if options.want_covariance else None)
+        self.T_world_odom: np.ndarray | None = None
+        self.odom_prev: int | None = None
+        self.gps_offset: np.ndarray | None = None
+        self.pending_clone = False
+
+    # -- manifold (vector with wrapped angles) ------------------------------------------------------
+    def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
+        x += dx
+        x[TH] = wrap(x[TH])
+        if self.clone:
+            x[8] = wrap(x[8])
+
+    def boxminus(self, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+        d = xa - xb
+        d[TH] = wrap(d[TH])
+        if self.clone:
+            d[8] = wrap(d[8])
+        return d
+
+    def _initial(self) -> tuple[np.ndarray, np.ndarray]:
+        s = self.start
+        x = np.zeros(self.n)
+        x[TH] = float(yaw_of(s.R))
+        vb = s.R.T @ s.v
+        x[V] = vb[0]
+        x[BW] = s.bg[2] if self.use_gyro else 0.0
+        d = np.full(self.n, CLONE_DUMMY_VAR)
+        d[X] = d[Y] = d[TH] = 1e-12
+        if "gps" in self.prep.use:
+            d[X] = d[Y] = GPS_START_POSITION_SIGMA_M**2
+        if s.yaw_from == "gps":
+            d[TH] = GPS_HEADING_SIGMA_RAD**2
+        if s.yaw_from == "imu_orientation":
+            i = int(np.flatnonzero(self.prep.imu.orientation_valid & (self.prep.imu.stamps_ns >= self.prep.t0_ns))[0])
+            d[TH] = self.prep.imu.orientation_cov[i][2, 2]
+        d[V] = s.v_sigma_mps**2
+        d[W] = OMEGA0_SIGMA_RADPS**2
+        d[BW] = s.bg_sigma_radps**2 if self.use_gyro else 1e-6
+        return x, np.diag(d)
+
+    def _propagate(self, x: np.ndarray, P: np.ndarray, dt: float, gap: bool = False) -> np.ndarray:
+        if gap:  # no motion data: speed and turn rate decay (Gauss-Markov), as in the 3D filter
+            F, q = predict_gap(x, dt, self.n), self._gap_noise(dt)
+        else:
+            F, q = predict(x, dt, self.n), self.q_rate * dt
+        P = F @ P @ F.T
+        P.flat[:: self.n + 1] += q
+        if self.o.smooth:
+            self.Phi = F @ self.Phi
+        return P
+
+    def _gap_noise(self, dt: float) -> np.ndarray:
+        nz, tau = self.nz, GAP_TAU_S
+        qa, qw = nz.cv_accel_density**2, nz.cv_angular_accel_density**2
+        q = self.q_rate * dt
+        e2 = math.exp(-2.0 * dt / tau)
+        q[V], q[W] = 0.5 * qa * tau * (1.0 - e2), 0.5 * qw * tau * (1.0 - e2)
+        q[X] = q[Y] = min(qa * dt**3 / 3.0, qa * tau * tau * dt)
+        q[TH] = min(qw * dt**3 / 3.0, math.pi**2)
+        return q
+
+    def _open(self, t: int, x, P) -> None:
+        if not self.log.is_open:
+            self.log.open(t, x, P, self.Phi if self.o.smooth else None)
+            if self.o.smooth:
+                self.Phi = np.eye(self.n)
+
+    def _update(self, t, x, P, r, H, Rn, source, kind, allow_reset=True):
+        self._open(t, x, P)
+        P, status = kalman_update(x, P, r, H, Rn, self.boxplus, self.gate, kind, allow_reset)
+        self.prep.reports[source].outcome(kind, status)
+        return P
+
+    def _row(self, cols: dict[int, float]) -> np.ndarray:
+        H = np.zeros((1, self.n))
+        for k, val in cols.items():
+            H[0, k] = val
+        return H
+
+    # -- measurements -------------------------------------------------------------------------------
+    def _imu(self, t, i, x, P):
+        prep = self.prep
+        if self.use_gyro:
+            z = prep.imu_w_b[i][2]
+            P = self._update(t, x, P, np.array([z - x[W] - x[BW]]), self._row({W: 1.0, BW: 1.0}),
+                             np.array([[self.gyro_var]]), "imu", "gyro")
+        if prep.imu_R_wb is not None and prep.imu.orientation_valid[i]:
+            z = float(yaw_of(prep.imu_R_wb[i]))
+            P = self._update(t, x, P, np.array([wrap(z - x[TH])]), self._row({TH: 1.0}),
+                             np.array([[prep.imu.orientation_cov[i][2, 2]]]), "imu", "orientation")
+        return P
+
+    def _wheel(self, t, i, x, P):
+        w, use = self.prep.wheel, self.prep.use["wheel"]
+        if ({"speed", "velocity"} & use) and np.isfinite(w.velocity_mps[i, 0]):
+            P = self._update(t, x, P, np.array([w.velocity_mps[i, 0] - x[V]]), self._row({V: 1.0}),
+                             np.array([[w.velocity_var[i, 0]]]), "wheel", "wheel_speed")
+        if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
+            P = self._update(t, x, P, np.array([w.yaw_rate_radps[i] - x[W]]), self._row({W: 1.0}),
+                             np.array([[w.yaw_rate_var[i]]]), "wheel", "wheel_yaw_rate", allow_reset=not self.use_gyro)
+        return P
+
+    def _odom(self, t, i, x, P):
+        od, rep = self.prep.odom, self.prep.reports["odom"]
+        T = od.poses[i]
+        pv, rv = od.position_sigma_m[i] ** 2, od.rotation_sigma_rad[i] ** 2
+        if not self.clone:
+            if self.T_world_odom is None:
+                self.T_world_odom = _se2(x[X], x[Y], x[TH]) @ inv_pose(_flat(T))
+                rep.note("anchor")
+                return P
+            Z = self.T_world_odom @ _flat(T)
+            r = np.array([Z[0, 3] - x[X], Z[1, 3] - x[Y], wrap(float(yaw_of(Z[:3, :3])) - x[TH])])
+            H = np.zeros((3, self.n))
+            H[0, X] = H[1, Y] = H[2, TH] = 1.0
+            return self._update(t, x, P, r, H, np.diag([pv, pv, rv]), "odom", "odom")
+        self._open(t, x, P)
+        if self.odom_prev is None:
+            rep.note("anchor")
+        else:
+            j = self.odom_prev
+            r, H = delta_residual(x, inv_pose(_flat(od.poses[j])) @ _flat(T))
+            var_p, var_r = pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2
+            P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom")
+        self.odom_prev = i
+        self.pending_clone = True
+        return P
+
+    def _gps(self, t, i, x, P):
+        z = self.prep.gps.position_enu_m[i, :2]
+        if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            self.gps_offset = -z
+            self.prep.reports["gps"].note("anchor")
+        H = np.zeros((2, self.n))
+        H[0, X] = H[1, Y] = 1.0
+        return self._update(t, x, P, z + self.gps_offset - x[0:2], H, self.prep.gps.cov_m2[i][:2, :2], "gps", "gps")
+
+    def _apply_clone(self, x, P):
+        J = np.eye(self.n)
+        J[6:9, :] = 0.0
+        J[6, X] = J[7, Y] = J[8, TH] = 1.0
+        x[6:9] = x[0:3]
+        if self.o.smooth:
+            self.Phi = J @ self.Phi
+        return J @ P @ J.T
+
+    def run(self) -> dict[str, np.ndarray]:
+        prep = self.prep
+        x, P = self._initial()
+        self.Phi = np.eye(self.n)
+        t_cur = prep.t0_ns
+        starts, ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
+        for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
+            if t > t_cur:
+                P = 0.5 * (P + P.T)
+                self.log.close(x, P)
+                if self.pending_clone:
+                    P = self._apply_clone(x, P)
+                    self.pending_clone = False
+                gap = in_coverage_gap(starts, ends, t_cur, t)
+                P = self._propagate(x, P, (t - t_cur) * 1e-9, gap)
+                t_cur = t
+            if kind == IMU:
+                P = self._imu(t, i, x, P)
+            elif kind == WHEEL:
+                P = self._wheel(t, i, x, P)
+            elif kind == ODOM:
+                P = self._odom(t, i, x, P)
+            elif kind == GPS:
+                P = self._gps(t, i, x, P)
+            elif kind == OUT:
+                self._open(t, x, P)
+                self.log.mark_output()
+        self.log.close(x, 0.5 * (P + P.T))
+        return self.log.arrays()
+
+
+def predict(x: np.ndarray, dt: float, n: int) -> np.ndarray:
+    """The lecture's step ``x += v cos(theta) dt``, ``y += v sin(theta) dt``, ``theta += omega dt`` in
+    place; returns its Jacobian F (n x n)."""
+    c, s = math.cos(x[TH]), math.sin(x[TH])
+    v = x[V]
+    F = np.eye(n)
+    F[X, TH], F[X, V] = -v * s * dt, c * dt
+    F[Y, TH], F[Y, V] = v * c * dt, s * dt
+    F[TH, W] = dt
+    x[X] += v * c * dt
+    x[Y] += v * s * dt
+    x[TH] = wrap(x[TH] + x[W] * dt)
+    return F
+
+
+def predict_gap(x: np.ndarray, dt: float, n: int, tau_s: float = GAP_TAU_S) -> np.ndarray:
+    """Across a gap of every motion source: ``v`` and ``omega`` decay with ``e = exp(-dt/tau)``, the pose
+    moves ``v tau (1 - e)`` along the heading and turns ``omega tau (1 - e)``; returns F."""
+    e = math.exp(-dt / tau_s)
+    k = tau_s * (1.0 - e)
+    c, s = math.cos(x[TH]), math.sin(x[TH])
+    v = x[V]
+    F = np.eye(n)
+    F[X, TH], F[X, V] = -v * s * k, c * k
+    F[Y, TH], F[Y, V] = v * c * k, s * k
+    F[TH, W] = k
+    F[V, V] = F[W, W] = e
+    x[X] += v * c * k
+    x[Y] += v * s * k
+    x[TH] = wrap(x[TH] + x[W] * k)
+    x[V] *= e
+    x[W] *= e
+    return F
+
+
+def delta_residual(x: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual and Jacobian of a measured planar increment ``D`` (4x4) from the clone ``x[6:9]`` to the
+    current pose: ``h = (R(theta_c)^T (p - p_c), theta - theta_c)``."""
+    c, s = math.cos(x[8]), math.sin(x[8])
+    dx, dy = x[X] - x[6], x[Y] - x[7]
+    h = np.array([c * dx + s * dy, -s * dx + c * dy, wrap(x[TH] - x[8])])
+    H = np.zeros((3, len(x)))
+    H[0:2, 0:2] = [[c, s], [-s, c]]
+    H[0:2, 6:8] = [[-c, -s], [s, -c]]
+    H[0, 8], H[1, 8] = -s * dx + c * dy, -c * dx - s * dy
+    H[2, TH], H[2, 8] = 1.0, -1.0
+    r = np.array([D[0, 3] - h[0], D[1, 3] - h[1], wrap(float(yaw_of(D[:3, :3])) - h[2])])
+    return r, H
+
+
+def _se2(x: float, y: float, th: float) -> np.ndarray:
+    c, s = math.cos(th), math.sin(th)
+    T = np.eye(4)
+    T[0, 0], T[0, 1], T[1, 0], T[1, 1], T[0, 3], T[1, 3] = c, -s, s, c, x, y
+    return T
+
+
+def _flat(T: np.ndarray) -> np.ndarray:
+    return _se2(T[0, 3], T[1, 3], float(yaw_of(T[:3, :3])))
+
+
+def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> FuseResult:
+    ekf = PlanarEkf(prep, o, start)
+    knots = ekf.run()
+    x, P = knots["x_filt"], knots["P_filt"]
+    if o.smooth and len(x):
+        x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
+    sel = knots["output"]
+    if o.smooth:
+        x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
+    poses = np.stack([_se2(a[X], a[Y], a[TH]) for a in x]) if len(x) else np.zeros((0, 4, 4))
+    cov = None
+    if o.want_covariance:  # x, y, yaw into the 6x6 layout; z, roll, pitch are exactly known (planar)
+        cov = np.zeros((len(x), 6, 6))
+        cov[np.ix_(np.arange(len(x)), [0, 1, 5], [0, 1, 5])] = P
+    vel = None
+    if len(x):
+        vel = np.column_stack([x[:, V] * np.cos(x[:, TH]), x[:, V] * np.sin(x[:, TH]), np.zeros(len(x))])
+    info = {"model": "planar", "start": ekf.start.reason, "world_yaw_from": ekf.start.yaw_from,
+            "odom_mode": next(iter(prep.use.get("odom", ())), None)}
+    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info)

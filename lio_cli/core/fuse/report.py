@@ -1,0 +1,72 @@
+"""Per-source bookkeeping of a fusion run: what was received, used, rejected (and why), and noticed."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+# Why a sample or measurement did not enter the estimate.
+REJECT_REASONS = {
+    "nan": "a value was NaN or infinite",
+    "all_zero": "every IMU value was exactly zero (a placeholder message, not a measurement)",
+    "duplicate_stamp": "another sample had the same stamp (the first one was kept)",
+    "invalid_pose": "the pose's rotation was not a rotation (e.g. quaternion 0,0,0,0)",
+    "no_fix": "the GPS fix status said invalid",
+    "outside_span": "stamped outside the time span of the motion sources",
+    "outlier": "failed the chi-square gate against the prediction",
+    "in_gap": "stamped inside a gap of every motion source",
+}
+# Things noticed and handled without dropping the value.
+NOTE_REASONS = {
+    "reordered": "arrived out of stamp order (sorted back into place)",
+    "default_noise": "covariance missing, zero, negative or NaN: the configured default noise was used",
+    "gaps": "pauses longer than the gap threshold (bridged in one step each)",
+    "gate_reset": "accepted after too many rejections in a row (the filter was assumed off)",
+    "anchor": "used to tie the source's frame to the fused world frame",
+    "orientation_absent": "the message carried no valid orientation (quaternion 0 or covariance -1)",
+    "snapped": "applied at an IMU sample at most FuseOptions.snap_ns away instead of at its own stamp",
+}
+
+
+@dataclass
+class SourceReport:
+    """Counters of one source. ``updates`` counts measurement updates applied: one per measurement kind
+    of a message (a wheel message with velocity and yaw rate makes two), broken down in ``by_kind``
+    (kind -> {"updates": n, "outlier": m}); IMU samples used as the motion model count as
+    ``predictions``."""
+
+    received: int = 0
+    updates: int = 0
+    predictions: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
+    notes: dict[str, int] = field(default_factory=dict)
+    by_kind: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    def outcome(self, kind: str, status: str) -> None:
+        """Count one update attempt of measurement ``kind``: ``ok``, ``reset`` (forced after a streak of
+        rejections) or ``outlier``."""
+        k = self.by_kind.setdefault(kind, {"updates": 0, "outlier": 0})
+        if status == "outlier":
+            self.reject("outlier")
+            k["outlier"] += 1
+            return
+        self.updates += 1
+        k["updates"] += 1
+        if status == "reset":
+            self.note("gate_reset")
+
+    def reject(self, reason: str, n: int = 1) -> None:
+        if n:
+            self.rejected[reason] = self.rejected.get(reason, 0) + int(n)
+
+    def note(self, reason: str, n: int = 1) -> None:
+        if n:
+            self.notes[reason] = self.notes.get(reason, 0) + int(n)
+
+    @property
+    def n_rejected(self) -> int:
+        return sum(self.rejected.values())
+
+    def to_dict(self) -> dict:
+        return {"received": self.received, "updates": self.updates, "predictions": self.predictions,
+                "rejected": dict(self.rejected), "notes": dict(self.notes),
+                "by_kind": {k: dict(v) for k, v in self.by_kind.items()}}

@@ -1,0 +1,82 @@
+"""The shared Kalman update and gate, on cases whose numbers can be checked by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lio_cli.core.fuse.kalman import Gate, KnotLog, chi2_thresholds, kalman_update, small_inv
+
+TOL = 1e-12
+
+
+def add(x: np.ndarray, dx: np.ndarray) -> None:
+    x += dx
+
+
+def test_constant_velocity_gain_by_hand():
+    # state (p, v); after a predict of dt = 0.1 s from P0 = diag(0.04, 1): P = F P0 F^T
+    dt = 0.1
+    F = np.array([[1.0, dt], [0.0, 1.0]])
+    P = F @ np.diag([0.04, 1.0]) @ F.T  # [[0.05, 0.1], [0.1, 1.0]]
+    x = np.array([1.0, 2.0])
+    z, var = 1.3, 0.05
+    P_new, status = kalman_update(x, P, np.array([z - x[0]]), np.array([[1.0, 0.0]]), np.array([[var]]), add, None, "p")
+    # by hand: S = 0.05 + 0.05 = 0.1, K = (0.05, 0.1) / 0.1 = (0.5, 1.0)
+    assert status == "ok"
+    np.testing.assert_allclose(x, [1.0 + 0.5 * 0.3, 2.0 + 1.0 * 0.3], atol=TOL)
+    # P - K S K^T = [[0.05 - 0.025, 0.1 - 0.05], [0.1 - 0.05, 1.0 - 0.1]]
+    np.testing.assert_allclose(P_new, [[0.025, 0.05], [0.05, 0.9]], atol=TOL)
+
+
+def test_chi2_thresholds_match_tables():
+    thr = chi2_thresholds(1e-4)
+    # chi-square quantiles at 0.9999 (e.g. scipy.stats.chi2.ppf(0.9999, m))
+    np.testing.assert_allclose(thr[1:4], [15.1367052, 18.4206807, 21.1075048], rtol=1e-6)
+    assert np.all(np.isinf(chi2_thresholds(0.0)))
+
+
+def test_gate_rejects_outliers_and_forces_after_a_streak_with_inflated_covariance():
+    gate = Gate(1e-4, 2)
+    P = np.diag([0.01, 1.0])
+    H = np.array([[1.0, 0.0]])
+    Rn = np.array([[0.01]])
+    x = np.zeros(2)
+    outcomes = []
+    for _ in range(3):
+        P_out, status = kalman_update(x, P, np.array([2.0]), H, Rn, add, gate, "p")
+        outcomes.append(status)
+    assert outcomes == ["outlier", "outlier", "reset"]
+    # reset: d2 = 4 / 0.02 = 200 -> P[0,0] scaled by 200 -> K = 2 / 2.01, the state moves almost all the way
+    np.testing.assert_allclose(x[0], 2.0 * 2.0 / 2.01, rtol=1e-12)
+    # the second component is untouched by H, so it is neither inflated nor correlated
+    np.testing.assert_allclose(P_out[1, 1], 1.0)
+    # after the reset the streak is over: a consistent measurement passes again
+    assert kalman_update(x, P_out, np.array([0.0]), H, Rn, add, gate, "p")[1] == "ok"
+
+
+def test_gate_without_reset_keeps_rejecting():
+    gate = Gate(1e-4, 1)
+    assert [gate.check("w", 100.0, 1, allow_reset=False)[0] for _ in range(5)] == [False] * 5
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+def test_small_inverse_matches_numpy(m):
+    rng = np.random.default_rng(m)
+    A = rng.normal(size=(m, m))
+    S = A @ A.T + np.eye(m)
+    np.testing.assert_allclose(small_inv(S), np.linalg.inv(S), rtol=1e-12, atol=1e-12)
+
+
+def test_knot_log_keeps_only_outputs_without_smoother():
+    log = KnotLog(for_smoother=False, keep=np.array([1]))
+    x, P = np.zeros(2), np.array([[1.0, 0.5], [0.5, 2.0]])
+    log.open(1, x, P, None)
+    log.close(x, P)  # an update-only knot: dropped
+    log.open(2, x, P, None)
+    log.mark_output()
+    log.close(x + 1, P)
+    out = log.arrays()
+    np.testing.assert_array_equal(out["t_ns"], [2])
+    np.testing.assert_allclose(out["x_filt"], [[1.0, 1.0]])
+    np.testing.assert_allclose(out["P_filt"], [[[2.0]]])  # only the kept block
