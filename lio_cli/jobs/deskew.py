@@ -117,6 +117,7 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
         finally:
             motion.close()
     wall = time.perf_counter() - t_wall
+    notes = list(dict.fromkeys(notes))  # the odometry and this run resolve the same extrinsics
     resolved = with_overrides(cfg, {
         "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
         "input.base_frame": mounting.base, "motion": source, "output_format": fmt,

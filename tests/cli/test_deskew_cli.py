@@ -141,3 +141,23 @@ def test_help_states_the_rules_of_the_de_skewed_cloud(capsys):
                    "rewritten relative to it", "A LaserScan topic is written as a PointCloud2", "--topic-suffix",
                    "--trajectory", "--motion constant-velocity", "--strict", "--map"):
         assert phrase in text, phrase
+
+
+def test_missing_extrinsics_warn_once_each(logs, tmp_path, capsys):
+    """Without /tf_static the odometry and the writing pass assume identity for the same extrinsics: one warning each."""
+    from lio_cli.io.writer import LogWriter
+
+    bag, _ = logs
+    log = tmp_path / "notf.bag"
+    with open_log(bag.log_path) as r, LogWriter(log, "ros1") as w:
+        for topic, info in r.topics.items():
+            if topic != "/tf_static":
+                w.add_topic(topic, info.msgtype)
+        for topic, _, t, msg in r.messages():
+            if topic != "/tf_static":
+                w.write(topic, t, msg)
+    assert main(["deskew", str(log), str(tmp_path / "o.bag"), "-q"]) == 0
+    err = capsys.readouterr().err
+    for name, frame in (("T_base_lidar", "lidar"), ("T_base_imu", "imu")):
+        line = f"lio: warning: no extrinsic {name} (base -> {frame}) in /tf_static or --calib: identity assumed"
+        assert err.count(line) == 1, err
