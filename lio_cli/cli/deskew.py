@@ -28,9 +28,9 @@ and counted (--strict refuses them).
 
 [bold]Everything else[/bold]: other topics' messages byte for byte with their record times, their
 connection metadata (definitions, hashes, latching, QoS) and /tf_static. A ROS 1 bag written as a ROS 2 bag
-(or back) is converted field for field instead (counted in metrics.json).
+or an MCAP file (or back) is converted field for field instead (counted in metrics.json).
 
-[bold]Motion[/bold] (metrics.json says which): --trajectory FILE (TUM/KITTI or LOG:/topic of the base, e.g.
+[bold]Motion[/bold] (metrics.json says which): --trajectory FILE (TUM or LOG:/topic of the base, e.g.
 from lio odom; interpolated on SE(3)); else the IMU: lio's IMU-primed odometry runs first, then each sweep
 gets the gyro's rotation and the odometry's translation; else, asked for with --motion constant-velocity,
 LiDAR-only odometry.
@@ -55,7 +55,7 @@ de-skewed scans, voxel-downsampled.
 def deskew(
     log: LogArg,
     out: Annotated[Path, typer.Argument(help="Output log: .bag (ROS 1), .mcap, or a ROS 2 bag folder.", show_default=False)],
-    trajectory: Annotated[Optional[str], typer.Option("--trajectory", help="Motion from this trajectory of the base (TUM, KITTI, or LOG:/topic), e.g. from lio odom.", show_default=False)] = None,
+    trajectory: Annotated[Optional[str], typer.Option("--trajectory", help="Motion from this trajectory of the base (TUM file or LOG:/topic), e.g. from lio odom.", show_default=False)] = None,
     trajectory_frame: Annotated[Optional[str], typer.Option("--trajectory-frame", help="base | lidar: the frame whose poses --trajectory holds (default base).", show_default=False)] = None,
     motion: Annotated[Optional[str], typer.Option("--motion", help="auto | trajectory | imu | constant-velocity (default auto: --trajectory, else the IMU).", show_default=False)] = None,
     reference: Annotated[Optional[str], typer.Option("--reference", help="end | start: the instant each cloud is de-skewed to and stamped with (default end).", show_default=False)] = None,

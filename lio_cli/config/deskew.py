@@ -22,7 +22,7 @@ OUTPUT_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 class TrajectoryInput(Strict):
     """A trajectory that gives the motion (``--trajectory``)."""
 
-    path: Optional[str] = Field(None, description="TUM or KITTI file, or LOG:/topic; e.g. the output of lio odom")
+    path: Optional[str] = Field(None, description="TUM file or LOG:/topic (a pose topic of a log); e.g. the output of lio odom")
     frame: Literal["base", "lidar"] = Field("base", description="the frame whose poses the trajectory holds")
     interpolation: Literal["cubic", "linear"] = Field(
         "cubic", description="cubic through the 4 nearest poses, or SE(3) interpolation between the 2 nearest")

@@ -49,7 +49,7 @@ def resolve_motion(cfg: DeskewConfig, reader: LogReader) -> tuple[str, str | Non
     if path is not None and motion not in ("auto", "trajectory"):
         raise ConfigError(f"--trajectory gives the motion; it cannot be combined with --motion {motion}")
     if motion == "trajectory" and path is None:
-        raise ConfigError("--motion trajectory needs --trajectory FILE (TUM or KITTI, e.g. from lio odom)")
+        raise ConfigError("--motion trajectory needs --trajectory FILE (TUM, e.g. from lio odom, or LOG:/topic)")
     if path is not None:
         return "trajectory", None
     if motion == "constant-velocity":

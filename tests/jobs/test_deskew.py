@@ -412,7 +412,7 @@ def test_no_motion_source_and_contradicting_options_are_refused(sim, tmp_path):
     assert str(err.value) == "--trajectory gives the motion; it cannot be combined with --motion imu"
     with pytest.raises(ConfigError) as err:
         deskew(s.log_path, tmp_path / "out.bag", motion="trajectory")
-    assert str(err.value) == "--motion trajectory needs --trajectory FILE (TUM or KITTI, e.g. from lio odom)"
+    assert str(err.value) == "--motion trajectory needs --trajectory FILE (TUM, e.g. from lio odom, or LOG:/topic)"
     both = tmp_path / "both.bag"
     with open_log(s.log_path) as r, LogWriter(both, "ros1") as w:
         for topic, info in r.topics.items():
