@@ -443,3 +443,11 @@ def test_a_laserscan_without_beam_times_is_refused(sim, tmp_path):
         deskew(log, tmp_path / "out.bag", **gt(s))
     assert str(err.value) == (f"{log}: /scan: LaserScan time_increment is 0.0, so the beams carry no time of their own "
                               "and there is nothing to de-skew")
+
+
+def test_the_job_pickles_for_the_batch_runner():
+    import pickle
+
+    cfg = with_overrides(DeskewConfig(), {"trajectory.path": "run.tum", "reference": "start", "odometry.init_window_s": 2.0})
+    job = DeskewJob(Path("in.bag"), Path("out.mcap"), cfg, Path("map.ply"), True)
+    assert pickle.loads(pickle.dumps(job)) == job
