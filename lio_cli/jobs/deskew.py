@@ -14,12 +14,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from ..config import dump_model, with_overrides
 from ..config.deskew import DeskewConfig
-from ..io.decode import LASERSCAN, POINTCLOUD2
+from ..core.voxel_map import VoxelMap
 from ..io.detect import input_paths
 from ..io.files import atomic_output, check_writable
 from ..io.log_copy import LogCopy, mcap_profile
@@ -28,7 +27,6 @@ from ..io.reader import LogReader, open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..io.writer import LogWriter
-from ..core.voxel_map import VoxelMap
 from .deskew_motion import Motion, Progress, odometry_motion, resolve_motion, trajectory_motion
 from .deskew_scan import ScanPlan, ScanWriter, plan_scans
 from .odom_inputs import Mounting
