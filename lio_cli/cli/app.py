@@ -35,7 +35,7 @@ app = typer.Typer(
 _state = {"debug": False}
 
 # One module per command; each exposes register(app).
-COMMANDS = ["info", "odom", "evaluate", "simulate"]
+COMMANDS = ["info", "odom", "evaluate", "simulate", "fuse"]
 
 
 def _version(value: bool) -> None:
