@@ -17,7 +17,6 @@ from ..core.fuse import FuseInputs, FuseOptions
 from ..core.fuse.inputs import resolve_use
 from ..errors import InputError
 from ..io.clocks import check_same_clock
-from ..io.decode import IMU
 from ..io.gps import read_gps_track
 from ..io.reader import LogReader
 from ..io.series import POSE_TYPES, Progress, read_series
@@ -165,13 +164,13 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
         R = _child_rotation(tree, base, wheel_cols.child_frame_id, extrinsics)
         inputs.wheel = wheel_series(wheel_cols, twist, R)
     if "odom" in roles:
-        inputs.odom, roles_odom_name = _odom(reader, cfg, cols)
+        inputs.odom = _odom(cfg, cols)
     gps = None
     if "gps" in roles:
         origin = EnuFrame(*cfg.input.gps_origin) if cfg.input.gps_origin else None
         gps = read_gps_track(reader, roles["gps"].topic, origin)
         inputs.gps = gps_series(gps)
-    use = resolved_use(cfg, inputs)
+    use = resolved_use(cfg, inputs, notes)
     described = {s: {"topic": c.topic, "why": c.why} for s, c in roles.items()}
     if "odom" in roles and roles["odom"].topic is None:
         described["odom"] = {"file": cfg.input.odom_file, "why": roles["odom"].why}
@@ -189,23 +188,42 @@ def _child_rotation(tree: FrameTree, base: str, child: str, extrinsics: dict) ->
     return T[:3, :3]
 
 
-def _odom(reader: LogReader, cfg: FuseConfig, cols: dict):
+def _odom(cfg: FuseConfig, cols: dict):
     if cfg.input.odom_topic:
-        return pose_series(cols[cfg.input.odom_topic]), cfg.input.odom_topic
+        return pose_series(cols[cfg.input.odom_topic])
     traj = load_trajectory(cfg.input.odom_file)
-    return trajectory_series(traj.stamps_ns, traj.poses), traj.name
+    return trajectory_series(traj.stamps_ns, traj.poses)
 
 
-def resolved_use(cfg: FuseConfig, inputs: FuseInputs) -> dict[str, list[str]]:
-    """The selection as given, or the core's default for the sources present, with one io-informed change:
-    a wheel twist with a real lateral speed (holonomic base, drone) enters as ``velocity``, not as a forward
-    ``speed`` with a non-holonomic constraint."""
+def resolved_use(cfg: FuseConfig, inputs: FuseInputs, notes: list[str] | None = None) -> dict[str, list[str]]:
+    """The selection as given, or the core's default for the sources present, with two io-informed changes
+    (each noted): a wheel twist with a real lateral speed (holonomic base, drone) enters as ``velocity``, not
+    as a forward ``speed`` with a non-holonomic constraint; an IMU orientation whose yaw variance says the
+    heading is unknown (a disturbed magnetometer) is left out rather than applied at the IMU's rate."""
     if cfg.use is not None:
         return {s: list(m) for s, m in cfg.use.items() if m}
+    notes = notes if notes is not None else []
     use = resolve_use(inputs, FuseOptions())
     if "wheel" in use and carries_lateral_speed(inputs.wheel):
         use["wheel"] = (use["wheel"] - {"speed"}) | {"velocity"}
+        notes.append("wheel twist with a lateral speed (holonomic base or drone): its velocity enters as measured, "
+                     "without a non-holonomic constraint")
+    yaw_var = heading_variance(inputs.imu) if "orientation" in use.get("imu", ()) else None
+    if yaw_var is not None and yaw_var > UNKNOWN_HEADING_VAR:
+        use["imu"].discard("orientation")
+        notes.append(f"IMU orientation left out: its yaw variance (median {yaw_var:g} rad^2) says the heading is "
+                     "unknown; --use imu:gyro,accel,orientation forces it in")
     return {s: sorted(m) for s, m in use.items()}
+
+
+UNKNOWN_HEADING_VAR = 1.0  # rad^2: a yaw sigma over a radian is no heading
+
+
+def heading_variance(imu) -> float | None:
+    """Median yaw variance of the IMU's valid orientations (ROS: covariance about the world z axis)."""
+    if imu is None or imu.orientation_cov is None or imu.orientation_valid is None or not np.any(imu.orientation_valid):
+        return None
+    return float(np.median(imu.orientation_cov[imu.orientation_valid, 2, 2]))
 
 
 __all__ = ["FuseSources", "base_frame_of", "check_clocks", "choose_sources", "gather_sources", "imu_extrinsic",
