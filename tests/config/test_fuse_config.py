@@ -17,8 +17,10 @@ from lio_cli.jobs.fuse import core_options
 def test_defaults_are_the_cores():
     """config sits below core, so the numbers are repeated there: they must stay the core's."""
     assert MEASUREMENTS == CORE_MEASUREMENTS
-    assert core_options(FuseConfig(), None, covariance=True) == FuseOptions()
-    assert dataclasses.asdict(NoiseOptions()) == FuseConfig().noise.model_dump()
+    lidar_odometry = {"odom_position_sigma_m": 0.1, "odom_rotation_sigma_rad": 0.02}  # the one deliberate change
+    core = FuseOptions(noise=NoiseOptions(**lidar_odometry))
+    assert core_options(FuseConfig(), None, covariance=True) == core
+    assert {**dataclasses.asdict(NoiseOptions()), **lidar_odometry} == FuseConfig().noise.model_dump()
 
 
 def test_use_syntax():
