@@ -94,14 +94,17 @@ def _check_pose_topic(reader: LogReader, topic: str) -> None:
 
 
 def check_clocks(reader: LogReader, roles: dict[str, TopicChoice], imu_offset_ns: int) -> None:
-    """Every source topic on one clock with the IMU (its calibration offset applied) or the first of the others."""
+    """Every source topic on one clock: the others among themselves first (no option shifts them), then the
+    IMU, its calibration offset applied, against them (a mismatch names the --imu-time-offset that fixes it)."""
     topics = {s: c.topic for s, c in roles.items() if c.topic is not None}
     others = [topics[s] for s in ("wheel", "gps", "odom") if s in topics]
-    if "imu" in topics:
-        for t in others:
-            check_same_clock(reader, t, topics["imu"], imu_offset_ns)
     for t in others[1:]:
-        check_same_clock(reader, others[0], t, 0, "a re-stamped log")
+        try:
+            check_same_clock(reader, others[0], t, 0)
+        except InputError as err:
+            raise InputError(str(err).split("; if ")[0] + "; leave one out with --use") from err
+    if "imu" in topics and others:
+        check_same_clock(reader, others[0], topics["imu"], imu_offset_ns)
 
 
 def base_frame_of(cfg: FuseConfig, tree: FrameTree, wheel_child: str | None, imu_frame: str | None) -> str:

@@ -199,3 +199,18 @@ def test_memory_budget_splits_the_run_into_chunks_that_agree_with_the_whole(fuse
     np.testing.assert_array_equal(parts.trajectory.stamps_ns, whole.trajectory.stamps_ns)
     assert np.abs(parts.trajectory.positions - whole.trajectory.positions).max() < 0.02
     assert _errors(fuse_logs, parts, 1.0, 0.2).max() < 3 * POS_TOL_M
+
+
+def test_wheels_and_gps_on_different_clocks_name_no_imu_offset(fuse_logs):
+    def edit(topic, msgs):
+        if topic == "/gps/fix":  # a receiver stamping GPS time, 18 s (leap seconds) off the others
+            for _, m in msgs:
+                m.header.stamp.sec += 18
+        return msgs
+
+    log = fuse_logs.write(gps_hz=5.0, duration_s=2.0, edit=edit)
+    with pytest.raises(InputError) as err:
+        run_fuse(FuseJob(log))
+    assert str(err.value) == (
+        f"{log}: /gps/fix and /wheel/odom are stamped on different clocks (/gps/fix from 1700000018.000 s, "
+        "/wheel/odom from 1700000000.000 s: 18 s apart beyond their recording times); leave one out with --use")
