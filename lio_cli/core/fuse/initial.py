@@ -33,6 +33,28 @@ class Start:
     reason: str
 
 
+STILL_SPEED_MPS = 0.05  # wheel speed, or odometry displacement over the window per second, of a base at rest
+
+
+def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | None:
+    """Why the wheels or the odometry say the base moves during the start window, or None."""
+    w = prep.wheel
+    if w is not None and len(w):
+        sel = (w.stamps_ns >= t0) & (w.stamps_ns <= t0 + window_ns)
+        speed = np.abs(np.nan_to_num(w.velocity_mps[sel, 0]))
+        if len(speed) and float(np.median(speed)) > STILL_SPEED_MPS:
+            return f"the wheels report {float(np.median(speed)):.2f} m/s"
+    od = prep.odom
+    if od is not None and len(od) > 1:
+        sel = np.flatnonzero((od.stamps_ns >= t0) & (od.stamps_ns <= t0 + window_ns))
+        if len(sel) > 1:
+            dt_s = (od.stamps_ns[sel[-1]] - od.stamps_ns[sel[0]]) * 1e-9
+            d = float(np.linalg.norm(od.poses[sel[-1], :3, 3] - od.poses[sel[0], :3, 3]))
+            if dt_s > 0 and d / dt_s > STILL_SPEED_MPS:
+                return f"the odometry moves {d / dt_s:.2f} m/s"
+    return None
+
+
 def without_yaw(R: np.ndarray) -> np.ndarray:
     return so3_exp_one(np.array([0.0, 0.0, -float(yaw_of(R))])) @ R
 
@@ -58,7 +80,11 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
             # a steady turn looks like a gyro bias: a "bias" above MAX_GYRO_BIAS_RADPS is taken as motion
             standing = (gyro_dev < GYRO_STILL_RADPS and acc_dev < ACCEL_STILL_MPS2
                         and float(np.linalg.norm(w.mean(axis=0))) < MAX_GYRO_BIAS_RADPS)
-            if standing:
+            moving = _moving_by_other_sources(prep, t0, window_ns) if standing else None
+            if moving:  # at constant velocity an IMU reads exactly as at rest: the wheels or odometry tell
+                standing = False
+                why.append(f"moving start at constant velocity ({moving}; the IMU alone looks still)")
+            elif standing:
                 bg = w.mean(axis=0)
                 why.append(f"standing start: gyro bias and zero velocity from {len(w)} samples")
             else:

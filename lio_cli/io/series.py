@@ -1,0 +1,264 @@
+"""Whole topics of small messages (Imu, Odometry, TwistStamped, PoseStamped, TransformStamped) as column arrays.
+
+A fusion run reads every message of a few small topics, and decoding them one typestore object at a time
+costs as much as the estimation. Here the fixed-layout types (Imu, Odometry, TwistStamped) are read from
+their bytes: each message's header (stamp, frame ids) with ``struct``, its fixed-size body sliced off, and
+the bodies of a whole topic parsed in one numpy call. A message whose length does not fit the standard
+layout (another definition of the type, big-endian CDR, damage) sends its topic through the typestore
+instead, which also reports real corruption as ``InputError``. Nothing is filtered here: NaN, zero
+quaternions, covariances of 0 or -1, duplicated and out-of-order stamps arrive as recorded (the fusion
+core counts and handles them).
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .decode import IMU, ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED, TWIST_STAMPED
+from .reader import LogReader
+
+_F8 = "<f8"
+_IMU_BODY = np.dtype([("q", _F8, 4), ("qcov", _F8, 9), ("w", _F8, 3), ("wcov", _F8, 9), ("a", _F8, 3),
+                      ("acov", _F8, 9)])
+_ODOM_BODY = np.dtype([("p", _F8, 3), ("q", _F8, 4), ("pcov", _F8, 36), ("lin", _F8, 3), ("ang", _F8, 3),
+                       ("tcov", _F8, 36)])
+_TWIST_BODY = np.dtype([("lin", _F8, 3), ("ang", _F8, 3)])
+_BODY = {IMU: _IMU_BODY, ODOMETRY: _ODOM_BODY, TWIST_STAMPED: _TWIST_BODY}
+BULK_TYPES = tuple(_BODY)
+POSE_TYPES = (ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED)
+
+_HEAD_ROS1 = struct.Struct("<4xIII")  # seq, sec, nsec, frame_id length
+_HEAD_CDR = struct.Struct("<4xiII")  # encapsulation, sec, nanosec, frame_id length (NUL included)
+_U32 = struct.Struct("<I")
+_PROGRESS_EVERY = 4096
+
+Progress = Callable[[int], None]  # messages read so far
+
+
+@dataclass
+class ImuColumns:
+    """Every message of one Imu topic, in record order. ``orientation_cov`` (N,9) row-major, as ROS writes it."""
+
+    topic: str
+    frame_id: str
+    stamps_ns: np.ndarray
+    gyro_radps: np.ndarray
+    accel_mps2: np.ndarray
+    quat_xyzw: np.ndarray
+    orientation_cov: np.ndarray
+    frames: tuple[str, ...] = ()  # every frame id seen
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+
+@dataclass
+class MotionColumns:
+    """Every message of one Odometry, TwistStamped, PoseStamped or TransformStamped topic, in record order.
+
+    Pose fields are NaN for TwistStamped, twist fields NaN for PoseStamped/TransformStamped; covariances
+    (N,36) row-major (None when the type has none)."""
+
+    topic: str
+    msgtype: str
+    frame_id: str
+    child_frame_id: str
+    stamps_ns: np.ndarray
+    position_m: np.ndarray
+    quat_xyzw: np.ndarray
+    pose_cov: np.ndarray | None
+    linear_mps: np.ndarray
+    angular_radps: np.ndarray
+    twist_cov: np.ndarray | None
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+
+def _string_end(buf, pos: int) -> tuple[int, int]:
+    (n,) = _U32.unpack_from(buf, pos)
+    return pos + 4, pos + 4 + n
+
+
+def _split(buf, cdr: bool, child: bool) -> tuple[int, bytes, bytes, int]:
+    """(stamp_ns, frame_id bytes, child_frame_id bytes, body offset) of a serialised stamped message."""
+    if cdr:
+        if buf[1] != 1:
+            raise ValueError("not little-endian CDR")
+        sec, nsec, n = _HEAD_CDR.unpack_from(buf, 0)
+        frame = bytes(buf[16: 16 + n - 1]) if n else b""
+        pos = 16 + n
+        kid = b""
+        if child:
+            pos += -(pos - 4) % 4
+            a, b = _string_end(buf, pos)
+            kid, pos = bytes(buf[a: b - 1]) if b > a else b"", b
+        pos += -(pos - 4) % 8
+    else:
+        sec, nsec, n = _HEAD_ROS1.unpack_from(buf, 0)
+        frame = bytes(buf[16: 16 + n])
+        pos = 16 + n
+        kid = b""
+        if child:
+            a, pos = _string_end(buf, pos)
+            kid = bytes(buf[a:pos])
+    return sec * 1_000_000_000 + nsec, frame, kid, pos
+
+
+class _Bulk:
+    """Headers and bodies of one topic's messages, collected while the log is read."""
+
+    def __init__(self, msgtype: str, cdr: bool) -> None:
+        self.msgtype, self.cdr = msgtype, cdr
+        self.size = _BODY[msgtype].itemsize
+        self.child = msgtype == ODOMETRY
+        self.stamps: list[int] = []
+        self.bodies: list = []
+        self.frames: dict[bytes, None] = {}
+        self.kids: dict[bytes, None] = {}
+        self.ok = True
+
+    def add(self, raw) -> None:
+        if not self.ok:
+            return
+        buf = memoryview(raw)
+        for cdr in (self.cdr, not self.cdr):  # MCAP may carry ROS 1 encoded messages: the length tells
+            try:
+                stamp, frame, kid, pos = _split(buf, cdr, self.child)
+            except (struct.error, ValueError, IndexError):
+                continue
+            if pos + self.size == len(buf):
+                self.cdr = cdr
+                self.stamps.append(stamp)
+                self.bodies.append(bytes(buf[pos:]))  # a copy: a view would keep the whole chunk alive
+                self.frames.setdefault(frame)
+                if self.child:
+                    self.kids.setdefault(kid)
+                return
+        self.ok = False  # not the standard layout: the typestore reads this topic
+        self.bodies = []
+
+    def body(self) -> np.ndarray:
+        return np.frombuffer(b"".join(self.bodies), dtype=_BODY[self.msgtype])
+
+    def frame_ids(self) -> tuple[str, ...]:
+        return tuple(f.decode(errors="replace") for f in self.frames)
+
+    def child_ids(self) -> tuple[str, ...]:
+        return tuple(f.decode(errors="replace") for f in self.kids)
+
+
+def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None = None
+                ) -> dict[str, ImuColumns | MotionColumns]:
+    """Every message of ``topics`` (Imu, Odometry, TwistStamped, PoseStamped, TransformStamped) as columns,
+    in one pass over the log (plus one typestore pass per topic that needs it)."""
+    topics = list(dict.fromkeys(topics))
+    bulk: dict[str, _Bulk] = {}
+    slow: list[str] = []
+    for t in topics:
+        msgtype = log.topics[t].msgtype
+        if msgtype in _BODY:
+            bulk[t] = _Bulk(msgtype, log.format != "ros1")
+        elif msgtype in (POSE_STAMPED, TRANSFORM_STAMPED):
+            slow.append(t)
+        else:
+            raise InputError(f"{log.path}: topic {t} is {msgtype}, which fuse cannot read")
+    if bulk:
+        n = 0
+        for topic, _, _, raw in log.raw_messages(list(bulk)):
+            bulk[topic].add(raw)
+            n += 1
+            if progress is not None and n % _PROGRESS_EVERY == 0:
+                progress(n)
+    out: dict[str, ImuColumns | MotionColumns] = {}
+    for t, b in bulk.items():
+        if b.ok:
+            out[t] = _imu_from_bulk(t, b) if b.msgtype == IMU else _motion_from_bulk(t, b)
+        else:
+            slow.append(t)
+    for t in slow:
+        out[t] = _read_typestore(log, t)
+    return {t: out[t] for t in topics}
+
+
+def _imu_from_bulk(topic: str, b: _Bulk) -> ImuColumns:
+    body = b.body()
+    frames = b.frame_ids()
+    return ImuColumns(topic, frames[0] if frames else "", np.asarray(b.stamps, np.int64), body["w"].copy(),
+                      body["a"].copy(), body["q"].copy(), body["qcov"].copy(), frames)
+
+
+def _nan(n: int, k: int) -> np.ndarray:
+    return np.full((n, k), np.nan)
+
+
+def _motion_from_bulk(topic: str, b: _Bulk) -> MotionColumns:
+    body = b.body()
+    n = len(body)
+    frames, kids = b.frame_ids(), b.child_ids()
+    frame = frames[0] if frames else ""
+    if b.msgtype == ODOMETRY:
+        return MotionColumns(topic, b.msgtype, frame, kids[0] if kids else "", np.asarray(b.stamps, np.int64),
+                             body["p"].copy(), body["q"].copy(), body["pcov"].copy(), body["lin"].copy(),
+                             body["ang"].copy(), body["tcov"].copy())
+    return MotionColumns(topic, b.msgtype, frame, frame, np.asarray(b.stamps, np.int64), _nan(n, 3), _nan(n, 4),
+                         None, body["lin"].copy(), body["ang"].copy(), None)
+
+
+def _xyz(v) -> tuple[float, float, float]:
+    return v.x, v.y, v.z
+
+
+def _read_typestore(log: LogReader, topic: str) -> ImuColumns | MotionColumns:
+    """The same columns through the typestore (any definition or encoding the reader understands)."""
+    from .pointcloud import stamp_to_ns
+
+    msgtype = log.topics[topic].msgtype
+    rows = []
+    frame = child = ""
+    for _, _, _, m in log.messages([topic]):
+        if not rows:
+            frame = m.header.frame_id
+            child = getattr(m, "child_frame_id", "") if msgtype in (ODOMETRY, TRANSFORM_STAMPED) else frame
+        st = stamp_to_ns(m.header.stamp)
+        if msgtype == IMU:
+            o = m.orientation
+            rows.append((st, _xyz(m.angular_velocity), _xyz(m.linear_acceleration), (o.x, o.y, o.z, o.w),
+                         tuple(np.asarray(m.orientation_covariance, float).reshape(9))))
+        elif msgtype == ODOMETRY:
+            p, tw = m.pose.pose, m.twist.twist
+            o = p.orientation
+            rows.append((st, _xyz(p.position), (o.x, o.y, o.z, o.w), np.asarray(m.pose.covariance, float),
+                         _xyz(tw.linear), _xyz(tw.angular), np.asarray(m.twist.covariance, float)))
+        elif msgtype == TWIST_STAMPED:
+            rows.append((st, _xyz(m.twist.linear), _xyz(m.twist.angular)))
+        else:
+            tr = m.transform if msgtype == TRANSFORM_STAMPED else m.pose
+            pos = tr.translation if msgtype == TRANSFORM_STAMPED else tr.position
+            o = tr.rotation if msgtype == TRANSFORM_STAMPED else tr.orientation
+            rows.append((st, _xyz(pos), (o.x, o.y, o.z, o.w)))
+    n = len(rows)
+    cols = list(zip(*rows)) if rows else []
+
+    def arr(i: int, k: int) -> np.ndarray:
+        return np.asarray(cols[i], np.float64).reshape(n, k) if n else np.zeros((0, k))
+
+    stamps = np.asarray(cols[0] if n else [], np.int64)
+    if msgtype == IMU:
+        return ImuColumns(topic, frame, stamps, arr(1, 3), arr(2, 3), arr(3, 4), arr(4, 9), (frame,) if n else ())
+    if msgtype == ODOMETRY:
+        return MotionColumns(topic, msgtype, frame, child, stamps, arr(1, 3), arr(2, 4), arr(3, 36), arr(4, 3),
+                             arr(5, 3), arr(6, 36))
+    if msgtype == TWIST_STAMPED:
+        return MotionColumns(topic, msgtype, frame, child, stamps, _nan(n, 3), _nan(n, 4), None, arr(1, 3),
+                             arr(2, 3), None)
+    return MotionColumns(topic, msgtype, frame, child, stamps, arr(1, 3), arr(2, 4), None, _nan(n, 3), _nan(n, 3),
+                         None)
+
+
+__all__ = ["BULK_TYPES", "POSE_TYPES", "ImuColumns", "MotionColumns", "read_series"]

@@ -1,0 +1,158 @@
+"""``lio fuse`` end to end through ``main([...])``: the files it writes, ``--config`` repeating a run byte for
+byte, ``-o -``, ``--cov``, ``--plot``, bad input (one line, exit 2, nothing written), ``lio evaluate`` taking the
+fused output against a NavSatFix topic, and the real recordings of ``../shared/real_logs``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lio_cli.cli.app import main
+from lio_cli.io.trajectory_files import read_tum
+from lio_cli.io.writer import LogWriter
+from lio_cli.simulation.run import simulate
+
+REPO = Path(__file__).resolve().parents[2]
+RL_END = np.array([1.0206, 3.4292, 0.7419])  # robot_localization's test_ekf_localization_node_bag2 end point
+RL_TOL_M = 0.1383
+GPS_SIGMA_M = 1.0  # the simulator's horizontal GPS noise
+
+
+def _real_logs() -> Path:
+    """``../shared/real_logs`` beside the repository (a worktree elsewhere falls back to the workplace's)."""
+    beside = REPO.parent / "shared" / "real_logs"
+    return beside if beside.is_dir() else Path("/work/shared/real_logs")
+
+
+REAL = _real_logs()
+real_logs = pytest.mark.skipif(not REAL.is_dir(), reason=f"real recordings absent: {REAL} does not exist "
+                                                         "(they live in the workplace's shared/real_logs)")
+
+
+@pytest.fixture(scope="module")
+def planar(tmp_path_factory) -> Path:
+    log = tmp_path_factory.mktemp("fuse_cli") / "office.bag"
+    simulate("planar", log, duration_s=12.0, seed=2, gps=True)
+    return log
+
+
+def _run(capsys, *args) -> tuple[int, str, str]:
+    code = main(["fuse", *map(str, args)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_files_and_config_round_trip(capsys, planar, tmp_path):
+    out = tmp_path / "fused.tum"
+    code, _, err = _run(capsys, planar, "-o", out, "--rate", 50, "--smooth", "--cov", tmp_path / "fused.cov",
+                        "--plot", tmp_path / "plots")
+    assert code == 0, err
+    stamps, poses = read_tum(out)
+    assert np.all(np.diff(stamps) == 20_000_000) and np.allclose(poses[0, :3, 3], 0.0)
+    m = json.loads((tmp_path / "fused.metrics.json").read_text())
+    assert m["sources_used"] == ["gps", "imu", "wheel"] and m["smoothed"] is True
+    assert m["sources"]["gps"]["rejected"]["no_fix"]["why"] == "the GPS fix status said invalid"
+    assert set(m["time_s"]) == {"read", "fuse", "total", "cpu"} and m["output"]["poses"] == len(stamps)
+    cov_lines = (tmp_path / "fused.cov").read_text().splitlines()
+    assert cov_lines[0].startswith("# lio fuse per-pose covariance") and len(cov_lines) == len(stamps) + 1
+    row = np.array(cov_lines[1].split(), float)
+    assert len(row) == 37 and row[0] == stamps[0] * 1e-9
+    for name in ("fuse_top_view.png", "fuse_speed_yaw_rate.png"):
+        assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "poses (50 Hz), ekf + smoother: imu" in err
+    again = tmp_path / "again.tum"
+    code, _, err = _run(capsys, planar, "--config", tmp_path / "fused.config.yaml", "-o", again)
+    assert code == 0, err
+    assert again.read_bytes() == out.read_bytes()
+
+
+def test_stdout_writes_nothing_else(capsys, planar, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, planar, "-o", "-", "--rate", 20, "-q")
+    assert code == 0, err
+    lines = out.splitlines()
+    assert len(lines) == 241 and len(lines[0].split()) == 8
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("rate", ["0", "-5"])
+def test_rate_not_positive(capsys, planar, tmp_path, monkeypatch, rate):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, planar, "--rate", rate)
+    assert code == 2 and out == ""
+    assert err.strip() == f"lio: error: --rate must be a positive number of Hz, got {float(rate):g}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_motion_source_is_one_line_and_writes_nothing(capsys, tmp_path, monkeypatch):
+    log = tmp_path / "gps_only.bag"
+    with LogWriter(log, "ros1") as w:
+        w.add_topic("/fix", "sensor_msgs/msg/NavSatFix")
+        for k in range(5):
+            t = 1_700_000_000 * 10**9 + k * 10**8
+            w.write("/fix", t, w.make.navsatfix(t, "gps", 47.0, 8.0, 400.0))
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _run(capsys, log, "--plot", "plots", "--cov", "c.cov")
+    assert code == 2
+    assert err.strip() == (f"lio: error: {log}: no motion source: no IMU or wheel odometry topic found and no "
+                           "odometry given (GPS alone cannot be fused); give --odom FILE, --odom-topic, --imu-topic "
+                           "or --wheel-topic")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gps_only.bag"]
+
+
+def test_evaluate_takes_the_fused_output_against_the_gps_topic(capsys, planar, tmp_path):
+    out = tmp_path / "f.tum"
+    assert _run(capsys, planar, "-o", out, "--smooth", "-q")[0] == 0
+    code = main(["evaluate", f"{planar}:/gps/fix", str(out), "--align", "posyaw", "--json"])
+    text, err = capsys.readouterr()
+    assert code == 0, err
+    r = json.loads(text)["estimates"][0]
+    assert r["translation_only"] is True and r["poses"]["matched"] > 40
+    assert r["ape"]["trans"]["rmse"] < 2.5 * GPS_SIGMA_M  # the GPS noise, not a broken trajectory
+
+
+def test_json_summary(capsys, planar, tmp_path):
+    code, out, err = _run(capsys, planar, "-o", tmp_path / "j.tum", "--json", "--use", "imu:gyro", "--use",
+                          "wheel:speed,yaw_rate", "--estimator", "planar")
+    assert code == 0, err
+    m = json.loads(out)
+    assert m["estimator"] == "planar" and m["sources_used"] == ["imu", "wheel"]
+    assert m["sources"]["wheel"]["measurements"] == ["speed", "yaw_rate"]
+    assert "gps" not in m["sources"]
+
+
+@real_logs
+def test_jackal_ends_where_robot_localization_does(capsys, tmp_path):
+    out = tmp_path / "jackal.tum"
+    code, _, err = _run(capsys, REAL / "jackal_imu_wheel" / "jackal.bag", "-o", out)
+    assert code == 0, err
+    _, poses = read_tum(out)
+    assert np.linalg.norm(poses[-1, :3, 3] - RL_END) <= RL_TOL_M
+
+
+@real_logs
+def test_groovy_needs_the_xsens_extrinsic_and_then_runs(capsys, tmp_path):
+    log = REAL / "groovy_imu_wheel_stereo" / "groovy.bag"
+    code, _, err = _run(capsys, log, "-o", tmp_path / "g.tum")
+    assert code == 2 and err.strip() == (
+        f"lio: error: {log}: IMU /xsens/imu_data is in frame 'xsens_sensor' and neither /tf_static nor --calib gives "
+        "T_base_imu (base -> xsens_sensor); pass --calib with T_base_imu (lio calibrate writes one)")
+    calib = tmp_path / "calib.yaml"
+    calib.write_text("T_base_imu: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n")
+    code, _, err = _run(capsys, log, "-o", tmp_path / "g.tum", "--calib", calib, "--rate", 20)
+    assert code == 0, err
+    m = json.loads((tmp_path / "g.metrics.json").read_text())
+    assert m["sources"]["imu"]["topic"] == "/xsens/imu_data"  # the all-zero IMU beside it is left out
+    assert m["extrinsics"]["wheel_twist"].startswith("parent frame")  # this driver's twist is in its odom frame
+
+
+@real_logs
+def test_ardrone_twist_only_runs(capsys, tmp_path):
+    code, _, err = _run(capsys, REAL / "ardrone_twist_only" / "ardrone.bag", "-o", tmp_path / "a.tum", "--rate", 50)
+    assert code == 0, err
+    m = json.loads((tmp_path / "a.metrics.json").read_text())
+    assert m["sources"]["wheel"]["measurements"] == ["velocity"]  # a drone: lateral speed, no wheel constraint
+    assert m["updates"]["wheel"] == 25217
