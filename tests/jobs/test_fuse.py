@@ -152,7 +152,7 @@ def test_sources_on_different_clocks_and_the_offset_that_joins_them(fuse_logs):
     assert str(err.value) == (
         f"{log}: /imu and /wheel/odom are stamped on different clocks (/imu from 1700001000.000 s, /wheel/odom "
         "from 1700000000.000 s: 1000 s apart beyond their recording times); if /imu runs on a shifted clock give "
-        "--imu-time-offset -1000.000000")
+        "--imu-time-offset -1000.000")
     run = run_fuse(FuseJob(log, FuseConfig(calibration={"imu_time_offset_s": -1000.0})))
     np.testing.assert_allclose(run.trajectory.positions[-1], [2.0, 0.0, 0.0], atol=1e-3)
     assert run.trajectory.stamps_ns[0] == fuse_logs.T0_NS
