@@ -106,6 +106,9 @@ def _stamp_unit(value: str, flag: str) -> str:
     return value
 
 
+MAX_SECONDS = 1e9  # ~31 years: any larger time tolerance or offset is a typo, and overflows nanoseconds
+
+
 def _parse_limits(items: list[str]) -> dict[str, float]:
     limits = {}
     for item in items:
@@ -117,6 +120,8 @@ def _parse_limits(items: list[str]) -> dict[str, float]:
             limits[key] = float(value)
         except ValueError as err:
             raise ConfigError(f"--fail-above {key}: '{value}' is not a number") from err
+        if not math.isfinite(limits[key]):
+            raise ConfigError(f"--fail-above {key}: the limit must be a finite number, got '{value}'")
     return limits
 
 
@@ -166,8 +171,14 @@ def evaluate_cmd(
         raise ConfigError(f"--delta-unit must be frames, m, s, deg or rad, got '{delta_unit}'")
     if align_mode not in ALIGN_MODES:
         raise ConfigError(f"--align must be one of {', '.join(ALIGN_MODES)}, got '{align_mode}'")
-    if not (t_max_diff >= 0 and math.isfinite(t_max_diff)):
-        raise ConfigError(f"--t-max-diff must be a non-negative number of seconds, got {t_max_diff}")
+    if not 0 <= t_max_diff <= MAX_SECONDS:
+        raise ConfigError(f"--t-max-diff must be between 0 and {MAX_SECONDS:g} s, got {t_max_diff}")
+    if n_align is not None and n_align < 1:
+        raise ConfigError(f"--n-align must be at least 1 pose, got {n_align}")
+    if not 0 <= delta_tol < math.inf:
+        raise ConfigError(f"--delta-tol must be a finite number >= 0, got {delta_tol}")
+    if not 0 < delta < math.inf:
+        raise ConfigError(f"--delta must be a finite number > 0, got {delta}")
     if as_json and csv_out == "-":
         raise ConfigError("--json and --csv - would both write to stdout; give --csv a file name")
     if n_align is not None and align_mode not in ("se3", "sim3", "scale", "posyaw"):
@@ -176,8 +187,12 @@ def evaluate_cmd(
         raise ConfigError("give --times or --rate, not both")
     try:
         offset_ns = parse_stamp_ns(t_offset)
+    except OverflowError as err:
+        raise ConfigError(f"--t-offset must be within +-{MAX_SECONDS:g} s, got {t_offset}") from err
     except ValueError as err:
         raise ConfigError(f"--t-offset '{t_offset}' is not a number of seconds") from err
+    if abs(offset_ns) > MAX_SECONDS * 1e9:
+        raise ConfigError(f"--t-offset must be within +-{MAX_SECONDS:g} s, got {t_offset}")
     if estimate_offset and offset_ns != 0:
         raise ConfigError("give --t-offset or --estimate-offset, not both")
     if offset_range is not None and not estimate_offset:
