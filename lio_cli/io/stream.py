@@ -20,6 +20,7 @@ from .decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odomet
 from .reader import LogReader
 from .pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,
+    MAX_POINT_TIME_SPREAD_NS,
     decode_laserscan,
     decode_pointcloud2,
     detect_time_convention,
@@ -36,6 +37,8 @@ class StreamStats:
     duplicates: dict[str, int] = field(default_factory=dict)
     empty_clouds: int = 0
     invalid_points: int = 0
+    bad_point_times: int = 0  # of invalid_points: points whose time lay absurdly far from their scan's
+    invalid_imu: int = 0
 
     def to_dict(self) -> dict:
         return {
@@ -44,7 +47,28 @@ class StreamStats:
             "duplicate_stamps_dropped": dict(self.duplicates),
             "empty_clouds_skipped": self.empty_clouds,
             "invalid_points_dropped": self.invalid_points,
+            "absurd_point_times_dropped": self.bad_point_times,
+            "invalid_imu_samples_dropped": self.invalid_imu,
         }
+
+
+# An IMU sample beyond these is damage, not motion (MEMS and tactical IMUs saturate near 16-200 g and
+# 35-70 rad/s): dropped and counted like a NaN one, so that it cannot blow up the filter.
+MAX_IMU_ACCEL_MPS2 = 1e4
+MAX_IMU_GYRO_RADPS = 1e3
+
+
+def imu_sample_problem(gyro, accel) -> str | None:
+    """Why an IMU sample is unusable (a NaN, or a value out of any IMU's range), or None if it is fine."""
+    values = (*gyro, *accel)
+    if not all(map(math.isfinite, values)):
+        return "holds NaN or infinity"
+    g, a = max(map(abs, gyro)), max(map(abs, accel))
+    if g > MAX_IMU_GYRO_RADPS:
+        return f"holds an angular rate of {g:.3g} rad/s (beyond {MAX_IMU_GYRO_RADPS:g})"
+    if a > MAX_IMU_ACCEL_MPS2:
+        return f"holds an acceleration of {a:.3g} m/s^2 (beyond {MAX_IMU_ACCEL_MPS2:g})"
+    return None
 
 
 class SensorStream:
@@ -91,6 +115,15 @@ class SensorStream:
                 cloud = decode_laserscan(msg)
             else:  # pragma: no cover - select_topic guards the type
                 raise InputError(f"{topic}: cannot read a scan from {msgtype}")
+            if cloud.bad_times:
+                if self.strict:
+                    raise InputError(
+                        f"{self.log.path}: {topic}: cloud at {_fmt_ns(cloud.stamp_ns)} has {cloud.bad_times} point(s) "
+                        f"whose per-point time ({cloud.convention.describe()}) lies more than "
+                        f"{MAX_POINT_TIME_SPREAD_NS * 1e-9:g} s from the scan's other points; odom and deskew drop "
+                        "such points"
+                    )
+                self.stats.bad_point_times += cloud.bad_times
             self.stats.invalid_points += cloud.dropped
             if len(cloud.points) == 0:
                 if self.strict:
@@ -104,15 +137,14 @@ class SensorStream:
         if kind == "imu":
             if isinstance(msg, RawImu):
                 stamp, frame, gyro, accel = msg
-                finite = all(map(math.isfinite, gyro)) and all(map(math.isfinite, accel))
             else:
                 stamp, gyro, accel = imu_sample(msg)
                 frame = msg.header.frame_id
-                finite = bool(np.isfinite(gyro).all() and np.isfinite(accel).all())
-            if not finite:
+            problem = imu_sample_problem(gyro, accel)
+            if problem is not None:
                 if self.strict:
-                    raise InputError(f"{self.log.path}: {topic}: IMU sample at {_fmt_ns(stamp)} holds NaN")
-                self.stats.invalid_points += 1
+                    raise InputError(f"{self.log.path}: {topic}: IMU sample at {_fmt_ns(stamp)} {problem}")
+                self.stats.invalid_imu += 1
                 return None
             return Record(kind, topic, stamp, (frame, gyro, accel))
         if kind == "wheel":
