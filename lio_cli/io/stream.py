@@ -54,6 +54,7 @@ class StreamStats:
 
 # An IMU sample beyond these is damage, not motion (MEMS and tactical IMUs saturate near 16-200 g and
 # 35-70 rad/s): dropped and counted like a NaN one, so that it cannot blow up the filter.
+MAX_STAMP_JUMP_NS = 10_000_000_000  # strict: header stamps may run ahead of record time by at most this much
 MAX_IMU_ACCEL_MPS2 = 1e4
 MAX_IMU_GYRO_RADPS = 1e3
 
@@ -98,6 +99,7 @@ class SensorStream:
         self.imu_batch_size = imu_batch_size
         self.stats = StreamStats()
         self._last: dict[str, int] = {}
+        self._last_rec: dict[str, int] = {}  # record time of each topic's last accepted message
         self._conventions: dict[tuple, TimeConvention] = {}
 
     def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
@@ -156,8 +158,18 @@ class SensorStream:
         rec = decode_pose(msg, msgtype)
         return Record(kind, topic, rec.stamp_ns, rec)
 
-    def _accept(self, rec: Record) -> bool:
+    def _accept(self, rec: Record, t_rec: int) -> bool:
         last = self._last.get(rec.topic)
+        if self.strict and last is not None:
+            # header time running far ahead of record time: one of the two stamps lies (0 among 2023 stamps, a
+            # sensor clock jumping); the reorder heap puts a stamp of 0 first, so 'backwards' never sees it
+            jump = (rec.stamp_ns - last) - (t_rec - self._last_rec[rec.topic])
+            if jump > MAX_STAMP_JUMP_NS:
+                raise InputError(
+                    f"{self.log.path}: {rec.topic}: header stamps jump from {_fmt_ns(last)} to {_fmt_ns(rec.stamp_ns)} "
+                    f"between messages recorded {(t_rec - self._last_rec[rec.topic]) * 1e-9:.3f} s apart; a stamp "
+                    "lies far from the others (a clock not yet set, or damage): fix the log's stamps or re-record"
+                )
         if last is not None and rec.stamp_ns <= last:
             what = "duplicated" if rec.stamp_ns == last else "going backwards"
             if self.strict:
@@ -169,10 +181,11 @@ class SensorStream:
             bucket[rec.topic] = bucket.get(rec.topic, 0) + 1
             return False
         self._last[rec.topic] = rec.stamp_ns
+        self._last_rec[rec.topic] = t_rec
         return True
 
     def __iter__(self) -> Iterator[Record]:
-        heap: list[tuple[int, int, Record]] = []
+        heap: list[tuple[int, int, int, Record]] = []  # (header stamp, sequence, record time, record)
         seq = 0
         imu: list[tuple[int, np.ndarray, np.ndarray]] = []
         imu_topic, imu_frame = "", ""
@@ -190,9 +203,9 @@ class SensorStream:
                 imu = []
                 yield Record("imu", imu_topic, int(batch.stamps_ns[0]), batch)
 
-        def emit(rec: Record) -> Iterator[Record]:
+        def emit(rec: Record, t_rec: int) -> Iterator[Record]:
             nonlocal imu_topic, imu_frame
-            if not self._accept(rec):
+            if not self._accept(rec, t_rec):
                 return
             if rec.kind == "imu":
                 imu_frame, gyro, accel = rec.data
@@ -214,13 +227,13 @@ class SensorStream:
                 raise InputError(f"{self.log.path}: {topic}: {err}") from err
             if rec is None:
                 continue
-            heapq.heappush(heap, (rec.stamp_ns, seq, rec))
+            heapq.heappush(heap, (rec.stamp_ns, seq, t_rec, rec))
             seq += 1
             horizon = max(t_rec, rec.stamp_ns) - self.window_ns
             while heap and heap[0][0] <= horizon:
-                yield from emit(heapq.heappop(heap)[2])
+                yield from emit(*heapq.heappop(heap)[3:1:-1])
         while heap:
-            yield from emit(heapq.heappop(heap)[2])
+            yield from emit(*heapq.heappop(heap)[3:1:-1])
         yield from flush_imu()
 
 

@@ -265,3 +265,22 @@ def test_lenient_stream_drops_and_counts_absurd_point_times_and_imu_values(logs)
     stats = stream.stats.to_dict()
     assert (stats["invalid_points_dropped"], stats["absurd_point_times_dropped"]) == (1, 1)
     assert stats["invalid_imu_samples_dropped"] == 1
+
+
+def test_strict_stream_reports_a_stamp_of_0_that_sorts_first(logs):
+    """A scan stamped 0 among 2023 stamps, early enough for the reorder window to put it first: never 'going
+    backwards', but the header time then jumps 53 years while record time moves 0.1 s (reported); the lenient
+    stream lets it through for the odometry's gap handling."""
+    def build(w):
+        w.add_topic("/points", CLOUD)
+        for i in range(4):
+            t = logs.T0_NS + i * 100_000_000
+            arr, _ = logs.velodyne_cloud(8)
+            w.write("/points", t, w.make.pointcloud2(0 if i == 1 else t, "lidar", arr))
+    path = logs.write("ros1", build)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            list(SensorStream(log, {"lidar": "/points"}))
+        assert str(err.value).startswith(f"{path}: /points: header stamps jump from 0.000000000 s to "
+                                         "1700000000.000000000 s between messages recorded -0.100 s apart")
+        assert [r.stamp_ns for r in SensorStream(log, {"lidar": "/points"}, strict=False)][0] == 0
