@@ -223,21 +223,20 @@ def decode_pointcloud2(
     n_valid = int(np.count_nonzero(valid))
     dropped = len(arr) - n_valid
     keep = slice(None) if dropped == 0 else valid
-    bad_times = 0
-    if raw_t is not None:
-        rel = _offsets_ns(raw_t[keep], None if raw_ns is None else raw_ns[keep], conv, header_ns)
-        good = _plausible_times(rel)
-        if good is not None:  # absurd times: those points are dropped as bad points
-            bad_times = n_valid - int(np.count_nonzero(good))
-            valid[np.flatnonzero(valid)[~good]] = False
-            rel = rel[good]
-            n_valid -= bad_times
-            dropped += bad_times
-            keep = valid
-        stamps = rel.astype(np.int64)
-        stamps += header_ns
     xyz = np.empty((n_valid, 3), dtype=np.float64)
     xyz[:, 0], xyz[:, 1], xyz[:, 2] = x[keep], y[keep], z[keep]
+    bad_times = 0
+    if raw_t is not None:
+        stamps = _offsets_ns(raw_t[keep], None if raw_ns is None else raw_ns[keep], conv, header_ns)
+        good = _plausible_times(stamps)
+        if good is not None:  # absurd times: those points are dropped as bad points (rare: not the fast path)
+            bad_times = n_valid - int(np.count_nonzero(good))
+            valid[np.flatnonzero(valid)[~good]] = False
+            stamps, xyz = stamps[good], xyz[good]
+            n_valid -= bad_times
+            dropped += bad_times
+        stamps = stamps.astype(np.int64, copy=False)
+        stamps += header_ns
     if raw_t is None and conv.name == "azimuth":
         if int(msg.height) > 1:  # organised: the column index is the firing order
             width = int(msg.width)
