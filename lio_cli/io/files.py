@@ -24,6 +24,9 @@ def check_writable(path: Path, force: bool, inputs: Iterable[Path] = ()) -> None
         _refuse_input(path, Path(inp))
     if path.exists() and not force:
         raise InputError(f"{path}: already exists; pass --force to overwrite it")
+    if path.is_dir() and not path.is_symlink() and not _is_replaceable_folder(path):
+        raise InputError(f"{path}: is a folder that is not a ROS 2 bag lio wrote; lio replaces only such folders, "
+                         "even with --force: choose another output")
     parent = path.parent
     if not parent.exists():
         raise InputError(f"{parent}: output folder does not exist")
@@ -37,6 +40,14 @@ def check_writable(path: Path, force: bool, inputs: Iterable[Path] = ()) -> None
     os.unlink(probe)
 
 
+def _is_replaceable_folder(path: Path) -> bool:
+    """A folder output may replace only a ROS 2 bag folder: metadata.yaml plus its storage files, nothing else."""
+    names = {p.name for p in path.iterdir()}
+    if "metadata.yaml" not in names:
+        return not names  # an empty folder holds nothing to lose
+    return all(n == "metadata.yaml" or n.endswith((".db3", ".mcap", ".db3-shm", ".db3-wal")) for n in names)
+
+
 def _refuse_input(out: Path, inp: Path) -> None:
     if not inp.exists():
         return
@@ -46,8 +57,8 @@ def _refuse_input(out: Path, inp: Path) -> None:
     holds = out.is_dir() and inp_real.startswith(out_real.rstrip(os.sep) + os.sep)
     if same or inside or holds:
         what = "the input" if same else "inside the input folder" if inside else "a folder holding the input"
-        raise InputError(f"{out}: is an input of this run ({what} {inp}); lio never writes over its inputs "
-                         "(--force or not): choose another output")
+        raise InputError(f"{out}: is an input of this run ({what} {inp}); lio never writes over its inputs, "
+                         "whatever the options: choose another output")
 
 
 def temp_sibling(path: Path) -> Path:

@@ -200,6 +200,9 @@ def decode_pointcloud2(
     missing = {"x", "y", "z"} - names
     if missing:
         raise InputError(f"PointCloud2 has no {', '.join(sorted(missing))} field(s); fields are {sorted(names)}")
+    for f in msg.fields:
+        if f.name in ("x", "y", "z") and int(f.count) != 1:
+            raise InputError(f"PointCloud2 field '{f.name}' has count {int(f.count)}; a coordinate must have count 1")
     conv = convention or detect_time_convention(msg)
     absent = [f for f in conv.fields if f not in names]
     if absent:

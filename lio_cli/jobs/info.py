@@ -132,4 +132,8 @@ def check_log(log: LogReader, convention: TimeConvention | None = None,
                 if progress:
                     progress(k)
             checked[name] = n
+    if not sum(checked.values()):
+        kinds = "PointCloud2, LaserScan, Imu, Odometry or pose"
+        raise InputError(f"{log.path}: nothing checkable: not one {kinds} message decoded "
+                         f"({len(log.topics)} topic(s) of other types), so --check cannot pass")
     return {"checked": checked}

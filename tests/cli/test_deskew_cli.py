@@ -81,12 +81,12 @@ def test_the_output_is_never_the_input_or_inside_it(logs, tmp_path, capsys):
     for extra in ([], ["--force"]):
         assert main(["deskew", str(log), str(log), "--trajectory", str(bag.gt_path), *extra]) == 2
         assert err_line(capsys) == (f"lio: error: {log}: is an input of this run (the input {log}); lio never writes "
-                                    "over its inputs (--force or not): choose another output")
+                                    "over its inputs, whatever the options: choose another output")
     inside = ros2.log_path / "deskewed"
     assert main(["deskew", str(ros2.log_path), str(inside), "--trajectory", str(ros2.gt_path)]) == 2
     assert err_line(capsys) == (f"lio: error: {inside}: is an input of this run (inside the input folder "
-                                f"{ros2.log_path}); lio never writes over its inputs (--force or not): choose another "
-                                "output")
+                                f"{ros2.log_path}); lio never writes over its inputs, whatever the options: choose "
+                                "another output")
     assert not inside.exists()
     tum = tmp_path / "t.tum"
     tum.write_text(format_tum(*read_tum(bag.gt_path)))
