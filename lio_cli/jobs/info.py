@@ -107,6 +107,7 @@ def describe_log(log: LogReader, convention: TimeConvention | None = None) -> di
         "topics": topics,
         "scans": scans,
         "static_transforms": frames,
+        "static_transform_problems": [c["message"] for c in tree.conflicts] + tree.warnings,
         "frames": tree.frames,
     }
 

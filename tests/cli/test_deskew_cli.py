@@ -117,7 +117,8 @@ def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, c
     (["--format", "zip"], "lio: error: options: output_format: Input should be 'ros1', 'ros2', 'ros2-mcap' or 'mcap'"),
     (["--reference", "middle"], "lio: error: options: reference: Input should be 'end' or 'start'"),
     (["--point-time", "tick"], "lio: error: unknown per-point time convention 'tick' (use velodyne, ouster, livox, "
-                               "hesai, azimuth, none or FIELD:UNIT[:abs|rel], e.g. time:s or t:ns)"),
+                               "hesai, azimuth, none, FIELD:UNIT[:abs|rel] or SEC_FIELD+NSEC_FIELD[:abs|rel], e.g. time:s, "
+                               "t:ns or time_sec+time_nsec)"),
     (["--motion", "imu"], "lio: error: --trajectory gives the motion; it cannot be combined with --motion imu"),
 ])
 def test_bad_options_are_one_line_and_exit_2(logs, tmp_path, capsys, args, line):
