@@ -114,7 +114,12 @@ def describe_log(log: LogReader, convention: TimeConvention | None = None) -> di
 
 def check_log(log: LogReader, convention: TimeConvention | None = None,
               progress: Callable[[float], None] | None = None) -> dict:
-    """Decode every sensor message (scans, IMU, odometry, poses); raises InputError on the first bad one."""
+    """Decode every sensor message (scans, IMU, odometry, poses); raises InputError on the first bad one.
+
+    A /tf_static that contradicts itself (a cycle whose chains disagree) fails the check too."""
+    tree = read_static_frames(log)
+    if tree.conflicts:
+        raise InputError(tree.conflicts[0]["message"])
     topics_by_kind: dict[str, list[str]] = {}
     for name, t in log.topics.items():
         for kind, types in KIND_TYPES.items():
