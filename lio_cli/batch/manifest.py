@@ -1,0 +1,171 @@
+"""A batch manifest: which logs, which command on each, with which options, and where the results go.
+
+```yaml
+output: results/            # the output root (relative paths: from the manifest's folder)
+defaults:                   # every run's, unless the run says otherwise
+  command: odom             # odom | fuse | deskew
+  gt: /ground_truth         # a topic of each log, a TUM/KITTI file, or a pattern: "{dir}/{stem}.gt.tum"
+  options: {prior: imu}     # fields of the command's configuration (as its .config.yaml), dotted or nested
+runs:
+  - log: logs/walk.bag
+    group: handheld         # runs of a group get mean/std/min/max of every metric
+  - log: logs/drive_*.mcap  # a glob: one run per match
+    group: drive
+    options: {registration.voxel_size_m: 0.5}
+```
+
+``load_manifest`` validates it (every problem one ``ConfigError`` line naming the file and the place, exit 2);
+``shorthand`` builds the same model for ``lio batch odom 'logs/*.bag' --gt /ground_truth -O results/``.
+``expand`` turns a manifest into one ``RunSpec`` per run, paths absolute, options merged and flattened.
+"""
+
+from __future__ import annotations
+
+import glob
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Optional
+
+from pydantic import Field
+
+from ..config import Strict, read_mapping, validate
+from ..errors import ConfigError
+from ..jobs.outputs import log_stem
+
+Command = Literal["odom", "fuse", "deskew"]
+BATCH_COMMANDS = ("odom", "fuse", "deskew")
+_GLOB_CHARS = set("*?[")
+
+
+class RunEntry(Strict):
+    """One entry of ``runs:``; a ``log`` with glob characters stands for one run per matching path."""
+
+    log: str
+    command: Optional[Command] = None
+    name: Optional[str] = Field(None, description="the run's folder under the output root; default: the log's stem")
+    group: Optional[str] = None
+    gt: Optional[str] = None
+    config: Optional[str] = Field(None, description="a YAML configuration file of the command (as --config)")
+    calib: Optional[str] = Field(None, description="a calibration YAML (as --calib)")
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class Defaults(Strict):
+    command: Command = "odom"
+    group: Optional[str] = None
+    gt: Optional[str] = None
+    config: Optional[str] = None
+    calib: Optional[str] = None
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class Manifest(Strict):
+    output: Optional[str] = None
+    defaults: Defaults = Field(default_factory=Defaults)
+    runs: list[RunEntry] = Field(min_length=1)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run, resolved: absolute paths, the command, its flat options (dotted field -> value)."""
+
+    index: int  # position in the batch
+    where: str  # "MANIFEST: runs[i]" for messages
+    name: str
+    command: str
+    log: Path
+    group: str | None
+    gt: str | None
+    config: Path | None
+    calib: Path | None
+    options: dict[str, Any]
+
+
+def load_manifest(path: Path) -> Manifest:
+    return validate(Manifest, read_mapping(path, "manifest"), str(path))
+
+
+def shorthand(command: str, patterns: list[str], gt: str | None, group: str | None, config: str | None,
+              calib: str | None, options: dict[str, Any]) -> Manifest:
+    """The manifest ``lio batch COMMAND 'PATTERN'... [--gt ...] [--set k=v]`` stands for."""
+    if command not in BATCH_COMMANDS:
+        raise ConfigError(f"batch runs {', '.join(BATCH_COMMANDS)}, not '{command}'")
+    if not patterns:
+        raise ConfigError(f"lio batch {command}: give one or more logs or glob patterns")
+    data = {"defaults": {"command": command, "gt": gt, "group": group, "config": config, "calib": calib,
+                         "options": options},
+            "runs": [{"log": p} for p in patterns]}
+    return validate(Manifest, data, "options")
+
+
+def flatten(options: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"fusion": {"method": "ekf"}, "registration.threads": 1}`` -> dotted keys to leaf values."""
+    flat: dict[str, Any] = {}
+    for key, value in options.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict) and value:
+            flat.update(flatten(value, dotted + "."))
+        else:
+            flat[dotted] = value
+    return flat
+
+
+def _path(text: str | None, base: Path) -> Path | None:
+    if text is None:
+        return None
+    p = Path(text).expanduser()
+    return p if p.is_absolute() else base / p
+
+
+def _logs(pattern: str, base: Path, where: str) -> list[Path]:
+    path = _path(pattern, base)
+    if not _GLOB_CHARS & set(pattern):
+        return [path]
+    found = sorted(Path(p) for p in glob.glob(str(path)))
+    if not found:
+        raise ConfigError(f"{where}: log: '{pattern}' matches no file or folder")
+    return found
+
+
+def gt_for(gt: str | None, log: Path, base: Path) -> str | None:
+    """A run's ground truth: a topic of the log (``/name`` that is no file) or an absolute file path;
+    ``{stem}`` and ``{dir}`` stand for the log's stem and folder."""
+    if gt is None:
+        return None
+    text = gt.replace("{stem}", log_stem(log)).replace("{dir}", str(log.parent))
+    if text.startswith("/"):
+        return text  # an absolute file, or a topic of the log: decided where the run runs, as lio odom does
+    return str(_path(text, base))
+
+
+def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
+    """One ``RunSpec`` per run (globs expanded); run names must be unique (they are folders)."""
+    d = manifest.defaults
+    specs: list[RunSpec] = []
+    seen: dict[str, str] = {}
+    for i, entry in enumerate(manifest.runs):
+        at = f"{where}: runs[{i}]"
+        logs = _logs(entry.log, base, at)
+        if entry.name is not None and len(logs) > 1:
+            raise ConfigError(f"{at}: name: one name for {len(logs)} logs matched by '{entry.log}'; "
+                              "drop the name (each run is named after its log) or list the logs one by one")
+        options = {**flatten(d.options), **flatten(entry.options)}
+        for log in logs:
+            name = entry.name or log_stem(log)
+            if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
+                raise ConfigError(f"{at}: name: '{name}' cannot name a run folder")
+            if name in seen:
+                raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); give one a name:")
+            seen[name] = str(log)
+            specs.append(RunSpec(
+                index=len(specs), where=at, name=name, command=entry.command or d.command, log=log,
+                group=entry.group if entry.group is not None else d.group,
+                gt=gt_for(entry.gt if entry.gt is not None else d.gt, log, base),
+                config=_path(entry.config if entry.config is not None else d.config, base),
+                calib=_path(entry.calib if entry.calib is not None else d.calib, base),
+                options=options))
+    return specs
+
+
+__all__ = ["BATCH_COMMANDS", "Defaults", "Manifest", "RunEntry", "RunSpec", "expand", "flatten", "gt_for",
+           "load_manifest", "shorthand"]
