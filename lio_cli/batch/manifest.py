@@ -150,6 +150,10 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
             raise ConfigError(f"{at}: name: one name for {len(logs)} logs matched by '{entry.log}'; "
                               "drop the name (each run is named after its log) or list the logs one by one")
         options = {**flatten(d.options), **flatten(entry.options)}
+
+        def pick(key: str, entry: RunEntry = entry):  # the run's value when it gives one (null included)
+            return getattr(entry, key) if key in entry.model_fields_set else getattr(d, key)
+
         for log in logs:
             name = entry.name or log_stem(log)
             if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
@@ -157,12 +161,13 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
             if name in seen:
                 raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); give one a name:")
             seen[name] = str(log)
+            command = entry.command or d.command
+            gt = pick("gt")
+            if command == "deskew" and "gt" not in entry.model_fields_set:
+                gt = None  # the defaults' ground truth is for the runs that estimate a trajectory
             specs.append(RunSpec(
-                index=len(specs), where=at, name=name, command=entry.command or d.command, log=log,
-                group=entry.group if entry.group is not None else d.group,
-                gt=gt_for(entry.gt if entry.gt is not None else d.gt, log, base),
-                config=_path(entry.config if entry.config is not None else d.config, base),
-                calib=_path(entry.calib if entry.calib is not None else d.calib, base),
+                index=len(specs), where=at, name=name, command=command, log=log, group=pick("group"),
+                gt=gt_for(gt, log, base), config=_path(pick("config"), base), calib=_path(pick("calib"), base),
                 options=options))
     return specs
 
