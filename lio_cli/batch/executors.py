@@ -97,7 +97,9 @@ def dask_available() -> None:
 def _run_pool(tasks: list[RunTask], workers: int, done: Done) -> None:
     # spawn: the workers start clean (no copy of this process's threads, e.g. the progress bar's)
     ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=pool_initializer)
+    stop = ctx.Event()
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=pool_initializer,
+                               initargs=(stop,))
     futures = {pool.submit(execute, t): t for t in tasks}
     try:
         for fut in as_completed(futures):
@@ -108,6 +110,7 @@ def _run_pool(tasks: list[RunTask], workers: int, done: Done) -> None:
                              "of memory)")
             done(rec)
     except BaseException:
+        stop.set()  # runs already handed to the pool's queue return at once
         for fut in futures:
             fut.cancel()
         for child in multiprocessing.active_children():  # interrupt the runs under way; idle workers ignore it

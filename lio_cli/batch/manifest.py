@@ -22,13 +22,14 @@ runs:
 from __future__ import annotations
 
 import glob
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Optional
 
-from pydantic import Field
+from pydantic import Field, ValidationError
 
-from ..config import Strict, read_mapping, validate
+from ..config import Strict, read_mapping
 from ..errors import ConfigError
 from ..jobs.outputs import log_stem
 
@@ -81,8 +82,20 @@ class RunSpec:
     options: dict[str, Any]
 
 
+def _validate(data: dict, where: str) -> Manifest:
+    """``data`` as a Manifest; the first problem is one ConfigError line, runs named ``runs[i]``."""
+    try:
+        return Manifest.model_validate(data)
+    except ValidationError as err:
+        first = err.errors()[0]
+        loc = "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in first["loc"]).lstrip(".")
+        loc = re.sub(r"^(runs\[\d+\])\.", r"\1: ", loc)
+        msg = first["msg"].removeprefix("Value error, ")
+        raise ConfigError(f"{where}: {loc}: {msg}" if loc else f"{where}: {msg}") from err
+
+
 def load_manifest(path: Path) -> Manifest:
-    return validate(Manifest, read_mapping(path, "manifest"), str(path))
+    return _validate(read_mapping(path, "manifest"), str(path))
 
 
 def shorthand(command: str, patterns: list[str], gt: str | None, group: str | None, config: str | None,
@@ -95,7 +108,7 @@ def shorthand(command: str, patterns: list[str], gt: str | None, group: str | No
     data = {"defaults": {"command": command, "gt": gt, "group": group, "config": config, "calib": calib,
                          "options": options},
             "runs": [{"log": p} for p in patterns]}
-    return validate(Manifest, data, "options")
+    return _validate(data, "options")
 
 
 def flatten(options: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -159,7 +172,7 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
             if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
                 raise ConfigError(f"{at}: name: '{name}' cannot name a run folder")
             if name in seen:
-                raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); give one a name:")
+                raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); set name: on one of them")
             seen[name] = str(log)
             command = entry.command or d.command
             gt = pick("gt")

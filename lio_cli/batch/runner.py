@@ -14,7 +14,7 @@ from ..io.files import check_writable
 from .commands import resolve_config
 from .executors import Executor
 from .manifest import RunSpec
-from .runs import RunTask, partial_folders, record
+from .runs import RunTask, finished_since, partial_folders, record
 from .summary import Summary, write_summary
 
 SUMMARY_FILES = ("summary.json", "summary.csv")
@@ -49,7 +49,7 @@ def run_batch(tasks: list[RunTask], executor: Executor, done: Callable[[dict], N
     for leftovers in partial_folders(root).values():  # from a batch killed before it could clean up
         for p in leftovers:
             shutil.rmtree(p, ignore_errors=True)
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.time()
     records: dict[str, dict] = {}
 
     def finished(rec: dict) -> None:
@@ -60,6 +60,11 @@ def run_batch(tasks: list[RunTask], executor: Executor, done: Callable[[dict], N
     try:
         executor.run(tasks, finished)
     except BaseException:  # Ctrl-C, SIGTERM: say what finished and what did not, then stop
+        for task in tasks:
+            if records.get(task.name, {}).get("status") in (None, "not-run"):
+                late = finished_since(task, started)
+                if late is not None:
+                    records[task.name] = late
         summary = _summary(tasks, records, executor, time.perf_counter() - t0, interrupted=True)
         write_summary(summary)
         raise

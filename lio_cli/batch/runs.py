@@ -36,6 +36,7 @@ PARTIAL = ".partial-"  # a run folder being written: .NAME.partial-UUID
 ATTEMPT_FILE = "attempt.json"  # inside a partial folder: which worker writes it
 
 _in_pool = False  # set in local pool processes: Ctrl-C interrupts a run, never an idle worker
+_stop = None  # in local pool processes: an Event set when the batch stops; runs still queued do not start
 
 
 @dataclass(frozen=True)
@@ -96,10 +97,11 @@ def _one_line(err: BaseException) -> str:
     return text.splitlines()[0]
 
 
-def pool_initializer() -> None:
-    """In a local pool process: Ctrl-C does nothing while idle; ``execute`` lets it interrupt a run."""
-    global _in_pool
-    _in_pool = True
+def pool_initializer(stop=None) -> None:
+    """In a local pool process: Ctrl-C does nothing while idle; ``execute`` lets it interrupt a run; once
+    ``stop`` is set no queued run starts."""
+    global _in_pool, _stop
+    _in_pool, _stop = True, stop
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -119,6 +121,9 @@ def execute(task: RunTask) -> dict[str, Any]:
     """Run ``task`` here; return its summary record (see the module docstring)."""
     t0 = time.perf_counter()
     here = worker_name()
+    if _stop is not None and _stop.is_set():
+        return record(task, "not-run", "interrupted", 130, "the batch was interrupted before this run started",
+                      attempts=0)
     with _interruptible():
         try:
             return _execute(task, here, t0)
@@ -158,6 +163,19 @@ def _execute(task: RunTask, here: str, t0: float) -> dict[str, Any]:
                   metrics=key_metrics(task.command, metrics), worker=here)
 
 
+def finished_since(task: RunTask, since: float) -> dict[str, Any] | None:
+    """The record of a run whose folder was completed at or after ``since`` (epoch s) when no worker reported
+    it (the batch stopped in between); None if there is no such folder."""
+    folder = task.root / task.name
+    try:
+        if (folder / HASH_FILE).stat().st_mtime < since:
+            return None
+        metrics = json.loads((folder / metrics_file(task.command)).read_text())
+    except (OSError, ValueError):
+        return None
+    return record(task, "ok", "ok", 0, "finished as the batch was interrupted", metrics=key_metrics(task.command, metrics))
+
+
 def _not_visible(what: str) -> LioError:
     from ..errors import InputError
 
@@ -182,5 +200,5 @@ def partial_folders(root: Path) -> dict[str, list[Path]]:
     return out
 
 
-__all__ = ["ATTEMPT_FILE", "HASH_FILE", "RunTask", "execute", "job_description", "job_hash", "partial_folders",
+__all__ = ["ATTEMPT_FILE", "HASH_FILE", "RunTask", "execute", "finished_since", "job_description", "job_hash", "partial_folders",
            "pool_initializer", "record"]

@@ -29,6 +29,7 @@ class Summary:
     wall_s: float
     interrupted: bool = False
     groups: dict[str, dict] = field(default_factory=dict)
+    written: str = field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
 
     @property
     def counts(self) -> dict[str, int]:
@@ -43,7 +44,7 @@ class Summary:
         return 0 if all(r["status"] in FINE for r in self.runs) else 1
 
     def to_dict(self) -> dict[str, Any]:
-        return {"lio": __version__, "written": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        return {"lio": __version__, "written": self.written,
                 "output": str(self.root), "executor": self.executor, "wall_s": round(self.wall_s, 3),
                 "interrupted": self.interrupted, "exit_code": self.exit_code, "counts": self.counts,
                 "runs": self.runs, "groups": self.groups}
