@@ -172,7 +172,8 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
             if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
                 raise ConfigError(f"{at}: name: '{name}' cannot name a run folder")
             if name in seen:
-                raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); set name: on one of them")
+                raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); "
+                                  "set name: on one of them")
             seen[name] = str(log)
             command = entry.command or d.command
             gt = pick("gt")

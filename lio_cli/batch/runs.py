@@ -173,7 +173,8 @@ def finished_since(task: RunTask, since: float) -> dict[str, Any] | None:
         metrics = json.loads((folder / metrics_file(task.command)).read_text())
     except (OSError, ValueError):
         return None
-    return record(task, "ok", "ok", 0, "finished as the batch was interrupted", metrics=key_metrics(task.command, metrics))
+    return record(task, "ok", "ok", 0, "finished as the batch was interrupted",
+                  metrics=key_metrics(task.command, metrics))
 
 
 def _not_visible(what: str) -> LioError:
@@ -200,5 +201,6 @@ def partial_folders(root: Path) -> dict[str, list[Path]]:
     return out
 
 
-__all__ = ["ATTEMPT_FILE", "HASH_FILE", "RunTask", "execute", "finished_since", "job_description", "job_hash", "partial_folders",
+__all__ = ["ATTEMPT_FILE", "HASH_FILE", "RunTask", "execute", "finished_since", "job_description", "job_hash",
+           "partial_folders",
            "pool_initializer", "record"]

@@ -154,7 +154,8 @@ def test_resume_skips_finished_runs_of_the_same_job_and_redoes_the_others(sim, p
     assert summary["groups"]["handheld"]["metrics"]["ate_m"]["n"] == 2  # metrics read back from the folders
 
     # another job for the office run (an option changed), and walk_a's folder gone: those two run again
-    copy.write_text(copy.read_text().replace("    group: office\n", "    group: office\n    options: {fusion.method: complementary}\n"))
+    office = "    group: office\n"
+    copy.write_text(copy.read_text().replace(office, office + "    options: {fusion.method: complementary}\n"))
     shutil.rmtree(out / "walk_a")
     rc, _ = run_lio("batch", copy, "--jobs", "1", "--resume", "-q")
     assert rc == 0
@@ -194,7 +195,8 @@ runs:
     # as lio odom --gt: an absolute path that is no file is taken for a topic of the log
     assert runs["walk_b"]["reason"] == (f"{sim.logs['walk_b']}: topic {tmp_path / 'no_such_gt.tum'} not found; "
                                         "ground-truth topics here: /ground_truth")
-    assert all(runs[n]["folder"] is None and runs[n]["metrics"]["ate_m"] is None for n in ("truncated", "gone", "walk_b"))
+    for name in ("truncated", "gone", "walk_b"):
+        assert runs[name]["folder"] is None and runs[name]["metrics"]["ate_m"] is None
     # the finished run is complete and as the single command's; a failed run leaves no folder, even half-written
     assert sorted(p.name for p in out.iterdir()) == ["summary.csv", "summary.json", "walk_a"]
     assert_as_single_command(sim, out / "walk_a", "walk_a")
@@ -203,8 +205,10 @@ runs:
 @pytest.mark.parametrize("text, message", [
     ("runs: []\n", "{m}: runs: List should have at least 1 item after validation, not 0"),
     ("runs:\n  - lg: a.bag\n", "{m}: runs[0]: log: Field required"),
-    ("runs:\n  - log: a.bag\n    command: calibrate\n", "{m}: runs[0]: command: Input should be 'odom', 'fuse' or 'deskew'"),
-    ("runs:\n  - log: a.bag\n    options: {{priorr: imu}}\n", "{m}: runs[0]: options: priorr: Extra inputs are not permitted"),
+    ("runs:\n  - log: a.bag\n    command: calibrate\n",
+     "{m}: runs[0]: command: Input should be 'odom', 'fuse' or 'deskew'"),
+    ("runs:\n  - log: a.bag\n    options: {{priorr: imu}}\n",
+     "{m}: runs[0]: options: priorr: Extra inputs are not permitted"),
     ("runs:\n  - log: a.bag\n    options: {{fusion: {{alpha: 2}}}}\n",
      "{m}: runs[0]: options: fusion.alpha: Input should be less than or equal to 1"),
     ("runs:\n  - log: a.bag\n  - log: sub/a.bag\n",
