@@ -5,7 +5,8 @@ output: results/            # the output root (relative paths: from the manifest
 defaults:                   # every run's, unless the run says otherwise
   command: odom             # odom | fuse | deskew
   gt: /ground_truth         # a topic of each log, a TUM/KITTI file, or a pattern: "{dir}/{stem}.gt.tum"
-  options: {prior: imu}     # fields of the command's configuration (as its .config.yaml), dotted or nested
+  options: {prior: imu}     # fields of its configuration (as its .config.yaml), dotted or nested; runs of
+                            # another command take only their own options
 runs:
   - log: logs/walk.bag
     group: handheld         # runs of a group get mean/std/min/max of every metric
@@ -22,6 +23,7 @@ runs:
 from __future__ import annotations
 
 import glob
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,8 +128,7 @@ def flatten(options: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 def _path(text: str | None, base: Path) -> Path | None:
     if text is None:
         return None
-    p = Path(text).expanduser()
-    return p if p.is_absolute() else base / p
+    return Path(os.path.abspath(base / Path(text).expanduser()))  # absolute, '..' removed, links kept
 
 
 def _logs(pattern: str, base: Path, where: str) -> list[Path]:
@@ -162,7 +163,9 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
         if entry.name is not None and len(logs) > 1:
             raise ConfigError(f"{at}: name: one name for {len(logs)} logs matched by '{entry.log}'; "
                               "drop the name (each run is named after its log) or list the logs one by one")
-        options = {**flatten(d.options), **flatten(entry.options)}
+        command = entry.command or d.command
+        # the defaults' options are fields of the defaults' command: other commands' runs take only their own
+        options = {**(flatten(d.options) if command == d.command else {}), **flatten(entry.options)}
 
         def pick(key: str, entry: RunEntry = entry):  # the run's value when it gives one (null included)
             return getattr(entry, key) if key in entry.model_fields_set else getattr(d, key)
@@ -175,7 +178,6 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
                 raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); "
                                   "set name: on one of them")
             seen[name] = str(log)
-            command = entry.command or d.command
             gt = pick("gt")
             if command == "deskew" and "gt" not in entry.model_fields_set:
                 gt = None  # the defaults' ground truth is for the runs that estimate a trajectory

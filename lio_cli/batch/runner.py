@@ -3,6 +3,7 @@ run (on an executor, each record reported as it comes back), summarise (written 
 
 from __future__ import annotations
 
+import os
 import shutil
 import time
 from collections.abc import Callable
@@ -25,7 +26,7 @@ def plan_batch(specs: list[RunSpec], root: Path | None, resume: bool, force: boo
     root checked: it may be written, is no input, and holds no earlier batch unless --resume or --force."""
     if root is None:
         raise ConfigError("no output root: give -O DIR (or output: in the manifest)")
-    root = Path(root).expanduser().absolute()
+    root = Path(os.path.abspath(Path(root).expanduser()))
     tasks = [RunTask(s.name, s.command, s.log, s.group, s.gt, resolve_config(s), root, resume) for s in specs]
     if root.exists() and not root.is_dir():
         raise InputError(f"{root}: exists and is not a folder")

@@ -118,15 +118,23 @@ def _fmt(v, digits: int = 4) -> str:
 
 def _tables(summary: Summary) -> None:
     t = Table(title="lio batch", title_justify="left")
-    for col in ("run", "group", "command", "status", "time s", "ATE m", "RPE m"):
-        t.add_column(col, justify="right" if col in ("time s", "ATE m", "RPE m") else "left")
-    t.add_column("reason", no_wrap=True, overflow="ellipsis", max_width=70)
+    # the group and command columns only when they tell runs apart
+    scored = any(r["metrics"]["ate_m"] is not None for r in summary.runs)
+    show = {"group": any(r["group"] for r in summary.runs),
+            "command": len({r["command"] for r in summary.runs}) > 1, "ATE m": scored, "RPE m": scored}
+    cols = [c for c in ("run", "group", "command", "status", "time s", "scans", "ATE m", "RPE m") if show.get(c, True)]
+    for col in cols:
+        t.add_column(col, justify="right" if col in ("time s", "scans", "ATE m", "RPE m") else "left", no_wrap=True)
+    t.add_column("reason (in full: summary.json)", overflow="fold")
     for r in summary.runs:
         m = r["metrics"]
         status = {"ok": "[green]ok[/green]", "skipped": "skipped", "failed": "[red]failed[/red]"}.get(
             r["status"], r["status"])
-        t.add_row(r["name"], r["group"] or "-", r["command"], status, _fmt(r["time_s"], 1), _fmt(m["ate_m"]),
-                  _fmt(m["rpe_m"]), (f"{r['exit_class']}: " if r["status"] == "failed" else "") + r["reason"])
+        cells = {"run": r["name"], "group": r["group"] or "-", "command": r["command"], "status": status,
+                 "time s": _fmt(r["time_s"], 1),
+                 "scans": "-" if m["scans_total"] is None else f"{m['scans_used']}/{m['scans_total']}", "ATE m": _fmt(m["ate_m"]), "RPE m": _fmt(m["rpe_m"])}
+        reason = (f"{r['exit_class']}: " if r["status"] == "failed" else "") + r["reason"]
+        t.add_row(*(cells[c] for c in cols), reason if len(reason) <= 60 else reason[:59] + "…")
     err_console.print(t)
     if not summary.groups:
         return
