@@ -13,6 +13,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import uuid
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -141,7 +142,8 @@ def _run_dask(tasks: list[RunTask], address: str, workers: int, done: Done) -> N
             except (OSError, TimeoutError) as err:
                 raise InputError(f"--dask {address}: cannot reach the Dask scheduler ({err})") from err
     try:
-        futures = {client.submit(execute, t, key=f"lio-batch-{t.name}-{os.getpid()}-{id(t):x}", pure=False,
+        batch_id = uuid.uuid4().hex[:8]
+        futures = {client.submit(execute, t, key=f"lio-batch-{batch_id}-{t.name}", pure=False,
                                  retries=DASK_RETRIES): t for t in tasks}
         try:
             for fut in dask_completed(list(futures)):

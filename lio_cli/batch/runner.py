@@ -32,6 +32,9 @@ def plan_batch(specs: list[RunSpec], root: Path | None, resume: bool, force: boo
         raise InputError(f"{root}: exists and is not a folder")
     inputs = [p for s in specs if s.log.exists() for p in input_paths(s.log)]  # logs this machine sees
     check_writable(root if not root.exists() else root / SUMMARY_FILES[0], True, inputs)
+    if root.exists():  # no run folder may be (or hold, or lie in) a log: a run replaces its folder
+        for t in tasks:
+            check_writable(root / t.name, True, inputs)
     if root.exists() and not (resume or force):
         earlier = [root / n for n in SUMMARY_FILES] + [root / t.name for t in tasks]
         found = [p for p in earlier if p.exists()]

@@ -251,6 +251,16 @@ def test_bad_options_exit_2(sim, tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_run_folder_is_never_an_input(sim, tmp_path, capsys):
+    log = tmp_path / "walk_a"  # a log: a folder of (split) ROS 1 bags, named as its run would be
+    log.mkdir()
+    shutil.copy(sim.logs["walk_a"], log / "walk_a.bag")
+    assert main(["batch", "odom", str(log), "-O", str(tmp_path), "--force", "-q"]) == 2
+    assert capsys.readouterr().err == (f"lio: error: {log}: is an input of this run (the input {log}); lio never "
+                                       "writes over its inputs (--force or not): choose another output\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk_a"] and (log / "walk_a.bag").exists()
+
+
 def test_ctrl_c_keeps_finished_runs_complete_and_leaves_no_half_written_one(sim, tmp_path):
     entries = "".join(f"  - log: {log}\n    name: {name}{k}\n" for k in range(2) for name, log in sim.logs.items())
     manifest = write_manifest(tmp_path / "runs.yaml", f"output: out\ndefaults: {{gt: /ground_truth}}\nruns:\n{entries}")
