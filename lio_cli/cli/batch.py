@@ -24,7 +24,7 @@ COMMAND LOG... where each LOG may be a quoted glob ('logs/*.bag'), with --gt, --
 the command's configuration, as in its .config.yaml), --config and --calib for every run.
 
 [bold]Where[/bold]: --jobs N local processes (default: one per core); --dask tcp://HOST:8786 an existing Dask
-scheduler; --dask local --workers N a Dask cluster on this machine (pip install 'lio-cli[dask]'). Workers read
+scheduler; --dask local --workers N a Dask cluster on this machine (pip install 'lio-cli\\[dask]'). Workers read
 the logs and write the results by path: both must be on storage every worker shares.
 
 [bold]Writes[/bold] OUT/NAME/ per run (trajectory or log, .metrics.json, .config.yaml, job.sha256), written
@@ -59,7 +59,7 @@ def _options(sets: list[str]) -> dict:
 
 
 def batch(
-    what: Annotated[list[str], typer.Argument(help="MANIFEST.yaml, or COMMAND (odom, fuse, deskew) and logs or quoted globs.", show_default=False)],
+    what: Annotated[list[str], typer.Argument(help="MANIFEST.yaml, or COMMAND (odom, fuse, deskew) and logs or quoted globs.", metavar="MANIFEST | COMMAND LOG...", show_default=False)],
     output: Annotated[Optional[Path], typer.Option("-O", "--output", help="Output root (overrides the manifest's output:).", show_default=False)] = None,
     gt: Annotated[Optional[str], typer.Option("--gt", help="Shorthand: ground truth of every run, a topic (/ground_truth) or a file; {stem} and {dir} stand for the log's stem and folder.", show_default=False)] = None,
     group: Annotated[Optional[str], typer.Option("--group", help="Shorthand: a group name for every run.", show_default=False)] = None,
