@@ -96,19 +96,32 @@ def dask_available() -> None:
 
 
 def _run_pool(tasks: list[RunTask], workers: int, done: Done) -> None:
+    """Run on a pool of local processes. A process that dies (killed, out of memory) breaks the pool and every
+    run it still held; those runs get one more try on a fresh pool (as Dask retries a lost worker's task once),
+    then are recorded as ``worker-lost``."""
+    lost = _pool_pass(tasks, workers, done, final=False)
+    if lost:
+        _pool_pass(lost, workers, done, final=True)
+
+
+def _pool_pass(tasks: list[RunTask], workers: int, done: Done, final: bool) -> list[RunTask]:
     # spawn: the workers start clean (no copy of this process's threads, e.g. the progress bar's)
     ctx = multiprocessing.get_context("spawn")
     stop = ctx.Event()
     pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=pool_initializer,
                                initargs=(stop,))
     futures = {pool.submit(execute, t): t for t in tasks}
+    lost: list[RunTask] = []
     try:
         for fut in as_completed(futures):
             try:
                 rec = fut.result()
             except BrokenProcessPool:
-                rec = record(futures[fut], "failed", "worker-lost", 1, "the local worker process died (killed, or out "
-                             "of memory)")
+                if not final:
+                    lost.append(futures[fut])
+                    continue
+                rec = record(futures[fut], "failed", "worker-lost", 1, "the local worker process died twice while "
+                             "the pool held this run (killed, or out of memory)", attempts=2)
             done(rec)
     except BaseException:
         stop.set()  # runs already handed to the pool's queue return at once
@@ -122,6 +135,8 @@ def _run_pool(tasks: list[RunTask], workers: int, done: Done) -> None:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+    order = {t.name: i for i, t in enumerate(tasks)}
+    return sorted(lost, key=lambda t: order[t.name])
 
 
 def _run_dask(tasks: list[RunTask], address: str, workers: int, done: Done) -> None:

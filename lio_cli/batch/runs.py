@@ -145,9 +145,13 @@ def _execute(task: RunTask, here: str, t0: float) -> dict[str, Any]:
     digest = job_hash(task)
     final = task.root / task.name
     if task.resume and _finished(final) == digest:
-        metrics = json.loads((final / metrics_file(task.command)).read_text())
-        return record(task, "skipped", "ok", 0, "finished earlier by the same job",
-                      time_s=time.perf_counter() - t0, metrics=key_metrics(task.command, metrics), worker=here)
+        try:
+            metrics = key_metrics(task.command, json.loads((final / metrics_file(task.command)).read_text()))
+        except (OSError, ValueError, KeyError, TypeError):
+            metrics = None  # an unreadable folder is run again
+        if metrics is not None:
+            return record(task, "skipped", "ok", 0, "finished earlier by the same job",
+                          time_s=time.perf_counter() - t0, metrics=metrics, worker=here, attempts=0)
     partial = task.root / f".{task.name}{PARTIAL}{uuid.uuid4().hex[:12]}"
     partial.mkdir()
     try:

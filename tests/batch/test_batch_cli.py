@@ -23,6 +23,7 @@ from lio_cli.batch.executors import DASK_INSTALL
 from lio_cli.cli.app import main
 
 VOLATILE = ("time_s", "real_time_factor", "output")  # metrics that differ between any two runs of one job
+LIO = [sys.executable, "-c", "import sys; from lio_cli.cli.app import entry; sys.argv[0] = 'lio'; entry()"]
 REL = 1e-6  # estimator floats in metrics.json may differ in their last bits between processes
 
 
@@ -251,6 +252,40 @@ def test_bad_options_exit_2(sim, tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_killed_local_worker_has_its_run_retried_once(sim, tmp_path):
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(Path(lio_cli.__file__).parents[1])}
+    proc = subprocess.Popen([*LIO, "batch", "odom", *map(str, sim.logs.values()), "--gt", "/ground_truth", "-O",
+                             str(out), "--jobs", "2", "-q"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        victim = None
+        deadline = time.monotonic() + 120
+        while victim is None and proc.poll() is None and time.monotonic() < deadline:
+            for attempt in out.glob(".*.partial-*/attempt.json"):  # a run a pool process is writing now
+                try:
+                    pid = json.loads(attempt.read_text())["pid"]
+                except (OSError, ValueError):
+                    continue
+                os.kill(pid, signal.SIGKILL)
+                victim = attempt.parent.name[1:].split(".partial-")[0]
+                break
+            time.sleep(0.01)
+        assert victim is not None, "no run was seen under way"
+        _, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    summary = summary_of(out)
+    assert summary["counts"]["ok"] == 3
+    assert {r["name"]: r["attempts"] for r in summary["runs"]}[victim] == 2  # the killed attempt, then the retry
+    for name in sim.logs:
+        assert_as_single_command(sim, out / name, name)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
 def test_a_run_folder_is_never_an_input(sim, tmp_path, capsys):
     log = tmp_path / "walk_a"  # a log: a folder of (split) ROS 1 bags, named as its run would be
     log.mkdir()
@@ -266,8 +301,7 @@ def test_ctrl_c_keeps_finished_runs_complete_and_leaves_no_half_written_one(sim,
     manifest = write_manifest(tmp_path / "runs.yaml", f"output: out\ndefaults: {{gt: /ground_truth}}\nruns:\n{entries}")
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": str(Path(lio_cli.__file__).parents[1])}
-    cmd = [sys.executable, "-c", "import sys; from lio_cli.cli.app import entry; sys.argv[0] = 'lio'; entry()",
-           "batch", str(manifest), "--jobs", "2", "-q"]
+    cmd = [*LIO, "batch", str(manifest), "--jobs", "2", "-q"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
