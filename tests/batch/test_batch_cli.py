@@ -136,6 +136,37 @@ def test_summary_json_csv_and_group_statistics(sim, pooled):
         assert float(row["ate_m"]) == r["metrics"]["ate_m"] and row["poses"] == ""
 
 
+def test_fuse_and_deskew_runs_equal_their_single_commands(sim, tmp_path):
+    log = sim.logs["walk_a"]
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    assert main(["fuse", str(log), "-o", str(ref / "f.tum"), "-q"]) == 0
+    assert main(["deskew", str(log), str(ref / "d.bag"), "-q"]) == 0
+    manifest = write_manifest(tmp_path / "runs.yaml", f"""\
+output: out
+defaults: {{command: fuse}}
+runs:
+  - log: {log}
+    name: fused
+  - log: {log}
+    name: deskewed
+    command: deskew
+""")
+    rc, _ = run_lio("batch", manifest, "--jobs", "1", "-q")
+    assert rc == 0
+    out = tmp_path / "out"
+    assert (out / "fused" / "fused.tum").read_bytes() == (ref / "f.tum").read_bytes()
+    assert (out / "fused" / "fused.config.yaml").read_bytes() == (ref / "f.config.yaml").read_bytes()
+    assert (out / "deskewed" / "deskewed.bag").read_bytes() == (ref / "d.bag").read_bytes()
+    assert (out / "deskewed" / "deskewed.config.yaml").read_bytes() == (ref / "d.config.yaml").read_bytes()
+    deskew = summary_of(out)["runs"][1]["metrics"]
+    assert deskew["scans_used"] == deskew["scans_total"] == sim_scans(ref / "d.metrics.json")
+
+
+def sim_scans(metrics: Path) -> int:
+    return json.loads(metrics.read_text())["scans"]["total"]
+
+
 def test_resume_skips_finished_runs_of_the_same_job_and_redoes_the_others(sim, pooled, tmp_path):
     here, manifest, out, _, _ = pooled
     shutil.copytree(out, tmp_path / "out")
