@@ -14,7 +14,8 @@ import multiprocessing
 import os
 import signal
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -52,16 +53,22 @@ class Executor:
             return f"a local Dask cluster of {self.workers} workers"
         return f"the Dask scheduler at {self.address}"
 
-    def run(self, tasks: list[RunTask], done: Done) -> None:
-        if not tasks:
-            return
+    @contextmanager
+    def open(self) -> Iterator[Callable[[list[RunTask], Done], None]]:
+        """Connect (Dask: to the scheduler, or start the local cluster) and yield ``run(tasks, done)``; an
+        unreachable scheduler is an ``InputError`` here, before anything is written."""
         if self.kind == "serial":
-            for task in tasks:
-                done(execute(task))
+            yield _run_serial
         elif self.kind == "local":
-            _run_pool(tasks, self.workers, done)
+            yield lambda tasks, done: _run_pool(tasks, self.workers, done)
         else:
-            _run_dask(tasks, self.address, self.workers, done)
+            with _dask_client(self.address, self.workers) as client:
+                yield lambda tasks, done: _run_dask(client, tasks, done)
+
+
+def _run_serial(tasks: list[RunTask], done: Done) -> None:
+    for task in tasks:
+        done(execute(task))
 
 
 def choose_executor(jobs: int | None, dask: str | None, workers: int | None) -> Executor:
@@ -139,46 +146,48 @@ def _pool_pass(tasks: list[RunTask], workers: int, done: Done, final: bool) -> l
     return sorted(lost, key=lambda t: order[t.name])
 
 
-def _run_dask(tasks: list[RunTask], address: str, workers: int, done: Done) -> None:
+@contextmanager
+def _dask_client(address: str, workers: int):
     import dask
-    from distributed import Client, LocalCluster, as_completed as dask_completed
-    from distributed.scheduler import KilledWorker
+    from distributed import Client, LocalCluster
 
-    cluster = None
     # a task whose worker is lost is rescheduled; allowed-failures 1: once, then it fails (KilledWorker)
     with dask.config.set({"distributed.scheduler.allowed-failures": DASK_RETRIES}):
         if address == "local":
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
-            client = Client(cluster)
-        else:
-            try:
-                client = Client(address, timeout=10)
-            except (OSError, TimeoutError) as err:
-                raise InputError(f"--dask {address}: cannot reach the Dask scheduler ({err})") from err
-    try:
-        batch_id = uuid.uuid4().hex[:8]
-        futures = {client.submit(execute, t, key=f"lio-batch-{batch_id}-{t.name}", pure=False,
-                                 retries=DASK_RETRIES): t for t in tasks}
+            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                              silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+                yield client
+            return
         try:
-            for fut in dask_completed(list(futures)):
-                task = futures[fut]
-                try:
-                    rec = fut.result()
-                except KilledWorker:
-                    rec = record(task, "failed", "worker-lost", 1, f"the Dask worker running it was lost "
-                                 f"{DASK_RETRIES + 1} times (killed, or out of memory)", attempts=DASK_RETRIES + 1)
-                except Exception as err:  # e.g. the task could not be unpickled on the worker
-                    rec = record(task, "failed", "internal", 1, f"Dask: {type(err).__name__}: {err}".splitlines()[0],
-                                 attempts=DASK_RETRIES + 1)
-                done(rec)
-        except BaseException:
-            client.cancel(list(futures))
-            raise
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+            client = Client(address, timeout=10)
+        except (OSError, TimeoutError) as err:
+            raise InputError(f"--dask {address}: cannot reach the Dask scheduler ({err})") from err
+    with client:
+        yield client
+
+
+def _run_dask(client, tasks: list[RunTask], done: Done) -> None:
+    from distributed import as_completed as dask_completed
+    from distributed.scheduler import KilledWorker
+
+    batch_id = uuid.uuid4().hex[:8]
+    futures = {client.submit(execute, t, key=f"lio-batch-{batch_id}-{t.name}", pure=False, retries=DASK_RETRIES): t
+               for t in tasks}
+    try:
+        for fut in dask_completed(list(futures)):
+            task = futures[fut]
+            try:
+                rec = fut.result()
+            except KilledWorker:
+                rec = record(task, "failed", "worker-lost", 1, f"the Dask worker running it was lost "
+                             f"{DASK_RETRIES + 1} times (killed, or out of memory)", attempts=DASK_RETRIES + 1)
+            except Exception as err:  # e.g. the task could not be unpickled on the worker
+                rec = record(task, "failed", "internal", 1, f"Dask: {type(err).__name__}: {err}".splitlines()[0],
+                             attempts=DASK_RETRIES + 1)
+            done(rec)
+    except BaseException:
+        client.cancel(list(futures))
+        raise
 
 
 __all__ = ["DASK_INSTALL", "DASK_RETRIES", "Executor", "choose_executor", "dask_available", "default_jobs"]

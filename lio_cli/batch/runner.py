@@ -49,29 +49,31 @@ def run_batch(tasks: list[RunTask], executor: Executor, done: Callable[[dict], N
     root = tasks[0].root if tasks else None
     if root is None:
         raise ConfigError("the batch has no runs")
-    root.mkdir(exist_ok=True)
-    for leftovers in partial_folders(root).values():  # from a batch killed before it could clean up
-        for p in leftovers:
-            shutil.rmtree(p, ignore_errors=True)
-    t0, started = time.perf_counter(), time.time()
-    records: dict[str, dict] = {}
+    with executor.open() as run:  # connected first: an unreachable scheduler leaves nothing behind
+        root.mkdir(exist_ok=True)
+        for leftovers in partial_folders(root).values():  # from a batch killed before it could clean up
+            for p in leftovers:
+                shutil.rmtree(p, ignore_errors=True)
+        t0, started = time.perf_counter(), time.time()
+        records: dict[str, dict] = {}
 
-    def finished(rec: dict) -> None:
-        records[rec["name"]] = rec
-        if done is not None:
-            done(rec)
+        def finished(rec: dict) -> None:
+            records[rec["name"]] = rec
+            if done is not None:
+                done(rec)
 
-    try:
-        executor.run(tasks, finished)
-    except BaseException:  # Ctrl-C, SIGTERM: say what finished and what did not, then stop
-        for task in tasks:
-            if records.get(task.name, {}).get("status") in (None, "not-run"):
-                late = finished_since(task, started)
-                if late is not None:
-                    records[task.name] = late
-        summary = _summary(tasks, records, executor, time.perf_counter() - t0, interrupted=True)
-        write_summary(summary)
-        raise
+        try:
+            run(tasks, finished)
+        except Exception:
+            raise
+        except BaseException:  # Ctrl-C, SIGTERM: say what finished and what did not, then stop
+            for task in tasks:
+                if records.get(task.name, {}).get("status") in (None, "not-run"):
+                    late = finished_since(task, started)
+                    if late is not None:
+                        records[task.name] = late
+            write_summary(_summary(tasks, records, executor, time.perf_counter() - t0, interrupted=True))
+            raise
     _count_lost_attempts(root, records)
     summary = _summary(tasks, records, executor, time.perf_counter() - t0)
     write_summary(summary)
