@@ -51,16 +51,17 @@ class Summary:
 
 
 def group_stats(runs: list[dict[str, Any]]) -> dict[str, dict]:
-    """Per group of the manifest: its runs and mean/std/min/max of every numeric key metric over the
-    runs that finished (a failed run has no metrics to count)."""
+    """Per group of the manifest: its runs and mean/std/min/max of the run time and every numeric key metric
+    over the runs that finished (a failed run has no metrics to count)."""
     members: dict[str, list[str]] = {}
     for r in runs:
         if r["group"] is not None and r["status"] in FINE:
             members.setdefault(r["group"], []).append(r["name"])
     metrics = {r["name"]: {k: v for k, v in r["metrics"].items() if isinstance(v, (int, float))}
                for r in runs if r["status"] in FINE}
+    times = {r["name"]: r["time_s"] for r in runs}
     for name in metrics:  # every run offers every key (None where undefined) so groups mixing commands work
-        metrics[name] = {k: metrics[name].get(k) for k in KEY_METRICS}
+        metrics[name] = {"time_s": times[name], **{k: metrics[name].get(k) for k in KEY_METRICS}}
     out = {}
     for g in group_statistics([Group(n, m) for n, m in members.items()], metrics):
         out[g.name] = {"runs": g.runs, "metrics": {k: v for k, v in g.metrics.items() if v["n"]}}

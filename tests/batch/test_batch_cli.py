@@ -126,6 +126,8 @@ def test_summary_json_csv_and_group_statistics(sim, pooled):
     assert ate["n"] == 2 and ate["min"] == min(ates) and ate["max"] == max(ates)
     assert math.isclose(ate["mean"], sum(ates) / 2, rel_tol=1e-12)
     assert math.isclose(ate["std"], abs(ates[0] - ates[1]) / math.sqrt(2), rel_tol=1e-9)  # sample std of two
+    times = hh["metrics"]["time_s"]
+    assert times["n"] == 2 and times["max"] == max(runs["walk_a"]["time_s"], runs["walk_b"]["time_s"])
     office = summary["groups"]["office"]["metrics"]["ate_m"]
     assert (office["n"], office["std"], office["mean"]) == (1, None, runs["office"]["metrics"]["ate_m"])
     rows = list(csv.DictReader((out / "summary.csv").open()))
