@@ -59,7 +59,7 @@ def group_stats(runs: list[dict[str, Any]]) -> dict[str, dict]:
             members.setdefault(r["group"], []).append(r["name"])
     metrics = {r["name"]: {k: v for k, v in r["metrics"].items() if isinstance(v, (int, float))}
                for r in runs if r["status"] in FINE}
-    times = {r["name"]: r["time_s"] for r in runs}
+    times = {r["name"]: r["time_s"] if r["status"] == "ok" else None for r in runs}  # a skipped run did no work
     for name in metrics:  # every run offers every key (None where undefined) so groups mixing commands work
         metrics[name] = {"time_s": times[name], **{k: metrics[name].get(k) for k in KEY_METRICS}}
     out = {}
