@@ -181,9 +181,10 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
             gt = pick("gt")
             if command == "deskew" and "gt" not in entry.model_fields_set:
                 gt = None  # the defaults' ground truth is for the runs that estimate a trajectory
+            config = pick("config") if command == d.command else entry.config  # a config file is one command's
             specs.append(RunSpec(
                 index=len(specs), where=at, name=name, command=command, log=log, group=pick("group"),
-                gt=gt_for(gt, log, base), config=_path(pick("config"), base), calib=_path(pick("calib"), base),
+                gt=gt_for(gt, log, base), config=_path(config, base), calib=_path(pick("calib"), base),
                 options=options))
     return specs
 

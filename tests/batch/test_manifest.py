@@ -35,6 +35,8 @@ output: out
 defaults:
   gt: "{dir}/{stem}.gt.tum"
   group: all
+  config: odom.yaml
+  calib: calib.yaml
   options: {prior: constant-velocity, fusion: {method: complementary}}
 runs:
   - log: logs/*.bag
@@ -55,8 +57,13 @@ runs:
     assert specs[0].gt == str(logs / "a.gt.tum") and specs[2].gt == "/ground_truth"
     assert specs[0].options == {"prior": "constant-velocity", "fusion.method": "complementary"}
     assert specs[2].options == {"prior": "constant-velocity", "fusion.method": "complementary", "fusion.alpha": 0.5}
-    assert specs[3].options == {"estimator": "planar"}  # the defaults' options are odom's
+    assert specs[3].options == {"estimator": "planar"}  # the defaults' options and config file are odom's
+    assert [s.config for s in specs] == [tmp_path / "odom.yaml"] * 3 + [None]
+    assert [s.calib for s in specs] == [tmp_path / "calib.yaml"] * 4
+    (tmp_path / "odom.yaml").write_text("max_gap_s: 2.5\n")
+    (tmp_path / "calib.yaml").write_text("imu_time_offset_s: 0.01\n")
     cfg = resolve_config(specs[2])
+    assert (cfg.max_gap_s, cfg.calibration.imu_time_offset_s) == (2.5, 0.01)
     assert (cfg.prior, cfg.fusion.method, cfg.fusion.alpha) == ("constant-velocity", "complementary", 0.5)
     assert resolve_config(specs[3]).estimator == "planar"
 
