@@ -5,27 +5,30 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import InputError
 
 
-def check_writable(path: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
+def check_writable(path: Path, force: bool, inputs: Iterable[Path] = (),
+                   replaceable: Callable[[Path], bool] | None = None) -> None:
     """Before any work: ``path`` is no input (``--force`` or not), may be replaced, and its folder takes files.
 
     Refused: an output that is one of ``inputs`` (same path, same file through a link), lies inside an input
     folder, or is a folder holding an input; an existing output without ``force``; a folder that does not
-    exist, is not a folder, or cannot be written (read-only file system, /proc, no permission).
+    exist, is not a folder, or cannot be written (read-only file system, /proc, no permission). An existing
+    folder is replaced only when ``replaceable(folder)`` says it is one lio wrote (default: a ROS 2 bag).
     """
     path = Path(path)
     for inp in inputs:
         _refuse_input(path, Path(inp))
     if path.exists() and not force:
         raise InputError(f"{path}: already exists; pass --force to overwrite it")
-    if path.is_dir() and not path.is_symlink() and not _is_replaceable_folder(path):
-        raise InputError(f"{path}: is a folder that is not a ROS 2 bag lio wrote; lio replaces only such folders, "
+    if path.is_dir() and not path.is_symlink() and not (replaceable or is_ros2_bag_folder)(path):
+        what = "a ROS 2 bag" if replaceable is None else "an output"
+        raise InputError(f"{path}: is a folder that is not {what} lio wrote; lio replaces only such folders, "
                          "even with --force: choose another output")
     parent = path.parent
     if not parent.exists():
@@ -40,7 +43,7 @@ def check_writable(path: Path, force: bool, inputs: Iterable[Path] = ()) -> None
     os.unlink(probe)
 
 
-def _is_replaceable_folder(path: Path) -> bool:
+def is_ros2_bag_folder(path: Path) -> bool:
     """A folder output may replace only a ROS 2 bag folder: metadata.yaml plus its storage files, nothing else."""
     names = {p.name for p in path.iterdir()}
     if "metadata.yaml" not in names:
