@@ -130,21 +130,23 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             imu_frame = arrays.imu_frame
             T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
-            t_fallback = None if (R := reference_T_lidar_imu(ref, T_base_lidar)) is None else R[:3, 3]
+            T_ref = reference_T_lidar_imu(ref, T_base_lidar)
+            prior_offset = cfg.prior.imu_time_offset_s if ref_name == "--calib" else None
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
             traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
-            steps.extrinsics(traj, imu, cfg, est, where, t_fallback, final=not cfg.refine)
+            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
             for k, sigmas in enumerate(cfg.refine, start=1):
                 t0 = time.perf_counter()
-                mounting = (T_lidar_imu_of(est, t_fallback), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps)
+                mounting = (T_lidar_imu_of(est, T_ref), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps)
                 traj, _ = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, k * n,
                                     total).run(mounting, sigmas=tuple(sigmas))
                 times[f"refine_pass_{k}"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                steps.extrinsics(traj, imu, cfg, est, where, t_fallback, final=k == len(cfg.refine))
+                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=k == len(cfg.refine),
+                                 prior_offset=prior_offset)
                 times[f"estimate_{k}"] = time.perf_counter() - t0
             steps.wheels(arrays, traj, T_base_lidar, cfg, est, where)
         if cfg.allan:
@@ -153,9 +155,9 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             times["allan"] = time.perf_counter() - t0
         if lidar is None:
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, None)
-            t_fallback = None
+            T_ref = None
         fmt, span_s = reader.format, reader.duration_ns * 1e-9
-    cal = compose(est, T_base_lidar, t_fallback)
+    cal = compose(est, T_base_lidar, T_ref)
     rows = table(cal, ref, ref_name)
     resolved = with_overrides(cfg, {"input.format": fmt, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
                                     "input.wheel_topic": wheel, "input.base_frame": base}, "resolved configuration")
@@ -195,7 +197,7 @@ def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.
 def _reference(prior: Calibration, tree, base: str, imu_frame: str,
                T_base_lidar: np.ndarray | None) -> tuple[Calibration | None, str | None]:
     """What the estimates are compared with: --calib when it was given, else what /tf_static says."""
-    if prior.model_fields_set:
+    if prior.model_dump(exclude_none=True) != Calibration().model_dump(exclude_none=True):
         return prior, "--calib"
     T = tree.lookup(base, imu_frame) if imu_frame else None
     if T is None:

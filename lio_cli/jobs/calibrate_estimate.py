@@ -24,6 +24,8 @@ from ..errors import InputError
 from ..model.records import ImuBatch
 from .calibrate_passes import LidarTrajectory, SensorArrays
 
+FINAL_MAX_SIGMA_S = 0.002  # a clock offset known worse than this is refused (too little motion)
+COARSE_MAX_SIGMA_S = 0.03  # the first estimates only start the IMU-primed pass
 CHECK_WINDOW_SCANS = 20  # about 2 s at 10 Hz
 CHECK_REL_TOL = 0.25
 CHECK_ABS_TOL_DEG = 5.0
@@ -76,13 +78,24 @@ def allan(imu: ImuBatch, est: Estimates, where: str) -> None:
 
 
 def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: Estimates, where: str,
-               t_prior_lidar_m: np.ndarray | None, final: bool) -> None:
+               T_ref: np.ndarray | None, final: bool, prior_offset: float | None = None) -> None:
     """Time offset, rotation and lever arm of the IMU against the LiDAR trajectory. ``final``: the last
-    round (its notes and skipped items are the ones reported)."""
+    round (its notes and skipped items are the ones reported). ``T_ref``: the reference T_lidar_imu, whose
+    translation holds the axes the motion does not show. ``prior_offset``: the clock offset --calib gave,
+    kept (and said so) when the motion cannot time the IMU; without it that is bad input."""
     bias0 = est.static.gyro_bias_radps if est.static is not None else None
     try:
         off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
-                                   gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s)
+                                   gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,
+                                   max_sigma_s=FINAL_MAX_SIGMA_S if final else COARSE_MAX_SIGMA_S)
+    except InputError as err:
+        if prior_offset is None or not str(err).startswith("too little change in rotation"):
+            raise InputError(f"{where}: {err}; or give the clock offset (imu_time_offset_s) with --calib") from err
+        off = _kept_offset(traj, imu, bias0, prior_offset)
+        if final:
+            est.skip("the LiDAR-IMU time offset", f"{err}; kept from --calib ({1e3 * prior_offset:+.3f} ms)")
+    t_prior_lidar_m = None if T_ref is None else T_ref[:3, 3]
+    try:
         rot = estimate_rotation(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
                                 imu_time_offset_s=off.imu_time_offset_s,
                                 gyro_bias_radps=bias0 if bias0 is not None else off.gyro_bias_radps)
@@ -105,6 +118,13 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
             est.skip(_unobservable_item(note), note)
         else:
             est.notes.append(note)
+
+
+def _kept_offset(traj: LidarTrajectory, imu: ImuBatch, bias: np.ndarray | None, offset_s: float) -> TimeOffset:
+    """A TimeOffset holding the given offset (the motion could not time the IMU)."""
+    return TimeOffset(imu_time_offset_s=float(offset_s), sigma_s=float("nan"), alignment=float("nan"),
+                      R_lidar_imu=np.eye(3), gyro_bias_radps=np.zeros(3) if bias is None else np.asarray(bias),
+                      intervals=0, rms_residual_rad=float("nan"), notes=())
 
 
 def consistent_scans(traj: LidarTrajectory, imu: ImuBatch, offset_s: float, bias: np.ndarray | None,

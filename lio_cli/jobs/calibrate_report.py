@@ -8,22 +8,39 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import inv_pose, make_pose, so3_log
+from ..geometry import inv_pose, make_pose, so3_exp, so3_log
 from ..model.calibration import Calibration, ImuNoiseCalibration, WheelCalibration
 from .calibrate_estimate import Estimates
 
 AXES = ("x", "y", "z")
+MAX_ACCEL_BIAS_SIGMA_MPS2 = 0.05  # a vaguer 3-axis bias is not written (odom would start from it)
+MAX_ROTATION_SIGMA_RAD = np.radians(1.0)  # the rotation estimator's own threshold of an observable axis
 
 
-def T_lidar_imu_of(est: Estimates, t_fallback: np.ndarray | None) -> np.ndarray | None:
+def rotation_observable(est: Estimates) -> np.ndarray:
+    """Per LiDAR axis: does the rotation estimate (refined by the lever arm when it ran) pin it?"""
+    obs = est.rotation.observable.copy()
+    if est.lever is not None:
+        sig = est.lever.rotation_sigma_rad
+        obs |= np.isfinite(sig) & (sig <= MAX_ROTATION_SIGMA_RAD)
+    return obs
+
+
+def T_lidar_imu_of(est: Estimates, T_ref: np.ndarray | None) -> np.ndarray | None:
     """The IMU mounting in the LiDAR frame: the lever arm's refined rotation (else the gyro's) and its
-    translation on the observable axes (the others from ``t_fallback``, else zero)."""
+    translation, each on the axes the motion showed; the others from the reference ``T_ref`` (T_lidar_imu
+    of /tf_static or --calib) when there is one, else the estimate's rotation and a zero translation."""
     if est.rotation is None:
         return None
     R = est.lever.R_lidar_imu if est.lever is not None else est.rotation.R_lidar_imu
-    t = np.zeros(3) if t_fallback is None else np.asarray(t_fallback, float).copy()
+    t = np.zeros(3) if T_ref is None else np.asarray(T_ref[:3, 3], float).copy()
     if est.lever is not None:
         t[est.lever.observable] = est.lever.t_lidar_imu_m[est.lever.observable]
+    obs = rotation_observable(est)
+    if T_ref is not None and not obs.all():
+        d = so3_log(R @ T_ref[:3, :3].T)  # R = exp(d) R_ref, d about the LiDAR axes
+        d[~obs] = 0.0
+        R = so3_exp(d) @ T_ref[:3, :3]
     return make_pose(R, t)
 
 
@@ -33,10 +50,10 @@ def rotation_cov_lidar(est: Estimates) -> np.ndarray:
     return est.rotation.covariance_rad2
 
 
-def compose(est: Estimates, T_base_lidar: np.ndarray | None, t_fallback: np.ndarray | None) -> Calibration:
+def compose(est: Estimates, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None) -> Calibration:
     """The calibration the estimates give (only what was estimated; sigmas about/along the base axes)."""
     out: dict = {}
-    T_li = T_lidar_imu_of(est, t_fallback)
+    T_li = T_lidar_imu_of(est, T_ref)
     if T_li is not None and T_base_lidar is not None:
         Rbl = T_base_lidar[:3, :3]
         out["T_base_lidar"] = _rows(T_base_lidar)
@@ -47,14 +64,15 @@ def compose(est: Estimates, T_base_lidar: np.ndarray | None, t_fallback: np.ndar
             out["T_base_imu_translation_sigma_m"] = _sig(Rbl @ cov_t @ Rbl.T)
     if est.offset is not None:
         out["imu_time_offset_s"] = round(float(est.offset.imu_time_offset_s), 7)
-        out["imu_time_offset_sigma_s"] = float(f"{est.offset.sigma_s:.3g}")
+        if np.isfinite(est.offset.sigma_s):  # NaN: kept from --calib, the motion could not time the IMU
+            out["imu_time_offset_sigma_s"] = float(f"{est.offset.sigma_s:.3g}")
     if est.static is not None:
         out["gyro_bias_radps"] = _list(est.static.gyro_bias_radps)
         out["gyro_bias_sigma_radps"] = _list(est.static.gyro_bias_sigma_radps, 3)
     elif est.rotation is not None:
         out["gyro_bias_radps"] = _list(est.rotation.gyro_bias_radps)
         out["gyro_bias_sigma_radps"] = _list(est.rotation.gyro_bias_sigma_radps, 3)
-    if est.lever is not None:
+    if est.lever is not None and (est.lever.accel_bias_sigma_mps2 <= MAX_ACCEL_BIAS_SIGMA_MPS2).all():
         out["accel_bias_mps2"] = _list(est.lever.accel_bias_mps2)
         out["accel_bias_sigma_mps2"] = _list(est.lever.accel_bias_sigma_mps2, 3)
     elif est.static is not None:
@@ -107,9 +125,10 @@ def table(cal: Calibration, ref: Calibration | None, ref_name: str | None) -> li
         for i, a in enumerate(AXES):
             add(f"T_base_imu translation {a}", "cm", 100 * T[i, 3], None if sig_t is None else 100 * sig_t[i],
                 None if Tr is None else 100 * (T[i, 3] - Tr[i, 3]))
-    if cal.imu_time_offset_sigma_s is not None:
-        given = ref is not None and "imu_time_offset_s" in ref.model_fields_set
-        add("imu_time_offset_s", "ms", 1e3 * cal.imu_time_offset_s, 1e3 * cal.imu_time_offset_sigma_s,
+    if cal.imu_time_offset_sigma_s is not None or cal.T_base_imu is not None:
+        given = ref is not None and ref_name == "--calib"  # /tf_static has no clock offset
+        sig = cal.imu_time_offset_sigma_s
+        add("imu_time_offset_s", "ms", 1e3 * cal.imu_time_offset_s, None if sig is None else 1e3 * sig,
             1e3 * (cal.imu_time_offset_s - ref.imu_time_offset_s) if given else None)
     for name, unit in (("gyro_bias_radps", "rad/s"), ("accel_bias_mps2", "m/s^2")):
         v, s = getattr(cal, name), getattr(cal, name.replace("_radps", "_sigma_radps").replace("_mps2", "_sigma_mps2"))
