@@ -52,7 +52,7 @@ stretch where one is needed, too little motion, clocks that disagree): one line,
 def calibrate(
     log: LogArg,
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="Calibration YAML to write (default: LOG's name + .calib.yaml).", show_default=False)] = None,
-    still: Annotated[Optional[str], typer.Option("--still", help="START:END seconds after the log's start where the IMU rests (default: found).", show_default=False)] = None,
+    still: Annotated[Optional[str], typer.Option("--still", help="START:END seconds after the first IMU sample where the IMU rests (default: found).", show_default=False)] = None,
     allan: Annotated[bool, typer.Option("--allan", help="Allan variance of the whole log (a static IMU recording of hours): noise and random walks.")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for the Allan deviation plot (needs --allan).", show_default=False)] = None,
     kalibr: Annotated[Optional[Path], typer.Option("--kalibr", help="Also write Kalibr's imu.yaml here (needs --allan).", show_default=False)] = None,

@@ -28,7 +28,7 @@ def parse_still(text: str) -> tuple[float, float]:
     except ValueError:
         a, b = math.nan, math.nan
     if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
-        raise ValueError(f"'{text}' is not START:END in seconds after the log's start with 0 <= START < END "
+        raise ValueError(f"'{text}' is not START:END in seconds after the first IMU sample with 0 <= START < END "
                          "(e.g. 0:2.5)")
     return a, b
 
@@ -39,7 +39,7 @@ class CalibrateConfig(Strict):
     input: InputConfig = InputConfig()
     prior: Calibration = Field(Calibration(), description="a calibration to compare with (--calib); its "
                                "T_base_lidar is used where /tf_static is silent")
-    still: Optional[str] = Field(None, description="START:END, seconds after the log's start, where the IMU rests; "
+    still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "
                                  "default: found automatically")
     allan: bool = Field(False, description="Allan variance of the whole log (a static IMU recording, hours)")
     wheel_radius_m: Optional[float] = Field(None, gt=0, description="nominal wheel radius: estimate the true one")

@@ -103,15 +103,13 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             if lidar else None
         tree = read_static_frames(reader)
         base = cfg.input.base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
-        still_ns = None
-        if cfg.still is not None:
-            a, b = parse_still(cfg.still)
-            still_ns = (reader.start_ns + int(a * 1e9), reader.start_ns + int(b * 1e9))
+        still_s = None if cfg.still is None else parse_still(cfg.still)
         t0 = time.perf_counter()
         T_base_lidar = lidar_source = None
         if lidar is None:
             imu = read_imu(reader, imu_topic)
             imu_frame, traj = imu.frame_id, None
+            still_ns = _still_ns(imu, still_s)
             times["read"] = time.perf_counter() - t0
             steps.imu_at_rest(imu, still_ns, None if cfg.allan else "the log has no LiDAR: the IMU at rest is all "
                               "there is to calibrate", est, where)
@@ -128,6 +126,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             if imu is None:
                 raise InputError(f"{where}: {imu_topic}: no IMU sample could be read")
             imu_frame = arrays.imu_frame
+            still_ns = _still_ns(imu, still_s)
             T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
             T_ref = reference_T_lidar_imu(ref, T_base_lidar)
@@ -181,6 +180,14 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
     }
     _write(job, cal, resolved, metrics, est)
     return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs)
+
+
+def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | None:
+    """--still START:END (seconds after the first IMU sample) as IMU stamps."""
+    if still_s is None:
+        return None
+    t0 = int(imu.stamps_ns[0])
+    return t0 + int(round(still_s[0] * 1e9)), t0 + int(round(still_s[1] * 1e9))
 
 
 def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:

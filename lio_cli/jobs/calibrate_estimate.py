@@ -17,7 +17,9 @@ from ..config.calibrate import CalibrateConfig
 from ..core.calibration import (AllanResult, ImuStatic, LeverArmCalib, RotationCalib, TimeOffset, WheelCalib,
                                 estimate_allan, estimate_imu_static, estimate_lever_arm, estimate_rotation,
                                 estimate_time_offset, estimate_wheel_scales)
+from ..core.calibration.common import time_ranges_text
 from ..core.calibration.excitation import AXES
+from ..core.calibration.imu_static import StillOptions, still_mask
 from ..core.calibration.handeye import imu_increments, lidar_increments
 from ..core.calibration.signals import GyroOrientation
 from ..errors import InputError
@@ -59,6 +61,8 @@ def imu_at_rest(imu: ImuBatch, still_ns: tuple[int, int] | None, needed: str | N
                 where: str) -> None:
     """The still stretch's gyro bias, gravity, accelerometer bias along gravity and noise densities.
     ``needed``: why the still stretch is required (its absence is then bad input), None when optional."""
+    if still_ns is not None:
+        _check_still(imu, still_ns, where)
     try:
         est.static = estimate_imu_static(imu.stamps_ns, imu.gyro_radps, imu.accel_mps2, still_ns=still_ns)
     except InputError as err:
@@ -67,6 +71,20 @@ def imu_at_rest(imu: ImuBatch, still_ns: tuple[int, int] | None, needed: str | N
         est.skip("the IMU at rest (accelerometer bias along gravity, noise densities)", str(err))
         return
     est.notes.extend(est.static.notes)
+
+
+def _check_still(imu: ImuBatch, still_ns: tuple[int, int], where: str) -> None:
+    """--still must name an interval where the IMU rests: else say where in it the IMU moves."""
+    sel = (imu.stamps_ns >= still_ns[0]) & (imu.stamps_ns <= still_ns[1])
+    if sel.sum() < 20:
+        return  # the estimator says the interval is outside the data or too short
+    s = imu.stamps_ns[sel]
+    mask = still_mask(s, imu.gyro_radps[sel], imu.accel_mps2[sel], StillOptions())
+    if mask.mean() < 0.9:
+        t0 = int(imu.stamps_ns[0])
+        raise InputError(f"{where}: --still {(still_ns[0] - t0) / 1e9:g}:{(still_ns[1] - t0) / 1e9:g} is not a still "
+                         f"stretch: the IMU moves during {time_ranges_text(s, ~mask, t0)} (s after its first stamp); "
+                         "name an interval where the platform stands still, or leave --still out to find one")
 
 
 def allan(imu: ImuBatch, est: Estimates, where: str) -> None:
@@ -89,7 +107,7 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
                                    gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,
                                    max_sigma_s=FINAL_MAX_SIGMA_S if final else COARSE_MAX_SIGMA_S)
     except InputError as err:
-        if prior_offset is None or not str(err).startswith("too little change in rotation"):
+        if prior_offset is None or not str(err).startswith("too little"):
             raise InputError(f"{where}: {err}; or give the clock offset (imu_time_offset_s) with --calib") from err
         off = _kept_offset(traj, imu, bias0, prior_offset)
         if final:
