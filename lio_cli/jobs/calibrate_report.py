@@ -15,6 +15,7 @@ from .calibrate_estimate import Estimates
 AXES = ("x", "y", "z")
 MAX_ACCEL_BIAS_SIGMA_MPS2 = 0.05  # a vaguer 3-axis bias is not written (odom would start from it)
 REFERENCE_AGREES_SIGMAS = 3.0
+ARBITRARY_SIGMA_RAD = np.radians(2.5)
 MAX_ROTATION_SIGMA_RAD = np.radians(1.0)  # the rotation estimator's own threshold of an observable axis
 
 
@@ -30,8 +31,8 @@ def rotation_observable(est: Estimates) -> np.ndarray:
 def T_lidar_imu_of(est: Estimates, T_ref: np.ndarray | None) -> np.ndarray | None:
     """The IMU mounting in the LiDAR frame: the lever arm's refined rotation (else the gyro's) and its
     translation, each on the axes the motion showed; the others from the reference ``T_ref`` (T_lidar_imu
-    of /tf_static or --calib) when there is one (a rotation only where the reference agrees with the weak
-    estimate within 3 sigma), else the estimate's rotation and a zero translation."""
+    of /tf_static or --calib) when there is one (a rotation where the reference agrees with the weak estimate
+    within 3 sigma or the estimate's 1-sigma exceeds 2.5 deg), else the estimate's rotation and a zero translation."""
     if est.rotation is None:
         return None
     R = est.lever.R_lidar_imu if est.lever is not None else est.rotation.R_lidar_imu
@@ -42,7 +43,8 @@ def T_lidar_imu_of(est: Estimates, T_ref: np.ndarray | None) -> np.ndarray | Non
     if T_ref is not None and not obs.all():
         d = so3_log(R @ T_ref[:3, :3].T)  # R = exp(d) R_ref, d about the LiDAR axes
         sig = np.sqrt(np.clip(np.diag(rotation_cov_lidar(est)), 0, None))
-        agree = np.abs(d) <= REFERENCE_AGREES_SIGMAS * sig  # a reference the data contradicts is not kept
+        # a reference the data contradicts is not kept, unless the data hardly constrain that axis at all
+        agree = (np.abs(d) <= REFERENCE_AGREES_SIGMAS * sig) | (sig > ARBITRARY_SIGMA_RAD)
         d[~obs & agree] = 0.0
         R = so3_exp(d) @ T_ref[:3, :3]
     return make_pose(R, t)
