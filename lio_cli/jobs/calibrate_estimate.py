@@ -18,7 +18,6 @@ from ..core.calibration import (AllanResult, ImuStatic, LeverArmCalib, RotationC
                                 estimate_allan, estimate_imu_static, estimate_lever_arm, estimate_rotation,
                                 estimate_time_offset, estimate_wheel_scales)
 from ..core.calibration.common import time_ranges_text
-from ..core.calibration.excitation import AXES
 from ..core.calibration.imu_static import StillOptions, still_mask
 from ..core.calibration.handeye import imu_increments, lidar_increments
 from ..core.calibration.signals import GyroOrientation
@@ -195,11 +194,4 @@ def wheels(arrays: SensorArrays, traj: LidarTrajectory, T_base_lidar: np.ndarray
     est.notes.extend(est.wheel.notes)
 
 
-def lever_prior_axes(lever: LeverArmCalib | None) -> str:
-    """'x, z' for the axes the lever arm did not observe."""
-    if lever is None:
-        return "x, y, z"
-    return ", ".join(a for a, ok in zip(AXES, lever.observable) if not ok)
-
-
-__all__ = ["Estimates", "Skipped", "allan", "extrinsics", "imu_at_rest", "wheels"]
+__all__ = ["Estimates", "Skipped", "allan", "consistent_scans", "extrinsics", "imu_at_rest", "wheels"]

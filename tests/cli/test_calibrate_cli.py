@@ -151,7 +151,7 @@ def test_the_default_output_is_the_log_stem_in_the_current_folder(walk, tmp_path
     assert lines[-1] == "skipped: the wheel odometry scales because the log has no wheel odometry"
     assert all(line.startswith("skipped: ") for line in lines)
     err = one_error([walk.log_path, "-q"], capsys, tmp_path)
-    assert err == f"lio: error: walk.calib.yaml: already exists; pass --force to overwrite it"
+    assert err == "lio: error: walk.calib.yaml: already exists; pass --force to overwrite it"
 
 
 def test_no_imu(tmp_path, capsys):
