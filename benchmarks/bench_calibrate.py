@@ -64,9 +64,11 @@ def row(rows, quantity, runs, error, goal, ok) -> None:
     rows.append((quantity, runs, error, goal, "yes" if ok else "NO"))
 
 
-def calibrate(log: Path, out: Path, cfg: CalibrateConfig | None = None):
-    t0 = time.perf_counter()
+def calibrate(log: Path, out: Path, cfg: CalibrateConfig | None = None, cpu: list | None = None):
+    t0, c0 = time.perf_counter(), time.process_time()
     r = run_calibrate(CalibrateJob(log, out, cfg or CalibrateConfig(), force=True))
+    if cpu is not None:
+        cpu.append(time.process_time() - c0)
     return r, time.perf_counter() - t0
 
 
@@ -181,7 +183,8 @@ def bench_end_to_end(root: Path, duration: float, rows: list) -> None:
     t = truth(sim)
     # the LiDAR's place on the base is known (a drawing), the IMU's and its clock are what is calibrated
     prior = CalibrateConfig(prior=Calibration(T_base_lidar=t["T_base_lidar"]))
-    r, wall = calibrate(sim.log_path, root / "e2e.calib.yaml", prior)
+    cpu: list = []
+    r, wall = calibrate(sim.log_path, root / "e2e.calib.yaml", prior, cpu)
     true_cal = Calibration(T_base_imu=t["T_base_imu"], T_base_lidar=t["T_base_lidar"],
                            imu_time_offset_s=-t["imu"]["time_offset_s"])
     ate = {}
@@ -191,7 +194,8 @@ def bench_end_to_end(root: Path, duration: float, rows: list) -> None:
         ate[name] = res.score.ate_trans_rmse_m
     ts = r.metrics["time_s"]
     steps = ", ".join(f"{k} {v:.1f}" for k, v in ts.items() if k != "total")
-    row(rows, f"run time, {duration:.0f} s handheld log", "", f"{wall:.1f} s ({steps})", "<= 10 s", wall <= 10)
+    row(rows, f"run time, {duration:.0f} s handheld log", "", f"{wall:.1f} s wall, {cpu[0]:.1f} s CPU ({steps})",
+        "<= 10 s", wall <= 10)
     ratio = ate["estimated"] / ate["true"]
     row(rows, f"odom --calib, {duration:.0f} s handheld, no /tf_static", "estimated vs true",
         f"ATE {ate['estimated']:.3f} m vs {ate['true']:.3f} m: {ratio:.2f}x", "<= 1.2x", ratio <= 1.2)

@@ -108,9 +108,7 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     except InputError as err:
         if prior_offset is None or not str(err).startswith("too little"):
             raise InputError(f"{where}: {err}; or give the clock offset (imu_time_offset_s) with --calib") from err
-        off = _kept_offset(traj, imu, bias0, prior_offset)
-        if final:
-            est.skip("the LiDAR-IMU time offset", f"{err}; kept from --calib ({1e3 * prior_offset:+.3f} ms)")
+        off = _kept_offset(bias0, prior_offset, f"{err}; kept from --calib ({1e3 * prior_offset:+.3f} ms)")
     t_prior_lidar_m = None if T_ref is None else T_ref[:3, 3]
     try:
         rot = estimate_rotation(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
@@ -130,18 +128,20 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
             est.skip("the lever arm (T_base_imu translation)", f"{err}; the translation is kept from the prior")
     if not final:
         return
-    for note in (*off.notes, *rot.notes, *(est.lever.notes if est.lever is not None else ())):
+    if not np.isfinite(off.sigma_s):
+        est.skip("the LiDAR-IMU time offset", off.notes[0])
+    for note in (*(off.notes if np.isfinite(off.sigma_s) else ()), *rot.notes, *(est.lever.notes if est.lever is not None else ())):
         if "not observable" in note:
             est.skip(_unobservable_item(note), note)
         else:
             est.notes.append(note)
 
 
-def _kept_offset(traj: LidarTrajectory, imu: ImuBatch, bias: np.ndarray | None, offset_s: float) -> TimeOffset:
-    """A TimeOffset holding the given offset (the motion could not time the IMU)."""
+def _kept_offset(bias: np.ndarray | None, offset_s: float, why: str) -> TimeOffset:
+    """A TimeOffset holding the given offset (the motion could not time the IMU: ``why``, its only note)."""
     return TimeOffset(imu_time_offset_s=float(offset_s), sigma_s=float("nan"), alignment=float("nan"),
                       R_lidar_imu=np.eye(3), gyro_bias_radps=np.zeros(3) if bias is None else np.asarray(bias),
-                      intervals=0, rms_residual_rad=float("nan"), notes=())
+                      intervals=0, rms_residual_rad=float("nan"), notes=(why,))
 
 
 def consistent_scans(traj: LidarTrajectory, imu: ImuBatch, offset_s: float, bias: np.ndarray | None,
