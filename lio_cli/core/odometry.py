@@ -33,8 +33,11 @@ from .motion_compensation import constant_velocity_knots, deskew, to_base
 from .odometry_restart import Restart, WindowScan
 from .odometry_updates import StateUpdates
 from .registration import ScanRegistration, auto_voxel_size
-from .pose_checks import exceeds_jump, lean_on_prior, scale_delta
+from .pose_checks import exceeds_jump, lean_on_prior
 
+_MAP_RESTART_SCANS = 3  # a one-scan map that this many scans in a row cannot match is dropped...
+_MAX_MAP_RESTARTS = 3  # ...at most this often per run
+_MIN_VELOCITY_DT_S = 0.02  # a constant-velocity prior needs at least this long an interval between poses
 _WHEEL_KEEP_NS = 1_000_000_000  # wheel records older than this behind the last scan are dropped
 _IMU_PRIOR_CORRESPONDENCE_M = 0.5
 _GYRO_PRIOR_GATE_M = 1.0  # LiDAR-only scans with the gyro's rotation: the translation guess is constant velocity
@@ -104,6 +107,8 @@ class LioOdometry(StateUpdates, Restart):
         self.poses: list[np.ndarray] = []  # LiDAR-only poses are replaced once the IMU state starts
         self._first_f_base: np.ndarray | None = None  # mean specific force (base axes) around the first scan
         self._lost = 0  # LiDAR-only registrations failed in a row
+        self._map_scans = 0  # scans in the current map
+        self._map_restarts = 0
         self.clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
         self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
@@ -217,6 +222,7 @@ class LioOdometry(StateUpdates, Restart):
             fixed = cfg.registration.max_correspondence_m
             if fixed is None and self._imu_prior:
                 fixed = _IMU_PRIOR_CORRESPONDENCE_M
+            self._map_scans = 0
             self._reg = ScanRegistration(cfg.registration, cfg.registration.voxel_size_m or auto_voxel_size(rng[keep]),
                                          imu_prior=self._imu_prior, planar=self.planar, fixed_correspondence_m=fixed)
         return points[keep]
@@ -238,8 +244,14 @@ class LioOdometry(StateUpdates, Restart):
         st = self.stats
         if frame is not None:
             self._reg.accept(correction, frame, pose)
-        self._last_delta = inv_pose(self._last_pose) @ pose
-        self._last_dt_s = (t_ref - self._last_ns) * 1e-9 if self._last_ns is not None else 0.0
+            self._map_scans += 1
+        delta = inv_pose(self._last_pose) @ pose
+        dt_s = (t_ref - self._last_ns) * 1e-9 if self._last_ns is not None else 0.0
+        if 0.0 < dt_s < _MIN_VELOCITY_DT_S:
+            # two scan references this close (a scan whose points all carry one stamp) cannot give a velocity:
+            # the interval is extended back over the previous one (if any) instead of dividing by a millisecond
+            delta, dt_s = (self._last_delta @ delta, dt_s + self._last_dt_s) if self._last_dt_s > 0.0 else (np.eye(4), 0.0)
+        self._last_delta, self._last_dt_s = delta, dt_s
         self._last_pose = pose
         self._last_ns = t_ref
         keep_from = self._window[0].t_prev_ns if self._window else t_ref
@@ -251,31 +263,6 @@ class LioOdometry(StateUpdates, Restart):
         return ScanResult(t_ref, pose, bool(dirs_b), failed)
 
     # ---- LiDAR-only: start-up window, recovery, runs without IMU ----------------------------------
-    def _lidar_prior(self, t_prev: int, t_ref: int):
-        """(guess, deskew knots, knot poses): gyro rotation when the IMU can give it, else the configured prior."""
-        dt = (t_ref - t_prev) * 1e-9
-        if self.use_imu and self.imu_mounted and self._imu and self.imu_until_ns() >= t_ref:
-            v = np.zeros(3)  # world velocity of the last inter-scan motion: p_last - p_prev over its duration
-            if self._last_dt_s > 0:
-                v = self._last_pose[:3, :3] @ self._last_delta[:3, :3].T @ self._last_delta[:3, 3] / self._last_dt_s
-            bg = np.zeros(3) if self._bias_prior[0] is None else np.asarray(self._bias_prior[0], dtype=np.float64)
-            ba = np.zeros(3)
-            s0 = NavState(t_prev, self._last_pose[:3, :3].copy(), self._last_pose[:3, 3].copy(), v, bg, ba)
-            prop = propagate(s0, self._imu_window(t_prev), t_ref, self.ext, accel=False, planar=self.planar)
-            guess = prop.poses[-1]
-            if self.cfg.prior == "wheel":
-                guess = self._last_pose @ self._wheel_delta(t_prev, t_ref)
-            knots = (prop.stamps_ns, prop.poses) if self._deskew != "none" else (None, None)
-            return guess, knots[0], knots[1], True
-        cv = self._last_delta if self._last_dt_s <= 0 else scale_delta(self._last_delta, dt / self._last_dt_s)
-        prior = self.cfg.prior
-        guess = self._last_pose @ (self._wheel_delta(t_prev, t_ref) if prior == "wheel" else
-                                   np.eye(4) if prior == "none" else cv)
-        if self._deskew == "none":
-            return guess, None, None, False
-        knots, rel = constant_velocity_knots(inv_pose(self._last_pose) @ guess, t_prev, t_ref)
-        return guess, knots, self._last_pose[None] @ rel, False
-
     def _lidar_step(self, cloud: PointCloud, t_prev: int, t_ref: int, retry: bool = False,
                     window: bool = True) -> ScanResult | None:
         """Register one scan LiDAR-only. ``retry``: a scan the IMU prediction could not explain; return None
@@ -307,6 +294,11 @@ class LioOdometry(StateUpdates, Restart):
         if failed:
             st.registration_failures += 1
             self._count_lost(t_ref)
+            if self._map_scans == 1 and self._lost >= _MAP_RESTART_SCANS and self._map_restarts < _MAX_MAP_RESTARTS:
+                # the map's only scan matched none of the scans after it: that scan is the bad one (damaged, or
+                # another world), so the map starts again from the next scan, the pose carried by the prior
+                self._reg, self._map_restarts, self._window = None, self._map_restarts + 1, []
+                self._event("map restarted", f"the map's first scan matched none of the {self._lost} after it")
         else:
             self._lost = 0
         result = self._finish(t_ref, pose, None if failed else frame,

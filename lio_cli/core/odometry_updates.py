@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import inv_pose
 from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
                      pose_innovation_nis, position_noise)
-from .imu import flatten_planar
-from .pose_checks import exceeds_jump
+from .imu import NavState, flatten_planar, propagate
+from .motion_compensation import constant_velocity_knots
+from .pose_checks import exceeds_jump, scale_delta
 from .wheel import mean_twist, planar_delta
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
@@ -121,3 +123,28 @@ class StateUpdates:
         delta = self.clock.propose(self.state.bg, self.stats.scans)
         if delta:
             self._shift_imu(delta)
+
+    def _lidar_prior(self, t_prev: int, t_ref: int):
+        """(guess, deskew knots, knot poses): gyro rotation when the IMU can give it, else the configured prior."""
+        dt = (t_ref - t_prev) * 1e-9
+        if self.use_imu and self.imu_mounted and self._imu and self.imu_until_ns() >= t_ref:
+            v = np.zeros(3)  # world velocity of the last inter-scan motion: p_last - p_prev over its duration
+            if self._last_dt_s > 0:
+                v = self._last_pose[:3, :3] @ self._last_delta[:3, :3].T @ self._last_delta[:3, 3] / self._last_dt_s
+            bg = np.zeros(3) if self._bias_prior[0] is None else np.asarray(self._bias_prior[0], dtype=np.float64)
+            ba = np.zeros(3)
+            s0 = NavState(t_prev, self._last_pose[:3, :3].copy(), self._last_pose[:3, 3].copy(), v, bg, ba)
+            prop = propagate(s0, self._imu_window(t_prev), t_ref, self.ext, accel=False, planar=self.planar)
+            guess = prop.poses[-1]
+            if self.cfg.prior == "wheel":
+                guess = self._last_pose @ self._wheel_delta(t_prev, t_ref)
+            knots = (prop.stamps_ns, prop.poses) if self._deskew != "none" else (None, None)
+            return guess, knots[0], knots[1], True
+        cv = self._last_delta if self._last_dt_s <= 0 else scale_delta(self._last_delta, dt / self._last_dt_s)
+        prior = self.cfg.prior
+        guess = self._last_pose @ (self._wheel_delta(t_prev, t_ref) if prior == "wheel" else
+                                   np.eye(4) if prior == "none" else cv)
+        if self._deskew == "none":
+            return guess, None, None, False
+        knots, rel = constant_velocity_knots(inv_pose(self._last_pose) @ guess, t_prev, t_ref)
+        return guess, knots, self._last_pose[None] @ rel, False

@@ -39,6 +39,7 @@ class StreamStats:
     invalid_points: int = 0
     bad_point_times: int = 0  # of invalid_points: points whose time lay absurdly far from their scan's
     invalid_imu: int = 0
+    invalid_twists: int = 0
 
     def to_dict(self) -> dict:
         return {
@@ -49,6 +50,7 @@ class StreamStats:
             "invalid_points_dropped": self.invalid_points,
             "absurd_point_times_dropped": self.bad_point_times,
             "invalid_imu_samples_dropped": self.invalid_imu,
+            "invalid_twists_dropped": self.invalid_twists,
         }
 
 
@@ -57,6 +59,9 @@ class StreamStats:
 MAX_STAMP_JUMP_NS = 10_000_000_000  # strict: header stamps may run ahead of record time by at most this much
 MAX_IMU_ACCEL_MPS2 = 1e4
 MAX_IMU_GYRO_RADPS = 1e3
+# Likewise an odometry twist beyond these is damage: no wheel, car or drone moves at 1 km/s.
+MAX_TWIST_MPS = 1e3
+MAX_TWIST_RADPS = 1e3
 
 
 def imu_sample_problem(gyro, accel) -> str | None:
@@ -69,6 +74,18 @@ def imu_sample_problem(gyro, accel) -> str | None:
         return f"holds an angular rate of {g:.3g} rad/s (beyond {MAX_IMU_GYRO_RADPS:g})"
     if a > MAX_IMU_ACCEL_MPS2:
         return f"holds an acceleration of {a:.3g} m/s^2 (beyond {MAX_IMU_ACCEL_MPS2:g})"
+    return None
+
+
+def twist_problem(linear, angular) -> str | None:
+    """Why an odometry twist is unusable (NaN, or beyond anything that moves), or None if it is fine."""
+    if not all(map(math.isfinite, (*linear, *angular))):
+        return "holds NaN or infinity"
+    v, w = max(map(abs, linear)), max(map(abs, angular))
+    if v > MAX_TWIST_MPS:
+        return f"holds a speed of {v:.3g} m/s (beyond {MAX_TWIST_MPS:g})"
+    if w > MAX_TWIST_RADPS:
+        return f"holds a turn rate of {w:.3g} rad/s (beyond {MAX_TWIST_RADPS:g})"
     return None
 
 
@@ -151,6 +168,12 @@ class SensorStream:
             return Record(kind, topic, stamp, (frame, gyro, accel))
         if kind == "wheel":
             rec = decode_odometry(msg, msgtype)
+            problem = twist_problem(rec.linear_mps, rec.angular_radps)
+            if problem is not None:
+                if self.strict:
+                    raise InputError(f"{self.log.path}: {topic}: twist at {_fmt_ns(rec.stamp_ns)} {problem}")
+                self.stats.invalid_twists += 1
+                return None
             return Record(kind, topic, rec.stamp_ns, rec)
         if kind == "gps":
             rec = decode_navsatfix(msg)
