@@ -3,8 +3,8 @@
 Conventions (DESIGN.md): poses are float64 (4,4) or (N,4,4); ``T_a_b`` maps points from frame b to frame a;
 quaternions are xyzw. This is the only module that touches ``scipy.spatial.transform.Rotation``, and only
 when a function needs it: importing scipy.spatial costs about half a second, which a short command such as
-``lio evaluate`` would otherwise spend before any work. ``so3_log`` and ``quat_xyzw_to_rot`` are scipy's own
-algorithms written out in numpy (they agree with it to the last bit or two).
+``lio evaluate`` would otherwise spend before any work. ``so3_log_batch`` and ``quat_xyzw_to_rot`` are scipy's
+own algorithms written out in numpy (they agree with it to the last bit or two).
 """
 
 from __future__ import annotations
@@ -26,6 +26,10 @@ def skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
+_EYE3 = np.eye(3)
+_ORTHO_TOL = 1e-12 + 1e-5 * _EYE3  # np.isclose's atol + rtol * |I|
+
+
 def _rotation():
     from scipy.spatial.transform import Rotation  # deferred: see the module's docstring
 
@@ -38,9 +42,15 @@ def so3_exp(rotvec_rad: np.ndarray) -> np.ndarray:
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (3,3) or (N,3,3).
+    """Rotation vector of a rotation matrix (3,3) or (N,3,3)."""
+    return _rotation().from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
 
-    scipy's ``Rotation.from_matrix(R).as_rotvec()`` in numpy: a matrix that is not orthogonal to 1e-12 is
+
+def so3_log_batch(R: np.ndarray) -> np.ndarray:
+    """:func:`so3_log` without scipy, for large batches and scipy-free paths (``lio evaluate``).
+
+    scipy's ``Rotation.from_matrix(R).as_rotvec()`` in numpy (equal to it to a unit or two in the last place;
+    faster from a few thousand matrices on, slower on a handful, where scipy's per-call cost is lower): a matrix that is not orthogonal to 1e-12 is
     replaced by its nearest rotation (SVD), then Shepperd's quaternion (the largest of the diagonal and the
     trace decides), then the rotation vector with the series below 1e-3 rad. A non-positive determinant
     raises ValueError, as scipy does."""
@@ -51,33 +61,33 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     if m.shape[-2:] != (3, 3):
         raise ValueError(f"Expected `matrix` to have shape (3, 3) or (N, 3, 3), got {m.shape}")
     det = np.linalg.det(m)
-    if np.any(det <= 0):
+    if (det <= 0).any():
         i = int(np.flatnonzero(det <= 0)[0])
         raise ValueError(f"Non-positive determinant (left-handed or null coordinate frame) in rotation matrix {i}: {m[i]}.")
     gram = m @ np.swapaxes(m, -1, -2)
-    ortho = np.all(np.isclose(gram, np.eye(3), rtol=1e-05, atol=1e-12), axis=(-2, -1))
-    if not np.all(ortho):
+    gram -= _EYE3  # np.isclose(gram, I, rtol=1e-5, atol=1e-12), written out: this runs per filter step
+    ortho = (np.abs(gram) <= _ORTHO_TOL).all(axis=(-2, -1))
+    if not ortho.all():
         U, _, Vt = np.linalg.svd(m[~ortho], full_matrices=False)
         m[~ortho] = U @ Vt
     trace = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
     choice = np.argmax(np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], trace], axis=-1), axis=-1)
-    q = np.empty((len(m), 4))
-    for c in range(4):
-        sel = choice == c
-        if not np.any(sel):
-            continue
-        a = m[sel]
-        tr = trace[sel]
-        if c == 3:
-            q[sel] = np.stack([a[:, 2, 1] - a[:, 1, 2], a[:, 0, 2] - a[:, 2, 0], a[:, 1, 0] - a[:, 0, 1], 1 + tr], -1)
-            continue
-        i, j, k = c, (c + 1) % 3, (c + 2) % 3
-        qc = np.empty((len(a), 4))
-        qc[:, i] = 1 - tr + 2 * a[:, i, i]
-        qc[:, j] = a[:, j, i] + a[:, i, j]
-        qc[:, k] = a[:, k, i] + a[:, i, k]
-        qc[:, 3] = a[:, k, j] - a[:, j, k]
-        q[sel] = qc
+    # Shepperd: the trace case (every rotation below 90 degrees) first, then the diagonal cases where chosen
+    q = np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1], 1 + trace], axis=-1)
+    if not (choice == 3).all():
+        for c in range(3):
+            sel = choice == c
+            if not sel.any():
+                continue
+            a = m[sel]
+            tr = trace[sel]
+            i, j, k = c, (c + 1) % 3, (c + 2) % 3
+            qc = np.empty((len(a), 4))
+            qc[:, i] = 1 - tr + 2 * a[:, i, i]
+            qc[:, j] = a[:, j, i] + a[:, i, j]
+            qc[:, k] = a[:, k, i] + a[:, i, k]
+            qc[:, 3] = a[:, k, j] - a[:, j, k]
+            q[sel] = qc
     q /= np.sqrt(np.sum(q * q, axis=-1))[:, None]
     q[q[:, 3] < 0] *= -1.0  # canonical: w >= 0 (scipy's as_rotvec)
     ax_norm = np.sqrt(np.sum(q[:, :3] * q[:, :3], axis=-1))
