@@ -126,6 +126,14 @@ def rot_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
     return q * sign
 
 
+def row_norms(v: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of an (N,3) array: ``np.linalg.norm(v, axis=1)`` to the bit (the same
+    ((x^2 + y^2) + z^2) sum), about twice as fast on a scan's points, whose length-3 rows make numpy's
+    reduction crawl."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return np.sqrt(x * x + y * y + z * z)
+
+
 def make_pose(R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
     """A (4,4) pose from rotation R (3,3) and translation t (3,)."""
     T = np.eye(4)
