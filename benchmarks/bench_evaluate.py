@@ -12,7 +12,8 @@ RPE over 1 frame). Rows:
   evo API      evo's Python API in its venv: read, sync, align, APE, RPE, in one process
 evo is installed into a scratch venv when missing (`python -m venv` + `pip install evo`). Best of --repeat;
 lio CLI, evo API and evo CLI take turns in each round, so a busy machine slows them alike.
-The APE/RPE rmse of both are printed too, as a cross-check; the target is lio CLI <= 0.5x evo.
+The APE/RPE rmse of both are printed too, as a cross-check; the target is lio CLI <= 0.5x evo. The ratios
+are printed in wall time and in CPU time (user + system of the subprocesses), which a shared machine disturbs less.
 
 Offset recovery: the estimate's stamps are moved 0.137 s early and `--estimate-offset` must find +0.137 s.
 Two simulations: "clean" (a smooth 3D path sampled at random instants, 1 cm and 0.03 deg white noise, another
