@@ -21,7 +21,11 @@ def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.n
     relative poses; the chord-for-arc error of that blend is below a millimetre at 30 m for 3 rad/s.
     """
     knot_stamps_ns = np.asarray(knot_stamps_ns, dtype=np.int64)
-    ref = interpolate_poses(knot_stamps_ns, knot_poses, np.array([t_ref_ns]))[0]
+    j = int(np.searchsorted(knot_stamps_ns, t_ref_ns))
+    if j < len(knot_stamps_ns) and knot_stamps_ns[j] == t_ref_ns:
+        ref = knot_poses[j]  # the reference instant is a knot (a sweep's end or start): its pose, not a slerp to it
+    else:
+        ref = interpolate_poses(knot_stamps_ns, knot_poses, np.array([t_ref_ns]))[0]
     rel = inv_pose(ref)[None] @ knot_poses @ T_base_lidar  # T_base(ref)_lidar(knot): lidar points in one step
     m = len(knot_stamps_ns)
     if m == 1:
@@ -33,22 +37,31 @@ def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.n
     np.clip(a, 0.0, 1.0, out=a)
     # spinning LiDARs deliver points in firing order: then every interval is a contiguous slice
     order = None if np.all(idx[1:] >= idx[:-1]) else np.argsort(idx, kind="stable")
-    sorted_idx = idx if order is None else idx[order]
-    bounds = np.searchsorted(sorted_idx, np.arange(m))
-    out = np.empty_like(points_lidar, dtype=np.float64)
+    if order is not None:
+        idx, a = idx[order], a[order]
+    bounds = np.searchsorted(idx, np.arange(m)).tolist()
+    # Per interval k one product gives both the start knot's transform of each point, q0 = A [p 1], and its
+    # change to the next knot's, q1 - q0 = D [p 1] (A = rel[k], D = rel[k+1] - rel[k], 3x4 each); the blend
+    # is q0 + a (q1 - q0). Points are laid out as rows (4, N) so every elementwise step runs along a row.
+    T = rel[:, :3, :]
+    W = np.concatenate([T[:-1], T[1:] - T[:-1]], axis=1)  # (m-1, 6, 4): [A; D]
+    n = len(points_lidar)
+    ph = np.empty((4, n))
+    ph[:3] = points_lidar.T if order is None else points_lidar[order].T
+    ph[3] = 1.0
+    out = np.empty((3, n))
     for k in range(m - 1):
         lo, hi = bounds[k], bounds[k + 1]
         if hi <= lo:
             continue
-        sel = slice(lo, hi) if order is None else order[lo:hi]
-        q = points_lidar[sel]
-        q0 = q @ rel[k, :3, :3].T + rel[k, :3, 3]
-        q1 = q @ rel[k + 1, :3, :3].T + rel[k + 1, :3, 3]
-        q1 -= q0
-        q1 *= a[sel, None]
-        q1 += q0
-        out[sel] = q1
-    return out
+        Q = W[k] @ ph[:, lo:hi]
+        Q[3:] *= a[lo:hi]
+        np.add(Q[:3], Q[3:], out=out[:, lo:hi])
+    if order is None:
+        return out.T.copy()
+    res = np.empty((n, 3))
+    res[order] = out.T
+    return res
 
 
 def to_base(points_lidar: np.ndarray, T_base_lidar: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..config.odom import OdomConfig
 from ..errors import ProcessingError
-from ..geometry import gravity_aligned_rotation, inv_pose, project_to_se2
+from ..geometry import gravity_aligned_rotation, inv_pose, project_to_se2, row_norms
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch, OdometryRecord, PointCloud
 from .bootstrap import Bootstrap
@@ -212,7 +212,7 @@ class LioOdometry(StateUpdates, Restart):
             points = to_base(cloud.points, self.ext.T_base_lidar)
         else:
             points = deskew(cloud.points, cloud.point_stamps_ns, knots_ns, knot_poses, t_ref, self.ext.T_base_lidar)
-        rng = np.linalg.norm(points, axis=1)
+        rng = row_norms(points)
         keep = (rng >= cfg.registration.min_range_m) & (rng <= cfg.registration.max_range_m)
         self.stats.times_s["deskew"] += time.perf_counter() - tick
         if keep.sum() < cfg.registration.min_points:

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import inv_pose, so3_log
+from ..geometry import inv_pose, so3_log_batch
 
 STATISTICS = ("rmse", "mean", "median", "std", "min", "max", "sse")
 DELTA_UNITS = ("frames", "m", "s", "deg", "rad")
@@ -38,7 +38,7 @@ def statistics(errors: np.ndarray) -> dict[str, float]:
 
 def rotation_angle_rad(R: np.ndarray) -> np.ndarray:
     """Angle of rotation matrices (N,3,3), in [0, pi] (norm of the rotation vector)."""
-    return np.linalg.norm(so3_log(R), axis=1)
+    return np.linalg.norm(so3_log_batch(R), axis=1)
 
 
 def _relation_errors(E: np.ndarray) -> dict[str, np.ndarray]:
@@ -164,7 +164,7 @@ def _all_pairs_by_angle(R: np.ndarray, delta_rad: float, tol_rad: float) -> np.n
     """Every pair i < j whose direct relative rotation angle is within delta +- tol (quadratic, as in evo)."""
     out = []
     for i in range(len(R) - 1):
-        ang = np.linalg.norm(so3_log(R[i].T @ R[i + 1:]), axis=1)
+        ang = np.linalg.norm(so3_log_batch(R[i].T @ R[i + 1:]), axis=1)
         j = np.flatnonzero((delta_rad - tol_rad <= ang) & (ang <= delta_rad + tol_rad)) + i + 1
         out.append(np.stack([np.full(len(j), i), j], axis=1))
     return np.concatenate(out) if out else np.zeros((0, 2), np.int64)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import skew, so3_log
+from ..geometry import skew, so3_log_batch
 from .alignment import posyaw, umeyama
 from .association import Trajectory
 
@@ -129,7 +129,7 @@ class OffsetCost:
             # geodesic interpolation R_k Exp(u phi_k) by Rodrigues: R_k (I + sin(u th) K + (1 - cos(u th)) K^2),
             # K the unit-axis cross matrix of phi_k; the three products with R_k are kept per interval
             R = other.poses[:, :3, :3]
-            phi = so3_log(np.einsum("nji,njk->nik", R[:-1], R[1:]))
+            phi = so3_log_batch(np.einsum("nji,njk->nik", R[:-1], R[1:]))
             self.theta_o = np.linalg.norm(phi, axis=1)
             K = skew(phi / np.where(self.theta_o > 0, self.theta_o, 1.0)[:, None])
             self.rod_o = np.stack([R[:-1], R[:-1] @ K, R[:-1] @ K @ K], axis=1)  # (N-1, 3, 3, 3)

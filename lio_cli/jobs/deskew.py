@@ -27,7 +27,7 @@ from ..io.reader import LogReader, open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..io.writer import LogWriter
-from .deskew_motion import Motion, Progress, odometry_motion, resolve_motion, trajectory_motion
+from .deskew_motion import Motion, Progress, RecordFeed, odometry_motion, resolve_motion, trajectory_motion
 from .deskew_scan import ScanPlan, ScanWriter, plan_scans
 from .odom_inputs import Mounting
 from .outputs import beside, json_text
@@ -156,7 +156,11 @@ def _write(job: DeskewJob, reader: LogReader, fmt: str, plan: ScanPlan, motion: 
             if conn.topic == plan.topic:
                 scans.output(conn)
         done = done0
-        for rec in reader.records():
+        records = reader.records()
+        if motion.imu is not None:  # one read of the log: the IMU window reads ahead through the same records
+            records = RecordFeed(reader, motion.imu.topic)
+            motion.imu.attach(records)
+        for rec in records:
             if rec.connection.topic != plan.topic:
                 copy.copy(rec)
                 continue

@@ -10,13 +10,15 @@ Three sources, each ending in a ``PoseSpline`` of the base:
   log's ends, which is how the first scan is covered);
 - ``constant-velocity``: the same odometry LiDAR-only (constant-velocity prior and deskew), its scan poses
   interpolated as a trajectory is.
-The IMU is read for the writing pass through a second reader of the log (``ImuWindow``), so memory holds a
-second of IMU, not the log's.
+The writing pass reads the log once (``RecordFeed``): the IMU window (``ImuWindow``) reads ahead of the record
+being written through the same reader, and the records it passes wait in a queue to be written in their order,
+so memory holds about a second of records and IMU, not the log's.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,7 +28,7 @@ from ..config.deskew import DeskewConfig
 from ..core.sweep_motion import PoseSpline, gyro_sweep_poses, sweep_knots
 from ..errors import ConfigError, InputError
 from ..geometry import inv_pose
-from ..io.reader import LogReader, open_log
+from ..io.reader import LogReader, RawRecord, open_log
 from ..io.sources import load_trajectory
 from ..io.stream import SensorStream
 from ..io.topics import choose_topic
@@ -62,15 +64,68 @@ def resolve_motion(cfg: DeskewConfig, reader: LogReader) -> tuple[str, str | Non
     return "imu", imu
 
 
+_IMU_QUEUE_MAX = 100_000  # IMU records the window has not asked for yet (a long IMU tail after the last scan)
+
+
+class RecordFeed:
+    """The writing pass's records, read once from ``reader``: the writer takes them in the log's order
+    (iterating the feed) while the IMU window reads ahead through ``messages``, the source ``SensorStream``
+    expects. Records read ahead wait in a queue until the writer reaches them."""
+
+    def __init__(self, reader: LogReader, imu_topic: str) -> None:
+        self.reader, self.path, self._topic = reader, reader.path, imu_topic
+        self._records = reader.records()
+        self._ahead: deque[RawRecord] = deque()  # read, not yet written
+        self._imu: deque[RawRecord] = deque()  # IMU records read, not yet given to the stream
+
+    def _pull(self) -> RawRecord | None:
+        rec = next(self._records, None)
+        if rec is not None and rec.connection.topic == self._topic:
+            self._imu.append(rec)
+            if len(self._imu) > _IMU_QUEUE_MAX:  # no scan asked for these: older than any sweep still to come
+                self._imu.popleft()
+        return rec
+
+    def __iter__(self) -> Iterator[RawRecord]:
+        while True:
+            rec = self._ahead.popleft() if self._ahead else self._pull()
+            if rec is None:
+                return
+            yield rec
+
+    def messages(self, topics=None, *, fast: bool = True) -> Iterator[tuple[str, str, int, object]]:
+        """The IMU topic's messages in record order, as ``LogReader.messages(fast=True)`` gives them."""
+        while True:
+            while self._imu:
+                rec = self._imu.popleft()
+                yield rec.connection.topic, rec.connection.msgtype, rec.log_time_ns, self.reader.decode(rec)
+            rec = self._pull()
+            if rec is None:
+                return
+            self._ahead.append(rec)
+
+
 class ImuWindow:
-    """IMU samples around the sweep being written, read ahead through a second reader of the same log."""
+    """IMU samples around the sweep being written: read ahead through the writing pass's ``RecordFeed``
+    (``attach``), else through a second reader of the same log."""
 
     def __init__(self, log: Path, fmt: str | None, topic: str, offset_ns: int) -> None:
-        self.reader = open_log(log, fmt)
-        self._stream = iter(SensorStream(self.reader, {"imu": topic}, strict=False))
+        self.log, self.fmt, self.topic = log, fmt, topic
+        self.reader: LogReader | None = None
+        self._stream: Iterator | None = None
         self._imu = ImuBatch("", np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))  # samples held
         self._done = False
         self.offset_ns = offset_ns
+
+    def attach(self, feed: RecordFeed) -> None:
+        """Read the IMU from ``feed`` (before the first ``covering``)."""
+        self._stream = iter(SensorStream(feed, {"imu": self.topic}, strict=False))
+
+    def _next(self):
+        if self._stream is None:
+            self.reader = open_log(self.log, self.fmt)
+            self._stream = iter(SensorStream(self.reader, {"imu": self.topic}, strict=False))
+        return next(self._stream, None)
 
     def covering(self, t0_ns: int, t1_ns: int) -> ImuBatch:
         """The samples from ``t0_ns`` to ``t1_ns`` and a margin around; older ones are let go."""
@@ -80,7 +135,7 @@ class ImuWindow:
             last = fresh[-1].stamps_ns[-1] if fresh else imu.stamps_ns[-1] if len(imu) else None
             if last is not None and last >= t1_ns + _IMU_MARGIN_NS:
                 break
-            rec = next(self._stream, None)
+            rec = self._next()
             if rec is None:
                 self._done = True
                 break
@@ -96,7 +151,8 @@ class ImuWindow:
         return ImuBatch(imu.frame_id, imu.stamps_ns[:hi], imu.gyro_radps[:hi], imu.accel_mps2[:hi])
 
     def close(self) -> None:
-        self.reader.close()
+        if self.reader is not None:
+            self.reader.close()
 
 
 @dataclass

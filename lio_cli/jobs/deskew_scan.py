@@ -18,6 +18,7 @@ import numpy as np
 from ..config.deskew import DeskewConfig
 from ..core.sweep_motion import deskew_to_sensor
 from ..core.voxel_map import VoxelMap
+from ..geometry import row_norms
 from ..errors import InputError
 from ..io.cloud_rewrite import build_pointcloud2, deskewed_data, laserscan_cloud, patch_pointcloud2
 from ..io.decode import LASERSCAN, POINTCLOUD2
@@ -164,7 +165,7 @@ class ScanWriter:
         tick = time.perf_counter()
         T_bl = self.motion.T_base_lidar
         xyz = deskew_to_sensor(cloud.points, cloud.point_stamps_ns, knots, poses, t_ref, T_bl)
-        shift = np.linalg.norm(xyz - cloud.points, axis=1)
+        shift = row_norms(xyz - cloud.points)
         self._shift_m.append(float(np.median(shift)))
         self._max_shift_m = max(self._max_shift_m, float(shift.max()))
         if self.voxels is not None:

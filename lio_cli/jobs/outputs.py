@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import dump_model
 from ..io.files import atomic_output, check_writable
 from ..io.trajectory_files import format_tum
 
@@ -63,6 +62,8 @@ def _json_default(o):
 
 def write_run(out: Path, text: str, config, metrics: dict, force: bool) -> None:
     """Write ``text`` to ``out`` and the resolved ``config`` and ``metrics`` beside it (each atomically)."""
+    from ..config import dump_model  # pydantic: loaded only by the commands that write a config
+
     traj, metrics_path, config_path = run_outputs(out)
     with atomic_output(traj, force) as tmp:
         tmp.write_text(text)

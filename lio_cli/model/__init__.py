@@ -1,9 +1,22 @@
-"""Plain data every layer shares: sensor records, the trajectory type, the calibration."""
+"""Plain data every layer shares: sensor records, the trajectory type, the calibration.
 
-from .calibration import Calibration, Extrinsics
-from .records import (ImuBatch, OdometryRecord, PointCloud, PoseRecord, Record, TimeConvention, TopicInfo,
-                      TransformRecord)
-from .trajectory import Trajectory
+The names below are loaded on first use (PEP 562): ``lio_cli.model.trajectory`` alone must not pull in the
+calibration's pydantic models, which ``lio evaluate`` never needs."""
+
+from importlib import import_module
+
+_WHERE = {"Calibration": "calibration", "Extrinsics": "calibration", "ImuBatch": "records",
+          "OdometryRecord": "records", "PointCloud": "records", "PoseRecord": "records", "Record": "records",
+          "TimeConvention": "records", "TopicInfo": "records", "TransformRecord": "records",
+          "Trajectory": "trajectory"}
 
 __all__ = ["Calibration", "Extrinsics", "ImuBatch", "OdometryRecord", "PointCloud", "PoseRecord", "Record",
            "TimeConvention", "TopicInfo", "TransformRecord", "Trajectory"]
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

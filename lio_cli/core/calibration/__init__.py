@@ -14,13 +14,30 @@ on the LiDAR clock; rotations and lever arms are ``T_lidar_imu`` (IMU into LiDAR
 ``T_base_imu = T_base_lidar @ T_lidar_imu``.
 """
 
-from .allan import AllanFit, AllanResult, allan_deviation, estimate_allan
-from .allan_report import allan_plot_png, kalibr_imu_yaml
-from .imu_static import ImuStatic, StillOptions, estimate_imu_static, find_still_stretch
-from .lever_arm import LeverArmCalib, estimate_lever_arm
-from .rotation import RotationCalib, estimate_rotation
-from .time_offset import TimeOffset, estimate_time_offset
-from .wheel import WheelCalib, estimate_wheel_scales
+from importlib import import_module
+
+# Names load their module on first use (PEP 562): lio odom's online clock-offset estimator needs time_offset
+# only, not the Allan fit (scipy.optimize's nnls), the lever arm and wheel estimators (scipy.linalg) or their
+# plots, which would cost every odom and deskew run their import time.
+_WHERE = {
+    "AllanFit": "allan", "AllanResult": "allan", "allan_deviation": "allan", "estimate_allan": "allan",
+    "allan_plot_png": "allan_report", "kalibr_imu_yaml": "allan_report",
+    "ImuStatic": "imu_static", "StillOptions": "imu_static", "estimate_imu_static": "imu_static",
+    "find_still_stretch": "imu_static",
+    "LeverArmCalib": "lever_arm", "estimate_lever_arm": "lever_arm",
+    "RotationCalib": "rotation", "estimate_rotation": "rotation",
+    "TimeOffset": "time_offset", "estimate_time_offset": "time_offset",
+    "WheelCalib": "wheel", "estimate_wheel_scales": "wheel",
+}
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "AllanFit", "AllanResult", "ImuStatic", "LeverArmCalib", "RotationCalib", "StillOptions", "TimeOffset",

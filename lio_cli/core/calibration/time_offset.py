@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from ...errors import InputError
 from ...geometry import skew
@@ -90,6 +89,8 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
                          f"+-{max_offset_s:g} s (best alignment {score[k]:.2f}): wrong IMU topic, or a trajectory of "
                          f"another sensor?")
     _note_aliases(grid, score, k, notes)
+
+    from scipy.optimize import minimize_scalar  # deferred: importing scipy.optimize costs every odom run ~0.1 s
 
     gyro_int = GyroOrientation(istamps, gyro, bias0)
     keep = np.ones(len(ia), bool)
