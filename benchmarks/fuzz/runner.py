@@ -122,7 +122,9 @@ def classify(run: dict, new_files: set[str], allowed: set[str], args: argparse.N
         cats.append("signal")
     if _WARNING.search(err):
         cats.append("warning text")
-    if new_files - (allowed if code == 0 else set()):
+    # exit 1 from a lost track writes the trajectory up to there on purpose (issue 8), and says where
+    kept = allowed if code == 0 or (code == 1 and "the trajectory up to there is in" in err) else set()
+    if new_files - kept:
         cats.append("leftover file")
     lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("lio: warning:")]
     if code == 2 and len(lines) > 1:
