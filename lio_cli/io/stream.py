@@ -64,29 +64,26 @@ MAX_TWIST_MPS = 1e3
 MAX_TWIST_RADPS = 1e3
 
 
+def _vector_problem(checks) -> str | None:
+    """The first problem of ``(values, limit, what, unit)`` vectors: a NaN/infinity, or a magnitude beyond limit."""
+    if not all(math.isfinite(v) for values, *_ in checks for v in values):
+        return "holds NaN or infinity"
+    for values, limit, what, unit in checks:
+        m = max(map(abs, values))
+        if m > limit:
+            return f"holds {what} of {m:.3g} {unit} (beyond {limit:g})"
+    return None
+
+
 def imu_sample_problem(gyro, accel) -> str | None:
     """Why an IMU sample is unusable (a NaN, or a value out of any IMU's range), or None if it is fine."""
-    values = (*gyro, *accel)
-    if not all(map(math.isfinite, values)):
-        return "holds NaN or infinity"
-    g, a = max(map(abs, gyro)), max(map(abs, accel))
-    if g > MAX_IMU_GYRO_RADPS:
-        return f"holds an angular rate of {g:.3g} rad/s (beyond {MAX_IMU_GYRO_RADPS:g})"
-    if a > MAX_IMU_ACCEL_MPS2:
-        return f"holds an acceleration of {a:.3g} m/s^2 (beyond {MAX_IMU_ACCEL_MPS2:g})"
-    return None
+    return _vector_problem(((gyro, MAX_IMU_GYRO_RADPS, "an angular rate", "rad/s"),
+                            (accel, MAX_IMU_ACCEL_MPS2, "an acceleration", "m/s^2")))
 
 
 def twist_problem(linear, angular) -> str | None:
     """Why an odometry twist is unusable (NaN, or beyond anything that moves), or None if it is fine."""
-    if not all(map(math.isfinite, (*linear, *angular))):
-        return "holds NaN or infinity"
-    v, w = max(map(abs, linear)), max(map(abs, angular))
-    if v > MAX_TWIST_MPS:
-        return f"holds a speed of {v:.3g} m/s (beyond {MAX_TWIST_MPS:g})"
-    if w > MAX_TWIST_RADPS:
-        return f"holds a turn rate of {w:.3g} rad/s (beyond {MAX_TWIST_RADPS:g})"
-    return None
+    return _vector_problem(((linear, MAX_TWIST_MPS, "a speed", "m/s"), (angular, MAX_TWIST_RADPS, "a turn rate", "rad/s")))
 
 
 class SensorStream:
