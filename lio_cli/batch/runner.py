@@ -15,7 +15,7 @@ from ..io.files import check_writable
 from .commands import resolve_config
 from .executors import Executor
 from .manifest import RunSpec
-from .runs import RunTask, finished_since, partial_folders, record
+from .runs import HASH_FILE, RunTask, finished_since, partial_folders, record
 from .summary import Summary, write_summary
 
 SUMMARY_FILES = ("summary.json", "summary.csv")
@@ -34,7 +34,7 @@ def plan_batch(specs: list[RunSpec], root: Path | None, resume: bool, force: boo
     check_writable(root if not root.exists() else root / SUMMARY_FILES[0], True, inputs)
     if root.exists():  # no run folder may be (or hold, or lie in) a log: a run replaces its folder
         for t in tasks:
-            check_writable(root / t.name, True, inputs)
+            check_writable(root / t.name, True, inputs, replaceable=_run_folder)
     if root.exists() and not (resume or force):
         earlier = [root / n for n in SUMMARY_FILES] + [root / t.name for t in tasks]
         found = [p for p in earlier if p.exists()]
@@ -97,3 +97,8 @@ def _summary(tasks: list[RunTask], records: dict[str, dict], executor: Executor,
 
 
 __all__ = ["SUMMARY_FILES", "plan_batch", "run_batch"]
+
+
+def _run_folder(folder: Path) -> bool:
+    """A folder a run may replace: one a finished run wrote (its job hash inside), or an empty one."""
+    return (folder / HASH_FILE).is_file() or not any(folder.iterdir())

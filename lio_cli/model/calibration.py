@@ -13,8 +13,45 @@ MAX_CLOCK_OFFSET_S = 4e9
 _ORTHO_TOL = 1e-3
 
 
+def _vector3(v: list[float] | None) -> list[float] | None:
+    if v is not None and (len(v) != 3 or not np.isfinite(v).all()):
+        raise ValueError("must be 3 finite numbers (x, y, z)")
+    return v
+
+
+class ImuNoiseCalibration(BaseModel):
+    """IMU noise as ``lio calibrate`` measured it (continuous-time densities, mean of the three axes)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    source: str = Field("", description="still stretch or Allan variance, and over how long")
+    gyro_noise_radps: Optional[float] = Field(None, ge=0, description="gyro white noise, rad/s/sqrt(Hz)")
+    accel_noise_mps2: Optional[float] = Field(None, ge=0, description="accel white noise, m/s^2/sqrt(Hz)")
+    gyro_bias_walk: Optional[float] = Field(None, ge=0, description="gyro bias random walk, rad/s^2/sqrt(Hz)")
+    accel_bias_walk: Optional[float] = Field(None, ge=0, description="accel bias random walk, m/s^3/sqrt(Hz)")
+    gyro_bias_instability_radps: Optional[float] = Field(None, ge=0)
+    accel_bias_instability_mps2: Optional[float] = Field(None, ge=0)
+
+
+class WheelCalibration(BaseModel):
+    """Wheel odometry scale factors: true speed = speed_scale * wheel speed, likewise the yaw rate."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    speed_scale: float = Field(gt=0)
+    speed_scale_sigma: float = Field(ge=0)
+    yaw_rate_scale: float = Field(gt=0)
+    yaw_rate_scale_sigma: float = Field(ge=0)
+    radius_m: Optional[float] = Field(None, gt=0, description="mean wheel radius (with the nominal one given)")
+    radius_sigma_m: Optional[float] = Field(None, ge=0)
+    baseline_m: Optional[float] = Field(None, gt=0, description="effective track width (with the nominal one given)")
+    baseline_sigma_m: Optional[float] = Field(None, ge=0)
+
+
 class Calibration(BaseModel):
-    """What a calibration may hold (all optional): extrinsics as 4x4 row lists, IMU clock offset, biases.
+    """What a calibration may hold (all optional): extrinsics as 4x4 row lists, IMU clock offset, biases, and
+    what ``lio calibrate`` writes beside them (1-sigmas, IMU noise, wheel scales), which the other commands
+    read without using.
 
     ``T_base_imu``/``T_base_lidar`` map sensor points into the base frame; ``imu_time_offset_s`` is added to
     IMU stamps to put them on the LiDAR's clock.
@@ -27,6 +64,14 @@ class Calibration(BaseModel):
     imu_time_offset_s: float = Field(0.0, description="t_lidar_clock = t_imu_stamp + offset")
     gyro_bias_radps: Optional[list[float]] = None
     accel_bias_mps2: Optional[list[float]] = None
+    # 1-sigmas beside the values (rotation about and translation along the base axes)
+    imu_time_offset_sigma_s: Optional[float] = Field(None, ge=0)
+    T_base_imu_rotation_sigma_rad: Optional[list[float]] = None
+    T_base_imu_translation_sigma_m: Optional[list[float]] = None
+    gyro_bias_sigma_radps: Optional[list[float]] = None
+    accel_bias_sigma_mps2: Optional[list[float]] = None
+    imu_noise: Optional[ImuNoiseCalibration] = None
+    wheel: Optional[WheelCalibration] = None
 
     @field_validator("T_base_imu", "T_base_lidar")
     @classmethod
@@ -51,12 +96,17 @@ class Calibration(BaseModel):
             raise ValueError(f"must be a finite number of seconds within +-{MAX_CLOCK_OFFSET_S:g}")
         return v
 
-    @field_validator("gyro_bias_radps", "accel_bias_mps2")
+    @field_validator("gyro_bias_radps", "accel_bias_mps2", "gyro_bias_sigma_radps", "accel_bias_sigma_mps2")
     @classmethod
     def _bias(cls, v: list[float] | None) -> list[float] | None:
         if v is not None and (len(v) != 3 or not np.isfinite(v).all()):
             raise ValueError("must be 3 finite numbers (x, y, z in the IMU frame)")
         return v
+
+    @field_validator("T_base_imu_rotation_sigma_rad", "T_base_imu_translation_sigma_m")
+    @classmethod
+    def _sigma3(cls, v: list[float] | None) -> list[float] | None:
+        return _vector3(v)
 
     @property
     def imu_time_offset_ns(self) -> int:

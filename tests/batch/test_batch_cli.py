@@ -325,7 +325,7 @@ def test_a_run_folder_is_never_an_input(sim, tmp_path, capsys):
     shutil.copy(sim.logs["walk_a"], log / "walk_a.bag")
     assert main(["batch", "odom", str(log), "-O", str(tmp_path), "--force", "-q"]) == 2
     assert capsys.readouterr().err == (f"lio: error: {log}: is an input of this run (the input {log}); lio never "
-                                       "writes over its inputs (--force or not): choose another output\n")
+                                       "writes over its inputs, whatever the options: choose another output\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk_a"] and (log / "walk_a.bag").exists()
 
 
@@ -358,3 +358,24 @@ def test_ctrl_c_keeps_finished_runs_complete_and_leaves_no_half_written_one(sim,
     assert folders == sorted(done)  # finished runs only: no partial folder, no half-written run
     for name in done:
         assert_as_single_command(sim, out / name, name[:-1])
+
+
+def test_force_never_replaces_a_folder_no_run_wrote(sim, pooled, tmp_path, capsys):
+    """--force redoes finished runs, but a folder at a run's place that no run wrote (no job hash inside: a
+    user's own data) is refused before any run starts, exit 2 naming it, its files intact."""
+    _, manifest, out, _, _ = pooled
+    shutil.copytree(out, tmp_path / "out")
+    copy = write_manifest(tmp_path / "runs.yaml", manifest.read_text())
+    out = tmp_path / "out"
+    shutil.rmtree(out / "walk_a")
+    (out / "walk_a").mkdir()
+    (out / "walk_a" / "notes.txt").write_text("precious\n")
+    before = (out / "walk_b" / "odom.tum").stat().st_mtime_ns
+    capsys.readouterr()
+    rc, _ = run_lio("batch", copy, "--jobs", "1", "--force", "-q")
+    assert rc == 2
+    assert capsys.readouterr().err.strip() == (f"lio: error: {out / 'walk_a'}: is a folder that is not an output lio wrote; lio replaces "
+                           "only such folders, even with --force: choose another output")
+    assert (out / "walk_a" / "notes.txt").read_text() == "precious\n"
+    assert sorted(p.name for p in (out / "walk_a").iterdir()) == ["notes.txt"]
+    assert (out / "walk_b" / "odom.tum").stat().st_mtime_ns == before

@@ -1,0 +1,114 @@
+"""``lio calibrate``: the calibration every other command reads with --calib, from one log
+(flags -> CalibrateJob -> run_calibrate -> print)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from ..config import load_calibration, load_model, with_overrides
+from ..config.calibrate import CalibrateConfig
+from ..io.pointcloud import parse_time_convention
+from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate
+from ..jobs.calibrate_report import format_table
+from ..jobs.outputs import log_stem
+from .common import (ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt, QuietOpt,
+                     WheelTopicOpt, err_console, job_progress, note, print_json)
+
+HELP = """Estimate, from one log, the calibration that odom, deskew and fuse read with --calib, and write it
+to OUT.yaml (default: LOG's name + .calib.yaml in the current folder).
+
+[bold]What it estimates[/bold], each only when the log holds what it needs (otherwise a line "skipped: X
+because Y" says why and how to move to get it):
+the IMU at rest (a still stretch found automatically, or --still START:END): gyro bias, accelerometer bias
+along gravity, white-noise densities; the LiDAR-IMU time offset, rotation and translation (LiDAR odometry of
+the log itself, LiDAR-only first, then IMU-primed with the first estimates, against the gyro and the
+accelerometer); wheel odometry speed and yaw-rate scales (and radius and baseline with --wheel-radius and
+--wheel-baseline); with --allan the Allan variance of a static IMU log (--plot DIR draws it, --kalibr FILE
+writes Kalibr's imu.yaml).
+
+[bold]The YAML[/bold]: T_base_imu and T_base_lidar map sensor points into the base frame (4x4, metres);
+T_base_lidar is taken from /tf_static (else --calib, else identity: base = LiDAR); imu_time_offset_s is ADDED
+to IMU stamps to put them on the LiDAR's clock; biases in the IMU frame; 1-sigmas beside the values.
+
+On stderr: a table of each value, its 1-sigma and its difference from --calib (else /tf_static) in degrees,
+cm and ms. Also written: OUT-stem.metrics.json and OUT-stem.config.yaml. Bad input (no IMU, no still
+stretch where one is needed, too little motion, clocks that disagree): one line, exit 2, nothing written.
+
+[bold]Examples[/bold]
+
+  lio calibrate walk.bag                                  # writes walk.calib.yaml
+
+  lio calibrate walk.bag -o walk.calib.yaml && lio odom walk.bag --calib walk.calib.yaml
+
+  lio calibrate robot.mcap --wheel-radius 0.08 --wheel-baseline 0.42 --calib nominal.yaml
+
+  lio calibrate imu_2h.mcap --allan --plot allan/ --kalibr imu.yaml
+"""
+
+
+def calibrate(
+    log: LogArg,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="Calibration YAML to write (default: LOG's name + .calib.yaml).", show_default=False)] = None,
+    still: Annotated[Optional[str], typer.Option("--still", help="START:END seconds after the first IMU sample where the IMU rests (default: found).", show_default=False)] = None,
+    allan: Annotated[bool, typer.Option("--allan", help="Allan variance of the whole log (a static IMU recording of hours): noise and random walks.")] = False,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for the Allan deviation plot (needs --allan).", show_default=False)] = None,
+    kalibr: Annotated[Optional[Path], typer.Option("--kalibr", help="Also write Kalibr's imu.yaml here (needs --allan).", show_default=False)] = None,
+    wheel_radius: Annotated[Optional[float], typer.Option("--wheel-radius", help="Nominal wheel radius in m: estimate the true one.", show_default=False)] = None,
+    wheel_baseline: Annotated[Optional[float], typer.Option("--wheel-baseline", help="Nominal wheel baseline in m: estimate the true one.", show_default=False)] = None,
+    calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with (its T_base_lidar is used where /tf_static is silent).", show_default=False)] = None,
+    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)] = None,
+    base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)] = None,
+    lidar_topic: LidarTopicOpt = None,
+    imu_topic: ImuTopicOpt = None,
+    wheel_topic: WheelTopicOpt = None,
+    point_time: PointTimeOpt = None,
+    fmt: FormatOpt = None,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
+    force: ForceOpt = False,
+) -> None:
+    cfg = load_model(CalibrateConfig, config)
+    if calib is not None:  # the file's fields replace the config's, one by one
+        cal = load_calibration(calib)
+        cfg = with_overrides(cfg, {f"prior.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    if point_time is not None:
+        parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
+    cfg = with_overrides(cfg, {
+        "still": still, "allan": True if allan else None, "wheel_radius_m": wheel_radius,
+        "wheel_baseline_m": wheel_baseline, "input.format": fmt, "input.lidar_topic": lidar_topic,
+        "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic, "input.base_frame": base_frame,
+        "input.point_time": point_time,
+    })
+    out = Path(output) if output is not None else Path(f"{log_stem(log)}.calib.yaml")
+    job = CalibrateJob(Path(log), out, cfg, plot, kalibr, force, tuple(p for p in (config, calib) if p is not None))
+    check_calibrate_outputs(job)
+    with job_progress("calibrating", quiet) as update:
+        result = run_calibrate(job, progress=update)
+    _report(result, quiet)
+    if as_json:
+        print_json({k: result.metrics[k] for k in ("log", "output", "topics", "reference", "calibration", "table",
+                                                    "skipped", "notes", "time_s")})
+
+
+def _report(result: CalibrateResult, quiet: bool) -> None:
+    m = result.metrics
+    for role, topic in m["topics"].items():
+        note(f"{role}: {topic or '-'}", quiet)
+    if m["lidar_trajectory"]:
+        note(f"LiDAR trajectory: {m['lidar_trajectory']}", quiet)
+    if not quiet:
+        for line in format_table(result.table, result.reference):
+            err_console.print(line, markup=False, highlight=False)
+    for s in result.skipped:
+        err_console.print(s.line(), markup=False)
+    for n in result.notes:
+        note(f"note: {n}", quiet)
+    note(f"wrote {m['output']}; {m['time_s']['total']:.1f} s wall", quiet)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("calibrate", help=HELP, short_help="Calibration (IMU, LiDAR-IMU, wheels) from one log.",
+                no_args_is_help=True)(calibrate)

@@ -1,0 +1,64 @@
+"""``lio calibrate``'s configuration: everything a run needs besides the log and its outputs.
+
+The ``.config.yaml`` a run writes is this model after resolution (topics chosen, base frame found), so
+``lio calibrate LOG --config that.config.yaml`` repeats the run. ``prior`` is what the estimates are compared
+with (``--calib``); /tf_static, when the log has it, is compared too.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Optional
+
+from pydantic import Field, field_validator
+
+from ..model.calibration import Calibration
+from . import Strict
+from .odom import InputConfig, RegistrationConfig
+
+_STILL = re.compile(r"^\s*([0-9.eE+-]+)\s*:\s*([0-9.eE+-]+)\s*$")
+
+
+def parse_still(text: str) -> tuple[float, float]:
+    """``"START:END"`` (seconds after the log's first message) -> (start_s, end_s); ValueError when not so."""
+    m = _STILL.match(text)
+    try:
+        a, b = (float(m.group(1)), float(m.group(2))) if m else (math.nan, math.nan)
+    except ValueError:
+        a, b = math.nan, math.nan
+    if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
+        raise ValueError(f"'{text}' is not START:END in seconds after the first IMU sample with 0 <= START < END "
+                         "(e.g. 0:2.5)")
+    return a, b
+
+
+class CalibrateConfig(Strict):
+    """Everything ``lio calibrate`` can be told; flags override the YAML field by field."""
+
+    input: InputConfig = InputConfig()
+    prior: Calibration = Field(Calibration(), description="a calibration to compare with (--calib); its "
+                               "T_base_lidar is used where /tf_static is silent")
+    still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "
+                                 "default: found automatically")
+    allan: bool = Field(False, description="Allan variance of the whole log (a static IMU recording, hours)")
+    wheel_radius_m: Optional[float] = Field(None, gt=0, description="nominal wheel radius: estimate the true one")
+    wheel_baseline_m: Optional[float] = Field(None, gt=0, description="nominal wheel baseline: estimate the true one")
+    max_offset_s: float = Field(0.5, gt=0, le=5.0, description="largest IMU-LiDAR time offset searched (either sign)")
+    refine: list[tuple[float, float]] = Field(
+        [(0.001, 0.0001), (0.01, 0.001)], max_length=4,
+        description="IMU-primed odometry passes after the LiDAR-only one, each with the previous estimates and "
+        "then the estimates again: per pass the registration's position (m) and rotation (rad) sigmas in the "
+        "fusion (small: the trajectory follows the LiDAR, hardly biased by the estimates it starts from; larger: "
+        "smoother, for the lever arm); [] = the LiDAR-only pass alone")
+    registration: RegistrationConfig = RegistrationConfig()
+
+    @field_validator("still")
+    @classmethod
+    def _still(cls, v: str | None) -> str | None:
+        if v is not None:
+            parse_still(v)
+        return v
+
+
+__all__ = ["CalibrateConfig", "parse_still"]

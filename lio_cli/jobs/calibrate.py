@@ -1,0 +1,249 @@
+"""The ``calibrate`` job: estimate, from one log, the calibration every other command reads with ``--calib``.
+
+``CalibrateJob`` (log, output YAML, configuration, optional Allan plot folder and Kalibr file) ->
+``run_calibrate`` -> ``CalibrateResult`` (the calibration, the table of values / 1-sigmas / differences from
+the reference, the skipped items with their reasons, metrics). Every output location is checked first; the
+log is read in one pass gathering the IMU and wheel arrays while the LiDAR-only odometry runs
+(``calibrate_passes``), the estimators run (``calibrate_estimate``), an IMU-primed pass sharpens the
+trajectory and they run again. Bad input raises before anything is written; then the YAML, its
+``.metrics.json`` and ``.config.yaml`` (and the Kalibr file and the plot) are written atomically.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..config import dump_model, with_overrides
+from ..config.calibrate import CalibrateConfig, parse_still
+from ..core.calibration import allan_plot_png, kalibr_imu_yaml
+from ..errors import ConfigError, InputError
+from ..io.clocks import check_same_clock
+from ..io.decode import IMU, LASERSCAN
+from ..io.detect import input_paths
+from ..io.files import atomic_output, check_writable
+from ..io.reader import open_log
+from ..io.tf import read_static_frames
+from ..io.topics import choose_topic
+from ..model.calibration import Calibration
+from . import calibrate_estimate as steps
+from .calibrate_passes import LidarPass, Progress, read_imu
+from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, table
+from .odom_inputs import BASE_FRAME_NAMES
+from .outputs import beside, json_text
+
+PLOT_NAME = "allan_deviation.png"
+
+
+@dataclass(frozen=True)
+class CalibrateJob:
+    """Everything one ``lio calibrate`` run needs. ``plot_dir``: write the Allan deviation plot there;
+    ``kalibr``: also write Kalibr's imu.yaml (both need ``config.allan``)."""
+
+    log: Path
+    out: Path
+    config: CalibrateConfig = field(default_factory=CalibrateConfig)
+    plot_dir: Path | None = None
+    kalibr: Path | None = None
+    force: bool = False
+    extra_inputs: tuple[Path, ...] = ()  # files read besides the log (--config, --calib): never outputs
+
+
+@dataclass
+class CalibrateResult:
+    calibration: Calibration  # what the YAML holds
+    table: list[dict]  # quantity, unit, value, sigma, diff (estimate - reference)
+    reference: str | None  # what the differences are against
+    skipped: list[steps.Skipped]
+    config: CalibrateConfig  # resolved: repeats the run
+    metrics: dict
+    notes: list[str] = field(default_factory=list)
+    outputs: list[Path] = field(default_factory=list)
+
+
+def sidecars(out: Path) -> tuple[Path, Path]:
+    return beside(Path(out), ".metrics.json"), beside(Path(out), ".config.yaml")
+
+
+def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
+    """Every output may be written and is none of the inputs (before any work); returns them."""
+    if (job.plot_dir is not None or job.kalibr is not None) and not job.config.allan:
+        raise ConfigError("--plot and --kalibr write the Allan variance results: give --allan too")
+    inputs = [*input_paths(job.log), *job.extra_inputs]
+    outs = [Path(job.out), *sidecars(job.out)]
+    if job.kalibr is not None:
+        outs.append(Path(job.kalibr))
+    if job.plot_dir is not None:
+        if job.plot_dir.exists() and not job.plot_dir.is_dir():
+            raise ConfigError(f"--plot {job.plot_dir}: not a folder")
+        outs.append(Path(job.plot_dir) / PLOT_NAME)
+    for p in outs:
+        if p.parent == job.plot_dir and not p.parent.exists():
+            continue  # the plot folder is made when the plot is written
+        check_writable(p, job.force, inputs)
+    return outs
+
+
+def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> CalibrateResult:
+    """Estimate the calibration of ``job.log`` and write it (with metrics, config and the Allan files)."""
+    t_wall = time.perf_counter()
+    outs = check_calibrate_outputs(job)
+    cfg, est, times = job.config, steps.Estimates(), {}
+    with open_log(job.log, cfg.input.format) as reader:
+        where = str(reader.path)
+        if not any(i.msgtype == IMU and i.count > 0 for i in reader.topics.values()) and cfg.input.imu_topic is None:
+            raise InputError(f"{where}: no IMU topic (sensor_msgs/Imu): lio calibrate calibrates an IMU (against the "
+                             "LiDAR and the wheels); name one with --imu-topic")
+        imu_topic = choose_topic(reader, "imu", cfg.input.imu_topic).topic
+        lidar = choose_topic(reader, "lidar", cfg.input.lidar_topic, required=cfg.input.lidar_topic is not None).topic
+        wheel = choose_topic(reader, "wheel", cfg.input.wheel_topic, required=cfg.input.wheel_topic is not None).topic \
+            if lidar else None
+        tree = read_static_frames(reader)
+        base = cfg.input.base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
+        still_s = None if cfg.still is None else parse_still(cfg.still)
+        t0 = time.perf_counter()
+        T_base_lidar = lidar_source = None
+        if lidar is None:
+            imu = read_imu(reader, imu_topic)
+            imu_frame, traj = imu.frame_id, None
+            still_ns = _still_ns(imu, still_s)
+            times["read"] = time.perf_counter() - t0
+            steps.imu_at_rest(imu, still_ns, None if cfg.allan else "the log has no LiDAR: the IMU at rest is all "
+                              "there is to calibrate", est, where)
+            est.skip("the LiDAR-IMU time offset, rotation and translation", "the log has no LiDAR topic")
+        else:
+            check_same_clock(reader, lidar, imu_topic, cfg.prior.imu_time_offset_ns)
+            planar = reader.topics[lidar].msgtype == LASERSCAN
+            n = reader.topics[lidar].count
+            total = n * (1 + len(cfg.refine))
+            topics = {"lidar": lidar, "imu": imu_topic, "wheel": wheel}
+            traj, arrays = LidarPass(reader, cfg, topics, planar, progress, 0, total).run(gather=True)
+            times["lidar_pass"] = time.perf_counter() - t0
+            imu = arrays.imu
+            if imu is None:
+                raise InputError(f"{where}: {imu_topic}: no IMU sample could be read")
+            imu_frame = arrays.imu_frame
+            still_ns = _still_ns(imu, still_s)
+            T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
+            ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
+            T_ref = reference_T_lidar_imu(ref, T_base_lidar)
+            prior_offset = cfg.prior.imu_time_offset_s if ref_name == "--calib" else None
+            t0 = time.perf_counter()
+            steps.imu_at_rest(imu, still_ns, None, est, where)
+            bias0 = None if est.static is None else est.static.gyro_bias_radps
+            traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
+            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine, prior_offset=prior_offset)
+            times["estimate"] = time.perf_counter() - t0
+            for k, sigmas in enumerate(cfg.refine, start=1):
+                t0 = time.perf_counter()
+                mounting = (T_lidar_imu_of(est, T_ref), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps)
+                traj, _ = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, k * n,
+                                    total).run(mounting, sigmas=tuple(sigmas))
+                times[f"refine_pass_{k}"] = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=k == len(cfg.refine),
+                                 prior_offset=prior_offset)
+                times[f"estimate_{k}"] = time.perf_counter() - t0
+            steps.wheels(arrays, traj, T_base_lidar, cfg, est, where)
+        if cfg.allan:
+            t0 = time.perf_counter()
+            steps.allan(imu, est, where)
+            times["allan"] = time.perf_counter() - t0
+        if lidar is None:
+            ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, None)
+            T_ref = None
+        fmt, span_s = reader.format, reader.duration_ns * 1e-9
+    cal = compose(est, T_base_lidar, T_ref)
+    rows = table(cal, ref, ref_name)
+    resolved = with_overrides(cfg, {"input.format": fmt, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
+                                    "input.wheel_topic": wheel, "input.base_frame": base}, "resolved configuration")
+    wall = time.perf_counter() - t_wall
+    notes = list(dict.fromkeys(est.notes))
+    metrics = {
+        "command": "calibrate", "log": str(job.log), "format": fmt, "output": str(job.out),
+        "topics": {"lidar": lidar, "imu": imu_topic, "wheel": wheel}, "base_frame": base,
+        "T_base_lidar_from": lidar_source, "reference": ref_name,
+        "lidar_trajectory": None if traj is None else traj.description,
+        "conventions": {"T_base_imu": "maps IMU points into the base frame",
+                        "imu_time_offset_s": "added to IMU stamps to put them on the LiDAR's clock"},
+        "calibration": cal.model_dump(mode="json", exclude_none=True), "table": rows,
+        "skipped": [{"item": s.item, "reason": s.reason} for s in est.skipped],
+        "estimators": {k: v.to_dict() for k, v in (("imu_static", est.static), ("time_offset", est.offset),
+                                                   ("rotation", est.rotation), ("lever_arm", est.lever),
+                                                   ("wheel", est.wheel)) if v is not None},
+        "allan": None if est.allan is None else _allan_summary(est.allan),
+        "time_s": {**{k: round(v, 4) for k, v in times.items()}, "total": round(wall, 4)},
+        "log_duration_s": round(span_s, 4), "notes": notes,
+    }
+    _write(job, cal, resolved, metrics, est)
+    return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs)
+
+
+def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | None:
+    """--still START:END (seconds after the first IMU sample) as IMU stamps."""
+    if still_s is None:
+        return None
+    t0 = int(imu.stamps_ns[0])
+    return t0 + int(round(still_s[0] * 1e9)), t0 + int(round(still_s[1] * 1e9))
+
+
+def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:
+    T = tree.lookup(base, frame) if frame else None
+    if T is not None:
+        return T, f"/tf_static ({base} -> {frame})"
+    if prior.T_base_lidar is not None:
+        return prior.matrix("T_base_lidar"), "--calib"
+    est.notes.append(f"no T_base_lidar ({base} -> {frame or '?'}) in /tf_static or --calib: the LiDAR is taken as the "
+                     "base (identity), so T_base_imu is the IMU in the LiDAR frame")
+    return np.eye(4), "identity (assumed)"
+
+
+def _reference(prior: Calibration, tree, base: str, imu_frame: str,
+               T_base_lidar: np.ndarray | None) -> tuple[Calibration | None, str | None]:
+    """What the estimates are compared with: --calib when it was given, else what /tf_static says."""
+    if prior.model_dump(exclude_none=True) != Calibration().model_dump(exclude_none=True):
+        return prior, "--calib"
+    T = tree.lookup(base, imu_frame) if imu_frame else None
+    if T is None:
+        return None, None
+    fields = {"T_base_imu": T.tolist()}
+    if T_base_lidar is not None:
+        fields["T_base_lidar"] = np.asarray(T_base_lidar).tolist()
+    return Calibration.model_validate(fields), "/tf_static"
+
+
+def _allan_summary(r) -> dict:
+    keep = ("noise_density", "noise_density_sigma", "random_walk", "random_walk_sigma", "noise_density_mean",
+            "random_walk_mean", "bias_instability", "white_slope", "random_walk_slope")
+    return {"rate_hz": r.rate_hz, "duration_s": r.duration_s,
+            **{s: {k: v for k, v in getattr(r, s).to_dict().items() if k in keep} for s in ("gyro", "accel")}}
+
+
+def _write(job: CalibrateJob, cal: Calibration, resolved: CalibrateConfig, metrics: dict, est) -> None:
+    metrics_path, config_path = sidecars(job.out)
+    if job.kalibr is not None:
+        with atomic_output(job.kalibr, job.force) as tmp:
+            tmp.write_text(kalibr_imu_yaml(est.allan, metrics["topics"]["imu"], est.allan.rate_hz))
+    if job.plot_dir is not None:
+        Path(job.plot_dir).mkdir(parents=True, exist_ok=True)
+        with atomic_output(Path(job.plot_dir) / PLOT_NAME, job.force) as tmp:
+            tmp.write_bytes(allan_plot_png(est.allan, f"Allan deviation: {Path(job.log).name}"))
+    with atomic_output(config_path, job.force) as tmp:
+        tmp.write_text(dump_model(resolved))
+    with atomic_output(metrics_path, job.force) as tmp:
+        tmp.write_text(json_text(metrics))
+    with atomic_output(job.out, job.force) as tmp:
+        tmp.write_text(_yaml_text(cal))
+
+
+def _yaml_text(cal: Calibration) -> str:
+    import yaml
+
+    head = ("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame (4x4, metres);\n"
+            "# imu_time_offset_s is added to IMU stamps to put them on the LiDAR's clock; *_sigma_* are 1-sigma\n"
+            "# (rotations about, translations along the base axes). Read by --calib of odom, deskew and fuse.\n")
+    return head + yaml.safe_dump(cal.model_dump(mode="json", exclude_none=True), sort_keys=False,
+                                 default_flow_style=None, width=120)

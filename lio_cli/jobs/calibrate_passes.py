@@ -1,0 +1,175 @@
+"""What ``lio calibrate`` reads from a log: the raw IMU and wheel arrays, and the LiDAR's trajectory from the
+odometry core run over the scans.
+
+The trajectory is of the LiDAR itself (the odometry's base is the LiDAR: ``T_base_lidar`` = identity), in the
+frame of its first scan, at each scan's end on the LiDAR clock. The first pass is LiDAR-only, so nothing in
+it depends on the IMU being calibrated; the refining pass primes registration and de-skews with the IMU
+through the first estimates (``T_lidar_imu``, the clock offset, the gyro bias), which sharpens the
+trajectory on fast motion. Neither uses /tf_static: the point is to find what it should say.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config.calibrate import CalibrateConfig
+from ..config.odom import OdomConfig
+from ..core.odometry import Diverged, LioOdometry
+from ..errors import InputError, ProcessingError
+from ..io.pointcloud import parse_time_convention
+from ..io.reader import LogReader
+from ..io.stream import SensorStream
+from ..model.records import ImuBatch, PointCloud
+
+_IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
+
+Progress = Callable[[int, int | None], None]
+
+
+@dataclass
+class SensorArrays:
+    """Raw IMU samples (IMU clock and frame) and wheel odometry (forward speed, yaw rate of the base)."""
+
+    imu_frame: str = ""
+    imu: ImuBatch | None = None
+    wheel_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    wheel_linear_mps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    wheel_angular_radps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lidar_frame: str = ""
+    scans: int = 0
+
+
+@dataclass
+class LidarTrajectory:
+    stamps_ns: np.ndarray  # (N,) int64, scan ends on the LiDAR clock
+    T_world_lidar: np.ndarray  # (N,4,4), world = the LiDAR at the first scan
+    scans_used: int
+    scans_total: int
+    description: str
+
+
+def pass_config(cfg: CalibrateConfig, with_imu: bool, sigmas: tuple[float, float] = (0.01, 0.001)) -> OdomConfig:
+    """The odometry settings of a pass: LiDAR-only without de-skew, or IMU-primed; no online clock tracking
+    (the offset is what is being estimated) and no wheels (they are being calibrated)."""
+    fields = {"prior": "imu", "deskew": "imu"} if with_imu else {"prior": "constant-velocity", "deskew": "none"}
+    return OdomConfig.model_validate({
+        "input": cfg.input.model_dump(), **fields, "use_wheel": False, "estimate_time_offset": False,
+        "scan_reference": "end", "frame": "lidar", "registration": cfg.registration.model_dump(),
+        # the pose written leans on the registration (sigmas far below odom's): the IMU prediction, whose timing
+        # and mounting are only the previous estimates, de-skews and primes more than it pulls
+        "fusion": {"position_sigma_m": sigmas[0], "rotation_sigma_rad": sigmas[1]},
+    })
+
+
+class LidarPass:
+    """One pass over the log's stream feeding ``LioOdometry`` (base = LiDAR); optionally gathers the IMU and
+    wheel arrays on the way."""
+
+    def __init__(self, reader: LogReader, cfg: CalibrateConfig, topics: dict[str, str | None], planar: bool,
+                 progress: Progress | None = None, progress_base: int = 0, progress_total: int | None = None) -> None:
+        self.reader, self.cfg, self.topics, self.planar = reader, cfg, topics, planar
+        self.progress, self.base, self.total = progress, progress_base, progress_total
+        self.pending: deque[PointCloud] = deque()
+        self.mid_ns: dict[int, int] = {}  # scan end -> middle of its sweep
+        self.done = 0
+
+    def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
+            gather: bool = False, sigmas: tuple[float, float] = (0.01, 0.001)) -> tuple[LidarTrajectory, SensorArrays]:
+        """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for an IMU-primed pass, None for
+        LiDAR only. ``gather``: also collect the IMU and wheel arrays. ``sigmas``: the fusion's per-scan position
+        (m) and rotation (rad) noise of the registration in an IMU-primed pass."""
+        cfg = self.cfg
+        with_imu = imu_mounting is not None
+        conv = parse_time_convention(cfg.input.point_time) if cfg.input.point_time else None
+        wanted = {"lidar": self.topics["lidar"]}
+        if with_imu or gather:
+            wanted["imu"] = self.topics.get("imu")
+        if gather:
+            wanted["wheel"] = self.topics.get("wheel")
+        stream = SensorStream(self.reader, wanted, convention=conv, strict=False)
+        ocfg = pass_config(cfg, with_imu, sigmas)
+        odo = None
+        arrays, imu_batches, wheel = SensorArrays(), [], []
+        offset_ns = int(round(imu_mounting[1] * 1e9)) if with_imu else 0
+        early: list[ImuBatch] = []
+        try:
+            for rec in stream:
+                if rec.kind == "imu":
+                    batch: ImuBatch = rec.data
+                    if gather:
+                        imu_batches.append(batch)
+                    if with_imu:
+                        shifted = ImuBatch(batch.frame_id, batch.stamps_ns + offset_ns, batch.gyro_radps, batch.accel_mps2)
+                        if odo is None:
+                            early.append(shifted)
+                        else:
+                            odo.add_imu(shifted)
+                elif rec.kind == "wheel":
+                    wheel.append(rec.data)
+                elif rec.kind == "lidar":
+                    arrays.scans += 1
+                    if odo is None:
+                        arrays.lidar_frame = rec.data.frame_id
+                        odo = LioOdometry(ocfg, np.eye(4), use_imu=with_imu, planar=self.planar,
+                                          gyro_bias=None if not with_imu else imu_mounting[2])
+                        if with_imu:
+                            odo.set_imu_extrinsic(imu_mounting[0])
+                            for b in early:
+                                odo.add_imu(b)
+                    self.pending.append(rec.data)
+                if odo is not None:
+                    self._process_ready(odo, rec.stamp_ns, with_imu)
+            if odo is not None:
+                self._process_ready(odo, None, with_imu)
+        except Diverged as err:
+            raise ProcessingError(f"{self.reader.path}: the LiDAR odometry behind the calibration failed: {err}") from err
+        if odo is None or len(odo.poses) < 3:
+            raise InputError(f"{self.reader.path}: {self.topics['lidar']}: fewer than 3 scans could be registered; "
+                             "nothing to calibrate the IMU against")
+        if gather:
+            arrays.imu = ImuBatch.concat(imu_batches) if imu_batches else None
+            arrays.imu_frame = imu_batches[0].frame_id if imu_batches else ""
+            _wheel_arrays(arrays, wheel)
+        how = "IMU-primed (first estimates)" if with_imu else "LiDAR only, no de-skew (poses at mid-sweep)"
+        stamps = np.asarray(odo.stamps_ns, np.int64)
+        if not with_imu:  # a scan registered without de-skew is where the sensor was in the middle of its sweep
+            stamps = np.array([self.mid_ns.get(int(t), int(t)) for t in stamps], np.int64)
+        traj = LidarTrajectory(stamps, np.stack(odo.poses), len(odo.poses),
+                               arrays.scans or self.done, f"{how}: {len(odo.poses)} of {self.done} scans")
+        return traj, arrays
+
+    def _process_ready(self, odo: LioOdometry, now_ns: int | None, with_imu: bool) -> None:
+        while self.pending:
+            cloud = self.pending[0]
+            covered = odo.imu_until_ns()
+            if with_imu and now_ns is not None and (covered is None or covered < cloud.end_ns) \
+                    and now_ns - cloud.end_ns < _IMU_WAIT_NS:
+                return
+            self.pending.popleft()
+            self.mid_ns[int(cloud.end_ns)] = (int(cloud.start_ns) + int(cloud.end_ns)) // 2
+            odo.process(cloud)
+            self.done += 1
+            if self.progress:
+                self.progress(self.base + self.done, self.total)
+
+
+def _wheel_arrays(arrays: SensorArrays, recs: list) -> None:
+    if not recs:
+        return
+    s = np.array([r.stamp_ns for r in recs], np.int64)
+    keep = np.concatenate([[True], np.diff(s) > 0])
+    arrays.wheel_stamps_ns = s[keep]
+    arrays.wheel_linear_mps = np.array([r.linear_mps[0] for r in recs])[keep]
+    arrays.wheel_angular_radps = np.array([r.angular_radps[2] for r in recs])[keep]
+
+
+def read_imu(reader: LogReader, topic: str) -> ImuBatch:
+    """Every sample of an IMU topic (for IMU-only logs: static and Allan)."""
+    batches = [rec.data for rec in SensorStream(reader, {"imu": topic}, strict=False)]
+    if not batches:
+        raise InputError(f"{reader.path}: {topic}: no IMU sample could be read")
+    return ImuBatch.concat(batches)

@@ -1,0 +1,216 @@
+"""``lio calibrate`` from the command line: the YAML odom reads, the table, the bad-input lines (exit 2,
+nothing written)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lio_cli.cli.app import main
+from lio_cli.config import load_calibration
+from lio_cli.io.writer import LogWriter
+from lio_cli.simulation.run import simulate
+
+T0 = 1_700_000_000 * 10**9
+G = 9.81
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    root = tmp_path_factory.mktemp("walk")
+    return simulate("handheld", root / "walk.bag", "ros1", duration_s=8.0, seed=7, columns=512,
+                    imu_time_offset_s=-0.04, imu_rotation_deg=(0.0, 10.0, 45.0), imu_lever_arm_m=(0.2, 0.1, 0.0),
+                    tf_static=False)
+
+
+def room_cloud(n_az: int = 360, beams: int = 16) -> np.ndarray:
+    """A box room 12 x 9 x 3 m seen from (1, 0.5, 1.2) inside it: structured x, y, z, time (s, relative)."""
+    az = np.repeat(np.linspace(0, 2 * np.pi, n_az, endpoint=False), beams)
+    el = np.tile(np.radians(np.linspace(-15, 15, beams)), n_az)
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
+    o = np.array([1.0, 0.5, 1.2])
+    lo, hi = np.array([-6.0, -4.5, 0.0]), np.array([6.0, 4.5, 3.0])
+    with np.errstate(divide="ignore"):
+        t = np.where(d > 0, (hi - o) / d, (lo - o) / d)
+    r = np.min(np.where(np.isfinite(t) & (t > 0), t, np.inf), axis=1)
+    xyz = d * r[:, None]
+    # a pillar and a shelf make the room's walls distinguishable
+    arr = np.zeros(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("time", "<f4")])
+    arr["x"], arr["y"], arr["z"] = xyz.T
+    arr["time"] = np.repeat(np.arange(n_az), beams) / n_az * 0.1
+    return arr
+
+
+def static_log(path: Path, *, imu: bool = True, imu_clock_shift_ns: int = 0, seconds: float = 6.0,
+               lidar: bool = True, turning: bool = False) -> Path:
+    """A platform standing still in a room (or, ``turning``, an IMU spinning) with LiDAR and IMU; IMU header
+    stamps shifted by ``imu_clock_shift_ns`` against their record times (another clock)."""
+    rng = np.random.default_rng(1)
+    cloud = room_cloud()
+    with LogWriter(path, "ros1") as w:
+        m = w.make
+        if lidar:
+            w.add_topic("/points", "sensor_msgs/msg/PointCloud2")
+        if imu:
+            w.add_topic("/imu", "sensor_msgs/msg/Imu")
+        end = T0 + int(seconds * 1e9)
+        if lidar:
+            for t in range(T0, end, 100_000_000):
+                w.write("/points", t + 100_000_000, m.pointcloud2(t, "lidar", cloud))
+        if imu:
+            for t in range(T0, end, 5_000_000):
+                wz = 2.0 * np.sin(2 * np.pi * (t - T0) * 1e-9) if turning else 0.0
+                gyro = rng.normal(0, 1e-3, 3) + [0, 0, wz]
+                acc = rng.normal(0, 1e-2, 3) + [0, 0, G]
+                w.write("/imu", t + 1_000_000, m.imu(t + imu_clock_shift_ns, "imu", gyro, acc))
+    return path
+
+
+def run(args, capsys):
+    rc = main(["calibrate", *map(str, args)])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def one_error(args, capsys, folder: Path) -> str:
+    before = sorted(p.name for p in folder.iterdir())
+    rc, out, err = run(args, capsys)
+    assert rc == 2, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in folder.iterdir()) == before  # nothing written
+    return err.strip()
+
+
+@pytest.fixture(scope="module")
+def walk_run(walk, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out") / "walk.calib.yaml"
+    rc = main(["calibrate", str(walk.log_path), "-o", str(out), "--json"])
+    return rc, out
+
+
+def test_the_yaml_round_trips_into_odom_calib(walk, walk_run, tmp_path, capsys):
+    rc, out = walk_run
+    assert rc == 0
+    cal = load_calibration(out)
+    t = json.loads(Path(walk.truth_path).read_text())
+    assert abs(1e3 * (cal.imu_time_offset_s + t["imu"]["time_offset_s"])) < 2.0
+    text = out.read_text()
+    assert text.startswith("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame")
+    for key in ("T_base_imu:", "T_base_lidar:", "imu_time_offset_s:", "imu_time_offset_sigma_s:", "gyro_bias_radps:",
+                "T_base_imu_rotation_sigma_rad:", "imu_noise:"):
+        assert key in text
+    # odom reads it: the same log (no /tf_static) with the estimated extrinsics and clock offset
+    tum = tmp_path / "walk.tum"
+    assert main(["odom", str(walk.log_path), "--calib", str(out), "-o", str(tum), "--gt", str(walk.gt_path),
+                 "--json", "-q"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["extrinsics"]["T_base_imu"] == "--calib"
+    assert m["imu_time_offset"]["calibration_s"] == cal.imu_time_offset_s
+    assert m["accuracy"]["ate_trans_rmse_m"] < 0.2
+
+
+def test_json_table_and_metrics(walk_run, capsys):
+    rc, out = walk_run
+    metrics = json.loads(out.with_name("walk.calib.metrics.json").read_text())
+    names = [r["quantity"] for r in metrics["table"]]
+    assert names[:7] == ["T_base_imu rotation roll (x)", "T_base_imu rotation pitch (y)", "T_base_imu rotation yaw (z)",
+                         "T_base_imu translation x", "T_base_imu translation y", "T_base_imu translation z",
+                         "imu_time_offset_s"]
+    assert metrics["reference"] is None and all(r["diff"] is None for r in metrics["table"])
+    assert metrics["conventions"]["imu_time_offset_s"] == "added to IMU stamps to put them on the LiDAR's clock"
+
+
+def test_stderr_table_against_a_given_calib_in_degrees_cm_and_ms(walk, tmp_path, capsys):
+    prior = tmp_path / "prior.yaml"
+    prior.write_text("T_base_imu: [[1,0,0,0.2],[0,1,0,0.1],[0,0,1,0],[0,0,0,1]]\nimu_time_offset_s: -0.03\n")
+    out = tmp_path / "c.yaml"
+    rc, _, err = run([walk.log_path, "-o", out, "--calib", prior], capsys)
+    assert rc == 0, err
+    lines = err.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("quantity"))
+    assert lines[head].split() == ["quantity", "value", "1-sigma", "minus", "--calib", "unit"]
+    row = {line.rsplit(None, 4)[0].strip(): line.split() for line in lines[head + 1: head + 8]}
+    off = load_calibration(out).imu_time_offset_s
+    ms = row["imu_time_offset_s"]
+    assert ms[-1] == "ms" and float(ms[-2]) == pytest.approx(1e3 * (off + 0.03), abs=1e-3)
+    yaw = row["T_base_imu rotation yaw (z)"]
+    assert yaw[-1] == "deg" and abs(float(yaw[-2]) - 45.0) < 5.0  # against an identity prior
+    assert row["T_base_imu translation x"][-1] == "cm"
+    assert "skipped: the wheel odometry scales because the log has no wheel odometry" in lines
+    assert lines[-1].startswith(f"wrote {out};")
+
+
+def test_the_default_output_is_the_log_stem_in_the_current_folder(walk, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rc, _, err = run([walk.log_path, "-q"], capsys)
+    assert rc == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.calib.config.yaml", "walk.calib.metrics.json",
+                                                          "walk.calib.yaml"]
+    lines = err.splitlines()  # -q: only the skipped items
+    assert lines[-1] == "skipped: the wheel odometry scales because the log has no wheel odometry"
+    assert all(line.startswith("skipped: ") for line in lines)
+    err = one_error([walk.log_path, "-q"], capsys, tmp_path)
+    assert err == "lio: error: walk.calib.yaml: already exists; pass --force to overwrite it"
+
+
+def test_no_imu(tmp_path, capsys):
+    log = static_log(tmp_path / "noimu.bag", imu=False)
+    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
+    assert err == (f"lio: error: {log}: no IMU topic (sensor_msgs/Imu): lio calibrate calibrates an IMU (against the "
+                   "LiDAR and the wheels); name one with --imu-topic")
+
+
+def test_too_little_motion_names_the_motion_that_would_help(tmp_path, capsys):
+    log = static_log(tmp_path / "still.bag")
+    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
+    assert err.startswith(f"lio: error: {log}: too little rotation to time the IMU against the LiDAR: the trajectory "
+                          "turns at most ")
+    assert err.endswith("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; "
+                        "on a vehicle, drive a slalom; or give the clock offset (imu_time_offset_s) with --calib")
+
+
+def test_clock_mismatch(tmp_path, capsys):
+    log = static_log(tmp_path / "clocks.bag", imu_clock_shift_ns=-3_000_000_000)
+    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
+    assert err == (f"lio: error: {log}: /imu and /points are stamped on different clocks (/imu from "
+                   "1699999997.000 s, /points from 1700000000.000 s: 2.901 s apart beyond their recording times); if /imu "
+                   "runs on a shifted clock give --imu-time-offset 2.901")
+
+
+def test_a_still_interval_where_the_platform_moves_says_where(walk, tmp_path, capsys):
+    err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--still", "3:5"], capsys, tmp_path)
+    assert err.startswith(f"lio: error: {walk.log_path}: --still 3:5 is not a still stretch: the IMU moves during 3.0-")
+    assert err.endswith("(s after its first stamp); name an interval where the platform stands still, or leave --still "
+                        "out to find one")
+
+
+def test_an_imu_only_log_that_never_rests(tmp_path, capsys):
+    log = static_log(tmp_path / "spin.bag", lidar=False, turning=True)
+    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
+    assert err.startswith(f"lio: error: {log}: no still stretch of 1 s in the IMU data: it moves during 0.0-")
+    assert err.endswith("(the log has no LiDAR: the IMU at rest is all there is to calibrate)")
+
+
+def test_allan_files_need_allan_and_a_bad_still_is_a_usage_error(walk, tmp_path, capsys):
+    err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--kalibr", tmp_path / "imu.yaml"], capsys, tmp_path)
+    assert err == "lio: error: --plot and --kalibr write the Allan variance results: give --allan too"
+    err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--still", "5:2"], capsys, tmp_path)
+    assert err == ("lio: error: options: still: '5:2' is not START:END in seconds after the first IMU sample with "
+                   "0 <= START < END (e.g. 0:2.5)")
+
+
+def test_a_static_imu_log_gives_allan_kalibr_and_plot(tmp_path, capsys):
+    sim = simulate("static", tmp_path / "imu.mcap", "mcap", duration_s=600.0, seed=2)
+    t = json.loads(Path(sim.truth_path).read_text())
+    out, kal, plots = tmp_path / "imu.calib.yaml", tmp_path / "kalibr_imu.yaml", tmp_path / "plots"
+    rc, _, err = run([sim.log_path, "-o", out, "--allan", "--kalibr", kal, "--plot", plots], capsys)
+    assert rc == 0, err
+    noise = load_calibration(out).imu_noise
+    assert noise.source.startswith("Allan variance of 600 s")
+    # 10 minutes pin the white noise (the random walk needs hours: the benchmark checks it on 2 h)
+    assert noise.gyro_noise_radps == pytest.approx(t["imu"]["gyro_noise_density"], rel=0.1)
+    assert noise.accel_noise_mps2 == pytest.approx(t["imu"]["accel_noise_density"], rel=0.1)
+    assert "gyroscope_noise_density:" in kal.read_text()
+    assert (plots / "allan_deviation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "skipped: the LiDAR-IMU time offset, rotation and translation because the log has no LiDAR topic" in err

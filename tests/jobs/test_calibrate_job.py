@@ -1,0 +1,143 @@
+"""The ``calibrate`` job on short simulated logs: each estimate against the simulator's truth.json.
+
+Tolerances are set from the estimators' 1-sigmas on these short logs with margin, and far below what a broken
+estimator gives: the mountings are 30-60 deg from identity with lever arms of 20-30 cm, the clock offsets
++-30..60 ms, the wheel scales a few percent off one.
+"""
+
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lio_cli.config import load_calibration
+from lio_cli.config.calibrate import CalibrateConfig
+from lio_cli.geometry import inv_pose, so3_log
+from lio_cli.jobs.calibrate import CalibrateJob, run_calibrate
+from lio_cli.simulation.run import simulate
+
+OFFSET_TOL_MS = 2.0
+TILT_TOL_DEG = 1.0  # roll and pitch of a handheld mounting
+YAW_TOL_DEG = 5.0  # about the LiDAR z axis, which handheld motion (mostly yaw) shows least
+LEVER_TOL_CM = 6.0  # x and y; z is flagged unobservable on these walks
+WHEEL_TOL = 0.005
+
+
+def truth(sim) -> dict:
+    return json.loads(Path(sim.truth_path).read_text())
+
+
+def T_lidar_imu(t: dict) -> np.ndarray:
+    return inv_pose(np.array(t["T_base_lidar"])) @ np.array(t["T_base_imu"])
+
+
+@pytest.fixture(scope="module")
+def walks(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calib")
+    bag = simulate("handheld", root / "walk.bag", "ros1", duration_s=8.0, seed=5, columns=512, imu_time_offset_s=0.03,
+                   imu_rotation_deg=(10.0, -5.0, 30.0), imu_lever_arm_m=(0.3, -0.2, 0.1), tf_static=False)
+    mcap = simulate("handheld", root / "walk2.mcap", "mcap", duration_s=8.0, seed=6, columns=512,
+                    imu_time_offset_s=-0.06, imu_rotation_deg=(-20.0, 15.0, -60.0), imu_lever_arm_m=(-0.1, 0.25, 0.05))
+    return root, bag, mcap
+
+
+@pytest.fixture(scope="module")
+def bag_run(walks):
+    root, bag, _ = walks
+    return run_calibrate(CalibrateJob(bag.log_path, root / "walk.calib.yaml"))
+
+
+def _check_mounting(T_est: np.ndarray, T_true: np.ndarray) -> None:
+    d = np.degrees(so3_log(T_est[:3, :3] @ T_true[:3, :3].T))
+    assert np.abs(d[:2]).max() < TILT_TOL_DEG, d
+    assert abs(d[2]) < YAW_TOL_DEG, d
+    e = 100 * (T_est[:3, 3] - T_true[:3, 3])
+    assert np.abs(e[:2]).max() < LEVER_TOL_CM, e
+
+
+def test_a_handheld_bag_without_tf_static_gives_offset_rotation_and_lever_arm(walks, bag_run):
+    root, bag, _ = walks
+    t = truth(bag)
+    cal = bag_run.calibration
+    # the simulator's offset is IMU stamp = true time + 0.03 s, so the one to add is -0.03 s
+    assert abs(1e3 * (cal.imu_time_offset_s + t["imu"]["time_offset_s"])) < OFFSET_TOL_MS
+    assert 0 < cal.imu_time_offset_sigma_s < 0.001
+    # no /tf_static: the LiDAR is the base, so T_base_imu is the IMU in the LiDAR frame
+    assert cal.matrix("T_base_lidar") == pytest.approx(np.eye(4))
+    _check_mounting(cal.matrix("T_base_imu"), T_lidar_imu(t))
+    assert bag_run.metrics["T_base_lidar_from"] == "identity (assumed)"
+    assert any("LiDAR is taken as the base" in n for n in bag_run.notes)
+    # the still stretch: gyro bias against the simulator's mean bias, noise densities within 20 %
+    assert np.abs(np.array(cal.gyro_bias_radps) - t["imu"]["gyro_bias_mean_radps"]).max() < 5e-4
+    assert cal.imu_noise.gyro_noise_radps == pytest.approx(t["imu"]["gyro_noise_density"], rel=0.2)
+    assert cal.imu_noise.accel_noise_mps2 == pytest.approx(t["imu"]["accel_noise_density"], rel=0.2)
+
+
+def test_what_the_walk_cannot_show_is_skipped_with_the_reason(bag_run):
+    lines = [s.line() for s in bag_run.skipped]
+    assert "skipped: the wheel odometry scales because the log has no wheel odometry" in lines
+    assert bag_run.metrics["skipped"][-1] == {"item": "the wheel odometry scales",
+                                              "reason": "the log has no wheel odometry"}
+
+
+def test_the_written_yaml_is_the_calibration_and_loads_back(walks, bag_run):
+    root, _, _ = walks
+    back = load_calibration(root / "walk.calib.yaml")
+    assert back.model_dump() == bag_run.calibration.model_dump()
+    m = json.loads((root / "walk.calib.metrics.json").read_text())
+    assert m["command"] == "calibrate" and m["calibration"]["imu_time_offset_s"] == back.imu_time_offset_s
+    assert CalibrateConfig.model_validate(__import__("yaml").safe_load((root / "walk.calib.config.yaml").read_text()))
+
+
+def test_an_mcap_walk_with_tf_static_is_compared_with_it(walks, tmp_path):
+    _, _, mcap = walks
+    t = truth(mcap)
+    r = run_calibrate(CalibrateJob(mcap.log_path, tmp_path / "m.yaml"))
+    cal = r.calibration
+    assert abs(1e3 * (cal.imu_time_offset_s + t["imu"]["time_offset_s"])) < OFFSET_TOL_MS
+    assert cal.matrix("T_base_lidar") == pytest.approx(np.array(t["T_base_lidar"]), abs=1e-9)
+    _check_mounting(cal.matrix("T_base_imu"), np.array(t["T_base_imu"]))
+    assert r.reference == "/tf_static"
+    rows = {row["quantity"]: row for row in r.table}
+    T = cal.matrix("T_base_imu")
+    assert rows["T_base_imu translation x"]["diff"] == pytest.approx(100 * (T[0, 3] - t["T_base_imu"][0][3]), abs=1e-6)
+    assert rows["imu_time_offset_s"]["diff"] is None  # /tf_static has no clock
+
+
+@pytest.fixture(scope="module")
+def rover(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rover")
+    return simulate("planar", root / "rover_ros2", "ros2", duration_s=20.0, seed=3, imu_time_offset_s=0.02,
+                    wheel_radius_scale=(1.02, 1.01), wheel_baseline_scale=0.97)
+
+
+def test_a_ground_robot_gives_wheel_scales_radius_and_baseline_and_says_what_it_cannot_see(rover, tmp_path):
+    t = truth(rover)
+    w = t["wheel"]
+    cfg = CalibrateConfig(wheel_radius_m=w["radius_m_nominal"], wheel_baseline_m=w["baseline_m_nominal"])
+    r = run_calibrate(CalibrateJob(rover.log_path, tmp_path / "rover.yaml", cfg))
+    s_v = 0.5 * (w["radius_scale_left"] + w["radius_scale_right"])
+    s_w = s_v / w["baseline_scale"]
+    wc = r.calibration.wheel
+    assert wc.speed_scale == pytest.approx(s_v, rel=WHEEL_TOL)
+    assert wc.yaw_rate_scale == pytest.approx(s_w, rel=WHEEL_TOL)
+    assert wc.radius_m == pytest.approx(w["radius_m_nominal"] * s_v, rel=WHEEL_TOL)
+    assert wc.baseline_m == pytest.approx(w["baseline_m_nominal"] * w["baseline_scale"], rel=2 * WHEEL_TOL)
+    lines = [s.line() for s in r.skipped]
+    # a robot turning on the floor shows neither the mounting's rotation about the vertical nor its lever arm
+    assert any(line.startswith("skipped: mounting's rotation about the LiDAR z axis because") and
+               "drive over ramps or bumps" in line for line in lines), lines
+    assert any(line.startswith("skipped: the lever arm (T_base_imu translation) because too little rotation") or
+               "lever arm along the LiDAR z axis" in line for line in lines), lines
+    # what it cannot see is kept from /tf_static; what it sees (roll, pitch) is measured
+    T, Tt = r.calibration.matrix("T_base_imu"), np.array(t["T_base_imu"])
+    assert np.degrees(np.abs(so3_log(T[:3, :3] @ Tt[:3, :3].T))).max() < TILT_TOL_DEG
+    assert abs(1e3 * (r.calibration.imu_time_offset_s + t["imu"]["time_offset_s"])) < 2 * OFFSET_TOL_MS
+
+
+def test_the_job_pickles(walks):
+    root, bag, _ = walks
+    job = CalibrateJob(bag.log_path, root / "x.yaml", CalibrateConfig(still="0:1.2", allan=False), force=True)
+    assert pickle.loads(pickle.dumps(job)) == job
