@@ -151,8 +151,10 @@ def _dask_client(address: str, workers: int):
     import dask
     from distributed import Client, LocalCluster
 
-    # a task whose worker is lost is rescheduled; allowed-failures 1: once, then it fails (KilledWorker)
-    with dask.config.set({"distributed.scheduler.allowed-failures": DASK_RETRIES}):
+    # a task whose worker is lost is rescheduled; allowed-failures 1: once, then it fails (KilledWorker). The
+    # workers' statistical profiler (a thread sampling every 10 ms) is off: nobody reads it, the runs pay for it.
+    with dask.config.set({"distributed.scheduler.allowed-failures": DASK_RETRIES,
+                          "distributed.worker.profile.enabled": False}):
         if address == "local":
             with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                               silence_logs=logging.ERROR) as cluster, Client(cluster) as client:

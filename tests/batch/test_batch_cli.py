@@ -374,8 +374,9 @@ def test_force_never_replaces_a_folder_no_run_wrote(sim, pooled, tmp_path, capsy
     capsys.readouterr()
     rc, _ = run_lio("batch", copy, "--jobs", "1", "--force", "-q")
     assert rc == 2
-    assert capsys.readouterr().err.strip() == (f"lio: error: {out / 'walk_a'}: is a folder that is not an output lio wrote; lio replaces "
-                           "only such folders, even with --force: choose another output")
+    assert capsys.readouterr().err.strip() == (f"lio: error: {out / 'walk_a'}: is a folder that is not an output "
+                                               "lio wrote; lio replaces only such folders, even with --force: "
+                                               "choose another output")
     assert (out / "walk_a" / "notes.txt").read_text() == "precious\n"
     assert sorted(p.name for p in (out / "walk_a").iterdir()) == ["notes.txt"]
     assert (out / "walk_b" / "odom.tum").stat().st_mtime_ns == before
