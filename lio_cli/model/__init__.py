@@ -3,7 +3,7 @@
 The names below are loaded on first use (PEP 562): ``lio_cli.model.trajectory`` alone must not pull in the
 calibration's pydantic models, which ``lio evaluate`` never needs."""
 
-from importlib import import_module
+from ..lazy import lazy_exports
 
 _WHERE = {"Calibration": "calibration", "Extrinsics": "calibration", "ImuBatch": "records",
           "OdometryRecord": "records", "PointCloud": "records", "PoseRecord": "records", "Record": "records",
@@ -14,9 +14,4 @@ __all__ = ["Calibration", "Extrinsics", "ImuBatch", "OdometryRecord", "PointClou
            "TimeConvention", "TopicInfo", "TransformRecord", "Trajectory"]
 
 
-def __getattr__(name: str):
-    if name in _WHERE:
-        value = getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_exports(__name__, _WHERE)

@@ -14,7 +14,7 @@ on the LiDAR clock; rotations and lever arms are ``T_lidar_imu`` (IMU into LiDAR
 ``T_base_imu = T_base_lidar @ T_lidar_imu``.
 """
 
-from importlib import import_module
+from ...lazy import lazy_exports
 
 # Names load their module on first use (PEP 562): lio odom's online clock-offset estimator needs time_offset
 # only, not the Allan fit (scipy.optimize's nnls), the lever arm and wheel estimators (scipy.linalg) or their
@@ -31,12 +31,7 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str):
-    if name in _WHERE:
-        value = getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_exports(__name__, _WHERE)
 
 
 __all__ = [
