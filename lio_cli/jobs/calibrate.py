@@ -106,6 +106,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         still_s = None if cfg.still is None else parse_still(cfg.still)
         t0 = time.perf_counter()
         T_base_lidar = lidar_source = None
+        dropped = 0
         if lidar is None:
             imu = read_imu(reader, imu_topic)
             imu_frame, traj = imu.frame_id, None
@@ -167,6 +168,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         "topics": {"lidar": lidar, "imu": imu_topic, "wheel": wheel}, "base_frame": base,
         "T_base_lidar_from": lidar_source, "reference": ref_name,
         "lidar_trajectory": None if traj is None else traj.description,
+        "lidar_only_scans_left_out": dropped,
         "conventions": {"T_base_imu": "maps IMU points into the base frame",
                         "imu_time_offset_s": "added to IMU stamps to put them on the LiDAR's clock"},
         "calibration": cal.model_dump(mode="json", exclude_none=True), "table": rows,
