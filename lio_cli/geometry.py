@@ -104,7 +104,7 @@ def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.nda
         return np.repeat(poses[:1], len(query_ns), axis=0)
     idx = np.clip(np.searchsorted(stamps_ns, query_ns, side="right") - 1, 0, len(stamps_ns) - 2)
     t0 = stamps_ns[idx]
-    span = (stamps_ns[idx + 1] - t0).astype(np.float64)
+    span = np.maximum(stamps_ns[idx + 1] - t0, 1).astype(np.float64)  # a repeated stamp: no NaN, the first pose
     alpha = np.clip((query_ns - t0).astype(np.float64) / span, 0.0, 1.0)
     P0, P1 = poses[idx], poses[idx + 1]
     rel = np.einsum("nji,njk->nik", P0[:, :3, :3], P1[:, :3, :3])

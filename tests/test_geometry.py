@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -133,3 +135,17 @@ def test_interpolate_poses_endpoints_midpoint_and_clamping():
     np.testing.assert_allclose(out[4], T1, atol=ROT_TOL)
     single = g.interpolate_poses(stamps[:1], T1[None], q)
     assert single.shape == (5, 4, 4) and np.allclose(single, T1)
+
+
+def test_interpolate_poses_over_a_repeated_stamp_is_finite():
+    """Two knots at the same instant (a zero-length span): the first pose at and before it, the second after,
+    never NaN (and no RuntimeWarning)."""
+    T0 = g.make_pose(np.eye(3), np.zeros(3))
+    T1 = g.make_pose(g.so3_exp(np.array([0.0, 0.0, 1.0])), np.array([2.0, 0.0, 0.0]))
+    stamps = np.array([10, 10], dtype=np.int64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = g.interpolate_poses(stamps, np.stack([T0, T1]), np.array([5, 10, 11], dtype=np.int64))
+    np.testing.assert_allclose(out[0], T0, atol=ROT_TOL)
+    np.testing.assert_allclose(out[1], T0, atol=ROT_TOL)
+    np.testing.assert_allclose(out[2], T1, atol=ROT_TOL)

@@ -35,7 +35,7 @@ app = typer.Typer(
 _state = {"debug": False}
 
 # One module per command; each exposes register(app).
-COMMANDS = ["info", "odom", "deskew", "fuse", "evaluate", "simulate", "calibrate"]
+COMMANDS = ["info", "odom", "calibrate", "deskew", "fuse", "evaluate", "simulate", "batch"]
 
 
 def _version(value: bool) -> None:

@@ -24,7 +24,7 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outp
 LidarTopicOpt = Annotated[Optional[str], typer.Option("--lidar-topic", help="PointCloud2 or LaserScan topic (default: the only one).", show_default=False)]
 ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="sensor_msgs/Imu topic (default: the only one).", show_default=False)]
 WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help="Wheel odometry topic, nav_msgs/Odometry or TwistStamped (default: the only one).", show_default=False)]
-PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, or FIELD:UNIT[:abs] (UNIT s|ms|us|ns).", show_default=False)]
+PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, FIELD:UNIT[:abs|rel] (UNIT s|ms|us|ns) or SEC_FIELD+NSEC_FIELD[:abs|rel] (e.g. time_sec+time_nsec).", show_default=False)]
 
 
 def print_json(obj: Any) -> None:

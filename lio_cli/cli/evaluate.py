@@ -7,18 +7,17 @@ import io
 import math
 import sys
 import time
-from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
-import numpy as np
 import typer
 from rich.table import Table
 
 from ..errors import ConfigError, InputError, ProcessingError
-from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult, Trajectory, evaluate
+from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult
 from ..io.files import check_writable, write_text_atomic
-from ..io.sources import load_trajectory, split_source
+from ..io.sources import split_source
+from ..jobs.evaluate import EvaluateJob, run_evaluate
 from ..io.trajectory_files import STAMP_UNITS_NS, parse_stamp_ns
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
 from .evaluate_extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
@@ -97,13 +96,15 @@ _DELTA_ALIASES = {"f": "frames", "frames": "frames", "frame": "frames", "m": "m"
                   "s": "s", "seconds": "s", "sec": "s", "d": "deg", "deg": "deg", "degrees": "deg",
                   "r": "rad", "rad": "rad", "radians": "rad"}
 _CSV_HEAD = ("estimate",)
-FAR_ORIGIN_M = 20_000.0  # GPS fixes farther than this from the ENU origin get a warning
 
 
 def _stamp_unit(value: str, flag: str) -> str:
     if value not in STAMP_UNITS_NS:
         raise ConfigError(f"{flag} must be one of {', '.join(STAMP_UNITS_NS)}, got '{value}'")
     return value
+
+
+MAX_SECONDS = 1e9  # ~31 years: any larger time tolerance or offset is a typo, and overflows nanoseconds
 
 
 def _parse_limits(items: list[str]) -> dict[str, float]:
@@ -117,6 +118,8 @@ def _parse_limits(items: list[str]) -> dict[str, float]:
             limits[key] = float(value)
         except ValueError as err:
             raise ConfigError(f"--fail-above {key}: '{value}' is not a number") from err
+        if not math.isfinite(limits[key]):
+            raise ConfigError(f"--fail-above {key}: the limit must be a finite number, got '{value}'")
     return limits
 
 
@@ -166,8 +169,14 @@ def evaluate_cmd(
         raise ConfigError(f"--delta-unit must be frames, m, s, deg or rad, got '{delta_unit}'")
     if align_mode not in ALIGN_MODES:
         raise ConfigError(f"--align must be one of {', '.join(ALIGN_MODES)}, got '{align_mode}'")
-    if not (t_max_diff >= 0 and math.isfinite(t_max_diff)):
-        raise ConfigError(f"--t-max-diff must be a non-negative number of seconds, got {t_max_diff}")
+    if not 0 <= t_max_diff <= MAX_SECONDS:
+        raise ConfigError(f"--t-max-diff must be between 0 and {MAX_SECONDS:g} s, got {t_max_diff}")
+    if n_align is not None and n_align < 1:
+        raise ConfigError(f"--n-align must be at least 1 pose, got {n_align}")
+    if not 0 <= delta_tol < math.inf:
+        raise ConfigError(f"--delta-tol must be a finite number >= 0, got {delta_tol}")
+    if not 0 < delta < math.inf:
+        raise ConfigError(f"--delta must be a finite number > 0, got {delta}")
     if as_json and csv_out == "-":
         raise ConfigError("--json and --csv - would both write to stdout; give --csv a file name")
     if n_align is not None and align_mode not in ("se3", "sim3", "scale", "posyaw"):
@@ -176,8 +185,12 @@ def evaluate_cmd(
         raise ConfigError("give --times or --rate, not both")
     try:
         offset_ns = parse_stamp_ns(t_offset)
+    except OverflowError as err:
+        raise ConfigError(f"--t-offset must be within +-{MAX_SECONDS:g} s, got {t_offset}") from err
     except ValueError as err:
         raise ConfigError(f"--t-offset '{t_offset}' is not a number of seconds") from err
+    if abs(offset_ns) > MAX_SECONDS * 1e9:
+        raise ConfigError(f"--t-offset must be within +-{MAX_SECONDS:g} s, got {t_offset}")
     if estimate_offset and offset_ns != 0:
         raise ConfigError("give --t-offset or --estimate-offset, not both")
     if offset_range is not None and not estimate_offset:
@@ -206,56 +219,17 @@ def evaluate_cmd(
                        method="interpolate" if interpolate else "nearest", align=align_mode, n_align=n_align,
                        delta=delta, delta_unit=unit, all_pairs=all_pairs, pairs_from_reference=pairs_from_reference,
                        delta_tol=delta_tol, estimate_offset=estimate_offset, offset_range_ns=range_ns)
-    gt_traj = load_trajectory(gt, topic=gt_topic, times=times, rate_hz=rate, stamp_unit=gt_stamp_unit, origin=enu_origin)
-    ref = Trajectory(gt_traj.stamps_ns, gt_traj.poses, gt)
-    # a GPS estimate shares the reference's ENU origin, so --align none compares like with like
-    est_origin = enu_origin or (gt_traj.gps.origin if gt_traj.gps is not None else None)
-    loaded_all = []
-    for spec in estimates:
-        loaded = load_trajectory(spec, times=times, rate_hz=rate, stamp_unit=est_stamp_unit, origin=est_origin)
-        if loaded.kind == "kitti" and gt_traj.kind == "kitti" and len(loaded) != len(gt_traj):
-            raise InputError(
-                f"{spec}: {len(loaded)} KITTI poses but the ground truth {gt} has {len(gt_traj)}; KITTI pose "
-                f"files pair line by line and must have the same length"
-            )
-        loaded_all.append(loaded)
-    if enu_origin is not None and not any(t.position_only for t in (gt_traj, *loaded_all)):
-        raise ConfigError(f"--origin applies to GPS (NavSatFix) topics, and neither {gt} nor an estimate is one")
-    results: list[EvalResult] = []
-    for spec, loaded in zip(estimates, loaded_all):
-        o = replace(opts, translation_only=True) if gt_traj.position_only or loaded.position_only else opts
-        results.append(evaluate(ref, Trajectory(loaded.stamps_ns, loaded.poses, spec), o))
-    group_stats = None
-    if groups:
-        from ..evaluation.groups import group_statistics
-
-        group_stats = group_statistics(groups, {r.name: r.flat_metrics() for r in results})
-
-    elapsed = time.perf_counter() - t_start
-    report = {
-        "reference": {"name": gt, "poses": len(ref), "kind": gt_traj.kind, "position_only": gt_traj.position_only,
-                      **({"gps": gt_traj.gps.summary()} if gt_traj.gps is not None else {})},
-        "estimates": [{**r.summary(), **({"gps": t.gps.summary()} if t.gps is not None else {})}
-                      for r, t in zip(results, loaded_all)],
-        "metrics": [{"estimate": r.name, **r.flat_metrics()} for r in results],
-        "options": {**asdict(opts), "t_max_diff_s": t_max_diff, "t_offset_s": offset_ns / 1e9},
-        "elapsed_s": round(elapsed, 4),
-    }
-    if group_stats is not None:
-        report["groups"] = [g.summary() for g in group_stats]
-        report["ungrouped"] = ungrouped
-        if ungrouped:
-            note(f"--group-by left out: {', '.join(ungrouped)}", quiet)
+    job = EvaluateJob(gt, tuple(estimates), opts, t_max_diff_s=t_max_diff, gt_topic=gt_topic, times=times,
+                      rate_hz=rate, gt_stamp_unit=gt_stamp_unit, est_stamp_unit=est_stamp_unit, origin=enu_origin,
+                      groups=tuple(groups), ungrouped=tuple(ungrouped))
+    res = run_evaluate(job)
+    results, group_stats, report = res.results, res.group_stats, res.report
+    report["elapsed_s"] = round(time.perf_counter() - t_start, 4)
     stdout_taken = as_json or csv_out == "-"
-    for t in (gt_traj, *loaded_all):
-        if t.gps is not None:
-            note(t.gps.describe(), quiet)
-            if t.gps.farthest_m > FAR_ORIGIN_M:
-                warn(f"{t.name}: fixes lie up to {t.gps.farthest_m / 1e3:.0f} km from the ENU origin, whose axes "
-                     f"tilt by {np.rad2deg(t.gps.farthest_m / 6.371e6):.2g} deg there; is --origin right?")
-    for r in results:
-        if r.offset is not None and r.offset.note:
-            warn(f"{r.name}: --estimate-offset: {r.offset.note}")
+    for line in res.notes:
+        note(line, quiet)
+    for line in res.warnings:
+        warn(line)
     if not quiet or not stdout_taken:
         console = err_console if stdout_taken else out_console
         _print_tables(results, opts, console)
@@ -274,7 +248,7 @@ def evaluate_cmd(
         import json
 
         plot.mkdir(exist_ok=True)
-        paths = write_plots(ref.positions, results, plot, force, ref_as_points=gt_traj.position_only,
+        paths = write_plots(res.reference.positions, results, plot, force, ref_as_points=res.reference.position_only,
                             groups=group_stats)
         write_text_atomic(plot / "metrics.json", json.dumps(_jsonable(report), indent=2) + "\n", force)
         note(f"wrote {', '.join(str(p) for p in paths)} and {plot / 'metrics.json'}", quiet)

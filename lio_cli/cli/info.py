@@ -10,7 +10,8 @@ from rich.table import Table
 from ..io.pointcloud import parse_time_convention
 from ..io.reader import open_log
 from ..jobs.info import check_log, describe_log
-from .common import FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, print_json, progress_bar
+from .common import (FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, print_json,
+                     progress_bar, warn)
 
 HELP = """Show what a log holds: format, time span, topics with types, counts and rates; for every scan topic
 its fields, point count and per-point time convention (and whether the header stamp marks the scan's start
@@ -85,6 +86,8 @@ def _print_human(s: dict, quiet: bool = False) -> None:
             xyz = ", ".join(f"{v:.3f}" for v in f["xyz_m"])
             q = ", ".join(f"{v:.4f}" for v in f["quat_xyzw"])
             c.print(f"  {f['parent']} -> {f['child']}: xyz [{xyz}] m, quat_xyzw [{q}] ({f['angle_deg']:.2f} deg)")
+    for problem in s.get("static_transform_problems", []):
+        warn(problem)
     if "check" in s and not quiet:
         n = sum(s["check"]["checked"].values())
         err_console.print(f"check passed: {n} sensor messages decoded, stamps in order, clouds non-empty")

@@ -11,18 +11,45 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+import math
+
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 from ..errors import ConfigError
 from ..model.calibration import Calibration
 
 M = TypeVar("M", bound=BaseModel)
 
+MAX_MAGNITUDE = 1e9  # larger than any physical setting lio has (s, m, Hz, noise densities), far below overflow
+
+
+def _numbers(value: Any):
+    if isinstance(value, float):
+        yield value
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _numbers(v)
+    elif isinstance(value, dict):
+        for v in value.values():
+            yield from _numbers(v)
+
 
 class Strict(BaseModel):
     """Base of every config model: unknown keys are errors, not silently ignored."""
 
     model_config = ConfigDict(extra="forbid")
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _finite(cls, value: Any) -> Any:
+        """Every number is finite and of a physical size: NaN, inf or 1e300 in a config is a typo, not a setting
+        (they would overflow stamps or turn the filter's covariance to NaN)."""
+        for v in _numbers(value):
+            if not math.isfinite(v):
+                raise ValueError(f"must be a finite number, got {v}")
+            if abs(v) > MAX_MAGNITUDE:
+                raise ValueError(f"{v:g} is out of range (|value| <= {MAX_MAGNITUDE:g})")
+        return value
 
 
 def read_mapping(path: Path, what: str) -> dict:

@@ -57,5 +57,10 @@ def to_base(points_lidar: np.ndarray, T_base_lidar: np.ndarray) -> np.ndarray:
 
 
 def constant_velocity_knots(delta: np.ndarray, t_prev_ns: int, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """Knots for de-skewing with the last inter-scan motion ``delta`` = T_base(prev)_base(ref) (relative poses)."""
+    """Knots for de-skewing with the last inter-scan motion ``delta`` = T_base(prev)_base(ref) (relative poses).
+
+    A zero-length interval (the first scan, or every point at the header stamp) has nothing to blend: one knot
+    at ``t_ref_ns`` holding ``delta``, so no pose is interpolated over a span of 0 ns."""
+    if t_ref_ns <= t_prev_ns:
+        return np.array([t_ref_ns], dtype=np.int64), np.asarray(delta, dtype=np.float64)[None].copy()
     return np.array([t_prev_ns, t_ref_ns], dtype=np.int64), np.stack([np.eye(4), delta])

@@ -22,38 +22,27 @@ import numpy as np
 
 from ..config.odom import OdomConfig
 from ..errors import ProcessingError
-from ..geometry import gravity_aligned_rotation, inv_pose, project_to_se2, so3_exp, so3_log
+from ..geometry import gravity_aligned_rotation, inv_pose, project_to_se2
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch, OdometryRecord, PointCloud
-from .bootstrap import Bootstrap, align
+from .bootstrap import Bootstrap
 from .clock_offset import ClockOffsetTracker
 from .degeneracy import degenerate_directions
-from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
-                     pose_innovation_nis, position_noise)
-from .imu import NavState, flatten_planar, gravity_vector, propagate
+from .imu import NavState, gravity_vector, propagate
 from .motion_compensation import constant_velocity_knots, deskew, to_base
+from .odometry_restart import Restart, WindowScan
+from .odometry_updates import StateUpdates
 from .registration import ScanRegistration, auto_voxel_size
-from .wheel import mean_twist, planar_delta
+from .pose_checks import exceeds_jump, lean_on_prior, scale_delta
 
-_MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
-_MAX_JUMP_RAD = 0.35
 _WHEEL_KEEP_NS = 1_000_000_000  # wheel records older than this behind the last scan are dropped
 _IMU_PRIOR_CORRESPONDENCE_M = 0.5
 _GYRO_PRIOR_GATE_M = 1.0  # LiDAR-only scans with the gyro's rotation: the translation guess is constant velocity
 _GYRO_PRIOR_JUMP_M = 2.0  # ...so a registration this far from it (or turned this much) has failed
 _GYRO_PRIOR_JUMP_RAD = np.radians(10.0)
-_NIS_LIMIT = 100.0  # a pose innovation this far outside its covariance (chi-square 6 dof: 22 at 99.9 %; a 15 ms IMU
-# clock offset on fast yaw sweeps reaches 80)...
-_NIS_SCANS = 3  # ...this many scans in a row means the IMU state no longer explains the scans
-_MOVING_MPS = 0.3  # faster than this, an exactly-zero wheel twist is not a wheel at rest
-_MOVING_M = 0.3
-_MAX_BIAS_GYRO_RADPS = 0.5
-_MAX_BIAS_ACCEL_MPS2 = 3.0
-
 
 class Diverged(ProcessingError):
     """The track is lost for good: LiDAR-only registration failed for ``max_lost_scans`` scans in a row."""
-
 
 @dataclass
 class ScanResult:
@@ -61,7 +50,6 @@ class ScanResult:
     pose: np.ndarray  # T_world_base after correction (internal world frame)
     degenerate: bool
     failed: bool
-
 
 @dataclass
 class OdomStats:
@@ -85,8 +73,7 @@ class OdomStats:
         counts = {k: v for k, v in vars(self).items() if k not in ("scans", "times_s")}
         return {"total": self.scans, **counts}
 
-
-class LioOdometry:
+class LioOdometry(StateUpdates, Restart):
     """Feed IMU batches, wheel records and scans (in time order); get one pose per scan."""
 
     def __init__(self, cfg: OdomConfig, T_base_lidar: np.ndarray, *, use_imu: bool, planar: bool,
@@ -112,7 +99,7 @@ class LioOdometry:
         self._bias_prior = (gyro_bias, accel_bias)  # from a calibration file, if any
         self._dirs_b: list[np.ndarray] = []  # degenerate directions of the last analysed scan (its base frame)
         self._g_world: np.ndarray | None = gravity_vector(cfg.gravity_mps2) if planar else None
-        self._window: list[_WindowScan] = []  # LiDAR-only scans that will start the IMU state
+        self._window: list[WindowScan] = []  # LiDAR-only scans that will start the IMU state
         self.stamps_ns: list[int] = []  # the trajectory so far (internal world frame); the start-up window's
         self.poses: list[np.ndarray] = []  # LiDAR-only poses are replaced once the IMU state starts
         self._first_f_base: np.ndarray | None = None  # mean specific force (base axes) around the first scan
@@ -280,7 +267,7 @@ class LioOdometry:
                 guess = self._last_pose @ self._wheel_delta(t_prev, t_ref)
             knots = (prop.stamps_ns, prop.poses) if self._deskew != "none" else (None, None)
             return guess, knots[0], knots[1], True
-        cv = self._last_delta if self._last_dt_s <= 0 else _scale_delta(self._last_delta, dt / self._last_dt_s)
+        cv = self._last_delta if self._last_dt_s <= 0 else scale_delta(self._last_delta, dt / self._last_dt_s)
         prior = self.cfg.prior
         guess = self._last_pose @ (self._wheel_delta(t_prev, t_ref) if prior == "wheel" else
                                    np.eye(4) if prior == "none" else cv)
@@ -309,11 +296,11 @@ class LioOdometry:
             measured = project_to_se2(measured)
         failed = not self._reg.empty and (not np.isfinite(measured).all()
                                           or np.allclose(measured, guess, rtol=0.0, atol=1e-12)
-                                          or (gyro_primed and _jump(measured, guess, _GYRO_PRIOR_JUMP_M, _GYRO_PRIOR_JUMP_RAD)))
+                                          or (gyro_primed and exceeds_jump(measured, guess, _GYRO_PRIOR_JUMP_M, _GYRO_PRIOR_JUMP_RAD)))
         if failed and retry:
             return None
         dirs_b = self._degeneracy(points, guess[:3, :3])
-        pose = guess if failed else _lean_on_prior(measured, guess, dirs_b)
+        pose = guess if failed else lean_on_prior(measured, guess, dirs_b)
         if self.planar:
             pose = project_to_se2(pose)
         st.lidar_only_scans += 1
@@ -329,7 +316,7 @@ class LioOdometry:
                 imu = ImuBatch.concat(self._imu)
                 ba = np.zeros(3) if self._bias_prior[1] is None else np.asarray(self._bias_prior[1], dtype=np.float64)
                 self._first_f_base = self.ext.R_base_imu @ (imu.accel_mps2.mean(axis=0) - ba)
-            self._window.append(_WindowScan(t_prev, t_ref, pose, self._wheel_speed(t_ref), cloud, len(self.poses) - 1))
+            self._window.append(WindowScan(t_prev, t_ref, pose, self._wheel_speed(t_ref), cloud, len(self.poses) - 1))
             self._try_bootstrap()
         return result
 
@@ -339,71 +326,6 @@ class LioOdometry:
         if self._lost >= self.cfg.max_lost_scans:
             raise Diverged(f"lost track at scan {self.stats.scans} (stamp {t_ref * 1e-9:.3f} s): no registration, "
                            f"IMU-primed or LiDAR-only, could place {self._lost} scans in a row")
-
-    def _wheel_speed(self, t_ns: int) -> float:
-        twist = mean_twist(self._wheel, t_ns - 60_000_000, t_ns + 60_000_000) if self.cfg.use_wheel else None
-        return np.nan if twist is None else twist[0]
-
-    def _try_bootstrap(self) -> None:
-        """Align the LiDAR-only window with the IMU, then replay its scans IMU-primed on a fresh map."""
-        win = self._window
-        stamps = np.array([w.stamp_ns for w in win], dtype=np.int64)
-        if len(stamps) < 3 or (stamps[-1] - stamps[0]) * 1e-9 < self.cfg.init_window_s:
-            return
-        imu = ImuBatch.concat(self._imu)
-        if len(imu) == 0 or imu.stamps_ns[0] > stamps[0] or imu.stamps_ns[-1] < stamps[-1]:
-            self._window = win[1:]  # the IMU does not cover the window yet: slide it
-            return
-        poses = np.stack([w.pose for w in win])
-        wheel = np.array([w.wheel_mps for w in win])
-        if np.all(np.nan_to_num(wheel) == 0.0) and np.linalg.norm(poses[-1, :3, 3] - poses[0, :3, 3]) > _MOVING_M:
-            wheel = np.full(len(win), np.nan)  # wheels that read exactly zero while the LiDAR moves are no wheels
-        bg, ba = self._bias_prior
-        ba = np.zeros(3) if ba is None else np.asarray(ba, dtype=np.float64)
-        boot = align(stamps, poses, imu, self.ext, gravity_mps2=self.cfg.gravity_mps2, accel_bias=ba, gyro_bias=bg,
-                     g_world=self._g_world, wheel_speeds=wheel if np.isfinite(wheel).any() else None,
-                     planar=self.planar)
-        if self.start is None:
-            self.start = boot
-        else:
-            self._event("recovered", f"IMU state started again: {boot.reason}")
-        self._g_world = boot.g_world
-        still = boot.static
-        n = boot.g_world / np.linalg.norm(boot.g_world)
-        if still:  # the IMU means pin gravity and gyro bias; velocity is zero
-            P = np.diag([1e-4, 1e-4, 1e-2] + [1e-6] * 3 + [1e-4] * 3 + [1e-6] * 3 + [1e-2] * 3 + [0.0] * 3)
-            tilt_mps2 = 0.01
-        else:  # the alignment leaves a degree or two of tilt and some velocity to the filter
-            P = np.diag([1e-4, 1e-4, 1e-4] + [1e-4] * 3 + [0.04] * 3 + [2.5e-5] * 3 + [1e-2] * 3 + [0.0] * 3)
-            tilt_mps2 = 0.4
-        if self.planar:
-            tilt_mps2 = 0.0
-        P[15:18, 15:18] = tilt_mps2**2 * (np.eye(3) - np.outer(n, n)) + 1e-8 * np.eye(3)
-        first = win[0]
-        # the state at the first scan's start (gyro rotation, constant velocity back over one sweep), so the
-        # replay de-skews that scan too
-        sweep = propagate(NavState(first.t_prev_ns, np.eye(3), np.zeros(3), np.zeros(3), boot.gyro_bias, ba),
-                          imu, first.stamp_ns, self.ext, accel=False)
-        R0 = first.pose[:3, :3] @ sweep.state.R.T
-        p0 = first.pose[:3, 3] - boot.v_start * (first.stamp_ns - first.t_prev_ns) * 1e-9
-        self.state = NavState(first.t_prev_ns, R0, p0, boot.v_start.copy(), boot.gyro_bias.copy(), ba.copy(), P,
-                              boot.g_world.copy())
-        self._window = []
-        # replay the window IMU-primed on a fresh map
-        st = self.stats
-        used, degenerate = st.used, st.degenerate
-        del self.stamps_ns[first.out_index:], self.poses[first.out_index:]
-        self._reg, self._dirs_b = None, []
-        self._last_pose, self._last_ns, self._last_delta, self._last_dt_s = self.state.pose(), None, np.eye(4), 0.0
-        for w in win:
-            t_prev = w.t_prev_ns if self._last_ns is None else self._last_ns
-            if self.imu_mode:
-                self._imu_step(w.cloud, t_prev, w.stamp_ns)
-            else:  # the replay lost the track again: the rest is the next window
-                self._lidar_step(w.cloud, t_prev, w.stamp_ns)
-        # the replayed scans were counted once already; they are IMU-primed now unless the replay lost the track
-        st.used, st.degenerate = used, degenerate
-        st.lidar_only_scans -= len(win)
 
     # ---- IMU-primed -----------------------------------------------------------------------------
     def _imu_step(self, cloud: PointCloud, t_prev: int, t_ref: int) -> ScanResult | None:
@@ -473,157 +395,6 @@ class LioOdometry:
             self._event("recovery", reason + ": back to LiDAR-only scans")
             self._lose_imu_state()
         return result
-
-    def _doubted_scan(self, cloud: PointCloud, t_prev: int, t_ref: int, measured: np.ndarray, guess: np.ndarray,
-                      frame: np.ndarray, dirs_b: list, reason: str | None) -> ScanResult:
-        """A scan whose registration the IMU state cannot explain: its pose comes from LiDAR-only registration
-        (gated around the gyro and the last poses, not around the doubted prediction); the state follows that
-        pose and keeps its velocity, biases and gravity. Several such scans in a row drop the state."""
-        kept, g_world, doubt = self.state, self._g_world, self._doubt
-        self._lose_imu_state()
-        res = self._lidar_step(cloud, t_prev, t_ref, retry=True, window=False)
-        self.state, self._g_world, self._doubt = kept, g_world, doubt
-        if res is None:  # LiDAR-only failed: the prediction-gated registration is all there is
-            pose = _lean_on_prior(measured, guess, dirs_b)
-            res = self._finish(t_ref, pose, frame, None, dirs_b, False)
-        self.state.R, self.state.p = res.pose[:3, :3].copy(), res.pose[:3, 3].copy()
-        if reason is not None:
-            self.stats.recoveries += 1
-            self._event("recovery", reason + ": back to LiDAR-only scans")
-            self._lose_imu_state()
-        return res
-
-    def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
-        if self.clock is None or self.clock.done:
-            return
-        self.clock.add_pose(t_ref, measured @ self.ext.T_base_lidar)
-        delta = self.clock.propose(self.state.bg, self.stats.scans)
-        if delta:
-            self._shift_imu(delta)
-
-    def _implausible(self, measured: np.ndarray, dirs_b: list) -> str | None:
-        """A pose innovation far outside its covariance for several scans in a row (EKF only)."""
-        fc = self.cfg.fusion
-        if fc.method != "ekf":
-            return None
-        dirs_w = [self.state.R @ d for d in dirs_b]
-        nis = pose_innovation_nis(self.state, measured, fc.rotation_sigma_rad,
-                                  position_noise(fc.position_sigma_m, dirs_w, fc.degenerate_sigma_m))
-        self._doubt = self._doubt + 1 if nis > _NIS_LIMIT else 0
-        if self._doubt >= _NIS_SCANS:
-            return f"prediction and registration disagreed for {self._doubt} scans (NIS {nis:.0f})"
-        return None
-
-    def _state_implausible(self) -> str | None:
-        s = self.state
-        speed = float(np.linalg.norm(s.v))
-        if not (np.isfinite(s.v).all() and np.isfinite(s.bg).all() and np.isfinite(s.ba).all()):
-            return "the IMU state became non-finite"
-        if speed > self.cfg.max_speed_mps:
-            return f"speed {speed:.1f} m/s beyond max_speed_mps"
-        if np.linalg.norm(s.bg) > _MAX_BIAS_GYRO_RADPS or np.linalg.norm(s.ba) > _MAX_BIAS_ACCEL_MPS2:
-            return f"IMU biases implausible (gyro {np.linalg.norm(s.bg):.2f} rad/s, accel {np.linalg.norm(s.ba):.2f} m/s^2)"
-        return None
-
-    def _registration_failed(self, measured: np.ndarray, guess: np.ndarray) -> bool:
-        """Non-finite, untouched (no correspondence at all), or implausibly far from the IMU prediction."""
-        if not np.isfinite(measured).all():
-            return True
-        if self._reg.empty:
-            return False
-        if np.allclose(measured, guess, rtol=0.0, atol=1e-12):  # ICP returns the guess itself when nothing matched
-            return True
-        return _jump(measured, guess, _MAX_JUMP_M, _MAX_JUMP_RAD)
-
-    def _guess(self, t_prev: int, t_ref: int) -> np.ndarray:
-        prior = self.cfg.prior
-        if prior == "imu":
-            return self.state.pose()
-        if prior == "constant-velocity":
-            return self._last_pose @ self._last_delta
-        if prior == "wheel":
-            return self._last_pose @ self._wheel_delta(t_prev, t_ref)
-        return self._last_pose.copy()
-
-    def _wheel_delta(self, t0: int, t1: int) -> np.ndarray:
-        """Planar motion integrated from wheel speed and yaw rate over [t0, t1] (lecture's kinematics)."""
-        twist = mean_twist(self._wheel, t0 - 100_000_000, t1)
-        if twist is None:
-            return self._last_delta
-        return planar_delta(twist[0], twist[1], (t1 - t0) * 1e-9)
-
-    def _wheel_update(self, t0: int, t1: int) -> None:
-        """Wheel speed over the scan (forward, no side slip) corrects the predicted velocity."""
-        if not self.cfg.use_wheel or not self._wheel:
-            return
-        twist = mean_twist(self._wheel, t0, t1 + 20_000_000)
-        if twist is None:
-            return
-        if twist == (0.0, 0.0) and np.linalg.norm(self.state.v) > _MOVING_MPS:
-            self.stats.wheel_zero_skipped += 1  # an all-zero twist while moving: a pose source, not wheels
-            return
-        v_body = np.array([twist[0], 0.0, 0.0])
-        fc = self.cfg.fusion
-        if fc.method == "ekf":
-            s = fc.wheel_speed_sigma_mps
-            ekf_body_velocity_update(self.state, v_body, np.array([s, 2 * s, 2 * s]))
-        else:
-            complementary_velocity_update(self.state, v_body, fc.wheel_beta)
-        self.stats.wheel_updates += 1
-
-    def _correct(self, measured: np.ndarray, dirs_b: list[np.ndarray], dt_s: float) -> np.ndarray:
-        fc = self.cfg.fusion
-        dirs_w = [self.state.R @ d for d in dirs_b]
-        if fc.method == "ekf":
-            cov = position_noise(fc.position_sigma_m, dirs_w, fc.degenerate_sigma_m)
-            ekf_pose_update(self.state, measured, fc.rotation_sigma_rad, cov)
-        else:
-            complementary_update(self.state, measured, fc.alpha, dt_s, self.ext.R_base_imu, dirs_w)
-        if self.planar:
-            flatten_planar(self.state)
-        return self.state.pose()
-
-
-@dataclass
-class _WindowScan:
-    """A scan registered LiDAR-only while the IMU state is (re)started, kept to be replayed IMU-primed."""
-
-    t_prev_ns: int
-    stamp_ns: int
-    pose: np.ndarray
-    wheel_mps: float
-    cloud: PointCloud
-    out_index: int
-
-
-def _jump(measured: np.ndarray, guess: np.ndarray, max_m: float, max_rad: float) -> bool:
-    """The registration moved further than ``max_m`` or turned more than ``max_rad`` from its guess."""
-    jump = inv_pose(guess) @ measured
-    angle = np.arccos(np.clip((np.trace(jump[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
-    return bool(np.linalg.norm(jump[:3, 3]) > max_m or angle > max_rad)
-
-
-def _lean_on_prior(measured: np.ndarray, guess: np.ndarray, dirs_b: list[np.ndarray]) -> np.ndarray:
-    """The measured pose, except along directions the scan cannot see, where the prior is kept."""
-    pose = measured.copy()
-    if dirs_b:
-        R = guess[:3, :3]
-        dp = measured[:3, 3] - guess[:3, 3]
-        for d in dirs_b:
-            dw = R @ d
-            dp = dp - dw * (dw @ dp)
-        pose[:3, 3] = guess[:3, 3] + dp
-    return pose
-
-
-def _scale_delta(delta: np.ndarray, factor: float) -> np.ndarray:
-    """The relative motion ``delta`` stretched to ``factor`` of its duration (constant velocity)."""
-    if abs(factor - 1.0) < 1e-9:
-        return delta
-    out = np.eye(4)
-    out[:3, :3] = so3_exp(so3_log(delta[:3, :3]) * factor)
-    out[:3, 3] = delta[:3, 3] * factor
-    return out
 
 
 __all__ = ["Diverged", "LioOdometry", "ScanResult", "OdomStats"]

@@ -52,6 +52,13 @@ def shift_time_field(view: np.ndarray, conv: TimeConvention, shift_ns: int) -> N
     An unsigned field is held at zero (only invalid points, which no reference instant covers, can go below)."""
     if conv.field is None or conv.absolute:
         return
+    if conv.field_ns is not None:  # whole seconds + nanoseconds: shift the total, split it again
+        sec, nsec = view[conv.field], view[conv.field_ns]
+        total = sec.astype(np.int64) * 1_000_000_000 + nsec.astype(np.int64) + int(shift_ns)
+        s_new, ns_new = np.divmod(total, 1_000_000_000)
+        sec[...] = np.clip(s_new, np.iinfo(sec.dtype).min, np.iinfo(sec.dtype).max)
+        nsec[...] = ns_new
+        return
     col = view[conv.field]
     if col.dtype.kind == "f":
         col[...] = col.astype(np.float64) + shift_ns / conv.scale_ns
@@ -61,12 +68,14 @@ def shift_time_field(view: np.ndarray, conv: TimeConvention, shift_ns: int) -> N
     col[...] = np.clip(new, info.min, info.max)
 
 
-def deskewed_data(msg, conv: TimeConvention, xyz_valid: np.ndarray, t_ref_ns: int) -> np.ndarray:
+def deskewed_data(msg, conv: TimeConvention, xyz_valid: np.ndarray, t_ref_ns: int,
+                  kept: np.ndarray | None = None) -> np.ndarray:
     """A copy of ``msg.data`` with the valid points' x/y/z replaced by ``xyz_valid`` (in point order) and the
-    time field rewritten relative to ``t_ref_ns``."""
+    time field rewritten relative to ``t_ref_ns``. ``kept``: the points decoding kept (``PointCloud.kept``,
+    which also leaves out points with absurd times), else the NaN/zero-return rule of ``valid_mask``."""
     data = np.array(msg.data, dtype=np.uint8, copy=True)
     view = points_view(data, msg)
-    valid = valid_mask(view, conv)
+    valid = valid_mask(view, conv) if kept is None else np.asarray(kept, dtype=bool).reshape(view.shape)
     if int(valid.sum()) != len(xyz_valid):
         raise InputError(f"PointCloud2 has {int(valid.sum())} valid points but {len(xyz_valid)} were de-skewed")
     for k, c in enumerate("xyz"):

@@ -55,9 +55,18 @@ def imu_sample(msg) -> tuple[int, np.ndarray, np.ndarray]:
 def decode_odometry(msg, msgtype: str) -> OdometryRecord:
     stamp = stamp_to_ns(msg.header.stamp)
     if msgtype == ODOMETRY:
-        pose = _pose_of(msg.pose.pose.position, msg.pose.pose.orientation, "Odometry pose")
         tw = msg.twist.twist
-        return OdometryRecord(stamp, msg.header.frame_id, msg.child_frame_id, pose, _vec(tw.linear), _vec(tw.angular))
+        linear, angular = _vec(tw.linear), _vec(tw.angular)
+        try:
+            pose = _pose_of(msg.pose.pose.position, msg.pose.pose.orientation, "Odometry pose")
+        except InputError:
+            # velocity-only odometry (e.g. a quaternion of (0,0,0,0), as AR.Drone's driver writes): a wheel or
+            # velocity source needs only the twist, so the record carries it without a pose
+            if not (np.isfinite(linear).all() and np.isfinite(angular).all()):
+                raise InputError("Odometry holds neither a valid pose (non-finite position or zero/NaN "
+                                 "quaternion) nor a finite twist") from None
+            pose = None
+        return OdometryRecord(stamp, msg.header.frame_id, msg.child_frame_id, pose, linear, angular)
     if msgtype == TWIST_STAMPED:
         tw = msg.twist
         return OdometryRecord(stamp, msg.header.frame_id, msg.header.frame_id, None, _vec(tw.linear), _vec(tw.angular))

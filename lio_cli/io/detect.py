@@ -22,10 +22,21 @@ def magic(path: Path) -> bytes:
 
 
 
+def _require_file_or_folder(path: Path) -> None:
+    """Refuse before opening anything that is neither a regular file nor a folder: a FIFO or a device would block
+    or stream forever."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    if not (path.is_dir() or path.is_file()):
+        raise InputError(f"{path}: not a regular file or folder (a FIFO, socket or device cannot be a log)")
+
+
 def looks_like_log(path: Path) -> bool:
     """A folder, or a file that starts like a ROS 1 bag, an MCAP file or a sqlite3 database."""
     if path.is_dir():
         return True
+    if not path.is_file():
+        return False
     try:
         with path.open("rb") as f:
             head = f.read(16)
@@ -36,8 +47,7 @@ def looks_like_log(path: Path) -> bool:
 
 def detect_format(path: Path) -> tuple[str, list[Path]]:
     """Return (format, paths to open) for a user-given log path."""
-    if not path.exists():
-        raise InputError(f"{path}: no such file or folder")
+    _require_file_or_folder(path)
     if path.is_dir():
         if (path / "metadata.yaml").exists():
             return "ros2", [path]
@@ -68,8 +78,7 @@ def detect_format(path: Path) -> tuple[str, list[Path]]:
 
 def paths_for(path: Path, fmt: str) -> list[Path]:
     """What to open for a format forced with ``--format`` (no content sniffing)."""
-    if not path.exists():
-        raise InputError(f"{path}: no such file or folder")
+    _require_file_or_folder(path)
     if fmt == "ros1":
         if path.is_dir():
             bags = sorted(path.glob("*.bag"))

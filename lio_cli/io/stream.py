@@ -20,6 +20,7 @@ from .decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odomet
 from .reader import LogReader
 from .pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,
+    MAX_POINT_TIME_SPREAD_NS,
     decode_laserscan,
     decode_pointcloud2,
     detect_time_convention,
@@ -36,6 +37,8 @@ class StreamStats:
     duplicates: dict[str, int] = field(default_factory=dict)
     empty_clouds: int = 0
     invalid_points: int = 0
+    bad_point_times: int = 0  # of invalid_points: points whose time lay absurdly far from their scan's
+    invalid_imu: int = 0
 
     def to_dict(self) -> dict:
         return {
@@ -44,7 +47,29 @@ class StreamStats:
             "duplicate_stamps_dropped": dict(self.duplicates),
             "empty_clouds_skipped": self.empty_clouds,
             "invalid_points_dropped": self.invalid_points,
+            "absurd_point_times_dropped": self.bad_point_times,
+            "invalid_imu_samples_dropped": self.invalid_imu,
         }
+
+
+# An IMU sample beyond these is damage, not motion (MEMS and tactical IMUs saturate near 16-200 g and
+# 35-70 rad/s): dropped and counted like a NaN one, so that it cannot blow up the filter.
+MAX_STAMP_JUMP_NS = 10_000_000_000  # strict: header stamps may run ahead of record time by at most this much
+MAX_IMU_ACCEL_MPS2 = 1e4
+MAX_IMU_GYRO_RADPS = 1e3
+
+
+def imu_sample_problem(gyro, accel) -> str | None:
+    """Why an IMU sample is unusable (a NaN, or a value out of any IMU's range), or None if it is fine."""
+    values = (*gyro, *accel)
+    if not all(map(math.isfinite, values)):
+        return "holds NaN or infinity"
+    g, a = max(map(abs, gyro)), max(map(abs, accel))
+    if g > MAX_IMU_GYRO_RADPS:
+        return f"holds an angular rate of {g:.3g} rad/s (beyond {MAX_IMU_GYRO_RADPS:g})"
+    if a > MAX_IMU_ACCEL_MPS2:
+        return f"holds an acceleration of {a:.3g} m/s^2 (beyond {MAX_IMU_ACCEL_MPS2:g})"
+    return None
 
 
 class SensorStream:
@@ -74,6 +99,7 @@ class SensorStream:
         self.imu_batch_size = imu_batch_size
         self.stats = StreamStats()
         self._last: dict[str, int] = {}
+        self._last_rec: dict[str, int] = {}  # record time of each topic's last accepted message
         self._conventions: dict[tuple, TimeConvention] = {}
 
     def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
@@ -91,6 +117,15 @@ class SensorStream:
                 cloud = decode_laserscan(msg)
             else:  # pragma: no cover - select_topic guards the type
                 raise InputError(f"{topic}: cannot read a scan from {msgtype}")
+            if cloud.bad_times:
+                if self.strict:
+                    raise InputError(
+                        f"{self.log.path}: {topic}: cloud at {_fmt_ns(cloud.stamp_ns)} has {cloud.bad_times} point(s) "
+                        f"whose per-point time ({cloud.convention.describe()}) lies more than "
+                        f"{MAX_POINT_TIME_SPREAD_NS * 1e-9:g} s from the scan's other points; odom and deskew drop "
+                        "such points"
+                    )
+                self.stats.bad_point_times += cloud.bad_times
             self.stats.invalid_points += cloud.dropped
             if len(cloud.points) == 0:
                 if self.strict:
@@ -104,15 +139,14 @@ class SensorStream:
         if kind == "imu":
             if isinstance(msg, RawImu):
                 stamp, frame, gyro, accel = msg
-                finite = all(map(math.isfinite, gyro)) and all(map(math.isfinite, accel))
             else:
                 stamp, gyro, accel = imu_sample(msg)
                 frame = msg.header.frame_id
-                finite = bool(np.isfinite(gyro).all() and np.isfinite(accel).all())
-            if not finite:
+            problem = imu_sample_problem(gyro, accel)
+            if problem is not None:
                 if self.strict:
-                    raise InputError(f"{self.log.path}: {topic}: IMU sample at {_fmt_ns(stamp)} holds NaN")
-                self.stats.invalid_points += 1
+                    raise InputError(f"{self.log.path}: {topic}: IMU sample at {_fmt_ns(stamp)} {problem}")
+                self.stats.invalid_imu += 1
                 return None
             return Record(kind, topic, stamp, (frame, gyro, accel))
         if kind == "wheel":
@@ -124,8 +158,18 @@ class SensorStream:
         rec = decode_pose(msg, msgtype)
         return Record(kind, topic, rec.stamp_ns, rec)
 
-    def _accept(self, rec: Record) -> bool:
+    def _accept(self, rec: Record, t_rec: int) -> bool:
         last = self._last.get(rec.topic)
+        if self.strict and last is not None:
+            # header time running far ahead of record time: one of the two stamps lies (0 among 2023 stamps, a
+            # sensor clock jumping); the reorder heap puts a stamp of 0 first, so 'backwards' never sees it
+            jump = (rec.stamp_ns - last) - (t_rec - self._last_rec[rec.topic])
+            if jump > MAX_STAMP_JUMP_NS:
+                raise InputError(
+                    f"{self.log.path}: {rec.topic}: header stamps jump from {_fmt_ns(last)} to {_fmt_ns(rec.stamp_ns)} "
+                    f"between messages recorded {(t_rec - self._last_rec[rec.topic]) * 1e-9:.3f} s apart; a stamp "
+                    "lies far from the others (a clock not yet set, or damage): fix the log's stamps or re-record"
+                )
         if last is not None and rec.stamp_ns <= last:
             what = "duplicated" if rec.stamp_ns == last else "going backwards"
             if self.strict:
@@ -137,10 +181,11 @@ class SensorStream:
             bucket[rec.topic] = bucket.get(rec.topic, 0) + 1
             return False
         self._last[rec.topic] = rec.stamp_ns
+        self._last_rec[rec.topic] = t_rec
         return True
 
     def __iter__(self) -> Iterator[Record]:
-        heap: list[tuple[int, int, Record]] = []
+        heap: list[tuple[int, int, int, Record]] = []  # (header stamp, sequence, record time, record)
         seq = 0
         imu: list[tuple[int, np.ndarray, np.ndarray]] = []
         imu_topic, imu_frame = "", ""
@@ -158,9 +203,9 @@ class SensorStream:
                 imu = []
                 yield Record("imu", imu_topic, int(batch.stamps_ns[0]), batch)
 
-        def emit(rec: Record) -> Iterator[Record]:
+        def emit(rec: Record, t_rec: int) -> Iterator[Record]:
             nonlocal imu_topic, imu_frame
-            if not self._accept(rec):
+            if not self._accept(rec, t_rec):
                 return
             if rec.kind == "imu":
                 imu_frame, gyro, accel = rec.data
@@ -182,13 +227,13 @@ class SensorStream:
                 raise InputError(f"{self.log.path}: {topic}: {err}") from err
             if rec is None:
                 continue
-            heapq.heappush(heap, (rec.stamp_ns, seq, rec))
+            heapq.heappush(heap, (rec.stamp_ns, seq, t_rec, rec))
             seq += 1
             horizon = max(t_rec, rec.stamp_ns) - self.window_ns
             while heap and heap[0][0] <= horizon:
-                yield from emit(heapq.heappop(heap)[2])
+                yield from emit(*heapq.heappop(heap)[3:1:-1])
         while heap:
-            yield from emit(heapq.heappop(heap)[2])
+            yield from emit(*heapq.heappop(heap)[3:1:-1])
         yield from flush_imu()
 
 

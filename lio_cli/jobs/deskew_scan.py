@@ -22,33 +22,20 @@ from ..errors import InputError
 from ..io.cloud_rewrite import build_pointcloud2, deskewed_data, laserscan_cloud, patch_pointcloud2
 from ..io.decode import LASERSCAN, POINTCLOUD2
 from ..io.log_copy import LogCopy
-from ..io.pointcloud import decode_laserscan, decode_pointcloud2, detect_time_convention, parse_time_convention, stamp_to_ns
+from ..io.pointcloud import (decode_laserscan, decode_pointcloud2, detect_time_convention, parse_time_convention, spins,
+                             stamp_to_ns)
 from ..io.rawmsg import RawPointCloud2
 from ..io.reader import LogConnection, LogReader, RawRecord
 from ..io.writer import LogWriter
 from ..model.records import PointCloud, TimeConvention
 from .deskew_motion import Motion
 
-_SPIN_AGREEMENT = 0.9  # share of azimuth steps turning one way for an unorganised cloud to be a spinning sweep
 MAX_SWEEP_NS = 1_000_000_000  # a scan whose point times span longer is no sweep (broken or hostile times):
 # copied unchanged, so its cost does not follow what its times claim
 
 
 def _fmt_ns(ns: int) -> str:
     return f"{ns // 10**9}.{ns % 10**9:09d} s"
-
-
-def spins(xyz: np.ndarray) -> bool:
-    """Are an unorganised cloud's points in the firing order of a spinning sensor (azimuth turning one way)?"""
-    if len(xyz) < 3:
-        return False
-    az = np.arctan2(xyz[:, 1], xyz[:, 0])
-    steps = (np.diff(az) + np.pi) % (2 * np.pi) - np.pi
-    steps = steps[np.abs(steps) > 1e-4]  # points of one firing (several rings) share an azimuth
-    if len(steps) == 0:
-        return False
-    turning = max(np.count_nonzero(steps > 0), np.count_nonzero(steps < 0)) / len(steps)
-    return turning >= _SPIN_AGREEMENT
 
 
 @dataclass
@@ -72,15 +59,15 @@ class ScanPlan:
 def check_convention(conv: TimeConvention, msg, cfg: DeskewConfig, where: str) -> None:
     """Refuse clouds that give no per-point time, and time fields that cannot hold the rewritten offsets."""
     names = {f.name: int(f.datatype) for f in msg.fields}
-    if conv.name == "none":
-        raise InputError(f"{where}: --point-time none puts every point at the header stamp, so there is no "
-                         "motion within a sweep to compensate")
-    if conv.field is None and int(msg.height) <= 1:
+    if conv.field is None and int(msg.height) <= 1:  # first: detection also says 'none' for such clouds
         cloud = decode_pointcloud2(msg, conv)
         if not spins(cloud.points):
             raise InputError(f"{where}: clouds carry no per-point time field (fields: {', '.join(names)}) and their "
                              "points are not in a spinning sensor's firing order, so no time can be derived from "
                              "azimuth; if the time field has another name, give --point-time FIELD:UNIT")
+    if conv.name == "none":
+        raise InputError(f"{where}: --point-time none puts every point at the header stamp, so there is no "
+                         "motion within a sweep to compensate")
     if conv.field is not None and not conv.absolute and names.get(conv.field) in (2, 4, 6) and cfg.reference == "end":
         raise InputError(f"{where}: the per-point time field '{conv.field}' is unsigned, so it cannot hold the "
                          "negative offsets of --reference end (every point before the new header stamp); "
@@ -124,6 +111,7 @@ class ScanWriter:
         self._out: dict[int, tuple[int, bool]] = {}  # input connection key -> (output key, re-encoded)
         self._conventions: dict[tuple, TimeConvention] = {}
         self.scans = self.deskewed = 0
+        self.absurd_times = 0  # points left as they were: their time lay absurdly far from their scan's
         self.unchanged: dict[str, int] = {}
         self._shift_m: list[float] = []  # median point correction per de-skewed scan
         self._max_shift_m = 0.0
@@ -156,6 +144,7 @@ class ScanWriter:
         except InputError as err:
             raise err if str(err).startswith(where) else InputError(f"{where}: {err}") from err
         self._times["decode"] += time.perf_counter() - tick
+        self.absurd_times += cloud.bad_times
         if len(cloud.points) == 0:
             return self._unchanged(rec, msg, cloud, "no valid point")
         if cloud.end_ns - cloud.start_ns > MAX_SWEEP_NS:
@@ -186,7 +175,7 @@ class ScanWriter:
         if conv is None:
             self._emit_scan(rec, msg, xyz, t_ref)
         else:
-            self._emit_cloud(rec, msg, deskewed_data(msg, conv, xyz, t_ref), t_ref)
+            self._emit_cloud(rec, msg, deskewed_data(msg, conv, xyz, t_ref, cloud.kept), t_ref)
         self._times["encode_write"] += time.perf_counter() - tick
         self.deskewed += 1
 
@@ -231,6 +220,7 @@ class ScanWriter:
         shifts = np.asarray(self._shift_m)
         return {"scans": {"total": self.scans, "deskewed": self.deskewed, "unchanged": sum(self.unchanged.values()),
                           "unchanged_why": dict(self.unchanged)},
+                "points_with_absurd_time_left_unchanged": self.absurd_times,
                 "correction_m": {"median_of_scan_medians": round(float(np.median(shifts)), 5) if len(shifts) else None,
                                  "p95_of_scan_medians": round(float(np.percentile(shifts, 95)), 5) if len(shifts) else None,
                                  "max": round(self._max_shift_m, 5),

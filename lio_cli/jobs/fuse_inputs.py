@@ -21,7 +21,7 @@ from ..io.gps import read_gps_track
 from ..io.reader import LogReader
 from ..io.series import POSE_TYPES, Progress, read_series
 from ..io.sources import load_trajectory
-from ..io.tf import FrameTree, read_static_frames
+from ..io.tf import FrameTree, TfConflict, read_static_frames
 from ..io.topics import TopicChoice, choose_topic
 from ..geodesy import EnuFrame
 from ..model.gps import GpsTrack
@@ -128,7 +128,12 @@ def imu_extrinsic(tree: FrameTree, cfg: FuseConfig, base: str, frame: str, topic
     f = frame.lstrip("/")
     if f == base:
         return np.eye(4), f"identity: the IMU's frame '{f}' is the base frame"
-    T = tree.lookup(base, f) if f else None
+    try:
+        T = tree.lookup(base, f) if f else None
+    except TfConflict:  # /tf_static contradicts itself on this chain: only --calib settles it
+        if cfg.calibration.T_base_imu is None:
+            raise
+        return cfg.calibration.matrix("T_base_imu"), "--calib (/tf_static contradicts itself on this chain)"
     if T is not None:
         return T, f"/tf_static ({base} -> {f})"
     if cfg.calibration.T_base_imu is not None:
@@ -146,6 +151,7 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     topics = [roles[s].topic for s in ("imu", "wheel", "odom") if s in roles and roles[s].topic is not None]
     cols = read_series(reader, topics, progress)
     tree = read_static_frames(reader)
+    notes.extend(tree.warnings)
     imu_cols = cols.get(roles["imu"].topic) if "imu" in roles else None
     wheel_cols = cols.get(roles["wheel"].topic) if "wheel" in roles else None
     base = base_frame_of(cfg, tree, wheel_cols.child_frame_id if wheel_cols is not None else None,

@@ -107,13 +107,19 @@ def describe_log(log: LogReader, convention: TimeConvention | None = None) -> di
         "topics": topics,
         "scans": scans,
         "static_transforms": frames,
+        "static_transform_problems": [c["message"] for c in tree.conflicts] + tree.warnings,
         "frames": tree.frames,
     }
 
 
 def check_log(log: LogReader, convention: TimeConvention | None = None,
               progress: Callable[[float], None] | None = None) -> dict:
-    """Decode every sensor message (scans, IMU, odometry, poses); raises InputError on the first bad one."""
+    """Decode every sensor message (scans, IMU, odometry, poses); raises InputError on the first bad one.
+
+    A /tf_static that contradicts itself (a cycle whose chains disagree) fails the check too."""
+    tree = read_static_frames(log)
+    if tree.conflicts:
+        raise InputError(tree.conflicts[0]["message"])
     topics_by_kind: dict[str, list[str]] = {}
     for name, t in log.topics.items():
         for kind, types in KIND_TYPES.items():
@@ -131,4 +137,8 @@ def check_log(log: LogReader, convention: TimeConvention | None = None,
                 if progress:
                     progress(k)
             checked[name] = n
+    if not sum(checked.values()):
+        kinds = "PointCloud2, LaserScan, Imu, Odometry or pose"
+        raise InputError(f"{log.path}: nothing checkable: not one {kinds} message decoded "
+                         f"({len(log.topics)} topic(s) of other types), so --check cannot pass")
     return {"checked": checked}

@@ -11,7 +11,7 @@ from ..errors import InputError
 from ..io.clocks import check_overlap, check_same_clock
 from ..io.decode import IMU, LASERSCAN
 from ..io.reader import LogReader
-from ..io.tf import FrameTree
+from ..io.tf import FrameTree, TfConflict
 from ..io.topics import TopicChoice, choose_topic
 from ..model.calibration import Calibration
 
@@ -85,11 +85,21 @@ class Mounting:
     @classmethod
     def of(cls, tree: FrameTree, calibration: Calibration, base_frame: str | None, notes: list[str]) -> "Mounting":
         base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
+        notes.extend(w for w in tree.warnings if w not in notes)
         return cls(tree, calibration, base, notes, {"T_base_imu": "not used (no IMU in this run)"})
 
     def resolve(self, name: str, frame: str) -> np.ndarray:
-        """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity."""
-        T = self.tree.lookup(self.base, frame) if frame else None
+        """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity.
+
+        A /tf_static that contradicts itself on the chain needed stops the run (exit 2) unless the calibration
+        gives this extrinsic."""
+        try:
+            T = self.tree.lookup(self.base, frame) if frame else None
+        except TfConflict:
+            if self.calibration.matrix(name) is None:
+                raise
+            self.sources[name] = "--calib (/tf_static contradicts itself on this chain)"
+            return self.calibration.matrix(name)
         if T is not None:
             self.sources[name] = f"/tf_static ({self.base} -> {frame})"
             return T

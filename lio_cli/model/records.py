@@ -14,17 +14,28 @@ class TimeConvention:
     ``field``: the PointCloud2 field name (``None`` when there is none and stamps come from azimuth).
     ``scale_ns``: nanoseconds per unit of the field (1e9 for seconds, 1 for ns).
     ``absolute``: the field holds absolute time instead of an offset from the header stamp.
-    ``name``: a short label (velodyne, ouster, livox, hesai, stamps, azimuth, none, custom).
+    ``name``: a short label (velodyne, ouster, livox, hesai, stamps, split, azimuth, none, custom).
+    ``field_ns``: time split over two integer fields (Luminar's ``time_sec`` + ``time_nsec``): ``field`` holds the
+    whole seconds and ``field_ns`` the nanoseconds.
     """
 
     name: str
     field: str | None
     scale_ns: float
     absolute: bool = False
+    field_ns: str | None = None
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The PointCloud2 fields this convention reads (none, one, or the seconds and nanoseconds pair)."""
+        return tuple(f for f in (self.field, self.field_ns) if f is not None)
 
     def describe(self) -> str:
         if self.field is None:
             return "none (stamps derived from azimuth)" if self.name == "azimuth" else "none (all points at header stamp)"
+        if self.field_ns is not None:
+            kind = "absolute" if self.absolute else "relative to header"
+            return f"{self.name}: fields '{self.field}' (s) + '{self.field_ns}' (ns), {kind}"
         unit = {1e9: "s", 1e6: "ms", 1e3: "us", 1.0: "ns"}.get(self.scale_ns, f"x{self.scale_ns:g} ns")
         kind = "absolute" if self.absolute else "relative to header"
         return f"{self.name}: field '{self.field}' in {unit}, {kind}"
@@ -44,8 +55,10 @@ class PointCloud:
     point_stamps_ns: np.ndarray  # (N,) int64
     convention: TimeConvention
     header_marks: str = "start"
-    dropped: int = 0  # invalid returns dropped while decoding
+    dropped: int = 0  # invalid returns dropped while decoding (bad_times included)
     planar: bool = False  # from a LaserScan
+    bad_times: int = 0  # of ``dropped``: points whose time lies absurdly far from the scan's other points
+    kept: np.ndarray | None = None  # which of the message's points were kept (row order), when some were dropped
 
     @property
     def start_ns(self) -> int:

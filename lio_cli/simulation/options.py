@@ -8,7 +8,7 @@ drivers, extrinsics in the log, wheels, GPS) are listed in :data:`CONDITION_DEFA
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 from ..errors import ConfigError
 
@@ -98,6 +98,14 @@ def parse_floats(text: str | None, n: int, flag: str) -> tuple[float, ...] | Non
     return vals
 
 
+_FLAGS = {"imu_rate_hz": "--imu-rate", "imu_time_offset_s": "--imu-time-offset", "range_noise_m": "--range-noise",
+          "max_range_m": "--max-range", "accel_noise_density": "--accel-noise", "gyro_noise_density": "--gyro-noise",
+          "accel_bias_walk": "--accel-walk", "gyro_bias_walk": "--gyro-walk", "accel_bias_mps2": "--accel-bias",
+          "gyro_bias_radps": "--gyro-bias", "imu_rotation_deg": "--imu-rotation", "imu_lever_arm_m": "--imu-lever-arm",
+          "imu_start_delay_s": "--imu-start-delay", "gps_rate_hz": "--gps-rate", "gps_noise_m": "--gps-noise",
+          "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid"}
+
+
 def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
     """One ConfigError line for the first option that cannot work."""
     static = scenario == "static"
@@ -107,6 +115,12 @@ def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
     if duration_s > limit:
         raise ConfigError(f"--duration {duration_s} s is more than {'48 hours' if static else 'an hour'}; "
                           "simulate shorter pieces")
+    for f in fields(opts):  # every number given must be finite before any range check can mean anything
+        value = getattr(opts, f.name)
+        values = value if isinstance(value, tuple) else (value,)
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            raise ConfigError(f"{_FLAGS.get(f.name, '--' + f.name.replace('_', '-'))} must be a finite number "
+                              f"(got {value})")
     if opts.time_convention not in TIME_CONVENTIONS:
         raise ConfigError(f"unknown --time-convention '{opts.time_convention}' (choose from {', '.join(TIME_CONVENTIONS)})")
     if opts.header_stamp not in ("start", "end"):

@@ -81,12 +81,12 @@ def test_the_output_is_never_the_input_or_inside_it(logs, tmp_path, capsys):
     for extra in ([], ["--force"]):
         assert main(["deskew", str(log), str(log), "--trajectory", str(bag.gt_path), *extra]) == 2
         assert err_line(capsys) == (f"lio: error: {log}: is an input of this run (the input {log}); lio never writes "
-                                    "over its inputs (--force or not): choose another output")
+                                    "over its inputs, whatever the options: choose another output")
     inside = ros2.log_path / "deskewed"
     assert main(["deskew", str(ros2.log_path), str(inside), "--trajectory", str(ros2.gt_path)]) == 2
     assert err_line(capsys) == (f"lio: error: {inside}: is an input of this run (inside the input folder "
-                                f"{ros2.log_path}); lio never writes over its inputs (--force or not): choose another "
-                                "output")
+                                f"{ros2.log_path}); lio never writes over its inputs, whatever the options: choose "
+                                "another output")
     assert not inside.exists()
     tum = tmp_path / "t.tum"
     tum.write_text(format_tum(*read_tum(bag.gt_path)))
@@ -117,7 +117,8 @@ def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, c
     (["--format", "zip"], "lio: error: options: output_format: Input should be 'ros1', 'ros2', 'ros2-mcap' or 'mcap'"),
     (["--reference", "middle"], "lio: error: options: reference: Input should be 'end' or 'start'"),
     (["--point-time", "tick"], "lio: error: unknown per-point time convention 'tick' (use velodyne, ouster, livox, "
-                               "hesai, azimuth, none or FIELD:UNIT[:abs|rel], e.g. time:s or t:ns)"),
+                               "hesai, azimuth, none, FIELD:UNIT[:abs|rel] or SEC_FIELD+NSEC_FIELD[:abs|rel], e.g. time:s, "
+                               "t:ns or time_sec+time_nsec)"),
     (["--motion", "imu"], "lio: error: --trajectory gives the motion; it cannot be combined with --motion imu"),
 ])
 def test_bad_options_are_one_line_and_exit_2(logs, tmp_path, capsys, args, line):

@@ -306,3 +306,26 @@ def test_check_note_goes_to_stderr_and_quiet_silences_it(logs, capsys):
     assert err == "check passed: 28 sensor messages decoded, stamps in order, clouds non-empty\n"
     rc, _, err = run(capsys, "info", path, "--check", "--quiet")
     assert rc == 0 and err == ""
+
+
+def test_info_warns_about_a_contradictory_tf_static(logs, capsys):
+    """A second /tf_static message giving base_link -> velodyne 0.5 m away from the chain through imu_link: info
+    lists it, warns once naming the frames and the distance, and still exits 0 (it only describes); ``--check`` fails on it."""
+    from lio_cli.geometry import make_pose
+
+    def extra(w):
+        T = logs.T_BASE_IMU @ logs.T_IMU_LIDAR @ make_pose(np.eye(3), np.array([0.5, 0.0, 0.0]))
+        w.write("/tf_static", logs.T0_NS + 1, w.make.tf_message([
+            w.make.transform_stamped(logs.T0_NS, "base_link", "velodyne", T)]))
+
+    path = logs.sensor_log("ros1", duration_s=0.2, extra=extra)
+    rc, out, err = run(capsys, "info", path)
+    assert rc == 0
+    assert err.strip() == (f"lio: warning: {path}: /tf_static contradicts itself: base_link -> velodyne disagrees "
+                           "with base_link -> imu_link, imu_link -> velodyne by 0.500 m and 0.00 deg")
+    assert "base_link -> velodyne" in out
+    # --check checks: the contradiction fails it, exit 2, one line
+    rc, _, err = run(capsys, "info", path, "--check")
+    assert rc == 2
+    assert err.strip() == (f"lio: error: {path}: /tf_static contradicts itself: base_link -> velodyne disagrees "
+                           "with base_link -> imu_link, imu_link -> velodyne by 0.500 m and 0.00 deg")

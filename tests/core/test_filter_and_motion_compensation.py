@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lio_cli.core.motion_compensation import deskew, to_base
+from lio_cli.core.motion_compensation import constant_velocity_knots, deskew, to_base
 from lio_cli.core.filter import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
 from lio_cli.geometry import inv_pose, make_pose, so3_exp, transform_points
 from lio_cli.core.imu import NavState
@@ -50,6 +50,16 @@ def test_deskew_static_is_identity():
     stamps = np.arange(100, dtype=np.int64) * 1000
     out = deskew(pts, stamps, np.array([0, 10**6]), np.stack([np.eye(4), np.eye(4)]), 10**6, np.eye(4))
     np.testing.assert_allclose(out, pts, atol=DESKEW_TOL_M)
+
+
+def test_constant_velocity_over_a_zero_length_scan_gives_finite_points():
+    """Every point at the header stamp (``--point-time none``) on the first scan: a 0 ns interval, no NaN."""
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(50, 3))
+    delta = make_pose(so3_exp(np.array([0.0, 0.0, 0.1])), np.array([0.2, 0.0, 0.0]))
+    knots, poses = constant_velocity_knots(delta, 10**6, 10**6)
+    out = deskew(pts, np.full(50, 10**6, np.int64), knots, poses, 10**6, np.eye(4))
+    np.testing.assert_allclose(out, pts, atol=DESKEW_TOL_M)  # all at the reference instant: nothing moves
 
 
 def _state(pvar=0.01, rvar=1e-4):

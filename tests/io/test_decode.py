@@ -75,6 +75,21 @@ def test_unnormalised_quaternion_is_normalised_and_zero_one_rejected(make):
         decode_pose(msg, POSE_STAMPED)
 
 
+def test_twist_only_odometry_keeps_its_twist_without_a_pose(make):
+    """A zero quaternion with a finite twist (AR.Drone's velocity-only odometry) is a twist record; with a NaN
+    twist as well it is bad input."""
+    msg = make.odometry(STAMP_NS, "odom", "base_link", T, [1.5, 0, 0], [0, 0, 0.25])
+    q = msg.pose.pose.orientation
+    q.x = q.y = q.z = q.w = 0.0
+    rec = decode_odometry(msg, ODOMETRY)
+    assert rec.pose is None
+    np.testing.assert_array_equal(rec.linear_mps, [1.5, 0, 0])
+    np.testing.assert_array_equal(rec.angular_radps, [0, 0, 0.25])
+    msg.twist.twist.linear.x = float("nan")
+    with pytest.raises(InputError, match="neither a valid pose .* nor a finite twist"):
+        decode_odometry(msg, ODOMETRY)
+
+
 def test_wrong_types_are_input_errors(make):
     with pytest.raises(InputError, match="cannot read wheel odometry from geometry_msgs/msg/PoseStamped"):
         decode_odometry(make.pose_stamped(STAMP_NS, "w", T), POSE_STAMPED)

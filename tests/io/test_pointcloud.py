@@ -265,3 +265,60 @@ def test_azimuth_stamps_start_at_the_first_valid_point(make):
     assert cloud.dropped == 1
     expected = T0_NS + np.arange(n - 1) * PERIOD_NS // n
     assert_stamps_close(cloud.point_stamps_ns, expected, AZIMUTH_TOL_NS)
+
+
+def _split_cloud(n: int, sec_ns: np.ndarray) -> np.ndarray:
+    arr = cloud_array(n)
+    out = np.zeros(n, dtype=[("x", F4), ("y", F4), ("z", F4), ("time_sec", U4), ("time_nsec", U4)])
+    for c in "xyz":
+        out[c] = arr[c]
+    out["time_sec"], out["time_nsec"] = sec_ns // 10**9, sec_ns % 10**9
+    return out
+
+
+def test_time_split_over_seconds_and_nanoseconds_fields_is_detected_and_exact(make):
+    """Luminar's time_sec + time_nsec (absolute, header at the last point): exact int64 stamps, the header at
+    the scan's end, and a description naming both fields; ``--point-time time_sec+time_nsec`` says the same."""
+    header_ns = T0_NS + 987_654_321
+    true_ns = header_ns - (39 - K) * 2_222_223  # crossing a whole second on the way
+    msg = make.pointcloud2(header_ns, "luminar", _split_cloud(40, true_ns))
+    conv = detect_time_convention(msg)
+    assert (conv.name, conv.field, conv.field_ns, conv.absolute) == ("split", "time_sec", "time_nsec", True)
+    assert "'time_sec' (s) + 'time_nsec' (ns)" in conv.describe()
+    cloud = decode_pointcloud2(msg)
+    np.testing.assert_array_equal(cloud.point_stamps_ns, true_ns)
+    assert cloud.header_marks == "end"
+    assert parse_time_convention("time_sec+time_nsec") == conv
+    rel = parse_time_convention("time_sec+time_nsec:rel")
+    assert not rel.absolute and rel.field_ns == "time_nsec"
+
+
+def test_unorganised_cloud_not_in_firing_order_gets_no_azimuth_stamps(make):
+    """No time field and points in no spinning order (a raster scanner, a sorted cloud): every point is at the
+    header stamp and the convention says 'none', not 'azimuth'."""
+    arr = cloud_array(64)
+    arr = arr[np.random.default_rng(3).permutation(64)]
+    cloud = decode_pointcloud2(make.pointcloud2(T0_NS, "lidar", arr))
+    assert cloud.convention.name == "none" and "azimuth" not in cloud.convention.describe()
+    np.testing.assert_array_equal(cloud.point_stamps_ns, np.full(64, T0_NS))
+
+
+@pytest.mark.parametrize("value", [5e5, 1e300, -7200.0], ids=["5e5 s", "1e300 s", "-2 h"])
+def test_a_point_with_an_absurd_time_is_dropped_and_counted_without_warnings(make, recwarn, value):
+    arr = cloud_array(40, ("time", F8))
+    arr["time"] = K / 512.0
+    arr["time"][7] = value
+    cloud = decode_pointcloud2(make.pointcloud2(T0_NS, "lidar", arr))
+    assert (cloud.dropped, cloud.bad_times, len(cloud.points)) == (1, 1, 39)
+    np.testing.assert_array_equal(cloud.point_stamps_ns, T0_NS + np.delete(K, 7) * STEP_NS)
+    np.testing.assert_allclose(cloud.points, np.delete(xyz_of(arr), 7, axis=0), atol=XYZ_TOL_M)
+    assert cloud.kept is not None and not cloud.kept[7] and cloud.kept.sum() == 39
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_one_absurd_time_among_the_first_values_does_not_make_the_field_absolute(make):
+    arr = cloud_array(40, ("time", F8))
+    arr["time"] = K / 512.0
+    arr["time"][0] = 5e7  # beyond the 'epoch-sized' threshold: only the typical value decides
+    conv = detect_time_convention(make.pointcloud2(T0_NS, "lidar", arr))
+    assert not conv.absolute

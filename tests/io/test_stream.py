@@ -224,3 +224,63 @@ def test_fast_raw_path_gives_what_the_typestore_path_gives(logs, write_format):
     np.testing.assert_array_equal(imu.stamps_ns, [s for s, _, _ in slow_imu])
     np.testing.assert_array_equal(imu.gyro_radps, [g for _, g, _ in slow_imu])
     np.testing.assert_array_equal(imu.accel_mps2, [a for _, _, a in slow_imu])
+
+
+def hostile_values_log(logs):
+    """Three clouds (the second with one point 5e5 s off) and three IMU samples (the second at 1e300 m/s^2)."""
+    def build(w):
+        w.add_topic("/points", CLOUD)
+        w.add_topic("/imu", IMU)
+        for i in range(3):
+            t = logs.T0_NS + i * 100_000_000
+            arr, _ = logs.velodyne_cloud(8)
+            if i == 1:
+                arr["time"][4] = 5e5
+            w.write("/points", t, w.make.pointcloud2(t, "lidar", arr))
+            w.write("/imu", t, w.make.imu(t, "imu", [0, 0, 0], [1e300 if i == 1 else 0.0, 0, 9.81]))
+    return logs.write("ros1", build)
+
+
+@pytest.mark.parametrize("topic, message", [
+    ("/points", "/points: cloud at 1700000000.100000000 s has 1 point(s) whose per-point time (velodyne: field "
+                "'time' in s, relative to header) lies more than 1 s from the scan's other points"),
+    ("/imu", "/imu: IMU sample at 1700000000.100000000 s holds an acceleration of 1e+300 m/s^2 (beyond 10000)"),
+])
+def test_strict_stream_reports_absurd_point_times_and_imu_values(logs, topic, message):
+    path = hostile_values_log(logs)
+    kind = "lidar" if topic == "/points" else "imu"
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            list(SensorStream(log, {kind: topic}))
+    assert str(err.value).startswith(f"{path}: {message}")
+
+
+def test_lenient_stream_drops_and_counts_absurd_point_times_and_imu_values(logs):
+    path = hostile_values_log(logs)
+    with open_log(path) as log:
+        stream = SensorStream(log, {"lidar": "/points", "imu": "/imu"}, strict=False)
+        recs = list(stream)
+    assert sum(len(r.data.points) for r in recs if r.kind == "lidar") == 3 * 8 - 1
+    assert sum(len(r.data) for r in recs if r.kind == "imu") == 2
+    stats = stream.stats.to_dict()
+    assert (stats["invalid_points_dropped"], stats["absurd_point_times_dropped"]) == (1, 1)
+    assert stats["invalid_imu_samples_dropped"] == 1
+
+
+def test_strict_stream_reports_a_stamp_of_0_that_sorts_first(logs):
+    """A scan stamped 0 among 2023 stamps, early enough for the reorder window to put it first: never 'going
+    backwards', but the header time then jumps 53 years while record time moves 0.1 s (reported); the lenient
+    stream lets it through for the odometry's gap handling."""
+    def build(w):
+        w.add_topic("/points", CLOUD)
+        for i in range(4):
+            t = logs.T0_NS + i * 100_000_000
+            arr, _ = logs.velodyne_cloud(8)
+            w.write("/points", t, w.make.pointcloud2(0 if i == 1 else t, "lidar", arr))
+    path = logs.write("ros1", build)
+    with open_log(path) as log:
+        with pytest.raises(InputError) as err:
+            list(SensorStream(log, {"lidar": "/points"}))
+        assert str(err.value).startswith(f"{path}: /points: header stamps jump from 0.000000000 s to "
+                                         "1700000000.000000000 s between messages recorded -0.100 s apart")
+        assert [r.stamp_ns for r in SensorStream(log, {"lidar": "/points"}, strict=False)][0] == 0

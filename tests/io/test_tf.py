@@ -9,7 +9,7 @@ from lio_cli.errors import InputError
 from lio_cli.geometry import inv_pose, make_pose, so3_exp
 from lio_cli.io.reader import open_log
 from lio_cli.model.records import TransformRecord
-from lio_cli.io.tf import FrameTree, read_static_frames
+from lio_cli.io.tf import FrameTree, TfConflict, read_static_frames
 
 POSE_TOL = 1e-12
 
@@ -69,3 +69,32 @@ def test_bad_transform_on_tf_static_names_file_and_topic(logs):
             read_static_frames(log)
     assert str(err.value) == (f"{path}: /tf_static: transform base->imu holds a non-finite position or a "
                               "zero/NaN quaternion")
+
+
+@pytest.mark.parametrize("extra, frames", [
+    (("lidar", "base"), ("lidar -> base", "base -> lidar")),  # the reverse of an edge, 0.5 m off
+    (("imu", "lidar"), ("imu -> lidar", "base -> imu, base -> lidar")),  # a second path, 0.5 m off
+])
+def test_a_disagreeing_cycle_is_reported_and_stops_lookups_through_it(extra, frames):
+    """Chains that disagree: the closing edge is not used; a lookup through any edge of the cycle raises
+    naming the frames and the distance; a lookup elsewhere still works."""
+    A, B, C = pose(1), pose(2), pose(3)
+    T = inv_pose(B) if extra == ("lidar", "base") else inv_pose(A) @ B
+    T = T.copy()
+    T[0, 3] += 0.5
+    tree = FrameTree([TransformRecord(0, "base", "imu", A), TransformRecord(0, "base", "lidar", B),
+                      TransformRecord(0, "base", "wheel", C), TransformRecord(0, *extra, T)], where="x.bag: /tf_static")
+    assert len(tree.conflicts) == 1 and tree.conflicts[0]["distance_m"] == pytest.approx(0.5, abs=1e-9)
+    message = f"x.bag: /tf_static contradicts itself: {frames[0]} disagrees with {frames[1]} by 0.500 m and 0.00 deg"
+    assert tree.conflicts[0]["message"] == message
+    with pytest.raises(TfConflict, match="contradicts itself"):
+        tree.lookup("base", "lidar")
+    np.testing.assert_allclose(tree.lookup("base", "wheel"), C, atol=POSE_TOL)
+
+
+def test_a_cycle_whose_chains_agree_is_accepted():
+    A, B = pose(1), pose(2)
+    tree = FrameTree([TransformRecord(0, "base", "imu", A), TransformRecord(0, "base", "lidar", B),
+                      TransformRecord(0, "imu", "lidar", inv_pose(A) @ B)])
+    assert tree.conflicts == []
+    np.testing.assert_allclose(tree.lookup("base", "lidar"), B, atol=1e-9)

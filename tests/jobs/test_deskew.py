@@ -309,19 +309,28 @@ def test_invalid_points_stay_invalid_byte_for_byte(sim, tmp_path):
         assert np.isfinite(vb["x"][~bad]).all()
 
 
-def test_a_scan_with_absurd_point_times_is_copied_unchanged(sim, tmp_path):
-    """Point times spanning hours cost nothing extra: the scan is left as it is and counted."""
+def test_absurd_point_times_cost_nothing_and_lose_no_scan(sim, tmp_path):
+    """One point 2 h away from its scan's others is a bad point (issue 10): left as it was, counted, and the rest
+    of its scan de-skewed. Times that really spread over more than 1 s (no sweep) leave the scan as it is."""
     s = sim("ros1")
 
     def absurd(k, arr):
         if k == 5:
             arr["time"][-1] = 7200.0
+        if k == 6:
+            arr["time"] = np.linspace(0.0, 1.5, len(arr))
         return arr
 
     log = _rewrite(s.log_path, tmp_path / "absurd.bag", absurd)
     res = deskew(log, tmp_path / "out.bag", **gt(s))
     assert res.metrics["scans"]["unchanged_why"] == {"point times span more than 1 s": 1}
-    assert bytes(clouds(log)[5].data) == bytes(clouds(tmp_path / "out.bag")[5].data)
+    assert res.metrics["points_with_absurd_time_left_unchanged"] == 1
+    a, b = clouds(log), clouds(tmp_path / "out.bag")
+    assert bytes(a[6].data) == bytes(b[6].data)
+    va, vb = (np.frombuffer(np.asarray(c[5].data).tobytes(), dtype=cloud_dtype(c[5])) for c in (a, b))
+    for c in "xyz":
+        assert va[c][-1] == vb[c][-1]  # the bad point, untouched
+    assert not np.array_equal(va["x"][:-1], vb["x"][:-1])  # the others de-skewed
 
 
 def test_map_lies_in_the_office_and_config_repeats_the_run(sim, tmp_path):

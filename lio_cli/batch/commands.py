@@ -1,0 +1,106 @@
+"""What each command of a batch is: its configuration model, the job it runs, the files it writes in a run's
+folder, and the few metrics the summary shows.
+
+The job and the files are the single command's (``jobs.odom``, ``jobs.fuse``, ``jobs.deskew``, written by the
+same writers), so a run's trajectory and ``.config.yaml`` are byte for byte what ``lio odom LOG -o FILE``
+writes. Nothing here prints.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from ..config import load_calibration, load_model, with_overrides
+from ..config.deskew import DeskewConfig
+from ..config.fuse import FuseConfig
+from ..config.odom import OdomConfig
+from ..errors import ConfigError
+from ..evaluation.scoring import score
+from ..io.sources import load_trajectory
+from ..model.trajectory import Trajectory
+from .manifest import RunSpec
+
+CONFIGS: dict[str, type[BaseModel]] = {"odom": OdomConfig, "fuse": FuseConfig, "deskew": DeskewConfig}
+STEMS = {"odom": "odom", "fuse": "fused", "deskew": "deskewed"}  # a run's files: STEM.tum, STEM.metrics.json...
+KEY_METRICS = ("scans_total", "scans_used", "poses", "span_s", "real_time_factor",
+               "ate_m", "ate_deg", "rpe_m", "final_error_m")
+
+
+def resolve_config(spec: RunSpec) -> BaseModel:
+    """The run's configuration: the command's defaults, its ``config`` file, its ``calib`` file, its options."""
+    if spec.gt is not None and spec.command == "deskew":
+        raise ConfigError(f"{spec.where}: gt: deskew writes a log, there is no trajectory to score; drop gt")
+    model = CONFIGS[spec.command]
+    cfg = load_model(model, spec.config)
+    if spec.calib is not None:  # the calibration's fields replace the config's, one by one (as --calib)
+        cal = load_calibration(spec.calib)
+        cfg = with_overrides(cfg, {f"calibration.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    return with_overrides(cfg, spec.options, f"{spec.where}: options")
+
+
+def metrics_file(command: str) -> str:
+    return f"{STEMS[command]}.metrics.json"
+
+
+def _deskew_out(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
+    suffix = {"ros1": ".bag", "mcap": ".mcap"}.get(cfg.output_format or "", "")
+    if cfg.output_format is None and log.suffix in (".bag", ".mcap"):
+        suffix = log.suffix
+    return folder / f"{STEMS['deskew']}{suffix}"
+
+
+def score_trajectory(log: Path, gt: str, est: Trajectory) -> dict:
+    """ATE/RPE of ``est`` against ``gt`` (a file, or a topic of the log), as ``lio odom --gt`` scores."""
+    spec = f"{log}:{gt}" if gt.startswith("/") and not Path(gt).exists() else gt
+    ref = load_trajectory(spec)
+    return score(Trajectory(ref.stamps_ns, ref.poses, gt), Trajectory(est.stamps_ns, est.poses, "estimate")).to_dict()
+
+
+def run_command(command: str, log: Path, config: BaseModel, gt: str | None, folder: Path) -> dict:
+    """Run the command's job on ``log`` and write its files into ``folder``; return its metrics."""
+    if command == "odom":
+        from ..jobs.odom import OdomJob, run_odom
+        from ..jobs.outputs import write_odom
+
+        result = run_odom(OdomJob(log, config, gt))
+        write_odom(result, folder / f"{STEMS['odom']}.tum", False)
+        return result.metrics
+    if command == "fuse":
+        from ..jobs.fuse import FuseJob, run_fuse
+        from ..jobs.fuse_outputs import write_fuse
+
+        run = run_fuse(FuseJob(log, config))
+        if gt is not None:
+            run.metrics["accuracy"] = score_trajectory(log, gt, run.trajectory)
+        write_fuse(run, folder / f"{STEMS['fuse']}.tum", False)
+        return run.metrics
+    from ..jobs.deskew import DeskewJob, run_deskew
+
+    return run_deskew(DeskewJob(log, _deskew_out(folder, log, config), config)).metrics
+
+
+def key_metrics(command: str, metrics: dict) -> dict[str, Any]:
+    """The summary's columns of one run (None where the command has no such figure)."""
+    out: dict[str, Any] = dict.fromkeys(KEY_METRICS)
+    if command == "odom":
+        out.update(scans_total=metrics["scans"]["total"], scans_used=metrics["scans"]["used"],
+                   span_s=metrics.get("trajectory_span_s"))
+    elif command == "fuse":
+        out.update(poses=metrics["output"]["poses"])
+    else:
+        out.update(scans_total=metrics["scans"]["total"], scans_used=metrics["scans"]["deskewed"],
+                   span_s=metrics.get("log_duration_s"))
+    out["real_time_factor"] = metrics.get("real_time_factor")
+    acc = metrics.get("accuracy")
+    if acc:
+        out.update(ate_m=acc["ate_trans_rmse_m"], ate_deg=acc["ate_rot_rmse_deg"], rpe_m=acc["rpe_trans_rmse_m"],
+                   final_error_m=acc["final_error_m"])
+    return {k: (round(v, 6) if isinstance(v, float) and math.isfinite(v) else v) for k, v in out.items()}
+
+
+__all__ = ["CONFIGS", "KEY_METRICS", "STEMS", "key_metrics", "metrics_file", "resolve_config", "run_command",
+           "score_trajectory"]

@@ -1,0 +1,159 @@
+"""``lio batch``: one command over many logs, on local processes or a Dask cluster (flags -> manifest -> tasks ->
+run_batch -> table, summary files, exit code)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+import yaml
+from rich.table import Table
+
+from ..batch import choose_executor, expand, load_manifest, plan_batch, run_batch, shorthand
+from ..batch.manifest import BATCH_COMMANDS
+from ..batch.summary import Summary
+from ..errors import ConfigError
+from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, print_json, progress_bar, warn
+
+HELP = """Run lio odom, fuse or deskew over many logs: each run is the very job the single command runs (same
+files, byte for byte), in its own folder under the output root, on all local cores or on a Dask cluster.
+
+[bold]What to run[/bold]: a manifest (YAML: output, defaults, runs; see the README), or the shorthand
+COMMAND LOG... where each LOG may be a quoted glob ('logs/*.bag'), with --gt, --set FIELD=VALUE (any field of
+the command's configuration, as in its .config.yaml), --config and --calib for every run.
+
+[bold]Where[/bold]: --jobs N local processes (default: one per core); --dask tcp://HOST:8786 an existing Dask
+scheduler; --dask local --workers N a Dask cluster on this machine (pip install 'lio-cli\\[dask]'). Workers read
+the logs and write the results by path: both must be on storage every worker shares.
+
+[bold]Writes[/bold] OUT/NAME/ per run (trajectory or log, .metrics.json, .config.yaml, job.sha256), written
+aside and renamed when complete, and OUT/summary.json and OUT/summary.csv: per run status, exit class, a
+one-line reason, time, attempts, key metrics and ATE/RPE with a ground truth; per group mean/std/min/max.
+A failing run is recorded and the others go on. Exit 0: every run succeeded; 1: some failed; 2: bad manifest
+or options. --resume skips runs whose folder holds the same job's hash; Ctrl-C keeps the finished runs.
+
+[bold]Examples[/bold]
+
+  lio batch odom 'logs/*.bag' --gt /ground_truth -O results/
+
+  lio batch runs.yaml --jobs 2 --resume
+
+  lio batch fuse 'logs/*.mcap' --set estimator=planar -O fused/ --dask tcp://scheduler:8786 --json > summary.json
+
+  lio batch runs.yaml --dask local --workers 4
+"""
+
+
+def _options(sets: list[str]) -> dict:
+    out = {}
+    for item in sets:
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise ConfigError(f"--set takes FIELD=VALUE (e.g. prior=constant-velocity), got '{item}'")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as err:
+            raise ConfigError(f"--set {item}: cannot read the value ({str(err).splitlines()[0]})") from err
+    return out
+
+
+def batch(
+    what: Annotated[list[str], typer.Argument(help="MANIFEST.yaml, or COMMAND (odom, fuse, deskew) and logs or quoted globs.", metavar="MANIFEST | COMMAND LOG...", show_default=False)],
+    output: Annotated[Optional[Path], typer.Option("-O", "--output", help="Output root (overrides the manifest's output:).", show_default=False)] = None,
+    gt: Annotated[Optional[str], typer.Option("--gt", help="Shorthand: ground truth of every run, a topic (/ground_truth) or a file; {stem} and {dir} stand for the log's stem and folder.", show_default=False)] = None,
+    group: Annotated[Optional[str], typer.Option("--group", help="Shorthand: a group name for every run.", show_default=False)] = None,
+    sets: Annotated[Optional[list[str]], typer.Option("--set", help="Shorthand: FIELD=VALUE of the command's configuration (repeat), e.g. --set prior=constant-velocity.", show_default=False)] = None,
+    config: Annotated[Optional[str], typer.Option("--config", help="Shorthand: the command's YAML configuration for every run.", show_default=False)] = None,
+    calib: Annotated[Optional[str], typer.Option("--calib", help="Shorthand: a calibration YAML for every run.", show_default=False)] = None,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Local processes (default: one per core; 1 runs in this process).", show_default=False)] = None,
+    dask: Annotated[Optional[str], typer.Option("--dask", help="Run on Dask: a scheduler address (tcp://HOST:8786) or 'local'.", show_default=False)] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", help="With --dask local: the number of workers (default: one per core).", show_default=False)] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Skip runs whose folder holds the same job's hash; run the others.")] = False,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
+    force: ForceOpt = False,
+) -> int:
+    executor = choose_executor(jobs, dask, workers)
+    if what[0] in BATCH_COMMANDS:
+        manifest = shorthand(what[0], what[1:], gt, group, config, calib, _options(sets or []))
+        base, where = Path.cwd(), "lio batch"
+    else:
+        if len(what) > 1:
+            raise ConfigError(f"lio batch takes one manifest, or a command ({', '.join(BATCH_COMMANDS)}) and logs; "
+                              f"got '{what[0]}' and {len(what) - 1} more")
+        given = [f for f, v in (("--gt", gt), ("--group", group), ("--set", sets), ("--config", config),
+                                ("--calib", calib)) if v]
+        if given:
+            raise ConfigError(f"{given[0]} goes with the shorthand (lio batch COMMAND LOGS...); in a manifest put it "
+                              "under defaults: or a run")
+        path = Path(what[0])
+        manifest = load_manifest(path)
+        base, where = path.absolute().parent, str(path)
+    specs = expand(manifest, base, where)
+    root = output if output is not None else (base / manifest.output if manifest.output else None)
+    tasks = plan_batch(specs, root, resume, force)
+    note(f"{len(tasks)} runs on {executor.describe()}; results in {tasks[0].root}", quiet)
+    with progress_bar("runs", len(tasks), quiet) as advance:
+        def done(rec: dict) -> None:
+            advance(1)
+            if rec["status"] == "failed":
+                warn(f"{rec['name']}: {rec['exit_class']}: {rec['reason']}")
+
+        summary = run_batch(tasks, executor, done)
+    if not quiet:
+        _tables(summary)
+    c = summary.counts
+    parts = [f"{c[k]} {k}" for k in ("ok", "skipped", "failed", "not-run") if c[k]]
+    note(f"{c['runs']} runs: {', '.join(parts)} in {summary.wall_s:.1f} s; summary in "
+         f"{summary.root / 'summary.json'} and summary.csv", quiet)
+    if as_json:
+        print_json(summary.to_dict())
+    return summary.exit_code
+
+
+def _fmt(v, digits: int = 4) -> str:
+    return "-" if v is None else f"{v:.{digits}f}" if isinstance(v, float) else str(v)
+
+
+def _tables(summary: Summary) -> None:
+    t = Table(title="lio batch", title_justify="left")
+    # the group and command columns only when they tell runs apart
+    scored = any(r["metrics"]["ate_m"] is not None for r in summary.runs)
+    show = {"group": any(r["group"] for r in summary.runs),
+            "command": len({r["command"] for r in summary.runs}) > 1, "ATE m": scored, "RPE m": scored}
+    cols = [c for c in ("run", "group", "command", "status", "time s", "scans", "ATE m", "RPE m") if show.get(c, True)]
+    for col in cols:
+        t.add_column(col, justify="right" if col in ("time s", "scans", "ATE m", "RPE m") else "left", no_wrap=True)
+    t.add_column("reason (in full: summary.json)", overflow="fold")
+    for r in summary.runs:
+        m = r["metrics"]
+        status = {"ok": "[green]ok[/green]", "skipped": "skipped", "failed": "[red]failed[/red]"}.get(
+            r["status"], r["status"])
+        cells = {"run": r["name"], "group": r["group"] or "-", "command": r["command"], "status": status,
+                 "time s": _fmt(r["time_s"], 1),
+                 "scans": "-" if m["scans_total"] is None else f"{m['scans_used']}/{m['scans_total']}", "ATE m": _fmt(m["ate_m"]), "RPE m": _fmt(m["rpe_m"])}
+        reason = (f"{r['exit_class']}: " if r["status"] == "failed" else "") + r["reason"]
+        t.add_row(*(cells[c] for c in cols), reason if len(reason) <= 60 else reason[:59] + "…")
+    err_console.print(t)
+    if not summary.groups:
+        return
+    g = Table(title="groups (mean ± std, min..max over the runs that finished)", title_justify="left")
+    for col in ("group", "runs", "ATE m", "RPE m", "real time x"):
+        g.add_column(col)
+    for name, gs in summary.groups.items():
+        cells = []
+        for key in ("ate_m", "rpe_m", "real_time_factor"):
+            s = gs["metrics"].get(key)
+            if s is None:
+                cells.append("-")
+                continue
+            std = "-" if s["std"] is None else f"{s['std']:.2g}"
+            cells.append(f"{s['mean']:.4g} ± {std} ({s['min']:.4g}..{s['max']:.4g})")
+        g.add_row(name, str(len(gs["runs"])), *cells)
+    err_console.print(g)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("batch", help=HELP, short_help="Run a command over many logs (local processes or Dask).",
+                no_args_is_help=True)(batch)

@@ -1,0 +1,123 @@
+"""The odometry's state updates and plausibility checks: priors, wheel speed, EKF/complementary corrections,
+the innovation and state guards that send it back to LiDAR-only scans, and the online IMU clock tracking.
+
+A mixin of ``LioOdometry`` (``core/odometry.py``), split out to keep each module readable; it uses the
+odometry's attributes (``cfg``, ``state``, ``stats``, ``ext``, ``planar``, ``_wheel``, ``_reg`` ...).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
+                     pose_innovation_nis, position_noise)
+from .imu import flatten_planar
+from .pose_checks import exceeds_jump
+from .wheel import mean_twist, planar_delta
+
+_MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
+_MAX_JUMP_RAD = 0.35
+_NIS_LIMIT = 100.0  # a pose innovation this far outside its covariance (chi-square 6 dof: 22 at 99.9 %; a 15 ms IMU
+# clock offset on fast yaw sweeps reaches 80)...
+_NIS_SCANS = 3  # ...this many scans in a row means the IMU state no longer explains the scans
+_MOVING_MPS = 0.3  # faster than this, an exactly-zero wheel twist is not a wheel at rest
+_MAX_BIAS_GYRO_RADPS = 0.5
+_MAX_BIAS_ACCEL_MPS2 = 3.0
+
+
+class StateUpdates:
+    """Priors, corrections and guards of ``LioOdometry``."""
+
+    def _implausible(self, measured: np.ndarray, dirs_b: list) -> str | None:
+        """A pose innovation far outside its covariance for several scans in a row (EKF only)."""
+        fc = self.cfg.fusion
+        if fc.method != "ekf":
+            return None
+        dirs_w = [self.state.R @ d for d in dirs_b]
+        nis = pose_innovation_nis(self.state, measured, fc.rotation_sigma_rad,
+                                  position_noise(fc.position_sigma_m, dirs_w, fc.degenerate_sigma_m))
+        self._doubt = self._doubt + 1 if nis > _NIS_LIMIT else 0
+        if self._doubt >= _NIS_SCANS:
+            return f"prediction and registration disagreed for {self._doubt} scans (NIS {nis:.0f})"
+        return None
+
+    def _state_implausible(self) -> str | None:
+        s = self.state
+        speed = float(np.linalg.norm(s.v))
+        if not (np.isfinite(s.v).all() and np.isfinite(s.bg).all() and np.isfinite(s.ba).all()):
+            return "the IMU state became non-finite"
+        if speed > self.cfg.max_speed_mps:
+            return f"speed {speed:.1f} m/s beyond max_speed_mps"
+        if np.linalg.norm(s.bg) > _MAX_BIAS_GYRO_RADPS or np.linalg.norm(s.ba) > _MAX_BIAS_ACCEL_MPS2:
+            return f"IMU biases implausible (gyro {np.linalg.norm(s.bg):.2f} rad/s, accel {np.linalg.norm(s.ba):.2f} m/s^2)"
+        return None
+
+    def _registration_failed(self, measured: np.ndarray, guess: np.ndarray) -> bool:
+        """Non-finite, untouched (no correspondence at all), or implausibly far from the IMU prediction."""
+        if not np.isfinite(measured).all():
+            return True
+        if self._reg.empty:
+            return False
+        if np.allclose(measured, guess, rtol=0.0, atol=1e-12):  # ICP returns the guess itself when nothing matched
+            return True
+        return exceeds_jump(measured, guess, _MAX_JUMP_M, _MAX_JUMP_RAD)
+
+    def _guess(self, t_prev: int, t_ref: int) -> np.ndarray:
+        prior = self.cfg.prior
+        if prior == "imu":
+            return self.state.pose()
+        if prior == "constant-velocity":
+            return self._last_pose @ self._last_delta
+        if prior == "wheel":
+            return self._last_pose @ self._wheel_delta(t_prev, t_ref)
+        return self._last_pose.copy()
+
+    def _wheel_speed(self, t_ns: int) -> float:
+        twist = mean_twist(self._wheel, t_ns - 60_000_000, t_ns + 60_000_000) if self.cfg.use_wheel else None
+        return np.nan if twist is None else twist[0]
+
+    def _wheel_delta(self, t0: int, t1: int) -> np.ndarray:
+        """Planar motion integrated from wheel speed and yaw rate over [t0, t1] (lecture's kinematics)."""
+        twist = mean_twist(self._wheel, t0 - 100_000_000, t1)
+        if twist is None:
+            return self._last_delta
+        return planar_delta(twist[0], twist[1], (t1 - t0) * 1e-9)
+
+    def _wheel_update(self, t0: int, t1: int) -> None:
+        """Wheel speed over the scan (forward, no side slip) corrects the predicted velocity."""
+        if not self.cfg.use_wheel or not self._wheel:
+            return
+        twist = mean_twist(self._wheel, t0, t1 + 20_000_000)
+        if twist is None:
+            return
+        if twist == (0.0, 0.0) and np.linalg.norm(self.state.v) > _MOVING_MPS:
+            self.stats.wheel_zero_skipped += 1  # an all-zero twist while moving: a pose source, not wheels
+            return
+        v_body = np.array([twist[0], 0.0, 0.0])
+        fc = self.cfg.fusion
+        if fc.method == "ekf":
+            s = fc.wheel_speed_sigma_mps
+            ekf_body_velocity_update(self.state, v_body, np.array([s, 2 * s, 2 * s]))
+        else:
+            complementary_velocity_update(self.state, v_body, fc.wheel_beta)
+        self.stats.wheel_updates += 1
+
+    def _correct(self, measured: np.ndarray, dirs_b: list[np.ndarray], dt_s: float) -> np.ndarray:
+        fc = self.cfg.fusion
+        dirs_w = [self.state.R @ d for d in dirs_b]
+        if fc.method == "ekf":
+            cov = position_noise(fc.position_sigma_m, dirs_w, fc.degenerate_sigma_m)
+            ekf_pose_update(self.state, measured, fc.rotation_sigma_rad, cov)
+        else:
+            complementary_update(self.state, measured, fc.alpha, dt_s, self.ext.R_base_imu, dirs_w)
+        if self.planar:
+            flatten_planar(self.state)
+        return self.state.pose()
+
+    def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
+        if self.clock is None or self.clock.done:
+            return
+        self.clock.add_pose(t_ref, measured @ self.ext.T_base_lidar)
+        delta = self.clock.propose(self.state.bg, self.stats.scans)
+        if delta:
+            self._shift_imu(delta)
