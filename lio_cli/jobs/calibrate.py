@@ -31,7 +31,7 @@ from ..io.topics import choose_topic
 from ..model.calibration import Calibration
 from . import calibrate_estimate as steps
 from .calibrate_passes import LidarPass, Progress, read_imu
-from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, table
+from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, rotation_observable, table
 from .odom_inputs import BASE_FRAME_NAMES
 from .outputs import beside, json_text
 
@@ -106,6 +106,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         still_s = None if cfg.still is None else parse_still(cfg.still)
         t0 = time.perf_counter()
         T_base_lidar = lidar_source = None
+        dropped = 0
         if lidar is None:
             imu = read_imu(reader, imu_topic)
             imu_frame, traj = imu.frame_id, None
@@ -134,6 +135,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
+            lidar_only = traj
             traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
             steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
@@ -147,7 +149,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=k == len(cfg.refine),
                                  prior_offset=prior_offset)
                 times[f"estimate_{k}"] = time.perf_counter() - t0
-            steps.wheels(arrays, traj, T_base_lidar, cfg, est, where)
+            steps.wheels(arrays, _wheel_trajectory(est, traj, lidar_only, T_ref), T_base_lidar, cfg, est, where)
         if cfg.allan:
             t0 = time.perf_counter()
             steps.allan(imu, est, where)
@@ -167,6 +169,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         "topics": {"lidar": lidar, "imu": imu_topic, "wheel": wheel}, "base_frame": base,
         "T_base_lidar_from": lidar_source, "reference": ref_name,
         "lidar_trajectory": None if traj is None else traj.description,
+        "lidar_only_scans_left_out": dropped,
         "conventions": {"T_base_imu": "maps IMU points into the base frame",
                         "imu_time_offset_s": "added to IMU stamps to put them on the LiDAR's clock"},
         "calibration": cal.model_dump(mode="json", exclude_none=True), "table": rows,
@@ -180,6 +183,17 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
     }
     _write(job, cal, resolved, metrics, est)
     return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs)
+
+
+def _wheel_trajectory(est: steps.Estimates, primed, lidar_only, T_ref):
+    """The trajectory the wheels are measured against: the IMU-primed one, unless the IMU's mounting is partly
+    unknown (an axis the motion did not show and nothing to take it from), which would bend it; then the
+    LiDAR-only one."""
+    if est.rotation is None or T_ref is not None or rotation_observable(est).all():
+        return primed
+    est.notes.append("wheel scales measured against the LiDAR-only trajectory: the IMU's mounting is not fully "
+                     "known (give T_base_imu with --calib, or /tf_static, to use the IMU-primed one)")
+    return lidar_only
 
 
 def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | None:

@@ -76,6 +76,7 @@ class LidarPass:
         self.pending: deque[PointCloud] = deque()
         self.mid_ns: dict[int, int] = {}  # scan end -> middle of its sweep
         self.done = 0
+        self.stats: dict = {}  # the odometry's scan counts and events of the last run
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
             gather: bool = False, sigmas: tuple[float, float] = (0.01, 0.001)) -> tuple[LidarTrajectory, SensorArrays]:
@@ -134,7 +135,8 @@ class LidarPass:
             arrays.imu = ImuBatch.concat(imu_batches) if imu_batches else None
             arrays.imu_frame = imu_batches[0].frame_id if imu_batches else ""
             _wheel_arrays(arrays, wheel)
-        how = "IMU-primed (first estimates)" if with_imu else "LiDAR only, no de-skew (poses at mid-sweep)"
+        self.stats = {**odo.stats.counts(), "events": len(odo.events)}
+        how = "IMU-primed with the previous estimates" if with_imu else "LiDAR only, no de-skew (poses at mid-sweep)"
         stamps = np.asarray(odo.stamps_ns, np.int64)
         if not with_imu:  # a scan registered without de-skew is where the sensor was in the middle of its sweep
             stamps = np.array([self.mid_ns.get(int(t), int(t)) for t in stamps], np.int64)
