@@ -777,23 +777,3 @@ def test_a_damaged_first_scan_restarts_the_map(sim, tmp_path, capsys):
     events = metrics_of(tmp_path / "o.tum")["events"]
     assert [e["kind"] for e in events if e["kind"] == "map restarted"] == ["map restarted"]
     assert _ate(sim["gt_tum"], tmp_path / "o.tum", capsys) < 0.05
-
-
-@pytest.mark.parametrize("topic, index, back_ms", [(LIDAR, 12, 130), (IMU, 4, 30)], ids=["scan", "IMU sample"])
-def test_check_flags_a_header_stamp_going_backwards_in_recording_order(sim, tmp_path, capsys, topic, index, back_ms):
-    """A message stamped before the one recorded ahead of it is sorted back into place by the stream's
-    reorder buffer, so ``info --check`` passed it; now it says which topic goes backwards (exit 2, one line), and
-    odom still takes the log (exit 0, every scan used)."""
-    def edit(t, i, msg):
-        if t == topic and i == index:
-            set_stamp(msg, stamp_ns(msg) - back_ms * 1_000_000)
-        return msg
-
-    log = rewrite(sim["h"], tmp_path / "back.bag", edit)
-    rc, _, err = lio(capsys, "info", "--check", log)
-    assert rc == 2
-    line = one_line(err)
-    assert topic in line and "going backwards in recording order" in line
-    rc, _, err = lio(capsys, "odom", log, "-o", tmp_path / "o.tum", "-q")
-    assert rc == 0, err
-    assert metrics_of(tmp_path / "o.tum")["scans"]["used"] == sim["h_metrics"]["scans"]["used"]

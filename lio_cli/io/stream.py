@@ -114,7 +114,6 @@ class SensorStream:
         self.stats = StreamStats()
         self._last: dict[str, int] = {}
         self._last_rec: dict[str, int] = {}  # record time of each topic's last accepted message
-        self._arrived: dict[str, int] = {}  # strict: header stamp of each topic's last message in recording order
         self._conventions: dict[tuple, TimeConvention] = {}
 
     def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
@@ -178,17 +177,6 @@ class SensorStream:
             return Record(kind, topic, rec.stamp_ns, rec)
         rec = decode_pose(msg, msgtype)
         return Record(kind, topic, rec.stamp_ns, rec)
-
-    def _check_arrival(self, rec: Record) -> None:
-        """Strict: within a topic, header stamps must not go backwards in the order the messages were recorded
-        (the reorder heap would otherwise sort a late-stamped message into place, unseen)."""
-        last = self._arrived.get(rec.topic)
-        if last is not None and rec.stamp_ns < last:
-            raise InputError(
-                f"{self.log.path}: {rec.topic}: header stamps going backwards in recording order "
-                f"({_fmt_ns(rec.stamp_ns)} recorded after {_fmt_ns(last)}); fix the log's stamps or re-record"
-            )
-        self._arrived[rec.topic] = rec.stamp_ns
 
     def _accept(self, rec: Record, t_rec: int) -> bool:
         last = self._last.get(rec.topic)
@@ -259,8 +247,6 @@ class SensorStream:
                 raise InputError(f"{self.log.path}: {topic}: {err}") from err
             if rec is None:
                 continue
-            if self.strict:
-                self._check_arrival(rec)
             heapq.heappush(heap, (rec.stamp_ns, seq, t_rec, rec))
             seq += 1
             horizon = max(t_rec, rec.stamp_ns) - self.window_ns
