@@ -14,7 +14,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from ..config import load_calibration, load_model, with_overrides
+from ..config import load_config, with_overrides
 from ..config.deskew import DeskewConfig
 from ..config.fuse import FuseConfig
 from ..config.odom import OdomConfig
@@ -35,10 +35,7 @@ def resolve_config(spec: RunSpec) -> BaseModel:
     if spec.gt is not None and spec.command == "deskew":
         raise ConfigError(f"{spec.where}: gt: deskew writes a log, there is no trajectory to score; drop gt")
     model = CONFIGS[spec.command]
-    cfg = load_model(model, spec.config)
-    if spec.calib is not None:  # the calibration's fields replace the config's, one by one (as --calib)
-        cal = load_calibration(spec.calib)
-        cfg = with_overrides(cfg, {f"calibration.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    cfg = load_config(model, spec.config, spec.calib)
     return with_overrides(cfg, spec.options, f"{spec.where}: options")
 
 

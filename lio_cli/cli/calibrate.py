@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ..config import load_calibration, load_model, with_overrides
+from ..config import load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
 from ..io.pointcloud import parse_time_convention
 from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate
@@ -70,10 +70,7 @@ def calibrate(
     quiet: QuietOpt = False,
     force: ForceOpt = False,
 ) -> None:
-    cfg = load_model(CalibrateConfig, config)
-    if calib is not None:  # the file's fields replace the config's, one by one
-        cal = load_calibration(calib)
-        cfg = with_overrides(cfg, {f"prior.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    cfg = load_config(CalibrateConfig, config, calib, "prior")
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ..config import load_calibration, load_model, with_overrides
+from ..config import load_config, with_overrides
 from ..config.deskew import DeskewConfig
 from ..io.pointcloud import parse_time_convention
 from ..jobs.deskew import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew
@@ -76,10 +76,7 @@ def deskew(
     quiet: QuietOpt = False,
     force: ForceOpt = False,
 ) -> None:
-    cfg = load_model(DeskewConfig, config)
-    if calib is not None:  # the file's fields replace the config's, one by one
-        cal = load_calibration(calib)
-        cfg = with_overrides(cfg, {f"calibration.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    cfg = load_config(DeskewConfig, config, calib)
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {

@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ..config import load_calibration, load_model, with_overrides
+from ..config import load_config, with_overrides
 from ..config.fuse import FuseConfig, parse_use
 from ..errors import ConfigError
 from ..io.detect import input_paths
@@ -83,10 +83,7 @@ def fuse_cmd(
     force: ForceOpt = False,
 ) -> None:
     _check_rate(rate)
-    cfg = load_model(FuseConfig, config)
-    if calib is not None:  # the file's fields replace the config's, one by one
-        cal = load_calibration(calib)
-        cfg = with_overrides(cfg, {f"calibration.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    cfg = load_config(FuseConfig, config, calib)
     cfg = with_overrides(cfg, {
         "input.format": fmt, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
         "input.gps_topic": gps_topic, "input.odom_topic": odom_topic, "input.odom_file": str(odom) if odom else None,

@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ..config import load_calibration, load_model, with_overrides
+from ..config import load_config, with_overrides
 from ..config.odom import OdomConfig
 from ..errors import ConfigError
 from ..io.detect import input_paths
@@ -67,10 +67,7 @@ def odom(
     quiet: QuietOpt = False,
     force: ForceOpt = False,
 ) -> None:
-    cfg = load_model(OdomConfig, config)
-    if calib is not None:  # the file's fields replace the config's, one by one
-        cal = load_calibration(calib)
-        cfg = with_overrides(cfg, {f"calibration.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+    cfg = load_config(OdomConfig, config, calib)
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {

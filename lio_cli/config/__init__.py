@@ -106,3 +106,14 @@ def load_calibration(path: Path) -> Calibration:
 
 
 __all__ = ["Strict", "dump_model", "load_calibration", "load_model", "read_mapping", "validate", "with_overrides"]
+
+
+def load_config(model: type[M], config: Path | None, calib: Path | None = None, calib_field: str = "calibration") -> M:
+    """A command's configuration: defaults, then the ``config`` file's fields, then the ``calib`` file's fields
+    (under ``calib_field``) replacing them one by one, as ``--config`` and ``--calib`` combine everywhere."""
+    cfg = load_model(model, config)
+    if calib is None:
+        return cfg
+    cal = load_calibration(calib)
+    return with_overrides(cfg, {f"{calib_field}.{k}": v for k, v in cal.model_dump(exclude_unset=True).items()})
+
