@@ -15,6 +15,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from ..config import load_config, with_overrides
+from ..config.calibrate import CalibrateConfig
 from ..config.deskew import DeskewConfig
 from ..config.fuse import FuseConfig
 from ..config.odom import OdomConfig
@@ -24,18 +25,20 @@ from ..io.sources import load_trajectory
 from ..model.trajectory import Trajectory
 from .manifest import RunSpec
 
-CONFIGS: dict[str, type[BaseModel]] = {"odom": OdomConfig, "fuse": FuseConfig, "deskew": DeskewConfig}
-STEMS = {"odom": "odom", "fuse": "fused", "deskew": "deskewed"}  # a run's files: STEM.tum, STEM.metrics.json...
+CONFIGS: dict[str, type[BaseModel]] = {"odom": OdomConfig, "fuse": FuseConfig, "deskew": DeskewConfig,
+                                        "calibrate": CalibrateConfig}
+STEMS = {"odom": "odom", "fuse": "fused", "deskew": "deskewed", "calibrate": "calib"}  # a run's files: STEM.tum, STEM.metrics.json...
 KEY_METRICS = ("scans_total", "scans_used", "poses", "span_s", "real_time_factor",
                "ate_m", "ate_deg", "rpe_m", "final_error_m")
 
 
 def resolve_config(spec: RunSpec) -> BaseModel:
     """The run's configuration: the command's defaults, its ``config`` file, its ``calib`` file, its options."""
-    if spec.gt is not None and spec.command == "deskew":
-        raise ConfigError(f"{spec.where}: gt: deskew writes a log, there is no trajectory to score; drop gt")
+    if spec.gt is not None and spec.command in ("deskew", "calibrate"):
+        raise ConfigError(f"{spec.where}: gt: {spec.command} writes no trajectory to score; drop gt")
     model = CONFIGS[spec.command]
-    cfg = load_config(model, spec.config, spec.calib)
+    # a calibration given to calibrate is the reference it compares with (its --calib), elsewhere the extrinsics
+    cfg = load_config(model, spec.config, spec.calib, "prior" if spec.command == "calibrate" else "calibration")
     return with_overrides(cfg, spec.options, f"{spec.where}: options")
 
 
@@ -75,6 +78,10 @@ def run_command(command: str, log: Path, config: BaseModel, gt: str | None, fold
             run.metrics["accuracy"] = score_trajectory(log, gt, run.trajectory)
         write_fuse(run, folder / f"{STEMS['fuse']}.tum", False)
         return run.metrics
+    if command == "calibrate":
+        from ..jobs.calibrate import CalibrateJob, run_calibrate
+
+        return run_calibrate(CalibrateJob(log, folder / f"{STEMS['calibrate']}.yaml", config)).metrics
     from ..jobs.deskew import DeskewJob, run_deskew
 
     return run_deskew(DeskewJob(log, _deskew_out(folder, log, config), config)).metrics
@@ -88,6 +95,8 @@ def key_metrics(command: str, metrics: dict) -> dict[str, Any]:
                    span_s=metrics.get("trajectory_span_s"))
     elif command == "fuse":
         out.update(poses=metrics["output"]["poses"])
+    elif command == "calibrate":
+        pass  # its figures are the calibration itself, in the run's calib.yaml
     else:
         out.update(scans_total=metrics["scans"]["total"], scans_used=metrics["scans"]["deskewed"],
                    span_s=metrics.get("log_duration_s"))

@@ -3,7 +3,7 @@
 ```yaml
 output: results/            # the output root (relative paths: from the manifest's folder)
 defaults:                   # every run's, unless the run says otherwise
-  command: odom             # odom | fuse | deskew
+  command: odom             # odom | fuse | deskew | calibrate
   gt: /ground_truth         # a topic of each log, a TUM/KITTI file, or a pattern: "{dir}/{stem}.gt.tum"
   options: {prior: imu}     # fields of its configuration (as its .config.yaml), dotted or nested; runs of
                             # another command take only their own options
@@ -35,8 +35,8 @@ from ..config import Strict, read_mapping
 from ..errors import ConfigError
 from ..jobs.outputs import log_stem
 
-Command = Literal["odom", "fuse", "deskew"]
-BATCH_COMMANDS = ("odom", "fuse", "deskew")
+Command = Literal["odom", "fuse", "deskew", "calibrate"]
+BATCH_COMMANDS = ("odom", "fuse", "deskew", "calibrate")
 _GLOB_CHARS = set("*?[")
 
 

@@ -16,7 +16,7 @@ from ..batch.summary import Summary
 from ..errors import ConfigError
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, print_json, progress_bar, warn
 
-HELP = """Run lio odom, fuse or deskew over many logs: each run is the very job the single command runs (same
+HELP = """Run lio odom, fuse, deskew or calibrate over many logs: each run is the very job the single command runs (same
 files, byte for byte), in its own folder under the output root, on all local cores or on a Dask cluster.
 
 [bold]What to run[/bold]: a manifest (YAML: output, defaults, runs; see the README), or the shorthand
@@ -59,7 +59,7 @@ def _options(sets: list[str]) -> dict:
 
 
 def batch(
-    what: Annotated[list[str], typer.Argument(help="MANIFEST.yaml, or COMMAND (odom, fuse, deskew) and logs or quoted globs.", metavar="MANIFEST | COMMAND LOG...", show_default=False)],
+    what: Annotated[list[str], typer.Argument(help="MANIFEST.yaml, or COMMAND (odom, fuse, deskew, calibrate) and logs or quoted globs.", metavar="MANIFEST | COMMAND LOG...", show_default=False)],
     output: Annotated[Optional[Path], typer.Option("-O", "--output", help="Output root (overrides the manifest's output:).", show_default=False)] = None,
     gt: Annotated[Optional[str], typer.Option("--gt", help="Shorthand: ground truth of every run, a topic (/ground_truth) or a file; {stem} and {dir} stand for the log's stem and folder.", show_default=False)] = None,
     group: Annotated[Optional[str], typer.Option("--group", help="Shorthand: a group name for every run.", show_default=False)] = None,

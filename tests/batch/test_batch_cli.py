@@ -165,6 +165,31 @@ runs:
     assert deskew["scans_used"] == deskew["scans_total"] == sim_scans(ref / "d.metrics.json")
 
 
+def test_calibrate_runs_equal_the_single_command(sim, tmp_path):
+    """A batch calibrate run writes the calibration YAML and its .config.yaml the single ``lio calibrate`` writes,
+    byte for byte; a calibrate run with gt is a manifest error (it writes nothing to score)."""
+    log = sim.logs["walk_a"]
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    assert main(["calibrate", str(log), "-o", str(ref / "c.yaml"), "-q"]) == 0
+    manifest = write_manifest(tmp_path / "runs.yaml", f"""\
+output: out
+runs:
+  - log: {log}
+    name: cal
+    command: calibrate
+""")
+    rc, _ = run_lio("batch", manifest, "--jobs", "1", "-q")
+    assert rc == 0
+    out = tmp_path / "out" / "cal"
+    assert (out / "calib.yaml").read_bytes() == (ref / "c.yaml").read_bytes()
+    assert (out / "calib.config.yaml").read_bytes() == (ref / "c.config.yaml").read_bytes()
+    assert summary_of(tmp_path / "out")["runs"][0]["status"] == "ok"
+    bad = write_manifest(tmp_path / "bad.yaml", manifest.read_text().replace("command: calibrate",
+                                                                             "command: calibrate\n    gt: /ground_truth"))
+    assert run_lio("batch", bad, "--jobs", "1", "-q")[0] == 2
+
+
 def sim_scans(metrics: Path) -> int:
     return json.loads(metrics.read_text())["scans"]["total"]
 
@@ -239,8 +264,8 @@ runs:
 @pytest.mark.parametrize("text, message", [
     ("runs: []\n", "{m}: runs: List should have at least 1 item after validation, not 0"),
     ("runs:\n  - lg: a.bag\n", "{m}: runs[0]: log: Field required"),
-    ("runs:\n  - log: a.bag\n    command: calibrate\n",
-     "{m}: runs[0]: command: Input should be 'odom', 'fuse' or 'deskew'"),
+    ("runs:\n  - log: a.bag\n    command: evaluate\n",
+     "{m}: runs[0]: command: Input should be 'odom', 'fuse', 'deskew' or 'calibrate'"),
     ("runs:\n  - log: a.bag\n    options: {{priorr: imu}}\n",
      "{m}: runs[0]: options: priorr: Extra inputs are not permitted"),
     ("runs:\n  - log: a.bag\n    options: {{fusion: {{alpha: 2}}}}\n",
@@ -249,7 +274,7 @@ runs:
      "{m}: runs[1]: two runs are named 'a' ({d}/a.bag and {d}/sub/a.bag); set name: on one of them"),
     ("runs:\n  - log: 'nothing/*.bag'\n", "{m}: runs[0]: log: 'nothing/*.bag' matches no file or folder"),
     ("runs:\n  - log: a.bag\n    command: deskew\n    gt: /ground_truth\n",
-     "{m}: runs[0]: gt: deskew writes a log, there is no trajectory to score; drop gt"),
+     "{m}: runs[0]: gt: deskew writes no trajectory to score; drop gt"),
     ("- a.bag\n", "{m}: manifest must be a mapping of option: value"),
 ])
 def test_bad_manifest_exits_2_with_one_line(tmp_path, capsys, text, message):

@@ -76,8 +76,8 @@ def test_shorthand_is_a_manifest_with_defaults(tmp_path, monkeypatch):
     specs = expand(m, tmp_path, "lio batch")
     assert [(s.name, s.gt, s.group, s.options) for s in specs] == [
         ("x", "/ground_truth", "g", {"prior": "none"}), ("y", "/ground_truth", "g", {"prior": "none"})]
-    with pytest.raises(ConfigError, match="^batch runs odom, fuse, deskew, not 'calibrate'$"):
-        shorthand("calibrate", ["*.bag"], None, None, None, None, {})
+    with pytest.raises(ConfigError, match="^batch runs odom, fuse, deskew, calibrate, not 'evaluate'$"):
+        shorthand("evaluate", ["*.bag"], None, None, None, None, {})
 
 
 def test_one_name_for_a_glob_is_refused(tmp_path):
