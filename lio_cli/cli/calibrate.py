@@ -14,8 +14,8 @@ from ..io.pointcloud import parse_time_convention
 from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate
 from ..jobs.calibrate_report import format_table
 from ..jobs.outputs import log_stem
-from .common import (ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt, QuietOpt,
-                     WheelTopicOpt, err_console, job_progress, note, print_json)
+from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
+                     PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json)
 
 HELP = """Estimate, from one log, the calibration that odom, deskew and fuse read with --calib, and write it
 to OUT.yaml (default: LOG's name + .calib.yaml in the current folder).
@@ -59,8 +59,8 @@ def calibrate(
     wheel_radius: Annotated[Optional[float], typer.Option("--wheel-radius", help="Nominal wheel radius in m: estimate the true one.", show_default=False)] = None,
     wheel_baseline: Annotated[Optional[float], typer.Option("--wheel-baseline", help="Nominal wheel baseline in m: estimate the true one.", show_default=False)] = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with (its T_base_lidar is used where /tf_static is silent).", show_default=False)] = None,
-    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)] = None,
-    base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)] = None,
+    config: ConfigOpt = None,
+    base_frame: BaseFrameOpt = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,

@@ -25,6 +25,8 @@ LidarTopicOpt = Annotated[Optional[str], typer.Option("--lidar-topic", help="Poi
 ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="sensor_msgs/Imu topic (default: the only one).", show_default=False)]
 WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help="Wheel odometry topic, nav_msgs/Odometry or TwistStamped (default: the only one).", show_default=False)]
 PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, FIELD:UNIT[:abs|rel] (UNIT s|ms|us|ns) or SEC_FIELD+NSEC_FIELD[:abs|rel] (e.g. time_sec+time_nsec).", show_default=False)]
+ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)]
+BaseFrameOpt = Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)]
 
 
 def print_json(obj: Any) -> None:

@@ -11,8 +11,8 @@ from ..config import load_config, with_overrides
 from ..config.deskew import DeskewConfig
 from ..io.pointcloud import parse_time_convention
 from ..jobs.deskew import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew
-from .common import (ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt, QuietOpt, job_progress, note,
-                     print_json, warn)
+from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt,
+                     QuietOpt, job_progress, note, print_json, warn)
 
 HELP = """Write OUT: a copy of LOG in which every cloud of the LiDAR topic is motion-compensated (de-skewed)
 and everything else is copied untouched.
@@ -65,10 +65,10 @@ def deskew(
     map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the world-frame map of the de-skewed scans (.ply or .pcd).", show_default=False)] = None,
     map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", help="Voxel size of --map in metres (default 0.1).", show_default=False)] = None,
     strict: Annotated[bool, typer.Option("--strict", help="Refuse (exit 2) instead of copying unchanged a scan the motion does not cover.")] = False,
-    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)] = None,
+    config: ConfigOpt = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML: T_base_imu, T_base_lidar, imu_time_offset_s (used where /tf_static is silent).", show_default=False)] = None,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock.", show_default=False)] = None,
-    base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)] = None,
+    base_frame: BaseFrameOpt = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
     point_time: PointTimeOpt = None,

@@ -17,8 +17,8 @@ from ..io.trajectory_files import format_tum
 from ..jobs.fuse import FuseJob, FuseRun, run_fuse
 from ..jobs.fuse_outputs import check_fuse_outputs, write_fuse
 from ..jobs.outputs import log_stem
-from .common import (FormatOpt, ForceOpt, ImuTopicOpt, JsonOpt, LogArg, QuietOpt, WheelTopicOpt, job_progress, note,
-                     print_json, warn)
+from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LogArg, QuietOpt,
+                     WheelTopicOpt, job_progress, note, print_json, warn)
 
 HELP = """Fuse a log's IMU, wheel odometry, GPS and an odometry trajectory into one smooth trajectory of the base.
 
@@ -59,7 +59,7 @@ def _check_rate(rate: float | None) -> None:
 def fuse_cmd(
     log: LogArg,
     output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.fused.tum in the current folder.", show_default=False)] = None,
-    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)] = None,
+    config: ConfigOpt = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False)] = None,
     odom: Annotated[Optional[Path], typer.Option("--odom", help="Odometry trajectory to fuse: TUM or KITTI file (e.g. from lio odom), or LOG:/topic.", show_default=False)] = None,
     odom_topic: Annotated[Optional[str], typer.Option("--odom-topic", help="Pose source of the log to fuse as odometry (Odometry, PoseStamped, TransformStamped).", show_default=False)] = None,
@@ -73,7 +73,7 @@ def fuse_cmd(
     accel_noise: Annotated[Optional[float], typer.Option("--accel-noise", help="Accelerometer noise density, m/s^2/sqrt(Hz) (vibration: larger).", show_default=False)] = None,
     gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help="Gyro noise density, rad/s/sqrt(Hz).", show_default=False)] = None,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the other sensors' clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
-    base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame (default: base_link, base or base_footprint).", show_default=False)] = None,
+    base_frame: BaseFrameOpt = None,
     max_memory: Annotated[Optional[float], typer.Option("--max-memory", help="Estimation memory budget in MB; a longer run is fused in overlapping chunks (default 1024).", show_default=False)] = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,

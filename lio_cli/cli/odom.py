@@ -16,8 +16,8 @@ from ..io.pointcloud import parse_time_convention
 from ..io.trajectory_files import format_tum
 from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom
 from ..jobs.outputs import check_outputs, log_stem, write_odom
-from .common import (FormatOpt, ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt, QuietOpt,
-                     WheelTopicOpt, err_console, job_progress, note, print_json, warn)
+from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
+                     PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json, warn)
 
 HELP = """Estimate the trajectory of the base frame from LiDAR scans primed by the IMU (and wheels).
 
@@ -46,7 +46,7 @@ With -o - the trajectory goes to stdout and no other file is written.
 def odom(
     log: LogArg,
     output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.tum in the current folder.", show_default=False)] = None,
-    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)] = None,
+    config: ConfigOpt = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML: T_base_imu, T_base_lidar, imu_time_offset_s (used where /tf_static is silent).", show_default=False)] = None,
     deskew: Annotated[Optional[str], typer.Option("--deskew", help="imu | constant-velocity | none.", show_default=False)] = None,
     prior: Annotated[Optional[str], typer.Option("--prior", help="Initial guess for registration: imu | constant-velocity | wheel | none.", show_default=False)] = None,
@@ -57,7 +57,7 @@ def odom(
     gt: Annotated[Optional[str], typer.Option("--gt", help="Ground truth to score against at the end: a TUM/KITTI file, or a topic of LOG (e.g. /ground_truth). Prints ATE and RPE and adds them to metrics.", show_default=False)] = None,
     planar: Annotated[Optional[bool], typer.Option("--planar/--no-planar", help="Force SE(2) mode (default: on for LaserScan).", show_default=False)] = None,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
-    base_frame: Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)] = None,
+    base_frame: BaseFrameOpt = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,
