@@ -107,7 +107,6 @@ class LioOdometry(StateUpdates, Restart):
         self.poses: list[np.ndarray] = []  # LiDAR-only poses are replaced once the IMU state starts
         self._first_f_base: np.ndarray | None = None  # mean specific force (base axes) around the first scan
         self._lost = 0  # LiDAR-only registrations failed in a row
-        self._map_scans = 0  # scans in the current map
         self._map_restarts = 0
         self.clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
         self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
@@ -222,7 +221,6 @@ class LioOdometry(StateUpdates, Restart):
             fixed = cfg.registration.max_correspondence_m
             if fixed is None and self._imu_prior:
                 fixed = _IMU_PRIOR_CORRESPONDENCE_M
-            self._map_scans = 0
             self._reg = ScanRegistration(cfg.registration, cfg.registration.voxel_size_m or auto_voxel_size(rng[keep]),
                                          imu_prior=self._imu_prior, planar=self.planar, fixed_correspondence_m=fixed)
         return points[keep]
@@ -244,7 +242,6 @@ class LioOdometry(StateUpdates, Restart):
         st = self.stats
         if frame is not None:
             self._reg.accept(correction, frame, pose)
-            self._map_scans += 1
         delta = inv_pose(self._last_pose) @ pose
         dt_s = (t_ref - self._last_ns) * 1e-9 if self._last_ns is not None else 0.0
         if 0.0 < dt_s < _MIN_VELOCITY_DT_S:
@@ -294,7 +291,7 @@ class LioOdometry(StateUpdates, Restart):
         if failed:
             st.registration_failures += 1
             self._count_lost(t_ref)
-            if self._map_scans == 1 and self._lost >= _MAP_RESTART_SCANS and self._map_restarts < _MAX_MAP_RESTARTS:
+            if self._reg.scans == 1 and self._lost >= _MAP_RESTART_SCANS and self._map_restarts < _MAX_MAP_RESTARTS:
                 # the map's only scan matched none of the scans after it: that scan is the bad one (damaged, or
                 # another world), so the map starts again from the next scan, the pose carried by the prior
                 self._reg, self._map_restarts, self._window = None, self._map_restarts + 1, []

@@ -53,6 +53,7 @@ class ScanRegistration:
         wide.registration.max_num_iterations = rc.max_iterations or _KISS_ITERATIONS
         self._wide_registration = get_registration(wide)
         self._adaptive = get_threshold_estimator(wide)
+        self.scans = 0  # scans added to the map
 
     @property
     def empty(self) -> bool:
@@ -85,6 +86,7 @@ class ScanRegistration:
             self._threshold.update_model_deviation(correction)
             self._adaptive.update_model_deviation(correction)
         self.map.update(frame, pose)
+        self.scans += 1
 
 
 

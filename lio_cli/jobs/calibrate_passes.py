@@ -22,7 +22,7 @@ from ..core.odometry import Diverged, LioOdometry
 from ..errors import InputError, ProcessingError
 from ..io.pointcloud import parse_time_convention
 from ..io.reader import LogReader
-from ..io.stream import SensorStream
+from ..io.stream import SensorStream, read_imu as read_imu_topic
 from ..model.records import ImuBatch, PointCloud
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
@@ -171,7 +171,7 @@ def _wheel_arrays(arrays: SensorArrays, recs: list) -> None:
 
 def read_imu(reader: LogReader, topic: str) -> ImuBatch:
     """Every sample of an IMU topic (for IMU-only logs: static and Allan)."""
-    batches = [rec.data for rec in SensorStream(reader, {"imu": topic}, strict=False)]
-    if not batches:
+    imu = read_imu_topic(reader, topic)
+    if not len(imu):
         raise InputError(f"{reader.path}: {topic}: no IMU sample could be read")
-    return ImuBatch.concat(batches)
+    return imu
