@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..minimize import minimize_bounded
 from ..errors import InputError
 from .association import Trajectory
 from .offset_cost import OffsetCost, even_indices
@@ -135,8 +136,6 @@ def _localise(obj: _Objective, x: float, h: float, coarse) -> tuple[float, float
 
 def _refine(obj: _Objective, x: float, h: float, full) -> float:
     """A grid on all poses, then a bounded scalar search between its best point's neighbours (stage 3)."""
-    from scipy.optimize import minimize_scalar
-
     xs = x + h * np.arange(-GRID_HALF, GRID_HALF + 1)
     x = float(xs[int(np.argmin(obj.scan(xs, full, (xs[0], xs[-1]))))])
     span = (xs[0], xs[-1])  # the pairs of the last grid, so the search compares like with like
@@ -145,8 +144,8 @@ def _refine(obj: _Objective, x: float, h: float, full) -> float:
         j = obj.combine(obj.raw([v], full, span))[0]
         return float(j) if np.isfinite(j) else 1e300
 
-    res = minimize_scalar(f, bounds=(x - h, x + h), method="bounded", options={"xatol": FINE_STEP_S})
-    return float(res.x) if res.fun <= f(x) else x
+    xm, fm = minimize_bounded(f, x - h, x + h, xatol=FINE_STEP_S)
+    return xm if fm <= f(x) else x
 
 
 def _precision(obj: _Objective, term: int, x: float, full) -> float | None:

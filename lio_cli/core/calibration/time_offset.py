@@ -19,6 +19,7 @@ import numpy as np
 
 from ...errors import InputError
 from ...geometry import skew
+from ...minimize import minimize_bounded
 from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
                      sandwich_covariance)
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
@@ -90,15 +91,11 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
                          f"another sensor?")
     _note_aliases(grid, score, k, notes)
 
-    from scipy.optimize import minimize_scalar  # deferred: importing scipy.optimize costs every odom run ~0.1 s
-
     gyro_int = GyroOrientation(istamps, gyro, bias0)
     keep = np.ones(len(ia), bool)
     for attempt in range(2):
         cost = _Cost(gyro_int, ta[keep], tb[keep], dt[keep], phi_l[keep])
-        res = minimize_scalar(cost, bounds=(grid[k] - 2 * coarse_step_s, grid[k] + 2 * coarse_step_s),
-                              method="bounded", options={"xatol": 1e-6})
-        off = float(res.x)
+        off, _ = minimize_bounded(cost, grid[k] - 2 * coarse_step_s, grid[k] + 2 * coarse_step_s, xatol=1e-6)
         R, b, r = cost.solve(off)
         bad = outliers_3d(np.linalg.norm(r, axis=1), OUTLIER_FLOOR_RAD)
         if attempt == 1 or not bad.any():
