@@ -10,6 +10,7 @@ holds), whose messages are then written as stored with ``write_record``.
 
 from __future__ import annotations
 
+from functools import cached_property
 from pathlib import Path
 
 from ..errors import InputError
@@ -27,19 +28,11 @@ class LogWriter:
     """``add_topic(topic, msgtype)`` then ``write(topic, time_ns, msg)`` in any order of time."""
 
     def __init__(self, path: str | Path, fmt: str, force: bool = False, mcap_profile: str = "ros2") -> None:
-        from rosbags.typesys import Stores, get_typestore
-
         if fmt not in WRITE_FORMATS:
             raise InputError(f"unknown output format '{fmt}' (choose from {', '.join(WRITE_FORMATS)})")
         self.path = Path(path)
         self.format = fmt
         check_writable(self.path, force)
-        self.typestore = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
-        if "tf2_msgs/msg/TFMessage" not in self.typestore.types:  # ROS 1 store lacks tf2_msgs
-            from rosbags.typesys import get_types_from_msg
-
-            self.typestore.register(get_types_from_msg(TF_MESSAGE_DEF, "tf2_msgs/msg/TFMessage"))
-        self.make = MessageFactory(self.typestore)
         # rosbags names a ROS 2 bag's storage file after its folder, so a ROS 2 bag is written under its
         # final name inside a temporary sibling folder (not as a hidden temp name that would stick).
         self._tmpdir = temp_sibling(self.path) if fmt in ("ros2", "ros2-mcap") else None
@@ -58,6 +51,21 @@ class LogWriter:
         except Exception as err:
             self._discard()
             raise InputError(f"{self.path}: cannot create log ({err})") from err
+
+    @cached_property
+    def typestore(self):
+        """The standard types of the output's ROS version (built on first use: about 30 ms, which a copy of
+        stored records never needs)."""
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        store = get_typestore(Stores.ROS1_NOETIC if self.format == "ros1" else Stores.ROS2_HUMBLE)
+        if "tf2_msgs/msg/TFMessage" not in store.types:  # ROS 1 store lacks tf2_msgs
+            store.register(get_types_from_msg(TF_MESSAGE_DEF, "tf2_msgs/msg/TFMessage"))
+        return store
+
+    @cached_property
+    def make(self) -> MessageFactory:
+        return MessageFactory(self.typestore)
 
     def _discard(self) -> None:
         remove_path(self._tmpdir if self._tmpdir is not None else self._tmp)
