@@ -140,8 +140,7 @@ class Ekf3d:
                 F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
             else:
                 F, q = gyro_step(x, dt, np.array(u[0]), L), self.q(dt)
-        np.dot(F, P, out=self._T)
-        np.dot(self._T, F.T, out=P)
+        np.dot(F.dot(P), F.T, out=P)
         self._P_diag += q
         if self.smooth:
             self.Phi = F @ self.Phi
@@ -150,8 +149,8 @@ class Ekf3d:
     def _update(self, t: int, x, P, r, H, Rn, source: str, kind: str, allow_reset: bool = True) -> None:
         """A measurement ``r, H, Rn`` (measure3d's) at t: x and P updated in place."""
         self._open(t, x, P)
-        PHt = P @ H.T
-        status = self.update(x, P, r.tolist(), PHt, (H @ PHt + Rn).tolist(), H, Rn, kind, allow_reset)
+        PHt = P.dot(H.T)
+        status = self.update(x, P, r.tolist(), PHt, (H.dot(PHt) + Rn).tolist(), H, Rn, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
 
     def _open(self, t: int, x, P) -> None:
@@ -196,8 +195,8 @@ class Ekf3d:
         H = self._H_velocity[len(comps)]
         H[:, 0:3] = [skew[c] for c in comps]
         H[:, 6:9] = [rt[c] for c in comps]
-        PHt = P @ H.T
-        S = (H @ PHt).tolist()
+        PHt = P.dot(H.T)
+        S = H.dot(PHt).tolist()
         for k in range(len(comps)):
             S[k][k] += var[k]
         r = [z[k] - vb[c] for k, c in enumerate(comps)]
@@ -240,8 +239,8 @@ class Ekf3d:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
         self._open(t, x, P)
         Rt = x[R_].reshape(3, 3).T
-        r = so3_log_scalars((Rt @ self.prep.imu_R_wb[i]).ravel().tolist())
-        Rn = Rt @ self.prep.imu.orientation_cov[i] @ Rt.T
+        r = so3_log_scalars(Rt.dot(self.prep.imu_R_wb[i]).ravel().tolist())
+        Rn = Rt.dot(self.prep.imu.orientation_cov[i]).dot(Rt.T)
         S = (P[TH, TH] + Rn).tolist()
         status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
         self.prep.reports["imu"].outcome("orientation", status)
