@@ -126,12 +126,18 @@ class Updater:
         gate = self.gate
         if gate is not None:
             m = len(r)
-            d2 = 0.0
-            for j in range(m):
-                tj = 0.0
-                for k in range(m):
-                    tj += r[k] * Si[k][j]
-                d2 += tj * r[j]
+            if m == 3:  # (r^T Si) r, unrolled
+                (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = Si
+                x0, x1, x2 = r
+                d2 = (x0 * a0 + x1 * b0 + x2 * c0) * x0 + (x0 * a1 + x1 * b1 + x2 * c1) * x1 \
+                    + (x0 * a2 + x1 * b2 + x2 * c2) * x2
+            else:
+                d2 = 0.0
+                for j in range(m):
+                    tj = 0.0
+                    for k in range(m):
+                        tj += r[k] * Si[k][j]
+                    d2 += tj * r[j]
             ok, reset = gate.check(kind, d2, m, allow_reset)
             if not ok:
                 return "outlier"
