@@ -260,6 +260,35 @@ def so3_log_one(R: np.ndarray) -> np.ndarray:
     return v * (0.5 * th / math.sin(th))
 
 
+def so3_exp_scalars(x: float, y: float, z: float) -> tuple[float, ...]:
+    """:func:`so3_exp_one` on three floats, returning the matrix row-major as 9 floats (no numpy call: for
+    filter loops that go on with the entries as Python floats). Same formulas, same rounding."""
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-12:
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    return (1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z,
+            a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z,
+            -a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y))
+
+
+def so3_log_scalars(m: list[float] | tuple[float, ...]) -> tuple[float, float, float]:
+    """:func:`so3_log_one` of a rotation matrix given row-major as 9 floats; same formulas and fallback."""
+    c = 0.5 * ((m[0] + m[4] + m[8]) - 1.0)
+    c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
+    vx, vy, vz = m[7] - m[5], m[2] - m[6], m[3] - m[1]
+    if c > 0.999999:
+        s = 0.5 + 2.0 * (1.0 - c) / 12.0
+    elif c < -0.99:
+        return tuple(so3_log(np.reshape(m, (3, 3))).tolist())
+    else:
+        th = math.acos(c)
+        s = 0.5 * th / math.sin(th)
+    return vx * s, vy * s, vz * s
+
+
 def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
     """R_world_base whose world z is 'up' as the specific force ``f_base`` (at rest) says; yaw zero."""
     up = f_base / np.linalg.norm(f_base)

@@ -77,7 +77,14 @@ class RosbagsLog(LogReader):
         conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
         if not conns:
             return
-        for conn, t_ns, raw in self._reader.messages(connections=conns):
+        readers = getattr(self._reader, "readers", [])
+        if self.format == "ros1" and len(readers) == 1:  # one bag: its chunks sliced directly (same messages)
+            from .bag1_raw import messages
+
+            found = messages(readers[0], conns)
+        else:
+            found = self._reader.messages(connections=conns)
+        for conn, t_ns, raw in found:
             yield conn.topic, conn.msgtype, int(t_ns), raw, conn
 
     def _deserialize(self, raw, msgtype, handle):

@@ -122,6 +122,49 @@ class _Bulk:
         self.frames: dict[bytes, None] = {}
         self.kids: dict[bytes, None] = {}
         self.ok = True
+        self.raws: list = []
+        self._body: np.ndarray | None = None  # set by a whole-topic parse
+
+    def collect(self, raw) -> None:
+        """Keep a message for ``finish`` (parsed there, the whole topic at once where it can be)."""
+        self.raws.append(raw)
+
+    def finish(self) -> None:
+        raws, self.raws = self.raws, []
+        if not (raws and not self.cdr and self._add_uniform(raws)):
+            for raw in raws:
+                self.add(raw)
+
+    def _add_uniform(self, raws: list) -> bool:
+        """ROS 1 messages all of one length with one frame id (and child frame id): headers and bodies of the
+        whole topic parsed by one numpy structured dtype, the same fields ``add`` reads one message at a
+        time. False (nothing added) when the topic is not that uniform."""
+        first = memoryview(raws[0])
+        try:
+            _, frame, kid, pos = _split(first, False, self.child)
+        except (struct.error, ValueError, IndexError):
+            return False
+        size = len(first)
+        if pos + self.size != size or any(len(r) != size for r in raws):
+            return False
+        fields = [("seq", "<u4"), ("sec", "<u4"), ("nsec", "<u4"), ("flen", "<u4"), ("frame", "u1", (len(frame),))]
+        if self.child:
+            fields += [("klen", "<u4"), ("kid", "u1", (len(kid),))]
+        fields.append(("body", _BODY[self.msgtype]))
+        dtype = np.dtype(fields)
+        if dtype.itemsize != size:
+            return False
+        arr = np.frombuffer(b"".join(raws), dtype=dtype)
+        if np.any(arr["flen"] != len(frame)) or np.any(arr["frame"] != np.frombuffer(frame, np.uint8)):
+            return False
+        if self.child and (np.any(arr["klen"] != len(kid)) or np.any(arr["kid"] != np.frombuffer(kid, np.uint8))):
+            return False
+        self.stamps = (arr["sec"].astype(np.int64) * 1_000_000_000 + arr["nsec"]).tolist()
+        self._body = arr["body"].copy()
+        self.frames.setdefault(frame)
+        if self.child:
+            self.kids.setdefault(kid)
+        return True
 
     def add(self, raw) -> None:
         if not self.ok:
@@ -144,6 +187,8 @@ class _Bulk:
         self.bodies = []
 
     def body(self) -> np.ndarray:
+        if self._body is not None:
+            return self._body
         return np.frombuffer(b"".join(self.bodies), dtype=_BODY[self.msgtype])
 
     def frame_ids(self) -> tuple[str, ...]:
@@ -171,10 +216,12 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
     if bulk:
         n = 0
         for topic, _, _, raw in log.raw_messages(list(bulk)):
-            bulk[topic].add(raw)
+            bulk[topic].collect(raw)
             n += 1
             if progress is not None and n % _PROGRESS_EVERY == 0:
                 progress(n)
+        for b in bulk.values():
+            b.finish()
     out: dict[str, ImuColumns | MotionColumns] = {}
     for t, b in bulk.items():
         if b.ok:

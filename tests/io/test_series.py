@@ -91,3 +91,24 @@ def test_a_type_fuse_cannot_read_is_named(logs):
     with open_log(path) as log, pytest.raises(Exception) as err:
         series.read_series(log, ["/tf_static"])
     assert str(err.value) == f"{path}: topic /tf_static is tf2_msgs/msg/TFMessage, which fuse cannot read"
+
+
+def test_whole_topic_parse_equals_the_per_message_parse(logs, monkeypatch):
+    path = logs.write("ros1", _build)
+    with open_log(path) as log:
+        fast = series.read_series(log, ["/imu", "/odom", "/twist"])
+        monkeypatch.setattr(series._Bulk, "_add_uniform", lambda self, raws: False)
+        slow = series.read_series(log, ["/imu", "/odom", "/twist"])
+    for topic in fast:
+        _same(fast[topic], slow[topic])
+        assert getattr(fast[topic], "frames", None) == getattr(slow[topic], "frames", None)
+
+
+def test_ros1_chunk_reader_yields_what_rosbags_yields(logs):
+    path = logs.write("ros1", _build)
+    with open_log(path) as log:
+        topics = ["/imu", "/odom", "/pose"]
+        ours = [(t, rec, bytes(raw)) for t, _, rec, raw in log.raw_messages(topics)]
+        conns = [c for c in log._reader.connections if c.topic in topics]
+        theirs = [(c.topic, int(rec), bytes(raw)) for c, rec, raw in log._reader.messages(connections=conns)]
+    assert ours == theirs and len(ours) == 90

@@ -14,18 +14,21 @@ chi-square gate (``FuseOptions.gate_probability``); rejections are counted per s
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ...geometry import inv_pose
+from ...geometry import inv_pose, so3_log_scalars
 from . import measure3d as m3
+from . import step3d
 from .initial import Start, initial_state
 from .inputs import FuseOptions
-from .kalman import Gate, KnotLog, kalman_update
+from .kalman import Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, boxplus, cv_step, gap_noise, gyro_step, hold_step,
-    ins_step, new_state, pose,
+    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
+    pose,
 )
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
@@ -54,13 +57,25 @@ class Ekf3d:
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
         imu = prep.imu
         self.imu_list = imu.stamps_ns.tolist() if imu is not None else []
-        self.imu_w, self.imu_f, self.imu_gap = prep.imu_w_b, prep.imu_f_b, prep.imu_gap_ns
+        # per-sample values as Python floats: the loop reads them one sample at a time
+        self.imu_w = prep.imu_w_b.tolist() if imu is not None else []
+        self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
+        self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
-        self.inject = lambda x, dx: boxplus(x, dx, self.L)
+        self.inject = lambda x, dx: step3d.boxplus(x, dx, self.L)
+        self.update = step3d.Updater(self.L.n, self.gate, self.inject)
+        self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
+        self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
+        self._H_orientation = np.zeros((3, self.L.n))
+        self._H_orientation[:, TH] = np.eye(3)
+        self._H_velocity = [np.zeros((m, self.L.n)) for m in range(4)]
+        w = prep.wheel
+        if w is not None:
+            self.wheel_v, self.wheel_var = w.velocity_mps.tolist(), w.velocity_var.tolist()
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
@@ -93,9 +108,9 @@ class Ekf3d:
         imu = self.prep.imu
         return int(np.flatnonzero(imu.orientation_valid & (imu.stamps_ns >= self.prep.t0_ns))[0])
 
-    def _imu_at(self, t_a: int, t_b: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """Base rate and specific force at the midpoint of [t_a, t_b] (inside one IMU interval), or None
-        where the IMU has a gap or no data."""
+    def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
+        """Base rate and specific force (3 floats each) at the midpoint of [t_a, t_b] (inside one IMU
+        interval), or None where the IMU has a gap or no data."""
         i, st = self.ii, self.imu_list
         if i < 0:
             return None
@@ -104,10 +119,13 @@ class Ekf3d:
                 return self.imu_w[i], self.imu_f[i]
             return None
         a = (0.5 * (t_a + t_b) - st[i]) / (st[i + 1] - st[i])
-        W, Fb = self.imu_w, self.imu_f
-        return W[i] + a * (W[i + 1] - W[i]), Fb[i] + a * (Fb[i + 1] - Fb[i])
+        (w0, w1, w2), (v0, v1, v2) = self.imu_w[i], self.imu_w[i + 1]
+        (f0, f1, f2), (g0, g1, g2) = self.imu_f[i], self.imu_f[i + 1]
+        return ([w0 + a * (v0 - w0), w1 + a * (v1 - w1), w2 + a * (v2 - w2)],
+                [f0 + a * (g0 - f0), f1 + a * (g1 - f1), f2 + a * (g2 - f2)])
 
-    def _propagate(self, x: np.ndarray, P: np.ndarray, t_a: int, t_b: int) -> np.ndarray:
+    def _propagate(self, x: np.ndarray, P: np.ndarray, t_a: int, t_b: int) -> None:
+        """Predict x and P (in place) from t_a to t_b."""
         dt = (t_b - t_a) * 1e-9
         L = self.L
         if in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data in [t_a, t_b]
@@ -119,21 +137,21 @@ class Ekf3d:
             if u is None:
                 F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
             elif L.model == "ins":
-                F, q = ins_step(x, dt, u[0], u[1], L, self.g), self.q(dt)
+                F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
             else:
-                F, q = gyro_step(x, dt, u[0], L), self.q(dt)
-        P = F @ P @ F.T
-        P.flat[:: L.n + 1] += q
+                F, q = gyro_step(x, dt, np.array(u[0]), L), self.q(dt)
+        np.dot(F.dot(P), F.T, out=P)
+        self._P_diag += q
         if self.smooth:
             self.Phi = F @ self.Phi
-        return P
 
     # -- updates ---------------------------------------------------------------------------------
-    def _update(self, t: int, x, P, r, H, Rn, source: str, kind: str, allow_reset: bool = True):
+    def _update(self, t: int, x, P, r, H, Rn, source: str, kind: str, allow_reset: bool = True) -> None:
+        """A measurement ``r, H, Rn`` (measure3d's) at t: x and P updated in place."""
         self._open(t, x, P)
-        P, status = kalman_update(x, P, r, H, Rn, self.inject, self.gate, kind, allow_reset)
+        PHt = P.dot(H.T)
+        status = self.update(x, P, r.tolist(), PHt, (H.dot(PHt) + Rn).tolist(), H, Rn, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
-        return P
 
     def _open(self, t: int, x, P) -> None:
         if not self.log.is_open:
@@ -141,23 +159,22 @@ class Ekf3d:
             if self.smooth:
                 self.Phi = np.eye(self.L.n)
 
-    def _wheel(self, t: int, i: int, x, P):
+    def _wheel(self, t: int, i: int, x, P) -> None:
         w, use, nz = self.prep.wheel, self.prep.use["wheel"], self.noise
-        vel, vvar = w.velocity_mps[i], w.velocity_var[i]
+        vel, vvar = self.wheel_v[i], self.wheel_var[i]
         comps, z, var = [], [], []
         if "velocity" in use:
             for c in range(3):
-                if np.isfinite(vel[c]):
+                if math.isfinite(vel[c]):
                     comps.append(c), z.append(vel[c]), var.append(vvar[c])
-        if "speed" in use and np.isfinite(vel[0]):
+        if "speed" in use and math.isfinite(vel[0]):
             for c in range(3):
                 if c not in comps:
                     comps.append(c)
                     z.append(vel[0] if c == 0 else 0.0)
                     var.append(vvar[0] if c == 0 else nz.nonholonomic_sigma_mps**2)
         if comps:
-            r, H, Rn = m3.body_velocity(x, np.array(z), comps, np.array(var), self.L)
-            P = self._update(t, x, P, r, H, Rn, "wheel", "wheel_velocity")
+            self._body_velocity(t, x, P, comps, z, var)
         if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
@@ -165,10 +182,28 @@ class Ekf3d:
             else:
                 r, H, Rn = m3.yaw_rate(x, w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
                                        self.gyro_var, self.L)
-                P = self._update(t, x, P, r, H, Rn, "wheel", "wheel_yaw_rate", allow_reset=self.L.model == "cv")
-        return P
+                self._update(t, x, P, r, H, Rn, "wheel", "wheel_yaw_rate", allow_reset=self.L.model == "cv")
 
-    def _odom(self, t: int, i: int, x, P):
+    def _body_velocity(self, t: int, x, P, comps: list[int], z: list[float], var: list[float]) -> None:
+        """``measure3d.body_velocity`` on floats: components ``comps`` of ``R^T v``; H on dtheta ([vb]x rows)
+        and dv (R^T rows)."""
+        self._open(t, x, P)
+        r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15].tolist()
+        vb = (r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz)
+        skew = ((0.0, -vb[2], vb[1]), (vb[2], 0.0, -vb[0]), (-vb[1], vb[0], 0.0))
+        rt = ((r0, r3, r6), (r1, r4, r7), (r2, r5, r8))
+        H = self._H_velocity[len(comps)]
+        H[:, 0:3] = [skew[c] for c in comps]
+        H[:, 6:9] = [rt[c] for c in comps]
+        PHt = P.dot(H.T)
+        S = H.dot(PHt).tolist()
+        for k in range(len(comps)):
+            S[k][k] += var[k]
+        r = [z[k] - vb[c] for k, c in enumerate(comps)]
+        status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity")
+        self.prep.reports["wheel"].outcome("wheel_velocity", status)
+
+    def _odom(self, t: int, i: int, x, P) -> None:
         od, rep = self.prep.odom, self.prep.reports["odom"]
         T = od.poses[i]
         pv, rv = od.position_sigma_m[i] ** 2, od.rotation_sigma_rad[i] ** 2
@@ -176,9 +211,10 @@ class Ekf3d:
             if self.T_world_odom is None:
                 self.T_world_odom = pose(x) @ inv_pose(T)
                 rep.note("anchor")
-                return P
+                return
             r, H, Rn = m3.pose_absolute(x, self.T_world_odom @ T, pv, rv, self.L)
-            return self._update(t, x, P, r, H, Rn, "odom", "odom")
+            self._update(t, x, P, r, H, Rn, "odom", "odom")
+            return
         self._open(t, x, P)
         if self.odom_prev is None:
             rep.note("anchor")
@@ -187,57 +223,65 @@ class Ekf3d:
             T_rel = inv_pose(od.poses[j]) @ T
             r, H, Rn = m3.pose_delta(x, T_rel, pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2,
                                      self.L)
-            P = self._update(t, x, P, r, H, Rn, "odom", "odom")
+            self._update(t, x, P, r, H, Rn, "odom", "odom")
         self.odom_prev = i
         self.pending_clone = True
-        return P
 
-    def _gps(self, t: int, i: int, x, P):
+    def _gps(self, t: int, i: int, x, P) -> None:
         z = self.prep.gps.position_enu_m[i]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
         r, H, Rn = m3.position(x, z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
-        return self._update(t, x, P, r, H, Rn, "gps", "gps")
+        self._update(t, x, P, r, H, Rn, "gps", "gps")
 
-    def _orientation(self, t: int, i: int, x, P):
-        r, H, Rn = m3.orientation(x, self.prep.imu_R_wb[i], self.prep.imu.orientation_cov[i], self.L)
-        return self._update(t, x, P, r, H, Rn, "imu", "orientation")
+    def _orientation(self, t: int, i: int, x, P) -> None:
+        """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
+        self._open(t, x, P)
+        Rt = x[R_].reshape(3, 3).T
+        r = so3_log_scalars(Rt.dot(self.prep.imu_R_wb[i]).ravel().tolist())
+        Rn = Rt.dot(self.prep.imu.orientation_cov[i]).dot(Rt.T)
+        S = (P[TH, TH] + Rn).tolist()
+        status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
+        self.prep.reports["imu"].outcome("orientation", status)
 
     # -- loop -------------------------------------------------------------------------------------
     def run(self) -> dict[str, np.ndarray]:
         prep = self.prep
-        x, P = self._initial()
+        x, P = self._initial()  # P: one buffer for the whole run, updated in place
+        self._P_diag = P.reshape(-1)[:: self.L.n + 1]
         self.Phi = np.eye(self.L.n)
         use_orientation = prep.imu_R_wb is not None
         imu_rep = prep.reports.get("imu")
         imu_predicts = self.L.model != "cv"
-        valid_or = prep.imu.orientation_valid if use_orientation else None
+        valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
         t_cur = prep.t0_ns
+        T = self._T
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
             if t > t_cur:
-                P = 0.5 * (P + P.T)
+                np.add(P, P.T, out=T)  # P = 0.5 (P + P^T)
+                np.multiply(T, 0.5, out=P)
                 self.log.close(x, P)
                 if self.pending_clone:
                     x[CR_], x[CP_] = x[R_], x[P_]
-                    P = self.J @ P @ self.J.T
+                    P[...] = self.J @ P @ self.J.T
                     if self.smooth:
                         self.Phi = self.J @ self.Phi
                     self.pending_clone = False
-                P = self._propagate(x, P, t_cur, t)
+                self._propagate(x, P, t_cur, t)
                 t_cur = t
             if kind == IMU:
                 self.ii = i
                 if imu_predicts:
                     imu_rep.predictions += 1
                 if use_orientation and valid_or[i]:
-                    P = self._orientation(t, i, x, P)
+                    self._orientation(t, i, x, P)
             elif kind == WHEEL:
-                P = self._wheel(t, i, x, P)
+                self._wheel(t, i, x, P)
             elif kind == ODOM:
-                P = self._odom(t, i, x, P)
+                self._odom(t, i, x, P)
             elif kind == GPS:
-                P = self._gps(t, i, x, P)
+                self._gps(t, i, x, P)
             elif kind == OUT:
                 self._open(t, x, P)
                 self.log.mark_output()
@@ -245,7 +289,7 @@ class Ekf3d:
         return self.log.arrays()
 
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
-        boxplus(x, dx, self.L)
+        step3d.boxplus(x, dx, self.L)
 
     def boxminus(self, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
         return boxminus(xa, xb, self.L)

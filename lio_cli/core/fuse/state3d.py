@@ -128,8 +128,11 @@ class ProcessNoise:
             rate[DBA] = noise.accel_bias_walk**2
         rate[:L.core] = np.maximum(rate[:L.core], 1e-16)  # keeps P_pred invertible for the smoother
         self.rate, self.cube = rate, cube / 3.0
+        self._has_cube = bool(np.any(cube))
 
     def __call__(self, dt: float) -> np.ndarray:
+        if not self._has_cube:  # the ins model: adding zeros would change nothing but the time
+            return self.rate * dt
         return self.rate * dt + self.cube * (dt * dt * dt)
 
 

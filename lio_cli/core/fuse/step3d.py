@@ -1,0 +1,156 @@
+"""The hot loop of the 3D filter without numpy's per-call overhead: the strapdown prediction, error
+injection and the Kalman update on Python floats and a handful of numpy calls on preallocated arrays.
+
+A numpy call costs about 1 us whatever its size, so a 3-vector or 3x3 step is cheaper on Python floats,
+while the 15x15 covariance products stay in numpy. Same mathematics as ``state3d.ins_step``,
+``state3d.boxplus``, ``measure3d`` and ``kalman.kalman_update`` (the tests compare them): the results differ
+from those only by floating-point rounding. ``P`` is updated in place (one buffer for the whole run).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...geometry import so3_exp_scalars
+from .kalman import Gate
+from .state3d import Layout
+
+
+class InsPredictor:
+    """``state3d.ins_step`` writing only the non-constant blocks of a preallocated F. ``F`` is returned and
+    overwritten by the next call."""
+
+    def __init__(self, L: Layout, g: np.ndarray):
+        self.F = L.eye.copy()
+        self._flat = self.F.reshape(-1)
+        n = L.n
+        idx = [r * n + c for r in range(3) for c in range(3)]  # dR^T
+        for r0, c0 in ((3, 0), (3, 12), (6, 0), (6, 12)):  # h Rf, h R, -dt Rf, -dt R
+            idx += [(r0 + r) * n + c0 + c for r in range(3) for c in range(3)]
+        idx += [0 * n + 9, 1 * n + 10, 2 * n + 11, 3 * n + 6, 4 * n + 7, 5 * n + 8]
+        self._idx = np.array(idx)
+        self.gx, self.gy, self.gz = (float(v) for v in g)
+
+    def __call__(self, x: np.ndarray, dt: float, w: tuple[float, float, float], f: tuple[float, float, float]
+                 ) -> np.ndarray:
+        """One step with base-frame rate ``w`` and specific force ``f`` (raw: biases included)."""
+        (r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz, vx, vy, vz, bx, by, bz, ax, ay, az) = x[:21].tolist()
+        d0, d1, d2, d3, d4, d5, d6, d7, d8 = so3_exp_scalars((w[0] - bx) * dt, (w[1] - by) * dt, (w[2] - bz) * dt)
+        fx, fy, fz = f[0] - ax, f[1] - ay, f[2] - az
+        sx, sy, sz = r0 * fx + r1 * fy + r2 * fz, r3 * fx + r4 * fy + r5 * fz, r6 * fx + r7 * fy + r8 * fz
+        gx, gy, gz = sx + self.gx, sy + self.gy, sz + self.gz
+        hd = 0.5 * dt
+        # Rf = [R fc]x R
+        f0, f1, f2 = -sz * r3 + sy * r6, -sz * r4 + sy * r7, -sz * r5 + sy * r8
+        f3, f4, f5 = sz * r0 - sx * r6, sz * r1 - sx * r7, sz * r2 - sx * r8
+        f6, f7, f8 = -sy * r0 + sx * r3, -sy * r1 + sx * r4, -sy * r2 + sx * r5
+        h, m = -0.5 * dt * dt, -dt
+        self._flat[self._idx] = (
+            d0, d3, d6, d1, d4, d7, d2, d5, d8,
+            h * f0, h * f1, h * f2, h * f3, h * f4, h * f5, h * f6, h * f7, h * f8,
+            h * r0, h * r1, h * r2, h * r3, h * r4, h * r5, h * r6, h * r7, h * r8,
+            m * f0, m * f1, m * f2, m * f3, m * f4, m * f5, m * f6, m * f7, m * f8,
+            m * r0, m * r1, m * r2, m * r3, m * r4, m * r5, m * r6, m * r7, m * r8,
+            m, m, m, dt, dt, dt)
+        x[:15] = (r0 * d0 + r1 * d3 + r2 * d6, r0 * d1 + r1 * d4 + r2 * d7, r0 * d2 + r1 * d5 + r2 * d8,
+                  r3 * d0 + r4 * d3 + r5 * d6, r3 * d1 + r4 * d4 + r5 * d7, r3 * d2 + r4 * d5 + r5 * d8,
+                  r6 * d0 + r7 * d3 + r8 * d6, r6 * d1 + r7 * d4 + r8 * d7, r6 * d2 + r7 * d5 + r8 * d8,
+                  px + (vx + hd * gx) * dt, py + (vy + hd * gy) * dt, pz + (vz + hd * gz) * dt,
+                  vx + gx * dt, vy + gy * dt, vz + gz * dt)
+        return self.F
+
+
+def rotate_right(x: np.ndarray, at: int, d0: float, d1: float, d2: float) -> None:
+    """``R <- R exp(d)`` for the rotation stored row-major at ``x[at:at+9]``."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = x[at:at + 9].tolist()
+    e0, e1, e2, e3, e4, e5, e6, e7, e8 = so3_exp_scalars(d0, d1, d2)
+    x[at:at + 9] = (r0 * e0 + r1 * e3 + r2 * e6, r0 * e1 + r1 * e4 + r2 * e7, r0 * e2 + r1 * e5 + r2 * e8,
+                    r3 * e0 + r4 * e3 + r5 * e6, r3 * e1 + r4 * e4 + r5 * e7, r3 * e2 + r4 * e5 + r5 * e8,
+                    r6 * e0 + r7 * e3 + r8 * e6, r6 * e1 + r7 * e4 + r8 * e7, r6 * e2 + r7 * e5 + r8 * e8)
+
+
+def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:
+    """``state3d.boxplus``: inject an error-state correction into ``x`` in place."""
+    d = dx.tolist()
+    rotate_right(x, 0, d[0], d[1], d[2])
+    x[9:9 + L.core - 3] += dx[3:L.core]
+    if L.clone:
+        c = L.core
+        rotate_right(x, 21, d[c], d[c + 1], d[c + 2])
+        x[30:33] += dx[c + 3:c + 6]
+
+
+def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
+    """``kalman.small_inv`` on nested lists (m <= 3), None when singular; numpy beyond 3x3."""
+    m = len(S)
+    if m == 1:
+        s = S[0][0]
+        return None if s == 0.0 else [[1.0 / s]]
+    if m == 2:
+        (a, b), (c, d) = S
+        det = a * d - b * c
+        if det == 0.0 or not math.isfinite(det):
+            return None
+        return [[d / det, -b / det], [-c / det, a / det]]
+    if m == 3:
+        (a, b, c), (d, e, f), (g, h, i) = S
+        A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+        det = a * A + b * B + c * C
+        if det == 0.0 or not math.isfinite(det):
+            return None
+        return [[A / det, (c * h - b * i) / det, (b * f - c * e) / det],
+                [B / det, (a * i - c * g) / det, (c * d - a * f) / det],
+                [C / det, (b * g - a * h) / det, (a * e - b * d) / det]]
+    try:
+        return np.linalg.inv(np.array(S)).tolist()
+    except np.linalg.LinAlgError:
+        return None
+
+
+class Updater:
+    """``kalman.kalman_update`` in place on one covariance buffer, given what the measurement model already
+    has at hand: ``PHt = P H^T`` (may be a view of P) and ``S = H P H^T + Rn`` as nested lists. ``H`` and
+    ``Rn`` are only read on a gate reset."""
+
+    def __init__(self, n: int, gate: Gate | None, inject):
+        self.gate, self.inject = gate, inject
+
+    def __call__(self, x: np.ndarray, P: np.ndarray, r: list[float], PHt: np.ndarray, S: list[list[float]],
+                 H: np.ndarray, Rn, kind: str, allow_reset: bool = True) -> str:
+        Si = inverse_small(S)
+        if Si is None:
+            return "outlier"
+        status = "ok"
+        gate = self.gate
+        if gate is not None:
+            m = len(r)
+            if m == 3:  # (r^T Si) r, unrolled
+                (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = Si
+                x0, x1, x2 = r
+                d2 = (x0 * a0 + x1 * b0 + x2 * c0) * x0 + (x0 * a1 + x1 * b1 + x2 * c1) * x1 \
+                    + (x0 * a2 + x1 * b2 + x2 * c2) * x2
+            else:
+                d2 = 0.0
+                for j in range(m):
+                    tj = 0.0
+                    for k in range(m):
+                        tj += r[k] * Si[k][j]
+                    d2 += tj * r[j]
+            ok, reset = gate.check(kind, d2, m, allow_reset)
+            if not ok:
+                return "outlier"
+            if reset:  # as kalman_update: inflate the touched states' covariance until the innovation is typical
+                status = "reset"
+                Rn = Rn if isinstance(Rn, np.ndarray) else np.diag(Rn)
+                scale = np.ones(len(P))
+                scale[np.any(H != 0.0, axis=0)] = np.sqrt(max(1.0, d2 / m))
+                P *= np.outer(scale, scale)
+                PHt = P @ H.T
+                Si = np.linalg.inv(H @ PHt + Rn)
+        # ndarray.dot, not @: half the per-call overhead on matrices this small
+        K = PHt.dot(np.array(Si))
+        self.inject(x, K.dot(r))
+        np.subtract(P, K.dot(PHt.T), out=P)
+        return status

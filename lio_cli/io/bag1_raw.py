@@ -1,0 +1,63 @@
+"""Serialised messages of a few topics of one ROS 1 bag, straight from its chunks.
+
+rosbags' ``Reader.messages`` parses every record header into a dict of fields and merges the per-connection
+indexes one entry at a time: about 8 us per message, as much as the fusion filter spends on it. Here the
+same index entries (rosbags already read them when the bag was opened) are put in the same order (by
+record time; on equal times connection by connection in the order asked, each in its index order: what
+``heapq.merge`` yields) and each record is sliced out of its decompressed chunk with ``struct``. Same
+messages, same order, same bytes; anything unexpected raises (the caller reports the log as damaged).
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+
+_U32 = struct.Struct("<I")
+_OP_MSGDATA, _OP_CONNECTION = 2, 7
+
+
+def _op(buf: bytes, start: int, end: int) -> int:
+    """The ``op`` field of the record header in ``buf[start:end]``."""
+    unpack = _U32.unpack_from
+    pos = start
+    while pos < end:
+        (n,) = unpack(buf, pos)
+        pos += 4
+        if buf[pos:pos + 3] == b"op=":
+            return buf[pos + 3]
+        pos += n
+    raise ValueError("record header without op")
+
+
+def messages(reader, connections: list) -> Iterator[tuple[object, int, bytes]]:
+    """(connection, record time ns, serialised message) of ``connections`` (rosbags connections of the one
+    ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)`` yields them."""
+    entries = []
+    for conn in connections:
+        entries.extend((e.time, e.chunk_pos, e.offset, conn) for e in reader.indexes[conn.id])
+    entries.sort(key=lambda e: e[0])  # stable: ties keep connection order, then index order
+    unpack = _U32.unpack_from
+    chunk_pos, buf = -1, b""
+    bio = reader.bio
+    for t_ns, pos_c, offset, conn in entries:
+        if pos_c != chunk_pos:
+            chunk = reader.chunks[pos_c]
+            bio.seek(chunk.datapos)
+            raw = bio.read(chunk.datasize)
+            if len(raw) != chunk.datasize:
+                raise ValueError("chunk truncated")
+            buf, chunk_pos = chunk.decompressor(raw), pos_c
+        pos = offset
+        while True:
+            (hlen,) = unpack(buf, pos)
+            h0, h1 = pos + 4, pos + 4 + hlen
+            op = _op(buf, h0, h1)
+            (dlen,) = unpack(buf, h1)
+            d0 = h1 + 4
+            if op != _OP_CONNECTION:
+                break
+            pos = d0 + dlen
+        if op != _OP_MSGDATA or d0 + dlen > len(buf):
+            raise ValueError("expected message data in the bag chunk")
+        yield conn, t_ns, buf[d0:d0 + dlen]
