@@ -73,18 +73,20 @@ class RosbagsLog(LogReader):
                 _merge_span(spans, conn.topic, int(idx[0].time), int(idx[-1].time))
         return spans
 
-    def _iter_raw(self, topics: set[str] | None):
+    def _messages(self, topics: set[str] | None):
+        """(rosbags connection, record time, serialised bytes) of ``topics`` in record-time order."""
         conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
         if not conns:
-            return
+            return iter(())
         readers = getattr(self._reader, "readers", [])
         if self.format == "ros1" and len(readers) == 1:  # one bag: its chunks sliced directly (same messages)
             from .bag1_raw import messages
 
-            found = messages(readers[0], conns)
-        else:
-            found = self._reader.messages(connections=conns)
-        for conn, t_ns, raw in found:
+            return messages(readers[0], conns)
+        return self._reader.messages(connections=conns)
+
+    def _iter_raw(self, topics: set[str] | None):
+        for conn, t_ns, raw in self._messages(topics):
             yield conn.topic, conn.msgtype, int(t_ns), raw, conn
 
     def _deserialize(self, raw, msgtype, handle):
@@ -114,10 +116,7 @@ class RosbagsLog(LogReader):
         return info
 
     def _iter_records(self, topics: set[str] | None):
-        conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
-        if not conns:
-            return
-        for conn, t_ns, raw in self._reader.messages(connections=conns):
+        for conn, t_ns, raw in self._messages(topics):
             yield RawRecord(self._connection(conn), int(t_ns), raw)
 
     def _deserialize_record(self, rec: RawRecord):
