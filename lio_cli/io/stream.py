@@ -77,6 +77,12 @@ def _vector_problem(checks) -> str | None:
 
 def imu_sample_problem(gyro, accel) -> str | None:
     """Why an IMU sample is unusable (a NaN, or a value out of any IMU's range), or None if it is fine."""
+    g, a = MAX_IMU_GYRO_RADPS, MAX_IMU_ACCEL_MPS2
+    # one call per sample: a fine sample passes six comparisons (NaN fails every comparison, so it, like
+    # infinity or an out-of-range value, takes the slow path that names the problem)
+    if (-g <= gyro[0] <= g and -g <= gyro[1] <= g and -g <= gyro[2] <= g
+            and -a <= accel[0] <= a and -a <= accel[1] <= a and -a <= accel[2] <= a):
+        return None
     return _vector_problem(((gyro, MAX_IMU_GYRO_RADPS, "an angular rate", "rad/s"),
                             (accel, MAX_IMU_ACCEL_MPS2, "an acceleration", "m/s^2")))
 

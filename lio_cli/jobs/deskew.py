@@ -107,7 +107,7 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
             motion = trajectory_motion(cfg, T_base_lidar)
         else:
             odo_progress = None if progress is None else (lambda done, total: progress(done, passes * n_scans))
-            motion = odometry_motion(job.log, cfg, source, imu_topic, mounting, T_base_lidar, odo_progress)
+            motion = odometry_motion(job.log, cfg, source, imu_topic, mounting, T_base_lidar, odo_progress, reader)
             notes.extend(n for n in motion.details.pop("notes") if n not in notes)
         t_motion = time.perf_counter() - t_motion
         try:

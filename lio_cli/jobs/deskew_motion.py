@@ -208,9 +208,10 @@ def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> Motion:
 
 
 def odometry_motion(log: Path, cfg: DeskewConfig, source: str, imu_topic: str | None, mounting: Mounting,
-                    T_base_lidar: np.ndarray, progress: Progress | None) -> Motion:
-    """The motion of lio's odometry run in-process (IMU-primed for ``imu``, LiDAR-only for constant-velocity)."""
-    result = run_odom(OdomJob(log, cfg.odom_config(source)), progress=progress)
+                    T_base_lidar: np.ndarray, progress: Progress | None, reader: LogReader | None = None) -> Motion:
+    """The motion of lio's odometry run in-process (IMU-primed for ``imu``, LiDAR-only for constant-velocity);
+    ``reader``: the log already open."""
+    result = run_odom(OdomJob(log, cfg.odom_config(source)), progress=progress, reader=reader)
     traj = result.trajectory
     stamps = traj.stamps_ns
     step = int(np.median(np.diff(stamps))) if len(stamps) > 1 else 0

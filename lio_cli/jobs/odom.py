@@ -63,10 +63,14 @@ class DivergedRun(ProcessingError):
         self.partial = partial
 
 
-def run_odom(job: OdomJob, progress: Progress | None = None) -> OdomResult:
-    """Run odometry over ``job.log``; score against ``job.gt`` when given."""
-    with open_log(job.log, job.config.input.format) as reader:
+def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None) -> OdomResult:
+    """Run odometry over ``job.log``; score against ``job.gt`` when given. ``reader``: ``job.log`` already
+    open (a caller that reads the log again afterwards saves opening it twice; it stays open)."""
+    if reader is not None:
         result = _OdomRun(reader, job.config, progress).run()
+    else:
+        with open_log(job.log, job.config.input.format) as opened:
+            result = _OdomRun(opened, job.config, progress).run()
     if job.gt is not None:
         spec = f"{job.log}:{job.gt}" if job.gt.startswith("/") and not Path(job.gt).exists() else job.gt
         ref = load_trajectory(spec)
