@@ -12,8 +12,12 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
+from itertools import chain
+
+import numpy as np
 
 _U32 = struct.Struct("<I")
+_BLOCK = 65_536  # index entries turned into Python values at a time
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 
 
@@ -30,17 +34,35 @@ def _op(buf: bytes, start: int, end: int) -> int:
     raise ValueError("record header without op")
 
 
+def _entries(reader, connections: list) -> Iterator[tuple[int, int, int, object]]:
+    """(time, chunk position, offset in chunk, connection) of every index entry in the order rosbags'
+    ``heapq.merge`` of its index lists gives (its entries compare by time only: equal times come connection
+    by connection in the order asked, each in its index order), i.e. a stable sort by time. Held as three int64 and one int32 per entry (28 bytes, not a
+    tuple's ~100: rosbags' own index already grows with the log) and handed out a block at a time."""
+    parts = [(k, reader.indexes[conn.id]) for k, conn in enumerate(connections)]
+    n = sum(len(idx) for _, idx in parts)
+    cols = np.empty((3, n), dtype=np.int64)
+    which = np.empty(n, dtype=np.int32)
+    at = 0
+    for k, idx in parts:
+        m = len(idx)
+        cols[:, at:at + m] = np.fromiter(chain.from_iterable(idx), np.int64, 3 * m).reshape(m, 3).T
+        which[at:at + m] = k
+        at += m
+    order = np.argsort(cols[0], kind="stable")
+    for lo in range(0, n, _BLOCK):
+        sel = order[lo:lo + _BLOCK]
+        for t, c, o, k in zip(*(cols[:, sel].tolist()), which[sel].tolist()):
+            yield t, c, o, connections[k]
+
+
 def messages(reader, connections: list) -> Iterator[tuple[object, int, bytes]]:
     """(connection, record time ns, serialised message) of ``connections`` (rosbags connections of the one
     ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)`` yields them."""
-    entries = []
-    for conn in connections:
-        entries.extend((e.time, e.chunk_pos, e.offset, conn) for e in reader.indexes[conn.id])
-    entries.sort(key=lambda e: e[0])  # stable: ties keep connection order, then index order
     unpack = _U32.unpack_from
     chunk_pos, buf = -1, b""
     bio = reader.bio
-    for t_ns, pos_c, offset, conn in entries:
+    for t_ns, pos_c, offset, conn in _entries(reader, connections):
         if pos_c != chunk_pos:
             chunk = reader.chunks[pos_c]
             bio.seek(chunk.datapos)

@@ -112,3 +112,22 @@ def test_ros1_chunk_reader_yields_what_rosbags_yields(logs):
         conns = [c for c in log._reader.connections if c.topic in topics]
         theirs = [(c.topic, int(rec), bytes(raw)) for c, rec, raw in log._reader.messages(connections=conns)]
     assert ours == theirs and len(ours) == 90
+
+
+def test_ros1_chunk_reader_orders_equal_times_as_rosbags_does(tmp_path):
+    # rosbags compares index entries by time only: equal times come connection by connection, each in its
+    # index order, whatever order they were written in
+    from rosbags.rosbag1 import Reader, Writer
+
+    path = tmp_path / "ties.bag"
+    with Writer(path) as w:
+        a = w.add_connection("/a", "std_msgs/msg/String", msgdef="string data", md5sum="992ce8a1687cec8c8bd883ec73ca41d1")
+        b = w.add_connection("/b", "std_msgs/msg/String", msgdef="string data", md5sum="992ce8a1687cec8c8bd883ec73ca41d1")
+        for conn, t, text in ((b, 100, b"b1"), (a, 100, b"a1"), (a, 100, b"a2"), (b, 90, b"b0"), (a, 200, b"a3")):
+            w.write(conn, t, len(text).to_bytes(4, "little") + text)
+    with Reader(path) as r:
+        theirs = [(c.topic, t, bytes(d)[4:]) for c, t, d in r.messages()]
+    with open_log(path) as log:
+        ours = [(rec.connection.topic, rec.log_time_ns, bytes(rec.data)[4:]) for rec in log.records()]
+    assert ours == theirs == [("/b", 90, b"b0"), ("/a", 100, b"a1"), ("/a", 100, b"a2"), ("/b", 100, b"b1"),
+                              ("/a", 200, b"a3")]
