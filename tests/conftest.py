@@ -153,3 +153,15 @@ def logs(tmp_path: Path) -> LogFactory:
 def write_format(request) -> str:
     """Each format LogWriter writes: ros1, ros2 (sqlite3), ros2-mcap, mcap."""
     return request.param
+
+
+@pytest.fixture(scope="session")
+def real_logs() -> Path:
+    """``../shared/real_logs`` beside the repository (the workplace's copy for a worktree elsewhere); a test
+    that takes it is skipped, saying why, where a clone has no such folder."""
+    beside = Path(__file__).resolve().parents[1].parent / "shared" / "real_logs"
+    path = beside if beside.is_dir() else Path("/work/shared/real_logs")
+    if not path.is_dir():
+        pytest.skip(f"real recordings absent: {beside} does not exist (they live in the workplace's "
+                    "shared/real_logs and are never copied into the repository)")
+    return path
