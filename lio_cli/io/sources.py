@@ -18,7 +18,7 @@ from ..model.records import TransformRecord
 from ..model.trajectory import Trajectory
 from .detect import looks_like_log
 from .tf import FrameTree
-from .trajectory_files import read_kitti, read_times, read_tum, sniff_columns
+from .trajectory_files import read_kitti, read_text, read_times, read_tum, sniff_columns
 
 if TYPE_CHECKING:
     from ..geodesy import EnuFrame
@@ -59,9 +59,11 @@ def load_trajectory(
         return read_log_trajectory(path, topic, required_kind="gt", origin=origin)
     if topic_spec is not None:
         return read_log_trajectory(path, topic_spec, origin=origin)
-    cols = sniff_columns(path)
+    # a pipe (`--gt <(...)`) can be read only once: its text is read here and parsed from memory
+    text = None if path.is_file() else read_text(path)
+    cols = sniff_columns(path, text)
     if cols == 12:
-        poses = read_kitti(path)
+        poses = read_kitti(path, text)
         if times is not None:
             stamps = read_times(times)
             if len(stamps) != len(poses):
@@ -77,7 +79,7 @@ def load_trajectory(
             raise InputError(f"{path}: KITTI poses carry no stamps; give --times FILE (KITTI times.txt) or --rate HZ")
         return Trajectory(stamps, poses, str(path), "kitti")
     if cols == 8:
-        stamps, poses = read_tum(path, stamp_unit)
+        stamps, poses = read_tum(path, stamp_unit, text)
         return Trajectory(stamps, poses, str(path), "tum")
     raise InputError(
         f"{path}: first line has {cols} values; expected 8 (TUM: stamp tx ty tz qx qy qz qw) or 12 (KITTI 3x4 pose)"

@@ -62,7 +62,7 @@ def format_kitti(poses: np.ndarray) -> str:
     return "".join(" ".join(f"{v:.9e}" for v in r) + "\n" for r in rows)
 
 
-def _read_text(path: Path) -> str:
+def read_text(path: Path) -> str:
     try:
         return path.read_text()
     except FileNotFoundError as err:
@@ -193,13 +193,14 @@ def _rows(path: Path, text: str, columns: int, layout: str) -> tuple[list[int], 
     return numbers, tokens
 
 
-def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.ndarray]:
+def read_tum(path: str | Path, stamp_unit: str = "s", text: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(stamps_ns (N,), poses (N,4,4)) of a TUM file; bad lines raise InputError with the line number.
 
-    ``stamp_unit`` (s, ms, us, ns) says what the first column counts; seconds are parsed exactly.
+    ``stamp_unit`` (s, ms, us, ns) says what the first column counts; seconds are parsed exactly. ``text``:
+    the file's content when already read (a pipe can be read only once).
     """
     path = Path(path)
-    text = _read_text(path)
+    text = read_text(path) if text is None else text
     fast = _fast_table(text, 8)
     stamps = _fast_stamps_ns(fast[0], stamp_unit) if fast is not None else None
     if fast is not None and stamps is not None:
@@ -221,10 +222,10 @@ def read_tum(path: str | Path, stamp_unit: str = "s") -> tuple[np.ndarray, np.nd
     return stamps, pose_from_xyz_quat(vals[:, :3], vals[:, 3:])
 
 
-def read_kitti(path: str | Path) -> np.ndarray:
-    """Poses (N,4,4) of a KITTI pose file (12 values per line: row-major [R | t])."""
+def read_kitti(path: str | Path, text: str | None = None) -> np.ndarray:
+    """Poses (N,4,4) of a KITTI pose file (12 values per line: row-major [R | t]); ``text`` as for read_tum."""
     path = Path(path)
-    text = _read_text(path)
+    text = read_text(path) if text is None else text
     fast = _fast_table(text, 12)
     if fast is not None:
         numbers, vals = range(1, len(fast[1]) + 1), fast[1]
@@ -247,7 +248,7 @@ def read_kitti(path: str | Path) -> np.ndarray:
 def read_times(path: str | Path) -> np.ndarray:
     """Stamps (int64 ns) of a KITTI times file: one stamp in seconds per line."""
     path = Path(path)
-    numbers, tokens = _data_lines(_read_text(path))
+    numbers, tokens = _data_lines(read_text(path))
     if not tokens:
         raise InputError(f"{path}: no stamps in file")
     for lineno, parts in zip(numbers, tokens):
@@ -259,9 +260,15 @@ def read_times(path: str | Path) -> np.ndarray:
     return stamps
 
 
-def sniff_columns(path: str | Path) -> int:
+def sniff_columns(path: str | Path, text: str | None = None) -> int:
     """Number of values on the first data line of a text trajectory (8 TUM, 12 KITTI)."""
     path = Path(path)
+    if text is not None:
+        for line in text.splitlines():
+            line = line.strip()
+            if line and not line.startswith("#"):
+                return len(line.replace(",", " ").split())
+        raise InputError(f"{path}: no poses in file")
     try:
         with path.open() as f:
             for line in f:

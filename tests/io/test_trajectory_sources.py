@@ -200,3 +200,29 @@ def test_tf_chain_interpolates_the_slower_dynamic_edge(tmp_path: Path):
     elapsed = (fast - S_) / 1e9
     np.testing.assert_allclose(t.poses[:, :3, 3], np.stack([elapsed, elapsed, 0 * elapsed], axis=1), atol=1e-9)
 
+
+
+@pytest.mark.parametrize("kind", ["tum", "kitti"])
+def test_a_trajectory_from_a_pipe_is_read_once_and_whole(tmp_path, kind):
+    # `lio evaluate <(zcat gt.tum.gz) est.tum`: the format is sniffed from the same text that is parsed, a
+    # pipe giving its bytes only once
+    import os
+    import threading
+
+    poses = np.repeat(np.eye(4)[None], 50, axis=0)
+    poses[:, 0, 3] = np.arange(50) * 0.1
+    text = format_tum(np.arange(50) * 10**8, poses) if kind == "tum" else format_kitti(poses)
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    writer = threading.Thread(target=lambda: fifo.write_text(text), daemon=True)
+    writer.start()
+    got = []  # read in a thread: a reader that opens the pipe twice would wait forever for a second writer
+    reader = threading.Thread(target=lambda: got.append(load_trajectory(str(fifo), rate_hz=10.0 if kind == "kitti" else None)),
+                              daemon=True)
+    reader.start()
+    reader.join(timeout=20)
+    assert got, "the pipe was not read in one go"
+    traj = got[0]
+    assert len(traj) == 50
+    np.testing.assert_allclose(traj.poses[:, 0, 3], poses[:, 0, 3], atol=1e-9)
+    np.testing.assert_array_equal(traj.stamps_ns, np.arange(50) * 10**8)
