@@ -46,11 +46,12 @@ class CalibrateConfig(Strict):
     wheel_baseline_m: Optional[float] = Field(None, gt=0, description="nominal wheel baseline: estimate the true one")
     max_offset_s: float = Field(0.5, gt=0, le=5.0, description="largest IMU-LiDAR time offset searched (either sign)")
     refine_passes: int = Field(
-        2, ge=0, le=4,
+        3, ge=0, le=4,
         description="gyro-primed odometry passes after the LiDAR-only one, each with the previous estimates and "
         "then the estimates again: the gyro's rotation (through the estimated mounting, clock offset and bias) "
         "primes each scan's registration and de-skews it, while the pose is the registration's own, never fused "
-        "with the IMU (a fused pose would follow the estimates it starts from); 0 = the LiDAR-only pass alone")
+        "with the IMU (a fused pose would follow the estimates it starts from); all but the last over the first third of the "
+        "log; 0 = the LiDAR-only pass alone")
     registration: RegistrationConfig = RegistrationConfig()
 
     @field_validator("still")

@@ -30,7 +30,7 @@ from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..model.calibration import Calibration
 from . import calibrate_estimate as steps
-from .calibrate_passes import LidarPass, Progress, read_imu
+from .calibrate_passes import LidarPass, Progress, pass_until, read_imu, refine_spans
 from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, rotation_observable, table
 from .odom_inputs import BASE_FRAME_NAMES
 from .outputs import beside, json_text
@@ -119,7 +119,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             check_same_clock(reader, lidar, imu_topic, cfg.prior.imu_time_offset_ns)
             planar = reader.topics[lidar].msgtype == LASERSCAN
             n = reader.topics[lidar].count
-            total = n * (1 + cfg.refine_passes)
+            spans = refine_spans(cfg.refine_passes, planar)
+            total = int(n * (1 + sum(spans)))
             topics = {"lidar": lidar, "imu": imu_topic, "wheel": wheel}
             traj, arrays = LidarPass(reader, cfg, topics, planar, progress, 0, total).run(gather=True)
             times["lidar_pass"] = time.perf_counter() - t0
@@ -139,15 +140,23 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
             steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine_passes, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
-            for k in range(1, cfg.refine_passes + 1):
+            s0, s1, done = int(lidar_only.stamps_ns[0]), int(lidar_only.stamps_ns[-1]), n
+            for k, span in enumerate(spans, start=1):
                 t0 = time.perf_counter()
                 mounting = (T_lidar_imu_of(est, T_ref), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps)
-                traj, _ = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, k * n,
-                                    total).run(mounting, refine=k)
+                until = pass_until(span, s0, s1)
+                refine_pass = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, done, total)
+                traj, _ = refine_pass.run(mounting, refine=k, until_ns=until)
+                done += refine_pass.done
                 times[f"refine_pass_{k}"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=k == cfg.refine_passes,
-                                 prior_offset=prior_offset)
+                final = k == len(spans)
+                try:
+                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=final, prior_offset=prior_offset)
+                except InputError:
+                    if final:
+                        raise
+                    # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
                 times[f"estimate_{k}"] = time.perf_counter() - t0
             steps.wheels(arrays, _wheel_trajectory(est, traj, lidar_only, T_ref), T_base_lidar, cfg, est, where)
         if cfg.allan:

@@ -57,7 +57,26 @@ class LidarTrajectory:
 # 2D scans (a LaserScan) register too loosely alone to time the IMU: there the refining passes fuse the IMU,
 # the registration's per-scan position (m) and rotation (rad) sigmas far below odom's, first tighter
 PLANAR_FUSION_SIGMAS = ((0.001, 0.0001), (0.01, 0.001))
+PARTIAL_SPAN = 1 / 3  # a refining pass before the last covers this share of the scans' span (3D scans)...
+PARTIAL_MIN_NS = 10_000_000_000  # ...but at least this much of it
 DEGENERACY_EVERY = 5  # scans between analyses of the geometry (odom: 2); a calibration log's scene changes slowly
+
+
+def refine_spans(passes: int, planar: bool) -> list[float]:
+    """The share of the log each refining pass covers, from the start: the last pass all of it (the final
+    estimates), the ones before only a part: a pass brings the clock offset a fixed share (about a fifth, through
+    the de-skew) of its error closer, however long it is, so short passes converge it as well and cheaper. 2D
+    scans: at most the fused passes of ``PLANAR_FUSION_SIGMAS``, each over the whole log."""
+    if planar:
+        return [1.0] * min(passes, len(PLANAR_FUSION_SIGMAS))
+    return [1.0 if k == passes else PARTIAL_SPAN for k in range(1, passes + 1)]
+
+
+def pass_until(span: float, first_ns: int, last_ns: int) -> int | None:
+    """Stamp where a refining pass covering ``span`` of the scans from ``first_ns`` to ``last_ns`` stops (None:
+    at the end of the log)."""
+    until = first_ns + max(int(span * (last_ns - first_ns)), PARTIAL_MIN_NS)
+    return None if span >= 1.0 or until >= last_ns else until
 
 
 def pass_config(cfg: CalibrateConfig, primed: bool, fused: tuple[float, float] | None = None) -> OdomConfig:
@@ -91,10 +110,10 @@ class LidarPass:
         self.stats: dict = {}  # the odometry's scan counts and events of the last run
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
-            gather: bool = False, refine: int = 1) -> tuple[LidarTrajectory, SensorArrays]:
+            gather: bool = False, refine: int = 1, until_ns: int | None = None) -> tuple[LidarTrajectory, SensorArrays]:
         """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for a gyro-primed pass (IMU-primed and
         fused for 2D scans: ``refine`` numbers the pass), None for LiDAR only. ``gather``: also collect the IMU
-        and wheel arrays."""
+        and wheel arrays. ``until_ns``: stop at the first scan stamped after it."""
         cfg = self.cfg
         with_imu = imu_mounting is not None
         conv = parse_time_convention(cfg.input.point_time) if cfg.input.point_time else None
@@ -104,7 +123,7 @@ class LidarPass:
         if gather:
             wanted["wheel"] = self.topics.get("wheel")
         stream = SensorStream(self.reader, wanted, convention=conv, strict=False)
-        fused = PLANAR_FUSION_SIGMAS[min(refine, 2) - 1] if with_imu and self.planar else None
+        fused = PLANAR_FUSION_SIGMAS[min(refine, len(PLANAR_FUSION_SIGMAS)) - 1] if with_imu and self.planar else None
         ocfg = pass_config(cfg, with_imu, fused)
         odo = None
         arrays, imu_batches, wheel = SensorArrays(), [], []
@@ -125,6 +144,8 @@ class LidarPass:
                 elif rec.kind == "wheel":
                     wheel.append(rec.data)
                 elif rec.kind == "lidar":
+                    if until_ns is not None and rec.data.end_ns > until_ns:
+                        break
                     arrays.scans += 1
                     if odo is None:
                         arrays.lidar_frame = rec.data.frame_id
