@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cholesky_banded, solve_banded
-from scipy.optimize import minimize_scalar
+from scipy.optimize import minimize
 
 from ...errors import InputError
 from ...geometry import skew, so3_exp
@@ -36,8 +36,7 @@ from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
 NOISE_ROUNDS = 3
 OUTLIER_FLOOR_MPS2 = 1e-3  # residual sigma below which nothing is an outlier
-RATIO_LOG_BOUNDS = (np.log(1e-7), np.log(1e5))  # white / position noise level (variances, per unit DD weight)
-RATIO_SNAP = 0.01  # a log ratio this close to a bound is put on it
+RATIO_STEP = 0.05  # grid of the log ratio of the noise levels (5 %: the weights hardly change)
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,18 +138,11 @@ class _Whitener:
                 for s2 in range(3):
                     same = idx[: n - d, s1] == idx[d:, s2]
                     self.D[d, : n - d] += np.where(same, wts[: n - d, s1] * wts[d:, s2], 0.0)
-        # the scale of the covariance has a closed form for a given ratio of the levels: only the ratio is searched
-        # (its log, bounded), and a ratio within reach of a bound is put on it: where one level vanishes the
-        # likelihood is flat, and a search left there would end where its path (so the input's last bits) took it
-        self.unit = max(float(self.D[0].mean()), 1e-300)
-        res = minimize_scalar(lambda u: self._profile(u, r)[0], bounds=RATIO_LOG_BOUNDS, method="bounded",
-                              options={"xatol": 1e-4})
-        u = float(res.x)
-        for bound in RATIO_LOG_BOUNDS:
-            if abs(u - bound) < RATIO_SNAP:
-                u = bound
-        scale = self._profile(u, r)[1]
-        q = scale * np.array([1.0, np.exp(u) * self.unit])
+        v = max(float((r * r).mean()), 1e-12)
+        x0 = np.log([0.9 * v / self.D[0].mean(), 0.1 * v])
+        self.lo = x0 + np.log(1e-6)  # a level vanishing would make the whitening blow up
+        best = minimize(lambda q: self._nll(q, r), x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-6})
+        q = self._settled(np.exp(np.maximum(best.x, self.lo)), r)
         self.L = self._cholesky(q)
         self.levels = np.sqrt(q)  # (position sigma, white sigma)
 
@@ -159,15 +151,28 @@ class _Whitener:
         ab[0] = ab[0] + q[1]
         return cholesky_banded(ab, lower=True)
 
-    def _profile(self, u: float, r: np.ndarray) -> tuple[float, float]:
-        """(negative log-likelihood with the scale at its best, that scale) for the white/position ratio exp(u)."""
+    def _settled(self, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """The levels with their ratio on a grid of RATIO_STEP (in log) and the scale at its closed-form best for it.
+
+        Nelder-Mead stops anywhere within its tolerance, where its path (so the input's last bits: kiss-icp sums in
+        thread order) takes it, most in the flat valley where one level vanishes; the written calibration then
+        differed in its 9th digit between runs. On the grid the ratio is the same for all such paths, and the scale
+        is a smooth function of the residuals."""
+        u = RATIO_STEP * np.round(np.log(q[1] / q[0]) / RATIO_STEP)
         try:
-            L = self._cholesky(np.array([1.0, np.exp(u) * self.unit]))
+            L = self._cholesky(np.array([1.0, np.exp(u)]))
         except np.linalg.LinAlgError:
-            return 1e300, 1.0
+            return q
         z = solve_banded((2, 0), L, r)
-        scale = max(float((z * z).sum()) / r.size, 1e-300)
-        return float(r.shape[1] * np.log(L[0]).sum() + 0.5 * r.size * np.log(scale)), scale
+        return float((z * z).sum()) / r.size * np.array([1.0, np.exp(u)])
+
+    def _nll(self, q: np.ndarray, r: np.ndarray) -> float:
+        try:
+            L = self._cholesky(np.exp(np.maximum(q, self.lo)))
+        except np.linalg.LinAlgError:
+            return 1e300
+        z = solve_banded((2, 0), L, r)
+        return float(r.shape[1] * np.log(L[0]).sum() + 0.5 * (z * z).sum())
 
     def __call__(self, M: np.ndarray) -> np.ndarray:
         """Whiten (n, ...) along the windows."""
