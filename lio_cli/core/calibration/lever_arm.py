@@ -36,7 +36,6 @@ from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
 NOISE_ROUNDS = 3
 OUTLIER_FLOOR_MPS2 = 1e-3  # residual sigma below which nothing is an outlier
-RATIO_STEP = 0.05  # grid of the log ratio of the noise levels (5 %: the weights hardly change)
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,7 +141,7 @@ class _Whitener:
         x0 = np.log([0.9 * v / self.D[0].mean(), 0.1 * v])
         self.lo = x0 + np.log(1e-6)  # a level vanishing would make the whitening blow up
         best = minimize(lambda q: self._nll(q, r), x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-6})
-        q = self._settled(np.exp(np.maximum(best.x, self.lo)), r)
+        q = np.exp(np.maximum(best.x, self.lo))
         self.L = self._cholesky(q)
         self.levels = np.sqrt(q)  # (position sigma, white sigma)
 
@@ -150,21 +149,6 @@ class _Whitener:
         ab = q[0] * self.D
         ab[0] = ab[0] + q[1]
         return cholesky_banded(ab, lower=True)
-
-    def _settled(self, q: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """The levels with their ratio on a grid of RATIO_STEP (in log) and the scale at its closed-form best for it.
-
-        Nelder-Mead stops anywhere within its tolerance, where its path (so the input's last bits: kiss-icp sums in
-        thread order) takes it, most in the flat valley where one level vanishes; the written calibration then
-        differed in its 9th digit between runs. On the grid the ratio is the same for all such paths, and the scale
-        is a smooth function of the residuals."""
-        u = RATIO_STEP * np.round(np.log(q[1] / q[0]) / RATIO_STEP)
-        try:
-            L = self._cholesky(np.array([1.0, np.exp(u)]))
-        except np.linalg.LinAlgError:
-            return q
-        z = solve_banded((2, 0), L, r)
-        return float((z * z).sum()) / r.size * np.array([1.0, np.exp(u)])
 
     def _nll(self, q: np.ndarray, r: np.ndarray) -> float:
         try:
