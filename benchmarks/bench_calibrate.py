@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""`lio calibrate` end to end (the job the command runs: read the log, LiDAR-only then IMU-primed odometry, the
+"""`lio calibrate` end to end (the job the command runs: read the log, LiDAR-only then gyro-primed odometry, the
 estimators) on `lio simulate` logs against their truth.json; prints the issue's target table.
 
 Every log is simulated WITHOUT /tf_static (--no-tf-static), so nothing the estimates fall back to knows the

@@ -45,12 +45,13 @@ class CalibrateConfig(Strict):
     wheel_radius_m: Optional[float] = Field(None, gt=0, description="nominal wheel radius: estimate the true one")
     wheel_baseline_m: Optional[float] = Field(None, gt=0, description="nominal wheel baseline: estimate the true one")
     max_offset_s: float = Field(0.5, gt=0, le=5.0, description="largest IMU-LiDAR time offset searched (either sign)")
-    refine: list[tuple[float, float]] = Field(
-        [(0.001, 0.0001), (0.01, 0.001)], max_length=4,
-        description="IMU-primed odometry passes after the LiDAR-only one, each with the previous estimates and "
-        "then the estimates again: per pass the registration's position (m) and rotation (rad) sigmas in the "
-        "fusion (small: the trajectory follows the LiDAR, hardly biased by the estimates it starts from; larger: "
-        "smoother, for the lever arm); [] = the LiDAR-only pass alone")
+    refine_passes: int = Field(
+        3, ge=0, le=4,
+        description="gyro-primed odometry passes after the LiDAR-only one, each with the previous estimates and "
+        "then the estimates again: the gyro's rotation (through the estimated mounting, clock offset and bias) "
+        "primes each scan's registration and de-skews it, while the pose is the registration's own, never fused "
+        "with the IMU (a fused pose would follow the estimates it starts from); all but the last over the first third of the "
+        "log; 0 = the LiDAR-only pass alone")
     registration: RegistrationConfig = RegistrationConfig()
 
     @field_validator("still")

@@ -80,8 +80,12 @@ class LioOdometry(StateUpdates, Restart):
     """Feed IMU batches, wheel records and scans (in time order); get one pose per scan."""
 
     def __init__(self, cfg: OdomConfig, T_base_lidar: np.ndarray, *, use_imu: bool, planar: bool,
-                 gyro_bias: np.ndarray | None = None, accel_bias: np.ndarray | None = None) -> None:
+                 gyro_bias: np.ndarray | None = None, accel_bias: np.ndarray | None = None,
+                 gyro_only: bool = False) -> None:
+        """``gyro_only``: every scan is registered LiDAR-only, primed and de-skewed by the gyro's rotation (once
+        the IMU is mounted) but never fused with an IMU state: the poses are the registration's own."""
         self.cfg = cfg
+        self.gyro_only = gyro_only
         self.ext = Extrinsics(np.eye(4), T_base_lidar)
         self.use_imu = use_imu
         self.planar = planar
@@ -300,7 +304,7 @@ class LioOdometry(StateUpdates, Restart):
             self._lost = 0
         result = self._finish(t_ref, pose, None if failed else frame,
                               None if failed else inv_pose(guess) @ measured, dirs_b, failed)
-        if self.use_imu and self.imu_mounted and self._imu and not failed and window:
+        if self.use_imu and self.imu_mounted and self._imu and not failed and window and not self.gyro_only:
             if self._first_f_base is None:
                 imu = ImuBatch.concat(self._imu)
                 ba = np.zeros(3) if self._bias_prior[1] is None else np.asarray(self._bias_prior[1], dtype=np.float64)

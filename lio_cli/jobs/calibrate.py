@@ -4,7 +4,7 @@
 ``run_calibrate`` -> ``CalibrateResult`` (the calibration, the table of values / 1-sigmas / differences from
 the reference, the skipped items with their reasons, metrics). Every output location is checked first; the
 log is read in one pass gathering the IMU and wheel arrays while the LiDAR-only odometry runs
-(``calibrate_passes``), the estimators run (``calibrate_estimate``), an IMU-primed pass sharpens the
+(``calibrate_passes``), the estimators run (``calibrate_estimate``), gyro-primed passes sharpen the
 trajectory and they run again. Bad input raises before anything is written; then the YAML, its
 ``.metrics.json`` and ``.config.yaml`` (and the Kalibr file and the plot) are written atomically.
 """
@@ -30,7 +30,7 @@ from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..model.calibration import Calibration
 from . import calibrate_estimate as steps
-from .calibrate_passes import LidarPass, Progress, read_imu
+from .calibrate_passes import LidarPass, Progress, pass_until, read_imu, refine_spans
 from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, rotation_observable, table
 from .odom_inputs import BASE_FRAME_NAMES
 from .outputs import beside, json_text
@@ -119,7 +119,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             check_same_clock(reader, lidar, imu_topic, cfg.prior.imu_time_offset_ns)
             planar = reader.topics[lidar].msgtype == LASERSCAN
             n = reader.topics[lidar].count
-            total = n * (1 + len(cfg.refine))
+            spans = refine_spans(cfg.refine_passes, planar)
+            total = int(n * (1 + sum(spans)))
             topics = {"lidar": lidar, "imu": imu_topic, "wheel": wheel}
             traj, arrays = LidarPass(reader, cfg, topics, planar, progress, 0, total).run(gather=True)
             times["lidar_pass"] = time.perf_counter() - t0
@@ -137,17 +138,25 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             bias0 = None if est.static is None else est.static.gyro_bias_radps
             lidar_only = traj
             traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
-            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine, prior_offset=prior_offset)
+            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine_passes, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
-            for k, sigmas in enumerate(cfg.refine, start=1):
+            s0, s1, done = int(lidar_only.stamps_ns[0]), int(lidar_only.stamps_ns[-1]), n
+            for k, span in enumerate(spans, start=1):
                 t0 = time.perf_counter()
                 mounting = (T_lidar_imu_of(est, T_ref), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps)
-                traj, _ = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, k * n,
-                                    total).run(mounting, sigmas=tuple(sigmas))
+                until = pass_until(span, s0, s1)
+                refine_pass = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, done, total)
+                traj, _ = refine_pass.run(mounting, refine=k, until_ns=until)
+                done += refine_pass.done
                 times[f"refine_pass_{k}"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=k == len(cfg.refine),
-                                 prior_offset=prior_offset)
+                final = k == len(spans)
+                try:
+                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=final, prior_offset=prior_offset)
+                except InputError:
+                    if final:
+                        raise
+                    # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
                 times[f"estimate_{k}"] = time.perf_counter() - t0
             steps.wheels(arrays, _wheel_trajectory(est, traj, lidar_only, T_ref), T_base_lidar, cfg, est, where)
         if cfg.allan:
@@ -186,13 +195,13 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
 
 
 def _wheel_trajectory(est: steps.Estimates, primed, lidar_only, T_ref):
-    """The trajectory the wheels are measured against: the IMU-primed one, unless the IMU's mounting is partly
+    """The trajectory the wheels are measured against: the gyro-primed one, unless the IMU's mounting is partly
     unknown (an axis the motion did not show and nothing to take it from), which would bend it; then the
     LiDAR-only one."""
     if est.rotation is None or T_ref is not None or rotation_observable(est).all():
         return primed
     est.notes.append("wheel scales measured against the LiDAR-only trajectory: the IMU's mounting is not fully "
-                     "known (give T_base_imu with --calib, or /tf_static, to use the IMU-primed one)")
+                     "known (give T_base_imu with --calib, or /tf_static, to use the gyro-primed one)")
     return lidar_only
 
 

@@ -26,7 +26,7 @@ from ..model.records import ImuBatch
 from .calibrate_passes import LidarTrajectory, SensorArrays
 
 FINAL_MAX_SIGMA_S = 0.002  # a clock offset known worse than this is refused (too little motion)
-COARSE_MAX_SIGMA_S = 0.03  # the first estimates only start the IMU-primed pass
+COARSE_MAX_SIGMA_S = 0.03  # the first estimates only start the gyro-primed passes
 CHECK_WINDOW_SCANS = 20  # about 2 s at 10 Hz
 CHECK_REL_TOL = 0.25
 CHECK_ABS_TOL_DEG = 5.0

@@ -3,9 +3,11 @@ odometry core run over the scans.
 
 The trajectory is of the LiDAR itself (the odometry's base is the LiDAR: ``T_base_lidar`` = identity), in the
 frame of its first scan, at each scan's end on the LiDAR clock. The first pass is LiDAR-only, so nothing in
-it depends on the IMU being calibrated; the refining pass primes registration and de-skews with the IMU
-through the first estimates (``T_lidar_imu``, the clock offset, the gyro bias), which sharpens the
-trajectory on fast motion. Neither uses /tf_static: the point is to find what it should say.
+it depends on the IMU being calibrated; a refining pass primes registration and de-skews with the gyro's
+rotation through the previous estimates (``T_lidar_imu``, the clock offset, the gyro bias), which sharpens
+the trajectory on fast motion, yet keeps each pose the registration's own: a pose fused with the IMU state
+follows the gyro through the estimated mounting, so the estimates would come back as they went in (about a
+weakly excited axis entirely). Neither uses /tf_static: the point is to find what it should say.
 """
 
 from __future__ import annotations
@@ -52,16 +54,45 @@ class LidarTrajectory:
     description: str
 
 
-def pass_config(cfg: CalibrateConfig, with_imu: bool, sigmas: tuple[float, float] = (0.01, 0.001)) -> OdomConfig:
-    """The odometry settings of a pass: LiDAR-only without de-skew, or IMU-primed; no online clock tracking
-    (the offset is what is being estimated) and no wheels (they are being calibrated)."""
-    fields = {"prior": "imu", "deskew": "imu"} if with_imu else {"prior": "constant-velocity", "deskew": "none"}
+# 2D scans (a LaserScan) register too loosely alone to time the IMU: there the refining passes fuse the IMU,
+# the registration's per-scan position (m) and rotation (rad) sigmas far below odom's, first tighter
+PLANAR_FUSION_SIGMAS = ((0.001, 0.0001), (0.01, 0.001))
+PARTIAL_SPAN = 1 / 3  # a refining pass before the last covers this share of the scans' span (3D scans)...
+PARTIAL_MIN_NS = 10_000_000_000  # ...but at least this much of it
+DEGENERACY_EVERY = 5  # scans between analyses of the geometry (odom: 2); a calibration log's scene changes slowly
+
+
+def refine_spans(passes: int, planar: bool) -> list[float]:
+    """The share of the log each refining pass covers, from the start: the last pass all of it (the final
+    estimates), the ones before only a part: a pass brings the clock offset a fixed share (about a fifth, through
+    the de-skew) of its error closer, however long it is, so short passes converge it as well and cheaper. 2D
+    scans: at most the fused passes of ``PLANAR_FUSION_SIGMAS``, each over the whole log."""
+    if planar:
+        return [1.0] * min(passes, len(PLANAR_FUSION_SIGMAS))
+    return [1.0 if k == passes else PARTIAL_SPAN for k in range(1, passes + 1)]
+
+
+def pass_until(span: float, first_ns: int, last_ns: int) -> int | None:
+    """Stamp where a refining pass covering ``span`` of the scans from ``first_ns`` to ``last_ns`` stops (None:
+    at the end of the log)."""
+    until = first_ns + max(int(span * (last_ns - first_ns)), PARTIAL_MIN_NS)
+    return None if span >= 1.0 or until >= last_ns else until
+
+
+def pass_config(cfg: CalibrateConfig, primed: bool, fused: tuple[float, float] | None = None) -> OdomConfig:
+    """The odometry settings of a pass: LiDAR-only without de-skew, or gyro-primed (the gyro's rotation, through
+    the previous estimates, primes the registration and de-skews, with constant-velocity translation), or with
+    ``fused`` sigmas IMU-primed with the pose fused; no online clock tracking (the offset is what is being
+    estimated) and no wheels (they are being calibrated)."""
+    fusion = {"degeneracy_every": DEGENERACY_EVERY}
+    if fused is not None:
+        fields = {"prior": "imu", "deskew": "imu",
+                  "fusion": {**fusion, "position_sigma_m": fused[0], "rotation_sigma_rad": fused[1]}}
+    else:
+        fields = {"prior": "constant-velocity", "deskew": "constant-velocity" if primed else "none", "fusion": fusion}
     return OdomConfig.model_validate({
         "input": cfg.input.model_dump(), **fields, "use_wheel": False, "estimate_time_offset": False,
         "scan_reference": "end", "frame": "lidar", "registration": cfg.registration.model_dump(),
-        # the pose written leans on the registration (sigmas far below odom's): the IMU prediction, whose timing
-        # and mounting are only the previous estimates, de-skews and primes more than it pulls
-        "fusion": {"position_sigma_m": sigmas[0], "rotation_sigma_rad": sigmas[1]},
     })
 
 
@@ -79,10 +110,10 @@ class LidarPass:
         self.stats: dict = {}  # the odometry's scan counts and events of the last run
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
-            gather: bool = False, sigmas: tuple[float, float] = (0.01, 0.001)) -> tuple[LidarTrajectory, SensorArrays]:
-        """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for an IMU-primed pass, None for
-        LiDAR only. ``gather``: also collect the IMU and wheel arrays. ``sigmas``: the fusion's per-scan position
-        (m) and rotation (rad) noise of the registration in an IMU-primed pass."""
+            gather: bool = False, refine: int = 1, until_ns: int | None = None) -> tuple[LidarTrajectory, SensorArrays]:
+        """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for a gyro-primed pass (IMU-primed and
+        fused for 2D scans: ``refine`` numbers the pass), None for LiDAR only. ``gather``: also collect the IMU
+        and wheel arrays. ``until_ns``: stop at the first scan stamped after it."""
         cfg = self.cfg
         with_imu = imu_mounting is not None
         conv = parse_time_convention(cfg.input.point_time) if cfg.input.point_time else None
@@ -92,7 +123,8 @@ class LidarPass:
         if gather:
             wanted["wheel"] = self.topics.get("wheel")
         stream = SensorStream(self.reader, wanted, convention=conv, strict=False)
-        ocfg = pass_config(cfg, with_imu, sigmas)
+        fused = PLANAR_FUSION_SIGMAS[min(refine, len(PLANAR_FUSION_SIGMAS)) - 1] if with_imu and self.planar else None
+        ocfg = pass_config(cfg, with_imu, fused)
         odo = None
         arrays, imu_batches, wheel = SensorArrays(), [], []
         offset_ns = int(round(imu_mounting[1] * 1e9)) if with_imu else 0
@@ -112,11 +144,13 @@ class LidarPass:
                 elif rec.kind == "wheel":
                     wheel.append(rec.data)
                 elif rec.kind == "lidar":
+                    if until_ns is not None and rec.data.end_ns > until_ns:
+                        break
                     arrays.scans += 1
                     if odo is None:
                         arrays.lidar_frame = rec.data.frame_id
                         odo = LioOdometry(ocfg, np.eye(4), use_imu=with_imu, planar=self.planar,
-                                          gyro_bias=None if not with_imu else imu_mounting[2])
+                                          gyro_bias=None if not with_imu else imu_mounting[2], gyro_only=fused is None)
                         if with_imu:
                             odo.set_imu_extrinsic(imu_mounting[0])
                             for b in early:
@@ -136,7 +170,9 @@ class LidarPass:
             arrays.imu_frame = imu_batches[0].frame_id if imu_batches else ""
             _wheel_arrays(arrays, wheel)
         self.stats = {**odo.stats.counts(), "events": len(odo.events)}
-        how = "IMU-primed with the previous estimates" if with_imu else "LiDAR only, no de-skew (poses at mid-sweep)"
+        how = "LiDAR only, no de-skew (poses at mid-sweep)"
+        if with_imu:
+            how = ("IMU-primed and fused" if fused else "gyro-primed") + " with the previous estimates"
         stamps = np.asarray(odo.stamps_ns, np.int64)
         if not with_imu:  # a scan registered without de-skew is where the sensor was in the middle of its sweep
             stamps = np.array([self.mid_ns.get(int(t), int(t)) for t in stamps], np.int64)

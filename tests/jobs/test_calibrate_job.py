@@ -18,9 +18,9 @@ from lio_cli.geometry import inv_pose, so3_log
 from lio_cli.jobs.calibrate import CalibrateJob, run_calibrate
 from lio_cli.simulation.run import simulate
 
-OFFSET_TOL_MS = 2.0
+OFFSET_TOL_MS = 1.0  # the walks come within 0.2 ms
 TILT_TOL_DEG = 1.0  # roll and pitch of a handheld mounting
-YAW_TOL_DEG = 5.0  # about the LiDAR z axis, which handheld motion (mostly yaw) shows least
+YAW_TOL_DEG = 2.5  # about the LiDAR z axis, which handheld motion (mostly yaw) shows least
 LEVER_TOL_CM = 6.0  # x and y; z is flagged unobservable on these walks
 WHEEL_TOL = 0.005
 
@@ -134,7 +134,7 @@ def test_a_ground_robot_gives_wheel_scales_radius_and_baseline_and_says_what_it_
     # what it cannot see is kept from /tf_static; what it sees (roll, pitch) is measured
     T, Tt = r.calibration.matrix("T_base_imu"), np.array(t["T_base_imu"])
     assert np.degrees(np.abs(so3_log(T[:3, :3] @ Tt[:3, :3].T))).max() < TILT_TOL_DEG
-    assert abs(1e3 * (r.calibration.imu_time_offset_s + t["imu"]["time_offset_s"])) < 2 * OFFSET_TOL_MS
+    assert abs(1e3 * (r.calibration.imu_time_offset_s + t["imu"]["time_offset_s"])) < 4.0  # 2D scans time the IMU less well
 
 
 def test_the_job_pickles(walks):
