@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 import lio_cli
 from lio_cli.batch.executors import DASK_INSTALL
@@ -165,9 +166,23 @@ runs:
     assert deskew["scans_used"] == deskew["scans_total"] == sim_scans(ref / "d.metrics.json")
 
 
+def _leaves(node, path=""):
+    """(path, value) of every leaf of a YAML document."""
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _leaves(v, f"{path}.{k}")
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _leaves(v, f"{path}[{i}]")
+    else:
+        yield path, node
+
+
 def test_calibrate_runs_equal_the_single_command(sim, tmp_path):
-    """A batch calibrate run writes the calibration YAML and its .config.yaml the single ``lio calibrate`` writes,
-    byte for byte; a calibrate run with gt is a manifest error (it writes nothing to score)."""
+    """A batch calibrate run writes the .config.yaml the single ``lio calibrate`` writes byte for byte, and its
+    calibration to the last digits: kiss-icp's threaded sums differ in their last bits between runs of one
+    process, and the calibration's iterative fits can carry that to the 9th printed digit (a fresh process
+    repeats itself exactly). A calibrate run with gt is a manifest error (it writes nothing to score)."""
     log = sim.logs["walk_a"]
     ref = tmp_path / "ref"
     ref.mkdir()
@@ -182,7 +197,14 @@ runs:
     rc, _ = run_lio("batch", manifest, "--jobs", "1", "-q")
     assert rc == 0
     out = tmp_path / "out" / "cal"
-    assert (out / "calib.yaml").read_bytes() == (ref / "c.yaml").read_bytes()
+    ours = dict(_leaves(yaml.safe_load((out / "calib.yaml").read_text())))
+    theirs = dict(_leaves(yaml.safe_load((ref / "c.yaml").read_text())))
+    assert ours.keys() == theirs.keys() and len(ours) > 20
+    for key, value in theirs.items():
+        if isinstance(value, float):
+            assert ours[key] == pytest.approx(value, rel=1e-6, abs=1e-8), key
+        else:
+            assert ours[key] == value, key
     assert (out / "calib.config.yaml").read_bytes() == (ref / "c.config.yaml").read_bytes()
     assert summary_of(tmp_path / "out")["runs"][0]["status"] == "ok"
     bad = write_manifest(tmp_path / "bad.yaml", manifest.read_text().replace("command: calibrate",
