@@ -94,15 +94,18 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
     sig0 = np.array([0.02, 0.02, np.radians(0.3)])
     fit = least_squares(lambda s: resid(s, sig0), np.array([1.0, 1.0, 0.0]), loss="cauchy", f_scale=3.0)
     good = np.ones(len(ia), bool)
-    for it in range(4):  # flag far-out windows against the scatter of the others, refit on the rest, repeat
-        r = resid(fit.x, sig0).reshape(-1, 3) * sig0
-        rg = r[good]
-        scale = np.maximum(1.4826 * np.median(np.abs(rg - np.median(rg, axis=0)), axis=0), np.array([1e-4, 1e-4, 1e-5]))
-        new_good = ~(np.abs(r - np.median(rg, axis=0)) > OUTLIER_SIGMAS * scale).any(axis=1)
+    # the scatter of the windows, once, from all of them (the median absolute deviation ignores the slips): one
+    # re-measured on the windows kept after each cut shrinks with every cut and trims good windows in turn,
+    # which made the result jump between draws of the same log
+    r = resid(fit.x, sig0).reshape(-1, 3) * sig0
+    scale = np.maximum(1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0), np.array([1e-4, 1e-4, 1e-5]))
+    for it in range(4):  # flag far-out windows against that scatter, refit on the rest, repeat until stable
+        new_good = ~(np.abs(r - np.median(r[good], axis=0)) > OUTLIER_SIGMAS * scale).any(axis=1)
         if it > 0 and (new_good == good).all():
             break
         good = new_good
         fit = least_squares(lambda s, sc=scale, g=good: resid(s, sc).reshape(-1, 3)[g].ravel(), fit.x)
+        r = resid(fit.x, sig0).reshape(-1, 3) * sig0
     bad = ~good
     # generalised least squares: consecutive windows share a pose, so their position and heading noise cancel
     # along the path (what makes the whole distance, not each window's, set the speed scale's precision)
