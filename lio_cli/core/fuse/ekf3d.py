@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from ...geometry import inv_pose, so3_log_scalars
+from ...geometry import inv_pose
 from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
@@ -67,7 +67,7 @@ class Ekf3d:
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
         self.inject = lambda x, dx: step3d.boxplus(x, dx, self.L)
-        self.update = step3d.Updater(self.L.n, self.gate, self.inject)
+        self.update = step3d.Updater(self.gate, self.inject)
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
         self._H_orientation = np.zeros((3, self.L.n))
@@ -185,21 +185,14 @@ class Ekf3d:
                 self._update(t, x, P, r, H, Rn, "wheel", "wheel_yaw_rate", allow_reset=self.L.model == "cv")
 
     def _body_velocity(self, t: int, x, P, comps: list[int], z: list[float], var: list[float]) -> None:
-        """``measure3d.body_velocity`` on floats: components ``comps`` of ``R^T v``; H on dtheta ([vb]x rows)
-        and dv (R^T rows)."""
+        """The update by components ``comps`` of the base-frame velocity (``step3d.body_velocity``)."""
         self._open(t, x, P)
-        r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15].tolist()
-        vb = (r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz)
-        skew = ((0.0, -vb[2], vb[1]), (vb[2], 0.0, -vb[0]), (-vb[1], vb[0], 0.0))
-        rt = ((r0, r3, r6), (r1, r4, r7), (r2, r5, r8))
         H = self._H_velocity[len(comps)]
-        H[:, 0:3] = [skew[c] for c in comps]
-        H[:, 6:9] = [rt[c] for c in comps]
+        r = step3d.body_velocity(x, z, comps, H)
         PHt = P.dot(H.T)
         S = H.dot(PHt).tolist()
         for k in range(len(comps)):
             S[k][k] += var[k]
-        r = [z[k] - vb[c] for k, c in enumerate(comps)]
         status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity")
         self.prep.reports["wheel"].outcome("wheel_velocity", status)
 
@@ -238,9 +231,7 @@ class Ekf3d:
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
         self._open(t, x, P)
-        Rt = x[R_].reshape(3, 3).T
-        r = so3_log_scalars(Rt.dot(self.prep.imu_R_wb[i]).ravel().tolist())
-        Rn = Rt.dot(self.prep.imu.orientation_cov[i]).dot(Rt.T)
+        r, Rn = step3d.orientation(x, self.prep.imu_R_wb[i], self.prep.imu.orientation_cov[i])
         S = (P[TH, TH] + Rn).tolist()
         status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
         self.prep.reports["imu"].outcome("orientation", status)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ...geometry import so3_exp_scalars
+from ...geometry import so3_exp_scalars, so3_log_scalars
 from .kalman import Gate
 from .state3d import Layout
 
@@ -54,21 +54,43 @@ class InsPredictor:
             m * f0, m * f1, m * f2, m * f3, m * f4, m * f5, m * f6, m * f7, m * f8,
             m * r0, m * r1, m * r2, m * r3, m * r4, m * r5, m * r6, m * r7, m * r8,
             m, m, m, dt, dt, dt)
-        x[:15] = (r0 * d0 + r1 * d3 + r2 * d6, r0 * d1 + r1 * d4 + r2 * d7, r0 * d2 + r1 * d5 + r2 * d8,
-                  r3 * d0 + r4 * d3 + r5 * d6, r3 * d1 + r4 * d4 + r5 * d7, r3 * d2 + r4 * d5 + r5 * d8,
-                  r6 * d0 + r7 * d3 + r8 * d6, r6 * d1 + r7 * d4 + r8 * d7, r6 * d2 + r7 * d5 + r8 * d8,
-                  px + (vx + hd * gx) * dt, py + (vy + hd * gy) * dt, pz + (vz + hd * gz) * dt,
-                  vx + gx * dt, vy + gy * dt, vz + gz * dt)
+        x[:9] = mul3((r0, r1, r2, r3, r4, r5, r6, r7, r8), (d0, d1, d2, d3, d4, d5, d6, d7, d8))
+        x[9:15] = (px + (vx + hd * gx) * dt, py + (vy + hd * gy) * dt, pz + (vz + hd * gz) * dt,
+                   vx + gx * dt, vy + gy * dt, vz + gz * dt)
         return self.F
+
+
+def mul3(a, b) -> tuple[float, ...]:
+    """The product of two 3x3 matrices given row-major as 9 floats each, row-major."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
 
 
 def rotate_right(x: np.ndarray, at: int, d0: float, d1: float, d2: float) -> None:
     """``R <- R exp(d)`` for the rotation stored row-major at ``x[at:at+9]``."""
-    r0, r1, r2, r3, r4, r5, r6, r7, r8 = x[at:at + 9].tolist()
-    e0, e1, e2, e3, e4, e5, e6, e7, e8 = so3_exp_scalars(d0, d1, d2)
-    x[at:at + 9] = (r0 * e0 + r1 * e3 + r2 * e6, r0 * e1 + r1 * e4 + r2 * e7, r0 * e2 + r1 * e5 + r2 * e8,
-                    r3 * e0 + r4 * e3 + r5 * e6, r3 * e1 + r4 * e4 + r5 * e7, r3 * e2 + r4 * e5 + r5 * e8,
-                    r6 * e0 + r7 * e3 + r8 * e6, r6 * e1 + r7 * e4 + r8 * e7, r6 * e2 + r7 * e5 + r8 * e8)
+    x[at:at + 9] = mul3(x[at:at + 9].tolist(), so3_exp_scalars(d0, d1, d2))
+
+
+def body_velocity(x: np.ndarray, z: list[float], comps: list[int], H: np.ndarray) -> list[float]:
+    """``measure3d.body_velocity`` on floats: the residuals ``z - (R^T v)[comps]``; ``H`` (len(comps), n, zero
+    beyond its two blocks) gets the rows on dtheta ([vb]x) and dv (R^T)."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15].tolist()
+    vb = (r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz)
+    skew = ((0.0, -vb[2], vb[1]), (vb[2], 0.0, -vb[0]), (-vb[1], vb[0], 0.0))
+    rt = ((r0, r3, r6), (r1, r4, r7), (r2, r5, r8))
+    H[:, 0:3] = [skew[c] for c in comps]
+    H[:, 6:9] = [rt[c] for c in comps]
+    return [z[k] - vb[c] for k, c in enumerate(comps)]
+
+
+def orientation(x: np.ndarray, R_meas: np.ndarray, cov_world: np.ndarray) -> tuple[tuple[float, ...], np.ndarray]:
+    """``measure3d.orientation`` without its H (a selection of dtheta): (residual ``log(R^T R_meas)``, noise
+    ``R^T cov_world R``)."""
+    Rt = x[:9].reshape(3, 3).T
+    return so3_log_scalars(Rt.dot(R_meas).ravel().tolist()), Rt.dot(cov_world).dot(Rt.T)
 
 
 def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:
@@ -114,7 +136,7 @@ class Updater:
     has at hand: ``PHt = P H^T`` (may be a view of P) and ``S = H P H^T + Rn`` as nested lists. ``H`` and
     ``Rn`` are only read on a gate reset."""
 
-    def __init__(self, n: int, gate: Gate | None, inject):
+    def __init__(self, gate: Gate | None, inject):
         self.gate, self.inject = gate, inject
 
     def __call__(self, x: np.ndarray, P: np.ndarray, r: list[float], PHt: np.ndarray, S: list[list[float]],
