@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from contextlib import nullcontext
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,11 +67,8 @@ class DivergedRun(ProcessingError):
 def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None) -> OdomResult:
     """Run odometry over ``job.log``; score against ``job.gt`` when given. ``reader``: ``job.log`` already
     open (a caller that reads the log again afterwards saves opening it twice; it stays open)."""
-    if reader is not None:
-        result = _OdomRun(reader, job.config, progress).run()
-    else:
-        with open_log(job.log, job.config.input.format) as opened:
-            result = _OdomRun(opened, job.config, progress).run()
+    with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
+        result = _OdomRun(log, job.config, progress).run()
     if job.gt is not None:
         spec = f"{job.log}:{job.gt}" if job.gt.startswith("/") and not Path(job.gt).exists() else job.gt
         ref = load_trajectory(spec)
