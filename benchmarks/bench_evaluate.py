@@ -114,10 +114,7 @@ def main() -> int:
     ap.add_argument("--skip-evo-cli", action="store_true", help="skip the evo_ape/evo_rpe subprocess rows")
     args = ap.parse_args()
     evo_py = ensure_evo(args.evo_venv)
-    # same density for both: the estimate is simulated 3x sparser, so simulate 3x the ground truth and keep N
-    ref_sim, est_sim = simulate(3 * args.poses, seed=3)
-    ref_sim = Trajectory(ref_sim.stamps_ns[::3][: args.poses], ref_sim.poses[::3][: args.poses], "ref")
-    est_sim = Trajectory(est_sim.stamps_ns[: args.poses], est_sim.poses[: args.poses], "est")
+    ref_sim, est_sim = evo_pair(args.poses, 3, shift_ns=0)
     # the CLI of this checkout, exactly as the `lio` console script runs it
     repo = Path(__file__).resolve().parents[1]
     lio = [sys.executable, "-c", "import sys; from lio_cli.cli.app import main; sys.exit(main(sys.argv[1:]))"]
@@ -171,7 +168,7 @@ def main() -> int:
         rows.append(("lio CLI --align posyaw", t_py, m["ape_trans_rmse"], m["rpe_trans_rmse"]))
         offsets = []
         for label, (r_sim, e_sim) in (("clean", clean_pair(args.poses)),
-                                      ("evo sim", (ref_sim, Trajectory(est_sim.stamps_ns - SHIFT_NS, est_sim.poses, "est")))):
+                                      ("evo sim", evo_pair(args.poses, 3))):
             r_path, e_path = Path(tmp, f"ref_{len(offsets)}.tum"), Path(tmp, f"shifted_{len(offsets)}.tum")
             r_path.write_text(format_tum(r_sim.stamps_ns, r_sim.poses))
             e_path.write_text(format_tum(e_sim.stamps_ns, e_sim.poses))
@@ -250,11 +247,12 @@ def main() -> int:
     return 0
 
 
-def evo_pair(poses: int, seed: int) -> tuple[Trajectory, Trajectory]:
-    """evo_agreement's simulation at the density the timing rows use, the estimate's clock SHIFT_NS early."""
+def evo_pair(poses: int, seed: int, shift_ns: int = SHIFT_NS) -> tuple[Trajectory, Trajectory]:
+    """evo_agreement's simulation with ``poses`` poses each (the estimate is simulated 3x sparser, so 3x the
+    ground truth is simulated and every third kept), the estimate's clock ``shift_ns`` early."""
     ref, est = simulate(3 * poses, seed=seed)
     return (Trajectory(ref.stamps_ns[::3][:poses], ref.poses[::3][:poses], "ref"),
-            Trajectory(est.stamps_ns[:poses] - SHIFT_NS, est.poses[:poses], "est"))
+            Trajectory(est.stamps_ns[:poses] - shift_ns, est.poses[:poses], "est"))
 
 
 if __name__ == "__main__":
