@@ -33,15 +33,6 @@ from lio_cli.io.writer import LogWriter
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _real_logs() -> Path:
-    """``../shared/real_logs`` beside the repository (a worktree elsewhere falls back to the workplace's)."""
-    beside = REPO.parent / "shared" / "real_logs"
-    return beside if beside.is_dir() else Path("/work/shared/real_logs")
-
-
-REAL = _real_logs()
-real_logs = pytest.mark.skipif(not REAL.is_dir(), reason=f"real recordings absent: {REAL} does not exist "
-                                                         "(they live in the workplace's shared/real_logs)")
 
 S_NS = 1_000_000_000
 LIDAR, IMU, WHEEL = "/points", "/imu", "/wheel/odom"
@@ -620,12 +611,11 @@ def test_non_unit_tf_quaternion_warns_only_when_far_from_unit(sim, tmp_path, cap
 
 # ---------------------------------------------------------------- real recordings
 
-@real_logs
-def test_mcap_with_ros1_encoded_messages_is_decoded(capsys):
+def test_mcap_with_ros1_encoded_messages_is_decoded(real_logs, capsys):
     """A bare MCAP whose messages are ROS 1 encoded (profile ros1, an Ouster OS1-64) is decoded like any other
     log: ``info`` describes its 64x2048 cloud (per-point time 't', Ouster), and ``info --check`` decodes both
     clouds and all 17 IMU samples."""
-    log = REAL / "ouster_os1_ros1_mcap" / "os1_64.mcap"
+    log = real_logs / "ouster_os1_ros1_mcap" / "os1_64.mcap"
     rc, out, err = lio(capsys, "info", log, "--json")
     assert rc == 0, err
     scans = {s["topic"]: s for s in json.loads(out)["scans"]}
@@ -639,11 +629,10 @@ def test_mcap_with_ros1_encoded_messages_is_decoded(capsys):
     assert checked["/os1_cloud_node/imu"] == 17
 
 
-@real_logs
-def test_check_with_nothing_checkable_exits_2(capsys):
+def test_check_with_nothing_checkable_exits_2(real_logs, capsys):
     """``info --check`` on a log without one decodable sensor message (only Ouster raw packets) does not pass
     with '0 sensor messages decoded': it says nothing checkable was found (exit 2, one line naming the log)."""
-    log = REAL / "ouster_raw_packets"
+    log = real_logs / "ouster_raw_packets"
     rc, _, err = lio(capsys, "info", log, "--check")
     assert rc == 2
     assert "ouster_raw_packets" in one_line(err)
@@ -662,12 +651,11 @@ def _luminar_first_scan_truth(log: Path) -> tuple[int, int, int]:
     return stamp_ns(msg), int(t.min()), int(t.max())
 
 
-@real_logs
-def test_split_time_fields_are_detected_on_luminar(capsys):
+def test_split_time_fields_are_detected_on_luminar(real_logs, capsys):
     """Per-point time split over ``time_sec`` + ``time_nsec`` (Luminar, absolute) is detected: ``info`` names both
     fields, does not claim azimuth-derived stamps (the scanner does not spin), reports the header at the scan's
     end (it equals the last point's time) and the true span (87.8 ms, within 0.5 ms)."""
-    log = REAL / "luminar_truck" / "luminar.bag"
+    log = real_logs / "luminar_truck" / "luminar.bag"
     header_ns, first_ns, last_ns = _luminar_first_scan_truth(log)
     assert header_ns == last_ns  # the recording's own truth
     rc, out, err = lio(capsys, "info", log, "--json")

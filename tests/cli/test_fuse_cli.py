@@ -15,21 +15,11 @@ from lio_cli.io.trajectory_files import read_tum
 from lio_cli.io.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
-REPO = Path(__file__).resolve().parents[2]
 RL_END = np.array([1.0206, 3.4292, 0.7419])  # robot_localization's test_ekf_localization_node_bag2 end point
 RL_TOL_M = 0.1383
 GPS_SIGMA_M = 1.0  # the simulator's horizontal GPS noise
 
 
-def _real_logs() -> Path:
-    """``../shared/real_logs`` beside the repository (a worktree elsewhere falls back to the workplace's)."""
-    beside = REPO.parent / "shared" / "real_logs"
-    return beside if beside.is_dir() else Path("/work/shared/real_logs")
-
-
-REAL = _real_logs()
-real_logs = pytest.mark.skipif(not REAL.is_dir(), reason=f"real recordings absent: {REAL} does not exist "
-                                                         "(they live in the workplace's shared/real_logs)")
 
 
 @pytest.fixture(scope="module")
@@ -124,18 +114,16 @@ def test_json_summary(capsys, planar, tmp_path):
     assert "gps" not in m["sources"]
 
 
-@real_logs
-def test_jackal_ends_where_robot_localization_does(capsys, tmp_path):
+def test_jackal_ends_where_robot_localization_does(real_logs, capsys, tmp_path):
     out = tmp_path / "jackal.tum"
-    code, _, err = _run(capsys, REAL / "jackal_imu_wheel" / "jackal.bag", "-o", out)
+    code, _, err = _run(capsys, real_logs / "jackal_imu_wheel" / "jackal.bag", "-o", out)
     assert code == 0, err
     _, poses = read_tum(out)
     assert np.linalg.norm(poses[-1, :3, 3] - RL_END) <= RL_TOL_M
 
 
-@real_logs
-def test_groovy_needs_the_xsens_extrinsic_and_then_runs(capsys, tmp_path):
-    log = REAL / "groovy_imu_wheel_stereo" / "groovy.bag"
+def test_groovy_needs_the_xsens_extrinsic_and_then_runs(real_logs, capsys, tmp_path):
+    log = real_logs / "groovy_imu_wheel_stereo" / "groovy.bag"
     code, _, err = _run(capsys, log, "-o", tmp_path / "g.tum")
     assert code == 2 and err.strip() == (
         f"lio: error: {log}: IMU /xsens/imu_data is in frame 'xsens_sensor' and neither /tf_static nor --calib gives "
@@ -149,9 +137,8 @@ def test_groovy_needs_the_xsens_extrinsic_and_then_runs(capsys, tmp_path):
     assert m["extrinsics"]["wheel_twist"].startswith("parent frame")  # this driver's twist is in its odom frame
 
 
-@real_logs
-def test_ardrone_twist_only_runs(capsys, tmp_path):
-    code, _, err = _run(capsys, REAL / "ardrone_twist_only" / "ardrone.bag", "-o", tmp_path / "a.tum", "--rate", 50)
+def test_ardrone_twist_only_runs(real_logs, capsys, tmp_path):
+    code, _, err = _run(capsys, real_logs / "ardrone_twist_only" / "ardrone.bag", "-o", tmp_path / "a.tum", "--rate", 50)
     assert code == 0, err
     m = json.loads((tmp_path / "a.metrics.json").read_text())
     assert m["sources"]["wheel"]["measurements"] == ["velocity"]  # a drone: lateral speed, no wheel constraint

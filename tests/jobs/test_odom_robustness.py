@@ -21,9 +21,6 @@ from lio_cli.io.trajectory_files import read_tum
 from lio_cli.io.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real_logs"
-needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"the real recordings ({REAL}) are not in this checkout's "
-                                                             "workplace; they are never copied into the repository")
 LIDAR_ONLY = ["--prior", "constant-velocity", "--deskew", "constant-velocity"]
 # scenario -> ATE limit (m) for a moving start with the IMU upside down and yawed 90 deg
 MOVING = {"handheld": 0.06, "drive": 0.10, "corridor": 0.15}
@@ -240,18 +237,16 @@ def _config(tmp_path: Path, **fields) -> Path:
 # ---- real recordings ------------------------------------------------------------------------------------
 
 
-@needs_real
-def test_real_velodyne_with_two_scans_and_no_extrinsics(tmp_path, capsys):
-    rc, m = _odom(REAL / "s3e_playground_2", tmp_path / "s3e.tum")
+def test_real_velodyne_with_two_scans_and_no_extrinsics(real_logs, tmp_path, capsys):
+    rc, m = _odom(real_logs / "s3e_playground_2", tmp_path / "s3e.tum")
     assert rc == 0
     assert m["scans"]["used"] == 2 and m["start"]["kind"] == "lidar-only"  # far shorter than the start-up window
     assert m["extrinsics"]["T_base_imu"] == "identity (assumed)"
     assert "no extrinsic T_base_imu (base -> imu_link)" in capsys.readouterr().err
 
 
-@needs_real
-def test_real_ouster_imu_on_another_clock_is_refused_then_runs_with_the_offset(tmp_path, capsys):
-    log = REAL / "ouster_os1_ros1_mcap" / "os1_64.mcap"
+def test_real_ouster_imu_on_another_clock_is_refused_then_runs_with_the_offset(real_logs, tmp_path, capsys):
+    log = real_logs / "ouster_os1_ros1_mcap" / "os1_64.mcap"
     rc, _ = _odom(log, tmp_path / "os1.tum")
     assert rc == 2
     err = capsys.readouterr().err.strip()
@@ -262,9 +257,8 @@ def test_real_ouster_imu_on_another_clock_is_refused_then_runs_with_the_offset(t
     assert m["extrinsics"]["T_base_lidar"].startswith("/tf_static") or m["extrinsics"]["T_base_lidar"] == "identity (assumed)"
 
 
-@needs_real
-def test_real_luminar_truck_needs_its_lidar_topic_and_never_takes_the_unrelated_ground_truth(tmp_path):
-    log = REAL / "luminar_truck" / "luminar.bag"
+def test_real_luminar_truck_needs_its_lidar_topic_and_never_takes_the_unrelated_ground_truth(real_logs, tmp_path):
+    log = real_logs / "luminar_truck" / "luminar.bag"
     rc, m = _odom(log, tmp_path / "lum.tum", "--lidar-topic", "/luminar_pointcloud", *LIDAR_ONLY)
     assert rc == 0
     assert m["topic_roles"]["wheel"]["topic"] is None
