@@ -59,8 +59,7 @@ def load_trajectory(
         return read_log_trajectory(path, topic, required_kind="gt", origin=origin)
     if topic_spec is not None:
         return read_log_trajectory(path, topic_spec, origin=origin)
-    # a pipe (`--gt <(...)`) can be read only once: its text is read here and parsed from memory
-    text = None if path.is_file() else read_text(path)
+    text = read_text(path)  # once: a pipe (`--gt <(...)`) gives its bytes only once
     cols = sniff_columns(path, text)
     if cols == 12:
         poses = read_kitti(path, text)

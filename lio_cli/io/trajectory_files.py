@@ -260,28 +260,10 @@ def read_times(path: str | Path) -> np.ndarray:
     return stamps
 
 
-def sniff_columns(path: str | Path, text: str | None = None) -> int:
-    """Number of values on the first data line of a text trajectory (8 TUM, 12 KITTI); ``text`` as for
-    read_tum (else only the file's first lines are read)."""
-    path = Path(path)
-    try:
-        if text is not None:
-            found = _first_columns(text.splitlines())
-        else:
-            with path.open() as f:
-                found = _first_columns(f)
-    except FileNotFoundError as err:
-        raise InputError(f"{path}: no such file") from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: cannot read ({err})") from err
-    if found is None:
-        raise InputError(f"{path}: no poses in file")
-    return found
-
-
-def _first_columns(lines) -> int | None:
-    for line in lines:
+def sniff_columns(path: str | Path, text: str) -> int:
+    """Number of values on the first data line of a text trajectory (8 TUM, 12 KITTI), ``text`` its content."""
+    for line in text.splitlines():
         line = line.strip()
         if line and not line.startswith("#"):
             return len(line.replace(",", " ").split())
-    return None
+    raise InputError(f"{Path(path)}: no poses in file")

@@ -150,7 +150,8 @@ class LidarPass:
                     if odo is None:
                         arrays.lidar_frame = rec.data.frame_id
                         odo = LioOdometry(ocfg, np.eye(4), use_imu=with_imu, planar=self.planar,
-                                          gyro_bias=None if not with_imu else imu_mounting[2], gyro_only=fused is None)
+                                          gyro_bias=None if not with_imu else imu_mounting[2],
+                                          gyro_only=with_imu and fused is None)
                         if with_imu:
                             odo.set_imu_extrinsic(imu_mounting[0])
                             for b in early:
