@@ -62,29 +62,46 @@ class PoseSpline:
     def at(self, query_ns: np.ndarray) -> np.ndarray:
         """Poses (N,4,4) at ``query_ns``; outside [first, last] by the end segment's velocity."""
         q = np.asarray(query_ns, dtype=np.int64)
-        n = len(self.stamps_ns)
-        if n == 1:
+        if len(self.stamps_ns) == 1:
             return np.repeat(self.poses[:1], len(q), axis=0)
-        out = self._cubic(q) if self.cubic else interpolate_poses(self.stamps_ns, self.poses, q)
-        before, after = q < self.stamps_ns[0], q > self.stamps_ns[-1]
-        if before.any():
-            out[before] = self._extrapolate(q[before], 0)
-        if after.any():
-            out[after] = self._extrapolate(q[after], n - 2)
+        if self.cubic:
+            out = np.zeros((len(q), 4, 4))
+            out[:, :3, :3], out[:, :3, 3] = self._cubic(q, rotations=True)
+            out[:, 3, 3] = 1.0
+        else:
+            out = interpolate_poses(self.stamps_ns, self.poses, q)
+        return self._extrapolated(q, out, rotations=True)
+
+    def positions(self, query_ns: np.ndarray) -> np.ndarray:
+        """The translations (N,3) of ``at(query_ns)``, without the work of the rotations."""
+        q = np.asarray(query_ns, dtype=np.int64)
+        if len(self.stamps_ns) == 1:
+            return np.repeat(self.poses[:1, :3, 3], len(q), axis=0)
+        if self.cubic:
+            out = self._cubic(q, rotations=False)[1]
+        else:
+            out = interpolate_poses(self.stamps_ns, self.poses, q)[:, :3, 3]
+        return self._extrapolated(q, out, rotations=False)
+
+    def _extrapolated(self, q: np.ndarray, out: np.ndarray, rotations: bool) -> np.ndarray:
+        """``out`` (poses, or positions without ``rotations``) with the queries beyond either end replaced by
+        the end segment's constant velocity."""
+        n = len(self.stamps_ns)
+        for beyond, i in ((q < self.stamps_ns[0], 0), (q > self.stamps_ns[-1], n - 2)):
+            if beyond.any():
+                t0, t1 = self.stamps_ns[i], self.stamps_ns[i + 1]
+                a = (q[beyond] - t0).astype(np.float64) / float(t1 - t0)
+                P0, P1 = self.poses[i], self.poses[i + 1]
+                p = P0[:3, 3] + a[:, None] * (P1[:3, 3] - P0[:3, 3])
+                if rotations:
+                    out[beyond, :3, :3] = P0[:3, :3] @ so3_exp(a[:, None] * so3_log(P0[:3, :3].T @ P1[:3, :3]))
+                    out[beyond, :3, 3] = p
+                else:
+                    out[beyond] = p
         return out
 
-    def _extrapolate(self, q: np.ndarray, i: int) -> np.ndarray:
-        """Constant velocity of the segment (i, i+1), continued to ``q``."""
-        t0, t1 = self.stamps_ns[i], self.stamps_ns[i + 1]
-        a = (q - t0).astype(np.float64) / float(t1 - t0)
-        P0, P1 = self.poses[i], self.poses[i + 1]
-        out = np.zeros((len(q), 4, 4))
-        out[:, :3, :3] = P0[:3, :3] @ so3_exp(a[:, None] * so3_log(P0[:3, :3].T @ P1[:3, :3]))
-        out[:, :3, 3] = P0[:3, 3] + a[:, None] * (P1[:3, 3] - P0[:3, 3])
-        out[:, 3, 3] = 1.0
-        return out
-
-    def _cubic(self, q: np.ndarray) -> np.ndarray:
+    def _cubic(self, q: np.ndarray, rotations: bool) -> tuple[np.ndarray | None, np.ndarray]:
+        """(rotations (N,3,3) or None, positions (N,3)) of the Lagrange cubic through the four nearest poses."""
         st, P = self.stamps_ns, self.poses
         n = len(st)
         i = np.clip(np.searchsorted(st, q, side="right") - 1, 0, n - 2)  # the interval holding each query
@@ -97,14 +114,13 @@ class PoseSpline:
             for m in range(4):
                 if m != k:
                     w[:, k] *= (x - nodes[:, m]) / (nodes[:, k] - nodes[:, m])
+        positions = np.einsum("qk,qkj->qj", w, P[idx, :3, 3][which])
+        if not rotations:
+            return None, positions
         R_u = P[uniq, :3, :3]
         rel = np.einsum("uji,ukjl->ukil", R_u, P[idx, :3, :3])  # R_i^T R_k
         phi = so3_log(rel.reshape(-1, 3, 3)).reshape(len(uniq), 4, 3)[which]
-        out = np.zeros((len(q), 4, 4))
-        out[:, :3, :3] = R_u[which] @ so3_exp(np.einsum("qk,qkj->qj", w, phi))
-        out[:, :3, 3] = np.einsum("qk,qkj->qj", w, P[idx, :3, 3][which])
-        out[:, 3, 3] = 1.0
-        return out
+        return R_u[which] @ so3_exp(np.einsum("qk,qkj->qj", w, phi)), positions
 
 
 def sweep_knots(t0_ns: int, t1_ns: int, step_ns: int = KNOT_STEP_NS) -> np.ndarray:
@@ -127,11 +143,12 @@ def gyro_sweep_poses(spline: PoseSpline, imu: ImuBatch, t0_ns: int, t1_ns: int, 
         return None
     knots = np.asarray(prop.stamps_ns, dtype=np.int64)
     R_gyro = prop.poses[:, :3, :3]
-    poses = spline.at(knots)
     k_ref = int(np.argmin(np.abs(knots - t_ref_ns)))
-    R_ref = poses[k_ref, :3, :3] if knots[k_ref] == t_ref_ns else spline.at(np.array([t_ref_ns]))[0, :3, :3]
-    R_anchor = R_ref @ R_gyro[k_ref].T
-    poses[:, :3, :3] = R_anchor @ R_gyro
+    R_ref = spline.at(np.array([t_ref_ns]))[0, :3, :3]
+    poses = np.zeros((len(knots), 4, 4))
+    poses[:, :3, :3] = (R_ref @ R_gyro[k_ref].T) @ R_gyro  # anchored at the reference instant
+    poses[:, :3, 3] = spline.positions(knots)
+    poses[:, 3, 3] = 1.0
     return knots, poses
 
 
