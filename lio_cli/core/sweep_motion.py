@@ -64,6 +64,9 @@ class PoseSpline:
         q = np.asarray(query_ns, dtype=np.int64)
         if len(self.stamps_ns) == 1:
             return np.repeat(self.poses[:1], len(q), axis=0)
+        j = np.minimum(np.searchsorted(self.stamps_ns, q), len(self.stamps_ns) - 1)
+        if np.all(self.stamps_ns[j] == q):  # at the poses themselves (a scan's own stamp): nothing to interpolate
+            return self.poses[j].copy()
         if self.cubic:
             out = np.zeros((len(q), 4, 4))
             out[:, :3, :3], out[:, :3, 3] = self._cubic(q, rotations=True)

@@ -54,6 +54,7 @@ def test_a_constant_twist_is_reproduced_exactly_inside_and_beyond_the_ends():
     for mode in (spline, PoseSpline(stamps, _screw(stamps * 1e-9), cubic=False)):
         np.testing.assert_allclose(mode.at(q), _screw(q * 1e-9), atol=EXACT)
         np.testing.assert_allclose(mode.positions(q), _screw(q * 1e-9)[:, :3, 3], atol=EXACT)  # the same, cheaper
+        np.testing.assert_array_equal(mode.at(stamps[[4, 1]]), _screw(stamps[[4, 1]] * 1e-9))  # the poses as given
     one = PoseSpline(stamps[:1], _screw(stamps[:1] * 1e-9))
     np.testing.assert_array_equal(one.positions(q), np.repeat(_screw(0.0)[:, :3, 3], len(q), axis=0))
 
