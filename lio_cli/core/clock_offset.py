@@ -3,7 +3,9 @@
 Registration poses carry the LiDAR's timing; the gyro its own. Over a window of healthy IMU-primed scans the
 rotation increments of the registered poses are aligned in time with the gyro (``calibration.time_offset``),
 and an offset that is clearly there and sharply determined is applied to every later IMU sample. Windows
-without enough rotation to time anything are simply skipped. (The rotation the alignment finds alongside is
+without enough rotation to time anything are simply skipped. After the last scan one closing estimate over
+the poses left measures what the rounds left (``estimate_s``): too late for the online run, in time for an
+offline pass over the same log. (The rotation the alignment finds alongside is
 not used to judge the extrinsic: a vehicle turning about one axis leaves it undetermined about that axis.)
 """
 
@@ -16,11 +18,12 @@ import numpy as np
 from ..errors import InputError
 from .calibration.time_offset import estimate_time_offset
 
-WINDOW_S = 5.0  # registration poses per estimate
+WINDOW_S = 2.5  # registration poses per estimate (each round finds about half of what is left: short rounds converge sooner)
 MAX_OFFSET_S = 0.1  # larger offsets are a clock mismatch, refused before the run
 APPLY_SIGMA_S = 0.002  # apply only a sharply determined offset...
 APPLY_MIN_S = 0.001  # ...that is clearly there (and at least 3 sigma)
-ROUNDS = 6  # estimates at most (each later one measures what the earlier left)
+ROUNDS = 10  # estimates at most (each later one measures what the earlier left)
+FINAL_WINDOW_S = 2.3  # the closing estimate over the poses the last round left (its overlap with the IMU: >= 2 s)
 
 
 @dataclass
@@ -28,6 +31,7 @@ class ClockOffsetTracker:
     """Collects registration poses (T_world_lidar) and gyro samples; proposes offset corrections."""
 
     applied_s: float = 0.0  # total correction applied so far
+    residual_s: float = 0.0  # measured (>= 3 sigma) but not applied: too small to apply online, or after the last scan
     estimates: list[dict] = field(default_factory=list)
     _stamps: list[int] = field(default_factory=list)
     _poses: list[np.ndarray] = field(default_factory=list)
@@ -53,10 +57,28 @@ class ClockOffsetTracker:
         """Forget the window (a lost track or a time gap breaks it)."""
         self._stamps, self._poses, self._imu_stamps, self._gyro = [], [], [], []
 
+    @property
+    def estimate_s(self) -> float:
+        """The offset as measured by the end: what was applied plus a residual measured but not applied."""
+        return self.applied_s + self.residual_s
+
+    def close(self, gyro_bias_radps: np.ndarray, at_scan: int) -> None:
+        """After the last scan: one more estimate over the window left (at least ``FINAL_WINDOW_S``). Nothing is
+        applied any more; a sharply determined residual joins ``estimate_s`` (an offline pass over the log,
+        as ``lio deskew``'s, uses it)."""
+        if not self.done:
+            self._measure(gyro_bias_radps, at_scan, FINAL_WINDOW_S, final=True)
+            self._rounds = ROUNDS
+
     def propose(self, gyro_bias_radps: np.ndarray, at_scan: int) -> int:
         """Nanoseconds to add to every later IMU stamp (0: nothing to apply, or the window is not full yet)."""
-        if self.done or len(self._stamps) < 3 or (self._stamps[-1] - self._stamps[0]) * 1e-9 < WINDOW_S:
-            return 0
+        offset = self._measure(gyro_bias_radps, at_scan, WINDOW_S, final=False)
+        return 0 if offset is None else int(round(offset * 1e9))
+
+    def _measure(self, gyro_bias_radps: np.ndarray, at_scan: int, window_s: float, final: bool) -> float | None:
+        """The offset to apply from the window collected (None: nothing to apply, or the window is short)."""
+        if self.done or len(self._stamps) < 3 or (self._stamps[-1] - self._stamps[0]) * 1e-9 < window_s:
+            return None
         stamps, poses = np.asarray(self._stamps, dtype=np.int64), np.stack(self._poses)
         imu_stamps, gyro = np.concatenate(self._imu_stamps), np.concatenate(self._gyro)
         self.reset()
@@ -70,14 +92,18 @@ class ClockOffsetTracker:
                                            max_offset_s=MAX_OFFSET_S)
         except InputError as err:  # not enough rotation in this window to time anything: try the next one
             self.estimates.append({"scan": at_scan, "applied": False, "reason": str(err).split(";")[0]})
-            return 0
+            return None
         offset, sigma = est.imu_time_offset_s, est.sigma_s
-        apply = sigma <= APPLY_SIGMA_S and abs(offset) >= max(APPLY_MIN_S, 3.0 * sigma)
-        self.estimates.append({"scan": at_scan, "offset_s": round(offset, 6), "sigma_s": round(sigma, 6),
-                               "applied": bool(apply)})
+        sharp = sigma <= APPLY_SIGMA_S and abs(offset) >= 3.0 * sigma  # clearly there and sharply determined
+        apply = sharp and abs(offset) >= APPLY_MIN_S and not final
+        entry = {"scan": at_scan, "offset_s": round(offset, 6), "sigma_s": round(sigma, 6), "applied": bool(apply)}
+        self.estimates.append({**entry, "final": True} if final else entry)
         if not apply:
-            if abs(offset) < max(APPLY_MIN_S, 3.0 * sigma) and sigma <= APPLY_SIGMA_S:
-                self._rounds = ROUNDS  # the clocks agree: nothing left to measure
-            return 0
+            if sigma <= APPLY_SIGMA_S:
+                self.residual_s = offset if sharp else 0.0
+                if not final and abs(offset) < APPLY_MIN_S and 3.0 * sigma < APPLY_MIN_S:
+                    self._rounds = ROUNDS  # the clocks agree to under a millisecond: nothing left to apply
+            return None
+        self.residual_s = 0.0
         self.applied_s += offset
-        return int(round(offset * 1e9))
+        return offset

@@ -130,6 +130,11 @@ class LioOdometry(StateUpdates, Restart):
         if self.clock is not None:
             self.clock.add_imu(batch.stamps_ns, batch.gyro_radps)
 
+    def close_clock(self) -> None:
+        """The clock tracker's closing estimate, once every scan is done (see ``ClockOffsetTracker.close``)."""
+        if self.clock is not None and self.state is not None:
+            self.clock.close(self.state.bg, self.stats.scans)
+
     def _shift_imu(self, delta_ns: int) -> None:
         """Move every IMU sample, buffered and to come, by ``delta_ns`` onto the LiDAR's clock."""
         self._shift_ns += delta_ns

@@ -4,7 +4,7 @@ Three sources, each ending in a ``PoseSpline`` of the base:
 - ``trajectory``: a trajectory file or topic (``--trajectory``, e.g. lio odom's), interpolated (cubic by
   default); a sweep it does not cover (beyond 1 ms of slack at its ends) is reported, not extrapolated;
 - ``imu``: lio's IMU-primed odometry run in-process (a first pass over the log) gives the corrected pose at
-  every scan's end, the gyro bias and the IMU clock offset (the calibration's plus what it estimated online);
+  every scan's end, the gyro bias and the IMU clock offset (the calibration's plus what it measured by its last scan);
   within each sweep the rotation is integrated from the gyro and the
   translation follows the cubic through the scan poses (extrapolated by at most one scan interval at the
   log's ends, which is how the first scan is covered);
@@ -231,8 +231,8 @@ def odometry_motion(log: Path, cfg: DeskewConfig, source: str, imu_topic: str | 
         bias = cal if cal is not None else [0.0, 0.0, 0.0]
         details["notes"].append("the odometry never started its IMU state: the gyro bias is taken as "
                                 f"{'the calibration' if cal is not None else 'zero'}")
-    clock = m.get("imu_time_offset")  # the calibration's offset plus what the odometry estimated online
-    offset_s = clock["total_s"] if clock else cfg.calibration.imu_time_offset_s
+    clock = m.get("imu_time_offset")  # the calibration's offset plus what the odometry measured by its end
+    offset_s = clock["estimated_s"] if clock else cfg.calibration.imu_time_offset_s
     details["imu_time_offset_s"] = offset_s
     window = ImuWindow(log, cfg.input.format, imu_topic, int(round(offset_s * 1e9)))
     return Motion("imu", f"IMU: gyro rotation within each sweep (bias from lio's IMU-primed odometry), translation "

@@ -106,6 +106,7 @@ class _OdomRun:
         if not self.odo.poses:
             raise InputError(f"{self.reader.path}: {inputs.lidar}: no scan could be used (all had fewer than "
                              f"{cfg.registration.min_points} valid points)")
+        self.odo.close_clock()
         return self._result()
 
     def _feed(self) -> None:
@@ -212,12 +213,14 @@ class _OdomRun:
 
 
 def _clock_summary(odo: LioOdometry, cfg: OdomConfig) -> dict | None:
-    """The IMU clock offset used: the calibration's plus what was estimated online."""
+    """The IMU clock offset used (the calibration's plus what was applied online) and as measured by the end
+    (``estimated_s``: plus a residual measured too late or too small to apply)."""
     if odo.clock is None:
         return None
     given = cfg.calibration.imu_time_offset_s
     return {"calibration_s": given, "estimated_online_s": round(odo.clock.applied_s, 6),
-            "total_s": round(given + odo.clock.applied_s, 6), "estimates": odo.clock.estimates}
+            "total_s": round(given + odo.clock.applied_s, 6), "estimated_s": round(given + odo.clock.estimate_s, 6),
+            "estimates": odo.clock.estimates}
 
 
 def _start_summary(odo: LioOdometry, with_imu: bool) -> dict:
