@@ -14,7 +14,7 @@ chi-square gate (``FuseOptions.gate_probability``); rejections are counted per s
 
 from __future__ import annotations
 
-import math
+from functools import partial
 
 import numpy as np
 
@@ -52,6 +52,7 @@ class Ekf3d:
         self.q = ProcessNoise(self.L, self.noise)
         self.cover_starts = [a for a, _ in prep.coverage]
         self.cover_ends = [b for _, b in prep.coverage]
+        self.gappy = len(prep.coverage) > 1  # only then can a step fall between covered stretches
         self.g = np.array([0.0, 0.0, -options.gravity_mps2])
         self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
@@ -60,13 +61,15 @@ class Ekf3d:
         # per-sample values as Python floats: the loop reads them one sample at a time
         self.imu_w = prep.imu_w_b.tolist() if imu is not None else []
         self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
+        self.imu_mid = step3d.interval_midpoints(imu.stamps_ns, prep.imu_w_b, prep.imu_f_b) if imu is not None else None
+        self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
         self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
-        self.inject = lambda x, dx: step3d.boxplus(x, dx, self.L)
+        self.inject = partial(step3d.boxplus, L=self.L)
         self.update = step3d.Updater(self.gate, self.inject)
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
@@ -75,7 +78,8 @@ class Ekf3d:
         self._H_velocity = [np.zeros((m, self.L.n)) for m in range(4)]
         w = prep.wheel
         if w is not None:
-            self.wheel_v, self.wheel_var = w.velocity_mps.tolist(), w.velocity_var.tolist()
+            self.wheel_rows = step3d.wheel_velocity_rows(w.velocity_mps, w.velocity_var, prep.use["wheel"],
+                                                         self.noise.nonholonomic_sigma_mps**2)
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
@@ -114,6 +118,8 @@ class Ekf3d:
         i, st = self.ii, self.imu_list
         if i < 0:
             return None
+        if t_a == st[i] and i + 1 < len(st) and t_b == st[i + 1] and t_b - t_a <= self.imu_gap:
+            return self.imu_mid[0][i], self.imu_mid[1][i]  # the whole interval: its midpoint, worked out once
         if i + 1 >= len(st) or st[i + 1] - st[i] > self.imu_gap or t_b > st[i + 1]:
             if t_a == t_b == st[i]:
                 return self.imu_w[i], self.imu_f[i]
@@ -128,7 +134,7 @@ class Ekf3d:
         """Predict x and P (in place) from t_a to t_b."""
         dt = (t_b - t_a) * 1e-9
         L = self.L
-        if in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data in [t_a, t_b]
+        if self.gappy and in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data there
             F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
         elif L.model == "cv":
             F, q = cv_step(x, dt, L), self.q(dt)
@@ -160,21 +166,10 @@ class Ekf3d:
                 self.Phi = np.eye(self.L.n)
 
     def _wheel(self, t: int, i: int, x, P) -> None:
-        w, use, nz = self.prep.wheel, self.prep.use["wheel"], self.noise
-        vel, vvar = self.wheel_v[i], self.wheel_var[i]
-        comps, z, var = [], [], []
-        if "velocity" in use:
-            for c in range(3):
-                if math.isfinite(vel[c]):
-                    comps.append(c), z.append(vel[c]), var.append(vvar[c])
-        if "speed" in use and math.isfinite(vel[0]):
-            for c in range(3):
-                if c not in comps:
-                    comps.append(c)
-                    z.append(vel[0] if c == 0 else 0.0)
-                    var.append(vvar[0] if c == 0 else nz.nonholonomic_sigma_mps**2)
-        if comps:
-            self._body_velocity(t, x, P, comps, z, var)
+        w, use = self.prep.wheel, self.prep.use["wheel"]
+        row = self.wheel_rows[i]
+        if row is not None:
+            self._body_velocity(t, x, P, *row)
         if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
@@ -231,7 +226,7 @@ class Ekf3d:
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
         self._open(t, x, P)
-        r, Rn = step3d.orientation(x, self.prep.imu_R_wb[i], self.prep.imu.orientation_cov[i])
+        r, Rn = step3d.orientation(x, self.imu_R[i], self.prep.imu.orientation_cov[i])
         S = (P[TH, TH] + Rn).tolist()
         status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
         self.prep.reports["imu"].outcome("orientation", status)

@@ -9,6 +9,7 @@ knot. That is exactly what a Rauch-Tung-Striebel pass needs.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -30,15 +31,17 @@ class Gate:
 
     def __init__(self, probability: float, max_rejects: int):
         self.thr = chi2_thresholds(probability)
+        self._thr = self.thr.tolist()  # Python floats: checked once per update in the filter loop
+        self._last = len(self._thr) - 1
         self.max_rejects = max_rejects
         self.streak: dict[str, int] = {}
 
     def check(self, kind: str, d2: float, m: int, allow_reset: bool = True) -> tuple[bool, bool]:
         """(accept, was_reset). ``allow_reset=False`` for measurements that disagree with a sensor rather
         than with the state (a wheel yaw rate against the gyro): those are never forced in."""
-        if not np.isfinite(d2):
+        if not math.isfinite(d2):
             return False, False
-        if d2 <= self.thr[min(m, len(self.thr) - 1)]:
+        if d2 <= self._thr[m if m < self._last else self._last]:
             self.streak[kind] = 0
             return True, False
         n = self.streak.get(kind, 0) + 1

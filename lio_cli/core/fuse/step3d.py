@@ -54,10 +54,22 @@ class InsPredictor:
             m * f0, m * f1, m * f2, m * f3, m * f4, m * f5, m * f6, m * f7, m * f8,
             m * r0, m * r1, m * r2, m * r3, m * r4, m * r5, m * r6, m * r7, m * r8,
             m, m, m, dt, dt, dt)
-        x[:9] = mul3((r0, r1, r2, r3, r4, r5, r6, r7, r8), (d0, d1, d2, d3, d4, d5, d6, d7, d8))
-        x[9:15] = (px + (vx + hd * gx) * dt, py + (vy + hd * gy) * dt, pz + (vz + hd * gz) * dt,
-                   vx + gx * dt, vy + gy * dt, vz + gz * dt)
+        x[:15] = mul3((r0, r1, r2, r3, r4, r5, r6, r7, r8), (d0, d1, d2, d3, d4, d5, d6, d7, d8)) + (
+            px + (vx + hd * gx) * dt, py + (vy + hd * gy) * dt, pz + (vz + hd * gz) * dt,
+            vx + gx * dt, vy + gy * dt, vz + gz * dt)
         return self.F
+
+
+def interval_midpoints(stamps_ns: np.ndarray, w: np.ndarray, f: np.ndarray
+                       ) -> tuple[list[list[float]], list[list[float]]]:
+    """Rate and specific force at the midpoint of each IMU interval [t_i, t_i+1], linearly interpolated by the
+    same float operations as ``Ekf3d._imu_at`` (numpy does them elementwise in the same order: equal
+    bits), once for the whole series instead of once per filter step."""
+    st = np.asarray(stamps_ns, np.int64)
+    if len(st) < 2:
+        return [], []
+    a = ((0.5 * (st[:-1] + st[1:]) - st[:-1]) / (st[1:] - st[:-1]))[:, None]
+    return (w[:-1] + a * (w[1:] - w[:-1])).tolist(), (f[:-1] + a * (f[1:] - f[:-1])).tolist()
 
 
 def mul3(a, b) -> tuple[float, ...]:
@@ -79,25 +91,63 @@ def body_velocity(x: np.ndarray, z: list[float], comps: list[int], H: np.ndarray
     beyond its two blocks) gets the rows on dtheta ([vb]x) and dv (R^T)."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15].tolist()
     vb = (r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz)
-    skew = ((0.0, -vb[2], vb[1]), (vb[2], 0.0, -vb[0]), (-vb[1], vb[0], 0.0))
-    rt = ((r0, r3, r6), (r1, r4, r7), (r2, r5, r8))
-    H[:, 0:3] = [skew[c] for c in comps]
-    H[:, 6:9] = [rt[c] for c in comps]
+    rows = ((0.0, -vb[2], vb[1], 0.0, 0.0, 0.0, r0, r3, r6), (vb[2], 0.0, -vb[0], 0.0, 0.0, 0.0, r1, r4, r7),
+            (-vb[1], vb[0], 0.0, 0.0, 0.0, 0.0, r2, r5, r8))  # [vb]x and R^T, dp between them untouched
+    H[:, 0:9] = [rows[c] for c in comps]
     return [z[k] - vb[c] for k, c in enumerate(comps)]
 
 
-def orientation(x: np.ndarray, R_meas: np.ndarray, cov_world: np.ndarray) -> tuple[tuple[float, ...], np.ndarray]:
+def wheel_velocity_rows(vel: np.ndarray, var: np.ndarray, use: set[str], nonholonomic_var: float
+                        ) -> list[tuple[tuple[int, ...], list[float], list[float]] | None]:
+    """Per wheel message, the base-velocity components it measures (``comps``, values ``z``, variances), or
+    None: with ``velocity`` each finite component as measured; with ``speed`` the forward speed and zero
+    lateral and vertical speed (the non-holonomic constraint) for components ``velocity`` did not give. Worked
+    out once for the whole series (the usual all-finite messages by numpy), not per filter step."""
+    vel_l, var_l = vel.tolist(), var.tolist()
+    fin = np.isfinite(vel)
+    full = fin.all(axis=1).tolist()
+    rows: list = []
+    for v, vv, ok in zip(vel_l, var_l, full):
+        if ok and "velocity" in use:
+            rows.append(((0, 1, 2), v, vv))
+        elif ok and "speed" in use:
+            rows.append(((0, 1, 2), [v[0], 0.0, 0.0], [vv[0], nonholonomic_var, nonholonomic_var]))
+        else:
+            rows.append(_wheel_row(v, vv, use, nonholonomic_var))
+    return rows
+
+
+def _wheel_row(vel: list[float], vvar: list[float], use: set[str], nonholonomic_var: float):
+    comps, z, var = [], [], []
+    if "velocity" in use:
+        for c in range(3):
+            if math.isfinite(vel[c]):
+                comps.append(c), z.append(vel[c]), var.append(vvar[c])
+    if "speed" in use and math.isfinite(vel[0]):
+        for c in range(3):
+            if c not in comps:
+                comps.append(c)
+                z.append(vel[0] if c == 0 else 0.0)
+                var.append(vvar[0] if c == 0 else nonholonomic_var)
+    return (tuple(comps), z, var) if comps else None
+
+
+def orientation(x: np.ndarray, R_meas: list[float], cov_world: np.ndarray) -> tuple[tuple[float, ...], np.ndarray]:
     """``measure3d.orientation`` without its H (a selection of dtheta): (residual ``log(R^T R_meas)``, noise
-    ``R^T cov_world R``)."""
+    ``R^T cov_world R``); ``R_meas`` row-major as 9 floats."""
     Rt = x[:9].reshape(3, 3).T
-    return so3_log_scalars(Rt.dot(R_meas).ravel().tolist()), Rt.dot(cov_world).dot(Rt.T)
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = x[:9].tolist()
+    return so3_log_scalars(mul3((r0, r3, r6, r1, r4, r7, r2, r5, r8), R_meas)), Rt.dot(cov_world).dot(Rt.T)
 
 
 def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:
-    """``state3d.boxplus``: inject an error-state correction into ``x`` in place."""
+    """``state3d.boxplus``: inject an error-state correction into ``x`` in place (the rotation, p, v and the
+    biases read and written back in one go)."""
     d = dx.tolist()
-    rotate_right(x, 0, d[0], d[1], d[2])
-    x[9:9 + L.core - 3] += dx[3:L.core]
+    end = 6 + L.core  # x[9:end] (p, v, b (, ba)) += d[3:core]
+    s = x[:end].tolist()
+    x[:end] = mul3(s[:9], so3_exp_scalars(d[0], d[1], d[2])) + tuple(
+        [a + b for a, b in zip(s[9:end], d[3:L.core])])
     if L.clone:
         c = L.core
         rotate_right(x, 21, d[c], d[c + 1], d[c + 2])

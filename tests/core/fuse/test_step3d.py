@@ -84,7 +84,36 @@ def test_measurement_kernels_equal_the_measurement_models():
         R_meas, A = so3_exp(rng.normal(size=3)), rng.normal(size=(3, 3))
         cov = A @ A.T
         r_ref, H_ref, Rn_ref = m3.orientation(x, R_meas, cov, L)
-        r, Rn = step3d.orientation(x, R_meas, cov)
+        r, Rn = step3d.orientation(x, R_meas.ravel().tolist(), cov)
         np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
         np.testing.assert_allclose(Rn, Rn_ref, rtol=0, atol=TOL * 10)
         assert (H_ref[:, 0:3] == np.eye(3)).all() and not H_ref[:, 3:].any()  # the selection _orientation assumes
+
+
+def test_wheel_rows_of_whole_messages_equal_the_per_message_rule():
+    rng = np.random.default_rng(9)
+    vel, var = rng.normal(size=(40, 3)), rng.uniform(0.01, 0.1, (40, 3))
+    vel[::3, 1] = np.nan  # a lateral speed missing now and then
+    vel[::7, 0] = np.nan  # and the forward speed
+    for use in ({"velocity"}, {"speed"}, {"velocity", "speed"}):
+        rows = step3d.wheel_velocity_rows(vel, var, use, 0.04)
+        for row, v, vv in zip(rows, vel.tolist(), var.tolist()):
+            want = step3d._wheel_row(v, vv, use, 0.04)
+            assert (row is None) == (want is None)
+            if row is not None:
+                assert tuple(row[0]) == want[0] and list(row[1]) == want[1] and list(row[2]) == want[2]
+    rows = step3d.wheel_velocity_rows(vel, var, {"speed"}, 0.04)
+    assert rows[1] == ((0, 1, 2), [vel[1, 0], 0.0, 0.0], [var[1, 0], 0.04, 0.04])  # the non-holonomic rule
+    assert rows[0] is None  # no forward speed: nothing to say with speed alone
+
+
+def test_interval_midpoints_equal_the_interpolation_of_the_filter():
+    rng = np.random.default_rng(10)
+    st = 1_300_000_000_000_000_000 + np.cumsum(rng.integers(4_000_000, 6_000_000, 30))  # epoch ns: float rounding
+    w, f = rng.normal(size=(30, 3)), rng.normal(size=(30, 3))
+    mid_w, mid_f = step3d.interval_midpoints(st, w, f)
+    for i in range(29):
+        a, b = int(st[i]), int(st[i + 1])
+        t = (0.5 * (a + b) - a) / (b - a)
+        assert mid_w[i] == [w[i, k] + t * (w[i + 1, k] - w[i, k]) for k in range(3)]
+        assert mid_f[i] == [f[i, k] + t * (f[i + 1, k] - f[i, k]) for k in range(3)]
