@@ -4,6 +4,8 @@ its exact line, the resolved config repeating the run, chunked runs matching who
 
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 import pytest
 
@@ -27,6 +29,7 @@ def test_straight_line_ends_where_speed_times_time_says(fuse_logs):
     assert run.trajectory.stamps_ns[-1] - run.trajectory.stamps_ns[0] == 5 * 10**9
     assert len(run.trajectory) == 501  # every IMU sample at 100 Hz
     assert "moving start at constant velocity" in run.metrics["start"]
+    assert gc.isenabled()  # the run pauses the cyclic collector and switches it back on
 
 
 def test_circle_follows_the_unicycle_and_closes(fuse_logs):
@@ -121,6 +124,7 @@ def test_no_motion_source(fuse_logs):
     log = fuse_logs.write(imu=False, wheel=None, gps_hz=5.0)
     with pytest.raises(InputError) as err:
         run_fuse(FuseJob(log))
+    assert gc.isenabled()  # back on after a refused run too
     assert str(err.value) == (f"{log}: no motion source: no IMU or wheel odometry topic found and no odometry given "
                               "(GPS alone cannot be fused); give --odom FILE, --odom-topic, --imu-topic or --wheel-topic")
 
