@@ -19,6 +19,7 @@ import numpy as np
 _U32 = struct.Struct("<I")
 _BLOCK = 65_536  # index entries turned into Python values at a time
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
+KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 
 
 def _op(buf: bytes, start: int, end: int) -> int:
@@ -56,20 +57,32 @@ def _entries(reader, connections: list) -> Iterator[tuple[int, int, int, object]
             yield t, c, o, connections[k]
 
 
-def messages(reader, connections: list) -> Iterator[tuple[object, int, bytes]]:
+def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
+             ) -> Iterator[tuple[object, int, bytes]]:
     """(connection, record time ns, serialised message) of ``connections`` (rosbags connections of the one
-    ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)`` yields them."""
+    ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)`` yields them.
+
+    ``chunks`` (chunk position -> decompressed bytes, the last ``KEEP_CHUNKS``) may be kept by the caller
+    across calls: messages in record-time order go back and forth between neighbouring chunks whose times
+    overlap, and a peek at a topic's first messages opens the chunks the full read opens next; each is
+    decompressed once (bz2 is most of the reading time)."""
     unpack = _U32.unpack_from
     chunk_pos, buf = -1, b""
     bio = reader.bio
+    chunks = {} if chunks is None else chunks
     for t_ns, pos_c, offset, conn in _entries(reader, connections):
         if pos_c != chunk_pos:
-            chunk = reader.chunks[pos_c]
-            bio.seek(chunk.datapos)
-            raw = bio.read(chunk.datasize)
-            if len(raw) != chunk.datasize:
-                raise ValueError("chunk truncated")
-            buf, chunk_pos = chunk.decompressor(raw), pos_c
+            buf = chunks.get(pos_c)
+            if buf is None:
+                chunk = reader.chunks[pos_c]
+                bio.seek(chunk.datapos)
+                raw = bio.read(chunk.datasize)
+                if len(raw) != chunk.datasize:
+                    raise ValueError("chunk truncated")
+                buf = chunks[pos_c] = chunk.decompressor(raw)
+                if len(chunks) > KEEP_CHUNKS:
+                    del chunks[next(iter(chunks))]  # the oldest decompressed
+            chunk_pos = pos_c
         pos = offset
         while True:
             (hlen,) = unpack(buf, pos)

@@ -25,6 +25,7 @@ class RosbagsLog(LogReader):
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
         self._conn_cache: dict[int, LogConnection] = {}  # id(rosbags connection) -> its LogConnection
+        self._chunks: dict[int, bytes] = {}  # a ROS 1 bag's last decompressed chunks (bag1_raw.messages)
         from rosbags.highlevel import AnyReader, AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
@@ -82,7 +83,7 @@ class RosbagsLog(LogReader):
         if self.format == "ros1" and len(readers) == 1:  # one bag: its chunks sliced directly (same messages)
             from .bag1_raw import messages
 
-            return messages(readers[0], conns)
+            return messages(readers[0], conns, self._chunks)
         return self._reader.messages(connections=conns)
 
     def _iter_raw(self, topics: set[str] | None):
