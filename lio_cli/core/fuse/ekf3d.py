@@ -63,6 +63,7 @@ class Ekf3d:
         self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
         self.imu_mid = step3d.interval_midpoints(imu.stamps_ns, prep.imu_w_b, prep.imu_f_b) if imu is not None else None
         self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
+        self.imu_R_iso = step3d.isotropic_covariances(imu.orientation_cov) if self.imu_R is not None else None
         self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
@@ -226,7 +227,7 @@ class Ekf3d:
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
         self._open(t, x, P)
-        r, Rn = step3d.orientation(x, self.imu_R[i], self.prep.imu.orientation_cov[i])
+        r, Rn = step3d.orientation(x, self.imu_R[i], self.prep.imu.orientation_cov[i], self.imu_R_iso[i])
         S = (P[TH, TH] + Rn).tolist()
         status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
         self.prep.reports["imu"].outcome("orientation", status)

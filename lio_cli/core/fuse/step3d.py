@@ -132,12 +132,23 @@ def _wheel_row(vel: list[float], vvar: list[float], use: set[str], nonholonomic_
     return (tuple(comps), z, var) if comps else None
 
 
-def orientation(x: np.ndarray, R_meas: list[float], cov_world: np.ndarray) -> tuple[tuple[float, ...], np.ndarray]:
+def orientation(x: np.ndarray, R_meas: list[float], cov_world: np.ndarray, isotropic: bool = False
+                ) -> tuple[tuple[float, ...], np.ndarray]:
     """``measure3d.orientation`` without its H (a selection of dtheta): (residual ``log(R^T R_meas)``, noise
-    ``R^T cov_world R``); ``R_meas`` row-major as 9 floats."""
-    Rt = x[:9].reshape(3, 3).T
+    ``R^T cov_world R``); ``R_meas`` row-major as 9 floats. ``isotropic``: ``cov_world`` is ``c I``, which
+    every rotation leaves as it is (``isotropic_covariances``)."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = x[:9].tolist()
-    return so3_log_scalars(mul3((r0, r3, r6, r1, r4, r7, r2, r5, r8), R_meas)), Rt.dot(cov_world).dot(Rt.T)
+    r = so3_log_scalars(mul3((r0, r3, r6, r1, r4, r7, r2, r5, r8), R_meas))
+    if isotropic:
+        return r, cov_world
+    Rt = x[:9].reshape(3, 3).T
+    return r, Rt.dot(cov_world).dot(Rt.T)
+
+
+def isotropic_covariances(cov: np.ndarray) -> list[bool]:
+    """Per 3x3 covariance of ``cov`` (N,3,3): exactly ``c I`` (the usual IMU driver's orientation covariance)."""
+    c = np.asarray(cov)[:, 0, 0]
+    return (cov == c[:, None, None] * np.eye(3)).all(axis=(1, 2)).tolist()
 
 
 def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:

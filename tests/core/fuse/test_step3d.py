@@ -87,6 +87,12 @@ def test_measurement_kernels_equal_the_measurement_models():
         r, Rn = step3d.orientation(x, R_meas.ravel().tolist(), cov)
         np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
         np.testing.assert_allclose(Rn, Rn_ref, rtol=0, atol=TOL * 10)
+        iso = np.eye(3) * rng.uniform(1e-3, 1e-1)  # a usual driver's covariance: no rotation changes it
+        assert step3d.isotropic_covariances(np.stack([cov, iso, iso + 1e-9 * np.eye(3)[::-1]])) == [False, True, False]
+        r_ref, _, Rn_ref = m3.orientation(x, R_meas, iso, L)
+        r, Rn = step3d.orientation(x, R_meas.ravel().tolist(), iso, isotropic=True)
+        np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
+        np.testing.assert_allclose(Rn, Rn_ref, rtol=1e-14, atol=1e-15 * iso[0, 0])  # R^T R = I to rounding
         assert (H_ref[:, 0:3] == np.eye(3)).all() and not H_ref[:, 3:].any()  # the selection _orientation assumes
 
 
