@@ -35,11 +35,12 @@ def _op(buf: bytes, start: int, end: int) -> int:
     raise ValueError("record header without op")
 
 
-def _entries(reader, connections: list) -> Iterator[tuple[int, int, int, object]]:
-    """(time, chunk position, offset in chunk, connection) of every index entry in the order rosbags'
-    ``heapq.merge`` of its index lists gives (its entries compare by time only: equal times come connection
-    by connection in the order asked, each in its index order), i.e. a stable sort by time. Held as three int64 and one int32 per entry (28 bytes, not a
-    tuple's ~100: rosbags' own index already grows with the log) and handed out a block at a time."""
+def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int, int]]]:
+    """Blocks of (time, chunk position, offset in chunk, index of the connection in ``connections``) of every
+    index entry in the order rosbags' ``heapq.merge`` of its index lists gives (its entries compare by time
+    only: equal times come connection by connection in the order asked, each in its index order), i.e. a
+    stable sort by time. Held as three int64 and one int32 per entry (28 bytes, not a tuple's ~100: rosbags'
+    own index already grows with the log) and turned into Python values a block at a time."""
     parts = [(k, reader.indexes[conn.id]) for k, conn in enumerate(connections)]
     n = sum(len(idx) for _, idx in parts)
     cols = np.empty((3, n), dtype=np.int64)
@@ -53,8 +54,7 @@ def _entries(reader, connections: list) -> Iterator[tuple[int, int, int, object]
     order = np.argsort(cols[0], kind="stable")
     for lo in range(0, n, _BLOCK):
         sel = order[lo:lo + _BLOCK]
-        for t, c, o, k in zip(*(cols[:, sel].tolist()), which[sel].tolist()):
-            yield t, c, o, connections[k]
+        yield zip(*(cols[:, sel].tolist()), which[sel].tolist())
 
 
 def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
@@ -70,7 +70,7 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
     chunk_pos, buf = -1, b""
     bio = reader.bio
     chunks = {} if chunks is None else chunks
-    for t_ns, pos_c, offset, conn in _entries(reader, connections):
+    for t_ns, pos_c, offset, k in chain.from_iterable(_entries(reader, connections)):
         if pos_c != chunk_pos:
             buf = chunks.get(pos_c)
             if buf is None:
@@ -95,4 +95,4 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
             pos = d0 + dlen
         if op != _OP_MSGDATA or d0 + dlen > len(buf):
             raise ValueError("expected message data in the bag chunk")
-        yield conn, t_ns, buf[d0:d0 + dlen]
+        yield connections[k], t_ns, buf[d0:d0 + dlen]

@@ -160,7 +160,7 @@ class _Bulk:
         if self.child and (np.any(arr["klen"] != len(kid)) or np.any(arr["kid"] != np.frombuffer(kid, np.uint8))):
             return False
         self.stamps = (arr["sec"].astype(np.int64) * 1_000_000_000 + arr["nsec"]).tolist()
-        self._body = arr["body"].copy()
+        self._body = arr["body"]  # a view: the columns are copied out of it (a structured copy is slow)
         self.frames.setdefault(frame)
         if self.child:
             self.kids.setdefault(kid)
