@@ -38,6 +38,14 @@ GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_headi
 GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
 
 
+def _on_array(step, x: list[float], *args) -> np.ndarray:
+    """A ``state3d`` process model (array state, in place) applied to the state list ``x``."""
+    xa = np.array(x)
+    F = step(xa, *args)
+    x[:] = xa.tolist()
+    return F
+
+
 def model_for(use: dict[str, set[str]]) -> str:
     imu = use.get("imu", set())
     return "ins" if "accel" in imu else ("gyro" if "gyro" in imu else "cv")
@@ -63,14 +71,16 @@ class Ekf3d:
         self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
         self.imu_mid = step3d.interval_midpoints(imu.stamps_ns, prep.imu_w_b, prep.imu_f_b) if imu is not None else None
         self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
-        self.imu_R_iso = step3d.isotropic_covariances(imu.orientation_cov) if self.imu_R is not None else None
+        self.imu_R_var = step3d.isotropic_variances(imu.orientation_cov) if self.imu_R is not None else None
+        self.imu_R_cov = imu.orientation_cov if self.imu_R is not None else None
+        self.imu_rep = prep.reports.get("imu")
         self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
-        self.inject = partial(step3d.boxplus, L=self.L)
+        self.inject = partial(step3d.inject, L=self.L)  # on the state list
         self.update = step3d.Updater(self.gate, self.inject)
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
@@ -89,7 +99,7 @@ class Ekf3d:
         self.ii = -1  # index of the last IMU sample at or before the current time
 
     # -- state -------------------------------------------------------------------------------------
-    def _initial(self) -> tuple[np.ndarray, np.ndarray]:
+    def _initial(self) -> tuple[list[float], np.ndarray]:
         s, L, nz = self.start, self.L, self.noise
         b = s.bg if L.model != "cv" else np.zeros(3)
         x = new_state(s.R, np.zeros(3), s.v, b, np.zeros(3) if L.core == 15 else None)
@@ -107,7 +117,7 @@ class Ekf3d:
             d[12:15] = nz.init_accel_bias_sigma_mps2**2
         if L.clone:
             d[L.core:] = CLONE_DUMMY_VAR
-        return x, np.diag(d)
+        return x.tolist(), np.diag(d)
 
     def _first_valid_orientation(self) -> int:
         imu = self.prep.imu
@@ -131,22 +141,22 @@ class Ekf3d:
         return ([w0 + a * (v0 - w0), w1 + a * (v1 - w1), w2 + a * (v2 - w2)],
                 [f0 + a * (g0 - f0), f1 + a * (g1 - f1), f2 + a * (g2 - f2)])
 
-    def _propagate(self, x: np.ndarray, P: np.ndarray, t_a: int, t_b: int) -> None:
+    def _propagate(self, x: list[float], P: np.ndarray, t_a: int, t_b: int) -> None:
         """Predict x and P (in place) from t_a to t_b."""
         dt = (t_b - t_a) * 1e-9
         L = self.L
         if self.gappy and in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data there
-            F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
+            F, q = _on_array(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
         elif L.model == "cv":
-            F, q = cv_step(x, dt, L), self.q(dt)
+            F, q = _on_array(cv_step, x, dt, L), self.q(dt)
         else:
             u = self._imu_at(t_a, t_b)
             if u is None:
-                F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
+                F, q = _on_array(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
             elif L.model == "ins":
                 F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
             else:
-                F, q = gyro_step(x, dt, np.array(u[0]), L), self.q(dt)
+                F, q = _on_array(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
         np.dot(F.dot(P), F.T, out=P)
         self._P_diag += q
         if self.smooth:
@@ -161,10 +171,8 @@ class Ekf3d:
         self.prep.reports[source].outcome(kind, status)
 
     def _open(self, t: int, x, P) -> None:
-        if not self.log.is_open:
-            self.log.open(t, x, P, self.Phi if self.smooth else None)
-            if self.smooth:
-                self.Phi = np.eye(self.L.n)
+        if self.log.open(t, x, P, self.Phi if self.smooth else None) and self.smooth:
+            self.Phi = np.eye(self.L.n)
 
     def _wheel(self, t: int, i: int, x, P) -> None:
         w, use = self.prep.wheel, self.prep.use["wheel"]
@@ -176,7 +184,7 @@ class Ekf3d:
             if self.L.model != "cv" and u is None:
                 self.prep.reports["wheel"].reject("in_gap")
             else:
-                r, H, Rn = m3.yaw_rate(x, w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
+                r, H, Rn = m3.yaw_rate(np.array(x), w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
                                        self.gyro_var, self.L)
                 self._update(t, x, P, r, H, Rn, "wheel", "wheel_yaw_rate", allow_reset=self.L.model == "cv")
 
@@ -198,10 +206,10 @@ class Ekf3d:
         pv, rv = od.position_sigma_m[i] ** 2, od.rotation_sigma_rad[i] ** 2
         if "pose" in self.prep.use["odom"]:
             if self.T_world_odom is None:
-                self.T_world_odom = pose(x) @ inv_pose(T)
+                self.T_world_odom = pose(np.array(x)) @ inv_pose(T)
                 rep.note("anchor")
                 return
-            r, H, Rn = m3.pose_absolute(x, self.T_world_odom @ T, pv, rv, self.L)
+            r, H, Rn = m3.pose_absolute(np.array(x), self.T_world_odom @ T, pv, rv, self.L)
             self._update(t, x, P, r, H, Rn, "odom", "odom")
             return
         self._open(t, x, P)
@@ -210,7 +218,7 @@ class Ekf3d:
         else:
             j = self.odom_prev
             T_rel = inv_pose(od.poses[j]) @ T
-            r, H, Rn = m3.pose_delta(x, T_rel, pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2,
+            r, H, Rn = m3.pose_delta(np.array(x), T_rel, pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2,
                                      self.L)
             self._update(t, x, P, r, H, Rn, "odom", "odom")
         self.odom_prev = i
@@ -221,32 +229,40 @@ class Ekf3d:
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-        r, H, Rn = m3.position(x, z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
+        r, H, Rn = m3.position(np.array(x), z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
         self._update(t, x, P, r, H, Rn, "gps", "gps")
 
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
         self._open(t, x, P)
-        r, Rn = step3d.orientation(x, self.imu_R[i], self.prep.imu.orientation_cov[i], self.imu_R_iso[i])
-        S = (P[TH, TH] + Rn).tolist()
-        status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
-        self.prep.reports["imu"].outcome("orientation", status)
+        c = self.imu_R_var[i]
+        r, Rn = step3d.orientation(x, self.imu_R[i], self.imu_R_cov[i], c is not None)
+        if c is None:
+            S = (self._P_block + Rn).tolist()
+        else:  # + c I on Python floats (numpy's add of the 3x3 views costs more than the rest of the step)
+            S = self._P_block.tolist()
+            S[0][0] += c
+            S[1][1] += c
+            S[2][2] += c
+        status = self.update(x, P, list(r), self._P_cols, S, self._H_orientation, Rn, "orientation")
+        self.imu_rep.outcome("orientation", status)
 
     # -- loop -------------------------------------------------------------------------------------
     def run(self) -> dict[str, np.ndarray]:
         prep = self.prep
-        x, P = self._initial()  # P: one buffer for the whole run, updated in place
+        x, P = self._initial()  # x: a list of floats (step3d), P: one buffer for the whole run, both in place
+        PT, self._P_cols, self._P_block = P.T, P[:, TH], P[TH, TH]  # views of it: P H^T and H P H^T for H = [I 0]
         self._P_diag = P.reshape(-1)[:: self.L.n + 1]
         self.Phi = np.eye(self.L.n)
         use_orientation = prep.imu_R_wb is not None
-        imu_rep = prep.reports.get("imu")
+        imu_rep = self.imu_rep
         imu_predicts = self.L.model != "cv"
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
         t_cur = prep.t0_ns
         T = self._T
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
             if t > t_cur:
-                np.add(P, P.T, out=T)  # P = 0.5 (P + P^T)
+                np.add(P, PT, out=T)  # P = 0.5 (P + P^T)
                 np.multiply(T, 0.5, out=P)
                 self.log.close(x, P)
                 if self.pending_clone:

@@ -130,10 +130,10 @@ class KnotLog:
         self.Phi: list[np.ndarray] = []
         self._open = False
 
-    def open(self, t_ns: int, x: np.ndarray, P: np.ndarray, Phi: np.ndarray | None) -> None:
-        """Start a knot at ``t_ns`` (the predicted state); no-op when one is already open."""
+    def open(self, t_ns: int, x: np.ndarray, P: np.ndarray, Phi: np.ndarray | None) -> bool:
+        """Start a knot at ``t_ns`` (the predicted state); no-op (False) when one is already open."""
         if self._open:
-            return
+            return False
         self._open = True
         self.t_ns.append(t_ns)
         self.output.append(False)
@@ -141,6 +141,7 @@ class KnotLog:
             self.x_pred.append(x.copy())
             self.P_pred.append(P.copy())
             self.Phi.append(Phi.copy() if Phi is not None else np.eye(len(P)))
+        return True
 
     def mark_output(self) -> None:
         self.output[-1] = True

@@ -2,7 +2,8 @@
 injection and the Kalman update on Python floats and a handful of numpy calls on preallocated arrays.
 
 A numpy call costs about 1 us whatever its size, so a 3-vector or 3x3 step is cheaper on Python floats,
-while the 15x15 covariance products stay in numpy. Same mathematics as ``state3d.ins_step``,
+while the 15x15 covariance products stay in numpy. The filter's nominal state is a Python list of 33 floats
+(the layout of ``state3d``): the kernels read and write it without a conversion. Same mathematics as ``state3d.ins_step``,
 ``state3d.boxplus``, ``measure3d`` and ``kalman.kalman_update`` (the tests compare them): the results differ
 from those only by floating-point rounding. ``P`` is updated in place (one buffer for the whole run).
 """
@@ -33,10 +34,11 @@ class InsPredictor:
         self._idx = np.array(idx)
         self.gx, self.gy, self.gz = (float(v) for v in g)
 
-    def __call__(self, x: np.ndarray, dt: float, w: tuple[float, float, float], f: tuple[float, float, float]
+    def __call__(self, x: list[float], dt: float, w: tuple[float, float, float], f: tuple[float, float, float]
                  ) -> np.ndarray:
-        """One step with base-frame rate ``w`` and specific force ``f`` (raw: biases included)."""
-        (r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz, vx, vy, vz, bx, by, bz, ax, ay, az) = x[:21].tolist()
+        """One step of the state ``x`` (a list, in place) with base-frame rate ``w`` and specific force ``f``
+        (raw: biases included)."""
+        (r0, r1, r2, r3, r4, r5, r6, r7, r8, px, py, pz, vx, vy, vz, bx, by, bz, ax, ay, az) = x[:21]
         d0, d1, d2, d3, d4, d5, d6, d7, d8 = so3_exp_scalars((w[0] - bx) * dt, (w[1] - by) * dt, (w[2] - bz) * dt)
         fx, fy, fz = f[0] - ax, f[1] - ay, f[2] - az
         sx, sy, sz = r0 * fx + r1 * fy + r2 * fz, r3 * fx + r4 * fy + r5 * fz, r6 * fx + r7 * fy + r8 * fz
@@ -81,15 +83,10 @@ def mul3(a, b) -> tuple[float, ...]:
             a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
 
 
-def rotate_right(x: np.ndarray, at: int, d0: float, d1: float, d2: float) -> None:
-    """``R <- R exp(d)`` for the rotation stored row-major at ``x[at:at+9]``."""
-    x[at:at + 9] = mul3(x[at:at + 9].tolist(), so3_exp_scalars(d0, d1, d2))
-
-
-def body_velocity(x: np.ndarray, z: list[float], comps: list[int], H: np.ndarray) -> list[float]:
+def body_velocity(x: list[float], z: list[float], comps: list[int], H: np.ndarray) -> list[float]:
     """``measure3d.body_velocity`` on floats: the residuals ``z - (R^T v)[comps]``; ``H`` (len(comps), n, zero
     beyond its two blocks) gets the rows on dtheta ([vb]x) and dv (R^T)."""
-    r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15].tolist()
+    r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15]
     vb = (r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz)
     rows = ((0.0, -vb[2], vb[1], 0.0, 0.0, 0.0, r0, r3, r6), (vb[2], 0.0, -vb[0], 0.0, 0.0, 0.0, r1, r4, r7),
             (-vb[1], vb[0], 0.0, 0.0, 0.0, 0.0, r2, r5, r8))  # [vb]x and R^T, dp between them untouched
@@ -132,37 +129,43 @@ def _wheel_row(vel: list[float], vvar: list[float], use: set[str], nonholonomic_
     return (tuple(comps), z, var) if comps else None
 
 
-def orientation(x: np.ndarray, R_meas: list[float], cov_world: np.ndarray, isotropic: bool = False
+def orientation(x: list[float], R_meas: list[float], cov_world: np.ndarray, isotropic: bool = False
                 ) -> tuple[tuple[float, ...], np.ndarray]:
     """``measure3d.orientation`` without its H (a selection of dtheta): (residual ``log(R^T R_meas)``, noise
     ``R^T cov_world R``); ``R_meas`` row-major as 9 floats. ``isotropic``: ``cov_world`` is ``c I``, which
-    every rotation leaves as it is (``isotropic_covariances``)."""
-    r0, r1, r2, r3, r4, r5, r6, r7, r8 = x[:9].tolist()
+    every rotation leaves as it is (``isotropic_variances``)."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = x[:9]
     r = so3_log_scalars(mul3((r0, r3, r6, r1, r4, r7, r2, r5, r8), R_meas))
     if isotropic:
         return r, cov_world
-    Rt = x[:9].reshape(3, 3).T
+    Rt = np.array(x[:9]).reshape(3, 3).T
     return r, Rt.dot(cov_world).dot(Rt.T)
 
 
-def isotropic_covariances(cov: np.ndarray) -> list[bool]:
-    """Per 3x3 covariance of ``cov`` (N,3,3): exactly ``c I`` (the usual IMU driver's orientation covariance)."""
+def isotropic_variances(cov: np.ndarray) -> list[float | None]:
+    """Per 3x3 covariance of ``cov`` (N,3,3): ``c`` where it is exactly ``c I`` (the usual IMU driver's
+    orientation covariance), else None."""
     c = np.asarray(cov)[:, 0, 0]
-    return (cov == c[:, None, None] * np.eye(3)).all(axis=(1, 2)).tolist()
+    iso = (cov == c[:, None, None] * np.eye(3)).all(axis=(1, 2))
+    return [v if ok else None for v, ok in zip(c.tolist(), iso.tolist())]
+
+
+def inject(x: list[float], dx: np.ndarray, L: Layout) -> None:
+    """``state3d.boxplus`` on the state as a list: inject an error-state correction into ``x`` in place."""
+    d = dx.tolist()
+    end = 6 + L.core  # x[9:end] (p, v, b (, ba)) += d[3:core]
+    x[:end] = mul3(x[:9], so3_exp_scalars(d[0], d[1], d[2])) + tuple([a + b for a, b in zip(x[9:end], d[3:L.core])])
+    if L.clone:
+        c = L.core
+        x[21:33] = mul3(x[21:30], so3_exp_scalars(d[c], d[c + 1], d[c + 2])) + tuple(
+            [a + b for a, b in zip(x[30:33], d[c + 3:c + 6])])
 
 
 def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:
-    """``state3d.boxplus``: inject an error-state correction into ``x`` in place (the rotation, p, v and the
-    biases read and written back in one go)."""
-    d = dx.tolist()
-    end = 6 + L.core  # x[9:end] (p, v, b (, ba)) += d[3:core]
-    s = x[:end].tolist()
-    x[:end] = mul3(s[:9], so3_exp_scalars(d[0], d[1], d[2])) + tuple(
-        [a + b for a, b in zip(s[9:end], d[3:L.core])])
-    if L.clone:
-        c = L.core
-        rotate_right(x, 21, d[c], d[c + 1], d[c + 2])
-        x[30:33] += dx[c + 3:c + 6]
+    """``inject`` on a state array (the smoother's), in place."""
+    s = x.tolist()
+    inject(s, dx, L)
+    x[:] = s
 
 
 def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
