@@ -28,7 +28,7 @@ from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
     CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
-    pose,
+    on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
@@ -36,14 +36,9 @@ CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry 
 CV_OMEGA_SIGMA_RADPS = 0.5
 GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_heading)
 GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
-
-
-def _on_array(step, x: list[float], *args) -> np.ndarray:
-    """A ``state3d`` process model (array state, in place) applied to the state list ``x``."""
-    xa = np.array(x)
-    F = step(xa, *args)
-    x[:] = xa.tolist()
-    return F
+# P = (P + P^T) / 2 every this many steps while P stays inside the filter (the products' rounding-level asymmetry
+# cannot grow); every step when P is recorded (smoother, --cov): what leaves the filter is exactly symmetric
+SYMMETRIZE_EVERY = 16
 
 
 def model_for(use: dict[str, set[str]]) -> str:
@@ -146,17 +141,17 @@ class Ekf3d:
         dt = (t_b - t_a) * 1e-9
         L = self.L
         if self.gappy and in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data there
-            F, q = _on_array(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
+            F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
         elif L.model == "cv":
-            F, q = _on_array(cv_step, x, dt, L), self.q(dt)
+            F, q = on_list(cv_step, x, dt, L), self.q(dt)
         else:
             u = self._imu_at(t_a, t_b)
             if u is None:
-                F, q = _on_array(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
+                F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
             elif L.model == "ins":
                 F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
             else:
-                F, q = _on_array(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
+                F, q = on_list(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
         np.dot(F.dot(P), F.T, out=P)
         self._P_diag += q
         if self.smooth:
@@ -260,10 +255,14 @@ class Ekf3d:
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
         t_cur = prep.t0_ns
         T = self._T
+        sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
+        steps = 0
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
             if t > t_cur:
-                np.add(P, PT, out=T)  # P = 0.5 (P + P^T)
-                np.multiply(T, 0.5, out=P)
+                steps += 1
+                if steps % sym_every == 0:
+                    np.add(P, PT, out=T)  # P = 0.5 (P + P^T)
+                    np.multiply(T, 0.5, out=P)
                 self.log.close(x, P)
                 if self.pending_clone:
                     x[CR_], x[CP_] = x[R_], x[P_]
