@@ -26,6 +26,7 @@ class RosbagsLog(LogReader):
         super().__init__(path, fmt, paths)
         self._conn_cache: dict[int, LogConnection] = {}  # id(rosbags connection) -> its LogConnection
         self._chunks: dict[int, bytes] = {}  # a ROS 1 bag's last decompressed chunks (bag1_raw.messages)
+        self._index_columns: dict[int, object] = {}  # and its index entries per connection, as int64 columns
         from rosbags.highlevel import AnyReader, AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
@@ -83,7 +84,7 @@ class RosbagsLog(LogReader):
         if self.format == "ros1" and len(readers) == 1:  # one bag: its chunks sliced directly (same messages)
             from .bag1_raw import messages
 
-            return messages(readers[0], conns, self._chunks)
+            return messages(readers[0], conns, self._chunks, self._index_columns)
         return self._reader.messages(connections=conns)
 
     def _iter_raw(self, topics: set[str] | None):
