@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from itertools import chain
 
 import numpy as np
 from scipy.special import gammaincinv
@@ -169,10 +170,18 @@ class KnotLog:
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"t_ns": np.asarray(self.t_ns, dtype=np.int64), "output": np.asarray(self.output, dtype=bool)}
         n = len(self.t_ns)
-        out["x_filt"] = np.asarray(self.x_filt) if n else np.zeros((0, 0))
+        out["x_filt"] = _rows(self.x_filt) if n else np.zeros((0, 0))
         out["P_filt"] = np.asarray(self.P_filt) if n and self.P_filt else np.zeros((0, 0, 0))
         if self.for_smoother:
-            out["x_pred"] = np.asarray(self.x_pred) if n else np.zeros((0, 0))
+            out["x_pred"] = _rows(self.x_pred) if n else np.zeros((0, 0))
             out["P_pred"] = np.asarray(self.P_pred) if n else np.zeros((0, 0, 0))
             out["Phi"] = np.asarray(self.Phi) if n else np.zeros((0, 0, 0))
         return out
+
+
+def _rows(states: list) -> np.ndarray:
+    """States recorded as arrays or as lists of floats (the 3D filter's), as one (N, n) array."""
+    if not isinstance(states[0], list):
+        return np.asarray(states)
+    n = len(states[0])
+    return np.fromiter(chain.from_iterable(states), np.float64, n * len(states)).reshape(len(states), n)
