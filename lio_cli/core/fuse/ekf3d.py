@@ -68,7 +68,7 @@ class Ekf3d:
         self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
         self.imu_R_var = step3d.isotropic_variances(imu.orientation_cov) if self.imu_R is not None else None
         self.imu_R_cov = imu.orientation_cov if self.imu_R is not None else None
-        self.imu_rep = prep.reports.get("imu")
+        self.imu_rep, self.wheel_rep = prep.reports.get("imu"), prep.reports.get("wheel")
         self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
@@ -84,6 +84,7 @@ class Ekf3d:
         self._H_velocity = [np.zeros((m, self.L.n)) for m in range(4)]
         w = prep.wheel
         if w is not None:
+            self.wheel_yaw_rate = "yaw_rate" in prep.use["wheel"]
             self.wheel_rows = step3d.wheel_velocity_rows(w.velocity_mps, w.velocity_var, prep.use["wheel"],
                                                          self.noise.nonholonomic_sigma_mps**2)
         self.T_world_odom: np.ndarray | None = None
@@ -146,10 +147,10 @@ class Ekf3d:
             F, q = on_list(cv_step, x, dt, L), self.q(dt)
         else:
             u = self._imu_at(t_a, t_b)
-            if u is None:
-                F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
-            elif L.model == "ins":
+            if u is not None and self.ins is not None:
                 F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
+            elif u is None:
+                F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
             else:
                 F, q = on_list(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
         np.dot(F.dot(P), F.T, out=P)
@@ -170,11 +171,11 @@ class Ekf3d:
             self.Phi = np.eye(self.L.n)
 
     def _wheel(self, t: int, i: int, x, P) -> None:
-        w, use = self.prep.wheel, self.prep.use["wheel"]
         row = self.wheel_rows[i]
         if row is not None:
             self._body_velocity(t, x, P, *row)
-        if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
+        w = self.prep.wheel
+        if self.wheel_yaw_rate and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
                 self.prep.reports["wheel"].reject("in_gap")
@@ -193,7 +194,7 @@ class Ekf3d:
         for k in range(len(comps)):
             S[k][k] += var[k]
         status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity")
-        self.prep.reports["wheel"].outcome("wheel_velocity", status)
+        self.wheel_rep.outcome("wheel_velocity", status)
 
     def _odom(self, t: int, i: int, x, P) -> None:
         od, rep = self.prep.odom, self.prep.reports["odom"]
@@ -280,13 +281,13 @@ class Ekf3d:
                     self._orientation(t, i, x, P)
             elif kind == WHEEL:
                 self._wheel(t, i, x, P)
+            elif kind == OUT:
+                self._open(t, x, P)
+                self.log.mark_output()
             elif kind == ODOM:
                 self._odom(t, i, x, P)
             elif kind == GPS:
                 self._gps(t, i, x, P)
-            elif kind == OUT:
-                self._open(t, x, P)
-                self.log.mark_output()
         self.log.close(x, 0.5 * (P + P.T))
         return self.log.arrays()
 
