@@ -64,9 +64,10 @@ def _entries(reader, connections: list, columns: dict[int, np.ndarray] | None = 
 
 
 def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
-             columns: dict[int, np.ndarray] | None = None) -> Iterator[tuple[object, int, bytes]]:
-    """(connection, record time ns, serialised message) of ``connections`` (rosbags connections of the one
-    ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)`` yields them.
+             columns: dict[int, np.ndarray] | None = None) -> Iterator[tuple[str, str, int, bytes, object]]:
+    """(topic, msgtype, record time ns, serialised message, connection) of ``connections`` (rosbags
+    connections of the one ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)``
+    yields them.
 
     ``chunks`` (chunk position -> decompressed bytes, the last ``KEEP_CHUNKS``) may be kept by the caller
     across calls: messages in record-time order go back and forth between neighbouring chunks whose times
@@ -76,6 +77,7 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
     chunk_pos, buf = -1, b""
     bio = reader.bio
     chunks = {} if chunks is None else chunks
+    topics, types = [c.topic for c in connections], [c.msgtype for c in connections]
     for t_ns, pos_c, offset, k in chain.from_iterable(_entries(reader, connections, columns)):
         if pos_c != chunk_pos:
             buf = chunks.get(pos_c)
@@ -101,4 +103,4 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
             pos = d0 + dlen
         if op != _OP_MSGDATA or d0 + dlen > len(buf):
             raise ValueError("expected message data in the bag chunk")
-        yield connections[k], t_ns, buf[d0:d0 + dlen]
+        yield topics[k], types[k], t_ns, buf[d0:d0 + dlen], connections[k]
