@@ -49,13 +49,13 @@ class InsPredictor:
         f3, f4, f5 = sz * r0 - sx * r6, sz * r1 - sx * r7, sz * r2 - sx * r8
         f6, f7, f8 = -sy * r0 + sx * r3, -sy * r1 + sx * r4, -sy * r2 + sx * r5
         h, m = -0.5 * dt * dt, -dt
-        self._flat[self._idx] = (
+        self._flat[self._idx] = [  # a list: numpy takes it faster than a tuple
             d0, d3, d6, d1, d4, d7, d2, d5, d8,
             h * f0, h * f1, h * f2, h * f3, h * f4, h * f5, h * f6, h * f7, h * f8,
             h * r0, h * r1, h * r2, h * r3, h * r4, h * r5, h * r6, h * r7, h * r8,
             m * f0, m * f1, m * f2, m * f3, m * f4, m * f5, m * f6, m * f7, m * f8,
             m * r0, m * r1, m * r2, m * r3, m * r4, m * r5, m * r6, m * r7, m * r8,
-            m, m, m, dt, dt, dt)
+            m, m, m, dt, dt, dt]
         x[:15] = mul3((r0, r1, r2, r3, r4, r5, r6, r7, r8), (d0, d1, d2, d3, d4, d5, d6, d7, d8)) + (
             px + (vx + hd * gx) * dt, py + (vy + hd * gy) * dt, pz + (vz + hd * gz) * dt,
             vx + gx * dt, vy + gy * dt, vz + gz * dt)
@@ -202,6 +202,7 @@ class Updater:
 
     def __init__(self, gate: Gate | None, inject):
         self.gate, self.inject = gate, inject
+        self._Si = [np.empty((m, m)) for m in range(4)]  # S^-1 of 1-3 rows written here, not a new array
 
     def __call__(self, x: np.ndarray, P: np.ndarray, r: list[float], PHt: np.ndarray, S: list[list[float]],
                  H: np.ndarray, Rn, kind: str, allow_reset: bool = True) -> str:
@@ -236,7 +237,10 @@ class Updater:
                 PHt = P @ H.T
                 Si = np.linalg.inv(H @ PHt + Rn)
         # ndarray.dot, not @: half the per-call overhead on matrices this small
-        K = PHt.dot(np.array(Si))
+        m = len(r)
+        Sa = self._Si[m] if m < 4 else np.empty((m, m))
+        Sa[...] = Si
+        K = PHt.dot(Sa)
         self.inject(x, K.dot(r))
         np.subtract(P, K.dot(PHt.T), out=P)
         return status
