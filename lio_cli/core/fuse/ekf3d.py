@@ -255,7 +255,7 @@ class Ekf3d:
         imu_predicts = self.L.model != "cv"
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
         t_cur = prep.t0_ns
-        T = self._T
+        T, log = self._T, self.log
         sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
         steps = 0
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
@@ -264,7 +264,7 @@ class Ekf3d:
                 if steps % sym_every == 0:
                     np.add(P, PT, out=T)  # P = 0.5 (P + P^T)
                     np.multiply(T, 0.5, out=P)
-                self.log.close(x, P)
+                log.close(x, P)
                 if self.pending_clone:
                     x[CR_], x[CP_] = x[R_], x[P_]
                     P[...] = self.J @ P @ self.J.T
@@ -281,9 +281,10 @@ class Ekf3d:
                     self._orientation(t, i, x, P)
             elif kind == WHEEL:
                 self._wheel(t, i, x, P)
-            elif kind == OUT:
-                self._open(t, x, P)
-                self.log.mark_output()
+            elif kind == OUT:  # after every update at t: the open knot's state is the output
+                if not log.is_open:
+                    self._open(t, x, P)
+                log.mark_output()
             elif kind == ODOM:
                 self._odom(t, i, x, P)
             elif kind == GPS:
