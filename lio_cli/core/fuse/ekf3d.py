@@ -214,8 +214,8 @@ class Ekf3d:
         else:
             j = self.odom_prev
             T_rel = inv_pose(od.poses[j]) @ T
-            r, H, Rn = m3.pose_delta(np.array(x), T_rel, pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2,
-                                     self.L)
+            r, H, Rn = m3.pose_delta(np.array(x), T_rel, pv + od.position_sigma_m[j] ** 2,
+                                     rv + od.rotation_sigma_rad[j] ** 2, self.L)
             self._update(t, x, P, r, H, Rn, "odom", "odom")
         self.odom_prev = i
         self.pending_clone = True

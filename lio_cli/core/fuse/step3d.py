@@ -3,9 +3,10 @@ injection and the Kalman update on Python floats and a handful of numpy calls on
 
 A numpy call costs about 1 us whatever its size, so a 3-vector or 3x3 step is cheaper on Python floats,
 while the 15x15 covariance products stay in numpy. The filter's nominal state is a Python list of 33 floats
-(the layout of ``state3d``): the kernels read and write it without a conversion. Same mathematics as ``state3d.ins_step``,
-``state3d.boxplus``, ``measure3d`` and ``kalman.kalman_update`` (the tests compare them): the results differ
-from those only by floating-point rounding. ``P`` is updated in place (one buffer for the whole run).
+(the layout of ``state3d``): the kernels read and write it without a conversion. Same mathematics as
+``state3d.ins_step``, ``state3d.boxplus``, ``measure3d`` and ``kalman.kalman_update`` (the tests compare
+them): the results differ from those only by floating-point rounding. ``P`` is updated in place (one buffer
+for the whole run).
 """
 
 from __future__ import annotations
