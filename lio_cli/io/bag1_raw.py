@@ -17,8 +17,10 @@ from itertools import chain
 import numpy as np
 
 _U32 = struct.Struct("<I")
-_BLOCK = 65_536  # index entries turned into Python values at a time
+_BLOCK = 65_536  # index entries turned into Python values at a time (the first blocks smaller: a peek at a
+_FIRST_BLOCK = 256  # topic's first messages converts a few hundred entries, not tens of thousands)
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
+KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 
 
 def _op(buf: bytes, start: int, end: int) -> int:
@@ -34,42 +36,61 @@ def _op(buf: bytes, start: int, end: int) -> int:
     raise ValueError("record header without op")
 
 
-def _entries(reader, connections: list) -> Iterator[tuple[int, int, int, object]]:
-    """(time, chunk position, offset in chunk, connection) of every index entry in the order rosbags'
-    ``heapq.merge`` of its index lists gives (its entries compare by time only: equal times come connection
-    by connection in the order asked, each in its index order), i.e. a stable sort by time. Held as three int64 and one int32 per entry (28 bytes, not a
-    tuple's ~100: rosbags' own index already grows with the log) and handed out a block at a time."""
-    parts = [(k, reader.indexes[conn.id]) for k, conn in enumerate(connections)]
-    n = sum(len(idx) for _, idx in parts)
-    cols = np.empty((3, n), dtype=np.int64)
-    which = np.empty(n, dtype=np.int32)
-    at = 0
-    for k, idx in parts:
-        m = len(idx)
-        cols[:, at:at + m] = np.fromiter(chain.from_iterable(idx), np.int64, 3 * m).reshape(m, 3).T
-        which[at:at + m] = k
-        at += m
+def _entries(reader, connections: list, columns: dict[int, np.ndarray] | None = None
+             ) -> Iterator[Iterator[tuple[int, int, int, int]]]:
+    """Blocks of (time, chunk position, offset in chunk, index of the connection in ``connections``) of every
+    index entry in the order rosbags' ``heapq.merge`` of its index lists gives (its entries compare by time
+    only: equal times come connection by connection in the order asked, each in its index order), i.e. a
+    stable sort by time. Held as three int64 and one int32 per entry (28 bytes, not a tuple's ~100: rosbags'
+    own index already grows with the log) and turned into Python values a block at a time. ``columns``
+    (connection id -> its (3, m) entry columns) may be kept by the caller across calls."""
+    columns = {} if columns is None else columns
+    parts = []
+    for conn in connections:
+        part = columns.get(conn.id)
+        if part is None:
+            idx = reader.indexes[conn.id]
+            m = len(idx)
+            part = columns[conn.id] = np.fromiter(chain.from_iterable(idx), np.int64, 3 * m).reshape(m, 3).T.copy()
+        parts.append(part)
+    cols = np.concatenate(parts, axis=1) if len(parts) != 1 else parts[0]
+    which = np.repeat(np.arange(len(parts), dtype=np.int32), [p.shape[1] for p in parts])
     order = np.argsort(cols[0], kind="stable")
-    for lo in range(0, n, _BLOCK):
-        sel = order[lo:lo + _BLOCK]
-        for t, c, o, k in zip(*(cols[:, sel].tolist()), which[sel].tolist()):
-            yield t, c, o, connections[k]
+    lo, size, n = 0, _FIRST_BLOCK, len(order)
+    while lo < n:
+        sel = order[lo:lo + size]
+        lo, size = lo + size, min(4 * size, _BLOCK)
+        yield zip(*(cols[:, sel].tolist()), which[sel].tolist())
 
 
-def messages(reader, connections: list) -> Iterator[tuple[object, int, bytes]]:
-    """(connection, record time ns, serialised message) of ``connections`` (rosbags connections of the one
-    ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)`` yields them."""
+def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
+             columns: dict[int, np.ndarray] | None = None) -> Iterator[tuple[str, str, int, bytes, object]]:
+    """(topic, msgtype, record time ns, serialised message, connection) of ``connections`` (rosbags
+    connections of the one ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)``
+    yields them.
+
+    ``chunks`` (chunk position -> decompressed bytes, the last ``KEEP_CHUNKS``) may be kept by the caller
+    across calls: messages in record-time order go back and forth between neighbouring chunks whose times
+    overlap, and a peek at a topic's first messages opens the chunks the full read opens next; each is
+    decompressed once (bz2 is most of the reading time). ``columns``: see ``_entries``."""
     unpack = _U32.unpack_from
     chunk_pos, buf = -1, b""
     bio = reader.bio
-    for t_ns, pos_c, offset, conn in _entries(reader, connections):
+    chunks = {} if chunks is None else chunks
+    topics, types = [c.topic for c in connections], [c.msgtype for c in connections]
+    for t_ns, pos_c, offset, k in chain.from_iterable(_entries(reader, connections, columns)):
         if pos_c != chunk_pos:
-            chunk = reader.chunks[pos_c]
-            bio.seek(chunk.datapos)
-            raw = bio.read(chunk.datasize)
-            if len(raw) != chunk.datasize:
-                raise ValueError("chunk truncated")
-            buf, chunk_pos = chunk.decompressor(raw), pos_c
+            buf = chunks.get(pos_c)
+            if buf is None:
+                chunk = reader.chunks[pos_c]
+                bio.seek(chunk.datapos)
+                raw = bio.read(chunk.datasize)
+                if len(raw) != chunk.datasize:
+                    raise ValueError("chunk truncated")
+                buf = chunks[pos_c] = chunk.decompressor(raw)
+                if len(chunks) > KEEP_CHUNKS:
+                    del chunks[next(iter(chunks))]  # the oldest decompressed
+            chunk_pos = pos_c
         pos = offset
         while True:
             (hlen,) = unpack(buf, pos)
@@ -82,4 +103,4 @@ def messages(reader, connections: list) -> Iterator[tuple[object, int, bytes]]:
             pos = d0 + dlen
         if op != _OP_MSGDATA or d0 + dlen > len(buf):
             raise ValueError("expected message data in the bag chunk")
-        yield conn, t_ns, buf[d0:d0 + dlen]
+        yield topics[k], types[k], t_ns, buf[d0:d0 + dlen], connections[k]

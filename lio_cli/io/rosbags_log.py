@@ -25,6 +25,8 @@ class RosbagsLog(LogReader):
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
         self._conn_cache: dict[int, LogConnection] = {}  # id(rosbags connection) -> its LogConnection
+        self._chunks: dict[int, bytes] = {}  # a ROS 1 bag's last decompressed chunks (bag1_raw.messages)
+        self._index_columns: dict[int, object] = {}  # and its index entries per connection, as int64 columns
         from rosbags.highlevel import AnyReader, AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
@@ -73,21 +75,18 @@ class RosbagsLog(LogReader):
                 _merge_span(spans, conn.topic, int(idx[0].time), int(idx[-1].time))
         return spans
 
-    def _messages(self, topics: set[str] | None):
-        """(rosbags connection, record time, serialised bytes) of ``topics`` in record-time order."""
+    def _iter_raw(self, topics: set[str] | None):
+        """(topic, msgtype, record time, serialised bytes, rosbags connection) of ``topics`` in record-time
+        order; a single ROS 1 bag's straight from its chunks (``bag1_raw``: the same messages)."""
         conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
         if not conns:
             return iter(())
         readers = getattr(self._reader, "readers", [])
-        if self.format == "ros1" and len(readers) == 1:  # one bag: its chunks sliced directly (same messages)
+        if self.format == "ros1" and len(readers) == 1:
             from .bag1_raw import messages
 
-            return messages(readers[0], conns)
-        return self._reader.messages(connections=conns)
-
-    def _iter_raw(self, topics: set[str] | None):
-        for conn, t_ns, raw in self._messages(topics):
-            yield conn.topic, conn.msgtype, int(t_ns), raw, conn
+            return messages(readers[0], conns, self._chunks, self._index_columns)
+        return ((c.topic, c.msgtype, int(t_ns), raw, c) for c, t_ns, raw in self._reader.messages(connections=conns))
 
     def _deserialize(self, raw, msgtype, handle):
         return self._reader.deserialize(raw, msgtype)
@@ -116,8 +115,8 @@ class RosbagsLog(LogReader):
         return info
 
     def _iter_records(self, topics: set[str] | None):
-        for conn, t_ns, raw in self._messages(topics):
-            yield RawRecord(self._connection(conn), int(t_ns), raw)
+        for _, _, t_ns, raw, conn in self._iter_raw(topics):
+            yield RawRecord(self._connection(conn), t_ns, raw)
 
     def _deserialize_record(self, rec: RawRecord):
         return self._reader.deserialize(rec.data, rec.connection.msgtype)

@@ -122,12 +122,8 @@ class _Bulk:
         self.frames: dict[bytes, None] = {}
         self.kids: dict[bytes, None] = {}
         self.ok = True
-        self.raws: list = []
+        self.raws: list = []  # messages kept for ``finish`` (parsed there, the whole topic at once where it can be)
         self._body: np.ndarray | None = None  # set by a whole-topic parse
-
-    def collect(self, raw) -> None:
-        """Keep a message for ``finish`` (parsed there, the whole topic at once where it can be)."""
-        self.raws.append(raw)
 
     def finish(self) -> None:
         raws, self.raws = self.raws, []
@@ -160,7 +156,7 @@ class _Bulk:
         if self.child and (np.any(arr["klen"] != len(kid)) or np.any(arr["kid"] != np.frombuffer(kid, np.uint8))):
             return False
         self.stamps = (arr["sec"].astype(np.int64) * 1_000_000_000 + arr["nsec"]).tolist()
-        self._body = arr["body"].copy()
+        self._body = arr["body"]  # a view: the columns are copied out of it (a structured copy is slow)
         self.frames.setdefault(frame)
         if self.child:
             self.kids.setdefault(kid)
@@ -214,10 +210,9 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
         else:
             raise InputError(f"{log.path}: topic {t} is {msgtype}, which fuse cannot read")
     if bulk:
-        n = 0
-        for topic, _, _, raw in log.raw_messages(list(bulk)):
-            bulk[topic].collect(raw)
-            n += 1
+        keep = {t: b.raws.append for t, b in bulk.items()}
+        for n, (topic, _, _, raw) in enumerate(log.raw_messages(list(bulk)), 1):
+            keep[topic](raw)
             if progress is not None and n % _PROGRESS_EVERY == 0:
                 progress(n)
         for b in bulk.values():

@@ -18,6 +18,7 @@ for the role, such as ``wheel``). Every choice comes with its reason, for notes 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,19 +61,19 @@ def says_estimate(name: str) -> bool:
     return bool(_tokens(name) & _ESTIMATE_TOKENS)
 
 
-def _peek(log: LogReader, topic: str, n: int = _PEEK) -> list:
-    out = []
+def _peek(log: LogReader, topic: str, n: int = _PEEK) -> Iterator:
+    """The first ``n`` messages of ``topic``, decoded one at a time as the caller asks for them (a verdict
+    settled by the first message decodes only that one)."""
     messages = log.messages([topic])
     try:
-        for _, _, _, msg in messages:
-            out.append(msg)
-            if len(out) >= n:
+        for k, (_, _, _, msg) in enumerate(messages):
+            yield msg
+            if k + 1 >= n:
                 break
     except InputError:
-        return out  # a damaged topic shows itself when it is read for real
+        return  # a damaged topic shows itself when it is read for real
     finally:
         messages.close()
-    return out
 
 
 def _twist(msg, msgtype: str) -> np.ndarray:
@@ -86,12 +87,13 @@ def _frames(msg, msgtype: str) -> tuple[str, str]:
 
 def imu_is_all_zero(log: LogReader, topic: str) -> bool:
     """The first messages of an IMU topic hold nothing but zeros (rates and accelerations)."""
-    msgs = _peek(log, topic)
-    if not msgs:
-        return False
-    vals = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z, m.linear_acceleration.x,
-                      m.linear_acceleration.y, m.linear_acceleration.z] for m in msgs], dtype=float)
-    return bool(np.all(vals == 0.0))
+    seen = False
+    for m in _peek(log, topic):
+        seen = True
+        a, w = m.linear_acceleration, m.angular_velocity
+        if not w.x == w.y == w.z == a.x == a.y == a.z == 0.0:
+            return False
+    return seen
 
 
 def _wheel_verdict(log: LogReader, topic: str) -> str | None:
@@ -101,11 +103,15 @@ def _wheel_verdict(log: LogReader, topic: str) -> str | None:
         return "named as ground truth"
     if says_estimate(topic):
         return "named as another estimator's output"
-    msgs = _peek(log, topic, _PEEK_TWIST)
-    if msgs and says_ground_truth(*_frames(msgs[0], msgtype)):
-        return "its frames are named as ground truth"
-    if msgs and not any(np.abs(_twist(m, msgtype)).sum() > 0 for m in msgs):
-        return f"its twist is all zero over its first {len(msgs)} messages (a pose source)"
+    n = 0
+    for m in _peek(log, topic, _PEEK_TWIST):
+        if n == 0 and says_ground_truth(*_frames(m, msgtype)):
+            return "its frames are named as ground truth"
+        n += 1
+        if np.abs(_twist(m, msgtype)).sum() > 0:
+            return None
+    if n:
+        return f"its twist is all zero over its first {n} messages (a pose source)"
     return None
 
 

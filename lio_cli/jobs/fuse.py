@@ -19,6 +19,7 @@ import numpy as np
 from ..config import with_overrides
 from ..config.fuse import FuseConfig
 from ..core.fuse import COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult, NoiseOptions
+from ..gc_pause import cyclic_gc_paused
 from ..io.reader import open_log
 from ..model.trajectory import Trajectory
 from .fuse_chunks import MemoryPlan, fuse_chunked, plan
@@ -64,6 +65,11 @@ def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: 
 
 def run_fuse(job: FuseJob, progress: Progress | None = None) -> FuseRun:
     """Fuse the sources of ``job.log`` (see the module docstring)."""
+    with cyclic_gc_paused():  # reading and filtering allocate many small lists, none in a cycle
+        return _run_fuse(job, progress)
+
+
+def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     cfg = job.config
     core_options(cfg, cfg.use).validate()  # a bad option is refused before the log is opened
     t_wall, t_cpu = time.perf_counter(), time.process_time()

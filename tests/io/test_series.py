@@ -131,3 +131,32 @@ def test_ros1_chunk_reader_orders_equal_times_as_rosbags_does(tmp_path):
         ours = [(rec.connection.topic, rec.log_time_ns, bytes(rec.data)[4:]) for rec in log.records()]
     assert ours == theirs == [("/b", 90, b"b0"), ("/a", 100, b"a1"), ("/a", 100, b"a2"), ("/b", 100, b"b1"),
                               ("/a", 200, b"a3")]
+
+
+def test_ros1_chunk_reader_decompresses_each_chunk_once(tmp_path):
+    # neighbouring chunks whose record times overlap: the time-ordered read goes back and forth between them,
+    # and a peek at the first messages opens the chunk the full read opens next
+    from rosbags.rosbag1 import Writer
+
+    path = tmp_path / "overlap.bag"
+    with Writer(path) as w:
+        w.chunk_threshold = 64  # a few messages per chunk
+        a = w.add_connection("/a", "std_msgs/msg/String", msgdef="string data", md5sum="992ce8a1687cec8c8bd883ec73ca41d1")
+        for k in range(40):
+            t = 100 * k + (150 if k % 4 == 3 else 0)  # every 4th message recorded late: into the next chunk's span
+            w.write(a, t, (4).to_bytes(4, "little") + b"m%03d" % k)
+    with open_log(path) as log:
+        r = log._reader.readers[0]
+        opened: list[int] = []
+        for pos, chunk in list(r.chunks.items()):
+            r.chunks[pos] = chunk._replace(decompressor=lambda raw, pos=pos, f=chunk.decompressor: (opened.append(pos),
+                                                                                                   f(raw))[1])
+        positions = sorted(r.chunks)
+        assert len(positions) > 5
+        first = next(iter(log.raw_messages(["/a"])))
+        got = [bytes(raw)[4:] for _, _, _, raw in log.raw_messages(["/a"])]
+        ours_opened = list(opened)
+        theirs = [bytes(d)[4:] for _, _, d in log._reader.messages()]
+    assert got == theirs and len(got) == 40 and bytes(first[3])[4:] == got[0]
+    assert got != sorted(got)  # the record times did interleave the chunks
+    assert sorted(ours_opened) == positions  # each chunk decompressed once

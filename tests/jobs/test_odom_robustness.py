@@ -145,6 +145,29 @@ def test_filter_outputs_and_zero_imus_are_not_taken_for_sensors(tmp_path):
         assert choose_topic(reader, "gt").topic == "/vicon/base"
 
 
+def test_wheel_verdict_reads_until_the_twist_moves(tmp_path, monkeypatch):
+    odom = "nav_msgs/msg/Odometry"
+    eye = np.eye(4)
+
+    def write(w):
+        for k in range(30):
+            t = 10**9 + k * 20_000_000
+            v = 1.0 if k >= 5 else 0.0  # at rest over the first five messages
+            w.write("/wheel/odom", t, w.make.odometry(t, "odom", "base_link", eye, [v, 0, 0], [0, 0, 0]))
+            w.write("/pose/odom", t, w.make.odometry(t, "odom", "base_link", eye, [0, 0, 0], [0, 0, 0]))
+
+    log = _tiny_log(tmp_path / "w.bag", {"/wheel/odom": odom, "/pose/odom": odom}, write)
+    with open_log(log) as reader:
+        decoded: list[str] = []
+        original = type(reader)._deserialize
+        monkeypatch.setattr(type(reader), "_deserialize",
+                            lambda self, raw, msgtype, handle: decoded.append(msgtype) or original(self, raw, msgtype, handle))
+        choice = choose_topic(reader, "wheel")
+    assert choice.topic == "/wheel/odom"
+    assert "/pose/odom: its twist is all zero over its first 30 messages (a pose source)" in choice.why
+    assert len(decoded) == 6 + 30  # /wheel/odom decoded up to its first moving message, /pose/odom all through
+
+
 def test_an_imu_topic_of_zeros_is_refused(tmp_path, capsys):
     res = simulate("handheld", tmp_path / "h.bag", "ros1", duration_s=2.0, seed=1, columns=180)
 

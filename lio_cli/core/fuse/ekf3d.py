@@ -14,7 +14,7 @@ chi-square gate (``FuseOptions.gate_probability``); rejections are counted per s
 
 from __future__ import annotations
 
-import math
+from functools import partial
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
     CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
-    pose,
+    on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
@@ -36,6 +36,9 @@ CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry 
 CV_OMEGA_SIGMA_RADPS = 0.5
 GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_heading)
 GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
+# P = (P + P^T) / 2 every this many steps while P stays inside the filter (the products' rounding-level asymmetry
+# cannot grow); every step when P is recorded (smoother, --cov): what leaves the filter is exactly symmetric
+SYMMETRIZE_EVERY = 16
 
 
 def model_for(use: dict[str, set[str]]) -> str:
@@ -52,6 +55,7 @@ class Ekf3d:
         self.q = ProcessNoise(self.L, self.noise)
         self.cover_starts = [a for a, _ in prep.coverage]
         self.cover_ends = [b for _, b in prep.coverage]
+        self.gappy = len(prep.coverage) > 1  # only then can a step fall between covered stretches
         self.g = np.array([0.0, 0.0, -options.gravity_mps2])
         self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
@@ -60,13 +64,18 @@ class Ekf3d:
         # per-sample values as Python floats: the loop reads them one sample at a time
         self.imu_w = prep.imu_w_b.tolist() if imu is not None else []
         self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
+        self.imu_mid = step3d.interval_midpoints(imu.stamps_ns, prep.imu_w_b, prep.imu_f_b) if imu is not None else None
+        self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
+        self.imu_R_var = step3d.isotropic_variances(imu.orientation_cov) if self.imu_R is not None else None
+        self.imu_R_cov = imu.orientation_cov if self.imu_R is not None else None
+        self.imu_rep, self.wheel_rep = prep.reports.get("imu"), prep.reports.get("wheel")
         self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
-        self.inject = lambda x, dx: step3d.boxplus(x, dx, self.L)
+        self.inject = partial(step3d.inject, L=self.L)  # on the state list
         self.update = step3d.Updater(self.gate, self.inject)
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
@@ -75,7 +84,9 @@ class Ekf3d:
         self._H_velocity = [np.zeros((m, self.L.n)) for m in range(4)]
         w = prep.wheel
         if w is not None:
-            self.wheel_v, self.wheel_var = w.velocity_mps.tolist(), w.velocity_var.tolist()
+            self.wheel_yaw_rate = "yaw_rate" in prep.use["wheel"]
+            self.wheel_rows = step3d.wheel_velocity_rows(w.velocity_mps, w.velocity_var, prep.use["wheel"],
+                                                         self.noise.nonholonomic_sigma_mps**2)
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
@@ -84,7 +95,7 @@ class Ekf3d:
         self.ii = -1  # index of the last IMU sample at or before the current time
 
     # -- state -------------------------------------------------------------------------------------
-    def _initial(self) -> tuple[np.ndarray, np.ndarray]:
+    def _initial(self) -> tuple[list[float], np.ndarray]:
         s, L, nz = self.start, self.L, self.noise
         b = s.bg if L.model != "cv" else np.zeros(3)
         x = new_state(s.R, np.zeros(3), s.v, b, np.zeros(3) if L.core == 15 else None)
@@ -102,7 +113,7 @@ class Ekf3d:
             d[12:15] = nz.init_accel_bias_sigma_mps2**2
         if L.clone:
             d[L.core:] = CLONE_DUMMY_VAR
-        return x, np.diag(d)
+        return x.tolist(), np.diag(d)
 
     def _first_valid_orientation(self) -> int:
         imu = self.prep.imu
@@ -114,6 +125,8 @@ class Ekf3d:
         i, st = self.ii, self.imu_list
         if i < 0:
             return None
+        if t_a == st[i] and i + 1 < len(st) and t_b == st[i + 1] and t_b - t_a <= self.imu_gap:
+            return self.imu_mid[0][i], self.imu_mid[1][i]  # the whole interval: its midpoint, worked out once
         if i + 1 >= len(st) or st[i + 1] - st[i] > self.imu_gap or t_b > st[i + 1]:
             if t_a == t_b == st[i]:
                 return self.imu_w[i], self.imu_f[i]
@@ -124,22 +137,22 @@ class Ekf3d:
         return ([w0 + a * (v0 - w0), w1 + a * (v1 - w1), w2 + a * (v2 - w2)],
                 [f0 + a * (g0 - f0), f1 + a * (g1 - f1), f2 + a * (g2 - f2)])
 
-    def _propagate(self, x: np.ndarray, P: np.ndarray, t_a: int, t_b: int) -> None:
+    def _propagate(self, x: list[float], P: np.ndarray, t_a: int, t_b: int) -> None:
         """Predict x and P (in place) from t_a to t_b."""
         dt = (t_b - t_a) * 1e-9
         L = self.L
-        if in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data in [t_a, t_b]
-            F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
+        if self.gappy and in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data there
+            F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
         elif L.model == "cv":
-            F, q = cv_step(x, dt, L), self.q(dt)
+            F, q = on_list(cv_step, x, dt, L), self.q(dt)
         else:
             u = self._imu_at(t_a, t_b)
-            if u is None:
-                F, q = hold_step(x, dt, L), gap_noise(L, self.noise, dt)
-            elif L.model == "ins":
+            if u is not None and self.ins is not None:
                 F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
+            elif u is None:
+                F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
             else:
-                F, q = gyro_step(x, dt, np.array(u[0]), L), self.q(dt)
+                F, q = on_list(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
         np.dot(F.dot(P), F.T, out=P)
         self._P_diag += q
         if self.smooth:
@@ -154,33 +167,20 @@ class Ekf3d:
         self.prep.reports[source].outcome(kind, status)
 
     def _open(self, t: int, x, P) -> None:
-        if not self.log.is_open:
-            self.log.open(t, x, P, self.Phi if self.smooth else None)
-            if self.smooth:
-                self.Phi = np.eye(self.L.n)
+        if self.log.open(t, x, P, self.Phi if self.smooth else None) and self.smooth:
+            self.Phi = np.eye(self.L.n)
 
     def _wheel(self, t: int, i: int, x, P) -> None:
-        w, use, nz = self.prep.wheel, self.prep.use["wheel"], self.noise
-        vel, vvar = self.wheel_v[i], self.wheel_var[i]
-        comps, z, var = [], [], []
-        if "velocity" in use:
-            for c in range(3):
-                if math.isfinite(vel[c]):
-                    comps.append(c), z.append(vel[c]), var.append(vvar[c])
-        if "speed" in use and math.isfinite(vel[0]):
-            for c in range(3):
-                if c not in comps:
-                    comps.append(c)
-                    z.append(vel[0] if c == 0 else 0.0)
-                    var.append(vvar[0] if c == 0 else nz.nonholonomic_sigma_mps**2)
-        if comps:
-            self._body_velocity(t, x, P, comps, z, var)
-        if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
+        row = self.wheel_rows[i]
+        if row is not None:
+            self._body_velocity(t, x, P, *row)
+        w = self.prep.wheel
+        if self.wheel_yaw_rate and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
                 self.prep.reports["wheel"].reject("in_gap")
             else:
-                r, H, Rn = m3.yaw_rate(x, w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
+                r, H, Rn = m3.yaw_rate(np.array(x), w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
                                        self.gyro_var, self.L)
                 self._update(t, x, P, r, H, Rn, "wheel", "wheel_yaw_rate", allow_reset=self.L.model == "cv")
 
@@ -194,7 +194,7 @@ class Ekf3d:
         for k in range(len(comps)):
             S[k][k] += var[k]
         status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity")
-        self.prep.reports["wheel"].outcome("wheel_velocity", status)
+        self.wheel_rep.outcome("wheel_velocity", status)
 
     def _odom(self, t: int, i: int, x, P) -> None:
         od, rep = self.prep.odom, self.prep.reports["odom"]
@@ -202,10 +202,10 @@ class Ekf3d:
         pv, rv = od.position_sigma_m[i] ** 2, od.rotation_sigma_rad[i] ** 2
         if "pose" in self.prep.use["odom"]:
             if self.T_world_odom is None:
-                self.T_world_odom = pose(x) @ inv_pose(T)
+                self.T_world_odom = pose(np.array(x)) @ inv_pose(T)
                 rep.note("anchor")
                 return
-            r, H, Rn = m3.pose_absolute(x, self.T_world_odom @ T, pv, rv, self.L)
+            r, H, Rn = m3.pose_absolute(np.array(x), self.T_world_odom @ T, pv, rv, self.L)
             self._update(t, x, P, r, H, Rn, "odom", "odom")
             return
         self._open(t, x, P)
@@ -214,8 +214,8 @@ class Ekf3d:
         else:
             j = self.odom_prev
             T_rel = inv_pose(od.poses[j]) @ T
-            r, H, Rn = m3.pose_delta(x, T_rel, pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2,
-                                     self.L)
+            r, H, Rn = m3.pose_delta(np.array(x), T_rel, pv + od.position_sigma_m[j] ** 2,
+                                     rv + od.rotation_sigma_rad[j] ** 2, self.L)
             self._update(t, x, P, r, H, Rn, "odom", "odom")
         self.odom_prev = i
         self.pending_clone = True
@@ -225,34 +225,46 @@ class Ekf3d:
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-        r, H, Rn = m3.position(x, z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
+        r, H, Rn = m3.position(np.array(x), z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
         self._update(t, x, P, r, H, Rn, "gps", "gps")
 
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""
         self._open(t, x, P)
-        r, Rn = step3d.orientation(x, self.prep.imu_R_wb[i], self.prep.imu.orientation_cov[i])
-        S = (P[TH, TH] + Rn).tolist()
-        status = self.update(x, P, list(r), P[:, TH], S, self._H_orientation, Rn, "orientation")
-        self.prep.reports["imu"].outcome("orientation", status)
+        c = self.imu_R_var[i]
+        r, Rn = step3d.orientation(x, self.imu_R[i], self.imu_R_cov[i], c is not None)
+        if c is None:
+            S = (self._P_block + Rn).tolist()
+        else:  # + c I on Python floats (numpy's add of the 3x3 views costs more than the rest of the step)
+            S = self._P_block.tolist()
+            S[0][0] += c
+            S[1][1] += c
+            S[2][2] += c
+        status = self.update(x, P, list(r), self._P_cols, S, self._H_orientation, Rn, "orientation")
+        self.imu_rep.outcome("orientation", status)
 
     # -- loop -------------------------------------------------------------------------------------
     def run(self) -> dict[str, np.ndarray]:
         prep = self.prep
-        x, P = self._initial()  # P: one buffer for the whole run, updated in place
+        x, P = self._initial()  # x: a list of floats (step3d), P: one buffer for the whole run, both in place
+        PT, self._P_cols, self._P_block = P.T, P[:, TH], P[TH, TH]  # views of it: P H^T and H P H^T for H = [I 0]
         self._P_diag = P.reshape(-1)[:: self.L.n + 1]
         self.Phi = np.eye(self.L.n)
         use_orientation = prep.imu_R_wb is not None
-        imu_rep = prep.reports.get("imu")
+        imu_rep = self.imu_rep
         imu_predicts = self.L.model != "cv"
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
         t_cur = prep.t0_ns
-        T = self._T
+        T, log = self._T, self.log
+        sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
+        steps = 0
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
             if t > t_cur:
-                np.add(P, P.T, out=T)  # P = 0.5 (P + P^T)
-                np.multiply(T, 0.5, out=P)
-                self.log.close(x, P)
+                steps += 1
+                if steps % sym_every == 0:
+                    np.add(P, PT, out=T)  # P = 0.5 (P + P^T)
+                    np.multiply(T, 0.5, out=P)
+                log.close(x, P)
                 if self.pending_clone:
                     x[CR_], x[CP_] = x[R_], x[P_]
                     P[...] = self.J @ P @ self.J.T
@@ -269,13 +281,14 @@ class Ekf3d:
                     self._orientation(t, i, x, P)
             elif kind == WHEEL:
                 self._wheel(t, i, x, P)
+            elif kind == OUT:  # after every update at t: the open knot's state is the output
+                if not log.is_open:
+                    self._open(t, x, P)
+                log.mark_output()
             elif kind == ODOM:
                 self._odom(t, i, x, P)
             elif kind == GPS:
                 self._gps(t, i, x, P)
-            elif kind == OUT:
-                self._open(t, x, P)
-                self.log.mark_output()
         self.log.close(x, 0.5 * (P + P.T))
         return self.log.arrays()
 

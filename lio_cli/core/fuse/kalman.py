@@ -9,7 +9,9 @@ knot. That is exactly what a Rauch-Tung-Striebel pass needs.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from itertools import chain
 
 import numpy as np
 from scipy.special import gammaincinv
@@ -30,15 +32,17 @@ class Gate:
 
     def __init__(self, probability: float, max_rejects: int):
         self.thr = chi2_thresholds(probability)
+        self._thr = self.thr.tolist()  # Python floats: checked once per update in the filter loop
+        self._last = len(self._thr) - 1
         self.max_rejects = max_rejects
         self.streak: dict[str, int] = {}
 
     def check(self, kind: str, d2: float, m: int, allow_reset: bool = True) -> tuple[bool, bool]:
         """(accept, was_reset). ``allow_reset=False`` for measurements that disagree with a sensor rather
         than with the state (a wheel yaw rate against the gyro): those are never forced in."""
-        if not np.isfinite(d2):
+        if not math.isfinite(d2):
             return False, False
-        if d2 <= self.thr[min(m, len(self.thr) - 1)]:
+        if d2 <= self._thr[m if m < self._last else self._last]:
             self.streak[kind] = 0
             return True, False
         n = self.streak.get(kind, 0) + 1
@@ -127,10 +131,10 @@ class KnotLog:
         self.Phi: list[np.ndarray] = []
         self._open = False
 
-    def open(self, t_ns: int, x: np.ndarray, P: np.ndarray, Phi: np.ndarray | None) -> None:
-        """Start a knot at ``t_ns`` (the predicted state); no-op when one is already open."""
+    def open(self, t_ns: int, x: np.ndarray, P: np.ndarray, Phi: np.ndarray | None) -> bool:
+        """Start a knot at ``t_ns`` (the predicted state); no-op (False) when one is already open."""
         if self._open:
-            return
+            return False
         self._open = True
         self.t_ns.append(t_ns)
         self.output.append(False)
@@ -138,6 +142,7 @@ class KnotLog:
             self.x_pred.append(x.copy())
             self.P_pred.append(P.copy())
             self.Phi.append(Phi.copy() if Phi is not None else np.eye(len(P)))
+        return True
 
     def mark_output(self) -> None:
         self.output[-1] = True
@@ -165,10 +170,18 @@ class KnotLog:
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"t_ns": np.asarray(self.t_ns, dtype=np.int64), "output": np.asarray(self.output, dtype=bool)}
         n = len(self.t_ns)
-        out["x_filt"] = np.asarray(self.x_filt) if n else np.zeros((0, 0))
+        out["x_filt"] = _rows(self.x_filt) if n else np.zeros((0, 0))
         out["P_filt"] = np.asarray(self.P_filt) if n and self.P_filt else np.zeros((0, 0, 0))
         if self.for_smoother:
-            out["x_pred"] = np.asarray(self.x_pred) if n else np.zeros((0, 0))
+            out["x_pred"] = _rows(self.x_pred) if n else np.zeros((0, 0))
             out["P_pred"] = np.asarray(self.P_pred) if n else np.zeros((0, 0, 0))
             out["Phi"] = np.asarray(self.Phi) if n else np.zeros((0, 0, 0))
         return out
+
+
+def _rows(states: list) -> np.ndarray:
+    """States recorded as arrays or as lists of floats (the 3D filter's), as one (N, n) array."""
+    if not isinstance(states[0], list):
+        return np.asarray(states)
+    n = len(states[0])
+    return np.fromiter(chain.from_iterable(states), np.float64, n * len(states)).reshape(len(states), n)

@@ -44,7 +44,11 @@ class SourceReport:
     def outcome(self, kind: str, status: str) -> None:
         """Count one update attempt of measurement ``kind``: ``ok``, ``reset`` (forced after a streak of
         rejections) or ``outlier``."""
-        k = self.by_kind.setdefault(kind, {"updates": 0, "outlier": 0})
+        k = self.by_kind.get(kind) or self.by_kind.setdefault(kind, {"updates": 0, "outlier": 0})
+        if status == "ok":  # the usual case first
+            self.updates += 1
+            k["updates"] += 1
+            return
         if status == "outlier":
             self.reject("outlier")
             k["outlier"] += 1

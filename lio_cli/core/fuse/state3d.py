@@ -101,6 +101,15 @@ def boxminus(xa: np.ndarray, xb: np.ndarray, L: Layout) -> np.ndarray:
     return d
 
 
+def on_list(step, x: list[float], *args) -> np.ndarray:
+    """A process model of this module (array state, in place) applied to a state held as a list of floats
+    (the filter loop's, ``step3d``); returns its F."""
+    xa = np.array(x)
+    F = step(xa, *args)
+    x[:] = xa.tolist()
+    return F
+
+
 def skew3(v: np.ndarray) -> np.ndarray:
     x, y, z = float(v[0]), float(v[1]), float(v[2])
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])

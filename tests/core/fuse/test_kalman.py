@@ -80,3 +80,21 @@ def test_knot_log_keeps_only_outputs_without_smoother():
     np.testing.assert_array_equal(out["t_ns"], [2])
     np.testing.assert_allclose(out["x_filt"], [[1.0, 1.0]])
     np.testing.assert_allclose(out["P_filt"], [[[2.0]]])  # only the kept block
+
+
+def test_knot_log_takes_states_as_lists_of_floats_alike():
+    # the 3D filter keeps its state as a list of floats; the smoother reads the same arrays either way
+    rng = np.random.default_rng(3)
+    states = rng.normal(size=(4, 2, 5))  # per knot: predicted, filtered
+    P = np.eye(5)
+    out = []
+    for as_list in (False, True):
+        log = KnotLog(for_smoother=True)
+        for k, (xp, xf) in enumerate(states):
+            log.open(k, xp.tolist() if as_list else xp.copy(), P, None)
+            log.mark_output()
+            log.close(xf.tolist() if as_list else xf.copy(), P)
+        out.append(log.arrays())
+    for key in ("x_pred", "x_filt"):
+        assert out[1][key].dtype == np.float64 and np.array_equal(out[1][key], out[0][key])
+    np.testing.assert_array_equal(out[1]["x_filt"], states[:, 1])

@@ -30,11 +30,11 @@ def test_ins_predictor_equals_ins_step():
     for _ in range(20):
         x = _state(rng, L)
         w, f, dt = rng.normal(size=3), rng.normal(size=3) + [0, 0, 9.8], rng.uniform(1e-4, 0.05)
-        xa, xb = x.copy(), x.copy()
+        xa, xb = x.copy(), x.tolist()  # the filter's state is a list of floats
         Fa = ins_step(xa, dt, w, f, L, g)
         Fb = pred(xb, dt, tuple(w.tolist()), tuple(f.tolist()))
         np.testing.assert_allclose(Fb, Fa, rtol=0, atol=TOL)
-        np.testing.assert_allclose(xb, xa, rtol=0, atol=TOL)
+        np.testing.assert_allclose(np.array(xb), xa, rtol=0, atol=TOL)
 
 
 def test_boxplus_equals_the_reference():
@@ -43,10 +43,12 @@ def test_boxplus_equals_the_reference():
         rng = np.random.default_rng(6)
         x = _state(rng, L)
         d = 0.3 * rng.normal(size=L.n)
-        xa, xb = x.copy(), x.copy()
+        xa, xb, xc = x.copy(), x.copy(), x.tolist()
         boxplus(xa, d, L)
         step3d.boxplus(xb, d, L)
+        step3d.inject(xc, d, L)  # the filter's state list
         np.testing.assert_allclose(xb, xa, rtol=0, atol=TOL)
+        assert len(xc) == len(x) and xc == xb.tolist()
 
 
 def test_updater_equals_kalman_update_and_gates_alike():
@@ -76,7 +78,7 @@ def test_measurement_kernels_equal_the_measurement_models():
         z, var = rng.normal(size=len(comps)), rng.uniform(0.01, 0.1, len(comps))
         r_ref, H_ref, Rn_ref = m3.body_velocity(x, z, comps, var, L)
         H = np.zeros((len(comps), L.n))
-        r = step3d.body_velocity(x, z.tolist(), comps, H)
+        r = step3d.body_velocity(x.tolist(), z.tolist(), comps, H)
         np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
         np.testing.assert_allclose(H, H_ref, rtol=0, atol=TOL)
     for _ in range(5):
@@ -84,7 +86,42 @@ def test_measurement_kernels_equal_the_measurement_models():
         R_meas, A = so3_exp(rng.normal(size=3)), rng.normal(size=(3, 3))
         cov = A @ A.T
         r_ref, H_ref, Rn_ref = m3.orientation(x, R_meas, cov, L)
-        r, Rn = step3d.orientation(x, R_meas, cov)
+        r, Rn = step3d.orientation(x.tolist(), R_meas.ravel().tolist(), cov)
         np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
         np.testing.assert_allclose(Rn, Rn_ref, rtol=0, atol=TOL * 10)
+        iso = np.eye(3) * rng.uniform(1e-3, 1e-1)  # a usual driver's covariance: no rotation changes it
+        assert step3d.isotropic_variances(np.stack([cov, iso, iso + 1e-9 * np.eye(3)[::-1]])) == [None, iso[0, 0], None]
+        r_ref, _, Rn_ref = m3.orientation(x, R_meas, iso, L)
+        r, Rn = step3d.orientation(x.tolist(), R_meas.ravel().tolist(), iso, isotropic=True)
+        np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
+        np.testing.assert_allclose(Rn, Rn_ref, rtol=1e-14, atol=1e-15 * iso[0, 0])  # R^T R = I to rounding
         assert (H_ref[:, 0:3] == np.eye(3)).all() and not H_ref[:, 3:].any()  # the selection _orientation assumes
+
+
+def test_wheel_rows_of_whole_messages_equal_the_per_message_rule():
+    rng = np.random.default_rng(9)
+    vel, var = rng.normal(size=(40, 3)), rng.uniform(0.01, 0.1, (40, 3))
+    vel[::3, 1] = np.nan  # a lateral speed missing now and then
+    vel[::7, 0] = np.nan  # and the forward speed
+    for use in ({"velocity"}, {"speed"}, {"velocity", "speed"}):
+        rows = step3d.wheel_velocity_rows(vel, var, use, 0.04)
+        for row, v, vv in zip(rows, vel.tolist(), var.tolist()):
+            want = step3d._wheel_row(v, vv, use, 0.04)
+            assert (row is None) == (want is None)
+            if row is not None:
+                assert tuple(row[0]) == want[0] and list(row[1]) == want[1] and list(row[2]) == want[2]
+    rows = step3d.wheel_velocity_rows(vel, var, {"speed"}, 0.04)
+    assert rows[1] == ((0, 1, 2), [vel[1, 0], 0.0, 0.0], [var[1, 0], 0.04, 0.04])  # the non-holonomic rule
+    assert rows[0] is None  # no forward speed: nothing to say with speed alone
+
+
+def test_interval_midpoints_equal_the_interpolation_of_the_filter():
+    rng = np.random.default_rng(10)
+    st = 1_300_000_000_000_000_000 + np.cumsum(rng.integers(4_000_000, 6_000_000, 30))  # epoch ns: float rounding
+    w, f = rng.normal(size=(30, 3)), rng.normal(size=(30, 3))
+    mid_w, mid_f = step3d.interval_midpoints(st, w, f)
+    for i in range(29):
+        a, b = int(st[i]), int(st[i + 1])
+        t = (0.5 * (a + b) - a) / (b - a)
+        assert mid_w[i] == [w[i, k] + t * (w[i + 1, k] - w[i, k]) for k in range(3)]
+        assert mid_f[i] == [f[i, k] + t * (f[i + 1, k] - f[i, k]) for k in range(3)]
