@@ -110,10 +110,12 @@ class LidarPass:
         self.stats: dict = {}  # the odometry's scan counts and events of the last run
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
-            gather: bool = False, refine: int = 1, until_ns: int | None = None) -> tuple[LidarTrajectory, SensorArrays]:
+            gather: bool = False, refine: int = 1, until_ns: int | None = None,
+            fuse: bool = True) -> tuple[LidarTrajectory, SensorArrays]:
         """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for a gyro-primed pass (IMU-primed and
         fused for 2D scans: ``refine`` numbers the pass), None for LiDAR only. ``gather``: also collect the IMU
-        and wheel arrays. ``until_ns``: stop at the first scan stamped after it."""
+        and wheel arrays. ``until_ns``: stop at the first scan stamped after it. ``fuse`` False: 2D scans
+        gyro-primed too, never fused."""
         cfg = self.cfg
         with_imu = imu_mounting is not None
         conv = parse_time_convention(cfg.input.point_time) if cfg.input.point_time else None
@@ -123,7 +125,8 @@ class LidarPass:
         if gather:
             wanted["wheel"] = self.topics.get("wheel")
         stream = SensorStream(self.reader, wanted, convention=conv, strict=False)
-        fused = PLANAR_FUSION_SIGMAS[min(refine, len(PLANAR_FUSION_SIGMAS)) - 1] if with_imu and self.planar else None
+        fused = PLANAR_FUSION_SIGMAS[min(refine, len(PLANAR_FUSION_SIGMAS)) - 1] if with_imu and self.planar and fuse \
+            else None
         ocfg = pass_config(cfg, with_imu, fused)
         odo = None
         arrays, imu_batches, wheel = SensorArrays(), [], []

@@ -7,6 +7,12 @@ rotation and the gyro bias correction ``b`` (the gyro re-integrated with the bia
 stay exact) gives the estimate, with an optional prior (e.g. /tf_static) that only matters along directions
 the motion does not show. Longer windows hold more rotation against the same per-pose noise.
 
+The trajectory is a registration's, and a registration need not turn as the sensor did: LiDAR-only odometry of
+a car follows about a third of its slow roll and pitch sways (``lio simulate drive``: the gyro-primed pass, even
+de-skewed with the true motion), and roll that comes with the turns then reads as a mounting tilted by about a
+degree. So a symmetric gain ``S`` (``phi_lidar = (I + S) R (phi_imu - b dt)``; a rotation has no symmetric part)
+is fitted too, and kept when it is clearly there and the motion can tell it from the mounting.
+
 Errors are ``R_est = exp(e) R_true`` with ``e`` in the LiDAR frame: ``sigma_rad`` is the 1-sigma of e about
 the LiDAR's x, y, z axes. Pass the trajectory of the base instead and everything reads base for LiDAR.
 """
@@ -28,6 +34,17 @@ from .signals import GyroOrientation
 REG_SIGMA_RAD = 1.0  # regularisation of directions nothing observes (keeps the normal matrix invertible)
 REG_SIGMA_BIAS_RADPS = 1.0
 OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier
+REG_GAIN = 1.0
+# the registration's gain: it may report a rotation other than the one the sensor made, e.g. LiDAR-only odometry
+# of a vehicle follows a fraction of its slow roll and pitch sways (the map it matches was built on poses with
+# the same error); modelled (phi_lidar = (I + S) R phi_imu, S symmetric: a rotation has no symmetric part) when
+# an entry of S departs from zero by more than this and by GAIN_SIGMAS of its 1-sigma
+GAIN_TOL = 0.05
+GAIN_SIGMAS = 4.0
+GAIN_ENTRIES = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))
+_GAIN_BASIS = np.zeros((6, 3, 3))
+_GAIN_BASIS[np.arange(6), GAIN_ENTRIES[0], GAIN_ENTRIES[1]] = 1.0
+_GAIN_BASIS[np.arange(6), GAIN_ENTRIES[1], GAIN_ENTRIES[0]] = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +58,7 @@ class RotationCalib(CalibrationResult):
     windows: int
     rms_residual_rad: float
     notes: tuple[str, ...]
+    registration_gain: np.ndarray  # (3,3) symmetric S: the trajectory turns by (I + S) R phi_imu (zero: not modelled)
 
 
 def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, imu_stamps_ns: np.ndarray,
@@ -78,44 +96,66 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
             noise = max(float(np.sqrt((r0 * r0).mean())), 1e-9)  # per-component residual: whitens the problem
             if R_lidar_imu_prior is not None:
                 R = np.asarray(R_lidar_imu_prior, np.float64)
-        R, b, r, H, J, prior_info = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior,
-                                                  prior_sigma_rad)
+        R, b, _, r, H, J, prior_info = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior,
+                                                     prior_sigma_rad)
         bias = bias + b
         bad = outliers_3d(noise * np.linalg.norm(r, axis=1), OUTLIER_FLOOR_RAD)  # r is whitened
         if rnd == 0 and bad.any():
             keep[np.flatnonzero(keep)[bad]] = False
             notes.append(f"{int(bad.sum())} windows left out: their rotation disagrees with the gyro's (bad "
                          f"registrations?)")
-    scores = np.einsum("nji,nj->ni", J, r)
-    cov = sandwich_covariance(H, scores, lag=span, prior_info=prior_info)
+    cov = sandwich_covariance(H, np.einsum("nji,nj->ni", J, r), lag=span, prior_info=prior_info)
+    gain = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior, prior_sigma_rad, gain=True)
+    cov_g = sandwich_covariance(gain[4], np.einsum("nji,nj->ni", gain[5], gain[3]), lag=span, prior_info=gain[6])
+    S = gain[2][GAIN_ENTRIES]
+    z = np.abs(S) / np.sqrt(np.diag(cov_g)[6:])
+    # ...unless the motion cannot tell the gain from the mounting (a 2D scanner reports no roll or pitch at all,
+    # and a platform that only turns about the vertical cannot show how the registration would follow them)
+    identifiable = (per_axis(cov_g[:3, :3], max_sigma_rad)[1] >= per_axis(cov[:3, :3], max_sigma_rad)[1]).all()
+    if identifiable and ((np.abs(S) > GAIN_TOL) & (z > GAIN_SIGMAS)).any():
+        R, bias, cov, r = gain[0], bias + gain[1], cov_g, gain[3]
+        w = np.linalg.eigvalsh(gain[2])
+        notes.append(f"the {frame} trajectory turns by {100 * (1 + w[0]):.0f}% to {100 * (1 + w[-1]):.0f}% of the "
+                     f"gyro's rotation, depending on the axis (LiDAR-only registration following a fraction of slow "
+                     f"roll and pitch sways?): modelled, the mounting is estimated from the rest")
     sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
     _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
-    return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:, 3:])), int(keep.sum()),
-                         float(noise * np.sqrt((r * r).mean())), tuple(notes))
+    return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:6, 3:6])), int(keep.sum()),
+                         float(noise * np.sqrt((r * r).mean())), tuple(notes), gain[2] if cov is cov_g else np.zeros((3, 3)))
 
 
 def _gauss_newton(R: np.ndarray, phi_l: np.ndarray, phi_i: np.ndarray, dt: np.ndarray, noise: float,
-                  R_prior: np.ndarray | None, prior_sigma_rad: float, iterations: int = 4):
-    """Minimise sum |phi_l - R (phi_i - b dt)|^2 / noise^2 (+ prior on R) over R = exp(d) R and b.
+                  R_prior: np.ndarray | None, prior_sigma_rad: float, gain: bool = False, iterations: int = 4):
+    """Minimise sum |phi_l - (I + S) R (phi_i - b dt)|^2 / noise^2 (+ prior on R) over R = exp(d) R, b and, with
+    ``gain``, the symmetric S (six entries, ``GAIN_ENTRIES``; else S = 0).
 
-    Returns (R, b, whitened residuals, normal matrix with prior, whitened Jacobian, the prior's information)."""
-    b = np.zeros(3)
+    Returns (R, b, S, whitened residuals, normal matrix with prior, whitened Jacobian, the prior's information)."""
+    b, S = np.zeros(3), np.zeros((3, 3))
     Rp = R if R_prior is None else np.asarray(R_prior, np.float64)
-    prior_info = np.zeros((6, 6))
+    n_par = 12 if gain else 6
+    prior_info = np.zeros((n_par, n_par))
     prior_info[:3, :3] = np.eye(3) / (prior_sigma_rad if R_prior is not None else REG_SIGMA_RAD) ** 2
-    prior_info[3:, 3:] = np.eye(3) / REG_SIGMA_BIAS_RADPS**2
+    prior_info[3:6, 3:6] = np.eye(3) / REG_SIGMA_BIAS_RADPS**2
+    prior_info[6:, 6:] = np.eye(n_par - 6) / REG_GAIN**2
     for it in range(iterations + 1):
         u = (phi_i - b * dt[:, None]) @ R.T
-        r = (phi_l - u) / noise
-        J = np.concatenate([skew(u), np.broadcast_to(R, (len(u), 3, 3)) * dt[:, None, None]], axis=2) / noise
+        A = np.eye(3) + S
+        r = (phi_l - u @ A.T) / noise
+        J = np.concatenate([A @ skew(u), (A @ R)[None] * dt[:, None, None]], axis=2) / noise
+        if gain:
+            J = np.concatenate([J, -np.einsum("mjk,nk->njm", _GAIN_BASIS, u) / noise], axis=2)
         H = np.einsum("nji,njk->ik", J, J) + prior_info
         if it == iterations:
-            return R, b, r, H, J, prior_info
+            return R, b, S, r, H, J, prior_info
         g = np.einsum("nji,nj->i", J, r)
         g[:3] += prior_info[0, 0] * so3_log(R @ Rp.T)
+        if gain:
+            g[6:] += prior_info[6, 6] * S[GAIN_ENTRIES]
         step = -np.linalg.solve(H, g)
         R = so3_exp(step[:3]) @ R
-        b = b + step[3:]
+        b = b + step[3:6]
+        if gain:
+            S = S + np.einsum("m,mjk->jk", step[6:], _GAIN_BASIS)
     raise AssertionError("unreachable")
 
 

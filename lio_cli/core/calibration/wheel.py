@@ -30,6 +30,7 @@ from .common import NS_PER_S, CalibrationResult, check_stamps, check_trajectory,
 OUTLIER_SIGMAS = 4.0
 MIN_DISTANCE_M = 2.0
 WEAK_REL_SIGMA = 0.01
+MAX_SCALE = 1.5  # a wheel odometry 50% off is not mis-calibrated but measuring something else
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,6 +118,12 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
     cov = np.linalg.inv(fit.jac.T @ fit.jac + np.eye(3))  # + a unit prior: a factor the motion never shows stays finite
     s_v, s_w, d_w = fit.x
     sv_sig, sw_sig, dw_sig = np.sqrt(np.diag(cov))
+    if not (1 / MAX_SCALE < s_v < MAX_SCALE and 1 / MAX_SCALE < s_w < MAX_SCALE):
+        # factors are corrections near one: far from it, the two disagree about the motion itself (a corridor
+        # along which the LiDAR cannot see the platform move: speed scale 0.02 or negative, not 1.01)
+        raise InputError(f"the wheels and the LiDAR trajectory disagree about the motion itself (speed scale "
+                         f"{s_v:.3g}, yaw-rate scale {s_w:.3g}): the LiDAR did not see the distance travelled (a "
+                         f"corridor or open ground along the way?) or the wheel topic is not this platform's")
     notes: list[str] = []
     if baseline_m is None:
         notes.append("no nominal baseline: the small speed error of unequal wheels while turning is not modelled")

@@ -75,3 +75,34 @@ def test_a_bad_registration_is_left_out(handheld):
                           imu_time_offset_s=handheld.imu_time_offset_s)
     assert np.linalg.norm(_err_deg(r.R_lidar_imu, handheld)) < HANDHELD_TOL_DEG
     assert r.notes == ("2 windows left out: their rotation disagrees with the gyro's (bad registrations?)",)
+
+
+def _following(d, share_roll_pitch: float) -> np.ndarray:
+    """``d``'s LiDAR poses as a registration that follows only ``share_roll_pitch`` of each roll and pitch step."""
+    R = d.T_world_lidar[:, :3, :3]
+    steps = so3_log(np.swapaxes(R[:-1], 1, 2) @ R[1:]) * [share_roll_pitch, share_roll_pitch, 1.0]
+    out = d.T_world_lidar.copy()
+    for k, v in enumerate(steps):
+        out[k + 1, :3, :3] = out[k, :3, :3] @ so3_exp(v)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_registration_following_part_of_the_sway_is_modelled(seed, monkeypatch):
+    """LiDAR-only odometry of a car follows ~30% of its slow roll and pitch sways (measured on `lio simulate drive`):
+    taken for the sensor's rotation, that tilts the turn axis and the mounting's roll and pitch by about a degree."""
+    d = calibration_inputs("drive", 60.0, seed=seed, imu_time_offset_s=0.01, rot_noise_deg=0.03)
+    poses = _following(d, 0.3)
+    r = estimate_rotation(d.lidar_stamps_ns, poses, d.imu.stamps_ns, d.imu.gyro_radps,
+                          imu_time_offset_s=d.imu_time_offset_s)
+    assert np.abs(_err_deg(r.R_lidar_imu, d)[:2]).max() < 0.3
+    np.testing.assert_allclose(np.diag(r.registration_gain)[:2], -0.7, atol=0.1)
+    assert any(n.startswith("the LiDAR trajectory turns by 30% to 100% of the gyro's rotation") for n in r.notes)
+    # the same motion registered faithfully: no gain is found, the plain fit stands
+    clean = estimate_rotation(d.lidar_stamps_ns, d.T_world_lidar, d.imu.stamps_ns, d.imu.gyro_radps,
+                              imu_time_offset_s=d.imu_time_offset_s)
+    assert not clean.registration_gain.any() and np.abs(_err_deg(clean.R_lidar_imu, d)[:2]).max() < 0.1
+    monkeypatch.setattr("lio_cli.core.calibration.rotation.GAIN_TOL", np.inf)  # the gain never modelled
+    plain = estimate_rotation(d.lidar_stamps_ns, poses, d.imu.stamps_ns, d.imu.gyro_radps,
+                              imu_time_offset_s=d.imu_time_offset_s)
+    assert np.abs(_err_deg(plain.R_lidar_imu, d)[:2]).max() > 0.8

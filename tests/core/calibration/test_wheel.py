@@ -66,3 +66,14 @@ def test_disjoint_clocks_are_refused(planar):
     with pytest.raises(InputError, match=re.escape(msg)):
         estimate_wheel_scales(planar.wheel.stamps_ns + 1000 * NS, planar.wheel.linear_mps, planar.wheel.angular_radps,
                               planar.lidar_stamps_ns, planar.T_world_lidar)
+
+
+def test_a_trajectory_that_does_not_see_the_distance_is_refused(planar):
+    """A corridor along which the LiDAR cannot see the platform move: its path a fraction of the wheels' (the
+    scales came out 0.02 and -0.016 on `lio simulate corridor`). Refused, not written as a calibration."""
+    poses = planar.T_world_lidar.copy()
+    poses[:, :3, 3] *= 0.2
+    with pytest.raises(InputError, match=r"^the wheels and the LiDAR trajectory disagree about the motion itself "
+                                         r"\(speed scale 0\.2, yaw-rate scale 0\.9\d+\): the LiDAR did not see"):
+        estimate_wheel_scales(planar.wheel.stamps_ns, planar.wheel.linear_mps, planar.wheel.angular_radps,
+                              planar.lidar_stamps_ns, poses, T_base_traj=planar.T_base_lidar)
