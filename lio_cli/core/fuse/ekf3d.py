@@ -30,7 +30,7 @@ from .state3d import (
     CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
     on_list, pose,
 )
-from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
+from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, gap_free_until, in_coverage_gap
 
 CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
 CV_OMEGA_SIGMA_RADPS = 0.5
@@ -53,9 +53,7 @@ class Ekf3d:
         self.prep, self.o, self.noise = prep, options, options.noise
         self.L = Layout(model_for(prep.use), clone="delta" in prep.use.get("odom", ()))
         self.q = ProcessNoise(self.L, self.noise)
-        self.cover_starts = [a for a, _ in prep.coverage]
-        self.cover_ends = [b for _, b in prep.coverage]
-        self.gappy = len(prep.coverage) > 1  # only then can a step fall between covered stretches
+        self.cover_starts, self.cover_ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
         self.g = np.array([0.0, 0.0, -options.gravity_mps2])
         self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
@@ -141,7 +139,11 @@ class Ekf3d:
         """Predict x and P (in place) from t_a to t_b."""
         dt = (t_b - t_a) * 1e-9
         L = self.L
-        if self.gappy and in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data there
+        gap = False
+        if t_a >= self.gap_free_until:  # searched only past the end of the covered stretch last seen
+            gap = in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b)
+            self.gap_free_until = gap_free_until(self.cover_starts, self.cover_ends, t_b)
+        if gap:  # no motion data there
             F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
         elif L.model == "cv":
             F, q = on_list(cv_step, x, dt, L), self.q(dt)
@@ -254,7 +256,7 @@ class Ekf3d:
         imu_rep = self.imu_rep
         imu_predicts = self.L.model != "cv"
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
-        t_cur = prep.t0_ns
+        t_cur = self.gap_free_until = prep.t0_ns  # the gap test skips steps starting before gap_free_until
         T, log = self._T, self.log
         sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
         steps = 0

@@ -89,6 +89,14 @@ def in_coverage_gap(starts: list[int], ends: list[int], t_a: int, t_b: int) -> b
     return 0 <= k < len(starts) - 1 and t_a >= ends[k] and t_b <= starts[k + 1] and t_b > t_a
 
 
+def gap_free_until(starts: list[int], ends: list[int], t: int) -> int:
+    """A stamp up to which no step from ``t`` on can start in a coverage gap (``in_coverage_gap`` is False
+    for every ``t <= t_a <`` it): the end of the covered stretch holding ``t``; ``t`` itself where none does
+    or ``t`` is at its end. Stretches are merged, so the next starts after it."""
+    k = bisect_right(starts, t) - 1
+    return ends[k] if k >= 0 and t < ends[k] else t
+
+
 def _inside(stamps: np.ndarray, coverage: list[tuple[int, int]]) -> np.ndarray:
     ok = np.zeros(len(stamps), bool)
     for a, b in coverage:
