@@ -20,6 +20,7 @@ _U32 = struct.Struct("<I")
 _BLOCK = 65_536  # index entries turned into Python values at a time (the first blocks smaller: a peek at a
 _FIRST_BLOCK = 256  # topic's first messages converts a few hundred entries, not tens of thousands)
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
+_TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 
 
@@ -95,7 +96,11 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
         while True:
             (hlen,) = unpack(buf, pos)
             h0, h1 = pos + 4, pos + 4 + hlen
-            op = _op(buf, h0, h1)
+            if buf[h0 + 34:h0 + 37] == b"op=" and buf[h0:h0 + 9] == _TIME and buf[h0 + 17:h0 + 26] == _CONN \
+                    and h0 + 30 < h1:
+                op = buf[h0 + 37]  # time, conn, op as rosbag writes them: what _op finds, without its loop
+            else:
+                op = _op(buf, h0, h1)
             (dlen,) = unpack(buf, h1)
             d0 = h1 + 4
             if op != _OP_CONNECTION:
