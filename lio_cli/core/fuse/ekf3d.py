@@ -8,8 +8,8 @@ its length. Updates: odometry poses (absolute, tied to the fused world at the fi
 between consecutive odometry poses (a clone of the pose at the previous odometry stamp joins the state),
 wheel body velocity (forward speed with the non-holonomic constraint, or the measured components) and yaw
 rate, GPS position (ENU about the first fix; the start position is then estimated, not pinned), the IMU's
-orientation. Each update passes a
-chi-square gate (``FuseOptions.gate_probability``); rejections are counted per source and reason.
+orientation. Each update passes a chi-square gate (``FuseOptions.gate_probability``); rejections are counted
+per source and reason. An output at the stamp of another event is handled with it (``folded_outputs``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from .state3d import (
     CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
     on_list, pose,
 )
-from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, gap_free_until, in_coverage_gap
+from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
 
 CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
 CV_OMEGA_SIGMA_RADPS = 0.5
@@ -253,14 +253,13 @@ class Ekf3d:
         self._P_diag = P.reshape(-1)[:: self.L.n + 1]
         self.Phi = np.eye(self.L.n)
         use_orientation = prep.imu_R_wb is not None
-        imu_rep = self.imu_rep
-        imu_predicts = self.L.model != "cv"
+        imu_rep, imu_predicts = self.imu_rep, self.L.model != "cv"
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
         t_cur = self.gap_free_until = prep.t0_ns  # the gap test skips steps starting before gap_free_until
         T, log = self._T, self.log
         sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
         steps = 0
-        for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
+        for t, kind, i, out in zip(*folded_outputs(prep)):
             if t > t_cur:
                 steps += 1
                 if steps % sym_every == 0:
@@ -283,14 +282,14 @@ class Ekf3d:
                     self._orientation(t, i, x, P)
             elif kind == WHEEL:
                 self._wheel(t, i, x, P)
-            elif kind == OUT:  # after every update at t: the open knot's state is the output
-                if not log.is_open:
-                    self._open(t, x, P)
-                log.mark_output()
             elif kind == ODOM:
                 self._odom(t, i, x, P)
             elif kind == GPS:
                 self._gps(t, i, x, P)
+            if out:  # an output (after every update at t): the open knot's state
+                if not log.is_open:
+                    self._open(t, x, P)
+                log.mark_output()
         self.log.close(x, 0.5 * (P + P.T))
         return self.log.arrays()
 

@@ -205,6 +205,20 @@ def _output(prep: Prepared, options: FuseOptions) -> None:
     prep.out_stamps, prep.out_dropped = req[ok], int(np.count_nonzero(~ok))
 
 
+def folded_outputs(prep: Prepared) -> tuple[list[int], list[int], list[int], list[bool]]:
+    """The event stream as lists (times, kinds, indexes) plus ``out``: mark an output once the event is
+    handled. An output right after another event at its stamp (outputs come last at a stamp) is folded into
+    that event; one at a stamp of its own stays an event (``out`` True, nothing else to do). Half the
+    events of a run whose outputs are the IMU stamps, which a filter loop then need not go round."""
+    t, k = prep.times, prep.kinds
+    fold = np.zeros(len(t), bool)
+    fold[1:] = (k[1:] == OUT) & (t[1:] == t[:-1]) & (k[:-1] != OUT)
+    keep = ~fold
+    out = k == OUT
+    out[:-1] |= fold[1:]
+    return t[keep].tolist(), k[keep].tolist(), prep.index[keep].tolist(), out[keep].tolist()
+
+
 def snap_to(stamps: np.ndarray, grid: np.ndarray, tol_ns: int) -> tuple[np.ndarray, int]:
     """``stamps`` moved onto the nearest ``grid`` stamp where that is at most ``tol_ns`` away."""
     if tol_ns <= 0 or len(grid) == 0 or len(stamps) == 0:
