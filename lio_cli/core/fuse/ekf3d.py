@@ -59,9 +59,8 @@ class Ekf3d:
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
         imu = prep.imu
         self.imu_list = imu.stamps_ns.tolist() if imu is not None else []
-        # per-sample values as Python floats: the loop reads them one sample at a time
-        self.imu_w = prep.imu_w_b.tolist() if imu is not None else []
-        self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
+        # per-sample values, read as Python floats a sample at a time only off the whole-interval midpoints
+        self.imu_w, self.imu_f = prep.imu_w_b, prep.imu_f_b
         self.imu_mid = step3d.interval_midpoints(imu.stamps_ns, prep.imu_w_b, prep.imu_f_b) if imu is not None else None
         self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
         self.imu_R_var = step3d.isotropic_variances(imu.orientation_cov) if self.imu_R is not None else None
@@ -127,11 +126,11 @@ class Ekf3d:
             return self.imu_mid[0][i], self.imu_mid[1][i]  # the whole interval: its midpoint, worked out once
         if i + 1 >= len(st) or st[i + 1] - st[i] > self.imu_gap or t_b > st[i + 1]:
             if t_a == t_b == st[i]:
-                return self.imu_w[i], self.imu_f[i]
+                return self.imu_w[i].tolist(), self.imu_f[i].tolist()
             return None
         a = (0.5 * (t_a + t_b) - st[i]) / (st[i + 1] - st[i])
-        (w0, w1, w2), (v0, v1, v2) = self.imu_w[i], self.imu_w[i + 1]
-        (f0, f1, f2), (g0, g1, g2) = self.imu_f[i], self.imu_f[i + 1]
+        (w0, w1, w2), (v0, v1, v2) = self.imu_w[i:i + 2].tolist()
+        (f0, f1, f2), (g0, g1, g2) = self.imu_f[i:i + 2].tolist()
         return ([w0 + a * (v0 - w0), w1 + a * (v1 - w1), w2 + a * (v2 - w2)],
                 [f0 + a * (g0 - f0), f1 + a * (g1 - f1), f2 + a * (g2 - f2)])
 
