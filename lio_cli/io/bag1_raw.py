@@ -2,7 +2,7 @@
 
 rosbags' ``Reader.messages`` parses every record header into a dict of fields and merges the per-connection
 indexes one entry at a time: about 8 us per message, as much as the fusion filter spends on it. Here the
-same index entries (rosbags already read them when the bag was opened) are put in the same order (by
+same index entries (read into columns when the bag was opened: ``bag1_index``) are put in the same order (by
 record time; on equal times connection by connection in the order asked, each in its index order: what
 ``heapq.merge`` yields) and each record is sliced out of its decompressed chunk with ``struct``. Same
 messages, same order, same bytes; anything unexpected raises (the caller reports the log as damaged).
@@ -20,6 +20,7 @@ _U32 = struct.Struct("<I")
 _BLOCK = 65_536  # index entries turned into Python values at a time (the first blocks smaller: a peek at a
 _FIRST_BLOCK = 256  # topic's first messages converts a few hundred entries, not tens of thousands)
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
+_TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 
 
@@ -36,23 +37,13 @@ def _op(buf: bytes, start: int, end: int) -> int:
     raise ValueError("record header without op")
 
 
-def _entries(reader, connections: list, columns: dict[int, np.ndarray] | None = None
-             ) -> Iterator[Iterator[tuple[int, int, int, int]]]:
+def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int, int]]]:
     """Blocks of (time, chunk position, offset in chunk, index of the connection in ``connections``) of every
     index entry in the order rosbags' ``heapq.merge`` of its index lists gives (its entries compare by time
     only: equal times come connection by connection in the order asked, each in its index order), i.e. a
-    stable sort by time. Held as three int64 and one int32 per entry (28 bytes, not a tuple's ~100: rosbags'
-    own index already grows with the log) and turned into Python values a block at a time. ``columns``
-    (connection id -> its (3, m) entry columns) may be kept by the caller across calls."""
-    columns = {} if columns is None else columns
-    parts = []
-    for conn in connections:
-        part = columns.get(conn.id)
-        if part is None:
-            idx = reader.indexes[conn.id]
-            m = len(idx)
-            part = columns[conn.id] = np.fromiter(chain.from_iterable(idx), np.int64, 3 * m).reshape(m, 3).T.copy()
-        parts.append(part)
+    stable sort by time. The entries are the reader's index columns (``bag1_index``), turned into Python
+    values a block at a time."""
+    parts = [reader.index_columns[conn.id] for conn in connections]
     cols = np.concatenate(parts, axis=1) if len(parts) != 1 else parts[0]
     which = np.repeat(np.arange(len(parts), dtype=np.int32), [p.shape[1] for p in parts])
     order = np.argsort(cols[0], kind="stable")
@@ -63,22 +54,22 @@ def _entries(reader, connections: list, columns: dict[int, np.ndarray] | None = 
         yield zip(*(cols[:, sel].tolist()), which[sel].tolist())
 
 
-def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
-             columns: dict[int, np.ndarray] | None = None) -> Iterator[tuple[str, str, int, bytes, object]]:
+def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
+             ) -> Iterator[tuple[str, str, int, bytes, object]]:
     """(topic, msgtype, record time ns, serialised message, connection) of ``connections`` (rosbags
-    connections of the one ROS 1 ``reader``), in the order rosbags' ``reader.messages(connections=...)``
-    yields them.
+    connections of the one ROS 1 ``reader``, a ``bag1_index.ColumnIndexReader``), in the order rosbags'
+    ``reader.messages(connections=...)`` yields them.
 
     ``chunks`` (chunk position -> decompressed bytes, the last ``KEEP_CHUNKS``) may be kept by the caller
     across calls: messages in record-time order go back and forth between neighbouring chunks whose times
     overlap, and a peek at a topic's first messages opens the chunks the full read opens next; each is
-    decompressed once (bz2 is most of the reading time). ``columns``: see ``_entries``."""
+    decompressed once (bz2 is most of the reading time)."""
     unpack = _U32.unpack_from
     chunk_pos, buf = -1, b""
     bio = reader.bio
     chunks = {} if chunks is None else chunks
     topics, types = [c.topic for c in connections], [c.msgtype for c in connections]
-    for t_ns, pos_c, offset, k in chain.from_iterable(_entries(reader, connections, columns)):
+    for t_ns, pos_c, offset, k in chain.from_iterable(_entries(reader, connections)):
         if pos_c != chunk_pos:
             buf = chunks.get(pos_c)
             if buf is None:
@@ -95,7 +86,11 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
         while True:
             (hlen,) = unpack(buf, pos)
             h0, h1 = pos + 4, pos + 4 + hlen
-            op = _op(buf, h0, h1)
+            if buf[h0 + 34:h0 + 37] == b"op=" and buf[h0:h0 + 9] == _TIME and buf[h0 + 17:h0 + 26] == _CONN \
+                    and h0 + 30 < h1:
+                op = buf[h0 + 37]  # time, conn, op as rosbag writes them: what _op finds, without its loop
+            else:
+                op = _op(buf, h0, h1)
             (dlen,) = unpack(buf, h1)
             d0 = h1 + 4
             if op != _OP_CONNECTION:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .pointcloud import stamp_to_ns
+from .peek import peek
 from .reader import LogReader
 
 CLOCK_TOLERANCE_NS = 500_000_000  # a few scan periods; recording latency is far smaller
@@ -21,20 +21,11 @@ _FIRST = 5
 def _stamp_offsets(log: LogReader, topic: str) -> tuple[np.ndarray, np.ndarray]:
     """(header stamps, header minus record time) of the first messages of ``topic``."""
     heads, recs = [], []
-    messages = log.messages([topic])
-    try:
-        for _, _, t_rec, msg in messages:
-            header = getattr(msg, "header", None)
-            if header is None:
-                break
-            heads.append(stamp_to_ns(header.stamp))
-            recs.append(int(t_rec))
-            if len(heads) >= _FIRST:
-                break
-    except InputError:
-        pass  # a damaged topic shows itself when it is read for real
-    finally:
-        messages.close()
+    for m in peek(log, topic, _FIRST):
+        if m.stamp_ns is None:
+            break
+        heads.append(m.stamp_ns)
+        recs.append(int(m.record_ns))
     h = np.asarray(heads, dtype=np.int64)
     return h, h - np.asarray(recs, dtype=np.int64)
 

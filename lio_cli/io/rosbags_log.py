@@ -26,8 +26,7 @@ class RosbagsLog(LogReader):
         super().__init__(path, fmt, paths)
         self._conn_cache: dict[int, LogConnection] = {}  # id(rosbags connection) -> its LogConnection
         self._chunks: dict[int, bytes] = {}  # a ROS 1 bag's last decompressed chunks (bag1_raw.messages)
-        self._index_columns: dict[int, object] = {}  # and its index entries per connection, as int64 columns
-        from rosbags.highlevel import AnyReader, AnyReaderError
+        from rosbags.highlevel import AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
         if fmt == "ros1":
@@ -35,7 +34,7 @@ class RosbagsLog(LogReader):
             paths = [p if p.suffix == ".bag" else _BagPath(p) for p in paths]
         try:
             try:
-                self._reader = AnyReader(paths)
+                self._reader = _any_reader(paths, fmt)
                 self._reader.open()
             except AnyReaderError as err:
                 if "no type definitions" not in str(err):
@@ -43,7 +42,7 @@ class RosbagsLog(LogReader):
                 # an old ROS 2 bag without stored definitions: use the standard ones (building a default
                 # typestore costs ~50 ms, so only when needed)
                 default = get_typestore(Stores.ROS2_HUMBLE if fmt == "ros2" else Stores.ROS1_NOETIC)
-                self._reader = AnyReader(paths, default_typestore=default)
+                self._reader = _any_reader(paths, fmt, default)
                 self._reader.open()
         except _READ_ERRORS as err:
             raise InputError(
@@ -67,12 +66,12 @@ class RosbagsLog(LogReader):
         self.topics = counts
 
     def _ros1_spans(self) -> dict[str, tuple[int, int]]:
-        """First and last record time per topic, from the bag index rosbags already holds in memory."""
+        """First and last record time per topic, from the bag index read when the bag was opened."""
         spans: dict[str, tuple[int, int]] = {}
         for conn in self._reader.connections:
-            idx = conn.owner.indexes.get(conn.id)
-            if idx:
-                _merge_span(spans, conn.topic, int(idx[0].time), int(idx[-1].time))
+            cols = conn.owner.index_columns.get(conn.id)
+            if cols is not None and cols.shape[1]:
+                _merge_span(spans, conn.topic, int(cols[0, 0]), int(cols[0, -1]))
         return spans
 
     def _iter_raw(self, topics: set[str] | None):
@@ -85,7 +84,7 @@ class RosbagsLog(LogReader):
         if self.format == "ros1" and len(readers) == 1:
             from .bag1_raw import messages
 
-            return messages(readers[0], conns, self._chunks, self._index_columns)
+            return messages(readers[0], conns, self._chunks)
         return ((c.topic, c.msgtype, int(t_ns), raw, c) for c, t_ns, raw in self._reader.messages(connections=conns))
 
     def _deserialize(self, raw, msgtype, handle):
@@ -126,6 +125,18 @@ class RosbagsLog(LogReader):
             self._reader.close()
         except Exception:  # noqa: BLE001 - closing a broken log must not mask the real error
             pass
+
+
+def _any_reader(paths: list[Path], fmt: str, default_typestore=None):
+    """rosbags' AnyReader; for ROS 1 bags with ``bag1_index``'s reader, whose index is held as columns."""
+    from rosbags.highlevel import AnyReader
+
+    reader = AnyReader(paths, default_typestore=default_typestore)
+    if fmt == "ros1":
+        from .bag1_index import ColumnIndexReader
+
+        reader.readers = [ColumnIndexReader(p) for p in paths]
+    return reader
 
 
 def _ros2_spans(folder: Path) -> dict[str, tuple[int, int]]:

@@ -28,8 +28,8 @@ _IMU_BODY = np.dtype([("q", _F8, 4), ("qcov", _F8, 9), ("w", _F8, 3), ("wcov", _
 _ODOM_BODY = np.dtype([("p", _F8, 3), ("q", _F8, 4), ("pcov", _F8, 36), ("lin", _F8, 3), ("ang", _F8, 3),
                        ("tcov", _F8, 36)])
 _TWIST_BODY = np.dtype([("lin", _F8, 3), ("ang", _F8, 3)])
-_BODY = {IMU: _IMU_BODY, ODOMETRY: _ODOM_BODY, TWIST_STAMPED: _TWIST_BODY}
-BULK_TYPES = tuple(_BODY)
+BODY_DTYPES = {IMU: _IMU_BODY, ODOMETRY: _ODOM_BODY, TWIST_STAMPED: _TWIST_BODY}
+BULK_TYPES = tuple(BODY_DTYPES)
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED)
 
 _HEAD_ROS1 = struct.Struct("<4xIII")  # seq, sec, nsec, frame_id length
@@ -85,7 +85,7 @@ def _string_end(buf, pos: int) -> tuple[int, int]:
     return pos + 4, pos + 4 + n
 
 
-def _split(buf, cdr: bool, child: bool) -> tuple[int, bytes, bytes, int]:
+def split_header(buf, cdr: bool, child: bool) -> tuple[int, bytes, bytes, int]:
     """(stamp_ns, frame_id bytes, child_frame_id bytes, body offset) of a serialised stamped message."""
     if cdr:
         if buf[1] != 1:
@@ -115,7 +115,7 @@ class _Bulk:
 
     def __init__(self, msgtype: str, cdr: bool) -> None:
         self.msgtype, self.cdr = msgtype, cdr
-        self.size = _BODY[msgtype].itemsize
+        self.size = BODY_DTYPES[msgtype].itemsize
         self.child = msgtype == ODOMETRY
         self.stamps: list[int] = []
         self.bodies: list = []
@@ -137,7 +137,7 @@ class _Bulk:
         time. False (nothing added) when the topic is not that uniform."""
         first = memoryview(raws[0])
         try:
-            _, frame, kid, pos = _split(first, False, self.child)
+            _, frame, kid, pos = split_header(first, False, self.child)
         except (struct.error, ValueError, IndexError):
             return False
         size = len(first)
@@ -146,7 +146,7 @@ class _Bulk:
         fields = [("seq", "<u4"), ("sec", "<u4"), ("nsec", "<u4"), ("flen", "<u4"), ("frame", "u1", (len(frame),))]
         if self.child:
             fields += [("klen", "<u4"), ("kid", "u1", (len(kid),))]
-        fields.append(("body", _BODY[self.msgtype]))
+        fields.append(("body", BODY_DTYPES[self.msgtype]))
         dtype = np.dtype(fields)
         if dtype.itemsize != size:
             return False
@@ -168,7 +168,7 @@ class _Bulk:
         buf = memoryview(raw)
         for cdr in (self.cdr, not self.cdr):  # MCAP may carry ROS 1 encoded messages: the length tells
             try:
-                stamp, frame, kid, pos = _split(buf, cdr, self.child)
+                stamp, frame, kid, pos = split_header(buf, cdr, self.child)
             except (struct.error, ValueError, IndexError):
                 continue
             if pos + self.size == len(buf):
@@ -185,7 +185,7 @@ class _Bulk:
     def body(self) -> np.ndarray:
         if self._body is not None:
             return self._body
-        return np.frombuffer(b"".join(self.bodies), dtype=_BODY[self.msgtype])
+        return np.frombuffer(b"".join(self.bodies), dtype=BODY_DTYPES[self.msgtype])
 
     def frame_ids(self) -> tuple[str, ...]:
         return tuple(f.decode(errors="replace") for f in self.frames)
@@ -203,7 +203,7 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
     slow: list[str] = []
     for t in topics:
         msgtype = log.topics[t].msgtype
-        if msgtype in _BODY:
+        if msgtype in BODY_DTYPES:
             bulk[t] = _Bulk(msgtype, log.format != "ros1")
         elif msgtype in (POSE_STAMPED, TRANSFORM_STAMPED):
             slow.append(t)
@@ -303,4 +303,4 @@ def _read_typestore(log: LogReader, topic: str) -> ImuColumns | MotionColumns:
                          None)
 
 
-__all__ = ["BULK_TYPES", "POSE_TYPES", "ImuColumns", "MotionColumns", "read_series"]
+__all__ = ["BODY_DTYPES", "BULK_TYPES", "POSE_TYPES", "ImuColumns", "MotionColumns", "read_series", "split_header"]

@@ -18,13 +18,13 @@ for the role, such as ``wheel``). Every choice comes with its reason, for notes 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InputError
 from .decode import IMU, KIND_FLAGS, KIND_TYPES, ODOMETRY
+from .peek import peek
 from .reader import LogReader
 
 _KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth", "gps": "GPS (NavSatFix)"}
@@ -61,54 +61,28 @@ def says_estimate(name: str) -> bool:
     return bool(_tokens(name) & _ESTIMATE_TOKENS)
 
 
-def _peek(log: LogReader, topic: str, n: int = _PEEK) -> Iterator:
-    """The first ``n`` messages of ``topic``, decoded one at a time as the caller asks for them (a verdict
-    settled by the first message decodes only that one)."""
-    messages = log.messages([topic])
-    try:
-        for k, (_, _, _, msg) in enumerate(messages):
-            yield msg
-            if k + 1 >= n:
-                break
-    except InputError:
-        return  # a damaged topic shows itself when it is read for real
-    finally:
-        messages.close()
-
-
-def _twist(msg, msgtype: str) -> np.ndarray:
-    tw = msg.twist.twist if msgtype == ODOMETRY else msg.twist
-    return np.array([tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y, tw.angular.z], float)
-
-
-def _frames(msg, msgtype: str) -> tuple[str, str]:
-    return msg.header.frame_id, getattr(msg, "child_frame_id", "") if msgtype == ODOMETRY else ""
-
-
 def imu_is_all_zero(log: LogReader, topic: str) -> bool:
     """The first messages of an IMU topic hold nothing but zeros (rates and accelerations)."""
     seen = False
-    for m in _peek(log, topic):
+    for m in peek(log, topic, _PEEK):
         seen = True
-        a, w = m.linear_acceleration, m.angular_velocity
-        if not w.x == w.y == w.z == a.x == a.y == a.z == 0.0:
+        if any(v != 0.0 for v in m.values):
             return False
     return seen
 
 
 def _wheel_verdict(log: LogReader, topic: str) -> str | None:
     """Why ``topic`` cannot be wheel odometry, or None when it can."""
-    msgtype = log.topics[topic].msgtype
     if says_ground_truth(topic):
         return "named as ground truth"
     if says_estimate(topic):
         return "named as another estimator's output"
     n = 0
-    for m in _peek(log, topic, _PEEK_TWIST):
-        if n == 0 and says_ground_truth(*_frames(m, msgtype)):
+    for m in peek(log, topic, _PEEK_TWIST):
+        if n == 0 and says_ground_truth(m.frame_id, m.child_frame_id):
             return "its frames are named as ground truth"
         n += 1
-        if np.abs(_twist(m, msgtype)).sum() > 0:
+        if np.abs(np.array(m.values, float)).sum() > 0:
             return None
     if n:
         return f"its twist is all zero over its first {n} messages (a pose source)"

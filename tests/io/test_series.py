@@ -160,3 +160,18 @@ def test_ros1_chunk_reader_decompresses_each_chunk_once(tmp_path):
     assert got == theirs and len(got) == 40 and bytes(first[3])[4:] == got[0]
     assert got != sorted(got)  # the record times did interleave the chunks
     assert sorted(ours_opened) == positions  # each chunk decompressed once
+
+
+def test_ros1_chunk_reader_reads_rosbags_record_layout_without_the_field_walk(real_logs, monkeypatch):
+    # ROS's own rosbag writes each message header as time, conn, op: the op is read at its place (the field
+    # walk only for other layouts, such as the rosbags writer's), and the messages are rosbags' own
+    from lio_cli.io import bag1_raw
+
+    walks = []
+    op = bag1_raw._op
+    monkeypatch.setattr(bag1_raw, "_op", lambda *a: walks.append(a[1]) or op(*a))
+    with open_log(real_logs / "jackal_imu_wheel" / "jackal.bag") as log:
+        ours = [(t, rec, bytes(raw)) for t, _, rec, raw in log.raw_messages()]
+        theirs = [(c.topic, int(rec), bytes(raw)) for c, rec, raw in log._reader.messages()]
+    assert ours == theirs and len(ours) > 6000
+    assert walks == []

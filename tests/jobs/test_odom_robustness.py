@@ -158,14 +158,19 @@ def test_wheel_verdict_reads_until_the_twist_moves(tmp_path, monkeypatch):
 
     log = _tiny_log(tmp_path / "w.bag", {"/wheel/odom": odom, "/pose/odom": odom}, write)
     with open_log(log) as reader:
-        decoded: list[str] = []
-        original = type(reader)._deserialize
-        monkeypatch.setattr(type(reader), "_deserialize",
-                            lambda self, raw, msgtype, handle: decoded.append(msgtype) or original(self, raw, msgtype, handle))
+        read: list[str] = []
+        original = reader.records
+
+        def records(topics):
+            for rec in original(topics):
+                read.append(rec.connection.topic)
+                yield rec
+
+        monkeypatch.setattr(reader, "records", records)
         choice = choose_topic(reader, "wheel")
     assert choice.topic == "/wheel/odom"
     assert "/pose/odom: its twist is all zero over its first 30 messages (a pose source)" in choice.why
-    assert len(decoded) == 6 + 30  # /wheel/odom decoded up to its first moving message, /pose/odom all through
+    assert len(read) == 6 + 30  # /wheel/odom read up to its first moving message, /pose/odom all through
 
 
 def test_an_imu_topic_of_zeros_is_refused(tmp_path, capsys):

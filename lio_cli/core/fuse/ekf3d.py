@@ -8,8 +8,8 @@ its length. Updates: odometry poses (absolute, tied to the fused world at the fi
 between consecutive odometry poses (a clone of the pose at the previous odometry stamp joins the state),
 wheel body velocity (forward speed with the non-holonomic constraint, or the measured components) and yaw
 rate, GPS position (ENU about the first fix; the start position is then estimated, not pinned), the IMU's
-orientation. Each update passes a
-chi-square gate (``FuseOptions.gate_probability``); rejections are counted per source and reason.
+orientation. Each update passes a chi-square gate (``FuseOptions.gate_probability``); rejections are counted
+per source and reason. An output at the stamp of another event is handled with it (``folded_outputs``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from .state3d import (
     CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
     on_list, pose,
 )
-from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
+from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
 
 CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
 CV_OMEGA_SIGMA_RADPS = 0.5
@@ -53,17 +53,14 @@ class Ekf3d:
         self.prep, self.o, self.noise = prep, options, options.noise
         self.L = Layout(model_for(prep.use), clone="delta" in prep.use.get("odom", ()))
         self.q = ProcessNoise(self.L, self.noise)
-        self.cover_starts = [a for a, _ in prep.coverage]
-        self.cover_ends = [b for _, b in prep.coverage]
-        self.gappy = len(prep.coverage) > 1  # only then can a step fall between covered stretches
+        self.cover_starts, self.cover_ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
         self.g = np.array([0.0, 0.0, -options.gravity_mps2])
         self.gate = Gate(options.gate_probability, options.gate_max_rejects) if options.gate_probability > 0 else None
         self.start = start or initial_state(prep, options.standing_window_ns, options.gravity_mps2, self.noise)
         imu = prep.imu
         self.imu_list = imu.stamps_ns.tolist() if imu is not None else []
-        # per-sample values as Python floats: the loop reads them one sample at a time
-        self.imu_w = prep.imu_w_b.tolist() if imu is not None else []
-        self.imu_f = prep.imu_f_b.tolist() if imu is not None else []
+        # per-sample values, read as Python floats a sample at a time only off the whole-interval midpoints
+        self.imu_w, self.imu_f = prep.imu_w_b, prep.imu_f_b
         self.imu_mid = step3d.interval_midpoints(imu.stamps_ns, prep.imu_w_b, prep.imu_f_b) if imu is not None else None
         self.imu_R = prep.imu_R_wb.reshape(-1, 9).tolist() if prep.imu_R_wb is not None else None
         self.imu_R_var = step3d.isotropic_variances(imu.orientation_cov) if self.imu_R is not None else None
@@ -129,11 +126,11 @@ class Ekf3d:
             return self.imu_mid[0][i], self.imu_mid[1][i]  # the whole interval: its midpoint, worked out once
         if i + 1 >= len(st) or st[i + 1] - st[i] > self.imu_gap or t_b > st[i + 1]:
             if t_a == t_b == st[i]:
-                return self.imu_w[i], self.imu_f[i]
+                return self.imu_w[i].tolist(), self.imu_f[i].tolist()
             return None
         a = (0.5 * (t_a + t_b) - st[i]) / (st[i + 1] - st[i])
-        (w0, w1, w2), (v0, v1, v2) = self.imu_w[i], self.imu_w[i + 1]
-        (f0, f1, f2), (g0, g1, g2) = self.imu_f[i], self.imu_f[i + 1]
+        (w0, w1, w2), (v0, v1, v2) = self.imu_w[i:i + 2].tolist()
+        (f0, f1, f2), (g0, g1, g2) = self.imu_f[i:i + 2].tolist()
         return ([w0 + a * (v0 - w0), w1 + a * (v1 - w1), w2 + a * (v2 - w2)],
                 [f0 + a * (g0 - f0), f1 + a * (g1 - f1), f2 + a * (g2 - f2)])
 
@@ -141,7 +138,11 @@ class Ekf3d:
         """Predict x and P (in place) from t_a to t_b."""
         dt = (t_b - t_a) * 1e-9
         L = self.L
-        if self.gappy and in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b):  # no motion data there
+        gap = False
+        if t_a >= self.gap_free_until:  # searched only past the end of the covered stretch last seen
+            gap = in_coverage_gap(self.cover_starts, self.cover_ends, t_a, t_b)
+            self.gap_free_until = gap_free_until(self.cover_starts, self.cover_ends, t_b)
+        if gap:  # no motion data there
             F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
         elif L.model == "cv":
             F, q = on_list(cv_step, x, dt, L), self.q(dt)
@@ -251,14 +252,13 @@ class Ekf3d:
         self._P_diag = P.reshape(-1)[:: self.L.n + 1]
         self.Phi = np.eye(self.L.n)
         use_orientation = prep.imu_R_wb is not None
-        imu_rep = self.imu_rep
-        imu_predicts = self.L.model != "cv"
+        imu_rep, imu_predicts = self.imu_rep, self.L.model != "cv"
         valid_or = prep.imu.orientation_valid.tolist() if use_orientation else None
-        t_cur = prep.t0_ns
+        t_cur = self.gap_free_until = prep.t0_ns  # the gap test skips steps starting before gap_free_until
         T, log = self._T, self.log
         sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
         steps = 0
-        for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
+        for t, kind, i, out in zip(*folded_outputs(prep)):
             if t > t_cur:
                 steps += 1
                 if steps % sym_every == 0:
@@ -281,14 +281,14 @@ class Ekf3d:
                     self._orientation(t, i, x, P)
             elif kind == WHEEL:
                 self._wheel(t, i, x, P)
-            elif kind == OUT:  # after every update at t: the open knot's state is the output
-                if not log.is_open:
-                    self._open(t, x, P)
-                log.mark_output()
             elif kind == ODOM:
                 self._odom(t, i, x, P)
             elif kind == GPS:
                 self._gps(t, i, x, P)
+            if out:  # an output (after every update at t): the open knot's state
+                if not log.is_open:
+                    self._open(t, x, P)
+                log.mark_output()
         self.log.close(x, 0.5 * (P + P.T))
         return self.log.arrays()
 

@@ -89,6 +89,14 @@ def in_coverage_gap(starts: list[int], ends: list[int], t_a: int, t_b: int) -> b
     return 0 <= k < len(starts) - 1 and t_a >= ends[k] and t_b <= starts[k + 1] and t_b > t_a
 
 
+def gap_free_until(starts: list[int], ends: list[int], t: int) -> int:
+    """A stamp up to which no step from ``t`` on can start in a coverage gap (``in_coverage_gap`` is False
+    for every ``t <= t_a <`` it): the end of the covered stretch holding ``t``; ``t`` itself where none does
+    or ``t`` is at its end. Stretches are merged, so the next starts after it."""
+    k = bisect_right(starts, t) - 1
+    return ends[k] if k >= 0 and t < ends[k] else t
+
+
 def _inside(stamps: np.ndarray, coverage: list[tuple[int, int]]) -> np.ndarray:
     ok = np.zeros(len(stamps), bool)
     for a, b in coverage:
@@ -195,6 +203,20 @@ def _output(prep: Prepared, options: FuseOptions) -> None:
                                         if getattr(prep, s) is not None]))
     ok = _inside(req, prep.coverage)
     prep.out_stamps, prep.out_dropped = req[ok], int(np.count_nonzero(~ok))
+
+
+def folded_outputs(prep: Prepared) -> tuple[list[int], list[int], list[int], list[bool]]:
+    """The event stream as lists (times, kinds, indexes) plus ``out``: mark an output once the event is
+    handled. An output right after another event at its stamp (outputs come last at a stamp) is folded into
+    that event; one at a stamp of its own stays an event (``out`` True, nothing else to do). Half the
+    events of a run whose outputs are the IMU stamps, which a filter loop then need not go round."""
+    t, k = prep.times, prep.kinds
+    fold = np.zeros(len(t), bool)
+    fold[1:] = (k[1:] == OUT) & (t[1:] == t[:-1]) & (k[:-1] != OUT)
+    keep = ~fold
+    out = k == OUT
+    out[:-1] |= fold[1:]
+    return t[keep].tolist(), k[keep].tolist(), prep.index[keep].tolist(), out[keep].tolist()
 
 
 def snap_to(stamps: np.ndarray, grid: np.ndarray, tol_ns: int) -> tuple[np.ndarray, int]:

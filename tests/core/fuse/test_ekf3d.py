@@ -227,3 +227,38 @@ def test_a_robot_seen_again_an_hour_later_has_not_travelled_an_hour_at_its_last_
         assert res.info["motion_gaps"] == 1
         assert np.linalg.norm(after - before) <= 1.0 * GAP_TAU_S + 0.05  # not 3600 m
         np.testing.assert_allclose(res.poses[100, 0, 3], 2.0, atol=0.05)  # before the gap: the wheels
+
+
+def test_gap_search_runs_once_per_covered_stretch_not_once_per_step(monkeypatch):
+    """ardrone has ~300 covered stretches: the coverage-gap search (a bisection) runs only where a step
+    leaves the stretch it was in, and the gaps are crossed as before (one hold step each)."""
+    from lio_cli.core.fuse import ekf3d
+
+    seg = np.arange(201, dtype=np.int64) * 5 * MS  # 1 s at 200 Hz, then 3 s without data, ten times
+    st = np.concatenate([START_NS + k * 4 * 10**9 + seg for k in range(10)])
+    n = len(st)
+    imu = ImuSeries(st, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), np.eye(4))
+    calls, gaps = [], []
+    search = ekf3d.in_coverage_gap
+    monkeypatch.setattr(ekf3d, "in_coverage_gap", lambda *a: calls.append(a[2]) or gaps.append(search(*a)) or gaps[-1])
+    res = fuse(FuseInputs(imu=imu), FuseOptions())
+    assert res.info["motion_gaps"] == 9 and sum(gaps) == 9
+    assert len(calls) <= 2 * 10  # at each stretch's start and end, not at each of the ~2000 steps
+
+
+def test_outputs_at_imu_stamps_cost_no_loop_round_of_their_own(monkeypatch):
+    """Outputs at every IMU stamp (the default) ride on the IMU sample's event: the filter loop goes round
+    once per IMU sample, not twice, and still gives one pose per sample."""
+    from lio_cli.core.fuse import ekf3d, kalman
+
+    seg = np.arange(201, dtype=np.int64) * 5 * MS
+    n = len(seg)
+    imu = ImuSeries(START_NS + seg, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), np.eye(4))
+    rounds = []
+    fold = ekf3d.folded_outputs
+    monkeypatch.setattr(ekf3d, "folded_outputs", lambda prep: [rounds.append(len(c[0])) or c for c in [fold(prep)]][0])
+    marks = []
+    mark = kalman.KnotLog.mark_output
+    monkeypatch.setattr(kalman.KnotLog, "mark_output", lambda self: marks.append(1) or mark(self))
+    res = fuse(FuseInputs(imu=imu), FuseOptions())
+    assert rounds == [n] and len(marks) == n and len(res) == n

@@ -108,3 +108,29 @@ def test_snap_moves_stamps_onto_the_nearest_grid_stamp_within_tolerance():
     same, n0 = snap_to(np.array([1, 4]), grid, 0)
     np.testing.assert_array_equal(same, [1, 4])
     assert n0 == 0
+
+
+def test_gap_free_until_is_the_end_of_the_stretch_holding_the_stamp():
+    from lio_cli.core.fuse.timeline import gap_free_until, in_coverage_gap
+
+    starts, ends = [0, 100, 300], [50, 200, 400]
+    assert [gap_free_until(starts, ends, t) for t in (-5, 0, 49, 50, 70, 100, 199, 200, 350, 400, 500)] == \
+        [-5, 50, 50, 50, 70, 200, 200, 200, 400, 400, 500]
+    for t in range(-10, 510, 7):  # no step starting in [t, gap_free_until) lies in a gap
+        for t_a in range(t, gap_free_until(starts, ends, t)):
+            assert not in_coverage_gap(starts, ends, t_a, t_a + 3)
+
+
+def test_outputs_at_another_events_stamp_fold_into_it():
+    from lio_cli.core.fuse.timeline import WHEEL, folded_outputs
+
+    st = T0 + np.arange(11) * 10 * MS
+    odom = PoseSeries(st[::5].copy(), np.tile(np.eye(4), (3, 1, 1)))
+    prep = prepare(FuseInputs(imu=imu_series(st), odom=odom), FuseOptions(stamps_ns=[st[5], st[5] + 3 * MS]))
+    times, kinds, index, out = folded_outputs(prep)
+    assert len(times) == len(prep.times) - 1  # the output at st[5] folds into the odometry there
+    at = [j for j, t in enumerate(times) if t == st[5]]
+    assert [kinds[j] for j in at] == [IMU, ODOM] and [out[j] for j in at] == [False, True]
+    own = times.index(int(st[5] + 3 * MS))  # between IMU samples: an event of its own
+    assert kinds[own] == OUT and out[own] and sum(out) == 2
+    assert WHEEL not in kinds
