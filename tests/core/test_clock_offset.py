@@ -3,8 +3,12 @@
 The LiDAR poses here are noisy but not primed by the IMU, so a round measures the whole offset that is left
 (in ``lio odom`` each round finds about half of it: see ``clock_offset``)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
+
+import lio_cli.core.clock_offset as clock_offset
 
 from lio_cli.core.clock_offset import ROUNDS, ClockOffsetTracker
 from lio_cli.simulation.calibration_inputs import calibration_inputs
@@ -53,3 +57,17 @@ def test_the_closing_round_measures_a_window_too_short_for_an_online_round(walk)
 def test_too_short_a_window_measures_nothing(walk):
     tracker = _run(walk, 2.1)
     assert tracker.estimates == [] and tracker.estimate_s == 0.0
+
+
+@pytest.mark.parametrize("offset_ms, sigma_ms, applied", [
+    (4.64, 1.535, False),  # 3.02 sigma on a loose round (a standing start's, on a log without any offset): chance
+    (6.2, 1.5, True),  # over 4 sigma: taken though loose
+    (2.5, 0.75, True),  # 3.3 sigma on a sharp round
+    (0.9, 0.2, False),  # under a millisecond: kept as the residual, not applied
+])
+def test_what_a_round_applies(monkeypatch, walk, offset_ms, sigma_ms, applied):
+    est = SimpleNamespace(imu_time_offset_s=offset_ms * 1e-3, sigma_s=sigma_ms * 1e-3)
+    monkeypatch.setattr(clock_offset, "estimate_time_offset", lambda *a, **k: est)
+    tracker = _run(walk, 2.6)
+    assert tracker.estimates[0]["applied"] is applied
+    assert tracker.applied_s == pytest.approx(offset_ms * 1e-3 if applied else 0.0)
