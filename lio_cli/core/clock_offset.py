@@ -18,12 +18,11 @@ import numpy as np
 from ..errors import InputError
 from .calibration.time_offset import estimate_time_offset
 
-WINDOW_S = 2.5  # registration poses per estimate (each round finds about half of what is left: short rounds converge sooner)
+WINDOW_S = 5.0  # registration poses per estimate
 MAX_OFFSET_S = 0.1  # larger offsets are a clock mismatch, refused before the run
 APPLY_SIGMA_S = 0.002  # apply only a sharply determined offset...
-APPLY_MIN_S = 0.001  # ...that is clearly there (at least 3 sigma; 4 sigma when the 1-sigma exceeds WIDE_SIGMA_S)
-WIDE_SIGMA_S = 0.001  # a round over little rotation (a standing start) has a loose sigma: 3 sigma was seen by chance
-ROUNDS = 10  # estimates at most (each later one measures what the earlier left)
+APPLY_MIN_S = 0.001  # ...that is clearly there (and at least 3 sigma)
+ROUNDS = 6  # estimates at most (each later one measures what the earlier left)
 FINAL_WINDOW_S = 2.3  # the closing estimate over the poses the last round left (its overlap with the IMU: >= 2 s)
 
 
@@ -95,15 +94,14 @@ class ClockOffsetTracker:
             self.estimates.append({"scan": at_scan, "applied": False, "reason": str(err).split(";")[0]})
             return None
         offset, sigma = est.imu_time_offset_s, est.sigma_s
-        # clearly there and sharply determined
-        sharp = sigma <= APPLY_SIGMA_S and abs(offset) >= (3.0 if sigma <= WIDE_SIGMA_S else 4.0) * sigma
+        sharp = sigma <= APPLY_SIGMA_S and abs(offset) >= 3.0 * sigma  # clearly there and sharply determined
         apply = sharp and abs(offset) >= APPLY_MIN_S and not final
         entry = {"scan": at_scan, "offset_s": round(offset, 6), "sigma_s": round(sigma, 6), "applied": bool(apply)}
         self.estimates.append({**entry, "final": True} if final else entry)
         if not apply:
             if sigma <= APPLY_SIGMA_S:
                 self.residual_s = offset if sharp else 0.0
-                if not final and abs(offset) < APPLY_MIN_S and 3.0 * sigma < APPLY_MIN_S:
+                if not final and abs(offset) < max(APPLY_MIN_S, 3.0 * sigma):
                     self._rounds = ROUNDS  # the clocks agree to under a millisecond: nothing left to apply
             return None
         self.residual_s = 0.0

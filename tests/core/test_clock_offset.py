@@ -10,7 +10,7 @@ import pytest
 
 import lio_cli.core.clock_offset as clock_offset
 
-from lio_cli.core.clock_offset import ROUNDS, ClockOffsetTracker
+from lio_cli.core.clock_offset import ClockOffsetTracker
 from lio_cli.simulation.calibration_inputs import calibration_inputs
 
 OFFSET_S = -0.012  # t_lidar = t_imu_stamp + offset: the IMU stamps 12 ms late
@@ -36,16 +36,16 @@ def _run(walk, seconds: float) -> ClockOffsetTracker:
     return tracker
 
 
-def test_rounds_apply_the_offset_then_stop_once_the_clocks_agree(walk):
+def test_a_round_applies_the_offset_and_the_closing_round_finds_nothing_left(walk):
     tracker = _run(walk, 8.0)
     assert tracker.applied_s == pytest.approx(OFFSET_S, abs=5e-4)
     assert tracker.estimates[0]["applied"] and not tracker.estimates[-1]["applied"]
-    assert len(tracker.estimates) < ROUNDS and tracker.done  # stopped early: nothing left to apply
+    assert len(tracker.estimates) == 2 and tracker.estimates[-1]["final"] and tracker.done
     assert tracker.estimate_s == pytest.approx(OFFSET_S, abs=5e-4)
 
 
 def test_the_closing_round_measures_a_window_too_short_for_an_online_round(walk):
-    tracker = _run(walk, 2.4)  # under the 2.5 s of a round, over the 2.3 s of the closing one
+    tracker = _run(walk, 4.0)  # under the 5 s of a round, over the 2.3 s of the closing one
     assert tracker.applied_s == 0.0
     final = tracker.estimates[-1]
     assert final["final"] is True and final["applied"] is False and len(tracker.estimates) == 1
@@ -60,14 +60,15 @@ def test_too_short_a_window_measures_nothing(walk):
 
 
 @pytest.mark.parametrize("offset_ms, sigma_ms, applied", [
-    (4.64, 1.535, False),  # 3.02 sigma on a loose round (a standing start's, on a log without any offset): chance
-    (6.2, 1.5, True),  # over 4 sigma: taken though loose
-    (2.5, 0.75, True),  # 3.3 sigma on a sharp round
-    (0.9, 0.2, False),  # under a millisecond: kept as the residual, not applied
+    (4.64, 1.535, True),  # 3 sigma and a millisecond: applied
+    (2.5, 0.75, True),
+    (0.9, 0.2, False),  # under a millisecond: the clocks agree; kept as the residual, not applied
+    (2.5, 2.1, False),  # too loose a round
 ])
 def test_what_a_round_applies(monkeypatch, walk, offset_ms, sigma_ms, applied):
     est = SimpleNamespace(imu_time_offset_s=offset_ms * 1e-3, sigma_s=sigma_ms * 1e-3)
     monkeypatch.setattr(clock_offset, "estimate_time_offset", lambda *a, **k: est)
-    tracker = _run(walk, 2.6)
+    tracker = _run(walk, 5.1)
     assert tracker.estimates[0]["applied"] is applied
     assert tracker.applied_s == pytest.approx(offset_ms * 1e-3 if applied else 0.0)
+    assert tracker.residual_s == pytest.approx(offset_ms * 1e-3 if offset_ms == 0.9 else 0.0)
