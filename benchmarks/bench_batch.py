@@ -27,6 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from bytecode_cache import use_bytecode_cache
 from lio_cli.simulation.run import simulate
 
 LIO = [sys.executable, "-c", "import sys; from lio_cli.cli.app import entry; sys.argv[0] = 'lio'; entry()"]
@@ -57,6 +58,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--keep", type=Path, help="work in this folder and keep it (default: a temporary one)")
     args = ap.parse_args()
+    use_bytecode_cache()
     root = args.keep or Path(tempfile.mkdtemp(prefix="lio-bench-batch-"))
     root.mkdir(parents=True, exist_ok=True)
     (root / "logs").mkdir(exist_ok=True)

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bytecode_cache import use_bytecode_cache
 from lio_cli.evaluation import EvalOptions, evaluate
 from lio_cli.geometry import inv_pose
 from lio_cli.io.pointcloud import decode_pointcloud2
@@ -48,17 +49,6 @@ BIN = Path(sys.executable).parent
 LIDAR = "/points"
 
 
-# Commands run as on a user's machine: Python caches compiled bytecode after the first run. An environment with
-# PYTHONDONTWRITEBYTECODE set (some sandboxes and CI images) would recompile lio's modules in every process,
-# about 0.1 s of start-up that no installed lio pays; the benchmark lets the cache be written and warms it.
-ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-
-
-def warm_bytecode_cache() -> None:
-    for command in ("deskew", "odom"):
-        subprocess.run([str(BIN / "lio"), command, "--help"], env=ENV, stdout=subprocess.DEVNULL, check=True)
-
-
 def run(cmd: list[str], cwd: Path) -> dict:
     """Wall s, CPU s (user + system) and peak RSS MB of one command in its own process.
 
@@ -66,7 +56,7 @@ def run(cmd: list[str], cwd: Path) -> dict:
     it inherited until its exec."""
     stats = cwd / ".time"
     t0 = time.perf_counter()
-    proc = subprocess.run(["/usr/bin/time", "-f", "%U %S %M", "-o", str(stats), *cmd], cwd=cwd, env=ENV,
+    proc = subprocess.run(["/usr/bin/time", "-f", "%U %S %M", "-o", str(stats), *cmd], cwd=cwd,
                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     wall = time.perf_counter() - t0
     err = proc.stderr.decode(errors="replace")
@@ -228,6 +218,7 @@ def main() -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep logs and outputs in this folder")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
+    use_bytecode_cache()
     work = args.keep or Path(tempfile.mkdtemp(prefix="lio-bench-deskew-"))
     work.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -235,7 +226,6 @@ def main() -> int:
                    force=True)
     print(f"simulated {args.duration:.0f} s in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     truth = TrueMotion(sim.truth_path)
-    warm_bytecode_cache()
     results = {"accuracy": accuracy(work, sim.log_path, sim.gt_path, truth, args.duration)}
     if not args.no_kiss:
         info = json.loads(sim.truth_path.read_text())["lidar"]

@@ -35,6 +35,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bytecode_cache import use_bytecode_cache  # noqa: E402
 from evo_agreement import ensure_evo, simulate  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -113,6 +114,7 @@ def main() -> int:
     ap.add_argument("--offset-seeds", type=int, default=5, help="seeds of the in-process offset table")
     ap.add_argument("--skip-evo-cli", action="store_true", help="skip the evo_ape/evo_rpe subprocess rows")
     args = ap.parse_args()
+    use_bytecode_cache()
     evo_py = ensure_evo(args.evo_venv)
     ref_sim, est_sim = evo_pair(args.poses, 3, shift_ns=0)
     # the CLI of this checkout, exactly as the `lio` console script runs it

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bytecode_cache import use_bytecode_cache
+
 from lio_cli.cli.app import main as lio
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.evaluation import EvalOptions, evaluate
@@ -215,6 +217,7 @@ def main() -> int:
     ap.add_argument("--real-logs", type=Path, default=next((p for p in REAL_LOGS_CANDIDATES if p.exists()),
                                                             REAL_LOGS_CANDIDATES[0]))
     args = ap.parse_args()
+    use_bytecode_cache()
     results = {}
     with tempfile.TemporaryDirectory(prefix="bench_fuse_") as tmp:
         work = Path(tmp)

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bytecode_cache import use_bytecode_cache
+
 from lio_cli.evaluation import EvalOptions, evaluate
 from lio_cli.model.trajectory import Trajectory
 from lio_cli.geometry import inv_pose
@@ -91,6 +93,7 @@ def main() -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep logs and trajectories in this folder")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     args = ap.parse_args()
+    use_bytecode_cache()
 
     work = args.keep or Path(tempfile.mkdtemp(prefix="lio-bench-odom-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bytecode_cache import use_bytecode_cache
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_odom import BIN, ensure_rko, lidar_to_base, metrics, run  # noqa: E402
@@ -116,6 +118,7 @@ def main() -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep logs and trajectories in this folder")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     args = ap.parse_args()
+    use_bytecode_cache()
     work = args.keep or Path(tempfile.mkdtemp(prefix="lio-robustness-"))
     work.mkdir(parents=True, exist_ok=True)
     rko = ensure_rko(args.rko)
