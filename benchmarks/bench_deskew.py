@@ -13,9 +13,9 @@
    the middle's; on the de-skewed log the clouds are at the sweep's end, the record time. ATE = SE(3)-aligned
    translation RMSE (lio's evaluation, evo's definition).
 3. Speed: each source in its own process: wall and CPU seconds and x real time (CPU time stands for an idle
-   machine where 2 cores are shared), with Python's bytecode cache written as on any installed machine. Writing: the output's records written from memory by rosbags' Writer
-   alone against lio's LogWriter (same bytes, same connections). Memory: peak RSS of `lio deskew` on a log
-   and on one 3x longer.
+   machine where 2 cores are shared), with Python's bytecode cache written as on any installed machine.
+   Writing: the output's records written from memory by rosbags' Writer alone against lio's LogWriter (same
+   bytes, same connections). Memory: peak RSS of `lio deskew` on a log and on one 3x longer.
 
     python benchmarks/bench_deskew.py                    # 30 s handheld; memory 30 s vs 90 s
     python benchmarks/bench_deskew.py --duration 20 --no-kiss --no-memory

@@ -4,10 +4,10 @@ Three sources, each ending in a ``PoseSpline`` of the base:
 - ``trajectory``: a trajectory file or topic (``--trajectory``, e.g. lio odom's), interpolated (cubic by
   default); a sweep it does not cover (beyond 1 ms of slack at its ends) is reported, not extrapolated;
 - ``imu``: lio's IMU-primed odometry run in-process (a first pass over the log) gives the corrected pose at
-  every scan's end, the gyro bias and the IMU clock offset (the calibration's plus what it measured by its last scan);
-  within each sweep the rotation is integrated from the gyro and the
-  translation follows the cubic through the scan poses (extrapolated by at most one scan interval at the
-  log's ends, which is how the first scan is covered);
+  every scan's end, the gyro bias and the IMU clock offset (the calibration's plus what it measured by its
+  last scan); within each sweep the rotation is integrated from the gyro and the translation follows the
+  cubic through the scan poses (extrapolated by at most one scan interval at the log's ends, which is how the
+  first scan is covered);
 - ``constant-velocity``: the same odometry LiDAR-only (constant-velocity prior and deskew), its scan poses
   interpolated as a trajectory is.
 The writing pass reads the log once (``RecordFeed``): the IMU window (``ImuWindow``) reads ahead of the record
