@@ -30,7 +30,8 @@ from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..model.calibration import Calibration
 from . import calibrate_estimate as steps
-from .calibrate_passes import LidarPass, LidarTrajectory, Progress, pass_until, read_imu, refine_spans
+from .calibrate_passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, pass_until, read_imu,
+                               refine_spans)
 from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, rotation_observable, table
 from .odom_inputs import BASE_FRAME_NAMES
 from .outputs import beside, json_text
@@ -120,10 +121,9 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             planar = reader.topics[lidar].msgtype == LASERSCAN
             n = reader.topics[lidar].count
             spans = refine_spans(cfg.refine_passes, planar)
-            wheel_pass = planar and wheel is not None and bool(spans)  # may be needed: see _wheel_trajectory
-            total = int(n * (1 + sum(spans) + wheel_pass))
+            counter = PassProgress(progress, n * (1 + len(spans)))  # until the passes' stretches are known
             topics = {"lidar": lidar, "imu": imu_topic, "wheel": wheel}
-            traj, arrays = LidarPass(reader, cfg, topics, planar, progress, 0, total).run(gather=True)
+            traj, arrays = LidarPass(reader, cfg, topics, planar, counter).run(gather=True)
             times["lidar_pass"] = time.perf_counter() - t0
             imu = arrays.imu
             if imu is None:
@@ -137,40 +137,44 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
-            lidar_only = traj
+            s0, s1 = int(traj.stamps_ns[0]), int(traj.stamps_ns[-1])
+            untils = [pass_until(span, s0, s1) for span in spans]
+            counter.plan(sum(n if u is None else n * (u - s0) / max(s1 - s0, 1) for u in untils))
             traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
-            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not cfg.refine_passes, prior_offset=prior_offset)
+            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
-            s0, s1, done = int(lidar_only.stamps_ns[0]), int(lidar_only.stamps_ns[-1]), n
-            for k, span in enumerate(spans, start=1):
+            imu_topics = {"lidar": lidar, "imu": imu_topic}
+            for k, until in enumerate(untils, start=1):
                 t0 = time.perf_counter()
-                mounting = _mounting(est, T_ref)
-                until = pass_until(span, s0, s1)
-                refine_pass = LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar, progress, done, total)
-                traj, _ = refine_pass.run(mounting, refine=k, until_ns=until)
-                done += refine_pass.done
+                fused = PLANAR_FUSION_SIGMAS[k - 1] if planar else None  # 2D scans: see PLANAR_FUSION_SIGMAS
+                traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(
+                    _mounting(est, T_ref), until_ns=until, fused_sigmas=fused)
                 times[f"refine_pass_{k}"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 final = k == len(spans)
                 try:
                     steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=final, prior_offset=prior_offset)
-                except InputError:
+                except InputError as err:
                     if final:
                         raise
                     # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
+                    est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
                 times[f"estimate_{k}"] = time.perf_counter() - t0
-            wheel_traj = traj
-            if wheel_pass and len(arrays.wheel_stamps_ns) >= 3 and T_ref is None and not rotation_observable(est).all():
+            wheel_traj, against = traj, None
+            if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
+                # The wheels of a 2D scanner whose IMU mounting is partly unknown (its yaw: turns about the
+                # vertical cannot show it, and nothing gives it) are measured against a gyro-primed pass, not
+                # fused: the fused passes' accelerations go through that yaw (a wrong one bends the path: speed
+                # scale 1-2.5 % off on 60 s); the LiDAR-only pass registers scans skewed by the turns (0.4-0.7 %
+                # off); the gyro de-skews them through any yaw alike (1-sigma 0.14 % speed, 0.04 % yaw rate).
                 t0 = time.perf_counter()
-                wheel_traj = _wheel_trajectory(LidarPass(reader, cfg, {"lidar": lidar, "imu": imu_topic}, planar,
-                                                         progress, done, total), _mounting(est, T_ref))
+                counter.plan(n)
+                wheel_traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(_mounting(est, T_ref))
                 times["wheel_pass"] = time.perf_counter() - t0
-                est.notes.append("wheel scales measured against a gyro-primed pass (not fused with the IMU): the IMU's "
-                                 "mounting is not fully known (give T_base_imu with --calib, or /tf_static, to use the "
-                                 "fused one)")
-            elif wheel_pass and progress:
-                progress(total, total)  # the pass the count held a place for was not needed
-            steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where)
+                against = ("wheel scales measured against a gyro-primed pass (not fused with the IMU): the IMU's "
+                           "mounting is not fully known (give T_base_imu with --calib, or /tf_static, to use the "
+                           "fused one)")
+            steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
         if cfg.allan:
             t0 = time.perf_counter()
             steps.allan(imu, est, where)
@@ -209,17 +213,6 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
 def _mounting(est: steps.Estimates, T_ref) -> tuple[np.ndarray, float, np.ndarray]:
     """What a gyro-primed pass needs of the estimates so far: (T_lidar_imu, clock offset, gyro bias)."""
     return T_lidar_imu_of(est, T_ref), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps
-
-
-def _wheel_trajectory(wheel_pass: LidarPass, mounting) -> LidarTrajectory:
-    """The trajectory the wheels of a 2D scanner are measured against when the IMU's mounting is partly unknown
-    (its yaw, which turns about the vertical cannot show, and nothing to take it from): gyro-primed, not fused.
-    The refining passes of 2D scans fuse the IMU, whose accelerations would go through that yaw (a wrong one
-    bends the path: speed scale 1-2.5% off on 60 s); the LiDAR-only pass registers scans skewed by the turns
-    (1-sigma 0.2-0.26%, 0.4-0.7% off); the gyro de-skews them through any yaw of the mounting alike (1-sigma
-    0.14% speed, 0.04% yaw rate). With the mounting known, the fused pass is the better one."""
-    traj, _ = wheel_pass.run(mounting, fuse=False)
-    return traj
 
 
 def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | None:

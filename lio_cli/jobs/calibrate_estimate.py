@@ -179,8 +179,9 @@ def _unobservable_item(note: str) -> str:
 
 
 def wheels(arrays: SensorArrays, traj: LidarTrajectory, T_base_lidar: np.ndarray, cfg: CalibrateConfig,
-           est: Estimates, where: str) -> None:
-    if len(arrays.wheel_stamps_ns) < 3:
+           est: Estimates, where: str, against: str | None = None) -> None:
+    """Wheel scales against ``traj``; ``against``: a note on why that trajectory, kept when they are measured."""
+    if not arrays.has_wheels:
         est.skip("the wheel odometry scales", "the log has no wheel odometry")
         return
     try:
@@ -191,6 +192,8 @@ def wheels(arrays: SensorArrays, traj: LidarTrajectory, T_base_lidar: np.ndarray
     except InputError as err:
         est.skip("the wheel odometry scales", str(err))
         return
+    if against:
+        est.notes.append(against)
     est.notes.extend(est.wheel.notes)
 
 

@@ -44,6 +44,26 @@ class SensorArrays:
     lidar_frame: str = ""
     scans: int = 0
 
+    @property
+    def has_wheels(self) -> bool:
+        return len(self.wheel_stamps_ns) >= 3
+
+
+class PassProgress:
+    """One count over every pass of a calibration: scans processed of the scans the passes will process
+    (``plan`` corrects the total once the passes' stretches are known)."""
+
+    def __init__(self, progress: Progress | None, total: int) -> None:
+        self.progress, self.total, self.done = progress, total, 0
+
+    def plan(self, remaining: int) -> None:
+        self.total = self.done + max(int(remaining), 0)
+
+    def step(self) -> None:
+        self.done += 1
+        if self.progress:
+            self.progress(self.done, max(self.total, self.done))
+
 
 @dataclass
 class LidarTrajectory:
@@ -101,23 +121,22 @@ class LidarPass:
     wheel arrays on the way."""
 
     def __init__(self, reader: LogReader, cfg: CalibrateConfig, topics: dict[str, str | None], planar: bool,
-                 progress: Progress | None = None, progress_base: int = 0, progress_total: int | None = None) -> None:
-        self.reader, self.cfg, self.topics, self.planar = reader, cfg, topics, planar
-        self.progress, self.base, self.total = progress, progress_base, progress_total
+                 counter: PassProgress | None = None) -> None:
+        self.reader, self.cfg, self.topics, self.planar, self.counter = reader, cfg, topics, planar, counter
         self.pending: deque[PointCloud] = deque()
         self.mid_ns: dict[int, int] = {}  # scan end -> middle of its sweep
         self.done = 0
         self.stats: dict = {}  # the odometry's scan counts and events of the last run
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
-            gather: bool = False, refine: int = 1, until_ns: int | None = None,
-            fuse: bool = True) -> tuple[LidarTrajectory, SensorArrays]:
-        """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for a gyro-primed pass (IMU-primed and
-        fused for 2D scans: ``refine`` numbers the pass), None for LiDAR only. ``gather``: also collect the IMU
-        and wheel arrays. ``until_ns``: stop at the first scan stamped after it. ``fuse`` False: 2D scans
-        gyro-primed too, never fused."""
+            gather: bool = False, until_ns: int | None = None,
+            fused_sigmas: tuple[float, float] | None = None) -> tuple[LidarTrajectory, SensorArrays]:
+        """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for a gyro-primed pass, None for LiDAR
+        only; with ``fused_sigmas`` (one of ``PLANAR_FUSION_SIGMAS``) IMU-primed and fused instead. ``gather``:
+        also collect the IMU and wheel arrays. ``until_ns``: stop at the first scan stamped after it."""
         cfg = self.cfg
         with_imu = imu_mounting is not None
+        fused = fused_sigmas if with_imu else None
         conv = parse_time_convention(cfg.input.point_time) if cfg.input.point_time else None
         wanted = {"lidar": self.topics["lidar"]}
         if with_imu or gather:
@@ -125,8 +144,6 @@ class LidarPass:
         if gather:
             wanted["wheel"] = self.topics.get("wheel")
         stream = SensorStream(self.reader, wanted, convention=conv, strict=False)
-        fused = PLANAR_FUSION_SIGMAS[min(refine, len(PLANAR_FUSION_SIGMAS)) - 1] if with_imu and self.planar and fuse \
-            else None
         ocfg = pass_config(cfg, with_imu, fused)
         odo = None
         arrays, imu_batches, wheel = SensorArrays(), [], []
@@ -195,8 +212,8 @@ class LidarPass:
             self.mid_ns[int(cloud.end_ns)] = (int(cloud.start_ns) + int(cloud.end_ns)) // 2
             odo.process(cloud)
             self.done += 1
-            if self.progress:
-                self.progress(self.base + self.done, self.total)
+            if self.counter is not None:
+                self.counter.step()
 
 
 def _wheel_arrays(arrays: SensorArrays, recs: list) -> None:

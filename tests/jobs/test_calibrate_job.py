@@ -15,6 +15,7 @@ import pytest
 from lio_cli.config import load_calibration
 from lio_cli.config.calibrate import CalibrateConfig
 from lio_cli.geometry import inv_pose, so3_log
+from lio_cli.io.reader import open_log
 from lio_cli.jobs.calibrate import CalibrateJob, run_calibrate
 from lio_cli.model.calibration import Calibration
 from lio_cli.simulation.run import simulate
@@ -44,10 +45,24 @@ def walks(tmp_path_factory):
     return root, bag, mcap
 
 
+PROGRESS: list[tuple[int, int]] = []  # (scans done, scans planned) as bag_run reported them
+
+
 @pytest.fixture(scope="module")
 def bag_run(walks):
     root, bag, _ = walks
-    return run_calibrate(CalibrateJob(bag.log_path, root / "walk.calib.yaml"))
+    return run_calibrate(CalibrateJob(bag.log_path, root / "walk.calib.yaml"),
+                         progress=lambda done, total: PROGRESS.append((done, total)))
+
+
+def test_progress_counts_every_pass_and_ends_at_its_total(walks, bag_run):
+    """An 8 s walk: every refining pass covers the whole log (a partial one at least 10 s), so four passes of
+    80 scans; the count was planned with partial passes and ran past its total."""
+    _, bag, _ = walks
+    with open_log(bag.log_path) as reader:
+        n = reader.topics["/points"].count
+    assert [d for d, _ in PROGRESS] == list(range(1, 4 * n + 1))
+    assert all(d <= t for d, t in PROGRESS) and PROGRESS[-1] == (4 * n, 4 * n)
 
 
 def _check_mounting(T_est: np.ndarray, T_true: np.ndarray) -> None:
