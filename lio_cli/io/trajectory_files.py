@@ -8,6 +8,7 @@ Every problem is an ``InputError`` naming the file and the line.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -73,16 +74,18 @@ def read_text(path: Path) -> str:
         raise InputError(f"{path}: cannot read ({err})") from err
 
 
-def _data_lines(text: str) -> tuple[list[int], list[list[str]]]:
-    """(1-based line numbers, tokens) of the non-empty, non-comment lines."""
-    numbers, tokens = [], []
+def _data_rows(text: str) -> Iterator[tuple[int, list[str]]]:
+    """(1-based line number, tokens) of each non-empty, non-comment line."""
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        numbers.append(lineno)
-        tokens.append(line.replace(",", " ").split())
-    return numbers, tokens
+        if line and not line.startswith("#"):
+            yield lineno, line.replace(",", " ").split()
+
+
+def _data_lines(text: str) -> tuple[list[int], list[list[str]]]:
+    """(1-based line numbers, tokens) of the non-empty, non-comment lines."""
+    rows = list(_data_rows(text))
+    return [n for n, _ in rows], [t for _, t in rows]
 
 
 def _unit_hint(path: Path, lineno: int, text: str, what: str) -> InputError:
@@ -262,8 +265,6 @@ def read_times(path: str | Path) -> np.ndarray:
 
 def sniff_columns(path: str | Path, text: str) -> int:
     """Number of values on the first data line of a text trajectory (8 TUM, 12 KITTI), ``text`` its content."""
-    for line in text.splitlines():
-        line = line.strip()
-        if line and not line.startswith("#"):
-            return len(line.replace(",", " ").split())
+    for _, tokens in _data_rows(text):
+        return len(tokens)
     raise InputError(f"{Path(path)}: no poses in file")
