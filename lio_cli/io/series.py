@@ -122,12 +122,12 @@ class _Bulk:
         self.frames: dict[bytes, None] = {}
         self.kids: dict[bytes, None] = {}
         self.ok = True
-        self.raws: list = []  # messages kept for ``finish`` (parsed there, the whole topic at once where it can be)
+        self.raws: list = []  # ROS 1 messages kept for ``finish`` (the whole topic parsed at once where it can be)
         self._body: np.ndarray | None = None  # set by a whole-topic parse
 
     def finish(self) -> None:
         raws, self.raws = self.raws, []
-        if not (raws and not self.cdr and self._add_uniform(raws)):
+        if not (raws and self._add_uniform(raws)):
             for raw in raws:
                 self.add(raw)
 
@@ -155,7 +155,7 @@ class _Bulk:
             return False
         if self.child and (np.any(arr["klen"] != len(kid)) or np.any(arr["kid"] != np.frombuffer(kid, np.uint8))):
             return False
-        self.stamps = (arr["sec"].astype(np.int64) * 1_000_000_000 + arr["nsec"]).tolist()
+        self.stamps = arr["sec"].astype(np.int64) * 1_000_000_000 + arr["nsec"]  # as read_series hands them on
         self._body = arr["body"]  # a view: the columns are copied out of it (a structured copy is slow)
         self.frames.setdefault(frame)
         if self.child:
@@ -210,7 +210,9 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
         else:
             raise InputError(f"{log.path}: topic {t} is {msgtype}, which fuse cannot read")
     if bulk:
-        keep = {t: b.raws.append for t, b in bulk.items()}
+        # a ROS 1 bag's messages wait for the whole-topic parse of ``finish``; others are parsed as read (not
+        # held in memory for a parse that only ROS 1's fixed layout allows)
+        keep = {t: b.add if b.cdr else b.raws.append for t, b in bulk.items()}
         for n, (topic, _, _, raw) in enumerate(log.raw_messages(list(bulk)), 1):
             keep[topic](raw)
             if progress is not None and n % _PROGRESS_EVERY == 0:

@@ -104,6 +104,19 @@ def test_whole_topic_parse_equals_the_per_message_parse(logs, monkeypatch):
         assert getattr(fast[topic], "frames", None) == getattr(slow[topic], "frames", None)
 
 
+@pytest.mark.parametrize("fmt, held", [("ros1", 30), ("mcap", 0), ("ros2", 0)])
+def test_only_a_ros1_topic_is_held_for_the_whole_topic_parse(logs, monkeypatch, fmt, held):
+    """CDR messages are parsed as they are read; holding them all would double a long log's memory for a parse
+    only ROS 1's fixed layout allows."""
+    path = logs.write(fmt, _build)
+    seen: list[int] = []
+    finish = series._Bulk.finish
+    monkeypatch.setattr(series._Bulk, "finish", lambda self: (seen.append(len(self.raws)), finish(self))[1])
+    with open_log(path) as log:
+        imu = series.read_series(log, ["/imu"])["/imu"]
+    assert seen == [held] and len(imu) == 30
+
+
 def test_ros1_chunk_reader_yields_what_rosbags_yields(logs):
     path = logs.write("ros1", _build)
     with open_log(path) as log:
