@@ -4,7 +4,8 @@ frame ids and six numbers (an IMU's rates and accelerations, an odometry's twist
 The fixed-layout types (Imu, Odometry, TwistStamped) are read straight from their bytes with the same
 header split ``series`` reads whole topics with, so a check costs no typestore decoder (rosbags compiles
 one per type on its first use: ~10 ms each, more than the check itself). A message whose length does not
-fit the standard layout, and every other type, goes through the typestore as before.
+fit the standard layout, and every other type, is decoded as ``LogReader.decode`` decodes it (a
+PointCloud2 by lio's own parser, the rest by the typestore).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import NamedTuple
 from ..errors import InputError
 from .decode import IMU, ODOMETRY
 from .pointcloud import stamp_to_ns
+from .rawmsg import RawImu
 from .reader import LogReader
 from .series import BODY_DTYPES, BULK_TYPES, split_header
 
@@ -51,6 +53,8 @@ def _from_bytes(raw, msgtype: str, cdr: bool) -> tuple[int, str, str, tuple[floa
 
 
 def _from_message(msg, msgtype: str) -> tuple[int | None, str, str, tuple[float, ...]]:
+    if isinstance(msg, RawImu):  # ``LogReader.decode``'s own parse of an Imu
+        return msg.stamp_ns, msg.frame_id, "", (*msg.gyro_radps, *msg.accel_mps2)
     header = getattr(msg, "header", None)
     stamp = stamp_to_ns(header.stamp) if header is not None else None
     frame = header.frame_id if header is not None else ""
@@ -75,7 +79,7 @@ def peek(log: LogReader, topic: str, n: int) -> Iterator[Peek]:
         for k, rec in enumerate(records):
             got = _from_bytes(rec.data, msgtype, cdr) if msgtype in BULK_TYPES else None
             if got is None:
-                got = _from_message(log.deserialize(rec), msgtype)
+                got = _from_message(log.decode(rec), msgtype)  # a cloud by lio's parser, not the typestore
             yield Peek(rec.log_time_ns, *got)
             if k + 1 >= n:
                 break

@@ -4,8 +4,10 @@ every format, and a fuse run's topic and clock checks compile no typestore decod
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.io.peek import _from_message, peek
@@ -34,7 +36,7 @@ def test_peek_from_bytes_equals_the_typestore_in_every_format(logs, write_format
     assert got[0].values == () and got[0].frame_id == "map"
 
 
-def test_a_message_off_the_standard_layout_is_read_by_the_typestore(logs, monkeypatch):
+def test_a_message_off_the_standard_layout_is_decoded_as_the_read_decodes_it(logs, monkeypatch):
     path = logs.write("ros1", _build)
     with open_log(path) as log:
         first = next(peek(log, "/imu", 1))
@@ -46,11 +48,11 @@ def test_a_message_off_the_standard_layout_is_read_by_the_typestore(logs, monkey
 
         monkeypatch.setattr(log, "records", padded)
         seen = []
-        deserialize = log.deserialize
-        monkeypatch.setattr(log, "deserialize", lambda rec: seen.append(rec.connection.topic) or deserialize(rec))
+        decode = log.decode
+        monkeypatch.setattr(log, "decode", lambda rec: seen.append(rec.connection.topic) or decode(rec))
         again = next(peek(log, "/imu", 1), None)
     assert seen == ["/imu"]
-    assert again is None or again == first  # read by the typestore, or refused by it as damage
+    assert again == first  # LogReader.decode's Imu parser reads the standard fields in front of the extra byte
 
 
 def test_fuse_checks_decode_nothing_through_the_typestore(logs, monkeypatch):
@@ -75,3 +77,12 @@ def test_fuse_checks_decode_nothing_through_the_typestore(logs, monkeypatch):
         check_clocks(log, roles, 0)
     assert (roles["imu"].topic, roles["wheel"].topic) == ("/imu", "/wheel/odom")
     assert decoded == []
+
+
+def test_a_cloud_is_peeked_by_lio_s_own_parser(monkeypatch):
+    """The clock check reads the LiDAR topic's first stamps: a typestore decode of whole clouds for that."""
+    with open_log(Path(__file__).resolve().parents[2] / "sample_logs" / "handheld.bag") as log:
+        monkeypatch.setattr(log, "deserialize", lambda rec: pytest.fail("a cloud went through the typestore"))
+        got = list(peek(log, "/points", 3))
+    assert len(got) == 3 and all(p.frame_id == "lidar" and p.values == () for p in got)
+    assert got[0].stamp_ns < got[1].stamp_ns < got[2].stamp_ns
