@@ -46,7 +46,8 @@ def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int
     parts = [reader.index_columns[conn.id] for conn in connections]
     cols = np.concatenate(parts, axis=1) if len(parts) != 1 else parts[0]
     which = np.repeat(np.arange(len(parts), dtype=np.int32), [p.shape[1] for p in parts])
-    order = np.argsort(cols[0], kind="stable")
+    # one connection's columns are already in that order (``bag1_index`` sorts them); a topic peek reads a few
+    order = np.argsort(cols[0], kind="stable") if len(parts) != 1 else np.arange(cols.shape[1])
     lo, size, n = 0, _FIRST_BLOCK, len(order)
     while lo < n:
         sel = order[lo:lo + size]
