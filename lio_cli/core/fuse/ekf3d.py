@@ -179,7 +179,7 @@ class Ekf3d:
         if self.wheel_yaw_rate and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
-                self.prep.reports["wheel"].reject("in_gap")
+                self.wheel_rep.reject("in_gap")
             else:
                 r, H, Rn = m3.yaw_rate(np.array(x), w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
                                        self.gyro_var, self.L)

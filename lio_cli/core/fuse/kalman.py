@@ -31,8 +31,7 @@ class Gate:
     next one passes (the filter, not the sensor, is then assumed to be off)."""
 
     def __init__(self, probability: float, max_rejects: int):
-        self.thr = chi2_thresholds(probability)
-        self._thr = self.thr.tolist()  # Python floats: checked once per update in the filter loop
+        self._thr = chi2_thresholds(probability).tolist()  # Python floats: checked once per update in the loop
         self._last = len(self._thr) - 1
         self.max_rejects = max_rejects
         self.streak: dict[str, int] = {}
