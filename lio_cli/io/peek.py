@@ -19,7 +19,7 @@ from .decode import IMU, ODOMETRY
 from .pointcloud import stamp_to_ns
 from .rawmsg import RawImu
 from .reader import LogReader
-from .series import BODY_DTYPES, BULK_TYPES, split_header
+from .stamped_bytes import BODY_DTYPES, BULK_TYPES, split_standard
 
 
 _XYZ = struct.Struct("<3d")
@@ -39,17 +39,13 @@ class Peek(NamedTuple):
 def _from_bytes(raw, msgtype: str, cdr: bool) -> tuple[int, str, str, tuple[float, ...]] | None:
     buf = memoryview(raw)
     dtype = BODY_DTYPES[msgtype]
+    got = split_standard(buf, cdr, msgtype == ODOMETRY, dtype.itemsize)
+    if got is None:
+        return None
+    stamp, frame, kid, pos, _ = got
     first, second = ("w", "a") if msgtype == IMU else ("lin", "ang")
-    for enc in (cdr, not cdr):  # MCAP may carry ROS 1 encoded messages: the length tells
-        try:
-            stamp, frame, kid, pos = split_header(buf, enc, msgtype == ODOMETRY)
-        except (struct.error, ValueError, IndexError):
-            continue
-        if pos + dtype.itemsize == len(buf):
-            values = _XYZ.unpack_from(buf, pos + dtype.fields[first][1]) + _XYZ.unpack_from(
-                buf, pos + dtype.fields[second][1])
-            return stamp, frame.decode(errors="replace"), kid.decode(errors="replace"), values
-    return None
+    values = _XYZ.unpack_from(buf, pos + dtype.fields[first][1]) + _XYZ.unpack_from(buf, pos + dtype.fields[second][1])
+    return stamp, frame.decode(errors="replace"), kid.decode(errors="replace"), values
 
 
 def _from_message(msg, msgtype: str) -> tuple[int | None, str, str, tuple[float, ...]]:

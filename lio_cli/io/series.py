@@ -21,20 +21,10 @@ import numpy as np
 from ..errors import InputError
 from .decode import IMU, ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED, TWIST_STAMPED
 from .reader import LogReader
+from .stamped_bytes import BODY_DTYPES, split_header, split_standard
 
-_F8 = "<f8"
-_IMU_BODY = np.dtype([("q", _F8, 4), ("qcov", _F8, 9), ("w", _F8, 3), ("wcov", _F8, 9), ("a", _F8, 3),
-                      ("acov", _F8, 9)])
-_ODOM_BODY = np.dtype([("p", _F8, 3), ("q", _F8, 4), ("pcov", _F8, 36), ("lin", _F8, 3), ("ang", _F8, 3),
-                       ("tcov", _F8, 36)])
-_TWIST_BODY = np.dtype([("lin", _F8, 3), ("ang", _F8, 3)])
-BODY_DTYPES = {IMU: _IMU_BODY, ODOMETRY: _ODOM_BODY, TWIST_STAMPED: _TWIST_BODY}
-BULK_TYPES = tuple(BODY_DTYPES)
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED)
 
-_HEAD_ROS1 = struct.Struct("<4xIII")  # seq, sec, nsec, frame_id length
-_HEAD_CDR = struct.Struct("<4xiII")  # encapsulation, sec, nanosec, frame_id length (NUL included)
-_U32 = struct.Struct("<I")
 _PROGRESS_EVERY = 4096
 
 Progress = Callable[[int], None]  # messages read so far
@@ -78,36 +68,6 @@ class MotionColumns:
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
-
-
-def _string_end(buf, pos: int) -> tuple[int, int]:
-    (n,) = _U32.unpack_from(buf, pos)
-    return pos + 4, pos + 4 + n
-
-
-def split_header(buf, cdr: bool, child: bool) -> tuple[int, bytes, bytes, int]:
-    """(stamp_ns, frame_id bytes, child_frame_id bytes, body offset) of a serialised stamped message."""
-    if cdr:
-        if buf[1] != 1:
-            raise ValueError("not little-endian CDR")
-        sec, nsec, n = _HEAD_CDR.unpack_from(buf, 0)
-        frame = bytes(buf[16: 16 + n - 1]) if n else b""
-        pos = 16 + n
-        kid = b""
-        if child:
-            pos += -(pos - 4) % 4
-            a, b = _string_end(buf, pos)
-            kid, pos = bytes(buf[a: b - 1]) if b > a else b"", b
-        pos += -(pos - 4) % 8
-    else:
-        sec, nsec, n = _HEAD_ROS1.unpack_from(buf, 0)
-        frame = bytes(buf[16: 16 + n])
-        pos = 16 + n
-        kid = b""
-        if child:
-            a, pos = _string_end(buf, pos)
-            kid = bytes(buf[a:pos])
-    return sec * 1_000_000_000 + nsec, frame, kid, pos
 
 
 class _Bulk:
@@ -166,21 +126,17 @@ class _Bulk:
         if not self.ok:
             return
         buf = memoryview(raw)
-        for cdr in (self.cdr, not self.cdr):  # MCAP may carry ROS 1 encoded messages: the length tells
-            try:
-                stamp, frame, kid, pos = split_header(buf, cdr, self.child)
-            except (struct.error, ValueError, IndexError):
-                continue
-            if pos + self.size == len(buf):
-                self.cdr = cdr
-                self.stamps.append(stamp)
-                self.bodies.append(bytes(buf[pos:]))  # a copy: a view would keep the whole chunk alive
-                self.frames.setdefault(frame)
-                if self.child:
-                    self.kids.setdefault(kid)
-                return
-        self.ok = False  # not the standard layout: the typestore reads this topic
-        self.bodies = []
+        got = split_standard(buf, self.cdr, self.child, self.size)
+        if got is None:
+            self.ok = False  # not the standard layout: the typestore reads this topic
+            self.bodies = []
+            return
+        stamp, frame, kid, pos, self.cdr = got
+        self.stamps.append(stamp)
+        self.bodies.append(bytes(buf[pos:]))  # a copy: a view would keep the whole chunk alive
+        self.frames.setdefault(frame)
+        if self.child:
+            self.kids.setdefault(kid)
 
     def body(self) -> np.ndarray:
         if self._body is not None:
@@ -305,4 +261,4 @@ def _read_typestore(log: LogReader, topic: str) -> ImuColumns | MotionColumns:
                          None)
 
 
-__all__ = ["BODY_DTYPES", "BULK_TYPES", "POSE_TYPES", "ImuColumns", "MotionColumns", "read_series", "split_header"]
+__all__ = ["ImuColumns", "MotionColumns", "POSE_TYPES", "read_series"]
