@@ -20,6 +20,7 @@ the LiDAR's x, y, z axes. Pass the trajectory of the base instead and everything
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -96,40 +97,57 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
             noise = max(float(np.sqrt((r0 * r0).mean())), 1e-9)  # per-component residual: whitens the problem
             if R_lidar_imu_prior is not None:
                 R = np.asarray(R_lidar_imu_prior, np.float64)
-        R, b, _, r, H, J, prior_info = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior,
-                                                     prior_sigma_rad)
-        bias = bias + b
-        bad = outliers_3d(noise * np.linalg.norm(r, axis=1), OUTLIER_FLOOR_RAD)  # r is whitened
+        fit = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior, prior_sigma_rad)
+        R, bias = fit.R, bias + fit.b
+        bad = outliers_3d(noise * np.linalg.norm(fit.r, axis=1), OUTLIER_FLOOR_RAD)  # r is whitened
         if rnd == 0 and bad.any():
             keep[np.flatnonzero(keep)[bad]] = False
             notes.append(f"{int(bad.sum())} windows left out: their rotation disagrees with the gyro's (bad "
                          f"registrations?)")
-    cov = sandwich_covariance(H, np.einsum("nji,nj->ni", J, r), lag=span, prior_info=prior_info)
+    cov = fit.covariance(span)
     gain = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior, prior_sigma_rad, gain=True)
-    cov_g = sandwich_covariance(gain[4], np.einsum("nji,nj->ni", gain[5], gain[3]), lag=span, prior_info=gain[6])
-    S = gain[2][GAIN_ENTRIES]
+    cov_g = gain.covariance(span)
+    S = gain.S[GAIN_ENTRIES]
     z = np.abs(S) / np.sqrt(np.diag(cov_g)[6:])
     # ...unless the motion cannot tell the gain from the mounting (a 2D scanner reports no roll or pitch at all,
     # and a platform that only turns about the vertical cannot show how the registration would follow them)
-    identifiable = (per_axis(cov_g[:3, :3], max_sigma_rad)[1] >= per_axis(cov[:3, :3], max_sigma_rad)[1]).all()
-    if identifiable and ((np.abs(S) > GAIN_TOL) & (z > GAIN_SIGMAS)).any():
-        R, bias, cov, r = gain[0], bias + gain[1], cov_g, gain[3]
-        w = np.linalg.eigvalsh(gain[2])
+    sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
+    identifiable = (per_axis(cov_g[:3, :3], max_sigma_rad)[1] >= observable).all()
+    modelled = bool(identifiable and ((np.abs(S) > GAIN_TOL) & (z > GAIN_SIGMAS)).any())
+    if modelled:
+        R, bias, cov, fit = gain.R, bias + gain.b, cov_g, gain
+        sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
+        w = np.linalg.eigvalsh(gain.S)
         notes.append(f"the {frame} trajectory turns by {100 * (1 + w[0]):.0f}% to {100 * (1 + w[-1]):.0f}% of the "
                      f"gyro's rotation, depending on the axis (LiDAR-only registration following a fraction of slow "
                      f"roll and pitch sways?): modelled, the mounting is estimated from the rest")
-    sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
     _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
     return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:6, 3:6])), int(keep.sum()),
-                         float(noise * np.sqrt((r * r).mean())), tuple(notes), gain[2] if cov is cov_g else np.zeros((3, 3)))
+                         float(noise * np.sqrt((fit.r * fit.r).mean())), tuple(notes),
+                         gain.S if modelled else np.zeros((3, 3)))
+
+
+class _Fit(NamedTuple):
+    """What ``_gauss_newton`` ends at: the mounting, bias and gain, the whitened residuals and Jacobian, the
+    normal matrix with the prior, and the prior's information."""
+
+    R: np.ndarray
+    b: np.ndarray
+    S: np.ndarray
+    r: np.ndarray
+    H: np.ndarray
+    J: np.ndarray
+    prior_info: np.ndarray
+
+    def covariance(self, lag: int) -> np.ndarray:
+        return sandwich_covariance(self.H, np.einsum("nji,nj->ni", self.J, self.r), lag=lag,
+                                   prior_info=self.prior_info)
 
 
 def _gauss_newton(R: np.ndarray, phi_l: np.ndarray, phi_i: np.ndarray, dt: np.ndarray, noise: float,
-                  R_prior: np.ndarray | None, prior_sigma_rad: float, gain: bool = False, iterations: int = 4):
+                  R_prior: np.ndarray | None, prior_sigma_rad: float, gain: bool = False, iterations: int = 4) -> _Fit:
     """Minimise sum |phi_l - (I + S) R (phi_i - b dt)|^2 / noise^2 (+ prior on R) over R = exp(d) R, b and, with
-    ``gain``, the symmetric S (six entries, ``GAIN_ENTRIES``; else S = 0).
-
-    Returns (R, b, S, whitened residuals, normal matrix with prior, whitened Jacobian, the prior's information)."""
+    ``gain``, the symmetric S (six entries, ``GAIN_ENTRIES``; else S = 0)."""
     b, S = np.zeros(3), np.zeros((3, 3))
     Rp = R if R_prior is None else np.asarray(R_prior, np.float64)
     n_par = 12 if gain else 6
@@ -146,7 +164,7 @@ def _gauss_newton(R: np.ndarray, phi_l: np.ndarray, phi_i: np.ndarray, dt: np.nd
             J = np.concatenate([J, -np.einsum("mjk,nk->njm", _GAIN_BASIS, u) / noise], axis=2)
         H = np.einsum("nji,njk->ik", J, J) + prior_info
         if it == iterations:
-            return R, b, S, r, H, J, prior_info
+            return _Fit(R, b, S, r, H, J, prior_info)
         g = np.einsum("nji,nj->i", J, r)
         g[:3] += prior_info[0, 0] * so3_log(R @ Rp.T)
         if gain:
