@@ -77,3 +77,24 @@ def test_a_trajectory_that_does_not_see_the_distance_is_refused(planar):
                                          r"\(speed scale 0\.2, yaw-rate scale 0\.9\d+\): the LiDAR did not see"):
         estimate_wheel_scales(planar.wheel.stamps_ns, planar.wheel.linear_mps, planar.wheel.angular_radps,
                               planar.lidar_stamps_ns, poses, T_base_traj=planar.T_base_lidar)
+
+
+def test_badly_registered_poses_are_bridged_not_taken_for_slip(planar):
+    """A pose registered 25 cm off throws out both windows that share it, by opposite amounts. Left out as slip,
+    one of them could stay in, uncancelled, and bias the speed scale; bridged (the windows on either side joined
+    into one that skips the pose) the slip stays the only window left out."""
+    poses = planar.T_world_lidar.copy()
+    rows = [50, 80, 140, 260, 330, 370]  # window ends (1 s of the 10 Hz trajectory), away from the slip
+    fwd = poses[rows, :3, 0]
+    poses[rows, :3, 3] += 0.25 * np.where(np.arange(len(rows)) % 2 == 0, 1.0, -1.0)[:, None] * fwd
+    w = planar.wheel_spec
+    r = estimate_wheel_scales(planar.wheel.stamps_ns, planar.wheel.linear_mps, planar.wheel.angular_radps,
+                              planar.lidar_stamps_ns, poses, T_base_traj=planar.T_base_lidar, radius_m=w.radius_m,
+                              baseline_m=w.baseline_m)
+    s_v, s_w = _truth(planar)
+    assert r.bridged == len(rows)
+    assert len(r.slip_ns) == 1
+    a, b = ((np.array(r.slip_ns[0]) - planar.wheel.stamps_ns[0]) / NS)
+    assert 19.0 <= a <= 20.5 and 22.5 <= b <= 24.0
+    assert r.speed_scale == pytest.approx(s_v, rel=SCALE_REL_TOL)
+    assert r.yaw_rate_scale == pytest.approx(s_w, rel=SCALE_REL_TOL)
