@@ -15,6 +15,7 @@ from ..core.fuse import GpsSeries, ImuSeries, PoseSeries, WheelSeries
 from ..geometry import pose_from_xyz_quat, quat_xyzw_to_rot
 from ..io.decode import ODOMETRY
 from ..io.series import ImuColumns, MotionColumns
+from ..model.calibration import WheelCalibration
 from ..model.gps import GpsTrack
 
 UNMEASURED_VAR = 1e3  # a variance this large says "not measured"
@@ -102,6 +103,15 @@ def wheel_series(cols: MotionColumns, frame: str, R_base_child: np.ndarray | Non
     if n and not np.any(np.nan_to_num(yaw)):
         yaw[:] = np.nan
     return WheelSeries(cols.stamps_ns.copy(), lin, yaw, vvar, None if yvar is None else yvar[:, 0])
+
+
+def calibrated_wheel(wheel: WheelSeries, scales: WheelCalibration) -> WheelSeries:
+    """The twist corrected by ``lio calibrate``'s scale factors (true speed = speed_scale x wheel speed, true yaw
+    rate = yaw_rate_scale x wheel yaw rate); variances scaled alike."""
+    sv, sw = scales.speed_scale, scales.yaw_rate_scale
+    return WheelSeries(wheel.stamps_ns, wheel.velocity_mps * sv, wheel.yaw_rate_radps * sw,
+                       None if wheel.velocity_var is None else wheel.velocity_var * sv**2,
+                       None if wheel.yaw_rate_var is None else wheel.yaw_rate_var * sw**2)
 
 
 def carries_lateral_speed(wheel: WheelSeries) -> bool:

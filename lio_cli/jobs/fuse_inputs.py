@@ -26,7 +26,8 @@ from ..io.topics import TopicChoice, choose_topic
 from ..geodesy import EnuFrame
 from ..model.gps import GpsTrack
 from .fuse_convert import (
-    carries_lateral_speed, gps_series, imu_series, pose_series, trajectory_series, twist_frame, wheel_series,
+    calibrated_wheel, carries_lateral_speed, gps_series, imu_series, pose_series, trajectory_series, twist_frame,
+    wheel_series,
 )
 from .odom_inputs import BASE_FRAME_NAMES
 
@@ -172,6 +173,10 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
             notes.append(f"wheel odometry {wheel_cols.topic}: twist in the parent frame, not the base (REP 105): {why}")
         R = _child_rotation(tree, base, wheel_cols.child_frame_id, extrinsics)
         inputs.wheel = wheel_series(wheel_cols, twist, R)
+        if cal.wheel is not None:
+            inputs.wheel = calibrated_wheel(inputs.wheel, cal.wheel)
+            extrinsics["wheel_twist"] += (f"; scaled by --calib (speed x{cal.wheel.speed_scale:.6g}, yaw rate "
+                                          f"x{cal.wheel.yaw_rate_scale:.6g})")
     if "odom" in roles:
         inputs.odom = _odom(cfg, cols)
     gps = None

@@ -111,6 +111,10 @@ class _OdomRun:
 
     def _feed(self) -> None:
         offset_ns = self.cfg.calibration.imu_time_offset_ns
+        wheel_cal = self.cfg.calibration.wheel if self.inputs.wheel else None
+        if wheel_cal is not None:
+            self.notes.append(f"wheel odometry {self.inputs.wheel} scaled by --calib (speed x{wheel_cal.speed_scale:.6g}, "
+                              f"yaw rate x{wheel_cal.yaw_rate_scale:.6g})")
         tick = time.perf_counter()
         for rec in self.stream:
             self.t_read += time.perf_counter() - tick
@@ -125,7 +129,7 @@ class _OdomRun:
                 else:
                     self._add_imu(batch)
             elif rec.kind == "wheel" and self.odo is not None:
-                self.odo.add_wheel(rec.data)
+                self.odo.add_wheel(rec.data if wheel_cal is None else wheel_cal.corrected(rec.data))
             elif rec.kind == "lidar":
                 self.pending.append(rec.data)
             if self.odo is not None:

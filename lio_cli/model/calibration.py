@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from .records import OdometryRecord
 
 # |imu_time_offset_s| beyond this would overflow int64 ns stamps (clock offsets of epoch-sized clocks still fit).
 MAX_CLOCK_OFFSET_S = 4e9
@@ -47,11 +49,18 @@ class WheelCalibration(BaseModel):
     baseline_m: Optional[float] = Field(None, gt=0, description="effective track width (with the nominal one given)")
     baseline_sigma_m: Optional[float] = Field(None, ge=0)
 
+    def corrected(self, rec: OdometryRecord) -> OdometryRecord:
+        """A wheel odometry record with its forward speed and yaw rate corrected (the twist as a whole scales by
+        ``speed_scale``, the rotation about z by ``yaw_rate_scale``)."""
+        angular = rec.angular_radps.copy()
+        angular[2] *= self.yaw_rate_scale
+        return replace(rec, linear_mps=rec.linear_mps * self.speed_scale, angular_radps=angular)
+
 
 class Calibration(BaseModel):
     """What a calibration may hold (all optional): extrinsics as 4x4 row lists, IMU clock offset, biases, and
-    what ``lio calibrate`` writes beside them (1-sigmas, IMU noise, wheel scales), which the other commands
-    read without using.
+    what ``lio calibrate`` writes beside them: wheel scales, which odom and fuse apply to the wheel twist, and
+    1-sigmas and IMU noise, which the other commands read without using.
 
     ``T_base_imu``/``T_base_lidar`` map sensor points into the base frame; ``imu_time_offset_s`` is added to
     IMU stamps to put them on the LiDAR's clock.
