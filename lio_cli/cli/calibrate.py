@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ..config import load_config, with_overrides
+from ..config import load_calibration, load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
 from ..io.pointcloud import parse_time_convention
 from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate
@@ -45,6 +45,10 @@ stretch where one is needed, too little motion, clocks that disagree): one line,
 
   lio calibrate robot.mcap --wheel-radius 0.08 --wheel-baseline 0.42 --calib nominal.yaml
 
+  lio calibrate car.mcap --imu-time-offset 0       # a car cannot time its IMU: keep a known offset
+
+  lio calibrate robot.mcap -o robot.calib.yaml && lio fuse robot.mcap --calib robot.calib.yaml   # wheels corrected
+
   lio calibrate imu_2h.mcap --allan --plot allan/ --kalibr imu.yaml
 """
 
@@ -58,7 +62,8 @@ def calibrate(
     kalibr: Annotated[Optional[Path], typer.Option("--kalibr", help="Also write Kalibr's imu.yaml here (needs --allan).", show_default=False)] = None,
     wheel_radius: Annotated[Optional[float], typer.Option("--wheel-radius", help="Nominal wheel radius in m: estimate the true one.", show_default=False)] = None,
     wheel_baseline: Annotated[Optional[float], typer.Option("--wheel-baseline", help="Nominal wheel baseline in m: estimate the true one.", show_default=False)] = None,
-    calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with (its T_base_lidar is used where /tf_static is silent).", show_default=False)] = None,
+    calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with (its T_base_lidar is used where /tf_static is silent, its imu_time_offset_s where the motion cannot time the IMU).", show_default=False)] = None,
+    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock, kept where the motion cannot time the IMU (a vehicle that does not swing its sensor); measured otherwise.", show_default=False)] = None,
     config: ConfigOpt = None,
     base_frame: BaseFrameOpt = None,
     lidar_topic: LidarTopicOpt = None,
@@ -71,13 +76,15 @@ def calibrate(
     force: ForceOpt = False,
 ) -> None:
     cfg = load_config(CalibrateConfig, config, calib, "prior")
+    if imu_time_offset is None and calib is not None and "imu_time_offset_s" in load_calibration(calib).model_fields_set:
+        imu_time_offset = cfg.prior.imu_time_offset_s  # given, even as 0 (which looks like no --calib at all)
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {
         "still": still, "allan": True if allan else None, "wheel_radius_m": wheel_radius,
         "wheel_baseline_m": wheel_baseline, "input.format": fmt, "input.lidar_topic": lidar_topic,
         "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic, "input.base_frame": base_frame,
-        "input.point_time": point_time,
+        "input.point_time": point_time, "imu_time_offset_s": imu_time_offset,
     })
     out = Path(output) if output is not None else Path(f"{log_stem(log)}.calib.yaml")
     job = CalibrateJob(Path(log), out, cfg, plot, kalibr, force, tuple(p for p in (config, calib) if p is not None))

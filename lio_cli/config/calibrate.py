@@ -47,6 +47,10 @@ class CalibrateConfig(Strict):
     input: InputConfig = InputConfig()
     prior: Calibration = Field(Calibration(), description="a calibration to compare with (--calib); its "
                                "T_base_lidar is used where /tf_static is silent")
+    imu_time_offset_s: Optional[float] = Field(
+        None, ge=-5.0, le=5.0,
+        description="the IMU clock offset where the motion cannot time the IMU (a vehicle that does not swing its "
+        "sensor), kept instead of stopping; default: prior's when --calib gives one")
     still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "
                                  "default: found automatically")
     allan: bool = Field(False, description="Allan variance of the whole log (a static IMU recording, hours)")
@@ -61,6 +65,12 @@ class CalibrateConfig(Strict):
         "with the IMU (a fused pose would follow the estimates it starts from); all but the last over the first third of the "
         "log; 0 = the LiDAR-only pass alone")
     registration: CalibrationRegistration = CalibrationRegistration()
+
+    @property
+    def start_offset_s(self) -> float:
+        """The IMU clock offset the passes start from and the search is centred on: the given one, else the
+        prior's (0 without --calib)."""
+        return self.prior.imu_time_offset_s if self.imu_time_offset_s is None else self.imu_time_offset_s
 
     @field_validator("still")
     @classmethod

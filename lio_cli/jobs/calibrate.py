@@ -117,7 +117,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                               "there is to calibrate", est, where)
             est.skip("the LiDAR-IMU time offset, rotation and translation", "the log has no LiDAR topic")
         else:
-            check_same_clock(reader, lidar, imu_topic, cfg.prior.imu_time_offset_ns)
+            check_same_clock(reader, lidar, imu_topic, int(round(cfg.start_offset_s * 1e9)))
             planar = reader.topics[lidar].msgtype == LASERSCAN
             n = reader.topics[lidar].count
             spans = refine_spans(cfg.refine_passes, planar)
@@ -133,14 +133,15 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
             T_ref = reference_T_lidar_imu(ref, T_base_lidar)
-            prior_offset = cfg.prior.imu_time_offset_s if ref_name == "--calib" else None
+            prior_offset = cfg.imu_time_offset_s if cfg.imu_time_offset_s is not None else \
+                cfg.prior.imu_time_offset_s if ref_name == "--calib" else None
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
             s0, s1 = int(traj.stamps_ns[0]), int(traj.stamps_ns[-1])
             untils = [pass_until(span, s0, s1) for span in spans]
             counter.plan(sum(n if u is None else n * (u - s0) / max(s1 - s0, 1) for u in untils))
-            traj, dropped = steps.consistent_scans(traj, imu, cfg.prior.imu_time_offset_s, bias0)
+            traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
             steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
             imu_topics = {"lidar": lidar, "imu": imu_topic}

@@ -9,7 +9,7 @@ left unobservable, a lever arm the motion did not excite, a missing sensor).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -17,7 +17,7 @@ from ..config.calibrate import CalibrateConfig
 from ..core.calibration import (AllanResult, ImuStatic, LeverArmCalib, RotationCalib, TimeOffset, WheelCalib,
                                 estimate_allan, estimate_imu_static, estimate_lever_arm, estimate_rotation,
                                 estimate_time_offset, estimate_wheel_scales)
-from ..core.calibration.common import time_ranges_text
+from ..core.calibration.common import NS_PER_S, time_ranges_text
 from ..core.calibration.imu_static import StillOptions, still_mask
 from ..core.calibration.handeye import imu_increments, lidar_increments
 from ..core.calibration.signals import GyroOrientation
@@ -98,17 +98,21 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
                T_ref: np.ndarray | None, final: bool, prior_offset: float | None = None) -> None:
     """Time offset, rotation and lever arm of the IMU against the LiDAR trajectory. ``final``: the last
     round (its notes and skipped items are the ones reported). ``T_ref``: the reference T_lidar_imu, whose
-    translation holds the axes the motion does not show. ``prior_offset``: the clock offset --calib gave,
-    kept (and said so) when the motion cannot time the IMU; without it that is bad input."""
+    translation holds the axes the motion does not show. ``prior_offset``: the clock offset given (--calib,
+    --imu-time-offset), kept (and said so) when the motion cannot time the IMU; without it that is bad input."""
     bias0 = est.static.gyro_bias_radps if est.static is not None else None
+    centre_ns = int(round(cfg.start_offset_s * NS_PER_S))  # the search spans +-max_offset_s around it
     try:
-        off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
+        off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns + centre_ns, imu.gyro_radps,
                                    gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,
                                    max_sigma_s=FINAL_MAX_SIGMA_S if final else COARSE_MAX_SIGMA_S)
+        if centre_ns:
+            off = replace(off, imu_time_offset_s=off.imu_time_offset_s + centre_ns / NS_PER_S)
     except InputError as err:
         if prior_offset is None or not str(err).startswith("too little"):
-            raise InputError(f"{where}: {err}; or give the clock offset (imu_time_offset_s) with --calib") from err
-        off = _kept_offset(bias0, prior_offset, f"{err}; kept from --calib ({1e3 * prior_offset:+.3f} ms)")
+            raise InputError(f"{where}: {err}; or give the clock offset with --imu-time-offset SECONDS (or "
+                             "imu_time_offset_s in --calib)") from err
+        off = _kept_offset(bias0, prior_offset, f"{err}; kept as given ({1e3 * prior_offset:+.3f} ms)")
     t_prior_lidar_m = None if T_ref is None else T_ref[:3, 3]
     try:
         rot = estimate_rotation(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,

@@ -167,7 +167,22 @@ def test_too_little_motion_names_the_motion_that_would_help(tmp_path, capsys):
     assert err.startswith(f"lio: error: {log}: too little rotation to time the IMU against the LiDAR: the trajectory "
                           "turns at most ")
     assert err.endswith("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; "
-                        "on a vehicle, drive a slalom; or give the clock offset (imu_time_offset_s) with --calib")
+                        "on a vehicle, drive a slalom; or give the clock offset with --imu-time-offset SECONDS (or "
+                        "imu_time_offset_s in --calib)")
+
+
+@pytest.mark.parametrize("how", ["flag", "calib"])
+def test_a_given_clock_offset_is_kept_where_the_motion_cannot_time_the_imu(tmp_path, capsys, how):
+    """What the line above suggests works: the offset given (even 0, which a --calib holding nothing else would
+    otherwise look like no --calib at all) is kept, and the run goes on to what the motion can show."""
+    log = static_log(tmp_path / "still.bag")
+    if how == "flag":
+        extra = ["--imu-time-offset", "0"]
+    else:
+        (tmp_path / "offset.yaml").write_text("imu_time_offset_s: 0.0\n")
+        extra = ["--calib", tmp_path / "offset.yaml"]
+    err = one_error([log, "-o", tmp_path / "x.yaml", *extra], capsys, tmp_path)
+    assert err.startswith(f"lio: error: {log}: too little rotation to estimate the LiDAR-IMU rotation")
 
 
 def test_clock_mismatch(tmp_path, capsys):
@@ -176,6 +191,8 @@ def test_clock_mismatch(tmp_path, capsys):
     assert err == (f"lio: error: {log}: /imu and /points are stamped on different clocks (/imu from "
                    "1699999997.000 s, /points from 1700000000.000 s: 2.901 s apart beyond their recording times); if /imu "
                    "runs on a shifted clock give --imu-time-offset 2.901")
+    err = one_error([log, "-o", tmp_path / "x.yaml", "--imu-time-offset", "2.901"], capsys, tmp_path)
+    assert err.startswith(f"lio: error: {log}: too little rotation to estimate the LiDAR-IMU rotation")  # joined
 
 
 def test_a_still_interval_where_the_platform_moves_says_where(walk, tmp_path, capsys):

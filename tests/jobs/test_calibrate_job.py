@@ -175,3 +175,12 @@ def test_wheels_without_the_imu_mounting_are_measured_against_a_gyro_primed_pass
     s_v = 0.5 * (w["radius_scale_left"] + w["radius_scale_right"])
     assert r.calibration.wheel.speed_scale == pytest.approx(s_v, rel=0.003)  # the issue's goal: 0.3%
     assert r.calibration.wheel.yaw_rate_scale == pytest.approx(s_v / w["baseline_scale"], rel=0.003)
+
+
+def test_a_clock_offset_beyond_the_search_is_found_around_the_one_given(tmp_path):
+    """The IMU stamped 0.45 s late, searched +-0.2 s: beyond the search around zero. Given roughly
+    (--imu-time-offset), the passes start from it and the search is centred on it."""
+    sim = simulate("handheld", tmp_path / "late.bag", "ros1", duration_s=8.0, seed=7, columns=512, imu_time_offset_s=0.45)
+    cfg = CalibrateConfig(imu_time_offset_s=-0.4, max_offset_s=0.2)
+    r = run_calibrate(CalibrateJob(sim.log_path, tmp_path / "late.calib.yaml", cfg))
+    assert abs(1e3 * (r.calibration.imu_time_offset_s + 0.45)) < OFFSET_TOL_MS
