@@ -56,7 +56,8 @@ def rotation_cov_lidar(est: Estimates) -> np.ndarray:
     return est.rotation.covariance_rad2
 
 
-def compose(est: Estimates, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None) -> Calibration:
+def compose(est: Estimates, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
+            wheel_topic: str | None = None) -> Calibration:
     """The calibration the estimates give (only what was estimated; sigmas about/along the base axes)."""
     out: dict = {}
     T_li = T_lidar_imu_of(est, T_ref)
@@ -91,7 +92,7 @@ def compose(est: Estimates, T_base_lidar: np.ndarray | None, T_ref: np.ndarray |
     if est.wheel is not None:
         w = est.wheel
         out["wheel"] = WheelCalibration(
-            speed_scale=round(w.speed_scale, 6), speed_scale_sigma=float(f"{w.speed_scale_sigma:.3g}"),
+            topic=wheel_topic, speed_scale=round(w.speed_scale, 6), speed_scale_sigma=float(f"{w.speed_scale_sigma:.3g}"),
             yaw_rate_scale=round(w.yaw_rate_scale, 6), yaw_rate_scale_sigma=float(f"{w.yaw_rate_scale_sigma:.3g}"),
             radius_m=_opt(w.radius_m), radius_sigma_m=_opt(w.radius_sigma_m, 3), baseline_m=_opt(w.baseline_m),
             baseline_sigma_m=_opt(w.baseline_sigma_m, 3))

@@ -40,6 +40,8 @@ class WheelCalibration(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
+    topic: Optional[str] = Field(None, description="the wheel odometry topic the scales were measured on: odom and "
+                                 "fuse correct that topic only (none given: whichever they use)")
     speed_scale: float = Field(gt=0)
     speed_scale_sigma: float = Field(ge=0)
     yaw_rate_scale: float = Field(gt=0)
@@ -48,6 +50,9 @@ class WheelCalibration(BaseModel):
     radius_sigma_m: Optional[float] = Field(None, ge=0)
     baseline_m: Optional[float] = Field(None, gt=0, description="effective track width (with the nominal one given)")
     baseline_sigma_m: Optional[float] = Field(None, ge=0)
+
+    def applies_to(self, topic: str) -> bool:
+        return self.topic is None or self.topic == topic
 
     def corrected(self, rec: OdometryRecord) -> OdometryRecord:
         """A wheel odometry record with its forward speed and yaw rate corrected (the twist as a whole scales by

@@ -172,6 +172,7 @@ def test_wheels_without_the_imu_mounting_are_measured_against_a_gyro_primed_pass
     r = run_calibrate(CalibrateJob(sim.log_path, tmp_path / "rover.calib.yaml", cfg))
     assert "wheel_pass" in r.metrics["time_s"]
     assert any(n.startswith("wheel scales measured against a gyro-primed pass") for n in r.notes)
+    assert r.calibration.wheel.topic == "/wheel/odom"  # odom and fuse correct that topic only
     s_v = 0.5 * (w["radius_scale_left"] + w["radius_scale_right"])
     assert r.calibration.wheel.speed_scale == pytest.approx(s_v, rel=0.003)  # the goal: 0.3%
     assert r.calibration.wheel.yaw_rate_scale == pytest.approx(s_v / w["baseline_scale"], rel=0.003)

@@ -98,3 +98,8 @@ def test_wheel_scales_of_the_calibration_correct_the_wheels(tmp_path):
     assert _ate(log, fixed.trajectory) <= 0.75 * _ate(log, raw.trajectory)
     assert fixed.metrics["extrinsics"]["wheel_twist"].endswith("; scaled by --calib (speed x1.035, yaw rate x0.985714)")
     assert "scaled" not in raw.metrics["extrinsics"]["wheel_twist"]
+    # scales measured on another wheel topic are not this one's
+    other = cal.model_copy(update={"wheel": cal.wheel.model_copy(update={"topic": "/rear/odom"})})
+    kept = run_fuse(FuseJob(log, FuseConfig(use=IMU_WHEEL, calibration=other)))
+    assert "the wheel scales of --calib were measured on /rear/odom, not /wheel/odom: not applied" in kept.notes
+    assert np.array_equal(kept.trajectory.poses, raw.trajectory.poses)
