@@ -14,8 +14,6 @@ per source and reason. An output at the stamp of another event is handled with i
 
 from __future__ import annotations
 
-from functools import partial
-
 import numpy as np
 
 from ...geometry import inv_pose
@@ -31,6 +29,7 @@ from .state3d import (
     on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
+from .update3d import Updater
 
 CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
 CV_OMEGA_SIGMA_RADPS = 0.5
@@ -72,8 +71,8 @@ class Ekf3d:
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
-        self.inject = partial(step3d.inject, L=self.L)  # on the state list
-        self.update = step3d.Updater(self.gate, self.inject)
+        self.inject = step3d.injector(self.L)  # on the state list
+        self.update = Updater(self.gate, self.inject)
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
         self._H_orientation = np.zeros((3, self.L.n))
@@ -149,7 +148,10 @@ class Ekf3d:
         else:
             u = self._imu_at(t_a, t_b)
             if u is not None and self.ins is not None:
-                F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
+                F = self.ins.propagate(x, P, self._P_diag, self.q.rate, dt, u[0], u[1])
+                if self.smooth:
+                    self.Phi = F @ self.Phi
+                return
             elif u is None:
                 F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
             else:
@@ -258,6 +260,8 @@ class Ekf3d:
         T, log = self._T, self.log
         sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
         steps = 0
+        ins, st, last_imu, imu_gap, q_rate = self.ins, self.imu_list, len(self.imu_list) - 1, self.imu_gap, self.q.rate
+        mid_w, mid_f, P_diag = (*self.imu_mid, self._P_diag) if self.imu_mid is not None else (None, None, None)
         for t, kind, i, out in zip(*folded_outputs(prep)):
             if t > t_cur:
                 steps += 1
@@ -271,7 +275,14 @@ class Ekf3d:
                     if self.smooth:
                         self.Phi = self.J @ self.Phi
                     self.pending_clone = False
-                self._propagate(x, P, t_cur, t)
+                ii = self.ii  # a whole IMU interval inside covered time (the usual step): straight to the kernel
+                if ins is not None and t_cur < self.gap_free_until and 0 <= ii < last_imu and t_cur == st[ii] \
+                        and t == st[ii + 1] and t - t_cur <= imu_gap:
+                    F = ins.propagate(x, P, P_diag, q_rate, (t - t_cur) * 1e-9, mid_w[ii], mid_f[ii])
+                    if self.smooth:
+                        self.Phi = F @ self.Phi
+                else:
+                    self._propagate(x, P, t_cur, t)
                 t_cur = t
             if kind == IMU:
                 self.ii = i
