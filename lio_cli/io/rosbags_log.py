@@ -87,6 +87,18 @@ class RosbagsLog(LogReader):
             return messages(readers[0], conns, self._chunks)
         return ((c.topic, c.msgtype, int(t_ns), raw, c) for c, t_ns, raw in self._reader.messages(connections=conns))
 
+    def _topic_messages(self, topics: list[str]) -> dict[str, list[bytes]] | None:
+        readers = getattr(self._reader, "readers", [])
+        if self.format != "ros1" or len(readers) != 1:
+            return None
+        conns = [c for c in self._reader.connections if c.topic in topics]
+        if len({c.topic for c in conns}) != len(conns):  # a topic on several connections: merged by raw_messages
+            return None
+        from .bag1_raw import connection_messages
+
+        parts = connection_messages(readers[0], conns, self._chunks)
+        return None if parts is None else {c.topic: p for c, p in zip(conns, parts)}
+
     def _deserialize(self, raw, msgtype, handle):
         return self._reader.deserialize(raw, msgtype)
 

@@ -14,8 +14,6 @@ per source and reason. An output at the stamp of another event is handled with i
 
 from __future__ import annotations
 
-from functools import partial
-
 import numpy as np
 
 from ...geometry import inv_pose
@@ -27,15 +25,12 @@ from .kalman import Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step, new_state,
-    on_list, pose,
+    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
+    initial_estimate, on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
+from .update3d import Updater
 
-CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
-CV_OMEGA_SIGMA_RADPS = 0.5
-GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_heading)
-GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
 # P = (P + P^T) / 2 every this many steps while P stays inside the filter (the products' rounding-level asymmetry
 # cannot grow); every step when P is recorded (smoother, --cov): what leaves the filter is exactly symmetric
 SYMMETRIZE_EVERY = 16
@@ -72,8 +67,8 @@ class Ekf3d:
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
-        self.inject = partial(step3d.inject, L=self.L)  # on the state list
-        self.update = step3d.Updater(self.gate, self.inject)
+        self.inject = step3d.injector(self.L)  # on the state list
+        self.update = Updater(self.gate, self.inject)
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
         self._H_orientation = np.zeros((3, self.L.n))
@@ -90,31 +85,6 @@ class Ekf3d:
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.ii = -1  # index of the last IMU sample at or before the current time
-
-    # -- state -------------------------------------------------------------------------------------
-    def _initial(self) -> tuple[list[float], np.ndarray]:
-        s, L, nz = self.start, self.L, self.noise
-        b = s.bg if L.model != "cv" else np.zeros(3)
-        x = new_state(s.R, np.zeros(3), s.v, b, np.zeros(3) if L.core == 15 else None)
-        d = np.zeros(L.n)
-        d[0:2] = nz.init_tilt_sigma_rad**2
-        d[2] = 1e-12  # the start fixes the world's yaw (or the IMU's orientation does, tightly)
-        if s.yaw_from == "gps":
-            d[2] = GPS_HEADING_SIGMA_RAD**2
-        if s.yaw_from == "imu_orientation":
-            d[0:3] = np.diag(s.R.T @ self.prep.imu.orientation_cov[self._first_valid_orientation()] @ s.R)
-        d[3:6] = GPS_START_POSITION_SIGMA_M**2 if "gps" in self.prep.use else 1e-12
-        d[6:9] = s.v_sigma_mps**2
-        d[9:12] = (CV_OMEGA_SIGMA_RADPS if L.model == "cv" else s.bg_sigma_radps) ** 2
-        if L.core == 15:
-            d[12:15] = nz.init_accel_bias_sigma_mps2**2
-        if L.clone:
-            d[L.core:] = CLONE_DUMMY_VAR
-        return x.tolist(), np.diag(d)
-
-    def _first_valid_orientation(self) -> int:
-        imu = self.prep.imu
-        return int(np.flatnonzero(imu.orientation_valid & (imu.stamps_ns >= self.prep.t0_ns))[0])
 
     def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
         """Base rate and specific force (3 floats each) at the midpoint of [t_a, t_b] (inside one IMU
@@ -149,7 +119,10 @@ class Ekf3d:
         else:
             u = self._imu_at(t_a, t_b)
             if u is not None and self.ins is not None:
-                F, q = self.ins(x, dt, u[0], u[1]), self.q(dt)
+                F = self.ins.propagate(x, P, self._P_diag, self.q.rate, dt, u[0], u[1])
+                if self.smooth:
+                    self.Phi = F @ self.Phi
+                return
             elif u is None:
                 F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
             else:
@@ -247,7 +220,8 @@ class Ekf3d:
     # -- loop -------------------------------------------------------------------------------------
     def run(self) -> dict[str, np.ndarray]:
         prep = self.prep
-        x, P = self._initial()  # x: a list of floats (step3d), P: one buffer for the whole run, both in place
+        # x: a list of floats (step3d), P: one buffer for the whole run, both in place
+        x, P = initial_estimate(self.start, self.L, self.noise, prep)
         PT, self._P_cols, self._P_block = P.T, P[:, TH], P[TH, TH]  # views of it: P H^T and H P H^T for H = [I 0]
         self._P_diag = P.reshape(-1)[:: self.L.n + 1]
         self.Phi = np.eye(self.L.n)
@@ -258,6 +232,8 @@ class Ekf3d:
         T, log = self._T, self.log
         sym_every = 1 if self.smooth or self.o.want_covariance else SYMMETRIZE_EVERY
         steps = 0
+        ins, st, last_imu, imu_gap, q_rate = self.ins, self.imu_list, len(self.imu_list) - 1, self.imu_gap, self.q.rate
+        mid_w, mid_f, P_diag = (*self.imu_mid, self._P_diag) if self.imu_mid is not None else (None, None, None)
         for t, kind, i, out in zip(*folded_outputs(prep)):
             if t > t_cur:
                 steps += 1
@@ -271,7 +247,14 @@ class Ekf3d:
                     if self.smooth:
                         self.Phi = self.J @ self.Phi
                     self.pending_clone = False
-                self._propagate(x, P, t_cur, t)
+                ii = self.ii  # a whole IMU interval inside covered time (the usual step): straight to the kernel
+                if ins is not None and t_cur < self.gap_free_until and 0 <= ii < last_imu and t_cur == st[ii] \
+                        and t == st[ii + 1] and t - t_cur <= imu_gap:
+                    F = ins.propagate(x, P, P_diag, q_rate, (t - t_cur) * 1e-9, mid_w[ii], mid_f[ii])
+                    if self.smooth:
+                        self.Phi = F @ self.Phi
+                else:
+                    self._propagate(x, P, t_cur, t)
                 t_cur = t
             if kind == IMU:
                 self.ii = i

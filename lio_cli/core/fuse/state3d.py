@@ -62,6 +62,36 @@ def new_state(R: np.ndarray, p: np.ndarray, v: np.ndarray, b: np.ndarray, ba: np
     return x
 
 
+CLONE_DUMMY_VAR = 1.0  # variance of the unused clone before the first odometry pose (kept invertible)
+CV_OMEGA_SIGMA_RADPS = 0.5
+GPS_HEADING_SIGMA_RAD = 0.1  # heading found from the first GPS fixes (gps_heading)
+GPS_START_POSITION_SIGMA_M = 10.0  # with GPS the start is estimated from every fix, not pinned to the first
+
+
+def initial_estimate(s, L: Layout, nz, prep) -> tuple[list[float], np.ndarray]:
+    """The 3D filter's first state (a list of floats) and covariance from its start ``s`` (``initial.Start``),
+    the noise options ``nz`` and the prepared run ``prep`` (``timeline.Prepared``)."""
+    b = s.bg if L.model != "cv" else np.zeros(3)
+    x = new_state(s.R, np.zeros(3), s.v, b, np.zeros(3) if L.core == 15 else None)
+    d = np.zeros(L.n)
+    d[0:2] = nz.init_tilt_sigma_rad**2
+    d[2] = 1e-12  # the start fixes the world's yaw (or the IMU's orientation does, tightly)
+    if s.yaw_from == "gps":
+        d[2] = GPS_HEADING_SIGMA_RAD**2
+    if s.yaw_from == "imu_orientation":
+        imu = prep.imu
+        first = int(np.flatnonzero(imu.orientation_valid & (imu.stamps_ns >= prep.t0_ns))[0])
+        d[0:3] = np.diag(s.R.T @ imu.orientation_cov[first] @ s.R)
+    d[3:6] = GPS_START_POSITION_SIGMA_M**2 if "gps" in prep.use else 1e-12
+    d[6:9] = s.v_sigma_mps**2
+    d[9:12] = (CV_OMEGA_SIGMA_RADPS if L.model == "cv" else s.bg_sigma_radps) ** 2
+    if L.core == 15:
+        d[12:15] = nz.init_accel_bias_sigma_mps2**2
+    if L.clone:
+        d[L.core:] = CLONE_DUMMY_VAR
+    return x.tolist(), np.diag(d)
+
+
 def rot(x: np.ndarray) -> np.ndarray:
     return x[R_].reshape(3, 3)
 

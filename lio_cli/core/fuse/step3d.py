@@ -12,11 +12,11 @@ for the whole run).
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
 from ...geometry import so3_exp_scalars, so3_log_scalars
-from .kalman import Gate
 from .state3d import Layout
 
 
@@ -34,6 +34,15 @@ class InsPredictor:
         idx += [0 * n + 9, 1 * n + 10, 2 * n + 11, 3 * n + 6, 4 * n + 7, 5 * n + 8]
         self._idx = np.array(idx)
         self.gx, self.gy, self.gz = (float(v) for v in g)
+
+    def propagate(self, x: list[float], P: np.ndarray, P_diag: np.ndarray, rate: np.ndarray, dt: float,
+                  w: list[float], f: list[float]) -> np.ndarray:
+        """One step of ``x`` (as ``__call__``) and of ``P`` in place: ``F P F^T`` plus the process noise
+        ``rate * dt`` on its diagonal ``P_diag`` (a view of P). Returns F."""
+        F = self(x, dt, w, f)
+        F.dot(P).dot(F.T, out=P)
+        P_diag += rate * dt
+        return F
 
     def __call__(self, x: list[float], dt: float, w: tuple[float, float, float], f: tuple[float, float, float]
                  ) -> np.ndarray:
@@ -84,15 +93,32 @@ def mul3(a, b) -> tuple[float, ...]:
             a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
 
 
-def body_velocity(x: list[float], z: list[float], comps: list[int], H: np.ndarray) -> list[float]:
+def body_velocity(x: list[float], z: list[float], comps: tuple[int, ...], H: np.ndarray) -> list[float]:
     """``measure3d.body_velocity`` on floats: the residuals ``z - (R^T v)[comps]``; ``H`` (len(comps), n, zero
     beyond its two blocks) gets the rows on dtheta ([vb]x) and dv (R^T)."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8, _, _, _, vx, vy, vz = x[:15]
-    vb = (r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz)
-    rows = ((0.0, -vb[2], vb[1], 0.0, 0.0, 0.0, r0, r3, r6), (vb[2], 0.0, -vb[0], 0.0, 0.0, 0.0, r1, r4, r7),
-            (-vb[1], vb[0], 0.0, 0.0, 0.0, 0.0, r2, r5, r8))  # [vb]x and R^T, dp between them untouched
+    b0, b1, b2 = r0 * vx + r3 * vy + r6 * vz, r1 * vx + r4 * vy + r7 * vz, r2 * vx + r5 * vy + r8 * vz
+    if comps == (0, 1, 2):  # every component in order (the usual twist): H's first 9 columns by flat index
+        H.reshape(-1)[_velocity_block_index(H.shape[1])] = [0.0, -b2, b1, 0.0, 0.0, 0.0, r0, r3, r6,
+                                                            b2, 0.0, -b0, 0.0, 0.0, 0.0, r1, r4, r7,
+                                                            -b1, b0, 0.0, 0.0, 0.0, 0.0, r2, r5, r8]
+        return [z[0] - b0, z[1] - b1, z[2] - b2]
+    rows = ((0.0, -b2, b1, 0.0, 0.0, 0.0, r0, r3, r6), (b2, 0.0, -b0, 0.0, 0.0, 0.0, r1, r4, r7),
+            (-b1, b0, 0.0, 0.0, 0.0, 0.0, r2, r5, r8))  # [vb]x and R^T, dp between them untouched
     H[:, 0:9] = [rows[c] for c in comps]
+    vb = (b0, b1, b2)
     return [z[k] - vb[c] for k, c in enumerate(comps)]
+
+
+_VELOCITY_BLOCK_INDEX: dict[int, np.ndarray] = {}
+
+
+def _velocity_block_index(n: int) -> np.ndarray:
+    """Flat indexes of the first 9 columns of a (3, n) H, row by row (a flat list goes in faster than rows)."""
+    idx = _VELOCITY_BLOCK_INDEX.get(n)
+    if idx is None:
+        idx = _VELOCITY_BLOCK_INDEX[n] = np.array([k * n + c for k in range(3) for c in range(9)])
+    return idx
 
 
 def wheel_velocity_rows(vel: np.ndarray, var: np.ndarray, use: set[str], nonholonomic_var: float
@@ -153,13 +179,23 @@ def isotropic_variances(cov: np.ndarray) -> list[float | None]:
 
 def inject(x: list[float], dx: np.ndarray, L: Layout) -> None:
     """``state3d.boxplus`` on the state as a list: inject an error-state correction into ``x`` in place."""
-    d = dx.tolist()
-    end = 6 + L.core  # x[9:end] (p, v, b (, ba)) += d[3:core]
-    x[:end] = mul3(x[:9], so3_exp_scalars(d[0], d[1], d[2])) + tuple([a + b for a, b in zip(x[9:end], d[3:L.core])])
-    if L.clone:
-        c = L.core
-        x[21:33] = mul3(x[21:30], so3_exp_scalars(d[c], d[c + 1], d[c + 2])) + tuple(
-            [a + b for a, b in zip(x[30:33], d[c + 3:c + 6])])
+    injector(L)(x, dx)
+
+
+def injector(L: Layout):
+    """``inject`` for one layout, as a function of (state list, correction array) that the filter calls per
+    update (no keyword binding to unpack per call)."""
+    core, end = L.core, 6 + L.core  # x[9:end] (p, v, b (, ba)) += d[3:core]
+    exp, add = so3_exp_scalars, operator.add
+
+    def apply(x: list[float], dx: np.ndarray) -> None:
+        d = dx.tolist()
+        x[:end] = mul3(x[:9], exp(d[0], d[1], d[2])) + tuple(map(add, x[9:end], d[3:core]))
+        if L.clone:
+            x[21:33] = mul3(x[21:30], exp(d[core], d[core + 1], d[core + 2])) + tuple(
+                map(add, x[30:33], d[core + 3:core + 6]))
+
+    return apply
 
 
 def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:
@@ -167,81 +203,3 @@ def boxplus(x: np.ndarray, dx: np.ndarray, L: Layout) -> None:
     s = x.tolist()
     inject(s, dx, L)
     x[:] = s
-
-
-def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
-    """``kalman.small_inv`` on nested lists (m <= 3), None when singular; numpy beyond 3x3."""
-    m = len(S)
-    if m == 1:
-        s = S[0][0]
-        return None if s == 0.0 else [[1.0 / s]]
-    if m == 2:
-        (a, b), (c, d) = S
-        det = a * d - b * c
-        if det == 0.0 or not math.isfinite(det):
-            return None
-        return [[d / det, -b / det], [-c / det, a / det]]
-    if m == 3:
-        (a, b, c), (d, e, f), (g, h, i) = S
-        A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-        det = a * A + b * B + c * C
-        if det == 0.0 or not math.isfinite(det):
-            return None
-        return [[A / det, (c * h - b * i) / det, (b * f - c * e) / det],
-                [B / det, (a * i - c * g) / det, (c * d - a * f) / det],
-                [C / det, (b * g - a * h) / det, (a * e - b * d) / det]]
-    try:
-        return np.linalg.inv(np.array(S)).tolist()
-    except np.linalg.LinAlgError:
-        return None
-
-
-class Updater:
-    """``kalman.kalman_update`` in place on one covariance buffer, given what the measurement model already
-    has at hand: ``PHt = P H^T`` (may be a view of P) and ``S = H P H^T + Rn`` as nested lists. ``H`` and
-    ``Rn`` are only read on a gate reset."""
-
-    def __init__(self, gate: Gate | None, inject):
-        self.gate, self.inject = gate, inject
-        self._Si = [np.empty((m, m)) for m in range(4)]  # S^-1 of 1-3 rows written here, not a new array
-
-    def __call__(self, x: np.ndarray, P: np.ndarray, r: list[float], PHt: np.ndarray, S: list[list[float]],
-                 H: np.ndarray, Rn, kind: str, allow_reset: bool = True) -> str:
-        Si = inverse_small(S)
-        if Si is None:
-            return "outlier"
-        status = "ok"
-        gate = self.gate
-        if gate is not None:
-            m = len(r)
-            if m == 3:  # (r^T Si) r, unrolled
-                (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = Si
-                x0, x1, x2 = r
-                d2 = (x0 * a0 + x1 * b0 + x2 * c0) * x0 + (x0 * a1 + x1 * b1 + x2 * c1) * x1 \
-                    + (x0 * a2 + x1 * b2 + x2 * c2) * x2
-            else:
-                d2 = 0.0
-                for j in range(m):
-                    tj = 0.0
-                    for k in range(m):
-                        tj += r[k] * Si[k][j]
-                    d2 += tj * r[j]
-            ok, reset = gate.check(kind, d2, m, allow_reset)
-            if not ok:
-                return "outlier"
-            if reset:  # as kalman_update: inflate the touched states' covariance until the innovation is typical
-                status = "reset"
-                Rn = Rn if isinstance(Rn, np.ndarray) else np.diag(Rn)
-                scale = np.ones(len(P))
-                scale[np.any(H != 0.0, axis=0)] = np.sqrt(max(1.0, d2 / m))
-                P *= np.outer(scale, scale)
-                PHt = P @ H.T
-                Si = np.linalg.inv(H @ PHt + Rn)
-        # ndarray.dot, not @: half the per-call overhead on matrices this small
-        m = len(r)
-        Sa = self._Si[m] if m < 4 else np.empty((m, m))
-        Sa[...] = Si
-        K = PHt.dot(Sa)
-        self.inject(x, K.dot(r))
-        np.subtract(P, K.dot(PHt.T), out=P)
-        return status

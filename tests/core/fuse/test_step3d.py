@@ -9,6 +9,7 @@ from lio_cli.core.fuse import measure3d as m3
 from lio_cli.core.fuse import step3d
 from lio_cli.core.fuse.kalman import Gate, kalman_update
 from lio_cli.core.fuse.state3d import Layout, boxplus, ins_step, new_state
+from lio_cli.core.fuse.update3d import Updater
 from lio_cli.geometry import so3_exp
 
 TOL = 1e-12
@@ -63,7 +64,7 @@ def test_updater_equals_kalman_update_and_gates_alike():
         xa, xb, Pb = x.copy(), x.copy(), P.copy()
         Pa, sa = kalman_update(xa, P.copy(), r, H, Rn, inject, Gate(0.999, 2), "k")
         PHt = Pb @ H.T
-        sb = step3d.Updater(Gate(0.999, 2), inject)(xb, Pb, r.tolist(), PHt, (H @ PHt + Rn).tolist(), H, Rn, "k")
+        sb = Updater(Gate(0.999, 2), inject)(xb, Pb, r.tolist(), PHt, (H @ PHt + Rn).tolist(), H, Rn, "k")
         assert sa == sb
         np.testing.assert_allclose(Pb, Pa, rtol=1e-10, atol=1e-15)
         np.testing.assert_allclose(xb, xa, rtol=1e-10, atol=1e-13)
@@ -73,11 +74,12 @@ def test_measurement_kernels_equal_the_measurement_models():
     # measure3d's models are the ones whose Jacobians test_measure3d checks by finite differences
     L = Layout("ins", clone=False)
     rng = np.random.default_rng(8)
-    for comps in ([0], [0, 2], [0, 1, 2], [1, 2]):
+    H3 = np.zeros((3, L.n))  # the filter's H of three rows, rewritten in place message after message
+    for comps in ([0], [0, 2], [0, 1, 2], [1, 2], (0, 1, 2), (1, 2, 0), (0, 1, 2)):  # tuples: the filter's rows
         x = _state(rng, L)
         z, var = rng.normal(size=len(comps)), rng.uniform(0.01, 0.1, len(comps))
-        r_ref, H_ref, Rn_ref = m3.body_velocity(x, z, comps, var, L)
-        H = np.zeros((len(comps), L.n))
+        r_ref, H_ref, Rn_ref = m3.body_velocity(x, z, list(comps), var, L)
+        H = H3 if len(comps) == 3 else np.zeros((len(comps), L.n))
         r = step3d.body_velocity(x.tolist(), z.tolist(), comps, H)
         np.testing.assert_allclose(r, r_ref, rtol=0, atol=TOL)
         np.testing.assert_allclose(H, H_ref, rtol=0, atol=TOL)
