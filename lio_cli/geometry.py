@@ -1,10 +1,8 @@
 """SO(3), SE(3) and SE(2) helpers on numpy arrays.
 
 Conventions (DESIGN.md): poses are float64 (4,4) or (N,4,4); ``T_a_b`` maps points from frame b to frame a;
-quaternions are xyzw. This is the only module that touches ``scipy.spatial.transform.Rotation``, and only
-when a function needs it: importing scipy.spatial costs about half a second, which a short command such as
-``lio evaluate`` would otherwise spend before any work. ``so3_log_batch`` and ``quat_xyzw_to_rot`` are scipy's
-own algorithms written out in numpy (they agree with it to the last bit or two).
+quaternions are xyzw. The exponential and logarithm of SO(3) and the quaternion conversions are in ``so3``
+(scipy's algorithms in numpy) and are exported from here too.
 """
 
 from __future__ import annotations
@@ -12,6 +10,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from .so3 import quat_xyzw_to_rot, rot_to_quat_xyzw, so3_exp, so3_log, so3_log_batch
 
 _SMALL_ANGLE_RAD = 1e-8
 
@@ -24,106 +24,6 @@ def skew(v: np.ndarray) -> np.ndarray:
     out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
     return out
-
-
-_EYE3 = np.eye(3)
-_ORTHO_TOL = 1e-12 + 1e-5 * _EYE3  # np.isclose's atol + rtol * |I|
-
-
-def _rotation():
-    from scipy.spatial.transform import Rotation  # deferred: see the module's docstring
-
-    return Rotation
-
-
-def so3_exp(rotvec_rad: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3,3) or (N,3,3) of a rotation vector (axis * angle)."""
-    return _rotation().from_rotvec(np.asarray(rotvec_rad, dtype=np.float64)).as_matrix()
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (3,3) or (N,3,3)."""
-    return _rotation().from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
-
-
-def so3_log_batch(R: np.ndarray) -> np.ndarray:
-    """:func:`so3_log` without scipy, for large batches and scipy-free paths (``lio evaluate``).
-
-    scipy's ``Rotation.from_matrix(R).as_rotvec()`` in numpy (equal to it to a unit or two in the last place;
-    faster from a few thousand matrices on, slower on a handful, where scipy's per-call cost is lower): a matrix that is not orthogonal to 1e-12 is
-    replaced by its nearest rotation (SVD), then Shepperd's quaternion (the largest of the diagonal and the
-    trace decides), then the rotation vector with the series below 1e-3 rad. A non-positive determinant
-    raises ValueError, as scipy does."""
-    m = np.array(R, dtype=np.float64)  # a copy: non-orthogonal matrices are replaced in place
-    one = m.ndim == 2
-    if one:
-        m = m[None]
-    if m.shape[-2:] != (3, 3):
-        raise ValueError(f"Expected `matrix` to have shape (3, 3) or (N, 3, 3), got {m.shape}")
-    det = np.linalg.det(m)
-    if (det <= 0).any():
-        i = int(np.flatnonzero(det <= 0)[0])
-        raise ValueError(f"Non-positive determinant (left-handed or null coordinate frame) in rotation matrix {i}: {m[i]}.")
-    gram = m @ np.swapaxes(m, -1, -2)
-    gram -= _EYE3  # np.isclose(gram, I, rtol=1e-5, atol=1e-12), written out: this runs per filter step
-    ortho = (np.abs(gram) <= _ORTHO_TOL).all(axis=(-2, -1))
-    if not ortho.all():
-        U, _, Vt = np.linalg.svd(m[~ortho], full_matrices=False)
-        m[~ortho] = U @ Vt
-    trace = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
-    choice = np.argmax(np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], trace], axis=-1), axis=-1)
-    # Shepperd: the trace case (every rotation below 90 degrees) first, then the diagonal cases where chosen
-    q = np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1], 1 + trace], axis=-1)
-    if not (choice == 3).all():
-        for c in range(3):
-            sel = choice == c
-            if not sel.any():
-                continue
-            a = m[sel]
-            tr = trace[sel]
-            i, j, k = c, (c + 1) % 3, (c + 2) % 3
-            qc = np.empty((len(a), 4))
-            qc[:, i] = 1 - tr + 2 * a[:, i, i]
-            qc[:, j] = a[:, j, i] + a[:, i, j]
-            qc[:, k] = a[:, k, i] + a[:, i, k]
-            qc[:, 3] = a[:, k, j] - a[:, j, k]
-            q[sel] = qc
-    q /= np.sqrt(np.sum(q * q, axis=-1))[:, None]
-    q[q[:, 3] < 0] *= -1.0  # canonical: w >= 0 (scipy's as_rotvec)
-    ax_norm = np.sqrt(np.sum(q[:, :3] * q[:, :3], axis=-1))
-    angle = 2 * np.arctan2(ax_norm, q[:, 3])
-    small = angle <= 1e-3
-    angle2 = angle**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(small, 2 + angle2 / 12 + 7 * angle2**2 / 2880, angle / np.sin(angle / 2.0))
-    out = scale[:, None] * q[:, :3]
-    return out[0] if one else out
-
-
-def quat_xyzw_to_rot(quat_xyzw: np.ndarray) -> np.ndarray:
-    """Rotation matrix from quaternion(s) in xyzw order (normalised on the way); scipy's ``from_quat``
-    + ``as_matrix`` in numpy. A zero quaternion raises ValueError, as scipy does."""
-    q = np.asarray(quat_xyzw, dtype=np.float64)
-    if q.shape[-1] != 4 or q.ndim not in (1, 2):
-        raise ValueError(f"Expected `quat` to have shape (4,) or (N, 4), got {q.shape}.")
-    norm = np.sqrt(np.sum(q * q, axis=-1))
-    if np.any(norm == 0):
-        raise ValueError("Found zero norm quaternions in `quat`.")
-    q = q / norm[..., None]
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
-    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
-    m = np.stack([x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw),
-                  2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw),
-                  2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2], axis=-1)
-    return m.reshape(q.shape[:-1] + (3, 3))
-
-
-def rot_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
-    """Quaternion(s) xyzw of rotation matrix(es), with w >= 0."""
-    q = _rotation().from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
-    sign = np.where(q[..., 3:4] < 0.0, -1.0, 1.0)
-    return q * sign
 
 
 def row_norms(v: np.ndarray) -> np.ndarray:
