@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lio_cli.geometry import quat_xyzw_to_rot, row_norms, so3_exp, so3_log, so3_log_batch
+from lio_cli.geometry import cross_rows, quat_xyzw_to_rot, row_norms, so3_exp, so3_log, so3_log_batch
 
 ULP_RAD = 1e-15  # scipy and the numpy port differ by at most a unit or two in the last place (of values <= pi)
 
@@ -82,3 +82,11 @@ def test_row_norms_equal_numpys_to_the_bit():
     v = np.random.default_rng(4).normal(0, 30, (16384, 3))
     assert np.array_equal(row_norms(v), np.linalg.norm(v, axis=1))
     assert np.array_equal(row_norms(v[::3]), np.linalg.norm(v[::3], axis=1))
+
+
+def test_cross_rows_equal_numpys_to_the_bit():
+    rng = np.random.default_rng(9)
+    a, b, r = rng.normal(size=(500, 3)), rng.normal(size=(500, 3)), rng.normal(size=3)
+    assert np.array_equal(cross_rows(a, b), np.cross(a, b))
+    assert np.array_equal(cross_rows(a, r), np.cross(a, r))
+    assert np.array_equal(cross_rows(a, cross_rows(a, r)), np.cross(a, np.cross(a, r)))

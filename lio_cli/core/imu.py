@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import skew, so3_exp, so3_exp_one
+from ..geometry import cross_rows, skew, so3_exp, so3_exp_one
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
 
@@ -116,7 +116,7 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     alpha = np.vstack([(w_b[1:] - w_b[:-1]) / safe_dt[:, None], np.zeros((1, 3))])
     alpha[-1] = alpha[-2] if n > 2 else 0.0
     if accel:
-        lever = np.cross(alpha, r) + np.cross(w_b, np.cross(w_b, r))
+        lever = cross_rows(alpha, r) + cross_rows(w_b, cross_rows(w_b, r))
         a_w = np.einsum("nij,nj->ni", Rs, f_b - lever) + g
     else:
         a_w = np.zeros((n, 3))

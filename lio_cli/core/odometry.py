@@ -33,7 +33,7 @@ from .motion_compensation import constant_velocity_knots, deskew, to_base
 from .odometry_restart import Restart, WindowScan
 from .odometry_updates import StateUpdates
 from .registration import ScanRegistration, auto_voxel_size
-from .pose_checks import exceeds_jump, lean_on_prior
+from .pose_checks import exceeds_jump, lean_on_prior, untouched
 
 _MAP_RESTART_SCANS = 3  # a one-scan map that this many scans in a row cannot match is dropped...
 _MAX_MAP_RESTARTS = 3  # ...at most this often per run
@@ -288,7 +288,7 @@ class LioOdometry(StateUpdates, Restart):
         if self.planar:
             measured = project_to_se2(measured)
         failed = not self._reg.empty and (not np.isfinite(measured).all()
-                                          or np.allclose(measured, guess, rtol=0.0, atol=1e-12)
+                                          or untouched(measured, guess)
                                           or (gyro_primed and exceeds_jump(measured, guess, _GYRO_PRIOR_JUMP_M, _GYRO_PRIOR_JUMP_RAD)))
         if failed and retry:
             return None

@@ -14,7 +14,7 @@ from .filter import (complementary_update, complementary_velocity_update, ekf_bo
                      pose_innovation_nis, position_noise)
 from .imu import NavState, flatten_planar, propagate
 from .motion_compensation import constant_velocity_knots
-from .pose_checks import exceeds_jump, scale_delta
+from .pose_checks import exceeds_jump, scale_delta, untouched
 from .wheel import mean_twist, planar_delta
 
 _MAX_JUMP_M = 1.0  # a registration this far from the IMU prediction within one scan is treated as failed
@@ -60,7 +60,7 @@ class StateUpdates:
             return True
         if self._reg.empty:
             return False
-        if np.allclose(measured, guess, rtol=0.0, atol=1e-12):  # ICP returns the guess itself when nothing matched
+        if untouched(measured, guess):  # ICP returns the guess itself when nothing matched
             return True
         return exceeds_jump(measured, guess, _MAX_JUMP_M, _MAX_JUMP_RAD)
 

@@ -7,6 +7,12 @@ import numpy as np
 from ..geometry import inv_pose, so3_exp, so3_log
 
 
+def untouched(measured: np.ndarray, guess: np.ndarray) -> bool:
+    """The registration returned its guess (to 1e-12): it found no correspondence. ``np.allclose(measured,
+    guess, rtol=0, atol=1e-12)`` written out (np.isclose's overhead was a tenth of a millisecond a scan)."""
+    return bool(np.abs(measured - guess).max() <= 1e-12)
+
+
 def exceeds_jump(measured: np.ndarray, guess: np.ndarray, max_m: float, max_rad: float) -> bool:
     """The registration moved further than ``max_m`` or turned more than ``max_rad`` from its guess."""
     jump = inv_pose(guess) @ measured
