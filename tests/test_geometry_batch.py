@@ -1,7 +1,6 @@
 """The scipy-free rotation helpers (``so3_exp``, ``so3_log``, ``so3_log_batch``, ``quat_xyzw_to_rot``) against
 scipy itself, and ``row_norms`` against numpy's norm, which they replace on hot paths."""
 
-import math
 import subprocess
 import sys
 
@@ -35,27 +34,21 @@ def test_so3_log_batch_is_scipys_rotvec(name):
     assert np.abs(so3_log_batch(R[0]) - so3_log(R[0])).max() <= ULP_RAD  # one matrix in, one vector out
 
 
-def test_numpy_trig_is_the_c_librarys():
-    """so3_exp and so3_log give scipy's bits only where numpy's sin and cos are the C library's (scipy's Cython
-    calls libm): true on x86-64 Linux builds; if this fails, the two tests below may fail by a last bit too."""
-    x = np.random.default_rng(5).uniform(0.0, 3.2, 20000)
-    assert np.array_equal(np.sin(x), [math.sin(v) for v in x.tolist()])
-    assert np.array_equal(np.cos(x), [math.cos(v) for v in x.tolist()])
-
-
+# so3_exp and so3_log are scipy's algorithms operation for operation: on x86-64 Linux they give scipy's bits
+# (numpy's sin and cos are the C library's there); elsewhere a last bit may differ, which is all these allow.
 @pytest.mark.parametrize("name", list(_matrices()))
-def test_so3_log_is_scipys_rotvec_to_the_bit(name):
+def test_so3_log_is_scipys_rotvec(name):
     R = _matrices()[name]
-    assert np.array_equal(so3_log(R), Rotation.from_matrix(R).as_rotvec())
-    assert np.array_equal(so3_log(R[1]), Rotation.from_matrix(R[1]).as_rotvec())
+    assert np.abs(so3_log(R) - Rotation.from_matrix(R).as_rotvec()).max() <= ULP_RAD
+    assert np.abs(so3_log(R[1]) - Rotation.from_matrix(R[1]).as_rotvec()).max() <= ULP_RAD
 
 
 @pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-5, 9.9e-4, 1e-3, 1.1e-3, 0.05, 1.0, 3.0, np.pi])
-def test_so3_exp_is_scipys_matrix_to_the_bit(scale):
+def test_so3_exp_is_scipys_matrix(scale):
     v = np.random.default_rng(6).normal(size=(3000, 3))
     v *= scale / np.linalg.norm(v, axis=1)[:, None] * np.random.default_rng(7).uniform(0.5, 1.5, (len(v), 1))
-    assert np.array_equal(so3_exp(v), Rotation.from_rotvec(v).as_matrix())
-    assert np.array_equal(so3_exp(v[2]), Rotation.from_rotvec(v[2]).as_matrix())
+    assert np.abs(so3_exp(v) - Rotation.from_rotvec(v).as_matrix()).max() <= 4e-16
+    assert np.abs(so3_exp(v[2]) - Rotation.from_rotvec(v[2]).as_matrix()).max() <= 4e-16
 
 
 def test_rotations_do_not_import_scipy():
