@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 _DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
 
@@ -23,6 +22,8 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     if len(pts) < k + 1:
         return []
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
+    from scipy.spatial import cKDTree  # here: scipy.spatial is a fifth of a second of every command's start-up
+
     _, nn = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(pts[::step], k=k)
     nb = pts[nn]
     centred = nb - nb.mean(axis=1, keepdims=True)
