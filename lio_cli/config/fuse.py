@@ -67,6 +67,9 @@ class FuseNoise(Strict):
     cv_accel_density: float = Field(1.0, gt=0, description="motion model without an IMU, m/s^2/sqrt(Hz)")
     cv_angular_accel_density: float = Field(1.0, gt=0, description="rad/s^2/sqrt(Hz)")
     wheel_speed_sigma_mps: float = Field(0.05, gt=0)
+    wheel_speed_rel_sigma: float = Field(
+        0.02, ge=0, description="plus this share of each velocity component (a radius off by 1 % is 0.1 m/s at "
+        "10 m/s): sigma = hypot(wheel_speed_sigma_mps, share x speed)")
     wheel_yaw_rate_sigma_radps: float = Field(0.05, gt=0)
     nonholonomic_sigma_mps: float = Field(0.05, gt=0, description="lateral/vertical body speed of a wheeled base")
     # LiDAR odometry's pose errors are correlated from scan to scan (drift), not white: taken as independent at

@@ -123,6 +123,7 @@ class NoiseOptions:
     cv_accel_density: float = 1.0  # m/s^2/sqrt(Hz)
     cv_angular_accel_density: float = 1.0  # rad/s^2/sqrt(Hz)
     wheel_speed_sigma_mps: float = 0.05
+    wheel_speed_rel_sigma: float = 0.02  # plus this share of the speed (scale errors grow with it)
     wheel_yaw_rate_sigma_radps: float = 0.05
     nonholonomic_sigma_mps: float = 0.05  # lateral and vertical body speed of a wheeled base
     odom_position_sigma_m: float = 0.02

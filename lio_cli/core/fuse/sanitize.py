@@ -32,11 +32,11 @@ def order_and_dedupe(stamps_ns: np.ndarray, usable: np.ndarray, report: SourceRe
     return order[~dup]
 
 
-def _variance(values: np.ndarray | None, n: int, k: int, default_var: float, use_msg: bool,
+def _variance(values: np.ndarray | None, n: int, k: int, default_var: float | np.ndarray, use_msg: bool,
               report: SourceReport, relevant: np.ndarray) -> np.ndarray:
-    """(n,k) variances: the message's where finite and positive, else ``default_var`` (counted where the
-    component is relevant, i.e. actually measured)."""
-    out = np.full((n, k), default_var)
+    """(n,k) variances: the message's where finite and positive, else ``default_var`` (a number, or (n,k)
+    per message; counted where the component is relevant, i.e. actually measured)."""
+    out = np.array(np.broadcast_to(default_var, (n, k)), dtype=np.float64)
     if values is None or not use_msg:
         return out
     v = np.asarray(values, dtype=np.float64).reshape(n, k)
@@ -106,8 +106,8 @@ def clean_wheel(wheel: WheelSeries, use: set[str], noise: NoiseOptions, report: 
     vvar = None if wheel.velocity_var is None else np.asarray(wheel.velocity_var, np.float64).reshape(n, 3)[keep]
     yvar = None if wheel.yaw_rate_var is None else np.asarray(wheel.yaw_rate_var, np.float64).reshape(n, 1)[keep]
     relevant_v = np.isfinite(vel) if ("velocity" in use or "speed" in use) else np.zeros((m, 3), bool)
-    velocity_var = _variance(vvar, m, 3, noise.wheel_speed_sigma_mps**2, noise.use_message_covariance,
-                             report, relevant_v)
+    default_vvar = noise.wheel_speed_sigma_mps**2 + (noise.wheel_speed_rel_sigma * np.nan_to_num(vel))**2
+    velocity_var = _variance(vvar, m, 3, default_vvar, noise.use_message_covariance, report, relevant_v)
     yaw_var = _variance(yvar, m, 1, noise.wheel_yaw_rate_sigma_radps**2, noise.use_message_covariance,
                         report, (np.isfinite(yaw) & ("yaw_rate" in use))[:, None])[:, 0]
     return WheelSeries(np.asarray(wheel.stamps_ns, np.int64)[keep], vel, yaw, velocity_var, yaw_var)
