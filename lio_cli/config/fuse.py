@@ -68,10 +68,13 @@ class FuseNoise(Strict):
     cv_angular_accel_density: float = Field(1.0, gt=0, description="rad/s^2/sqrt(Hz)")
     wheel_speed_sigma_mps: float = Field(0.05, gt=0)
     wheel_speed_rel_sigma: float = Field(
-        0.02, ge=0, description="plus this share of each velocity component (a radius off by 1 % is 0.1 m/s at "
-        "10 m/s): sigma = hypot(wheel_speed_sigma_mps, share x speed)")
+        0.02, ge=0, description="plus this share of the speed, for each velocity component (a radius off by 1 % is "
+        "0.1 m/s at 10 m/s): sigma = hypot(wheel_speed_sigma_mps, share x speed)")
     wheel_yaw_rate_sigma_radps: float = Field(0.05, gt=0)
     nonholonomic_sigma_mps: float = Field(0.05, gt=0, description="lateral/vertical body speed of a wheeled base")
+    nonholonomic_rel_sigma: float = Field(
+        0.03, ge=0, description="plus this share of the forward speed: a car's body pitches and slides (1 deg at "
+        "10 m/s is 0.17 m/s of vertical body speed)")
     # LiDAR odometry's pose errors are correlated from scan to scan (drift), not white: taken as independent at
     # 10 Hz they must be inflated over the core's 0.02 m / 0.005 rad (bench_fuse: 0.1 / 0.02 gives lio odom
     # trajectories fused with the IMU 5-20% lower ATE and 30% lower 0.05 s RPE than the core's values)

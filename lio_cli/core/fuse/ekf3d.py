@@ -78,7 +78,8 @@ class Ekf3d:
         if w is not None:
             self.wheel_yaw_rate = "yaw_rate" in prep.use["wheel"]
             self.wheel_rows = step3d.wheel_velocity_rows(w.velocity_mps, w.velocity_var, prep.use["wheel"],
-                                                         self.noise.nonholonomic_sigma_mps**2)
+                                                         self.noise.nonholonomic_sigma_mps,
+                                                         self.noise.nonholonomic_rel_sigma)
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None

@@ -126,6 +126,7 @@ class NoiseOptions:
     wheel_speed_rel_sigma: float = 0.02  # plus this share of the speed (scale errors grow with it)
     wheel_yaw_rate_sigma_radps: float = 0.05
     nonholonomic_sigma_mps: float = 0.05  # lateral and vertical body speed of a wheeled base
+    nonholonomic_rel_sigma: float = 0.03  # plus this share of the forward speed (body pitch, slip angle)
     odom_position_sigma_m: float = 0.02
     odom_rotation_sigma_rad: float = 0.005
     gps_position_sigma_m: float = 2.0

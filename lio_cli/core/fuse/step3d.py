@@ -121,23 +121,25 @@ def _velocity_block_index(n: int) -> np.ndarray:
     return idx
 
 
-def wheel_velocity_rows(vel: np.ndarray, var: np.ndarray, use: set[str], nonholonomic_var: float
-                        ) -> list[tuple[tuple[int, ...], list[float], list[float]] | None]:
+def wheel_velocity_rows(vel: np.ndarray, var: np.ndarray, use: set[str], nonholonomic_sigma: float,
+                        nonholonomic_rel: float = 0.0) -> list[tuple[tuple[int, ...], list[float], list[float]] | None]:
     """Per wheel message, the base-velocity components it measures (``comps``, values ``z``, variances), or
     None: with ``velocity`` each finite component as measured; with ``speed`` the forward speed and zero
-    lateral and vertical speed (the non-holonomic constraint) for components ``velocity`` did not give. Worked
-    out once for the whole series (the usual all-finite messages by numpy), not per filter step."""
+    lateral and vertical speed (the non-holonomic constraint, sigma ``hypot(nonholonomic_sigma, nonholonomic_rel
+    x forward speed)``) for components ``velocity`` did not give. Worked out once for the whole series (the usual
+    all-finite messages by numpy), not per filter step."""
     vel_l, var_l = vel.tolist(), var.tolist()
     fin = np.isfinite(vel)
     full = fin.all(axis=1).tolist()
+    nh_l = (nonholonomic_sigma**2 + (nonholonomic_rel * np.nan_to_num(vel[:, 0]))**2).tolist()
     rows: list = []
-    for v, vv, ok in zip(vel_l, var_l, full):
+    for v, vv, ok, nh in zip(vel_l, var_l, full, nh_l):
         if ok and "velocity" in use:
             rows.append(((0, 1, 2), v, vv))
         elif ok and "speed" in use:
-            rows.append(((0, 1, 2), [v[0], 0.0, 0.0], [vv[0], nonholonomic_var, nonholonomic_var]))
+            rows.append(((0, 1, 2), [v[0], 0.0, 0.0], [vv[0], nh, nh]))
         else:
-            rows.append(_wheel_row(v, vv, use, nonholonomic_var))
+            rows.append(_wheel_row(v, vv, use, nh))
     return rows
 
 

@@ -56,7 +56,7 @@ def test_wheel_twist_only_rows_and_covariance_defaults():
     assert rep.rejected == {"nan": 1}
     assert np.isnan(out.velocity_mps[1, 2])  # inf becomes "absent"
     s0, rel = NOISE.wheel_speed_sigma_mps, NOISE.wheel_speed_rel_sigma
-    np.testing.assert_allclose(out.velocity_var[:, 0], [0.01, s0**2 + (rel * 1.1)**2, s0**2 + (rel * 0.9)**2])
+    np.testing.assert_allclose(out.velocity_var[:, 0], [0.01, s0**2 + (rel * np.hypot(1.1, 0.0))**2, s0**2 + (rel * 0.9)**2])
     np.testing.assert_allclose(out.yaw_rate_var[[0, 2]], [NOISE.wheel_yaw_rate_sigma_radps**2, 4e-4])
     # defaulted: speed variance of rows 2 and 3, yaw-rate variance of row 0
     assert rep.notes["default_noise"] == 3
@@ -97,5 +97,5 @@ def test_the_default_wheel_speed_sigma_grows_with_the_speed():
     vel = np.array([[0.0, 0.0, 0.0], [1.0, 0.2, 0.0], [-10.0, 0.0, 0.0]])
     out = clean_wheel(WheelSeries(stamps, vel, np.full(3, np.nan)), {"velocity"}, NOISE, SourceReport())
     s0 = NOISE.wheel_speed_sigma_mps
-    np.testing.assert_allclose(np.sqrt(out.velocity_var), [[s0, s0, s0], [np.hypot(s0, 0.02), np.hypot(s0, 0.004), s0],
-                                                           [np.hypot(s0, 0.2), s0, s0]])
+    r1 = np.hypot(s0, 0.02 * np.hypot(1.0, 0.2))  # each component: a share of the speed (scale or angle errors)
+    np.testing.assert_allclose(np.sqrt(out.velocity_var), [[s0] * 3, [r1] * 3, [np.hypot(s0, 0.2)] * 3])

@@ -4,6 +4,7 @@ numbers up to rounding."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from lio_cli.core.fuse import measure3d as m3
 from lio_cli.core.fuse import step3d
@@ -106,14 +107,16 @@ def test_wheel_rows_of_whole_messages_equal_the_per_message_rule():
     vel[::3, 1] = np.nan  # a lateral speed missing now and then
     vel[::7, 0] = np.nan  # and the forward speed
     for use in ({"velocity"}, {"speed"}, {"velocity", "speed"}):
-        rows = step3d.wheel_velocity_rows(vel, var, use, 0.04)
+        rows = step3d.wheel_velocity_rows(vel, var, use, 0.2, 0.5)
         for row, v, vv in zip(rows, vel.tolist(), var.tolist()):
-            want = step3d._wheel_row(v, vv, use, 0.04)
+            nh = 0.04 + (0.5 * v[0]) ** 2 if np.isfinite(v[0]) else 0.04  # grows with the forward speed
+            want = step3d._wheel_row(v, vv, use, nh)
             assert (row is None) == (want is None)
             if row is not None:
-                assert tuple(row[0]) == want[0] and list(row[1]) == want[1] and list(row[2]) == want[2]
-    rows = step3d.wheel_velocity_rows(vel, var, {"speed"}, 0.04)
-    assert rows[1] == ((0, 1, 2), [vel[1, 0], 0.0, 0.0], [var[1, 0], 0.04, 0.04])  # the non-holonomic rule
+                assert tuple(row[0]) == want[0] and list(row[1]) == want[1]
+                assert list(row[2]) == pytest.approx(want[2], rel=1e-15)
+    rows = step3d.wheel_velocity_rows(vel, var, {"speed"}, 0.2)
+    assert rows[1] == ((0, 1, 2), [vel[1, 0], 0.0, 0.0], [var[1, 0], pytest.approx(0.04), pytest.approx(0.04)])
     assert rows[0] is None  # no forward speed: nothing to say with speed alone
 
 
