@@ -25,7 +25,7 @@ import numpy as np
 from ...errors import InputError
 from ...geometry import inv_pose
 from .common import NS_PER_S, CalibrationResult, check_stamps, check_trajectory, true_runs
-from .wheel_windows import Chain, Windows, fit_chain, relative
+from .wheel_windows import Chain, Plane, Windows, fit_chain
 
 MIN_DISTANCE_M = 2.0
 WEAK_REL_SIGMA = 0.01
@@ -76,20 +76,20 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
     if len(ia) < 3:
         raise InputError(f"wheel odometry and trajectory share {len(ts)} poses: too little overlap for windows of "
                          f"{window_s:g} s (are they on the same clock?)")
-    ib = ia + k
-    dist = np.linalg.norm(relative(T_wb, ia, ib)[:, :2], axis=1)
+    cross = 0.0 if baseline_m is None else baseline_m**2 / 4.0  # e_v = d_w b0^2 s_v / (4 s_w)
+    windows = Windows(Plane(ws, v, w), ts, T_wb, ia, ia + k, cross)
+    dist = np.linalg.norm(windows.meas[:, :2], axis=1)
     if dist.sum() < MIN_DISTANCE_M:
         raise InputError(f"wheel scales: the platform moved {dist.sum():.1f} m while wheel odometry ran; drive at least "
                          f"{MIN_DISTANCE_M:g} m (better tens of metres, with turns both ways)")
-    cross = 0.0 if baseline_m is None else baseline_m**2 / 4.0  # e_v = d_w b0^2 s_v / (4 s_w)
-    first = fit_chain(Windows(ws, v, w, ts, T_wb, ia, ib, cross), T_wb)
+    first = fit_chain(windows)
     # One chain of windows uses every k-th pose: its precision is set by the noise of the poses it ends on, and
     # scan-to-scan jitter is largely independent, so chains starting at the poses in between are fitted too (with
     # the first chain's noise levels) and averaged: the speed scale's scatter over draws of a 60 s drive halves
     # (rms 0.15 -> 0.08 %). A long log, precise in one chain, fits fewer.
     starts = np.unique(np.linspace(0, k, min(k, max(1, MAX_WINDOWS // len(ia))), endpoint=False).astype(int))
-    chains = [first] + [fit_chain(first.win.with_windows(ia + j, ib + j), T_wb, first.levels)
-                        for j in starts[1:] if ib[-1] + j < len(ts)]
+    chains = [first] + [fit_chain(windows.with_windows(ia + j, ia + k + j), first.levels)
+                        for j in starts[1:] if ia[-1] + k + j < len(ts)]
     x = np.mean([c.x for c in chains], axis=0)
     cov = np.mean([c.cov for c in chains], axis=0)  # as if the chains agreed entirely: a bound, not an estimate
     bad_runs = _voted_slips(chains, len(ts))

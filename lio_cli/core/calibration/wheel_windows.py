@@ -27,7 +27,7 @@ class Chain:
     levels: np.ndarray  # the whitener's noise levels
 
 
-def fit_chain(win: Windows, T_wb: np.ndarray, levels: np.ndarray | None = None) -> Chain:
+def fit_chain(win: Windows, levels: np.ndarray | None = None) -> Chain:
     """Scales over ``win`` (one chain of adjacent windows): a robust fit, far-out windows cut against the
     scatter, bad poses bridged, then generalised least squares. ``levels``: the noise levels of another chain of
     the same trajectory, reused (else found from the residuals)."""
@@ -56,7 +56,7 @@ def fit_chain(win: Windows, T_wb: np.ndarray, levels: np.ndarray | None = None) 
     # along the path (what makes the whole distance, not each window's, set the speed scale's precision)
     adjacent = win.ib[:-1] == win.ia[1:]
     for _ in range(1 if levels is not None else 2):  # noise levels from the residuals, the scales under them, again
-        whiten = _Whitener(win.resid(fit.x, np.ones(3)).reshape(-1, 3), T_wb[win.ia, :3, :3], adjacent, levels)
+        whiten = _Whitener(win.resid(fit.x, np.ones(3)).reshape(-1, 3), win.T_wb[win.ia, :3, :3], adjacent, levels)
         fit = least_squares(lambda s, wh=whiten: wh(win.resid(s, np.ones(3)).reshape(-1, 3)), fit.x)
     cov = np.linalg.inv(fit.jac.T @ fit.jac + np.eye(3))  # + a unit prior: a factor the motion never shows stays finite
     return Chain(fit.x, cov, win, slips, skipped, whiten.levels)
@@ -70,20 +70,26 @@ def relative(T_wb: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
 
 
 class Windows:
-    """Windows [ts[ia], ts[ib]] of the trajectory and the wheels' corrected motion over each."""
+    """Windows [ts[ia], ts[ib]] of the trajectory (base poses ``T_wb`` at ``ts``) and the wheels' corrected
+    motion over each (``plane``, shared by every set of windows of the same log)."""
 
-    def __init__(self, ws, v, w, ts, T_wb, ia: np.ndarray, ib: np.ndarray, cross: float) -> None:
-        self._args = (ws, v, w, ts, T_wb)
-        self.ia, self.ib, self.cross = ia, ib, cross
+    def __init__(self, plane: Plane, ts: np.ndarray, T_wb: np.ndarray, ia: np.ndarray, ib: np.ndarray,
+                 cross: float) -> None:
+        self.plane, self.ts, self.T_wb, self.cross = plane, ts, T_wb, cross
+        self.ia, self.ib = ia, ib
         self.meas = relative(T_wb, ia, ib)
-        self.plane = _Plane(ws, v, w, ts[ia], ts[ib])
+        self.ta, self.tb = plane.seconds(ts[ia]), plane.seconds(ts[ib])
 
     def with_windows(self, ia: np.ndarray, ib: np.ndarray) -> Windows:
-        return Windows(*self._args, ia, ib, self.cross)
+        return Windows(self.plane, self.ts, self.T_wb, ia, ib, self.cross)
 
-    def raw(self, s: np.ndarray) -> np.ndarray:
-        """(n, 3) wheels minus trajectory, yaw wrapped."""
-        d = self.plane.relative(s[0], s[1], s[2], self.cross * s[2] * s[0] / s[1]) - self.meas
+    def track(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The wheels' path under the factors ``s`` = (s_v, s_w, d_w)."""
+        return self.plane.track(s[0], s[1], s[2], self.cross * s[2] * s[0] / s[1])
+
+    def raw(self, s: np.ndarray, track: tuple | None = None) -> np.ndarray:
+        """(n, 3) wheels minus trajectory, yaw wrapped (``track``: ``self.track(s)`` when already at hand)."""
+        d = self.plane.relative(self.track(s) if track is None else track, self.ta, self.tb) - self.meas
         d[:, 2] = np.mod(d[:, 2] + np.pi, 2.0 * np.pi) - np.pi
         return d
 
@@ -97,6 +103,7 @@ def _bridge(win: Windows, good: np.ndarray, x: np.ndarray, centre: np.ndarray,
     single window where that fits (a bad pose skipped); the runs that fit no way are slip: returned as pose
     index ranges, with the poses the joined windows skip."""
     n = len(good)
+    track = win.track(x)  # the wheels' path once; each run's candidate windows are read off it
     used = ~good  # windows already in a joined window or left out
     joined: list[tuple[int, int]] = []
     slips: list[tuple[int, int]] = []
@@ -104,7 +111,7 @@ def _bridge(win: Windows, good: np.ndarray, x: np.ndarray, centre: np.ndarray,
         before, after = a > 0 and not used[a - 1], b < n and not used[b]  # a good neighbour free to join
         cands = [(a, b - 1)] + [(a - 1, b - 1)] * before + [(a, b)] * after + [(a - 1, b)] * (before and after)
         lo, hi = np.array(cands).T
-        d = np.abs(win.with_windows(win.ia[lo], win.ib[hi]).raw(x) - centre) / limit
+        d = np.abs(win.with_windows(win.ia[lo], win.ib[hi]).raw(x, track) - centre) / limit
         # the fewest windows joined, then the best fit
         fits = [(hi[i] - lo[i], float(d[i].max()), i) for i in np.flatnonzero((d <= 1.0).all(axis=1))]
         if not fits:
@@ -122,20 +129,22 @@ def _bridge(win: Windows, good: np.ndarray, x: np.ndarray, centre: np.ndarray,
     return win.with_windows(ia[order], ib[order]), slips, skipped
 
 
-class _Plane:
-    """Wheel odometry integrated on the plane, corrected: relative (x, y, yaw) over each [ta, tb]."""
+class Plane:
+    """Wheel odometry integrated on the plane, corrected; relative (x, y, yaw) over windows [ta, tb] (s)."""
 
-    def __init__(self, ws: np.ndarray, v: np.ndarray, w: np.ndarray, ta_ns: np.ndarray, tb_ns: np.ndarray) -> None:
-        self.t = (ws - ws[0]) / NS_PER_S
-        self.v, self.w = v, w
-        self.ta = (ta_ns - ws[0]) / NS_PER_S
-        self.tb = (tb_ns - ws[0]) / NS_PER_S
+    def __init__(self, ws: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
+        self.t0 = ws[0]
+        self.t = self.seconds(ws)
         dt = np.diff(self.t)
         self.dth = 0.5 * (w[1:] + w[:-1]) * dt  # heading step at unit yaw scale
         self.ds = 0.5 * (v[1:] + v[:-1]) * dt  # distance step at unit speed scale
 
-    def relative(self, s_v: float, s_w: float, d_w: float = 0.0, e_v: float = 0.0) -> np.ndarray:
-        """With v = s_v v_wheel + e_v w_wheel and w = s_w w_wheel + d_w v_wheel."""
+    def seconds(self, stamps_ns: np.ndarray) -> np.ndarray:
+        return (stamps_ns - self.t0) / NS_PER_S
+
+    def track(self, s_v: float, s_w: float, d_w: float = 0.0,
+              e_v: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, y, heading) at the wheel stamps with v = s_v v_wheel + e_v w_wheel and w = s_w w_wheel + d_w v_wheel."""
         dth = s_w * self.dth + d_w * self.ds
         ds = s_v * self.ds + e_v * self.dth
         th = np.concatenate([[0.0], np.cumsum(dth)])
@@ -143,8 +152,11 @@ class _Plane:
         sinc = np.sinc(0.5 * dth / np.pi)  # exact arc over each step
         x = np.concatenate([[0.0], np.cumsum(ds * np.cos(mid) * sinc)])
         y = np.concatenate([[0.0], np.cumsum(ds * np.sin(mid) * sinc)])
-        xa, ya, tha = (np.interp(self.ta, self.t, q) for q in (x, y, th))
-        xb, yb, thb = (np.interp(self.tb, self.t, q) for q in (x, y, th))
+        return x, y, th
+
+    def relative(self, track: tuple, ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
+        xa, ya, tha = (np.interp(ta, self.t, q) for q in track)
+        xb, yb, thb = (np.interp(tb, self.t, q) for q in track)
         c, s = np.cos(tha), np.sin(tha)
         dx, dy = xb - xa, yb - ya
         return np.column_stack([c * dx + s * dy, -s * dx + c * dy, thb - tha])
