@@ -72,6 +72,10 @@ class CalibrateConfig(Strict):
         prior's (0 without --calib)."""
         return self.prior.imu_time_offset_s if self.imu_time_offset_s is None else self.imu_time_offset_s
 
+    @property
+    def start_offset_ns(self) -> int:
+        return int(round(self.start_offset_s * 1e9))
+
     @field_validator("still")
     @classmethod
     def _still(cls, v: str | None) -> str | None:

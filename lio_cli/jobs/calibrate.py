@@ -117,7 +117,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                               "there is to calibrate", est, where)
             est.skip("the LiDAR-IMU time offset, rotation and translation", "the log has no LiDAR topic")
         else:
-            check_same_clock(reader, lidar, imu_topic, int(round(cfg.start_offset_s * 1e9)))
+            check_same_clock(reader, lidar, imu_topic, cfg.start_offset_ns)
             planar = reader.topics[lidar].msgtype == LASERSCAN
             n = reader.topics[lidar].count
             spans = refine_spans(cfg.refine_passes, planar)

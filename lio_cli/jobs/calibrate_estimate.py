@@ -101,7 +101,7 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     translation holds the axes the motion does not show. ``prior_offset``: the clock offset given (--calib,
     --imu-time-offset), kept (and said so) when the motion cannot time the IMU; without it that is bad input."""
     bias0 = est.static.gyro_bias_radps if est.static is not None else None
-    centre_ns = int(round(cfg.start_offset_s * NS_PER_S))  # the search spans +-max_offset_s around it
+    centre_ns = cfg.start_offset_ns  # the search spans +-max_offset_s around it
     try:
         off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns + centre_ns, imu.gyro_radps,
                                    gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,

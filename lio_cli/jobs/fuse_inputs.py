@@ -173,13 +173,12 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
             notes.append(f"wheel odometry {wheel_cols.topic}: twist in the parent frame, not the base (REP 105): {why}")
         R = _child_rotation(tree, base, wheel_cols.child_frame_id, extrinsics)
         inputs.wheel = wheel_series(wheel_cols, twist, R)
-        if cal.wheel is not None and cal.wheel.applies_to(wheel_cols.topic):
+        applies, said = cal.wheel.verdict(wheel_cols.topic) if cal.wheel is not None else (False, "")
+        if applies:
             inputs.wheel = calibrated_wheel(inputs.wheel, cal.wheel)
-            extrinsics["wheel_twist"] += (f"; scaled by --calib (speed x{cal.wheel.speed_scale:.6g}, yaw rate "
-                                          f"x{cal.wheel.yaw_rate_scale:.6g})")
-        elif cal.wheel is not None:
-            notes.append(f"the wheel scales of --calib were measured on {cal.wheel.topic}, not {wheel_cols.topic}: "
-                         "not applied")
+            extrinsics["wheel_twist"] += f"; {said}"
+        elif said:
+            notes.append(said)
     if "odom" in roles:
         inputs.odom = _odom(cfg, cols)
     gps = None

@@ -112,13 +112,10 @@ class _OdomRun:
     def _feed(self) -> None:
         offset_ns = self.cfg.calibration.imu_time_offset_ns
         wheel_cal = self.cfg.calibration.wheel if self.inputs.wheel else None
-        if wheel_cal is not None and not wheel_cal.applies_to(self.inputs.wheel):
-            self.notes.append(f"the wheel scales of --calib were measured on {wheel_cal.topic}, not "
-                              f"{self.inputs.wheel}: not applied")
-            wheel_cal = None
         if wheel_cal is not None:
-            self.notes.append(f"wheel odometry {self.inputs.wheel} scaled by --calib (speed x{wheel_cal.speed_scale:.6g}, "
-                              f"yaw rate x{wheel_cal.yaw_rate_scale:.6g})")
+            applies, said = wheel_cal.verdict(self.inputs.wheel)
+            self.notes.append(f"wheel odometry {self.inputs.wheel} {said}" if applies else said)
+            wheel_cal = wheel_cal if applies else None
         tick = time.perf_counter()
         for rec in self.stream:
             self.t_read += time.perf_counter() - tick

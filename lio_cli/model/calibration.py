@@ -51,8 +51,11 @@ class WheelCalibration(BaseModel):
     baseline_m: Optional[float] = Field(None, gt=0, description="effective track width (with the nominal one given)")
     baseline_sigma_m: Optional[float] = Field(None, ge=0)
 
-    def applies_to(self, topic: str) -> bool:
-        return self.topic is None or self.topic == topic
+    def verdict(self, topic: str) -> tuple[bool, str]:
+        """Whether the scales apply to the wheel odometry ``topic``, and the words that say so."""
+        if self.topic is None or self.topic == topic:
+            return True, f"scaled by --calib (speed x{self.speed_scale:.6g}, yaw rate x{self.yaw_rate_scale:.6g})"
+        return False, f"the wheel scales of --calib were measured on {self.topic}, not {topic}: not applied"
 
     def corrected(self, rec: OdometryRecord) -> OdometryRecord:
         """A wheel odometry record with its forward speed and yaw rate corrected (the twist as a whole scales by
