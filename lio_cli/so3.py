@@ -147,12 +147,9 @@ def _rotvec(q: np.ndarray, atan2) -> np.ndarray:
 
 
 def rot_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
-    """Quaternion(s) xyzw of rotation matrix(es), with w >= 0."""
-    from scipy.spatial.transform import Rotation  # deferred: scipy.spatial costs a quarter second to import
-
-    q = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
-    sign = np.where(q[..., 3:4] < 0.0, -1.0, 1.0)
-    return q * sign
+    """Quaternion(s) xyzw of rotation matrix(es), with w >= 0 (scipy's ``from_matrix``, as ``_quaternions``)."""
+    q = _quaternions(R)
+    return np.where(q[..., 3:4] < 0.0, -q, q)
 
 
 __all__ = ["quat_xyzw_to_rot", "rot_to_quat_xyzw", "so3_exp", "so3_log", "so3_log_batch"]

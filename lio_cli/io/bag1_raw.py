@@ -11,7 +11,7 @@ messages, same order, same bytes; anything unexpected raises (the caller reports
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from itertools import chain
 
 import numpy as np
@@ -107,26 +107,35 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
         yield topics[k], types[k], t_ns, buf[d0:d0 + dlen], connections[k]
 
 
-def connection_messages(reader, connections: list, chunks: dict[int, bytes] | None = None) -> list[list[bytes]] | None:
+def connection_messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
+                        progress: Callable[[int], None] | None = None) -> list[list[bytes]] | None:
     """Per connection, its serialised messages in index order (what ``messages`` yields of it), sliced
     chunk by chunk with the record headers checked for all of a chunk's entries at once (not one message at a
     time: ~2 us each). None when a record is not a message-data record of rosbag's own header layout (time,
-    conn, op): ``messages`` reads those. Each chunk is decompressed once."""
+    conn, op): ``messages`` reads those. Each chunk is decompressed once; ``progress`` gets the messages read
+    after each."""
     cols = [reader.index_columns[c.id] for c in connections]
     parts: list[list] = [[None] * c.shape[1] for c in cols]
-    positions = np.unique(np.concatenate([c[1] for c in cols])) if cols else []
+    by_chunk: dict[int, list[tuple[int, np.ndarray]]] = {}  # chunk position -> (connection, its entries there)
+    for ci, c in enumerate(cols):
+        order = np.argsort(c[1], kind="stable")  # grouped once, in index order within a chunk
+        pos, first = np.unique(c[1][order], return_index=True)
+        for p, sel in zip(pos.tolist(), np.split(order, first[1:])):
+            by_chunk.setdefault(p, []).append((ci, sel))
     chunks = {} if chunks is None else chunks
-    for pos in positions.tolist():
+    done = 0
+    for pos in sorted(by_chunk):
         buf = _chunk(reader, pos, chunks)
-        for c, out in zip(cols, parts):
-            sel = np.flatnonzero(c[1] == pos)
-            if not len(sel):
-                continue
-            spans = _data_spans(buf, c[2, sel])
+        for ci, sel in by_chunk[pos]:
+            spans = _data_spans(buf, cols[ci][2, sel])
             if spans is None:
                 return None
+            out = parts[ci]
             for j, a, b in zip(sel.tolist(), *spans):
                 out[j] = buf[a:b]
+            done += len(sel)
+        if progress is not None:
+            progress(done)
     return parts
 
 

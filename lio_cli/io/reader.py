@@ -9,7 +9,7 @@ and ``mcap_log``.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -131,18 +131,19 @@ class LogReader:
         except _READ_ERRORS as err:
             raise self._wrap("cannot read messages", err) from err
 
-    def topic_messages(self, topics: Iterable[str]) -> dict[str, list[bytes]] | None:
+    def topic_messages(self, topics: Iterable[str],
+                       progress: Callable[[int], None] | None = None) -> dict[str, list[bytes]] | None:
         """Every serialised message of each of ``topics``, per topic in the order ``raw_messages`` yields
         them, where the log hands them over a topic at a time faster than ``raw_messages`` (a single ROS 1 bag
-        with one connection per topic); None where it does not."""
+        with one connection per topic); None where it does not. ``progress``: messages read so far."""
         try:
-            return self._topic_messages(list(topics))
+            return self._topic_messages(list(topics), progress)
         except InputError:
             raise
         except _READ_ERRORS as err:
             raise self._wrap("cannot read messages", err) from err
 
-    def _topic_messages(self, topics: list[str]) -> dict[str, list[bytes]] | None:
+    def _topic_messages(self, topics: list[str], progress) -> dict[str, list[bytes]] | None:
         return None
 
     def records(self, topics: Iterable[str] | None = None) -> Iterator[RawRecord]:

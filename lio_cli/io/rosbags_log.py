@@ -87,7 +87,7 @@ class RosbagsLog(LogReader):
             return messages(readers[0], conns, self._chunks)
         return ((c.topic, c.msgtype, int(t_ns), raw, c) for c, t_ns, raw in self._reader.messages(connections=conns))
 
-    def _topic_messages(self, topics: list[str]) -> dict[str, list[bytes]] | None:
+    def _topic_messages(self, topics: list[str], progress) -> dict[str, list[bytes]] | None:
         readers = getattr(self._reader, "readers", [])
         if self.format != "ros1" or len(readers) != 1:
             return None
@@ -96,7 +96,7 @@ class RosbagsLog(LogReader):
             return None
         from .bag1_raw import connection_messages
 
-        parts = connection_messages(readers[0], conns, self._chunks)
+        parts = connection_messages(readers[0], conns, self._chunks, progress)
         return None if parts is None else {c.topic: p for c, p in zip(conns, parts)}
 
     def _deserialize(self, raw, msgtype, handle):

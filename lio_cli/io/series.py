@@ -168,12 +168,10 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
     if bulk:
         # a ROS 1 bag's messages wait for the whole-topic parse of ``finish``; others are parsed as read (not
         # held in memory for a parse that only ROS 1's fixed layout allows)
-        by_topic = None if any(b.cdr for b in bulk.values()) else log.topic_messages(list(bulk))
+        by_topic = log.topic_messages(list(bulk), progress)
         if by_topic is not None:  # a ROS 1 bag's topics handed over whole
             for t, raws in by_topic.items():
                 bulk[t].raws = raws
-            if progress is not None:
-                progress(sum(map(len, by_topic.values())))
         else:
             keep = {t: b.add if b.cdr else b.raws.append for t, b in bulk.items()}
             for n, (topic, _, _, raw) in enumerate(log.raw_messages(list(bulk)), 1):

@@ -201,13 +201,16 @@ def test_ros1_topics_handed_over_whole_are_what_the_chunk_reader_yields(real_log
         for pos, chunk in list(r.chunks.items()):
             r.chunks[pos] = chunk._replace(decompressor=lambda raw, pos=pos, f=chunk.decompressor: (opened.append(pos),
                                                                                                    f(raw))[1])
-        whole = log.topic_messages(topics)
+        counts: list[int] = []
+        whole = log.topic_messages(topics, counts.append)
         streamed: dict[str, list[bytes]] = {t: [] for t in topics}
         for t, _, _, raw in log.raw_messages(topics):
             streamed[t].append(bytes(raw))
     assert whole is not None and {t: [bytes(m) for m in v] for t, v in whole.items()} == streamed
     assert sum(map(len, streamed.values())) > 6000
     assert sorted(opened[:len(r.chunks)]) == sorted(r.chunks)  # the whole-topic read: each chunk once
+    # progress after every chunk that holds any of the topics, up to all their messages
+    assert len(counts) > 1 and counts == sorted(counts) and counts[-1] == sum(map(len, streamed.values()))
 
 
 def test_ros1_topics_in_another_record_layout_are_streamed(logs):

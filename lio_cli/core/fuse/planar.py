@@ -21,14 +21,11 @@ from .kalman import Gate, KnotLog, kalman_update
 from .result import FuseResult, anchor_to_origin
 from .sanitize import median_period_ns
 from .smoother import rts_smooth
-from .state3d import GAP_TAU_S
+from .state3d import CLONE_DUMMY_VAR, GAP_TAU_S, GPS_HEADING_SIGMA_RAD, GPS_START_POSITION_SIGMA_M
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
 X, Y, TH, V, W, BW = range(6)
-CLONE_DUMMY_VAR = 1.0
 OMEGA0_SIGMA_RADPS = 0.5
-GPS_HEADING_SIGMA_RAD = 0.1
-GPS_START_POSITION_SIGMA_M = 10.0
 
 
 def wrap(a: float) -> float:

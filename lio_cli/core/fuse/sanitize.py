@@ -106,7 +106,7 @@ def clean_wheel(wheel: WheelSeries, use: set[str], noise: NoiseOptions, report: 
     vvar = None if wheel.velocity_var is None else np.asarray(wheel.velocity_var, np.float64).reshape(n, 3)[keep]
     yvar = None if wheel.yaw_rate_var is None else np.asarray(wheel.yaw_rate_var, np.float64).reshape(n, 1)[keep]
     relevant_v = np.isfinite(vel) if ("velocity" in use or "speed" in use) else np.zeros((m, 3), bool)
-    speed = np.sqrt(np.nansum(vel * vel, axis=1, where=np.isfinite(vel)))[:, None]  # a scale or an angle error
+    speed = np.sqrt(np.nansum(vel * vel, axis=1))[:, None]  # a scale or an angle error: every component
     default_vvar = noise.wheel_speed_sigma_mps**2 + (noise.wheel_speed_rel_sigma * speed)**2  # (m,1): every component
     velocity_var = _variance(vvar, m, 3, default_vvar, noise.use_message_covariance, report, relevant_v)
     yaw_var = _variance(yvar, m, 1, noise.wheel_yaw_rate_sigma_radps**2, noise.use_message_covariance,

@@ -14,7 +14,8 @@ from .kalman import Gate
 
 
 def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
-    """``kalman.small_inv`` on nested lists (m <= 3), None when singular; numpy beyond 3x3."""
+    """``kalman.small_inv`` on nested lists (m <= 2), None when singular; numpy beyond (``Updater`` inverts
+    the usual 3x3 itself, unrolled)."""
     m = len(S)
     if m == 1:
         s = S[0][0]
@@ -25,15 +26,6 @@ def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
         if det == 0.0 or not math.isfinite(det):
             return None
         return [[d / det, -b / det], [-c / det, a / det]]
-    if m == 3:
-        (a, b, c), (d, e, f), (g, h, i) = S
-        A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-        det = a * A + b * B + c * C
-        if det == 0.0 or not math.isfinite(det):
-            return None
-        return [[A / det, (c * h - b * i) / det, (b * f - c * e) / det],
-                [B / det, (a * i - c * g) / det, (c * d - a * f) / det],
-                [C / det, (b * g - a * h) / det, (a * e - b * d) / det]]
     try:
         return np.linalg.inv(np.array(S)).tolist()
     except np.linalg.LinAlgError:
