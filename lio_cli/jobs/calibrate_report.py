@@ -9,13 +9,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import inv_pose, make_pose, so3_exp, so3_log
-from ..model.calibration import Calibration, ImuNoiseCalibration, WheelCalibration
+from ..model.calibration import ARBITRARY_SIGMA_RAD, Calibration, ImuNoiseCalibration, WheelCalibration
 from .calibrate_estimate import Estimates
 
 AXES = ("x", "y", "z")
 MAX_ACCEL_BIAS_SIGMA_MPS2 = 0.05  # a vaguer 3-axis bias is not written (odom would start from it)
 REFERENCE_AGREES_SIGMAS = 3.0
-ARBITRARY_SIGMA_RAD = np.radians(2.5)
 MAX_ROTATION_SIGMA_RAD = np.radians(1.0)  # the rotation estimator's own threshold of an observable axis
 
 

@@ -161,6 +161,8 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     if imu_cols is not None and len(imu_cols):
         T, why = imu_extrinsic(tree, cfg, base, imu_cols.frame_id, imu_cols.topic, reader.path)
         extrinsics["T_base_imu"] = why
+        if why.startswith("--calib") and cal.unmeasured_rotation():
+            notes.append(cal.unmeasured_rotation())
         if len(imu_cols.frames) > 1:
             notes.append(f"IMU {imu_cols.topic} changes frame id ({', '.join(imu_cols.frames)}): "
                          f"the first one's extrinsic is used")

@@ -105,6 +105,8 @@ class Mounting:
             return T
         if self.calibration.matrix(name) is not None:
             self.sources[name] = "--calib"
+            if name == "T_base_imu" and self.calibration.unmeasured_rotation():
+                self.notes.append(self.calibration.unmeasured_rotation())
             return self.calibration.matrix(name)
         self.notes.append(f"no extrinsic {name} ({self.base} -> {frame or '?'}) in /tf_static or --calib: "
                           "identity assumed")

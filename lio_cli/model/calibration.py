@@ -13,6 +13,8 @@ from .records import OdometryRecord
 # |imu_time_offset_s| beyond this would overflow int64 ns stamps (clock offsets of epoch-sized clocks still fit).
 MAX_CLOCK_OFFSET_S = 4e9
 _ORTHO_TOL = 1e-3
+# a mounting rotation whose 1-sigma exceeds this was not measured about that axis (the motion hardly showed it)
+ARBITRARY_SIGMA_RAD = float(np.radians(2.5))
 
 
 def _vector3(v: list[float] | None) -> list[float] | None:
@@ -128,6 +130,20 @@ class Calibration(BaseModel):
     @property
     def imu_time_offset_ns(self) -> int:
         return int(round(self.imu_time_offset_s * 1e9))
+
+    def unmeasured_rotation(self) -> str | None:
+        """A warning when ``T_base_imu``'s rotation was not measured about some base axis (its 1-sigma beyond
+        ``ARBITRARY_SIGMA_RAD``: ``lio calibrate`` could not see it, e.g. a ground robot's IMU yaw, and wrote a
+        guess), else None."""
+        s = self.T_base_imu_rotation_sigma_rad
+        if self.T_base_imu is None or s is None:
+            return None
+        axes = [(a, v) for a, v in zip("xyz", s) if v > ARBITRARY_SIGMA_RAD]
+        if not axes:
+            return None
+        said = ", ".join(f"{a} (1-sigma {np.degrees(v):.1f} deg)" for a, v in axes)
+        return (f"T_base_imu of --calib was not measured about the base {said}: the IMU's mounting there is a "
+                "guess; give the drawing's value (or /tf_static) if the trajectory turns out wrong")
 
     def matrix(self, name: str) -> np.ndarray | None:
         """``T_base_imu`` or ``T_base_lidar`` as a (4,4) array, None when not given."""

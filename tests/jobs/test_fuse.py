@@ -139,6 +139,13 @@ def test_imu_without_extrinsic_names_its_frame_and_the_fix(fuse_logs):
     run = run_fuse(FuseJob(log, cfg))
     assert run.metrics["extrinsics"]["T_base_imu"] == "--calib"
     np.testing.assert_allclose(run.trajectory.positions[-1], [2.0, 0.0, 0.0], atol=1e-3)
+    assert not any("was not measured" in n for n in run.notes)
+    # what lio calibrate writes for a ground robot: the IMU's yaw on the base it could not see, with its 1-sigma
+    guessed = FuseConfig(calibration={"T_base_imu": fuse_logs.T_BASE_IMU.tolist(),
+                                      "T_base_imu_rotation_sigma_rad": [1e-4, 1e-4, 0.103]})
+    assert ("T_base_imu of --calib was not measured about the base z (1-sigma 5.9 deg): the IMU's mounting there is a "
+            "guess; give the drawing's value (or /tf_static) if the trajectory turns out wrong") \
+        in run_fuse(FuseJob(log, guessed)).notes
 
 
 def test_gps_without_a_fix(fuse_logs):

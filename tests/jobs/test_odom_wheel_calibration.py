@@ -1,6 +1,10 @@
-"""`lio odom --calib` applies the calibration's wheel scales to the wheel odometry it joins to the prediction."""
+"""`lio odom --calib`: the calibration's wheel scales applied to the wheel odometry it joins to the prediction, and
+an IMU mounting the calibration could not measure named."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,3 +39,15 @@ def test_wheel_records_reach_the_odometry_scaled(tmp_path, monkeypatch, topic):
     for rec in seen:
         assert rec.linear_mps == pytest.approx(sv * raw[rec.stamp_ns].linear_mps, abs=1e-12)
         assert rec.angular_radps == pytest.approx(raw[rec.stamp_ns].angular_radps * np.array([1, 1, sw]), abs=1e-12)
+
+
+def test_an_imu_mounting_the_calibration_could_not_measure_is_named(tmp_path):
+    """No /tf_static: the IMU's yaw comes from --calib, where lio calibrate could only guess it on a ground robot."""
+    sim = simulate("planar", tmp_path / "rover.mcap", "mcap", duration_s=4.0, seed=3, columns=360, tf_static=False)
+    truth = Calibration.model_validate({"T_base_imu": _truth_T(sim), "T_base_imu_rotation_sigma_rad": [1e-4, 1e-4, 0.2]})
+    res = run_odom(OdomJob(sim.log_path, config=OdomConfig(calibration=truth)))
+    assert any(n.startswith("T_base_imu of --calib was not measured about the base z (1-sigma 11.5 deg)") for n in res.notes)
+
+
+def _truth_T(sim) -> list:
+    return json.loads(Path(sim.truth_path).read_text())["T_base_imu"]
