@@ -30,6 +30,7 @@ from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..model.calibration import Calibration
 from . import calibrate_estimate as steps
+from . import calibrate_map
 from .calibrate_passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, pass_until, read_imu,
                                refine_spans)
 from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, rotation_observable, table
@@ -148,11 +149,14 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             for k, until in enumerate(untils, start=1):
                 t0 = time.perf_counter()
                 fused = PLANAR_FUSION_SIGMAS[k - 1] if planar else None  # 2D scans: see PLANAR_FUSION_SIGMAS
-                traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(
-                    _mounting(est, T_ref), until_ns=until, fused_sigmas=fused)
+                last = k == len(spans)
+                mapped = last and calibrate_map.wanted(cfg, planar, n)
+                lp = LidarPass(reader, cfg, imu_topics, planar, counter)
+                lp.sweep_voxel = calibrate_map.SWEEP_VOXEL if mapped else None
+                traj, _ = lp.run(_mounting(est, T_ref), until_ns=until, fused_sigmas=fused)
                 times[f"refine_pass_{k}"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                final = k == len(spans)
+                final = last and not mapped
                 try:
                     steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=final, prior_offset=prior_offset)
                 except InputError as err:
@@ -161,6 +165,9 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                     # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
                     est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
                 times[f"estimate_{k}"] = time.perf_counter() - t0
+                if mapped:
+                    traj = calibrate_map.map_rounds(traj, lp.sweeps, lp.voxel_m, imu, cfg, est, where, T_ref,
+                                                    prior_offset, times)
             wheel_traj, against = traj, None
             if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
                 # The wheels of a 2D scanner whose IMU mounting is partly unknown (its yaw: turns about the

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..config.calibrate import CalibrateConfig
 from ..config.odom import OdomConfig
+from ..core.calibration.map_refine import Sweep, thin_sweep
 from ..core.odometry import Diverged, LioOdometry
 from ..errors import InputError, ProcessingError
 from ..io.pointcloud import parse_time_convention
@@ -127,6 +128,9 @@ class LidarPass:
         self.mid_ns: dict[int, int] = {}  # scan end -> middle of its sweep
         self.done = 0
         self.stats: dict = {}  # the odometry's scan counts and events of the last run
+        self.sweep_voxel: float | None = None  # keep each scan thinned to this share of the odometry's voxel...
+        self.sweeps: dict[int, Sweep] = {}  # ...by its end stamp (the pose's stamp of a gyro-primed pass)
+        self.voxel_m: float | None = None  # the odometry's map voxel
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
             gather: bool = False, until_ns: int | None = None,
@@ -211,6 +215,10 @@ class LidarPass:
             self.pending.popleft()
             self.mid_ns[int(cloud.end_ns)] = (int(cloud.start_ns) + int(cloud.end_ns)) // 2
             odo.process(cloud)
+            self.voxel_m = odo.voxel_size_m
+            if self.sweep_voxel is not None and self.voxel_m is not None:
+                self.sweeps[int(cloud.end_ns)] = thin_sweep(cloud.points, cloud.point_stamps_ns, cloud.end_ns,
+                                                            self.sweep_voxel * self.voxel_m)
             self.done += 1
             if self.counter is not None:
                 self.counter.step()

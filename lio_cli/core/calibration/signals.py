@@ -23,6 +23,15 @@ def prefix_products(steps: np.ndarray) -> np.ndarray:
     return out
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (n,3) arrays (np.cross's axis handling costs more than the products)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 class GyroOrientation:
     """Orientation ``G(t)`` of the IMU relative to its first sample, from the gyro alone (trapezoid rule:
     each step turns by ``0.5 (w_k + w_k+1) dt``, which keeps the timing unbiased); between samples the step's
@@ -49,6 +58,21 @@ class GyroOrientation:
         k = np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
         alpha = (t - self.t_s[k]) / (self.t_s[k + 1] - self.t_s[k])
         return self.G[k] @ so3_exp(self.phi[k] * alpha[:, None])
+
+    def rotate(self, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``G(t) v`` for vectors ``v`` (n,3) at IMU-clock times ``t_s`` (n,), as ``at`` but without forming a
+        matrix per vector (Rodrigues on the vectors: many points, few samples)."""
+        t = np.clip(np.asarray(t_s, np.float64), self.t_s[0], self.t_s[-1])
+        k = np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
+        phi = self.phi[k] * ((t - self.t_s[k]) / (self.t_s[k + 1] - self.t_s[k]))[:, None]
+        theta = np.sqrt(np.einsum("ni,ni->n", phi, phi))
+        small = theta < 1e-6
+        th = np.where(small, 1.0, theta)
+        a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(th) / th)
+        b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(th)) / th**2)
+        c = _cross(phi, v)
+        w = v + a[:, None] * c + b[:, None] * _cross(phi, c)
+        return np.einsum("nij,nj->ni", self.G[k], w)
 
     def increments(self, ta_s: np.ndarray, tb_s: np.ndarray) -> np.ndarray:
         """Rotation G(ta)^T G(tb) of each interval -> (n,3,3)."""
