@@ -150,7 +150,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 t0 = time.perf_counter()
                 fused = PLANAR_FUSION_SIGMAS[k - 1] if planar else None  # 2D scans: see PLANAR_FUSION_SIGMAS
                 last = k == len(spans)
-                mapped = last and calibrate_map.wanted(cfg, planar, n)
+                mapped = last and calibrate_map.wanted(cfg, planar, n, est.notes)
                 lp = LidarPass(reader, cfg, imu_topics, planar, counter)
                 lp.sweep_voxel = calibrate_map.SWEEP_VOXEL if mapped else None
                 traj, _ = lp.run(_mounting(est, T_ref), until_ns=until, fused_sigmas=fused)

@@ -26,9 +26,15 @@ MAP_VOXEL = 0.4  # ...and the map's voxels this share of it
 MAX_SWEEPS = 3000  # five minutes at 10 Hz: a longer log keeps the odometry's poses (memory, time)
 
 
-def wanted(cfg: CalibrateConfig, planar: bool, scans: int) -> bool:
-    """Whether the last pass should keep its scans for map rounds."""
-    return cfg.map_rounds > 0 and cfg.refine_passes > 0 and not planar and scans <= MAX_SWEEPS
+def wanted(cfg: CalibrateConfig, planar: bool, scans: int, notes: list[str]) -> bool:
+    """Whether the last pass should keep its scans for map rounds (a note says why not, when that is news)."""
+    if cfg.map_rounds == 0 or cfg.refine_passes == 0 or planar:
+        return False
+    if scans > MAX_SWEEPS:
+        notes.append(f"no map rounds: {scans} scans, more than {MAX_SWEEPS} (memory and time); the poses are the "
+                     "odometry pass's, whose roll and pitch scatter more (a few minutes of motion calibrate best)")
+        return False
+    return True
 
 
 def map_rounds(traj: LidarTrajectory, sweeps: dict[int, Sweep], voxel_m: float, imu: ImuBatch, cfg: CalibrateConfig,

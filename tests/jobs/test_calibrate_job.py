@@ -91,6 +91,19 @@ def test_a_handheld_bag_without_tf_static_gives_offset_rotation_and_lever_arm(wa
     assert cal.imu_noise.accel_noise_mps2 == pytest.approx(t["imu"]["accel_noise_density"], rel=0.2)
 
 
+def test_the_last_pass_is_refined_against_one_map_unless_the_log_is_too_long(walks, bag_run, tmp_path, monkeypatch):
+    from lio_cli.jobs import calibrate_map
+
+    assert "then 2 rounds against one map of all its scans" in bag_run.metrics["lidar_trajectory"]
+    assert [k for k in bag_run.metrics["time_s"] if k.startswith("map_round")] == ["map_round_1", "map_round_2"]
+    _, bag, _ = walks
+    monkeypatch.setattr(calibrate_map, "MAX_SWEEPS", 50)
+    r = run_calibrate(CalibrateJob(bag.log_path, tmp_path / "c.yaml"))
+    assert "rounds" not in r.metrics["lidar_trajectory"]
+    assert ("no map rounds: 80 scans, more than 50 (memory and time); the poses are the odometry pass's, whose roll "
+            "and pitch scatter more (a few minutes of motion calibrate best)") in r.notes
+
+
 def test_what_the_walk_cannot_show_is_skipped_with_the_reason(bag_run):
     lines = [s.line() for s in bag_run.skipped]
     assert "skipped: the wheel odometry scales because the log has no wheel odometry" in lines
