@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .kdtree import ckdtree_class
+
 _DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
 
 
@@ -22,7 +24,7 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     if len(pts) < k + 1:
         return []
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
-    from scipy.spatial import cKDTree  # here: scipy.spatial is a fifth of a second of every command's start-up
+    cKDTree = ckdtree_class()  # here, not at import: scipy is a tenth of a second of start-up
 
     _, nn = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(pts[::step], k=k)
     nb = pts[nn]
