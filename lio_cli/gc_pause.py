@@ -27,4 +27,16 @@ def cyclic_gc_paused() -> Iterator[None]:
             gc.enable()
 
 
-__all__ = ["cyclic_gc_paused"]
+def freeze_start_up() -> None:
+    """Move every object alive now (modules, classes, functions, schemas: a command's start-up) into the
+    collector's permanent generation, where its passes no longer walk them, and switch it on.
+
+    For a process that runs one command and exits (``cli.app.entry``, which switches the collector off while
+    importing: start-up allocates a few hundred thousand such objects and no garbage). Called again at exit,
+    the interpreter's last full pass skips what the run left (about 0.1 s of ``lio deskew``'s exit); objects
+    that die at exit are still freed by reference counting, as before."""
+    gc.freeze()
+    gc.enable()
+
+
+__all__ = ["cyclic_gc_paused", "freeze_start_up"]

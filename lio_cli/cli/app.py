@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import importlib
 import signal
 import sys
@@ -16,6 +17,7 @@ except ImportError:  # pragma: no cover - depends on the installed typer
 
 from .. import __version__
 from ..errors import LioError
+from ..gc_pause import freeze_start_up
 from .common import err_console
 
 app = typer.Typer(
@@ -32,7 +34,7 @@ app = typer.Typer(
     add_completion=False,
 )
 
-_state = {"debug": False}
+_state = {"debug": False, "own_process": False}
 
 # One module per command; each exposes register(app).
 COMMANDS = ["info", "odom", "calibrate", "deskew", "fuse", "evaluate", "simulate", "batch"]
@@ -102,6 +104,8 @@ def _main_guarded(args: list[str]) -> int:
         register_commands([wanted])
     elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
         register_commands()
+    if _state["own_process"]:
+        freeze_start_up()
     try:
         rc = app(args=args, standalone_mode=False)
     except typer.Exit as ex:
@@ -131,4 +135,11 @@ def _main_guarded(args: list[str]) -> int:
 
 
 def entry() -> None:  # pragma: no cover - console script
-    sys.exit(main())
+    """The ``lio`` process: one command, then exit. The cyclic collector is off while the command's modules
+    load and their objects are frozen out of its passes (``freeze_start_up``), then frozen again before exit
+    so the interpreter's last full pass walks nothing (0.1-0.2 s of ``lio deskew`` on a 30 s log)."""
+    gc.disable()
+    _state["own_process"] = True
+    rc = main()
+    gc.freeze()
+    sys.exit(rc)

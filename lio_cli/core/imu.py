@@ -92,25 +92,10 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     s = state.copy()
     if len(imu) == 0:
         return _hold(s, t_end_ns)
-    inside = (imu.stamps_ns > t0) & (imu.stamps_ns < t_end_ns)
-    times = np.concatenate([[t0], imu.stamps_ns[inside], [t_end_ns]])
-    gyro0, acc0 = interpolate_imu(imu, t0)
-    gyro1, acc1 = interpolate_imu(imu, t_end_ns)
-    gyros = np.vstack([gyro0, imu.gyro_radps[inside], gyro1])
-    accs = np.vstack([acc0, imu.accel_mps2[inside], acc1])
-    gap = bool(np.diff(times).max(initial=0) > max_gap_ns) or imu.stamps_ns[-1] < t_end_ns - max_gap_ns \
-        or imu.stamps_ns[0] > t0 + max_gap_ns
-    w_b = (gyros - s.bg) @ R_bi.T  # base angular rate at each time
+    times, dts, Rs, gap, inside, w_b = _rotations(s.R, s.bg, imu, t0, t_end_ns, R_bi, max_gap_ns)
+    accs = np.vstack([interpolate_imu(imu, t0)[1], imu.accel_mps2[inside], interpolate_imu(imu, t_end_ns)[1]])
     f_b = (accs - s.ba) @ R_bi.T  # specific force at the IMU, base axes
     n = len(times)
-    dts = np.diff(times) * 1e-9
-    # orientation: midpoint rule, a chain of small rotations
-    w_mid = 0.5 * (w_b[1:] + w_b[:-1])
-    steps = so3_exp(w_mid * dts[:, None])
-    Rs = np.empty((n, 3, 3))
-    Rs[0] = s.R
-    for k in range(n - 1):
-        Rs[k + 1] = Rs[k] @ steps[k]
     # acceleration of the base origin in world at every sample (lever arm removed), then trapezoids
     safe_dt = np.where(dts > 0, dts, 1.0)
     alpha = np.vstack([(w_b[1:] - w_b[:-1]) / safe_dt[:, None], np.zeros((1, 3))])
@@ -135,6 +120,40 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     poses[:, :3, :3], poses[:, :3, 3], poses[:, 3, 3] = Rs, p, 1.0
     s.stamp_ns = int(t_end_ns)
     return Propagation(times, poses, s, gap)
+
+
+def gyro_rotations(R0: np.ndarray, gyro_bias: np.ndarray, imu: ImuBatch, t0_ns: int, t_end_ns: int, ext: Extrinsics,
+                   max_gap_ns: int = 50_000_000) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(stamps, R_world_base (M,3,3) at them, gap): the rotations ``propagate`` integrates from ``R0`` at
+    ``t0_ns``, to the bit, without its translation, velocity and covariance (``propagate(..., accel=False)``'s
+    poses' rotations, for a sweep's de-skew). No IMU sample at all is a gap with no rotation."""
+    if len(imu) == 0:
+        return np.array([t0_ns, t_end_ns], dtype=np.int64), np.stack([R0, R0]), True
+    times, _, Rs, gap, _, _ = _rotations(np.asarray(R0, dtype=np.float64), np.asarray(gyro_bias, dtype=np.float64),
+                                         imu, t0_ns, t_end_ns, ext.R_base_imu, max_gap_ns)
+    return times, Rs, gap
+
+
+def _rotations(R0: np.ndarray, bg: np.ndarray, imu: ImuBatch, t0: int, t_end_ns: int, R_bi: np.ndarray,
+               max_gap_ns: int):
+    """(times, their intervals in s, rotations at them, gap, the IMU samples inside, base angular rates) of a
+    propagation."""
+    inside = (imu.stamps_ns > t0) & (imu.stamps_ns < t_end_ns)
+    times = np.concatenate([[t0], imu.stamps_ns[inside], [t_end_ns]])
+    gyros = np.vstack([interpolate_imu(imu, t0)[0], imu.gyro_radps[inside], interpolate_imu(imu, t_end_ns)[0]])
+    gap = bool(np.diff(times).max(initial=0) > max_gap_ns) or imu.stamps_ns[-1] < t_end_ns - max_gap_ns \
+        or imu.stamps_ns[0] > t0 + max_gap_ns
+    w_b = (gyros - bg) @ R_bi.T  # base angular rate at each time
+    n = len(times)
+    dts = np.diff(times) * 1e-9
+    # orientation: midpoint rule, a chain of small rotations
+    w_mid = 0.5 * (w_b[1:] + w_b[:-1])
+    steps = so3_exp(w_mid * dts[:, None])
+    Rs = np.empty((n, 3, 3))
+    Rs[0] = R0
+    for k in range(n - 1):
+        Rs[k + 1] = Rs[k] @ steps[k]
+    return times, dts, Rs, gap, inside, w_b
 
 
 def _flatten_many(Rs: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -223,7 +223,8 @@ class LioOdometry(StateUpdates, Restart):
         rng = row_norms(points)
         keep = (rng >= cfg.registration.min_range_m) & (rng <= cfg.registration.max_range_m)
         self.stats.times_s["deskew"] += time.perf_counter() - tick
-        if keep.sum() < cfg.registration.min_points:
+        kept = int(np.count_nonzero(keep))
+        if kept < cfg.registration.min_points:
             self.stats.skipped_few_points += 1
             return None
         if self._reg is None:
@@ -232,7 +233,7 @@ class LioOdometry(StateUpdates, Restart):
                 fixed = _IMU_PRIOR_CORRESPONDENCE_M
             self._reg = ScanRegistration(cfg.registration, cfg.registration.voxel_size_m or auto_voxel_size(rng[keep]),
                                          imu_prior=self._imu_prior, planar=self.planar, fixed_correspondence_m=fixed)
-        return points[keep]
+        return points if kept == len(points) else points[keep]  # all in range, as most scans: no copy
 
     def _degeneracy(self, points: np.ndarray, R_now: np.ndarray) -> list[np.ndarray]:
         tick = time.perf_counter()

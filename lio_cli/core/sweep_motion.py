@@ -18,7 +18,7 @@ import numpy as np
 from ..geometry import interpolate_poses, so3_exp, so3_log
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
-from .imu import NavState, propagate
+from .imu import gyro_rotations
 from .motion_compensation import deskew
 
 KNOT_STEP_NS = 4_000_000  # poses within a sweep every 4 ms: blending linearly between them is off by < 0.6 mm at 30 m, 3 rad/s
@@ -139,13 +139,9 @@ def gyro_sweep_poses(spline: PoseSpline, imu: ImuBatch, t0_ns: int, t1_ns: int, 
     """(knot stamps, T_world_base at them) over [t0, t1]: rotation integrated from the gyro (bias removed, IMU
     mounting applied), anchored to the spline's rotation at ``t_ref_ns``; translation from the spline.
     None when the IMU does not cover the sweep without a gap."""
-    start = NavState(t0_ns, np.eye(3), np.zeros(3), np.zeros(3), np.asarray(gyro_bias_radps, dtype=np.float64),
-                     np.zeros(3))
-    prop = propagate(start, imu, t1_ns, ext, accel=False)
-    if prop.gap:
+    knots, R_gyro, gap = gyro_rotations(np.eye(3), gyro_bias_radps, imu, t0_ns, t1_ns, ext)
+    if gap:
         return None
-    knots = np.asarray(prop.stamps_ns, dtype=np.int64)
-    R_gyro = prop.poses[:, :3, :3]
     k_ref = int(np.argmin(np.abs(knots - t_ref_ns)))
     R_ref = spline.at(np.array([t_ref_ns]))[0, :3, :3]
     poses = np.zeros((len(knots), 4, 4))
