@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry import so3_exp
+from ..kdtree import ckdtree_class
 from .signals import GyroOrientation
 
 NEIGHBOURS = 10  # map points per local plane
@@ -75,12 +76,10 @@ class PlaneMap:
     """Voxel means of world points, each with the plane of its ``NEIGHBOURS`` nearest (centroid, normal)."""
 
     def __init__(self, world: np.ndarray, voxel_m: float) -> None:
-        from scipy.spatial import cKDTree
-
         self.keys, inv, count = np.unique(_voxel_keys(world, voxel_m), return_inverse=True, return_counts=True)
         self.voxel_m = voxel_m
         pts = np.stack([np.bincount(inv, world[:, d], len(count)) for d in range(3)], axis=1) / count[:, None]
-        self.tree = cKDTree(pts)
+        self.tree = ckdtree_class()(pts)
         _, nn = self.tree.query(pts, k=min(NEIGHBOURS, len(pts)), workers=-1)
         nb = pts[nn]
         self.centroid = nb.mean(axis=1)
