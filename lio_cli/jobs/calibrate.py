@@ -166,7 +166,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                     est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
                 times[f"estimate_{k}"] = time.perf_counter() - t0
                 if mapped:
-                    traj = calibrate_map.map_rounds(traj, lp.sweeps, lp.voxel_m, imu, cfg, est, where, T_ref,
+                    traj, est = calibrate_map.map_rounds(traj, lp.sweeps, lp.voxel_m, imu, cfg, est, where, T_ref,
                                                     prior_offset, times)
             wheel_traj, against = traj, None
             if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():

@@ -55,6 +55,10 @@ class Estimates:
     def skip(self, item: str, reason: str) -> None:
         self.skipped.append(Skipped(item, reason.rstrip(".")))
 
+    def trial(self) -> Estimates:
+        """A copy to estimate on, which can be dropped without touching this one's notes and skipped items."""
+        return replace(self, skipped=list(self.skipped), notes=list(self.notes))
+
 
 def imu_at_rest(imu: ImuBatch, still_ns: tuple[int, int] | None, needed: str | None, est: Estimates,
                 where: str) -> None:
