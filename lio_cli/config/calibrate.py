@@ -62,7 +62,7 @@ class CalibrateConfig(Strict):
         description="gyro-primed odometry passes after the LiDAR-only one, each with the previous estimates and "
         "then the estimates again: the gyro's rotation (through the estimated mounting, clock offset and bias) "
         "primes each scan's registration and de-skews it, while the pose is the registration's own, never fused "
-        "with the IMU (a fused pose would follow the estimates it starts from); all but the last over the first third of the "
+        "with the IMU (a fused pose would follow the estimates it starts from); all but the last over the first quarter of the "
         "log; 0 = the LiDAR-only pass alone")
     map_rounds: int = Field(
         2, ge=0, le=6,

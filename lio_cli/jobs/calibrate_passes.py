@@ -78,7 +78,7 @@ class LidarTrajectory:
 # 2D scans (a LaserScan) register too loosely alone to time the IMU: there the refining passes fuse the IMU,
 # the registration's per-scan position (m) and rotation (rad) sigmas far below odom's, first tighter
 PLANAR_FUSION_SIGMAS = ((0.001, 0.0001), (0.01, 0.001))
-PARTIAL_SPAN = 1 / 3  # a refining pass before the last covers this share of the scans' span (3D scans)...
+PARTIAL_SPAN = 1 / 4  # a refining pass before the last covers this share of the scans' span (3D scans)...
 PARTIAL_MIN_NS = 10_000_000_000  # ...but at least this much of it
 DEGENERACY_EVERY = 5  # scans between analyses of the geometry (odom: 2); a calibration log's scene changes slowly
 

@@ -20,13 +20,13 @@ from lio_cli.simulation.run import simulate
 S = 1_000_000_000
 
 
-def test_passes_before_the_last_cover_a_third_of_the_log_but_at_least_ten_seconds():
-    assert refine_spans(3, planar=False) == [pytest.approx(1 / 3), pytest.approx(1 / 3), 1.0]
+def test_passes_before_the_last_cover_a_quarter_of_the_log_but_at_least_ten_seconds():
+    assert refine_spans(3, planar=False) == [pytest.approx(1 / 4), pytest.approx(1 / 4), 1.0]
     assert refine_spans(0, planar=False) == []
     assert refine_spans(3, planar=True) == [1.0, 1.0]  # 2D scans: the two fused passes, whole log
-    assert pass_until(1 / 3, 0, 60 * S) == 20 * S
-    assert pass_until(1 / 3, 0, 21 * S) == PARTIAL_MIN_NS
-    assert pass_until(1 / 3, 0, 8 * S) is None  # a short log: every pass covers all of it
+    assert pass_until(1 / 4, 0, 60 * S) == 15 * S
+    assert pass_until(1 / 4, 0, 21 * S) == PARTIAL_MIN_NS
+    assert pass_until(1 / 4, 0, 8 * S) is None  # a short log: every pass covers all of it
     assert pass_until(1.0, 0, 60 * S) is None
 
 
