@@ -180,28 +180,38 @@ def bench_allan(root: Path, hours: float, rows: list) -> None:
     os.remove(sim.log_path)
 
 
-def bench_end_to_end(root: Path, duration: float, rows: list) -> None:
-    sim = simulate("handheld", root / "e2e.bag", "ros1", duration_s=duration, seed=600, imu_time_offset_s=-0.03,
-                   imu_rotation_deg=(10.0, -5.0, 30.0), imu_lever_arm_m=(0.1, -0.05, 0.08), tf_static=False, force=True)
-    t = truth(sim)
-    # the LiDAR's place on the base is known (a drawing), the IMU's and its clock are what is calibrated
-    prior = CalibrateConfig(prior=Calibration(T_base_lidar=t["T_base_lidar"]))
-    cpu: list = []
-    r, wall = calibrate(sim.log_path, root / "e2e.calib.yaml", prior, cpu)
-    true_cal = Calibration(T_base_imu=t["T_base_imu"], T_base_lidar=t["T_base_lidar"],
-                           imu_time_offset_s=-t["imu"]["time_offset_s"])
-    ate = {}
-    for name, cal in (("estimated", r.calibration), ("true", true_cal)):
-        cfg = OdomConfig(calibration=Calibration.model_validate(cal.model_dump(exclude_none=True)))
-        res = run_odom(OdomJob(sim.log_path, cfg, str(sim.gt_path)))
-        ate[name] = res.score.ate_trans_rmse_m
-    ts = r.metrics["time_s"]
+def bench_end_to_end(root: Path, duration: float, rows: list, seeds: int = 3) -> None:
+    """Run time on the first log; the odom --calib ATE ratio on each (one log's ratio is a draw: the same
+    odometry moves by 20 % of its ATE when the clock offset it is given changes by a microsecond)."""
+    ratios, first = [], None
+    for s in range(seeds):
+        sim = simulate("handheld", root / f"e2e_{s}.bag", "ros1", duration_s=duration, seed=600 + s,
+                       imu_time_offset_s=-0.03 + 0.02 * s, imu_rotation_deg=(10.0, -5.0, 30.0 + 40 * s),
+                       imu_lever_arm_m=(0.1, -0.05, 0.08), tf_static=False, force=True)
+        t = truth(sim)
+        # the LiDAR's place on the base is known (a drawing), the IMU's and its clock are what is calibrated
+        prior = CalibrateConfig(prior=Calibration(T_base_lidar=t["T_base_lidar"]))
+        cpu: list = []
+        r, wall = calibrate(sim.log_path, root / "e2e.calib.yaml", prior, cpu)
+        if first is None:
+            first = (wall, cpu[0], r.metrics["time_s"])
+        true_cal = Calibration(T_base_imu=t["T_base_imu"], T_base_lidar=t["T_base_lidar"],
+                               imu_time_offset_s=-t["imu"]["time_offset_s"])
+        ate = {}
+        for name, cal in (("estimated", r.calibration), ("true", true_cal)):
+            cfg = OdomConfig(calibration=Calibration.model_validate(cal.model_dump(exclude_none=True)))
+            res = run_odom(OdomJob(sim.log_path, cfg, str(sim.gt_path)))
+            ate[name] = res.score.ate_trans_rmse_m
+        ratios.append((ate["estimated"], ate["true"]))
+        os.remove(sim.log_path)
+    wall, cpu, ts = first
     steps = ", ".join(f"{k} {v:.1f}" for k, v in ts.items() if k != "total")
-    row(rows, f"run time, {duration:.0f} s handheld log", "", f"{wall:.1f} s wall, {cpu[0]:.1f} s CPU ({steps})",
+    row(rows, f"run time, {duration:.0f} s handheld log", "", f"{wall:.1f} s wall, {cpu:.1f} s CPU ({steps})",
         "<= 10 s", wall <= 10)
-    ratio = ate["estimated"] / ate["true"]
-    row(rows, f"odom --calib, {duration:.0f} s handheld, no /tf_static", "estimated vs true",
-        f"ATE {ate['estimated']:.3f} m vs {ate['true']:.3f} m: {ratio:.2f}x", "<= 1.2x", ratio <= 1.2)
+    q = [e / t for e, t in ratios]
+    each = ", ".join(f"{e:.3f}/{t:.3f} m" for e, t in ratios)
+    row(rows, f"odom --calib, {duration:.0f} s handheld, no /tf_static", f"{seeds} logs, estimated vs true",
+        f"ATE ratio median {np.median(q):.2f}x, worst {max(q):.2f}x ({each})", "<= 1.2x", max(q) <= 1.2)
 
 
 def main() -> None:

@@ -155,19 +155,19 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 lp.sweep_voxel = calibrate_map.SWEEP_VOXEL if mapped else None
                 traj, _ = lp.run(_mounting(est, T_ref), until_ns=until, fused_sigmas=fused)
                 times[f"refine_pass_{k}"] = time.perf_counter() - t0
+                if mapped:  # the final estimates, then the map rounds
+                    traj, est = calibrate_map.map_rounds(traj, lp.sweeps, lp.voxel_m, imu, cfg, est, where, T_ref,
+                                                         prior_offset, times)
+                    continue
                 t0 = time.perf_counter()
-                final = last and not mapped
                 try:
-                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=final, prior_offset=prior_offset)
+                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=last, prior_offset=prior_offset)
                 except InputError as err:
-                    if final:
+                    if last:
                         raise
                     # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
                     est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
                 times[f"estimate_{k}"] = time.perf_counter() - t0
-                if mapped:
-                    traj, est = calibrate_map.map_rounds(traj, lp.sweeps, lp.voxel_m, imu, cfg, est, where, T_ref,
-                                                    prior_offset, times)
             wheel_traj, against = traj, None
             if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
                 # The wheels of a 2D scanner whose IMU mounting is partly unknown (its yaw: turns about the

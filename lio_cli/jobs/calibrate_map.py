@@ -43,40 +43,38 @@ def wanted(cfg: CalibrateConfig, planar: bool, scans: int, notes: list[str]) -> 
 def map_rounds(traj: LidarTrajectory, sweeps: dict[int, Sweep], voxel_m: float, imu: ImuBatch, cfg: CalibrateConfig,
                est: steps.Estimates, where: str, T_ref: np.ndarray | None, prior_offset: float | None,
                times: dict[str, float]) -> tuple[LidarTrajectory, steps.Estimates]:
-    """Up to ``cfg.map_rounds`` rounds of map refinement, each followed by the estimators, and the final
-    estimates. ``est``: the estimates on ``traj`` so far (not final). A round is kept only when the LiDAR's
-    rotations then agree better with the gyro's (the hand-eye residual down by ``KEEP_BELOW``); else the rounds
-    stop and the best trajectory so far stands (a car at 10 m/s: its 16-beam scans placed on the map followed
-    its roll only part of the way, and the mounting came out 1.5 deg off where the pass alone gave 0.2)."""
-    best, best_est, kept = traj, est, 0
+    """The final estimates on the last pass's ``traj``, then up to ``cfg.map_rounds`` rounds of map refinement,
+    each followed by the final estimators again; returns the trajectory and estimates kept. ``est``: the
+    estimates of the passes before (their notes carry on). A round is kept only when the LiDAR's rotations then
+    agree better with the gyro's (the hand-eye residual below ``KEEP_BELOW`` of the best so far); else the
+    rounds stop there. Every candidate is estimated alike (final), so a clock offset kept as given on one and
+    estimated on another cannot decide (a car at 10 m/s: its 16-beam scans placed on the map followed its roll
+    only part of the way, and the mounting came out 2 deg off where the pass alone gave 0.08)."""
+    t0 = time.perf_counter()
+    best, best_est, kept = traj, est.trial(), 0
+    steps.extrinsics(best, imu, cfg, best_est, where, T_ref, final=True, prior_offset=prior_offset)
+    times["estimate_final"] = time.perf_counter() - t0
     for k in range(1, cfg.map_rounds + 1):
         t0 = time.perf_counter()
         gyro = GyroOrientation(imu.stamps_ns, imu.gyro_radps, best_est.rotation.gyro_bias_radps)
         poses, moved = refine_poses(best.stamps_ns, best.T_world_lidar, sweeps, gyro,
                                     T_lidar_imu_of(best_est, T_ref)[:3, :3], best_est.offset.imu_time_offset_s,
                                     MAP_VOXEL * voxel_m)
-        how = (f"; then {k} round{'s' if k > 1 else ''} against one map of all its scans (point-to-plane, {moved} of {len(poses)} poses "
-               "moved in the last)")
+        how = (f"; then {k} round{'s' if k > 1 else ''} against one map of all its scans (point-to-plane, {moved} "
+               f"of {len(poses)} poses moved in the last)")
         trial_traj = LidarTrajectory(traj.stamps_ns, poses, traj.scans_used, traj.scans_total, traj.description + how)
         times[f"map_round_{k}"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        trial = best_est.trial()
+        trial = est.trial()
         try:
-            steps.extrinsics(trial_traj, imu, cfg, trial, where, T_ref, final=k == cfg.map_rounds,
-                             prior_offset=prior_offset)
+            steps.extrinsics(trial_traj, imu, cfg, trial, where, T_ref, final=True, prior_offset=prior_offset)
             better = trial.rotation.rms_residual_rad < KEEP_BELOW * best_est.rotation.rms_residual_rad
         except InputError:
             better = False
         times[f"estimate_map_{k}"] = time.perf_counter() - t0
         if not better:
+            best_est.notes.append(f"map round {k} left out: the LiDAR's rotations agreed no better with the gyro's "
+                                  f"after it (the poses are those of {f'round {kept}' if kept else 'the last pass'})")
             break
         best, best_est, kept = trial_traj, trial, k
-    if kept < cfg.map_rounds:
-        best_est.notes.append(f"map round {k} left out: the LiDAR's rotations agreed no better with the gyro's after "
-                              f"it (the poses are those of {f'round {kept}' if kept else 'the last pass'})")
-        t0 = time.perf_counter()
-        final = best_est.trial()
-        steps.extrinsics(best, imu, cfg, final, where, T_ref, final=True, prior_offset=prior_offset)
-        best_est = final
-        times["estimate_final"] = time.perf_counter() - t0
     return best, best_est
