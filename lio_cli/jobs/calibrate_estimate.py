@@ -99,11 +99,13 @@ def allan(imu: ImuBatch, est: Estimates, where: str) -> None:
 
 
 def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: Estimates, where: str,
-               T_ref: np.ndarray | None, final: bool, prior_offset: float | None = None) -> None:
+               T_ref: np.ndarray | None, final: bool, prior_offset: float | None = None,
+               floors: tuple | None = None) -> None:
     """Time offset, rotation and lever arm of the IMU against the LiDAR trajectory. ``final``: the last
     round (its notes and skipped items are the ones reported). ``T_ref``: the reference T_lidar_imu, whose
     translation holds the axes the motion does not show. ``prior_offset``: the clock offset given (--calib,
-    --imu-time-offset), kept (and said so) when the motion cannot time the IMU; without it that is bad input."""
+    --imu-time-offset), kept (and said so) when the motion cannot time the IMU; without it that is bad input.
+    ``floors``: (rotation, lever arm, refined rotation) per-axis 1-sigmas not to report below (``floors_of``)."""
     bias0 = est.static.gyro_bias_radps if est.static is not None else None
     centre_ns = cfg.start_offset_ns  # the search spans +-max_offset_s around it
     try:
@@ -121,15 +123,18 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     try:
         rot = estimate_rotation(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
                                 imu_time_offset_s=off.imu_time_offset_s,
-                                gyro_bias_radps=bias0 if bias0 is not None else off.gyro_bias_radps)
+                                gyro_bias_radps=bias0 if bias0 is not None else off.gyro_bias_radps,
+                                sigma_floor_rad=None if floors is None else floors[0])
     except InputError as err:
         raise InputError(f"{where}: {err}") from err
     est.offset, est.rotation = off, rot
     try:
         est.lever = estimate_lever_arm(
             traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps, imu.accel_mps2,
-            R_lidar_imu=rot.R_lidar_imu, rotation_covariance_rad2=rot.covariance_rad2,
-            imu_time_offset_s=off.imu_time_offset_s, gyro_bias_radps=rot.gyro_bias_radps, t_prior_m=t_prior_lidar_m)
+            R_lidar_imu=rot.R_lidar_imu, rotation_covariance_rad2=rot.fit_covariance_rad2,
+            imu_time_offset_s=off.imu_time_offset_s, gyro_bias_radps=rot.gyro_bias_radps, t_prior_m=t_prior_lidar_m,
+            sigma_floor_m=None if floors is None else floors[1],
+            rotation_sigma_floor_rad=None if floors is None else floors[2])
     except InputError as err:
         est.lever = None
         if final:
@@ -143,6 +148,14 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
             est.skip(_unobservable_item(note), note)
         else:
             est.notes.append(note)
+
+
+def floors_of(est: Estimates) -> tuple:
+    """The 1-sigmas of ``est`` as floors for estimates on a sharper trajectory of the same log whose poses'
+    errors are shared (the map rounds): its values may move, its uncertainty is not claimed smaller."""
+    lever = est.lever
+    return (est.rotation.sigma_rad, None if lever is None else lever.sigma_m,
+            None if lever is None else lever.rotation_sigma_rad)
 
 
 def _kept_offset(bias: np.ndarray | None, offset_s: float, why: str) -> TimeOffset:

@@ -28,6 +28,15 @@ def weak_directions(cov: np.ndarray, max_sigma: float) -> list[tuple[np.ndarray,
     return out
 
 
+def floored(cov: np.ndarray, floor: np.ndarray | None) -> np.ndarray:
+    """``cov`` with each axis' variance raised to ``floor**2`` where it is below (a diagonal added: still a
+    covariance; NaN floors count as none)."""
+    if floor is None:
+        return cov
+    f = np.nan_to_num(np.asarray(floor, np.float64), nan=0.0)
+    return cov + np.diag(np.maximum(f * f - np.diag(cov), 0.0))
+
+
 def per_axis(cov: np.ndarray, max_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """(1-sigma along each frame axis, observable mask: sigma below ``max_sigma``)."""
     s = np.sqrt(np.maximum(np.diag(cov), 0.0))

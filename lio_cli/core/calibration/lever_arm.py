@@ -30,7 +30,7 @@ from scipy.optimize import minimize
 from ...errors import InputError
 from ...geometry import skew, so3_exp
 from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d
-from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
+from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, weak_directions
 from .handeye import interval_pairs, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
@@ -60,12 +60,15 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
                        rotation_covariance_rad2: np.ndarray | None = None, imu_time_offset_s: float = 0.0,
                        gyro_bias_radps: np.ndarray | None = None,
                        t_prior_m: np.ndarray | None = None, prior_sigma_m: float = 1.0,
-                       max_sigma_m: float = 0.05, frame: str = "LiDAR") -> LeverArmCalib:
+                       max_sigma_m: float = 0.05, frame: str = "LiDAR", sigma_floor_m: np.ndarray | None = None,
+                       rotation_sigma_floor_rad: np.ndarray | None = None) -> LeverArmCalib:
     """Lever arm (and, with ``rotation_covariance_rad2``, a refined rotation) from a LiDAR odometry trajectory
     and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock; ``gyro_bias_radps`` as estimate_rotation found
     it). ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not
     show; those (1-sigma above ``max_sigma_m``) are flagged and named in the notes (keep a measured value for
-    them), and InputError when none is shown."""
+    them), and InputError when none is shown. ``sigma_floor_m``, ``rotation_sigma_floor_rad``: per-axis 1-sigmas
+    of the lever arm and the refined rotation not to report below (a trajectory whose poses' errors are shared,
+    which its residuals understate)."""
     ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
     istamps, gyro, accel = check_imu(imu_stamps_ns, gyro_radps, accel_mps2)
     check_overlap(istamps, ls, imu_time_offset_s)
@@ -93,6 +96,9 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
         notes.append(f"{int(bad.sum())} windows left out: their accelerations disagree with the IMU's (bad "
                      f"registrations?)")
     cov = np.linalg.inv(H)
+    cov[:3, :3] = floored(cov[:3, :3], sigma_floor_m)
+    if refine:
+        cov[9:12, 9:12] = floored(cov[9:12, 9:12], rotation_sigma_floor_rad)
     sigma, observable = per_axis(cov[:3, :3], max_sigma_m)
     cov_t = cov[:3, :3]
     _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes)

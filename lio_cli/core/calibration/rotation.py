@@ -28,7 +28,7 @@ from ...errors import InputError
 from ...geometry import skew, so3_exp, so3_log
 from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
                      sandwich_covariance)
-from .excitation import axis_name, dominant_rotation_axis, per_axis, weak_directions
+from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, weak_directions
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
 from .signals import GyroOrientation
 
@@ -60,16 +60,19 @@ class RotationCalib(CalibrationResult):
     rms_residual_rad: float
     notes: tuple[str, ...]
     registration_gain: np.ndarray  # (3,3) symmetric S: the trajectory turns by (I + S) R phi_imu (zero: not modelled)
+    fit_covariance_rad2: np.ndarray  # (3,3) the fit's own, before any floor (what a later fit may lean on)
 
 
 def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, imu_stamps_ns: np.ndarray,
                       gyro_radps: np.ndarray, *, imu_time_offset_s: float = 0.0,
                       gyro_bias_radps: np.ndarray | None = None, window_s: float = 1.0,
                       R_lidar_imu_prior: np.ndarray | None = None, prior_sigma_rad: float = np.radians(10.0),
-                      max_sigma_rad: float = np.radians(1.0), frame: str = "LiDAR") -> RotationCalib:
+                      max_sigma_rad: float = np.radians(1.0), frame: str = "LiDAR",
+                      sigma_floor_rad: np.ndarray | None = None) -> RotationCalib:
     """R_lidar_imu from a LiDAR odometry trajectory and the gyro (IMU stamps + ``imu_time_offset_s`` = LiDAR
     clock). Axes whose 1-sigma exceeds ``max_sigma_rad`` are reported unobservable (with the motion that would
-    show them); when none is observable, InputError."""
+    show them); when none is observable, InputError. ``sigma_floor_rad``: per-axis 1-sigmas not to report
+    below (a trajectory whose poses' errors are shared, which its residuals understate)."""
     ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
     istamps, gyro, _ = check_imu(imu_stamps_ns, gyro_radps)
     check_overlap(istamps, ls, imu_time_offset_s)
@@ -105,8 +108,11 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
             notes.append(f"{int(bad.sum())} windows left out: their rotation disagrees with the gyro's (bad "
                          f"registrations?)")
     cov = fit.covariance(span)
+    fit_cov = cov[:3, :3].copy()
+    cov[:3, :3] = floored(cov[:3, :3], sigma_floor_rad)
     gain = _gauss_newton(R, phi_l[keep], phi_i, dt[keep], noise, R_lidar_imu_prior, prior_sigma_rad, gain=True)
     cov_g = gain.covariance(span)
+    cov_g[:3, :3] = floored(cov_g[:3, :3], sigma_floor_rad)
     S = gain.S[GAIN_ENTRIES]
     z = np.abs(S) / np.sqrt(np.diag(cov_g)[6:])
     # ...unless the motion cannot tell the gain from the mounting (a 2D scanner reports no roll or pitch at all,
@@ -115,6 +121,7 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     identifiable = (per_axis(cov_g[:3, :3], max_sigma_rad)[1] >= observable).all()
     modelled = bool(identifiable and ((np.abs(S) > GAIN_TOL) & (z > GAIN_SIGMAS)).any())
     if modelled:
+        fit_cov = gain.covariance(span)[:3, :3]
         R, bias, cov, fit = gain.R, bias + gain.b, cov_g, gain
         sigma, observable = per_axis(cov[:3, :3], max_sigma_rad)
         w = np.linalg.eigvalsh(gain.S)
@@ -124,7 +131,7 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
     return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:6, 3:6])), int(keep.sum()),
                          float(noise * np.sqrt((fit.r * fit.r).mean())), tuple(notes),
-                         gain.S if modelled else np.zeros((3, 3)))
+                         gain.S if modelled else np.zeros((3, 3)), fit_cov)
 
 
 class _Fit(NamedTuple):

@@ -106,3 +106,15 @@ def test_a_registration_following_part_of_the_sway_is_modelled(seed, monkeypatch
     plain = estimate_rotation(d.lidar_stamps_ns, poses, d.imu.stamps_ns, d.imu.gyro_radps,
                               imu_time_offset_s=d.imu_time_offset_s)
     assert np.abs(_err_deg(plain.R_lidar_imu, d)[:2]).max() > 0.8
+
+
+def test_a_sigma_floor_raises_the_reported_uncertainty_not_the_estimate(handheld):
+    args = (handheld.lidar_stamps_ns, handheld.T_world_lidar, handheld.imu.stamps_ns, handheld.imu.gyro_radps)
+    plain = estimate_rotation(*args, imu_time_offset_s=handheld.imu_time_offset_s)
+    floor = np.radians([0.05, 0.3, 2.0])  # z beyond the 1 deg the fit calls observable
+    r = estimate_rotation(*args, imu_time_offset_s=handheld.imu_time_offset_s, sigma_floor_rad=floor)
+    np.testing.assert_array_equal(r.R_lidar_imu, plain.R_lidar_imu)
+    np.testing.assert_allclose(r.sigma_rad, np.maximum(plain.sigma_rad, floor))
+    assert r.observable.tolist() == [True, True, False]
+    assert any("about the LiDAR z axis is not observable" in n for n in r.notes)
+    np.testing.assert_array_equal(r.fit_covariance_rad2, plain.covariance_rad2)  # what a later fit leans on
