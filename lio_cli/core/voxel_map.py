@@ -11,6 +11,13 @@ _BITS = 21  # per axis: +-2^20 voxels, +-105 km at 0.1 m
 _OFFSET = 1 << (_BITS - 1)
 
 
+def voxel_keys(points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(one int64 per point naming its voxel, whether the voxel is within the key range) for points (N,3)."""
+    ijk = np.floor(points / voxel_m).astype(np.int64) + _OFFSET
+    inside = ((ijk >= 0) & (ijk < (1 << _BITS))).all(axis=1)
+    return (ijk[:, 0] << (2 * _BITS)) | (ijk[:, 1] << _BITS) | ijk[:, 2], inside
+
+
 class VoxelMap:
     def __init__(self, voxel_m: float) -> None:
         if not voxel_m > 0:
@@ -29,11 +36,9 @@ class VoxelMap:
         pts = pts[np.isfinite(pts).all(axis=1)]
         if len(pts) == 0:
             return
-        ijk = np.floor(pts / self.voxel_m).astype(np.int64) + _OFFSET
-        inside = ((ijk >= 0) & (ijk < (1 << _BITS))).all(axis=1)
+        keys, inside = voxel_keys(pts, self.voxel_m)
         self.outside += int(len(pts) - inside.sum())
-        ijk, pts = ijk[inside], pts[inside]
-        keys = (ijk[:, 0] << (2 * _BITS)) | (ijk[:, 1] << _BITS) | ijk[:, 2]
+        keys, pts = keys[inside], pts[inside]
         uniq, first = np.unique(keys, return_index=True)
         seen = self._seen
         fresh = [i for i, k in zip(first.tolist(), uniq.tolist()) if k not in seen]

@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...geometry import so3_exp
+from ...geometry import cross_rows, so3_exp
 from ..kdtree import ckdtree_class
+from ..voxel_map import voxel_keys
 from .signals import GyroOrientation
 
 NEIGHBOURS = 10  # map points per local plane
@@ -41,16 +42,11 @@ class Sweep:
 
 def thin_sweep(points: np.ndarray, stamps_ns: np.ndarray, end_ns: int, voxel_m: float) -> Sweep:
     """One point per ``voxel_m`` cube (the first in firing order), with its time."""
-    _, first = np.unique(_voxel_keys(np.asarray(points, np.float64), voxel_m), return_index=True)
-    first.sort()
+    keys, inside = voxel_keys(np.asarray(points, np.float64), voxel_m)
+    _, first = np.unique(keys[inside], return_index=True)
+    first = np.flatnonzero(inside)[np.sort(first)]
     return Sweep(int(end_ns), np.asarray(points[first], np.float32),
                  ((np.asarray(stamps_ns, np.int64)[first] - int(end_ns)) * 1e-9).astype(np.float32))
-
-
-def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """One int64 per voxel (21 bits per axis: +-1e6 voxels)."""
-    k = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
-    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
 
 
 def _deskewed(sweep: Sweep, gyro: GyroOrientation, R_lidar_imu: np.ndarray, offset_s: float,
@@ -77,7 +73,9 @@ class PlaneMap:
     cost twice the time and gave the same poses)."""
 
     def __init__(self, world: np.ndarray, voxel_m: float) -> None:
-        self.keys, inv, count = np.unique(_voxel_keys(world, voxel_m), return_inverse=True, return_counts=True)
+        keys, inside = voxel_keys(world, voxel_m)
+        world = world[inside]
+        self.keys, inv, count = np.unique(keys[inside], return_inverse=True, return_counts=True)
         self.voxel_m = voxel_m
         pts = np.stack([np.bincount(inv, world[:, d], len(count)) for d in range(3)], axis=1) / count[:, None]
         self.tree = ckdtree_class()(pts)
@@ -95,19 +93,15 @@ class PlaneMap:
         T = T.copy()
         for _ in range(ITERATIONS):
             q = src @ T[:3, :3].T + T[:3, 3]
-            k = _voxel_keys(q, self.voxel_m)  # paired with the plane of the map voxel it falls in
+            k, inside = voxel_keys(q, self.voxel_m)  # paired with the plane of the map voxel it falls in
             nn = np.minimum(np.searchsorted(self.keys, k), len(self.keys) - 1)
-            ok = (self.keys[nn] == k) & self.flat[nn]
+            ok = (self.keys[nn] == k) & self.flat[nn] & inside
             if ok.sum() < MIN_PAIRS:
                 return None
             q, j = q[ok], nn[ok]
             n = self.normal[j]
             r = np.einsum("ni,ni->n", n, q) - self.offset[j]
-            J = np.empty((len(r), 6))  # d r / d(rotation, translation), left perturbation: (q x n, n)
-            J[:, 0] = q[:, 1] * n[:, 2] - q[:, 2] * n[:, 1]
-            J[:, 1] = q[:, 2] * n[:, 0] - q[:, 0] * n[:, 2]
-            J[:, 2] = q[:, 0] * n[:, 1] - q[:, 1] * n[:, 0]
-            J[:, 3:] = n
+            J = np.concatenate([cross_rows(q, n), n], axis=1)  # d r / d(rotation, translation), left perturbation
             scale = 1.4826 * np.median(np.abs(r)) + 1e-4
             w = 1.0 / np.maximum(1.0, np.abs(r) / (2.0 * scale))  # Huber at two robust sigmas
             Jw = J * w[:, None]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...geometry import so3_exp
+from ...geometry import cross_rows, so3_exp
 from .common import NS_PER_S
 
 
@@ -20,15 +20,6 @@ def prefix_products(steps: np.ndarray) -> np.ndarray:
     while k < len(out):
         out[k:] = out[:-k] @ out[k:]
         k *= 2
-    return out
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of (n,3) arrays (np.cross's axis handling costs more than the products)."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     return out
 
 
@@ -54,24 +45,26 @@ class GyroOrientation:
 
     def at(self, t_s: np.ndarray) -> np.ndarray:
         """G at IMU-clock times ``t_s`` (clamped to the samples' span) -> (n,3,3)."""
+        k, phi = self._locate(t_s)
+        return self.G[k] @ so3_exp(phi)
+
+    def _locate(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(sample before each time, the rotation vector from that sample to the time), times clamped."""
         t = np.clip(np.asarray(t_s, np.float64), self.t_s[0], self.t_s[-1])
         k = np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
-        alpha = (t - self.t_s[k]) / (self.t_s[k + 1] - self.t_s[k])
-        return self.G[k] @ so3_exp(self.phi[k] * alpha[:, None])
+        return k, self.phi[k] * ((t - self.t_s[k]) / (self.t_s[k + 1] - self.t_s[k]))[:, None]
 
     def rotate(self, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
         """``G(t) v`` for vectors ``v`` (n,3) at IMU-clock times ``t_s`` (n,), as ``at`` but without forming a
         matrix per vector (Rodrigues on the vectors: many points, few samples)."""
-        t = np.clip(np.asarray(t_s, np.float64), self.t_s[0], self.t_s[-1])
-        k = np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
-        phi = self.phi[k] * ((t - self.t_s[k]) / (self.t_s[k + 1] - self.t_s[k]))[:, None]
+        k, phi = self._locate(t_s)
         theta = np.sqrt(np.einsum("ni,ni->n", phi, phi))
         small = theta < 1e-6
         th = np.where(small, 1.0, theta)
         a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(th) / th)
         b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(th)) / th**2)
-        c = _cross(phi, v)
-        w = v + a[:, None] * c + b[:, None] * _cross(phi, c)
+        c = cross_rows(phi, v)
+        w = v + a[:, None] * c + b[:, None] * cross_rows(phi, c)
         return np.einsum("nij,nj->ni", self.G[k], w)
 
     def increments(self, ta_s: np.ndarray, tb_s: np.ndarray) -> np.ndarray:

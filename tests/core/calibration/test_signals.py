@@ -55,3 +55,12 @@ def test_second_divided_difference_of_a_cubic_is_the_hat_average_of_its_accelera
     t = np.linspace(0.0, 2.0, 2001)
     pl = PiecewiseLinear(t, (6.0 * t)[:, None])
     np.testing.assert_allclose(pl.hat_average(ta, tb, tc)[:, 0], dd, atol=1e-9)
+
+
+def test_rotating_vectors_matches_the_orientation_matrices():
+    rng = np.random.default_rng(1)
+    stamps = np.arange(0, 2_000_000_000, 5_000_000)
+    go = GyroOrientation(stamps, rng.normal(0, 2, (len(stamps), 3)))
+    t = rng.uniform(-0.1, 2.1, 5000)  # some outside the samples: clamped alike
+    v = rng.normal(0, 5, (5000, 3))
+    np.testing.assert_allclose(go.rotate(t, v), np.einsum("nij,nj->ni", go.at(t), v), atol=1e-13)
