@@ -30,7 +30,7 @@ OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format ove
 
 Topics: /points or /scan (frame lidar, header stamp = sweep start unless --header-stamp end, recorded at sweep end), /imu (frame imu), /wheel/odom (odom -> base, not for handheld), /ground_truth (PoseStamped of base in world; --gt-type, --gt-topic), /tf_static (base -> imu, base -> lidar, base -> gps), /gps/fix with --gps. The platform stands still for the first 1.5 s unless --start moving. The same arguments and --seed give the same bytes.
 
-Conditions of real recordings: --start moving (in motion at every sensor's first sample), --imu-rotation (any mounting, e.g. 180,0,90 upside down), --imu-time-offset and --imu-start-delay (IMU clock and driver start order), --header-stamp end, --gt-type odometry (nav_msgs/Odometry ground truth with zero twist), --no-tf-static (no extrinsics in the log), --no-wheel, --gps.
+Conditions of real recordings: --start moving (in motion at every sensor's first sample), --tilt-scale (more or less roll and pitch sway), --imu-rotation (any mounting, e.g. 180,0,90 upside down), --imu-time-offset and --imu-start-delay (IMU clock and driver start order), --header-stamp end, --gt-type odometry (nav_msgs/Odometry ground truth with zero twist), --no-tf-static (no extrinsics in the log), --no-wheel, --gps.
 
 [bold]Examples[/bold]
 
@@ -78,6 +78,7 @@ def simulate_cmd(
     wheel_radius_scale: Annotated[Optional[str], typer.Option("--wheel-radius-scale", metavar="LEFT,RIGHT", help="True wheel radius / nominal, each wheel (default: drawn; applies even with --no-wheel-errors).", show_default=False)] = None,
     wheel_baseline_scale: Annotated[Optional[float], typer.Option("--wheel-baseline-scale", help="True baseline / nominal (default: drawn).", show_default=False)] = None,
     start: Annotated[str, typer.Option("--start", help="still: at rest for 1.5 s, then off; moving: in motion at every sensor's first sample (drive: cruising at 7.5 m/s so the IMU looks still; handheld: walking with full yaw sweeps).")] = "still",
+    tilt_scale: Annotated[float, typer.Option("--tilt-scale", help="Scale the platform's roll and pitch sway (0..5; 0: level; handheld 3: the tilting lio calibrate asks for to see the vertical lever arm, pitch +-14 deg).")] = 1.0,
     imu_rotation: Annotated[Optional[str], typer.Option("--imu-rotation", metavar="ROLL,PITCH,YAW", help="IMU mounting rotation in degrees, R_base_imu = Rz(yaw) Ry(pitch) Rx(roll); 180,0,90 is upside down and yawed (default: the scenario's).", show_default=False)] = None,
     imu_lever_arm: Annotated[Optional[str], typer.Option("--imu-lever-arm", metavar="X,Y,Z", help="IMU origin in base, metres (default: the scenario's).", show_default=False)] = None,
     imu_start_delay: Annotated[float, typer.Option("--imu-start-delay", help="The IMU driver starts this many seconds after the first scan (> 0.1 s: the first scan is also recorded before the first IMU message).")] = 0.0,
@@ -119,7 +120,7 @@ def simulate_cmd(
             accel_bias_mps2=parse_floats(accel_bias, 3, "--accel-bias"),
             gyro_bias_radps=parse_floats(gyro_bias, 3, "--gyro-bias"),
             wheel_radius_scale=parse_floats(wheel_radius_scale, 2, "--wheel-radius-scale"),
-            wheel_baseline_scale=wheel_baseline_scale, start=start,
+            wheel_baseline_scale=wheel_baseline_scale, start=start, tilt_scale=tilt_scale,
             imu_rotation_deg=parse_floats(imu_rotation, 3, "--imu-rotation"),
             imu_lever_arm_m=parse_floats(imu_lever_arm, 3, "--imu-lever-arm"), imu_start_delay_s=imu_start_delay,
             gt_type=gt_type, gt_topic=gt_topic, gt_twist=gt_twist, tf_static=tf_static, wheel=wheel,

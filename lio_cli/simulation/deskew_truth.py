@@ -20,8 +20,9 @@ from .scenarios import build_scenario
 class TrueMotion:
     def __init__(self, truth_path: str | Path) -> None:
         truth = json.loads(Path(truth_path).read_text())
-        start = truth.get("conditions", {}).get("start", "still")
-        self.scenario = build_scenario(truth["scenario"], start=start)
+        conditions = truth.get("conditions", {})
+        self.scenario = build_scenario(truth["scenario"], start=conditions.get("start", "still"),
+                                       tilt_scale=conditions.get("tilt_scale", 1.0))
         self.T_base_lidar = np.asarray(truth["T_base_lidar"], dtype=np.float64)
         self.start_ns = int(truth["start_ns"])
 

@@ -15,6 +15,7 @@ from ..errors import ConfigError
 TIME_CONVENTIONS = ("velodyne", "ouster", "livox", "hesai")
 STARTS = ("still", "moving")
 GT_TYPES = ("pose", "odometry", "none")
+MAX_TILT_SCALE = 5.0  # the handheld's sway then reaches +-26 deg of pitch
 MAX_DURATION_S = 3600.0  # ray-cast scenarios: simulate longer runs in pieces
 MAX_STATIC_DURATION_S = 48 * 3600.0  # the IMU-only static scenario streams; hours are its purpose
 DEFAULT_GPS_ORIGIN = (48.137154, 11.576124, 519.0)  # lat deg, lon deg, ellipsoidal height m
@@ -54,6 +55,7 @@ class SimulationOptions:
     wheel_baseline_scale: float | None = None
     # conditions of real recordings
     start: str = "still"
+    tilt_scale: float = 1.0  # the platform's roll and pitch sway, times this
     imu_rotation_deg: tuple[float, float, float] | None = None
     imu_lever_arm_m: tuple[float, float, float] | None = None
     imu_start_delay_s: float = 0.0
@@ -74,7 +76,7 @@ class SimulationOptions:
 
 
 CONDITION_DEFAULTS = {
-    "start": "still", "imu_rotation_deg": None, "imu_lever_arm_m": None, "imu_start_delay_s": 0.0,
+    "start": "still", "tilt_scale": 1.0, "imu_rotation_deg": None, "imu_lever_arm_m": None, "imu_start_delay_s": 0.0,
     "gt_type": None, "gt_topic": "/ground_truth", "gt_twist": False, "tf_static": True, "wheel": None, "gps": False,
 }
 
@@ -103,7 +105,7 @@ _FLAGS = {"imu_rate_hz": "--imu-rate", "imu_time_offset_s": "--imu-time-offset",
           "accel_bias_walk": "--accel-walk", "gyro_bias_walk": "--gyro-walk", "accel_bias_mps2": "--accel-bias",
           "gyro_bias_radps": "--gyro-bias", "imu_rotation_deg": "--imu-rotation", "imu_lever_arm_m": "--imu-lever-arm",
           "imu_start_delay_s": "--imu-start-delay", "gps_rate_hz": "--gps-rate", "gps_noise_m": "--gps-noise",
-          "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid"}
+          "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid", "tilt_scale": "--tilt-scale"}
 
 
 def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
@@ -154,6 +156,8 @@ def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
 def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
     if opts.start not in STARTS:
         raise ConfigError(f"--start must be still or moving (got '{opts.start}')")
+    if not 0.0 <= opts.tilt_scale <= MAX_TILT_SCALE:
+        raise ConfigError(f"--tilt-scale must be within 0..{MAX_TILT_SCALE:g} (got {opts.tilt_scale})")
     if opts.gt_type is not None and opts.gt_type not in GT_TYPES:
         raise ConfigError(f"--gt-type must be pose, odometry or none (got '{opts.gt_type}')")
     if not (opts.gt_topic.startswith("/") and len(opts.gt_topic) > 1 and " " not in opts.gt_topic):
@@ -184,6 +188,7 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
                       "--dropout": opts.dropout, "--max-range": opts.max_range_m,
                       "--header-stamp": None if opts.header_stamp == "start" else opts.header_stamp,
                       "--imu-start-delay": opts.imu_start_delay_s or None, "--start": None if opts.start == "still" else opts.start,
+                      "--tilt-scale": None if opts.tilt_scale == 1.0 else opts.tilt_scale,
                       "--wheel": opts.wheel or None, "--gps": opts.gps or None}
         used = [flag for flag, v in lidar_only.items() if v is not None]
         if used:

@@ -11,7 +11,7 @@ starts cruising straight at 7.5 m/s with its sway fading in over 3 s, so its IMU
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -239,9 +239,19 @@ def _start_times(start: str, ramp_s: float = 1.5, fade_s: float = 1.5) -> tuple[
     raise KeyError(start)
 
 
-def build_scenario(name: str, beams: int | None = None, columns: int | None = None, start: str = "still") -> Scenario:
+def build_scenario(name: str, beams: int | None = None, columns: int | None = None, start: str = "still",
+                   tilt_scale: float = 1.0) -> Scenario:
     """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``, starting ``start``
-    (still or moving)."""
+    (still or moving), its roll and pitch sway scaled by ``tilt_scale``."""
+    sc = _scenario(name, beams, columns, start)
+    if tilt_scale != 1.0 and sc.trajectory is not None:
+        traj = sc.trajectory
+        traj.roll, traj.pitch = (replace(sig, amps=tuple(tilt_scale * a for a in sig.amps))
+                                 for sig in (traj.roll, traj.pitch))
+    return sc
+
+
+def _scenario(name: str, beams: int | None, columns: int | None, start: str) -> Scenario:
     p_rest, t_rest, rest = _start_times(start)
     if name in ("handheld", "planar"):
         hh, pl = Path2D(HANDHELD_WAYPOINTS), Path2D(PLANAR_WAYPOINTS)

@@ -1,7 +1,7 @@
 """``x.truth.json``: everything true about a simulated run that a tool could estimate or must know.
 
 The keys of runs without any real-log condition are those of earlier versions, value for value, so logs
-made before keep their exact truth files. A run with any condition (``--start moving``, ``--imu-rotation``,
+made before keep their exact truth files. A run with any condition (``--start moving``, ``--tilt-scale``, ``--imu-rotation``,
 ``--gt-type``, ``--imu-start-delay``, ``--no-tf-static``, ``--wheel/--no-wheel``, ``--gps``) and every
 static run add a complete ``conditions`` block; GPS runs add ``gps``, static runs ``allan``.
 """
@@ -83,6 +83,7 @@ def _conditions(sc: Scenario, opts: SimulationOptions, facts: RunFacts) -> dict:
     v_w, R = st.velocity_mps[0], st.R_world_base[0]
     return {
         "start": opts.start,
+        "tilt_scale": opts.tilt_scale,
         "initial_state": {
             "meaning": "the base at start_ns, the first sample of every sensor (world frame unless named)",
             "T_world_base": _matrix(st.poses[0]), "velocity_mps": v_w.tolist(),

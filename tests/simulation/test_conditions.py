@@ -215,6 +215,7 @@ def test_cli_conditions_and_error_model_reach_the_log_and_truth(tmp_path, capsys
     (("--gps-origin", "91,0,0"), "--gps-origin must be LAT,LON,ALT with |lat| < 90, |lon| <= 180, alt -1000..10000 m "
                                  "(got 91.0,0.0,0.0)"),
     (("--accel-walk", "-1"), "--accel-walk must be >= 0 (got -1.0)"),
+    (("--tilt-scale", "6"), "--tilt-scale must be within 0..5 (got 6.0)"),
 ])
 def test_bad_condition_options_exit_2_with_one_line(tmp_path, capsys, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)
@@ -222,3 +223,27 @@ def test_bad_condition_options_exit_2_with_one_line(tmp_path, capsys, monkeypatc
     out, err = capsys.readouterr()
     assert (rc, out, err) == (2, "", f"lio: error: {message}\n")
     assert not any(tmp_path.iterdir())
+
+
+def test_tilt_scale_multiplies_the_roll_and_pitch_sway_and_the_truth_rebuilds_it(tmp_path):
+    """--tilt-scale 3: the ground truth's roll and pitch are 3x those of the same seed's walk, its yaw and path
+    the same; truth.json names the scale and the de-skew truth rebuilt from it gives the logged poses."""
+    from lio_cli.simulation.deskew_truth import TrueMotion
+
+    runs = {k: simulate("handheld", tmp_path / f"w{k}.bag", "ros1", duration_s=4.0, seed=3, tilt_scale=k)
+            for k in (1.0, 3.0)}
+    rpy = {}
+    for k, sim in runs.items():
+        gt = load_trajectory(sim.gt_path)
+        R = gt.poses[:, :3, :3]
+        rpy[k] = np.column_stack([np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(R[:, 2, 0])])
+        if k == 3.0:
+            assert _truth(sim.log_path)["conditions"]["tilt_scale"] == 3.0
+            motion = TrueMotion(sim.truth_path)
+            assert motion.poses(gt.stamps_ns) == pytest.approx(gt.poses, abs=1e-6)
+        else:
+            assert "conditions" not in _truth(sim.log_path)  # the default keeps the historical truth file
+        xy = gt.poses[:, :2, 3]
+    assert np.abs(rpy[1.0]).max() > 0.02  # the walk sways
+    assert rpy[3.0] == pytest.approx(3.0 * rpy[1.0], abs=2e-3)  # roll and pitch small: angles scale too
+    assert load_trajectory(runs[1.0].gt_path).poses[:, :2, 3] == pytest.approx(xy, abs=1e-9)
