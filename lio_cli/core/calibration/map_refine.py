@@ -88,31 +88,61 @@ class PlaneMap:
         self.offset = np.einsum("ni,ni->n", self.normal, self.centroid)  # the plane: n . x = offset
         self.flat = w[:, 0] < FLATNESS * w[:, 1]
 
-    def register(self, src: np.ndarray, T: np.ndarray) -> np.ndarray | None:
-        """T_world_lidar placing ``src`` (LiDAR frame) on the planes, from ``T``; None when it cannot."""
-        T = T.copy()
+    def register(self, srcs: list[np.ndarray], T: np.ndarray) -> np.ndarray:
+        """Each T_world_lidar (n,4,4) placing its source ``srcs[i]`` (LiDAR frame) on the planes, from ``T``; NaN
+        where it cannot (too few pairs, or too large a step). All scans at once, each on its own: per scan,
+        Gauss-Newton with Huber weights at two of its robust residual sigmas."""
+        T = np.array(T, np.float64)
+        n = len(srcs)
+        sid_all = np.repeat(np.arange(n), [len(p) for p in srcs])
+        P_all = np.concatenate(srcs).astype(np.float64)
+        alive = np.ones(n, bool)
         for _ in range(ITERATIONS):
-            q = src @ T[:3, :3].T + T[:3, 3]
+            use = alive[sid_all]
+            sid, P = sid_all[use], P_all[use]
+            q = np.einsum("nij,nj->ni", T[sid, :3, :3], P) + T[sid, :3, 3]
             k, inside = voxel_keys(q, self.voxel_m)  # paired with the plane of the map voxel it falls in
             nn = np.minimum(np.searchsorted(self.keys, k), len(self.keys) - 1)
             ok = (self.keys[nn] == k) & self.flat[nn] & inside
-            if ok.sum() < MIN_PAIRS:
-                return None
-            q, j = q[ok], nn[ok]
-            n = self.normal[j]
-            r = np.einsum("ni,ni->n", n, q) - self.offset[j]
-            J = np.concatenate([cross_rows(q, n), n], axis=1)  # d r / d(rotation, translation), left perturbation
-            scale = 1.4826 * np.median(np.abs(r)) + 1e-4
+            alive &= np.bincount(sid[ok], minlength=n) >= MIN_PAIRS
+            ok &= alive[sid]
+            if not ok.any():
+                break
+            q, j, sid = q[ok], nn[ok], sid[ok]
+            nrm = self.normal[j]
+            r = np.einsum("ni,ni->n", nrm, q) - self.offset[j]
+            J = np.concatenate([cross_rows(q, nrm), nrm], axis=1)  # d r / d(rotation, translation), left perturbation
+            scale = 1.4826 * _group_medians(np.abs(r), sid, n)[sid] + 1e-4
             w = 1.0 / np.maximum(1.0, np.abs(r) / (2.0 * scale))  # Huber at two robust sigmas
             Jw = J * w[:, None]
-            step = -np.linalg.solve(Jw.T @ J + 1e-9 * np.eye(6), Jw.T @ r)
-            if np.linalg.norm(step[:3]) > MAX_STEP_RAD or np.linalg.norm(step[3:]) > MAX_STEP_M:
-                return None
-            dT = np.eye(4)
-            dT[:3, :3] = so3_exp(step[:3])
-            dT[:3, 3] = step[3:]
-            T = dT @ T
+            H = np.empty((n, 6, 6))
+            for a in range(6):
+                for b in range(a + 1):
+                    H[:, a, b] = H[:, b, a] = np.bincount(sid, Jw[:, a] * J[:, b], minlength=n)
+            g = np.stack([np.bincount(sid, Jw[:, a] * r, minlength=n) for a in range(6)], axis=1)
+            idx = np.flatnonzero(alive)
+            step = -np.linalg.solve(H[idx] + 1e-9 * np.eye(6), g[idx][:, :, None])[:, :, 0]
+            big = (np.linalg.norm(step[:, :3], axis=1) > MAX_STEP_RAD) | (np.linalg.norm(step[:, 3:], axis=1) > MAX_STEP_M)
+            alive[idx[big]] = False
+            idx, step = idx[~big], step[~big]
+            dT = np.tile(np.eye(4), (len(idx), 1, 1))
+            dT[:, :3, :3] = so3_exp(step[:, :3])
+            dT[:, :3, 3] = step[:, 3:]
+            T[idx] = dT @ T[idx]
+        T[~alive] = np.nan
         return T
+
+
+def _group_medians(x: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """Median of ``x`` within each of ``n`` groups (``group`` sorted ascending; empty groups: NaN)."""
+    count = np.bincount(group, minlength=n)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    rows = np.full((n, max(int(count.max()), 1)), np.inf)
+    rows[group, np.arange(len(x)) - start[group]] = x
+    rows.sort(axis=1)
+    lo, hi = np.maximum((count - 1) // 2, 0), np.maximum(count // 2, 0)
+    ar = np.arange(n)
+    return np.where(count > 0, 0.5 * (rows[ar, lo] + rows[ar, hi]), np.nan)
 
 
 def refine_poses(stamps_ns: np.ndarray, T_world_lidar: np.ndarray, sweeps: dict[int, Sweep], gyro: GyroOrientation,
@@ -127,10 +157,7 @@ def refine_poses(stamps_ns: np.ndarray, T_world_lidar: np.ndarray, sweeps: dict[
     src = {k: _deskewed(sweeps[int(stamps_ns[k])], gyro, R_lidar_imu, imu_time_offset_s, v[k]) for k in idx}
     world = np.concatenate([src[k] @ poses[k, :3, :3].T + poses[k, :3, 3] for k in idx])
     planes = PlaneMap(world, map_voxel_m)
-    moved = 0
-    for k in idx:
-        T = planes.register(src[k][::SOURCE_STRIDE], poses[k])
-        if T is not None:
-            poses[k] = T
-            moved += 1
-    return poses, moved
+    T = planes.register([src[k][::SOURCE_STRIDE] for k in idx], poses[idx])
+    moved = np.isfinite(T[:, 0, 0])
+    poses[np.asarray(idx)[moved]] = T[moved]
+    return poses, int(moved.sum())
