@@ -63,9 +63,10 @@ class CalibrateConfig(Strict):
         "then the estimates again: the gyro's rotation (through the estimated mounting, clock offset and bias) "
         "primes each scan's registration and de-skews it, while the pose is the registration's own, never fused "
         "with the IMU (a fused pose would follow the estimates it starts from); all but the last over the first quarter of the "
-        "log; 0 = the LiDAR-only pass alone")
+        "log; 0 = the LiDAR-only pass alone (over the whole log; before refining passes it covers the first half, at "
+        "least 20 s)")
     map_rounds: int = Field(
-        2, ge=0, le=6,
+        3, ge=0, le=6,
         description="after the last pass, rounds that register each of its scans point-to-plane against one map of "
         "all of them (de-skewed with the gyro through the estimates so far), the estimates taken again after each: "
         "a sparse scanner's roll and pitch scatter shrinks to about a third; 3D scans and logs up to 3000 scans "

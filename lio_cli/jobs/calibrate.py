@@ -31,9 +31,10 @@ from ..io.topics import choose_topic
 from ..model.calibration import Calibration
 from . import calibrate_estimate as steps
 from . import calibrate_map
-from .calibrate_passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, pass_until, read_imu,
-                               refine_spans)
-from .calibrate_report import T_lidar_imu_of, compose, reference_T_lidar_imu, rotation_observable, table
+from .calibrate_passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
+                               read_imu, refine_spans)
+from .calibrate_report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
+                               rotation_observable, table)
 from .odom_inputs import BASE_FRAME_NAMES
 from .outputs import beside, json_text
 
@@ -107,7 +108,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         base = cfg.input.base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
         still_s = None if cfg.still is None else parse_still(cfg.still)
         t0 = time.perf_counter()
-        T_base_lidar = lidar_source = None
+        T_base_lidar = lidar_source = first_ns = None
         dropped = 0
         if lidar is None:
             imu = read_imu(reader, imu_topic)
@@ -124,7 +125,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             spans = refine_spans(cfg.refine_passes, planar)
             counter = PassProgress(progress, n * (1 + len(spans)))  # until the passes' stretches are known
             topics = {"lidar": lidar, "imu": imu_topic, "wheel": wheel}
-            traj, arrays = LidarPass(reader, cfg, topics, planar, counter).run(gather=True)
+            first_ns = first_span_ns(len(spans), planar, reader.duration_ns)
+            traj, arrays = LidarPass(reader, cfg, topics, planar, counter).run(gather=True, span_ns=first_ns)
             times["lidar_pass"] = time.perf_counter() - t0
             imu = arrays.imu
             if imu is None:
@@ -143,7 +145,22 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             untils = [pass_until(span, s0, s1) for span in spans]
             counter.plan(sum(n if u is None else n * (u - s0) / max(s1 - s0, 1) for u in untils))
             traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
-            steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
+            try:
+                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
+            except InputError:
+                if first_ns is None:
+                    raise
+                est.notes.append(f"the LiDAR-only pass registered all of the log: its first {first_ns * 1e-9:.0f} s "
+                                 "showed too little motion to seed the estimates")
+                times["estimate_part"] = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                counter.plan(counter.total - counter.done + n)
+                traj, _ = LidarPass(reader, cfg, {"lidar": lidar}, planar, counter).run()
+                times["lidar_pass_all"] = time.perf_counter() - t0
+                first_ns = None
+                t0 = time.perf_counter()
+                traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
+                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
             times["estimate"] = time.perf_counter() - t0
             imu_topics = {"lidar": lidar, "imu": imu_topic}
             for k, until in enumerate(untils, start=1):
@@ -182,6 +199,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 against = ("wheel scales measured against a gyro-primed pass (not fused with the IMU): the IMU's "
                            "mounting is not fully known (give T_base_imu with --calib, or /tf_static, to use the "
                            "fused one)")
+            est.notes.extend(imprecision_notes(est, traj.T_world_lidar))
             steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
         if cfg.allan:
             t0 = time.perf_counter()
@@ -202,6 +220,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         "topics": {"lidar": lidar, "imu": imu_topic, "wheel": wheel}, "base_frame": base,
         "T_base_lidar_from": lidar_source, "reference": ref_name,
         "lidar_trajectory": None if traj is None else traj.description,
+        "lidar_only_pass": None if traj is None else "all scans" if first_ns is None else
+        f"the scans of the first {first_ns * 1e-9:g} s",
         "lidar_only_scans_left_out": dropped,
         "conventions": {"T_base_imu": "maps IMU points into the base frame",
                         "imu_time_offset_s": "added to IMU stamps to put them on the LiDAR's clock"},

@@ -80,6 +80,8 @@ class LidarTrajectory:
 PLANAR_FUSION_SIGMAS = ((0.001, 0.0001), (0.01, 0.001))
 PARTIAL_SPAN = 1 / 4  # a refining pass before the last covers this share of the scans' span (3D scans)...
 PARTIAL_MIN_NS = 10_000_000_000  # ...but at least this much of it
+FIRST_SPAN = 1 / 2  # the LiDAR-only pass, when refining passes follow (3D scans), registers this share...
+FIRST_MIN_NS = 20_000_000_000  # ...but at least this much (all of the log when that is not less)
 DEGENERACY_EVERY = 5  # scans between analyses of the geometry (odom: 2); a calibration log's scene changes slowly
 
 
@@ -91,6 +93,15 @@ def refine_spans(passes: int, planar: bool) -> list[float]:
     if planar:
         return [1.0] * min(passes, len(PLANAR_FUSION_SIGMAS))
     return [1.0 if k == passes else PARTIAL_SPAN for k in range(1, passes + 1)]
+
+
+def first_span_ns(passes: int, planar: bool, duration_ns: int) -> int | None:
+    """How much of the log (from its first scan) the LiDAR-only pass registers; None: all of it. It only seeds
+    the gyro-primed passes (the last of which registers everything and gives the final estimates), and its
+    registration, unprimed through the motion, is the slowest of the passes: half a long log seeds them as well.
+    2D scans, and a LiDAR-only pass that is the last, register all."""
+    span = max(int(FIRST_SPAN * duration_ns), FIRST_MIN_NS)
+    return None if planar or passes < 1 or span >= duration_ns else span
 
 
 def pass_until(span: float, first_ns: int, last_ns: int) -> int | None:
@@ -133,11 +144,12 @@ class LidarPass:
         self.voxel_m: float | None = None  # the odometry's map voxel
 
     def run(self, imu_mounting: tuple[np.ndarray, float, np.ndarray | None] | None = None,
-            gather: bool = False, until_ns: int | None = None,
+            gather: bool = False, until_ns: int | None = None, span_ns: int | None = None,
             fused_sigmas: tuple[float, float] | None = None) -> tuple[LidarTrajectory, SensorArrays]:
         """``imu_mounting`` = (T_lidar_imu, imu_time_offset_s, gyro_bias) for a gyro-primed pass, None for LiDAR
         only; with ``fused_sigmas`` (one of ``PLANAR_FUSION_SIGMAS``) IMU-primed and fused instead. ``gather``:
-        also collect the IMU and wheel arrays. ``until_ns``: stop at the first scan stamped after it."""
+        also collect the IMU and wheel arrays (of the whole log, whatever the scans registered). ``until_ns``:
+        register no scan stamped after it; ``span_ns``: none ending more than this after the first scan's end."""
         cfg = self.cfg
         with_imu = imu_mounting is not None
         fused = fused_sigmas if with_imu else None
@@ -168,8 +180,13 @@ class LidarPass:
                 elif rec.kind == "wheel":
                     wheel.append(rec.data)
                 elif rec.kind == "lidar":
+                    if span_ns is not None and until_ns is None:
+                        until_ns = int(rec.data.end_ns) + span_ns
                     if until_ns is not None and rec.data.end_ns > until_ns:
-                        break
+                        if not gather:
+                            break
+                        arrays.scans += 1
+                        continue
                     arrays.scans += 1
                     if odo is None:
                         arrays.lidar_frame = rec.data.frame_id

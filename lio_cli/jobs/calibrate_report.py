@@ -10,12 +10,16 @@ import numpy as np
 
 from ..geometry import inv_pose, make_pose, so3_exp, so3_log
 from ..model.calibration import ARBITRARY_SIGMA_RAD, Calibration, ImuNoiseCalibration, WheelCalibration
+from ..core.calibration.excitation import dominant_rotation_axis
+from ..core.calibration.handeye import lidar_increments
 from .calibrate_estimate import Estimates
 
 AXES = ("x", "y", "z")
 MAX_ACCEL_BIAS_SIGMA_MPS2 = 0.05  # a vaguer 3-axis bias is not written (odom would start from it)
 REFERENCE_AGREES_SIGMAS = 3.0
 MAX_ROTATION_SIGMA_RAD = np.radians(1.0)  # the rotation estimator's own threshold of an observable axis
+PRECISE_ROTATION_RAD = np.radians(0.2)  # an observable axis with a larger 1-sigma gets a note saying how to move
+PRECISE_TRANSLATION_M = 0.02
 
 
 def rotation_observable(est: Estimates) -> np.ndarray:
@@ -47,6 +51,37 @@ def T_lidar_imu_of(est: Estimates, T_ref: np.ndarray | None) -> np.ndarray | Non
         d[~obs & agree] = 0.0
         R = so3_exp(d) @ T_ref[:3, :3]
     return make_pose(R, t)
+
+
+def imprecision_notes(est: Estimates, T_world_lidar: np.ndarray) -> list[str]:
+    """A note for each axis the motion showed, but not to the precision a LiDAR-IMU pipeline wants
+    (``PRECISE_ROTATION_RAD``, ``PRECISE_TRANSLATION_M``), with what would show it better: turning about other
+    axes than the one the platform mostly turned about (a walk's yaw sweeps show the mounting's rotation about
+    the vertical and the vertical lever arm only through its small roll and pitch), else a longer recording."""
+    if est.rotation is None:
+        return []
+    axis, share = dominant_rotation_axis(lidar_increments(T_world_lidar, *_consecutive(len(T_world_lidar))))
+    notes = []
+
+    def add(what: str, k: int, sigma: str) -> None:
+        if share > 0.8 and abs(axis[k]) > 0.9:
+            how = (f"the platform turned mostly about that axis ({100 * share:.0f}% of its rotation): tilt and roll the "
+                   f"sensor (+-10-20 deg) while recording (a vehicle: drive over ramps and bumps)")
+        else:
+            how = "record longer (a minute or more) or turn the sensor more briskly about the other axes"
+        notes.append(f"{what} the LiDAR {AXES[k]} axis is measured to 1-sigma {sigma} only: {how}")
+
+    rot_sigma = np.sqrt(np.diag(rotation_cov_lidar(est)))
+    for k in np.flatnonzero(rotation_observable(est) & (rot_sigma > PRECISE_ROTATION_RAD)):
+        add("the mounting's rotation about", k, f"{np.degrees(rot_sigma[k]):.2f} deg")
+    if est.lever is not None:
+        for k in np.flatnonzero(est.lever.observable & (est.lever.sigma_m > PRECISE_TRANSLATION_M)):
+            add("the lever arm along", k, f"{100 * est.lever.sigma_m[k]:.1f} cm")
+    return notes
+
+
+def _consecutive(n: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.arange(n - 1), np.arange(1, n)
 
 
 def rotation_cov_lidar(est: Estimates) -> np.ndarray:

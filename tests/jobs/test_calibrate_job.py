@@ -94,14 +94,37 @@ def test_a_handheld_bag_without_tf_static_gives_offset_rotation_and_lever_arm(wa
 def test_the_last_pass_is_refined_against_one_map_unless_the_log_is_too_long(walks, bag_run, tmp_path, monkeypatch):
     from lio_cli.jobs import calibrate_map
 
-    assert "then 2 rounds against one map of all its scans" in bag_run.metrics["lidar_trajectory"]
-    assert [k for k in bag_run.metrics["time_s"] if k.startswith("map_round")] == ["map_round_1", "map_round_2"]
+    assert "then 3 rounds against one map of all its scans" in bag_run.metrics["lidar_trajectory"]
+    assert [k for k in bag_run.metrics["time_s"] if k.startswith("map_round")] == ["map_round_1", "map_round_2",
+                                                                                   "map_round_3"]
     _, bag, _ = walks
     monkeypatch.setattr(calibrate_map, "MAX_SWEEPS", 50)
     r = run_calibrate(CalibrateJob(bag.log_path, tmp_path / "c.yaml"))
     assert "rounds" not in r.metrics["lidar_trajectory"]
     assert ("no map rounds: 80 scans, more than 50 (memory and time); the poses are the odometry pass's, whose roll "
             "and pitch scatter more (a few minutes of motion calibrate best)") in r.notes
+
+
+def test_a_lidar_only_pass_over_part_of_the_log_seeds_the_same_calibration(walks, bag_run, tmp_path, monkeypatch):
+    """The 8 s walk stands in for a long log: its LiDAR-only pass registers the first 5 s, and the estimates
+    still come within the tolerances; a first stretch that only stands still falls back to all scans."""
+    from lio_cli.jobs import calibrate_passes
+
+    assert bag_run.metrics["lidar_only_pass"] == "all scans"  # 8 s: less than the 20 s it would cover
+    _, bag, _ = walks
+    t = truth(bag)
+    monkeypatch.setattr(calibrate_passes, "FIRST_MIN_NS", 5_000_000_000)
+    r = run_calibrate(CalibrateJob(bag.log_path, tmp_path / "c.yaml"))
+    assert r.metrics["lidar_only_pass"] == "the scans of the first 5 s"
+    assert abs(1e3 * (r.calibration.imu_time_offset_s + t["imu"]["time_offset_s"])) < OFFSET_TOL_MS
+    _check_mounting(r.calibration.matrix("T_base_imu"), T_lidar_imu(t))
+    monkeypatch.setattr(calibrate_passes, "FIRST_SPAN", 0.1)
+    monkeypatch.setattr(calibrate_passes, "FIRST_MIN_NS", 1_000_000_000)  # the platform is at rest for 1.5 s
+    r = run_calibrate(CalibrateJob(bag.log_path, tmp_path / "c.yaml", force=True))
+    assert "the LiDAR-only pass registered all of the log: its first 1 s showed too little motion to seed the " \
+           "estimates" in r.notes
+    assert r.metrics["lidar_only_pass"] == "all scans" and "lidar_pass_all" in r.metrics["time_s"]
+    _check_mounting(r.calibration.matrix("T_base_imu"), T_lidar_imu(t))
 
 
 def test_what_the_walk_cannot_show_is_skipped_with_the_reason(bag_run):

@@ -14,7 +14,7 @@ from lio_cli.core.calibration import estimate_rotation
 from lio_cli.geometry import inv_pose, so3_exp, so3_log
 from lio_cli.io.reader import open_log
 from lio_cli.io.stream import read_imu
-from lio_cli.jobs.calibrate_passes import PARTIAL_MIN_NS, LidarPass, pass_until, refine_spans
+from lio_cli.jobs.calibrate_passes import FIRST_MIN_NS, PARTIAL_MIN_NS, LidarPass, first_span_ns, pass_until, refine_spans
 from lio_cli.simulation.run import simulate
 
 S = 1_000_000_000
@@ -28,6 +28,25 @@ def test_passes_before_the_last_cover_a_quarter_of_the_log_but_at_least_ten_seco
     assert pass_until(1 / 4, 0, 21 * S) == PARTIAL_MIN_NS
     assert pass_until(1 / 4, 0, 8 * S) is None  # a short log: every pass covers all of it
     assert pass_until(1.0, 0, 60 * S) is None
+
+
+def test_the_lidar_only_pass_registers_half_a_long_log_but_at_least_twenty_seconds():
+    assert first_span_ns(3, planar=False, duration_ns=60 * S) == 30 * S
+    assert first_span_ns(3, planar=False, duration_ns=30 * S) == FIRST_MIN_NS == 20 * S
+    assert first_span_ns(3, planar=False, duration_ns=20 * S) is None  # not less than the log: all of it
+    assert first_span_ns(0, planar=False, duration_ns=60 * S) is None  # it gives the final estimates itself
+    assert first_span_ns(3, planar=True, duration_ns=60 * S) is None  # 2D scans: every pass registers all
+
+
+def test_a_lidar_only_pass_gathering_the_sensors_registers_only_its_span_but_reads_all_the_imu(walk):
+    with open_log(walk.log_path, None) as reader:
+        imu = read_imu(reader, "/imu")
+        n = reader.topics["/points"].count
+        lp = LidarPass(reader, CalibrateConfig(), {"lidar": "/points", "imu": "/imu"}, planar=False)
+        traj, arrays = lp.run(gather=True, span_ns=5 * S)
+    assert arrays.scans == n and len(arrays.imu) == len(imu)
+    assert 49 <= lp.done <= 51 and len(traj.stamps_ns) == lp.done  # 5 s of 10 Hz scans after the first
+    assert traj.stamps_ns[-1] - traj.stamps_ns[0] <= 5 * S  # the last scan ends at most 5 s after the first
 
 
 @pytest.fixture(scope="module")
