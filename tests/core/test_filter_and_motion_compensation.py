@@ -126,3 +126,22 @@ def test_corridor_is_degenerate_along_its_axis_and_room_is_not():
     assert len(dirs) == 1
     assert abs(dirs[0][0]) > 0.99
     assert degenerate_directions(_room(rng), planar=False, ratio=0.05) == []
+
+
+def test_the_degeneracy_analysis_thins_any_scan_over_8192_points_to_at_most_that(monkeypatch):
+    """A 16-beam x 1024 scan (16191 points in range) was analysed whole, at twice the cost of a 16384-point one;
+    every n-th point now keeps each scan at 8192 or fewer, and the corridor is still found."""
+    from lio_cli.core import degeneracy
+
+    built = []
+    real = degeneracy.ckdtree_class()
+    monkeypatch.setattr(degeneracy, "ckdtree_class", lambda: lambda pts, **kw: built.append(len(pts)) or real(pts, **kw))
+    rng = np.random.default_rng(5)
+    for n in (8192, 8193, 16191, 16384, 40000):
+        x = rng.uniform(-20, 20, n)
+        side = rng.integers(0, 4, n)
+        y = np.where(side == 0, -1.5, np.where(side == 1, 1.5, rng.uniform(-1.5, 1.5, n)))
+        z = np.where(side == 2, 0.0, np.where(side == 3, 2.5, rng.uniform(0, 2.5, n)))
+        dirs = degenerate_directions(np.column_stack([x, y, z]), planar=False, ratio=0.05)
+        assert len(dirs) == 1 and abs(dirs[0][0]) > 0.99
+    assert built == [8192, 4097, 8096, 8192, 8000]
