@@ -27,6 +27,9 @@ from .calibrate_passes import LidarTrajectory, SensorArrays
 
 FINAL_MAX_SIGMA_S = 0.002  # a clock offset known worse than this is refused (too little motion)
 COARSE_MAX_SIGMA_S = 0.03  # the first estimates only start the gyro-primed passes
+# ...and so does their rotation: an unprimed pass over brisk tilting motion scatters too much for the final 1 deg,
+# while a mounting within a few degrees primes the next pass's de-skew well enough to sharpen it
+COARSE_MAX_ROTATION_SIGMA_RAD = np.radians(5.0)
 CHECK_WINDOW_SCANS = 20  # about 2 s at 10 Hz
 CHECK_REL_TOL = 0.25
 CHECK_ABS_TOL_DEG = 5.0
@@ -124,7 +127,8 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
         rot = estimate_rotation(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
                                 imu_time_offset_s=off.imu_time_offset_s,
                                 gyro_bias_radps=bias0 if bias0 is not None else off.gyro_bias_radps,
-                                sigma_floor_rad=None if floors is None else floors[0])
+                                sigma_floor_rad=None if floors is None else floors[0],
+                                **({} if final else {"max_sigma_rad": COARSE_MAX_ROTATION_SIGMA_RAD}))
     except InputError as err:
         raise InputError(f"{where}: {err}") from err
     est.offset, est.rotation = off, rot
