@@ -128,7 +128,7 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
                                 imu_time_offset_s=off.imu_time_offset_s,
                                 gyro_bias_radps=bias0 if bias0 is not None else off.gyro_bias_radps,
                                 sigma_floor_rad=None if floors is None else floors[0],
-                                **({} if final else {"max_sigma_rad": COARSE_MAX_ROTATION_SIGMA_RAD}))
+                                refuse_sigma_rad=None if final else COARSE_MAX_ROTATION_SIGMA_RAD)
     except InputError as err:
         raise InputError(f"{where}: {err}") from err
     est.offset, est.rotation = off, rot

@@ -68,10 +68,11 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
                       gyro_bias_radps: np.ndarray | None = None, window_s: float = 1.0,
                       R_lidar_imu_prior: np.ndarray | None = None, prior_sigma_rad: float = np.radians(10.0),
                       max_sigma_rad: float = np.radians(1.0), frame: str = "LiDAR",
-                      sigma_floor_rad: np.ndarray | None = None) -> RotationCalib:
+                      sigma_floor_rad: np.ndarray | None = None, refuse_sigma_rad: float | None = None) -> RotationCalib:
     """R_lidar_imu from a LiDAR odometry trajectory and the gyro (IMU stamps + ``imu_time_offset_s`` = LiDAR
     clock). Axes whose 1-sigma exceeds ``max_sigma_rad`` are reported unobservable (with the motion that would
-    show them); when none is observable, InputError. ``sigma_floor_rad``: per-axis 1-sigmas not to report
+    show them); when every axis exceeds ``refuse_sigma_rad`` (default ``max_sigma_rad``), InputError: a first
+    estimate that only seeds sharper passes may be vaguer. ``sigma_floor_rad``: per-axis 1-sigmas not to report
     below (a trajectory whose poses' errors are shared, which its residuals understate)."""
     ls, poses = check_trajectory(lidar_stamps_ns, T_world_lidar)
     istamps, gyro, _ = check_imu(imu_stamps_ns, gyro_radps)
@@ -128,7 +129,8 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
         notes.append(f"the {frame} trajectory turns by {100 * (1 + w[0]):.0f}% to {100 * (1 + w[-1]):.0f}% of the "
                      f"gyro's rotation, depending on the axis (LiDAR-only registration following a fraction of slow "
                      f"roll and pitch sways?): modelled, the mounting is estimated from the rest")
-    _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None)
+    _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None,
+             max(refuse_sigma_rad or 0.0, max_sigma_rad))
     return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:6, 3:6])), int(keep.sum()),
                          float(noise * np.sqrt((fit.r * fit.r).mean())), tuple(notes),
                          gain.S if modelled else np.zeros((3, 3)), fit_cov)
@@ -185,10 +187,10 @@ def _gauss_newton(R: np.ndarray, phi_l: np.ndarray, phi_i: np.ndarray, dt: np.nd
 
 
 def _explain(cov: np.ndarray, phi_l: np.ndarray, max_sigma_rad: float, frame: str, notes: list[str],
-             has_prior: bool) -> None:
+             has_prior: bool, refuse_sigma_rad: float) -> None:
     weak = weak_directions(cov, max_sigma_rad)
     axis, share = dominant_rotation_axis(phi_l)
-    if len(weak) == 3:
+    if len(weak_directions(cov, refuse_sigma_rad)) == 3:
         raise InputError(f"too little rotation to estimate the {frame}-IMU rotation (1-sigma {np.degrees(weak[-1][1]):.1f} "
                          f"deg or worse on every axis): rotate the sensor about all three axes (yaw, pitch and roll "
                          f"sweeps of +-30 deg)")
