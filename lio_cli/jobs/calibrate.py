@@ -141,7 +141,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
-            s0, s1 = int(traj.stamps_ns[0]), int(traj.stamps_ns[-1])
+            # the refining passes' stretches are shares of the whole log, also when the first pass covered part
+            s0, s1 = int(traj.stamps_ns[0]), max(int(traj.stamps_ns[-1]), arrays.last_scan_end_ns or 0)
             untils = [pass_until(span, s0, s1) for span in spans]
             counter.plan(sum(n if u is None else n * (u - s0) / max(s1 - s0, 1) for u in untils))
             traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)

@@ -44,6 +44,7 @@ class SensorArrays:
     wheel_angular_radps: np.ndarray = field(default_factory=lambda: np.zeros(0))
     lidar_frame: str = ""
     scans: int = 0
+    last_scan_end_ns: int | None = None  # of every scan read, registered or not
 
     @property
     def has_wheels(self) -> bool:
@@ -180,6 +181,7 @@ class LidarPass:
                 elif rec.kind == "wheel":
                     wheel.append(rec.data)
                 elif rec.kind == "lidar":
+                    arrays.last_scan_end_ns = int(rec.data.end_ns)
                     if span_ns is not None and until_ns is None:
                         until_ns = int(rec.data.end_ns) + span_ns
                     if until_ns is not None and rec.data.end_ns > until_ns:
