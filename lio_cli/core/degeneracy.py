@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .kdtree import ckdtree_class
@@ -20,7 +22,7 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     angles, so z is weakly constrained in almost every scan and is better left to the registration.
     """
     dims = 2 if planar else 3
-    pts = points[:: -(-len(points) // _DEGENERACY_MAX_POINTS) or 1, :dims]  # denser clouds: every n-th point
+    pts = points[:: max(1, math.ceil(len(points) / _DEGENERACY_MAX_POINTS)), :dims]  # denser: every n-th point
     if len(pts) < k + 1:
         return []
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample

@@ -145,24 +145,22 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             s0, s1 = int(traj.stamps_ns[0]), max(int(traj.stamps_ns[-1]), arrays.last_scan_end_ns or 0)
             untils = [pass_until(span, s0, s1) for span in spans]
             counter.plan(sum(n if u is None else n * (u - s0) / max(s1 - s0, 1) for u in untils))
-            traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
-            try:
-                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
-            except InputError:
-                if first_ns is None:
-                    raise
+            while True:  # the first estimates; from all scans when the first part of the log cannot seed them
+                traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
+                try:
+                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
+                    break
+                except InputError:
+                    if first_ns is None:
+                        raise
                 est.notes.append(f"the LiDAR-only pass registered all of the log: its first {first_ns * 1e-9:.0f} s "
                                  "showed too little motion to seed the estimates")
-                times["estimate_part"] = time.perf_counter() - t0
-                t0 = time.perf_counter()
                 counter.plan(counter.total - counter.done + n)
+                t_all = time.perf_counter()
                 traj, _ = LidarPass(reader, cfg, {"lidar": lidar}, planar, counter).run()
-                times["lidar_pass_all"] = time.perf_counter() - t0
+                times["lidar_pass_all"] = time.perf_counter() - t_all
                 first_ns = None
-                t0 = time.perf_counter()
-                traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
-                steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
-            times["estimate"] = time.perf_counter() - t0
+            times["estimate"] = time.perf_counter() - t0 - times.get("lidar_pass_all", 0.0)
             imu_topics = {"lidar": lidar, "imu": imu_topic}
             for k, until in enumerate(untils, start=1):
                 t0 = time.perf_counter()

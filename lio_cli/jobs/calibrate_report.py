@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.calibration.excitation import dominant_rotation_axis, turned_mostly_about
+from ..core.calibration.handeye import lidar_increments
 from ..geometry import inv_pose, make_pose, so3_exp, so3_log
 from ..model.calibration import ARBITRARY_SIGMA_RAD, Calibration, ImuNoiseCalibration, WheelCalibration
-from ..core.calibration.excitation import dominant_rotation_axis
-from ..core.calibration.handeye import lidar_increments
 from .calibrate_estimate import Estimates
 
 AXES = ("x", "y", "z")
@@ -60,11 +60,12 @@ def imprecision_notes(est: Estimates, T_world_lidar: np.ndarray) -> list[str]:
     the vertical and the vertical lever arm only through its small roll and pitch), else a longer recording."""
     if est.rotation is None:
         return []
-    axis, share = dominant_rotation_axis(lidar_increments(T_world_lidar, *_consecutive(len(T_world_lidar))))
+    step = np.arange(len(T_world_lidar) - 1)
+    axis, share = dominant_rotation_axis(lidar_increments(T_world_lidar, step, step + 1))
     notes = []
 
     def add(what: str, k: int, sigma: str) -> None:
-        if share > 0.8 and abs(axis[k]) > 0.9:
+        if turned_mostly_about(np.eye(3)[k], axis, share):
             how = (f"the platform turned mostly about that axis ({100 * share:.0f}% of its rotation): tilt and roll the "
                    f"sensor (+-10-20 deg) while recording (a vehicle: drive over ramps and bumps)")
         else:
@@ -78,10 +79,6 @@ def imprecision_notes(est: Estimates, T_world_lidar: np.ndarray) -> list[str]:
         for k in np.flatnonzero(est.lever.observable & (est.lever.sigma_m > PRECISE_TRANSLATION_M)):
             add("the lever arm along", k, f"{100 * est.lever.sigma_m[k]:.1f} cm")
     return notes
-
-
-def _consecutive(n: int) -> tuple[np.ndarray, np.ndarray]:
-    return np.arange(n - 1), np.arange(1, n)
 
 
 def rotation_cov_lidar(est: Estimates) -> np.ndarray:

@@ -43,6 +43,12 @@ def per_axis(cov: np.ndarray, max_sigma: float) -> tuple[np.ndarray, np.ndarray]
     return s, s <= max_sigma
 
 
+def turned_mostly_about(v: np.ndarray, axis: np.ndarray, share: float) -> bool:
+    """Whether a platform whose rotation was ``share`` about ``axis`` (``dominant_rotation_axis``) turned
+    mostly about the direction ``v``: what hides the mounting's rotation about it and the lever arm along it."""
+    return abs(float(np.asarray(v, np.float64) @ axis)) > 0.9 and share > 0.9
+
+
 def dominant_rotation_axis(phi: np.ndarray) -> tuple[np.ndarray, float]:
     """(unit axis, share of the rotation about it) of rotation increments (n,3): 1.0 means one axis only."""
     M = phi.T @ phi

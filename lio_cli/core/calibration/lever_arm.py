@@ -30,7 +30,7 @@ from scipy.optimize import minimize
 from ...errors import InputError
 from ...geometry import skew, so3_exp
 from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d
-from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, weak_directions
+from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, turned_mostly_about, weak_directions
 from .handeye import interval_pairs, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
@@ -233,6 +233,6 @@ def _explain(cov: np.ndarray, phi: np.ndarray, max_sigma_m: float, frame: str, n
     axis, share = dominant_rotation_axis(phi)
     for v, s in weak:
         why = ("the platform turned only about that axis, as a ground vehicle turning about the vertical does"
-               if abs(float(v @ axis)) > 0.9 and share > 0.9 else "the motion barely turned about the other axes")
+               if turned_mostly_about(v, axis, share) else "the motion barely turned about the other axes")
         notes.append(f"the lever arm along {axis_name(v, frame)} is not observable (1-sigma {100 * s:.0f} cm; keep a "
                      f"measured value for it): {why}; tilt or roll the sensor while moving, or measure that component")

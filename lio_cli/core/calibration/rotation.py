@@ -28,7 +28,7 @@ from ...errors import InputError
 from ...geometry import skew, so3_exp, so3_log
 from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
                      sandwich_covariance)
-from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, weak_directions
+from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, turned_mostly_about, weak_directions
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
 from .signals import GyroOrientation
 
@@ -129,8 +129,8 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
         notes.append(f"the {frame} trajectory turns by {100 * (1 + w[0]):.0f}% to {100 * (1 + w[-1]):.0f}% of the "
                      f"gyro's rotation, depending on the axis (LiDAR-only registration following a fraction of slow "
                      f"roll and pitch sways?): modelled, the mounting is estimated from the rest")
-    _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None,
-             max(refuse_sigma_rad or 0.0, max_sigma_rad))
+    refuse = max_sigma_rad if refuse_sigma_rad is None else max(refuse_sigma_rad, max_sigma_rad)
+    _explain(cov[:3, :3], phi_l[keep], max_sigma_rad, frame, notes, R_lidar_imu_prior is not None, refuse)
     return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:6, 3:6])), int(keep.sum()),
                          float(noise * np.sqrt((fit.r * fit.r).mean())), tuple(notes),
                          gain.S if modelled else np.zeros((3, 3)), fit_cov)
@@ -197,7 +197,7 @@ def _explain(cov: np.ndarray, phi_l: np.ndarray, max_sigma_rad: float, frame: st
     kept = "stays at the prior" if has_prior else "is arbitrary"
     for v, s in weak:
         about = axis_name(v, frame)
-        if abs(float(v @ axis)) > 0.9 and share > 0.9:
+        if turned_mostly_about(v, axis, share):
             why = (f"the platform turned only about that axis ({100 * share:.0f}% of its rotation), as a ground "
                    f"vehicle turning about the vertical does")
         else:
