@@ -8,12 +8,12 @@ loads back into the same model.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import yaml
 import math
 
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, field_validator
 
 from ..errors import ConfigError
 from ..model.calibration import Calibration
@@ -38,16 +38,19 @@ class Strict(BaseModel):
     """Base of every config model: unknown keys are errors, not silently ignored."""
 
     model_config = ConfigDict(extra="forbid")
+    # fields whose size is their own range's business, not MAX_MAGNITUDE's (a clock offset between an epoch clock
+    # and one counting from boot is 1.6e9 s)
+    unbounded_fields: ClassVar[frozenset[str]] = frozenset()
 
     @field_validator("*", mode="after")
     @classmethod
-    def _finite(cls, value: Any) -> Any:
+    def _finite(cls, value: Any, info: ValidationInfo) -> Any:
         """Every number is finite and of a physical size: NaN, inf or 1e300 in a config is a typo, not a setting
         (they would overflow stamps or turn the filter's covariance to NaN)."""
         for v in _numbers(value):
             if not math.isfinite(v):
                 raise ValueError(f"must be a finite number, got {v}")
-            if abs(v) > MAX_MAGNITUDE:
+            if abs(v) > MAX_MAGNITUDE and info.field_name not in cls.unbounded_fields:
                 raise ValueError(f"{v:g} is out of range (|value| <= {MAX_MAGNITUDE:g})")
         return value
 

@@ -13,7 +13,7 @@ from typing import Optional
 
 from pydantic import Field, field_validator
 
-from ..model.calibration import Calibration
+from ..model.calibration import MAX_CLOCK_OFFSET_S, Calibration
 from . import Strict
 from .odom import InputConfig, RegistrationConfig
 
@@ -47,8 +47,9 @@ class CalibrateConfig(Strict):
     input: InputConfig = InputConfig()
     prior: Calibration = Field(Calibration(), description="a calibration to compare with (--calib); its "
                                "T_base_lidar is used where /tf_static is silent")
+    unbounded_fields = frozenset({"imu_time_offset_s"})
     imu_time_offset_s: Optional[float] = Field(
-        None, ge=-5.0, le=5.0,
+        None, ge=-MAX_CLOCK_OFFSET_S, le=MAX_CLOCK_OFFSET_S,  # as --calib's: an IMU on another clock (epoch) too
         description="the IMU clock offset where the motion cannot time the IMU (a vehicle that does not swing its "
         "sensor), kept instead of stopping; default: prior's when --calib gives one")
     still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "

@@ -87,3 +87,18 @@ def test_calibration_values_load(tmp_path):
     cal = load_calibration(path)
     assert cal.imu_time_offset_s == 0.002 and cal.imu_time_offset_ns == 2_000_000
     assert cal.matrix("T_base_imu")[0, 3] == 0.1 and cal.matrix("T_base_lidar") is None
+
+
+def test_calibrate_takes_the_clock_offset_its_clock_check_suggests_even_between_epoch_and_boot_clocks():
+    """An Ouster driver stamps its IMU from boot and its clouds from the epoch: the clock check's suggestion,
+    --imu-time-offset 1588073416.120, was refused by calibrate's size limit (1e9) though --calib takes it.
+    The clock offset alone is bounded by what int64 stamps hold; every other number keeps the limit."""
+    from lio_cli.config.calibrate import CalibrateConfig
+
+    assert CalibrateConfig(imu_time_offset_s=1588073416.120).start_offset_ns == 1588073416120000000
+    with pytest.raises(ValueError, match="less than or equal to 4000000000"):
+        CalibrateConfig(imu_time_offset_s=5e9)
+    with pytest.raises(ValueError, match=r"max_offset_s\n.*less than or equal to 5"):
+        CalibrateConfig(max_offset_s=2e9)
+    with pytest.raises(ValueError, match=r"1e\+10 is out of range \(\|value\| <= 1e\+09\)"):
+        CalibrateConfig(wheel_radius_m=1e10)
