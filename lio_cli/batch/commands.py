@@ -84,7 +84,8 @@ def run_command(command: str, log: Path, config: BaseModel, gt: str | None, fold
         return run_calibrate(CalibrateJob(log, folder / f"{STEMS['calibrate']}.yaml", config)).metrics
     from ..jobs.deskew import DeskewJob, run_deskew
 
-    return run_deskew(DeskewJob(log, _deskew_out(folder, log, config), config)).metrics
+    # a batch already keeps every core busy with one log each: no second process per log
+    return run_deskew(DeskewJob(log, _deskew_out(folder, log, config), config, helper=False)).metrics
 
 
 def key_metrics(command: str, metrics: dict) -> dict[str, Any]:

@@ -157,6 +157,17 @@ class LioOdometry(StateUpdates, Restart):
     def imu_mode(self) -> bool:
         return self.state is not None
 
+    @property
+    def imu_shift_ns(self) -> int:
+        """What the online clock tracker has added to the IMU stamps so far (beyond the calibration's offset)."""
+        return self._shift_ns
+
+    @property
+    def settled(self) -> int:
+        """How many leading poses can no longer change: all but the start-up window's, which are replaced
+        when the IMU state starts from them."""
+        return self._window[0].out_index if self._window else len(self.poses)
+
     def _imu_window(self, t0_ns: int) -> ImuBatch:
         """IMU samples from just before ``t0_ns`` on; older batches are dropped (bounded memory).
 

@@ -18,17 +18,16 @@ import yaml
 
 from ..config import dump_model, with_overrides
 from ..config.deskew import DeskewConfig
-from ..core.voxel_map import VoxelMap
 from ..io.detect import input_paths
 from ..io.files import atomic_output, check_writable
-from ..io.log_copy import LogCopy, mcap_profile
-from ..io.map_files import check_map_suffix, write_point_map
+from ..io.map_files import check_map_suffix
 from ..io.reader import LogReader, open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
-from ..io.writer import LogWriter
-from .deskew_motion import Motion, Progress, RecordFeed, odometry_motion, resolve_motion, trajectory_motion
-from .deskew_scan import ScanPlan, ScanWriter, plan_scans
+from .deskew_helper import Helper
+from .deskew_motion import Progress, resolve_motion, run_odometry, settled_motion, trajectory_motion
+from .deskew_scan import plan_scans
+from .deskew_write import write_pass
 from .odom_inputs import Mounting
 from .outputs import beside, json_text
 
@@ -42,6 +41,7 @@ class DeskewJob:
     config: DeskewConfig = field(default_factory=DeskewConfig)
     map: Path | None = None
     force: bool = False
+    helper: bool = True  # write beside the odometry in a second process (when there are two cores)
 
 
 @dataclass
@@ -101,20 +101,23 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
         mounting = Mounting.of(read_static_frames(reader), cfg.calibration, cfg.input.base_frame, notes)
         T_base_lidar = mounting.resolve("T_base_lidar", plan.frame_id)
         n_scans = reader.topics[lidar].count
-        passes = 1 if source == "trajectory" else 2
         t_motion = time.perf_counter()
         if source == "trajectory":
-            motion = trajectory_motion(cfg, T_base_lidar)
+            motion, description, details = trajectory_motion(cfg, T_base_lidar)
+            t_motion = time.perf_counter() - t_motion
+            try:
+                stats = write_pass(job, reader, fmt, plan, motion, progress, 0, n_scans)
+            finally:
+                motion.close()
+            writing = "after the motion was read"
         else:
-            odo_progress = None if progress is None else (lambda done, total: progress(done, passes * n_scans))
-            motion = odometry_motion(job.log, cfg, source, imu_topic, mounting, T_base_lidar, odo_progress, reader)
-            notes.extend(n for n in motion.details.pop("notes") if n not in notes)
-        t_motion = time.perf_counter() - t_motion
-        try:
-            stats = _write(job, reader, fmt, plan, motion, progress, (passes - 1) * n_scans, passes * n_scans)
-        finally:
-            motion.close()
+            setup = (job, fmt, plan, source, imu_topic, mounting, T_base_lidar)
+            helper = Helper.start() if job.helper else None
+            stats, odo, t_motion, mounting, writing = _from_odometry(helper, reader, setup, progress, n_scans)
+            description, details = odo.description, odo.details
+            notes.extend(n for n in [*odo.notes, *mounting.notes] if n not in notes)
     wall = time.perf_counter() - t_wall
+    gaps = stats.pop("imu_gap_scans")
     notes = list(dict.fromkeys(notes))  # the odometry and this run resolve the same extrinsics
     resolved = with_overrides(cfg, {
         "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
@@ -124,8 +127,9 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
     metrics = {
         "command": "deskew", "log": str(job.log), "format": reader.format, "output": str(job.out),
         "output_format": fmt, "lidar_topic": lidar, "output_topic": plan.out_topic,
-        "motion": {"source": source, "description": motion.description, **motion.details,
-                   **({"imu_topic": imu_topic, "imu_gap_scans": motion.imu_gap_scans} if source == "imu" else {})},
+        "motion": {"source": source, "description": description, **details,
+                   **({"imu_topic": imu_topic, "imu_gap_scans": gaps} if source == "imu" else {})},
+        "writing": writing,
         "reference": f"scan {cfg.reference}: each cloud is in the sensor frame at its {'last' if cfg.reference == 'end' else 'first'} "
                      "valid point's instant, which is its new header stamp",
         "point_time": plan.describe(), "extrinsics": mounting.describe(), **stats,
@@ -141,46 +145,49 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
     return DeskewResult(job.out, fmt, resolved, metrics, notes)
 
 
-def _write(job: DeskewJob, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion, progress: Progress | None,
-           done0: int, total: int) -> dict:
-    """The writing pass: every record copied or, on the LiDAR topic, de-skewed; returns the pass's statistics."""
-    cfg = job.config
-    voxels = VoxelMap(cfg.map_voxel_m) if job.map is not None else None
-    t0 = time.perf_counter()
-    with LogWriter(job.out, fmt, force=job.force, mcap_profile=mcap_profile(reader)) as w:
-        copy = LogCopy(reader, w)
-        scans = ScanWriter(reader, w, copy, plan, motion, cfg, voxels)
-        for conn in reader.connections:  # output connections in the input's order
-            if conn.topic != plan.topic or cfg.topic_suffix:
-                copy.output(conn)
-            if conn.topic == plan.topic:
-                scans.output(conn)
-        done = done0
-        records = reader.records()
-        if motion.imu is not None:  # one read of the log: the IMU window reads ahead through the same records
-            records = RecordFeed(reader, motion.imu.topic)
-            motion.imu.attach(records)
-        for rec in records:
-            if rec.connection.topic != plan.topic:
-                copy.copy(rec)
-                continue
-            if cfg.topic_suffix:
-                copy.copy(rec)
-            scans.write(rec)
-            done += 1
-            if progress is not None:
-                progress(done, total)
-    t_map = time.perf_counter()
-    if voxels is not None:
-        write_point_map(job.map, voxels.points(), job.force)
-    t_map = time.perf_counter() - t_map
-    stats = scans.summary()
-    stats["copied_topics"] = {"as_stored": copy.copied, "converted": copy.converted}
-    if voxels is not None:
-        stats["map"] = {"path": str(job.map), "points": len(voxels), "voxel_m": voxels.voxel_m,
-                        "frame": "the motion source's world frame"}
-    stats["time_s"] = {"write_pass": round(time.perf_counter() - t0, 4), **scans.times(), "map": round(t_map, 4)}
-    return stats
+def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progress: Progress | None,
+                   n_scans: int) -> tuple:
+    """The odometry, and the writing pass over its settled poses: beside it in the helper process when there
+    is one, else after it. After it too when the clock offset the odometry measured by its end asks for every
+    scan to be written with that offset (see ``PoseFeed``): the helper's files are then discarded."""
+    job, fmt, plan, source, imu_topic, mounting, T_base_lidar = setup
+    t_motion = time.perf_counter()
+    poses: list = []
+    odo_progress = None
+
+    def sink(batch: list) -> None:
+        poses.append(batch)
+        if helper is not None:
+            helper.send("poses", batch)
+
+    if progress is not None:
+        written = (lambda: helper.written) if helper is not None else (lambda: 0)
+        odo_progress = lambda done, total: progress(done + written(), 2 * n_scans)  # noqa: E731
+    try:
+        if helper is not None:
+            helper.send("setup", setup)
+        odo = run_odometry(job.log, job.config, source, odo_progress, reader, sink)
+    except BaseException:
+        if helper is not None:
+            helper.abort()
+        raise
+    t_motion = time.perf_counter() - t_motion
+    if helper is not None and odo.final_offset_ns is None:
+        stats, mounting = helper.finish(odo.level, None if progress is None else
+                                        (lambda written: progress(n_scans + written, 2 * n_scans)))
+        return stats, odo, t_motion, mounting, "beside the odometry, in a second process"
+    writing = "after the odometry"
+    if helper is not None:
+        helper.abort()
+        writing += (" (the clock offset it measured by its end differs from what it applied online: every scan "
+                    "is written with the final one)")
+    motion = settled_motion(job.log, job.config, source, imu_topic, mounting, T_base_lidar, iter(poses),
+                            odo.final_offset_ns)
+    try:
+        stats = write_pass(job, reader, fmt, plan, motion, progress, n_scans, 2 * n_scans, lambda: odo.level)
+    finally:
+        motion.close()
+    return stats, odo, t_motion, mounting, writing
 
 
 __all__ = ["DeskewJob", "DeskewResult", "check_deskew_outputs", "output_format", "run_deskew", "sidecars"]

@@ -3,11 +3,11 @@
 Three sources, each ending in a ``PoseSpline`` of the base:
 - ``trajectory``: a trajectory file or topic (``--trajectory``, e.g. lio odom's), interpolated (cubic by
   default); a sweep it does not cover (beyond 1 ms of slack at its ends) is reported, not extrapolated;
-- ``imu``: lio's IMU-primed odometry run in-process (a first pass over the log) gives the corrected pose at
-  every scan's end, the gyro bias and the IMU clock offset (the calibration's plus what it measured by its
-  last scan); within each sweep the rotation is integrated from the gyro and the translation follows the
-  cubic through the scan poses (extrapolated by at most one scan interval at the log's ends, which is how the
-  first scan is covered);
+- ``imu``: lio's IMU-primed odometry (a first pass over the log, in this process or beside the writing pass:
+  ``deskew_helper``) gives the corrected pose at every scan's end with the gyro bias and IMU clock offset it
+  stood on there (``PoseFeed``); within each sweep the rotation is integrated from the gyro with them and the
+  translation follows the cubic through the scan poses (extrapolated by at most one scan interval at the
+  log's ends, which is how the first scan is covered);
 - ``constant-velocity``: the same odometry LiDAR-only (constant-velocity prior and deskew), its scan poses
   interpolated as a trajectory is.
 The writing pass reads the log once (``RecordFeed``): the IMU window (``ImuWindow``) reads ahead of the record
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,8 @@ from ..io.stream import SensorStream
 from ..io.topics import choose_topic
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
-from .odom import OdomJob, run_odom
+from .deskew_poses import OFFSET_AGREE_NS, PoseFeed
+from .odom import OdomJob, SettledPose, run_odom
 from .odom_inputs import Mounting
 
 _IMU_MARGIN_NS = 50_000_000  # IMU kept around a sweep for interpolation at its ends
@@ -107,15 +108,15 @@ class RecordFeed:
 
 class ImuWindow:
     """IMU samples around the sweep being written: read ahead through the writing pass's ``RecordFeed``
-    (``attach``), else through a second reader of the same log."""
+    (``attach``), else through a second reader of the same log. Held on the IMU's own clock; ``covering``
+    moves them by the offset of the sweep asked for."""
 
-    def __init__(self, log: Path, fmt: str | None, topic: str, offset_ns: int) -> None:
+    def __init__(self, log: Path, fmt: str | None, topic: str) -> None:
         self.log, self.fmt, self.topic = log, fmt, topic
         self.reader: LogReader | None = None
         self._stream: Iterator | None = None
         self._imu = ImuBatch("", np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))  # samples held
         self._done = False
-        self.offset_ns = offset_ns
 
     def attach(self, feed: RecordFeed) -> None:
         """Read the IMU from ``feed`` (before the first ``covering``)."""
@@ -127,8 +128,10 @@ class ImuWindow:
             self._stream = iter(SensorStream(self.reader, {"imu": self.topic}, strict=False))
         return next(self._stream, None)
 
-    def covering(self, t0_ns: int, t1_ns: int) -> ImuBatch:
-        """The samples from ``t0_ns`` to ``t1_ns`` and a margin around; older ones are let go."""
+    def covering(self, t0_ns: int, t1_ns: int, offset_ns: int) -> ImuBatch:
+        """The samples from ``t0_ns`` to ``t1_ns`` (LiDAR clock; IMU stamps + ``offset_ns``) and a margin
+        around, on the LiDAR's clock; older ones are let go."""
+        t0_ns, t1_ns = t0_ns - offset_ns, t1_ns - offset_ns  # on the IMU's clock
         imu = self._imu
         fresh: list[ImuBatch] = []
         while not self._done:
@@ -139,8 +142,7 @@ class ImuWindow:
             if rec is None:
                 self._done = True
                 break
-            b: ImuBatch = rec.data
-            fresh.append(ImuBatch(b.frame_id, b.stamps_ns + self.offset_ns, b.gyro_radps, b.accel_mps2))
+            fresh.append(rec.data)
         lo = int(np.searchsorted(imu.stamps_ns, t0_ns - _IMU_MARGIN_NS))
         if fresh or lo:  # new samples joined, old ones let go (a batch holds about two seconds)
             kept = ImuBatch(imu.frame_id, imu.stamps_ns[lo:], imu.gyro_radps[lo:], imu.accel_mps2[lo:])
@@ -148,7 +150,7 @@ class ImuWindow:
             if fresh and not imu.frame_id:
                 imu.frame_id = fresh[0].frame_id
         hi = int(np.searchsorted(imu.stamps_ns, t1_ns + _IMU_MARGIN_NS, side="right"))
-        return ImuBatch(imu.frame_id, imu.stamps_ns[:hi], imu.gyro_radps[:hi], imu.accel_mps2[:hi])
+        return ImuBatch(imu.frame_id, imu.stamps_ns[:hi] + offset_ns, imu.gyro_radps[:hi], imu.accel_mps2[:hi])
 
     def close(self) -> None:
         if self.reader is not None:
@@ -157,43 +159,53 @@ class ImuWindow:
 
 @dataclass
 class Motion:
-    """The base's motion from one source; ``sweep`` gives its poses over one scan."""
+    """The base's motion from one source; ``sweep`` gives its poses over one scan. ``spline``: the whole
+    trajectory (trajectory source), else ``feed``: the odometry's poses as they settle."""
 
     source: str
-    description: str
-    spline: PoseSpline
     T_base_lidar: np.ndarray
-    details: dict = field(default_factory=dict)  # for metrics: where it came from, the odometry's summary
+    spline: PoseSpline | None = None
+    feed: PoseFeed | None = None
     imu: ImuWindow | None = None
-    gyro_bias_radps: np.ndarray | None = None
     mounting: Mounting | None = None
     imu_gap_scans: int = 0  # imu source: sweeps without IMU, interpolated from the scan poses instead
     _ext: Extrinsics | None = None
 
+    def span(self) -> tuple[int, int]:
+        """(first, last) instant of the poses, for messages."""
+        if self.spline is not None:
+            return self.spline.first_ns, self.spline.last_ns
+        return self.feed.first_ns or 0, self.feed.last_ns or 0
+
     def sweep(self, t0_ns: int, t1_ns: int, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray] | str:
         """(knot stamps, T_world_base at them) over [t0, t1], or why the motion does not cover it."""
-        why = self.spline.uncovered(t0_ns, t1_ns)
+        spline = self.spline if self.spline is not None else self.feed.spline(t0_ns, t1_ns)
+        if isinstance(spline, str):
+            return spline
+        why = spline.uncovered(t0_ns, t1_ns)
         if why is not None:
             return why
         if self.imu is not None:
-            imu = self.imu.covering(t0_ns, t1_ns)
+            bias, offset_ns = self.feed.imu_state(t_ref_ns)
+            imu = self.imu.covering(t0_ns, t1_ns, offset_ns)
             if len(imu):
                 if self._ext is None:  # the IMU's extrinsic by its frame id, at its first samples
                     self._ext = Extrinsics(self.mounting.resolve("T_base_imu", imu.frame_id), self.T_base_lidar)
-                got = gyro_sweep_poses(self.spline, imu, t0_ns, t1_ns, t_ref_ns, self._ext, self.gyro_bias_radps)
+                got = gyro_sweep_poses(spline, imu, t0_ns, t1_ns, t_ref_ns, self._ext, bias)
                 if got is not None:
                     return got
             self.imu_gap_scans += 1
         knots = sweep_knots(t0_ns, t1_ns)
-        return knots, self.spline.at(knots)
+        return knots, spline.at(knots)
 
     def close(self) -> None:
         if self.imu is not None:
             self.imu.close()
 
 
-def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> Motion:
-    """The motion of a trajectory file or topic (of the base, or of the LiDAR with ``trajectory.frame``)."""
+def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> tuple[Motion, str, dict]:
+    """The motion of a trajectory file or topic (of the base, or of the LiDAR with ``trajectory.frame``), its
+    description and details."""
     tc = cfg.trajectory
     traj = load_trajectory(tc.path)
     if traj.position_only:
@@ -202,39 +214,73 @@ def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> Motion:
     spline = PoseSpline(traj.stamps_ns, poses, cubic=tc.interpolation == "cubic", extrapolate_ns=_TRAJECTORY_SLACK_NS,
                         max_gap_ns=int(round(tc.max_gap_s * 1e9)))
     span = (traj.stamps_ns[-1] - traj.stamps_ns[0]) * 1e-9
-    return Motion("trajectory", f"trajectory {tc.path} ({len(traj)} poses of the {tc.frame} over {span:.1f} s, "
-                  f"{tc.interpolation} interpolation)", spline, T_base_lidar,
-                  {"trajectory": tc.path, "poses": len(traj), "frame": tc.frame, "interpolation": tc.interpolation})
+    return (Motion("trajectory", T_base_lidar, spline=spline),
+            f"trajectory {tc.path} ({len(traj)} poses of the {tc.frame} over {span:.1f} s, {tc.interpolation} "
+            "interpolation)",
+            {"trajectory": tc.path, "poses": len(traj), "frame": tc.frame, "interpolation": tc.interpolation})
 
 
-def odometry_motion(log: Path, cfg: DeskewConfig, source: str, imu_topic: str | None, mounting: Mounting,
-                    T_base_lidar: np.ndarray, progress: Progress | None, reader: LogReader | None = None) -> Motion:
-    """The motion of lio's odometry run in-process (IMU-primed for ``imu``, LiDAR-only for constant-velocity);
-    ``reader``: the log already open."""
-    result = run_odom(OdomJob(log, cfg.odom_config(source)), progress=progress, reader=reader)
-    traj = result.trajectory
-    stamps = traj.stamps_ns
-    step = int(np.median(np.diff(stamps))) if len(stamps) > 1 else 0
-    spline = PoseSpline(stamps, traj.poses, cubic=True, extrapolate_ns=step,
-                        max_gap_ns=int(round(cfg.trajectory.max_gap_s * 1e9)))
-    m = result.metrics
+def settled_motion(log: Path, cfg: DeskewConfig, source: str, imu_topic: str | None, mounting: Mounting,
+                   T_base_lidar: np.ndarray, batches: Iterator[list[SettledPose]],
+                   final_offset_ns: int | None = None) -> Motion:
+    """The motion of lio's odometry (IMU-primed for ``imu``, LiDAR-only for constant-velocity) from its settled
+    poses, ``batches`` as they come (``final_offset_ns``: see ``PoseFeed``)."""
+    cal = cfg.calibration
+    bias = np.asarray(cal.gyro_bias_radps if cal.gyro_bias_radps is not None else [0.0, 0.0, 0.0], dtype=np.float64)
+    feed = PoseFeed(batches, max_gap_ns=int(round(cfg.trajectory.max_gap_s * 1e9)), offset_ns=cal.imu_time_offset_ns,
+                    default_bias=bias, final_offset_ns=final_offset_ns)
+    imu = ImuWindow(log, cfg.input.format, imu_topic) if source == "imu" else None
+    return Motion(source, T_base_lidar, feed=feed, imu=imu, mounting=mounting)
+
+
+@dataclass
+class OdometryMotion:
+    """What the odometry's run says of the motion: for metrics, and the two numbers the writing needs."""
+
+    description: str
+    details: dict
+    notes: list[str]
+    level: np.ndarray  # the rotation (4x4) that levels the odometry's world frame: the map's
+    final_offset_ns: int | None  # the IMU clock offset for every scan (see PoseFeed), or None: as applied
+
+
+def run_odometry(log: Path, cfg: DeskewConfig, source: str, progress: Progress | None, reader: LogReader | None,
+                 settled: Callable[[list[SettledPose]], None]) -> OdometryMotion:
+    """Run lio's odometry for the motion, handing its settled poses on."""
+    first: list[SettledPose] = []
+    shifts = [0, 0]  # the least and the most the clock tracker had shifted the IMU by at any scan
+
+    def sink(batch: list[SettledPose]) -> None:
+        if not first:
+            first.append(batch[0])
+            shifts[:] = [batch[0].imu_shift_ns] * 2
+        shifts[:] = [min(shifts[0], *(p.imu_shift_ns for p in batch)), max(shifts[1], *(p.imu_shift_ns for p in batch))]
+        settled(batch)
+
+    result = run_odom(OdomJob(log, cfg.odom_config(source)), progress=progress, reader=reader, settled=sink)
+    traj, m = result.trajectory, result.metrics
+    level = traj.poses[0] @ inv_pose(first[0].pose)
     details = {"odometry": {"scans": m["scans"], "initialisation": m["initialisation"], "fusion": m["fusion"],
                             "extrinsics": m["extrinsics"], "time_s": m["time_s"]["total"],
-                            "final_gyro_bias_radps": m["final_gyro_bias_radps"]},
-               "notes": list(result.notes)}
+                            "final_gyro_bias_radps": m["final_gyro_bias_radps"]}}
+    notes = list(result.notes)
+    n = len(traj)
     if source == "constant-velocity":
-        return Motion(source, f"LiDAR-only odometry ({len(stamps)} scan poses, constant-velocity prior), cubic "
-                      "interpolation between scans", spline, T_base_lidar, details)
-    bias = m["final_gyro_bias_radps"]
-    if bias is None:
+        return OdometryMotion(f"LiDAR-only odometry ({n} scan poses, constant-velocity prior), cubic interpolation "
+                              "between scans", details, notes, level, None)
+    if m["final_gyro_bias_radps"] is None:
         cal = cfg.calibration.gyro_bias_radps
-        bias = cal if cal is not None else [0.0, 0.0, 0.0]
-        details["notes"].append("the odometry never started its IMU state: the gyro bias is taken as "
-                                f"{'the calibration' if cal is not None else 'zero'}")
-    clock = m.get("imu_time_offset")  # the calibration's offset plus what the odometry measured by its end
-    offset_s = clock["estimated_s"] if clock else cfg.calibration.imu_time_offset_s
-    details["imu_time_offset_s"] = offset_s
-    window = ImuWindow(log, cfg.input.format, imu_topic, int(round(offset_s * 1e9)))
-    return Motion("imu", f"IMU: gyro rotation within each sweep (bias from lio's IMU-primed odometry), translation "
-                  f"from its {len(stamps)} scan poses", spline, T_base_lidar, details, window,
-                  np.asarray(bias, dtype=np.float64), mounting)
+        notes.append("the odometry never started its IMU state: the gyro bias is taken as "
+                     f"{'the calibration' if cal is not None else 'zero'}")
+    clock, given_ns = m.get("imu_time_offset"), cfg.calibration.imu_time_offset_ns
+    final_ns = int(round(clock["estimated_s"] * 1e9)) if clock else given_ns
+    if max(abs(given_ns + s - final_ns) for s in shifts) > OFFSET_AGREE_NS:
+        details["imu_time_offset_s"] = final_ns * 1e-9
+        details["imu_time_offset"] = "the odometry's final estimate, for every scan (it moved its offset online)"
+        return OdometryMotion(f"IMU: gyro rotation within each sweep (bias as lio's IMU-primed odometry had it at "
+                              f"that scan, clock offset as it measured by its end), translation from its {n} scan "
+                              "poses", details, notes, level, final_ns)
+    details["imu_time_offset_s"] = clock["total_s"] if clock else cfg.calibration.imu_time_offset_s
+    details["imu_time_offset"] = "as the odometry applied it at each scan (within 1 ms of its final estimate)"
+    return OdometryMotion(f"IMU: gyro rotation within each sweep (bias and clock offset as lio's IMU-primed odometry "
+                          f"had them at that scan), translation from its {n} scan poses", details, notes, level, None)

@@ -36,6 +36,21 @@ Progress = Callable[[int, int | None], None]  # (scans done, scans in the log or
 
 
 @dataclass(frozen=True)
+class SettledPose:
+    """One scan's pose once the odometry can no longer change it (``T_world_base``, its internal world frame:
+    the first scan's base, not yet levelled), with the IMU state it stood on then: the gyro bias (None before
+    the IMU state started) and the shift the clock tracker had added to the IMU stamps."""
+
+    stamp_ns: int
+    pose: np.ndarray
+    gyro_bias_radps: np.ndarray | None
+    imu_shift_ns: int
+
+
+PoseSink = Callable[[list[SettledPose]], None]
+
+
+@dataclass(frozen=True)
 class OdomJob:
     """Everything one ``lio odom`` run needs. ``gt``: a TUM/KITTI file or a topic of the log to score against."""
 
@@ -64,11 +79,13 @@ class DivergedRun(ProcessingError):
         self.partial = partial
 
 
-def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None) -> OdomResult:
+def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None,
+             settled: PoseSink | None = None) -> OdomResult:
     """Run odometry over ``job.log``; score against ``job.gt`` when given. ``reader``: ``job.log`` already
-    open (a caller that reads the log again afterwards saves opening it twice; it stays open)."""
+    open (a caller that reads the log again afterwards saves opening it twice; it stays open). ``settled``:
+    called with each scan's ``SettledPose`` as soon as it is final (in order, every pose once)."""
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
-        result = _OdomRun(log, job.config, progress).run()
+        result = _OdomRun(log, job.config, progress, settled).run()
     if job.gt is not None:
         spec = f"{job.log}:{job.gt}" if job.gt.startswith("/") and not Path(job.gt).exists() else job.gt
         ref = load_trajectory(spec)
@@ -81,8 +98,10 @@ def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader |
 class _OdomRun:
     """One pass over a log's merged stream, feeding ``LioOdometry`` in time order."""
 
-    def __init__(self, reader: LogReader, cfg: OdomConfig, progress: Progress | None) -> None:
+    def __init__(self, reader: LogReader, cfg: OdomConfig, progress: Progress | None,
+                 settled: PoseSink | None = None) -> None:
         self.reader, self.cfg, self.progress = reader, cfg, progress
+        self.settled, self.sent = settled, 0  # poses handed to ``settled`` so far
         self.t_wall = time.perf_counter()
         self.notes: list[str] = []
         self.inputs: OdomInputs = choose_inputs(reader, cfg)
@@ -107,7 +126,18 @@ class _OdomRun:
             raise InputError(f"{self.reader.path}: {inputs.lidar}: no scan could be used (all had fewer than "
                              f"{cfg.registration.min_points} valid points)")
         self.odo.close_clock()
+        self._settle(len(self.odo.poses))
         return self._result()
+
+    def _settle(self, upto: int) -> None:
+        """Hand the poses up to ``upto`` not yet handed on to the ``settled`` sink."""
+        if self.settled is None or upto <= self.sent:
+            return
+        odo = self.odo
+        bias = None if odo.state is None else odo.state.bg.copy()
+        self.settled([SettledPose(int(odo.stamps_ns[i]), odo.poses[i].copy(), bias, odo.imu_shift_ns)
+                      for i in range(self.sent, upto)])
+        self.sent = upto
 
     def _feed(self) -> None:
         offset_ns = self.cfg.calibration.imu_time_offset_ns
@@ -164,6 +194,7 @@ class _OdomRun:
                 return
             self.pending.popleft()
             odo.process(cloud)
+            self._settle(odo.settled)
             self.done += 1
             if self.progress:
                 self.progress(self.done, self.reader.topics[self.inputs.lidar].count)

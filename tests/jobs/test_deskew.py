@@ -191,6 +191,7 @@ def test_imu_motion_is_within_a_centimetre_where_the_skew_is_decimetres(sim, tmp
     res = deskew(s.log_path, tmp_path / "out.bag")
     m = res.metrics["motion"]
     assert m["source"] == "imu" and m["imu_topic"] == "/imu" and m["imu_gap_scans"] == 0
+    assert m["imu_time_offset"] == "as the odometry applied it at each scan (within 1 ms of its final estimate)"
     assert m["odometry"]["scans"]["used"] == 30
     err, skew = errors(s, tmp_path / "out.bag")
     assert np.median(skew) > 0.1
@@ -211,6 +212,8 @@ def test_an_imu_clock_offset_is_taken_as_measured_by_the_odometry_s_end(sim, tmp
     assert abs(clock["estimated_s"] - true_s) < abs(clock["total_s"] - true_s) - 0.002, clock
     res = deskew(s.log_path, tmp_path / "out.bag")
     assert res.metrics["motion"]["imu_time_offset_s"] == clock["estimated_s"]
+    assert res.metrics["motion"]["imu_time_offset"] == ("the odometry's final estimate, for every scan (it moved "
+                                                        "its offset online)")
     err, _ = errors(s, tmp_path / "out.bag")
     assert np.median(err) < IMU_MEDIAN_M and np.percentile(err, 95) < IMU_P95_M
 

@@ -46,20 +46,27 @@ def test_feed_gives_every_record_once_in_order_while_the_imu_is_read_ahead(log):
 
 
 def test_window_on_the_feed_equals_window_on_its_own_reader(log):
+    """Each sweep asks with its own clock offset (the odometry's at that scan): the samples come on the LiDAR's
+    clock, their IMU stamps moved by it."""
     with open_log(log) as reader:
         sweeps = [t for _, _, t, _ in reader.messages(["/points"])]
-    own = ImuWindow(log, None, "/imu", 1_000)
-    fed = ImuWindow(log, None, "/imu", 1_000)
+    own = ImuWindow(log, None, "/imu")
+    fed = ImuWindow(log, None, "/imu")
+    with open_log(log) as reader:
+        stamps = np.array([t for _, _, t, _ in reader.messages(["/imu"])], dtype=np.int64)
     with open_log(log) as reader:
         feed = RecordFeed(reader, "/imu")
         fed.attach(feed)
         records = iter(feed)
-        for t1 in sweeps:
+        for i, t1 in enumerate(sweeps):
             for rec in records:  # the writer's position: this sweep's record
                 if rec.connection.topic == "/points" and rec.log_time_ns == t1:
                     break
-            a, b = own.covering(t1 - SWEEP_NS, t1), fed.covering(t1 - SWEEP_NS, t1)
+            offset = 1_000_000 * (i % 3 - 1)
+            a, b = own.covering(t1 - SWEEP_NS, t1, offset), fed.covering(t1 - SWEEP_NS, t1, offset)
             assert len(a) > 0 and a.frame_id == b.frame_id
+            assert np.isin(a.stamps_ns - offset, stamps).all()  # the IMU's stamps, moved by this sweep's offset
+            assert a.stamps_ns[-1] >= t1 and a.stamps_ns[0] <= t1 - SWEEP_NS
             assert np.array_equal(a.stamps_ns, b.stamps_ns)
             assert np.array_equal(a.gyro_radps, b.gyro_radps) and np.array_equal(a.accel_mps2, b.accel_mps2)
         assert fed.reader is None  # no second reader was opened

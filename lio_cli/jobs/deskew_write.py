@@ -1,0 +1,73 @@
+"""The writing pass of ``lio deskew``: every record of the log copied or, on the LiDAR topic, de-skewed.
+
+Run after the motion is known (a trajectory, or the odometry's poses in a list) or beside the odometry in a
+second process (``deskew_helper``), taking its poses as they settle: the same code, the same bytes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from ..core.voxel_map import VoxelMap
+from ..io.log_copy import LogCopy, mcap_profile
+from ..io.map_files import write_point_map
+from ..io.reader import LogReader
+from ..io.writer import LogWriter
+from .deskew_motion import Motion, Progress, RecordFeed
+from .deskew_scan import ScanPlan, ScanWriter
+
+
+def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion, progress: Progress | None,
+               done0: int, total: int, level: Callable[[], np.ndarray] | None = None) -> dict:
+    """Write ``job.out`` (and ``job.map``) from ``reader``; returns the pass's statistics. ``level``: the
+    rotation (4x4) from the motion's world frame to the map's, asked once every pose has come."""
+    cfg = job.config
+    voxels = VoxelMap(cfg.map_voxel_m) if job.map is not None else None
+    t0 = time.perf_counter()
+    with LogWriter(job.out, fmt, force=job.force, mcap_profile=mcap_profile(reader)) as w:
+        copy = LogCopy(reader, w)
+        scans = ScanWriter(reader, w, copy, plan, motion, cfg, voxels)
+        for conn in reader.connections:  # output connections in the input's order
+            if conn.topic != plan.topic or cfg.topic_suffix:
+                copy.output(conn)
+            if conn.topic == plan.topic:
+                scans.output(conn)
+        done = done0
+        records = reader.records()
+        if motion.imu is not None:  # one read of the log: the IMU window reads ahead through the same records
+            records = RecordFeed(reader, motion.imu.topic)
+            motion.imu.attach(records)
+        for rec in records:
+            if rec.connection.topic != plan.topic:
+                copy.copy(rec)
+                continue
+            if cfg.topic_suffix:
+                copy.copy(rec)
+            scans.write(rec)
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        if motion.feed is not None:
+            motion.feed.drain()  # the odometry's end: scans it placed after the log's last usable cloud
+    t_map = time.perf_counter()
+    if voxels is not None:
+        points = voxels.points()
+        if level is not None:
+            A = level()
+            points = (points @ A[:3, :3].T.astype(np.float32)) + A[:3, 3].astype(np.float32)
+        write_point_map(job.map, points, job.force)
+    t_map = time.perf_counter() - t_map
+    stats = scans.summary()
+    stats["imu_gap_scans"] = motion.imu_gap_scans
+    stats["copied_topics"] = {"as_stored": copy.copied, "converted": copy.converted}
+    if voxels is not None:
+        stats["map"] = {"path": str(job.map), "points": len(voxels), "voxel_m": voxels.voxel_m,
+                        "frame": "the motion source's world frame"}
+    stats["time_s"] = {"write_pass": round(time.perf_counter() - t0, 4), **scans.times(), "map": round(t_map, 4)}
+    return stats
+
+
+__all__ = ["write_pass"]

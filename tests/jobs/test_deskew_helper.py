@@ -1,0 +1,239 @@
+"""``lio deskew`` writing beside its odometry: the odometry's settled poses, the pose feed's splines, and the
+helper process, which must write the same bytes as one process and leave nothing behind when either side fails."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lio_cli.config import with_overrides
+from lio_cli.config.deskew import DeskewConfig
+from lio_cli.core.sweep_motion import PoseSpline, sweep_knots
+from lio_cli.errors import InputError, ProcessingError
+from lio_cli.io.pointcloud import cloud_dtype, stamp_to_ns
+from lio_cli.io.reader import open_log
+from lio_cli.io.writer import LogWriter
+from lio_cli.jobs import deskew as deskew_job
+from lio_cli.jobs import deskew_helper
+from lio_cli.jobs.deskew import DeskewJob, run_deskew
+from lio_cli.jobs.deskew_poses import PoseFeed
+from lio_cli.jobs.odom import OdomJob, SettledPose, run_odom
+from lio_cli.simulation.run import simulate
+from lio_cli.so3 import so3_exp
+
+BESIDE = "beside the odometry, in a second process"
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory) -> Path:
+    """3 s handheld, already moving at the first scan (the start-up window's poses are replaced)."""
+    root = tmp_path_factory.mktemp("helper")
+    return simulate("handheld", root / "walk.bag", "ros1", duration_s=3.0, seed=5, columns=128, start="moving").log_path
+
+
+@pytest.fixture()
+def two_cores(monkeypatch):
+    monkeypatch.setattr(deskew_helper, "_cpus", lambda: 2)  # the helper runs wherever the suite does
+
+
+def run(log, out, helper, *, map=None, **overrides):
+    cfg = with_overrides(DeskewConfig(), overrides)
+    return run_deskew(DeskewJob(Path(log), Path(out), cfg, map, helper=helper))
+
+
+def leftovers(folder: Path, stem: str) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if stem in p.name)
+
+
+def test_settled_poses_are_the_trajectory_each_once_in_order(walk):
+    got: list[SettledPose] = []
+    res = run_odom(OdomJob(walk), settled=got.extend)
+    traj = res.trajectory
+    assert [p.stamp_ns for p in got] == traj.stamps_ns.tolist()
+    level = traj.poses[0] @ np.linalg.inv(got[0].pose)
+    np.testing.assert_allclose(level[:3, :3] @ level[:3, :3].T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(level @ np.stack([p.pose for p in got]), traj.poses, atol=1e-9)
+    assert res.metrics["start"]["kind"] == "moving"
+    biased = [p.gyro_bias_radps is not None for p in got]
+    assert all(biased)  # the start-up window's poses settle only once the IMU state started from them
+    np.testing.assert_array_equal(got[-1].gyro_bias_radps, res.metrics["final_gyro_bias_radps"])
+
+
+def _trajectory(n: int, gap_at: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(1)
+    steps = np.full(n - 1, 100_000_000) + rng.integers(-3_000_000, 3_000_000, n - 1)
+    if gap_at is not None:
+        steps[gap_at] = 900_000_000
+    stamps = 1_000_000_000 + np.concatenate([[0], np.cumsum(steps)])
+    t = (stamps - stamps[0]) * 1e-9
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = so3_exp(np.stack([0.1 * np.sin(t), 0.2 * np.cos(0.7 * t), 1.5 * t], axis=1))
+    poses[:, :3, 3] = np.stack([np.sin(t), 0.3 * t**2, 0.1 * t], axis=1)
+    return stamps.astype(np.int64), poses
+
+
+def test_the_feed_s_spline_is_the_whole_trajectory_s_spline_at_every_sweep():
+    """In batches of any size, sweeps at the ends (extrapolated), across a gap, out of order, beyond the end."""
+    stamps, poses = _trajectory(60, gap_at=30)
+    step = int(np.median(np.diff(stamps[:21])))
+    whole = PoseSpline(stamps, poses, cubic=True, extrapolate_ns=step, max_gap_ns=500_000_000)
+    rng = np.random.default_rng(2)
+    cuts = np.sort(rng.choice(np.arange(1, 60), 12, replace=False))
+    batches = [[SettledPose(int(s), p, None, 0) for s, p in zip(stamps[a:b], poses[a:b])]
+               for a, b in zip([0, *cuts], [*cuts, 60])]
+    feed = PoseFeed(iter(batches), max_gap_ns=500_000_000, offset_ns=0, default_bias=np.zeros(3))
+    ends = [*stamps.tolist(), int(stamps[-1]) + step // 2, int(stamps[-1]) + 2 * step]
+    sweeps = [(t1 - 100_000_000, t1) for t1 in ends]
+    sweeps.insert(20, (int(stamps[5]) - 40_000_000, int(stamps[5]) + 10_000_000))  # out of order
+    sweeps.insert(0, (int(stamps[0]) - 3 * step, int(stamps[0]) - 2 * step))  # before the start
+    reasons = set()
+    for t0, t1 in sweeps:
+        part = feed.spline(t0, t1)
+        want = whole.uncovered(t0, t1)
+        reasons.add(want)
+        assert part.uncovered(t0, t1) == want, (t0, t1)
+        if want is None:
+            knots = sweep_knots(t0, t1, 5_000_000)
+            np.testing.assert_allclose(part.at(knots), whole.at(knots), rtol=0, atol=1e-12)
+            np.testing.assert_allclose(part.positions(knots), whole.positions(knots), rtol=0, atol=1e-12)
+    assert reasons == {None, "before the trajectory starts", "after the trajectory ends", "in a gap of the trajectory"}
+
+
+def test_the_feed_gives_each_sweep_the_bias_and_offset_of_its_own_pose():
+    stamps, poses = _trajectory(6)
+    settled = [SettledPose(int(s), p, None if i < 2 else np.full(3, 0.01 * i), 1000 * i)
+               for i, (s, p) in enumerate(zip(stamps, poses))]
+    feed = PoseFeed(iter([settled]), max_gap_ns=None, offset_ns=50, default_bias=np.full(3, -1.0))
+    feed.drain()
+    assert feed.imu_state(int(stamps[0]))[0].tolist() == [-1.0] * 3  # before the IMU state: the calibration's
+    bias, offset = feed.imu_state(int(stamps[3]))
+    assert bias.tolist() == [0.03] * 3 and offset == 3050
+    assert feed.imu_state(int(stamps[3]) - 1)[1] == 3050  # a sweep ending before a pose takes that pose's
+    assert feed.imu_state(int(stamps[-1]) + 10**9)[1] == 5050  # beyond the last: the last
+    final = PoseFeed(iter([settled]), max_gap_ns=None, offset_ns=50, default_bias=np.zeros(3), final_offset_ns=7)
+    final.drain()
+    assert final.imu_state(int(stamps[1]))[1] == 7
+
+
+@pytest.mark.parametrize("motion", ["imu", "constant-velocity"])
+def test_the_helper_writes_the_bytes_one_process_writes(walk, tmp_path, two_cores, monkeypatch, motion):
+    """Both runs take the same odometry (its first run replayed): kiss-icp's parallel sums differ in their last
+    bits from run to run, and its thread count is fixed by the first registration a process makes."""
+    real, recorded = deskew_job.run_odometry, []
+
+    def once(log, cfg, source, progress, reader, settled):
+        if not recorded:
+            batches = []
+            result = real(log, cfg, source, progress, reader, lambda b: (batches.append(b), settled(b)))
+            recorded.append((batches, result))
+            return result
+        batches, result = recorded[0]
+        for b in batches:
+            settled(b)
+        return result
+
+    monkeypatch.setattr(deskew_job, "run_odometry", once)
+    one = run(walk, tmp_path / "one.bag", False, map=tmp_path / "one.ply", motion=motion)
+    two = run(walk, tmp_path / "two.bag", True, map=tmp_path / "two.ply", motion=motion)
+    assert one.metrics["writing"] == "after the odometry" and two.metrics["writing"] == BESIDE
+    assert (tmp_path / "one.bag").read_bytes() == (tmp_path / "two.bag").read_bytes()
+    assert (tmp_path / "one.ply").read_bytes() == (tmp_path / "two.ply").read_bytes()
+    drop = ("time_s", "real_time_factor", "writing", "output", "map")
+    a, b = ({k: v for k, v in r.metrics.items() if k not in drop} for r in (one, two))
+    assert a == b
+    assert one.metrics["scans"]["deskewed"] == 30 and one.notes == two.notes
+    assert len(recorded[0][0]) > 5  # the poses went over in batches as they settled
+
+
+def _unsigned_from(src: Path, dst: Path, first: int) -> Path:
+    """A copy of ``src`` whose clouds from the ``first``-th on carry their time field as uint32 nanoseconds."""
+    with open_log(src) as r, LogWriter(dst, "ros1") as w:
+        for topic, info in r.topics.items():
+            w.add_topic(topic, info.msgtype, latching=topic == "/tf_static")
+        k = 0
+        for topic, _, t, msg in r.messages():
+            if topic == "/points":
+                if k >= first:
+                    arr = np.frombuffer(np.asarray(msg.data).tobytes(), dtype=cloud_dtype(msg))
+                    new = np.empty(len(arr), dtype=[(n, "<u4" if n == "time" else arr.dtype[n]) for n in arr.dtype.names])
+                    for n in arr.dtype.names:
+                        new[n] = np.rint(arr[n] * 1e9) if n == "time" else arr[n]
+                    msg = w.make.pointcloud2(stamp_to_ns(msg.header.stamp), msg.header.frame_id, new)
+                k += 1
+            w.write(topic, t, msg)
+    return dst
+
+
+def test_a_bad_cloud_the_helper_meets_is_the_one_line_error_and_nothing_is_written(walk, tmp_path, two_cores):
+    log = _unsigned_from(walk, tmp_path / "mixed.bag", first=12)
+    with pytest.raises(InputError) as err:
+        run(log, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
+    assert str(err.value) == (f"{log}: /points: the per-point time field 'time' is unsigned, so it cannot hold the "
+                              "negative offsets of --reference end (every point before the new header stamp); use "
+                              "--reference start")
+    with pytest.raises(InputError) as one:
+        run(log, tmp_path / "out.bag", False)
+    assert str(one.value) == str(err.value)
+    assert leftovers(tmp_path, "out") == []
+
+
+def test_a_failing_odometry_stops_the_helper_and_its_files_go(walk, tmp_path, two_cores, monkeypatch):
+    real, helpers = deskew_job.run_odometry, []
+
+    def failing(log, cfg, source, progress, reader, settled):
+        seen = []
+
+        def sink(batch):
+            settled(batch)
+            seen.extend(batch)
+            if seen[-1].stamp_ns - seen[0].stamp_ns > 10**9:  # a second of poses went to the helper
+                raise ProcessingError("the odometry gave up")
+
+        return real(log, cfg, source, progress, reader, sink)
+
+    start = deskew_helper.Helper.start
+
+    def tracked():
+        h = start()
+        helpers.append(h)
+        return h
+
+    monkeypatch.setattr(deskew_job, "run_odometry", failing)
+    monkeypatch.setattr(deskew_job.Helper, "start", staticmethod(tracked))
+    with pytest.raises(ProcessingError, match="^the odometry gave up$"):
+        run(walk, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
+    assert len(helpers) == 1 and helpers[0].proc.returncode == 1  # it saw the pipe close without the end
+    assert leftovers(tmp_path, "out") == []
+
+
+def test_a_helper_that_dies_is_a_one_line_error(walk, tmp_path, two_cores, monkeypatch):
+    send, sent = deskew_helper.Helper.send, []
+
+    def killing(self, kind, value):
+        sent.append(kind)
+        if sent.count("poses") == 3:
+            self.proc.kill()
+            self.proc.wait()
+        send(self, kind, value)
+
+    monkeypatch.setattr(deskew_helper.Helper, "send", killing)
+    with pytest.raises(ProcessingError) as err:
+        run(walk, tmp_path / "out.bag", True)
+    assert str(err.value) == "the writing process stopped without an answer (exit code -9)"
+    assert leftovers(tmp_path, "out") == []
+
+
+def test_a_single_core_writes_in_one_process(walk, tmp_path, monkeypatch):
+    monkeypatch.setattr(deskew_helper, "_cpus", lambda: 1)
+    assert run(walk, tmp_path / "out.bag", True).metrics["writing"] == "after the odometry"
+
+
+def test_the_helper_runs_this_lio_cli_from_any_working_directory(tmp_path, monkeypatch):
+    """A folder named lio_cli in the working directory is not what the helper imports."""
+    (tmp_path / "lio_cli").mkdir()
+    (tmp_path / "lio_cli" / "__init__.py").write_text("import sys\nsys.exit(7)\n")  # were it imported
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(deskew_helper, "_cpus", lambda: 2)
+    h = deskew_helper.Helper.start()
+    h.abort()  # the helper imported its modules and waited for the setup: EOF, exit 1
+    assert h.proc.returncode == 1
