@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import resource
 import struct
 import subprocess
 import sys
@@ -170,6 +171,7 @@ def main() -> None:
                 stats = write_pass(job, reader, fmt, plan, motion, progress, 0, None, lambda: level[0])
             finally:
                 motion.close()
+        stats["helper_peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
         _send(out, ("done", (stats, mounting)))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
     except _Aborted:

@@ -138,7 +138,8 @@ def test_the_helper_writes_the_bytes_one_process_writes(walk, tmp_path, two_core
     assert one.metrics["writing"] == "after the odometry" and two.metrics["writing"] == BESIDE
     assert (tmp_path / "one.bag").read_bytes() == (tmp_path / "two.bag").read_bytes()
     assert (tmp_path / "one.ply").read_bytes() == (tmp_path / "two.ply").read_bytes()
-    drop = ("time_s", "real_time_factor", "writing", "output", "map")
+    assert "helper_peak_rss_mb" not in one.metrics and 20 < two.metrics["helper_peak_rss_mb"] < 2000
+    drop = ("time_s", "real_time_factor", "writing", "output", "map", "helper_peak_rss_mb")
     a, b = ({k: v for k, v in r.metrics.items() if k not in drop} for r in (one, two))
     assert a == b
     assert one.metrics["scans"]["deskewed"] == 30 and one.notes == two.notes
