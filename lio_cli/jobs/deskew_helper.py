@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import os
 import pickle
-import resource
 import struct
 import subprocess
 import sys
@@ -53,6 +52,14 @@ def _cpus() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         return os.cpu_count() or 1
+
+
+def _peak_rss_mb() -> float | None:
+    try:
+        import resource  # POSIX only
+    except ImportError:
+        return None
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)  # Linux: KiB
 
 
 class Helper:
@@ -171,7 +178,7 @@ def main() -> None:
                 stats = write_pass(job, reader, fmt, plan, motion, progress, 0, None, lambda: level[0])
             finally:
                 motion.close()
-        stats["helper_peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+        stats["helper_peak_rss_mb"] = _peak_rss_mb()
         _send(out, ("done", (stats, mounting)))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
     except _Aborted:
