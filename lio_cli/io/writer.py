@@ -67,6 +67,11 @@ class LogWriter:
     def make(self) -> MessageFactory:
         return MessageFactory(self.typestore)
 
+    @property
+    def temp_path(self) -> Path:
+        """Where the log is written until ``close`` renames it (a folder for a ROS 2 bag)."""
+        return self._tmpdir if self._tmpdir is not None else self._tmp
+
     def _discard(self) -> None:
         remove_path(self._tmpdir if self._tmpdir is not None else self._tmp)
 

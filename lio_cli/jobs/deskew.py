@@ -10,6 +10,7 @@ and the map are each written to a temporary sibling and renamed: a failed run le
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -181,6 +182,7 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progr
         helper.abort()
         writing += (" (the clock offset it measured by its end differs from what it applied online: every scan "
                     "is written with the final one)")
+    mounting = copy.deepcopy(mounting)  # as the helper's: what the writing resolves comes after the odometry's notes
     motion = settled_motion(job.log, job.config, source, imu_topic, mounting, T_base_lidar, iter(poses),
                             odo.final_offset_ns)
     try:

@@ -3,19 +3,21 @@ as long as its odometry alone, not the odometry plus the writing.
 
 The parent starts the helper (``Helper.start``) before its odometry and sends it the setup, then each batch
 of settled poses as the odometry settles them, then the rotation that levels the odometry's world frame.
-The helper reads the log itself, writes the output log and the map to their temporary siblings, renames
-them, and answers with the pass's statistics or with the error that stopped it. When the parent's end of
-the pipe closes without the end message (its odometry failed, or it was interrupted) the helper discards
-what it wrote. The helper's progress (scans written) comes back on the same pipe.
+The helper reads the log itself, writes the output log and the map to temporary siblings (it names them to
+the parent as it makes them) and answers "ready" with the pass's statistics, or with the error that stopped
+it; only on the parent's "commit" does it rename them into place. When the parent's end of the pipe closes
+before that (its odometry failed, or it was interrupted) the helper discards what it wrote; a helper that
+cannot (killed) leaves that to the parent. The helper's progress (scans written) comes back on the pipe too.
 
 Messages are pickles behind a length prefix: the parent's on the helper's stdin, the helper's on its stdout
-(everything else the helper prints goes to stderr).
+(a duplicate of it: the helper's fd 1 itself, and anything printed there, goes to stderr).
 """
 
 from __future__ import annotations
 
 import os
 import pickle
+import queue
 import struct
 import subprocess
 import sys
@@ -25,6 +27,7 @@ import traceback
 from pathlib import Path
 
 from ..errors import LioError, ProcessingError
+from ..io.files import remove_path
 
 _HEADER = struct.Struct("<Q")
 _PROGRESS_S = 0.1  # the helper reports scans written at most this often
@@ -68,7 +71,8 @@ class Helper:
     def __init__(self, proc: subprocess.Popen) -> None:
         self.proc = proc
         self.written = 0  # scans the helper has written so far
-        self._reply = None
+        self.temps: list[Path] = []  # the helper's temporary outputs, removed here if it cannot remove them
+        self._replies: queue.Queue = queue.Queue()  # its answers; None when its stdout closed
         self._listener = threading.Thread(target=self._listen, daemon=True)
         self._listener.start()
 
@@ -88,41 +92,60 @@ class Helper:
     def _listen(self) -> None:
         while True:
             msg = _receive(self.proc.stdout)
-            if msg is None or msg[0] != "written":
-                self._reply = msg
-                return
-            self.written = msg[1]
+            if msg is not None and msg[0] == "written":
+                self.written = msg[1]
+            elif msg is not None and msg[0] == "temp":
+                self.temps.append(Path(msg[1]))
+            else:
+                self._replies.put(msg)
+                if msg is None:
+                    return
 
     def send(self, kind: str, value) -> None:
         """Send one message; when the helper has stopped, raise the error that stopped it."""
         try:
             _send(self.proc.stdin, (kind, value))
         except (BrokenPipeError, OSError):
-            self._raise_reply()
+            self._fail(self._replies.get())
 
-    def _raise_reply(self):
-        self._listener.join()
-        self.proc.wait()
-        reply = self._reply
+    def _fail(self, reply):
+        """Raise the helper's error (or that it stopped without one), once it has exited and left nothing."""
+        self.abort()
         if reply is None or reply[0] != "error":
             raise ProcessingError(f"the writing process stopped without an answer (exit code {self.proc.returncode})")
         raise reply[1]
 
+    def _expect(self, kind: str, progress=None):
+        while True:
+            try:
+                reply = self._replies.get(timeout=_PROGRESS_S)
+            except queue.Empty:
+                if progress is not None:
+                    progress(self.written)
+                continue
+            if reply is None or reply[0] != kind:
+                self._fail(reply)
+            return reply[1]
+
     def finish(self, level, progress=None) -> tuple[dict, object]:
-        """Send the end and wait for the helper: (its statistics, its mounting); ``progress(written)`` meanwhile."""
-        self.send("end", level)
+        """Send the end, wait for the helper's last scans, then let it rename its outputs into place: (its
+        statistics, its mounting); ``progress(written)`` meanwhile. Interrupted before the rename, the helper
+        discards them."""
+        try:
+            self.send("end", level)
+            ready = self._expect("ready", progress)
+            self.send("commit", None)
+            self._expect("committed")
+        except BaseException:
+            self.abort()
+            raise
         self.proc.stdin.close()
-        while self._listener.is_alive():
-            self._listener.join(_PROGRESS_S)
-            if progress is not None:
-                progress(self.written)
         self.proc.wait()
-        if self._reply is None or self._reply[0] != "done":
-            self._raise_reply()
-        return self._reply[1]
+        return ready
 
     def abort(self) -> None:
-        """Stop the helper without the end: it discards its files (killed if it does not within a minute)."""
+        """Stop the helper without the end: it discards its files (killed if it does not within a minute, and
+        its temporaries then removed here)."""
         try:
             self.proc.stdin.close()
         except OSError:
@@ -132,16 +155,21 @@ class Helper:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
+        self._listener.join()
+        for tmp in self.temps:
+            remove_path(tmp)
 
 
 class _Aborted(Exception):
-    """The parent's pipe closed without the end message."""
+    """The parent's pipe closed without the end (or the commit) message."""
 
 
 def main() -> None:
     """The helper process: read the setup and poses on stdin, write, answer on stdout."""
-    inp, out = sys.stdin.buffer, sys.stdout.buffer
-    sys.stdout = sys.stderr  # the answer's channel carries nothing else
+    inp = sys.stdin.buffer
+    out = os.fdopen(os.dup(1), "wb")  # the answers' channel; anything else written to fd 1 goes to stderr
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
     level = []
     try:
         from ..io.reader import open_log
@@ -171,15 +199,22 @@ def main() -> None:
                 last[0] = now
                 _send(out, ("written", done))
 
+        def commit(stats: dict) -> None:
+            stats["helper_peak_rss_mb"] = _peak_rss_mb()
+            _send(out, ("ready", (stats, mounting)))
+            msg = _receive(inp)
+            if msg is None or msg[0] != "commit":
+                raise _Aborted
+
         cfg = job.config
         with open_log(job.log, cfg.input.format) as reader:
             motion = settled_motion(job.log, cfg, source, imu_topic, mounting, T_base_lidar, batches())
             try:
-                stats = write_pass(job, reader, fmt, plan, motion, progress, 0, None, lambda: level[0])
+                write_pass(job, reader, fmt, plan, motion, progress, 0, None, lambda: level[0],
+                           on_temp=lambda path: _send(out, ("temp", str(path))), before_commit=commit)
             finally:
                 motion.close()
-        stats["helper_peak_rss_mb"] = _peak_rss_mb()
-        _send(out, ("done", (stats, mounting)))
+        _send(out, ("committed", None))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
     except _Aborted:
         sys.exit(1)

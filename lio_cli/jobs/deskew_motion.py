@@ -5,7 +5,7 @@ Three sources, each ending in a ``PoseSpline`` of the base:
   default); a sweep it does not cover (beyond 1 ms of slack at its ends) is reported, not extrapolated;
 - ``imu``: lio's IMU-primed odometry (a first pass over the log, in this process or beside the writing pass:
   ``deskew_helper``) gives the corrected pose at every scan's end with the gyro bias and IMU clock offset it
-  stood on there (``PoseFeed``); within each sweep the rotation is integrated from the gyro with them and the
+  had once that pose was final (``PoseFeed``); within each sweep the rotation is integrated from the gyro with them and the
   translation follows the cubic through the scan poses (extrapolated by at most one scan interval at the
   log's ends, which is how the first scan is covered);
 - ``constant-velocity``: the same odometry LiDAR-only (constant-velocity prior and deskew), its scan poses

@@ -1,18 +1,19 @@
 """The odometry's poses as the writing pass of ``lio deskew`` takes them: scan by scan, as they settle.
 
 The odometry hands on each scan's pose once it can no longer change (``SettledPose``: after the start-up
-window is replaced by its IMU-primed replay), with the gyro bias and IMU clock shift it stood on then. The
+window is replaced by its IMU-primed replay), with the gyro bias and IMU clock shift it had then. The
 writing pass reads them through a ``PoseFeed``, from a list once the odometry is done or, while the odometry
 still runs in the other process, from a pipe (``deskew_helper``): both give the same bytes.
 
 For a sweep the feed builds the cubic ``PoseSpline`` over the few poses around it; it equals the spline over
-the whole trajectory there (the same four poses around each query, the same ends). The only global number,
-how far the ends are extrapolated, is the median step of the first ``_STEP_POSES`` poses. The rotation within
-a sweep is integrated with the gyro bias of the pose at the sweep's reference instant (the state the odometry
-had when it placed that scan) and with the IMU clock offset the odometry applied there, unless the offset it
-measured by its end differs from any of those by more than ``OFFSET_AGREE_NS``: then that final offset for
-every scan (``final_offset_ns``; its online rounds converge over tens of seconds, and the closing one sees
-the whole log).
+the whole trajectory there (the same four poses around each query, the same ends). How far the ends are
+extrapolated is the median interval of the first ``_STEP_POSES`` poses at the start, of all at the end. The
+rotation within a sweep is integrated with the gyro bias of the pose at the sweep's reference instant (the
+state the odometry had once that pose was final: after that scan's update, or after the start-up window's
+replay) and with the IMU clock offset the odometry had applied by then, unless the offset it measured by its
+end differs from any of those by more than ``OFFSET_AGREE_NS``: then that final offset for every scan
+(``final_offset_ns``; its online rounds converge over tens of seconds, and the closing one sees the whole
+log).
 """
 
 from __future__ import annotations
@@ -45,8 +46,11 @@ class PoseFeed:
         self.dropped = 0  # poses let go from the front
         self.ended = False
         self.first_ns: int | None = None
-        self.step_ns: int | None = None
+        self.step_ns: int | None = None  # the start's extrapolation
         self._first_steps: list[int] = []
+        self._steps: list[int] = []  # every interval, for the end's extrapolation (the median of all)
+        self._end_step_ns: int | None = None
+        self._prev_i0: int | None = None  # the previous sweep's first pose (counted from the first pose ever)
 
     def _pull(self) -> bool:
         batch = next(self._batches, None)
@@ -60,10 +64,12 @@ class PoseFeed:
                 raise ValueError(f"settled poses out of order: {p.stamp_ns} after {self._stamps[-1]}")
             if self.first_ns is None:
                 self.first_ns = p.stamp_ns
-            elif self.step_ns is None:
-                self._first_steps.append(p.stamp_ns - self._stamps[-1])
-                if len(self._first_steps) == _STEP_POSES - 1:
-                    self.step_ns = int(np.median(self._first_steps))
+            else:
+                self._steps.append(p.stamp_ns - self._stamps[-1])
+                if self.step_ns is None:
+                    self._first_steps.append(self._steps[-1])
+                    if len(self._first_steps) == _STEP_POSES - 1:
+                        self.step_ns = int(np.median(self._first_steps))
             self._poses.append(p)
             self._stamps.append(p.stamp_ns)
         return True
@@ -90,28 +96,35 @@ class PoseFeed:
         st = np.fromiter(self._stamps, dtype=np.int64, count=len(self._stamps))
         n = len(st)
         i0 = int(np.searchsorted(st, t0_ns, side="right")) - 1
-        if i0 < 0 and self.dropped:
+        if i0 < 1 and self.dropped:  # the pose before it (a node of its cubic) is gone
             return _BEHIND
         i1 = int(np.searchsorted(st, t1_ns, side="right")) - 1
         a, b = max(0, i0 - 1), min(n - 1, max(i1, 0) + 2)
         while b - a + 1 < 4 and (a > 0 or b < n - 1):  # the cubic's four nodes at either end
             a, b = (a - 1, b) if a > 0 else (a, b + 1)
-        if i0 - _KEEP > 0:  # let go of poses far behind this sweep
-            for _ in range(i0 - _KEEP):
+        # let go of poses far behind this sweep and the one before (one sweep stamped far ahead, a broken
+        # scan, does not take the poses its neighbours need)
+        now = i0 + self.dropped
+        drop = min(now, now if self._prev_i0 is None else self._prev_i0) - _KEEP - self.dropped
+        self._prev_i0 = now
+        if drop > 0:
+            for _ in range(drop):
                 self._poses.popleft()
                 self._stamps.popleft()
-            self.dropped += i0 - _KEEP
-            a, b = a - (i0 - _KEEP), b - (i0 - _KEEP)
+            self.dropped += drop
+            a, b = a - drop, b - drop
         # ends of the whole trajectory extrapolate; a window inside it never reaches its own ends
         at_end = self.ended and b == len(self._stamps) - 1
+        if at_end and self._end_step_ns is None:
+            self._end_step_ns = int(np.median(self._steps)) if self._steps else 0
+        step = self._end_step_ns if at_end else self.step_ns if a == 0 and not self.dropped else 0
         window = [self._poses[i] for i in range(a, b + 1)]
         return PoseSpline(np.array([p.stamp_ns for p in window], dtype=np.int64), np.stack([p.pose for p in window]),
-                          cubic=True, extrapolate_ns=self.step_ns if (a == 0 and not self.dropped) or at_end else 0,
-                          max_gap_ns=self.max_gap_ns)
+                          cubic=True, extrapolate_ns=step, max_gap_ns=self.max_gap_ns)
 
     def imu_state(self, t_ref_ns: int) -> tuple[np.ndarray, int]:
-        """(gyro bias, IMU clock offset in ns) the odometry stood on when it placed the pose at ``t_ref_ns``
-        (the first pose from there on, else the last)."""
+        """(gyro bias, IMU clock offset in ns) of the odometry once the pose at ``t_ref_ns`` was final (the first
+        pose from there on, else the last)."""
         st = self._stamps
         j = min(int(np.searchsorted(np.fromiter(st, dtype=np.int64, count=len(st)), t_ref_ns)), len(st) - 1)
         p = self._poses[j]

@@ -156,9 +156,9 @@ class ScanWriter:
         self._times["sweep_motion"] += time.perf_counter() - tick
         if isinstance(got, str):
             if self.cfg.strict:
-                sp = self.motion.spline
+                first_ns, last_ns = self.motion.span()
                 raise InputError(f"{where}: the scan of {_fmt_ns(cloud.start_ns)} to {_fmt_ns(cloud.end_ns)} is {got} "
-                                 f"({_fmt_ns(sp.first_ns)} to {_fmt_ns(sp.last_ns)}); without --strict such scans are "
+                                 f"({_fmt_ns(first_ns)} to {_fmt_ns(last_ns)}); without --strict such scans are "
                                  "copied unchanged and counted")
             return self._unchanged(rec, msg, cloud, f"not covered by the motion: {got}")
         knots, poses = got

@@ -38,7 +38,7 @@ Progress = Callable[[int, int | None], None]  # (scans done, scans in the log or
 @dataclass(frozen=True)
 class SettledPose:
     """One scan's pose once the odometry can no longer change it (``T_world_base``, its internal world frame:
-    the first scan's base, not yet levelled), with the IMU state it stood on then: the gyro bias (None before
+    the first scan's base, not yet levelled), with the IMU state it had then: the gyro bias (None before
     the IMU state started) and the shift the clock tracker had added to the IMU stamps."""
 
     stamp_ns: int

@@ -1,6 +1,8 @@
 """``lio deskew`` writing beside its odometry: the odometry's settled poses, the pose feed's splines, and the
 helper process, which must write the same bytes as one process and leave nothing behind when either side fails."""
 
+import re
+import time
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +16,7 @@ from lio_cli.io.pointcloud import cloud_dtype, stamp_to_ns
 from lio_cli.io.reader import open_log
 from lio_cli.io.writer import LogWriter
 from lio_cli.jobs import deskew as deskew_job
-from lio_cli.jobs import deskew_helper
+from lio_cli.jobs import deskew_helper, deskew_poses
 from lio_cli.jobs.deskew import DeskewJob, run_deskew
 from lio_cli.jobs.deskew_poses import PoseFeed
 from lio_cli.jobs.odom import OdomJob, SettledPose, run_odom
@@ -72,31 +74,66 @@ def _trajectory(n: int, gap_at: int | None = None) -> tuple[np.ndarray, np.ndarr
     return stamps.astype(np.int64), poses
 
 
+def _whole(stamps, poses, t1_ns):
+    """The spline over the whole trajectory as the one-pass writer had it: extrapolated at the start by the
+    median interval of the first 21 poses, at the end by the median of all."""
+    steps = np.diff(stamps)
+    step = int(np.median(steps if t1_ns > stamps[-1] else steps[:20]))
+    return PoseSpline(stamps, poses, cubic=True, extrapolate_ns=step, max_gap_ns=500_000_000)
+
+
+def _feed(stamps, poses, seed=2):
+    rng = np.random.default_rng(seed)
+    n = len(stamps)
+    cuts = np.sort(rng.choice(np.arange(1, n), min(12, n - 1), replace=False))
+    batches = [[SettledPose(int(s), p, None, 0) for s, p in zip(stamps[a:b], poses[a:b])]
+               for a, b in zip([0, *cuts], [*cuts, n])]
+    return PoseFeed(iter(batches), max_gap_ns=500_000_000, offset_ns=0, default_bias=np.zeros(3))
+
+
+def _same(part, whole, t0, t1):
+    assert part.uncovered(t0, t1) == whole.uncovered(t0, t1), (t0, t1)
+    if whole.uncovered(t0, t1) is None:
+        knots = sweep_knots(t0, t1, 5_000_000)
+        np.testing.assert_allclose(part.at(knots), whole.at(knots), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(part.positions(knots), whole.positions(knots), rtol=0, atol=1e-12)
+
+
 def test_the_feed_s_spline_is_the_whole_trajectory_s_spline_at_every_sweep():
     """In batches of any size, sweeps at the ends (extrapolated), across a gap, out of order, beyond the end."""
     stamps, poses = _trajectory(60, gap_at=30)
-    step = int(np.median(np.diff(stamps[:21])))
-    whole = PoseSpline(stamps, poses, cubic=True, extrapolate_ns=step, max_gap_ns=500_000_000)
-    rng = np.random.default_rng(2)
-    cuts = np.sort(rng.choice(np.arange(1, 60), 12, replace=False))
-    batches = [[SettledPose(int(s), p, None, 0) for s, p in zip(stamps[a:b], poses[a:b])]
-               for a, b in zip([0, *cuts], [*cuts, 60])]
-    feed = PoseFeed(iter(batches), max_gap_ns=500_000_000, offset_ns=0, default_bias=np.zeros(3))
+    feed = _feed(stamps, poses)
+    step = int(np.median(np.diff(stamps)))
     ends = [*stamps.tolist(), int(stamps[-1]) + step // 2, int(stamps[-1]) + 2 * step]
     sweeps = [(t1 - 100_000_000, t1) for t1 in ends]
     sweeps.insert(20, (int(stamps[5]) - 40_000_000, int(stamps[5]) + 10_000_000))  # out of order
     sweeps.insert(0, (int(stamps[0]) - 3 * step, int(stamps[0]) - 2 * step))  # before the start
     reasons = set()
     for t0, t1 in sweeps:
-        part = feed.spline(t0, t1)
-        want = whole.uncovered(t0, t1)
-        reasons.add(want)
-        assert part.uncovered(t0, t1) == want, (t0, t1)
-        if want is None:
-            knots = sweep_knots(t0, t1, 5_000_000)
-            np.testing.assert_allclose(part.at(knots), whole.at(knots), rtol=0, atol=1e-12)
-            np.testing.assert_allclose(part.positions(knots), whole.positions(knots), rtol=0, atol=1e-12)
+        whole = _whole(stamps, poses, t1)
+        reasons.add(whole.uncovered(t0, t1))
+        _same(feed.spline(t0, t1), whole, t0, t1)
     assert reasons == {None, "before the trajectory starts", "after the trajectory ends", "in a gap of the trajectory"}
+
+
+def test_the_feed_lets_go_of_old_poses_but_not_of_those_a_sweep_needs(monkeypatch):
+    """With 8 poses kept: a sweep whose poses are gone is 'out of order'; one sweep stamped far ahead (a broken
+    scan) does not take the poses the next sweeps need."""
+    monkeypatch.setattr(deskew_poses, "_KEEP", 8)
+    stamps, poses = _trajectory(80)
+    feed = _feed(stamps, poses, seed=4)
+    for k in range(1, 30):
+        _same(feed.spline(int(stamps[k]) - 100_000_000, int(stamps[k])), _whole(stamps, poses, stamps[k]),
+              int(stamps[k]) - 100_000_000, int(stamps[k]))
+    assert feed.dropped > 0
+    far = int(stamps[70])
+    _same(feed.spline(far - 100_000_000, far), _whole(stamps, poses, far), far - 100_000_000, far)
+    for k in range(30, 40):  # the broken scan's neighbours
+        t0, t1 = int(stamps[k]) - 100_000_000, int(stamps[k])
+        _same(feed.spline(t0, t1), _whole(stamps, poses, t1), t0, t1)
+    first_kept = int(feed._stamps[0])
+    assert feed.spline(first_kept - 10_000_000, first_kept + 5_000_000) == "more than 600 scans out of order"
+    assert feed.spline(first_kept + 1_000_000, first_kept + 5_000_000) == "more than 600 scans out of order"
 
 
 def test_the_feed_gives_each_sweep_the_bias_and_offset_of_its_own_pose():
@@ -207,20 +244,52 @@ def test_a_failing_odometry_stops_the_helper_and_its_files_go(walk, tmp_path, tw
     assert leftovers(tmp_path, "out") == []
 
 
-def test_a_helper_that_dies_is_a_one_line_error(walk, tmp_path, two_cores, monkeypatch):
-    send, sent = deskew_helper.Helper.send, []
+def test_a_helper_that_dies_is_a_one_line_error_and_its_temporaries_go(walk, tmp_path, two_cores, monkeypatch):
+    """Killed once it has begun its output (it cannot remove it itself)."""
+    send, seen = deskew_helper.Helper.send, []
 
     def killing(self, kind, value):
-        sent.append(kind)
-        if sent.count("poses") == 3:
+        if kind == "end":
+            for _ in range(200):  # until it has opened its output (it waits for this message to finish it)
+                if self.temps:
+                    break
+                time.sleep(0.05)
+            seen.append([p.name for p in self.temps])
             self.proc.kill()
             self.proc.wait()
         send(self, kind, value)
 
     monkeypatch.setattr(deskew_helper.Helper, "send", killing)
     with pytest.raises(ProcessingError) as err:
-        run(walk, tmp_path / "out.bag", True)
+        run(walk, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
     assert str(err.value) == "the writing process stopped without an answer (exit code -9)"
+    assert len(seen) == 1 and seen[0][0].startswith(".out.bag.")  # the log's temporary existed
+    assert leftovers(tmp_path, "out") == []
+
+
+def test_interrupted_before_the_commit_nothing_is_renamed(walk, tmp_path, two_cores, monkeypatch):
+    """The helper has written everything and waits; the parent stops (Ctrl-C) before it says commit."""
+    send = deskew_helper.Helper.send
+
+    def interrupted(self, kind, value):
+        if kind == "commit":
+            raise KeyboardInterrupt
+        send(self, kind, value)
+
+    monkeypatch.setattr(deskew_helper.Helper, "send", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(walk, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
+    assert leftovers(tmp_path, "out") == []
+
+
+@pytest.mark.parametrize("helper", [True, False])
+def test_strict_refuses_a_scan_the_odometry_s_poses_do_not_cover(walk, tmp_path, two_cores, helper):
+    """Poses 0.1 s apart with a gap limit of 0.05 s: the first sweep is in a gap."""
+    with pytest.raises(InputError) as err:
+        run(walk, tmp_path / "out.bag", helper, strict=True, **{"trajectory.max_gap_s": 0.05})
+    assert re.fullmatch(rf"{re.escape(str(walk))}: /points: the scan of \d+\.\d{{9}} s to \d+\.\d{{9}} s is in a gap of "
+                        r"the trajectory \(\d+\.\d{9} s to \d+\.\d{9} s\); without --strict such scans are copied "
+                        r"unchanged and counted", str(err.value)), str(err.value)
     assert leftovers(tmp_path, "out") == []
 
 
