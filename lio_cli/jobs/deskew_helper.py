@@ -171,6 +171,13 @@ def main() -> None:
     os.dup2(2, 1)
     sys.stdout = sys.stderr
     level = []
+
+    def answer(msg) -> None:
+        try:
+            _send(out, msg)
+        except OSError as err:  # the parent is gone (killed): nobody to answer, discard quietly
+            raise _Aborted from err
+
     try:
         from ..io.reader import open_log
         from .deskew_motion import settled_motion
@@ -197,11 +204,11 @@ def main() -> None:
             now = time.perf_counter()
             if now - last[0] >= _PROGRESS_S:
                 last[0] = now
-                _send(out, ("written", done))
+                answer(("written", done))
 
         def commit(stats: dict) -> None:
             stats["helper_peak_rss_mb"] = _peak_rss_mb()
-            _send(out, ("ready", (stats, mounting)))
+            answer(("ready", (stats, mounting)))
             msg = _receive(inp)
             if msg is None or msg[0] != "commit":
                 raise _Aborted
@@ -211,10 +218,10 @@ def main() -> None:
             motion = settled_motion(job.log, cfg, source, imu_topic, mounting, T_base_lidar, batches())
             try:
                 write_pass(job, reader, fmt, plan, motion, progress, 0, None, lambda: level[0],
-                           on_temp=lambda path: _send(out, ("temp", str(path))), before_commit=commit)
+                           on_temp=lambda path: answer(("temp", str(path))), before_commit=commit)
             finally:
                 motion.close()
-        _send(out, ("committed", None))
+        answer(("committed", None))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
     except _Aborted:
         sys.exit(1)
