@@ -14,13 +14,15 @@
    translation RMSE (lio's evaluation, evo's definition).
 3. Speed: each source in its own process: wall and CPU seconds and x real time (CPU seconds count every
    thread and the writing process beside the odometry, so they stand for a machine whose cores are busy with
-   other work), with Python's bytecode cache written as on any installed machine.
+   other work), with Python's bytecode cache written as on any installed machine. The IMU source is also timed
+   on the other scenarios' 16-beam logs (`--speed-scenarios`, default corridor and drive), beside `lio odom`
+   alone on each: the odometry is what a run from the IMU cannot go below.
    Writing: the output's records written from memory by rosbags' Writer alone against lio's LogWriter (same
    bytes, same connections). Memory: peak RSS of `lio deskew` on a log and on one 3x longer (and of its
    writing process, which reports its own).
 
     python benchmarks/bench_deskew.py                    # 30 s handheld; memory 30 s vs 90 s
-    python benchmarks/bench_deskew.py --duration 20 --no-kiss --no-memory
+    python benchmarks/bench_deskew.py --duration 20 --no-kiss --no-memory --speed-scenarios ""
 """
 
 from __future__ import annotations
@@ -196,6 +198,26 @@ def writer_cost(work: Path, out_fmt: str, src: Path) -> dict:
     return {"format": out_fmt, "messages": len(recs), "rosbags_s": times["rosbags"], "lio_s": times["lio"]}
 
 
+def other_scenarios(work: Path, scenarios: list[str], duration: float, seed: int) -> list[dict]:
+    """Speed from the IMU on other 16-beam logs of the same length, beside `lio odom` alone on each (the
+    odometry is the floor: the writing runs beside it)."""
+    rows = []
+    for name in scenarios:
+        d = work / f"speed_{name}"
+        d.mkdir(exist_ok=True)
+        sim = simulate(name, d / "log.bag", "ros1", duration_s=duration, seed=seed, force=True, beams=16)
+        odom = run([str(BIN / "lio"), "odom", str(sim.log_path), "-o", str(d / "odom.tum"), "-q", "--force"], d)
+        r = lio_deskew(sim.log_path, d / "out.bag", d)
+        err, _ = point_errors(TrueMotion(sim.truth_path), sim.log_path, d / "out.bag")
+        m = r["metrics"]
+        rows.append({"scenario": name, "log_s": duration, "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
+                     "odom_wall_s": odom["wall_s"], "median_mm": np.median(err) * 1e3,
+                     "p95_mm": np.percentile(err, 95) * 1e3, "register_s": m["motion"]["odometry"]["time_s"],
+                     "writing": m["writing"]})
+        print(f"  speed {name}: done", file=sys.stderr)
+    return rows
+
+
 def memory(work: Path, scenario: str, durations: tuple[float, float], seed: int) -> list[dict]:
     rows = []
     for dur in durations:
@@ -218,6 +240,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-kiss", action="store_true")
     ap.add_argument("--no-memory", action="store_true")
+    ap.add_argument("--speed-scenarios", default="corridor,drive",
+                    help="also time the IMU source on these scenarios' 16-beam logs ('' for none)")
     ap.add_argument("--keep", type=Path, default=None, help="keep logs and outputs in this folder")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
@@ -233,6 +257,9 @@ def main() -> int:
     if not args.no_kiss:
         info = json.loads(sim.truth_path.read_text())["lidar"]
         results["kiss"] = kiss(work, sim.log_path, work / "deskewed_3.bag", truth, info["period_s"], info["columns"])
+    others = [x for x in args.speed_scenarios.split(",") if x and x != args.scenario]
+    if others:
+        results["speed"] = other_scenarios(work, others, args.duration, args.seed)
     ros2 = work / "deskewed_ros2"
     lio_deskew(sim.log_path, ros2, work, "--trajectory", str(sim.gt_path), "--format", "ros2")
     results["writer"] = [writer_cost(work, "ros1", work / "deskewed_0.bag"), writer_cost(work, "ros2", ros2)]
@@ -261,6 +288,14 @@ def print_tables(r: dict, scenario: str, load: float) -> None:
     for a in r["accuracy"]:
         if a.get("writing"):
             print(f"\n{a['source']}: written {a['writing']}")
+    if "speed" in r:
+        print("\nFrom the IMU on other 16-beam logs of the same length (1024 columns; `lio odom` alone beside)\n")
+        print("| scenario | median mm | p95 mm | wall s | x real time (wall) | CPU s | lio odom alone wall s | "
+              "odometry inside s |")
+        print("|---|---|---|---|---|---|---|---|")
+        for a in r["speed"]:
+            print(f"| {a['scenario']} | {a['median_mm']:.2f} | {a['p95_mm']:.2f} | {a['wall_s']:.1f} | "
+                  f"{a['log_s'] / a['wall_s']:.1f} | {a['cpu_s']:.1f} | {a['odom_wall_s']:.1f} | {a['register_s']:.1f} |")
     if "kiss" in r:
         print("\nkiss-icp on the raw and the de-skewed log (ATE: SE(3)-aligned translation RMSE against the exact motion)\n")
         print("| kiss-icp run | ATE m | wall s |")
