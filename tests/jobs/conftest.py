@@ -114,3 +114,29 @@ class FuseLogs:
 @pytest.fixture
 def fuse_logs(logs) -> FuseLogs:
     return FuseLogs(logs)
+
+
+def _rewrite_clouds(src, dst, edit):
+    """A copy of a ROS 1 log with each /points cloud (structured array) passed through ``edit(k, arr)``."""
+    from lio_cli.io.pointcloud import cloud_dtype, stamp_to_ns
+    from lio_cli.io.reader import open_log
+    from lio_cli.io.writer import LogWriter
+
+    with open_log(src) as r, LogWriter(dst, "ros1") as w:
+        for topic, info in r.topics.items():
+            w.add_topic(topic, info.msgtype, latching=topic == "/tf_static")
+        k = 0
+        for topic, _, t, msg in r.messages():
+            if topic == "/points":
+                arr = np.frombuffer(np.asarray(msg.data).tobytes(), dtype=cloud_dtype(msg)).copy()
+                msg = w.make.pointcloud2(stamp_to_ns(msg.header.stamp), msg.header.frame_id, edit(k, arr))
+                k += 1
+            w.write(topic, t, msg)
+    return dst
+
+
+@pytest.fixture
+def rewrite_clouds():
+    """``rewrite_clouds(src, dst, edit)``: a copy of a ROS 1 log with each /points cloud passed through
+    ``edit(k, structured array)``."""
+    return _rewrite_clouds

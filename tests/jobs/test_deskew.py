@@ -291,22 +291,7 @@ def test_unsigned_time_fields_take_reference_start_only(sim, tmp_path):
     check_cloud_rules(s.log_path, tmp_path / "start.bag", reference="start")
 
 
-def _rewrite(src, dst, edit):
-    """A copy of a ROS 1 log with each /points cloud (structured array) passed through ``edit(k, arr)``."""
-    with open_log(src) as r, LogWriter(dst, "ros1") as w:
-        for topic, info in r.topics.items():
-            w.add_topic(topic, info.msgtype, latching=topic == "/tf_static")
-        k = 0
-        for topic, msgtype, t, msg in r.messages():
-            if topic == "/points":
-                arr = np.frombuffer(np.asarray(msg.data).tobytes(), dtype=cloud_dtype(msg)).copy()
-                msg = w.make.pointcloud2(stamp_to_ns(msg.header.stamp), msg.header.frame_id, edit(k, arr))
-                k += 1
-            w.write(topic, t, msg)
-    return dst
-
-
-def test_invalid_points_stay_invalid_byte_for_byte(sim, tmp_path):
+def test_invalid_points_stay_invalid_byte_for_byte(sim, tmp_path, rewrite_clouds):
     s = sim("ros1")
     rng = np.random.default_rng(5)
 
@@ -316,7 +301,7 @@ def test_invalid_points_stay_invalid_byte_for_byte(sim, tmp_path):
         arr["x"][rows[20:]] = arr["y"][rows[20:]] = arr["z"][rows[20:]] = 0.0
         return arr
 
-    log = _rewrite(s.log_path, tmp_path / "holes.bag", holes)
+    log = rewrite_clouds(s.log_path, tmp_path / "holes.bag", holes)
     out = tmp_path / "out.bag"
     res = deskew(log, out, **gt(s))
     assert res.metrics["scans"]["deskewed"] == 20
@@ -330,7 +315,7 @@ def test_invalid_points_stay_invalid_byte_for_byte(sim, tmp_path):
         assert np.isfinite(vb["x"][~bad]).all()
 
 
-def test_absurd_point_times_cost_nothing_and_lose_no_scan(sim, tmp_path):
+def test_absurd_point_times_cost_nothing_and_lose_no_scan(sim, tmp_path, rewrite_clouds):
     """One point 2 h away from its scan's others is a bad point (issue 10): left as it was, counted, and the rest
     of its scan de-skewed. Times that really spread over more than 1 s (no sweep) leave the scan as it is."""
     s = sim("ros1")
@@ -342,7 +327,7 @@ def test_absurd_point_times_cost_nothing_and_lose_no_scan(sim, tmp_path):
             arr["time"] = np.linspace(0.0, 1.5, len(arr))
         return arr
 
-    log = _rewrite(s.log_path, tmp_path / "absurd.bag", absurd)
+    log = rewrite_clouds(s.log_path, tmp_path / "absurd.bag", absurd)
     res = deskew(log, tmp_path / "out.bag", **gt(s))
     assert res.metrics["scans"]["unchanged_why"] == {"point times span more than 1 s": 1}
     assert res.metrics["points_with_absurd_time_left_unchanged"] == 1
@@ -400,10 +385,10 @@ def _untimed(arr):
     return out
 
 
-def test_clouds_without_time_in_no_spinning_order_are_refused(sim, tmp_path):
+def test_clouds_without_time_in_no_spinning_order_are_refused(sim, tmp_path, rewrite_clouds):
     s = sim("ros1")
     rng = np.random.default_rng(0)
-    log = _rewrite(s.log_path, tmp_path / "untimed.bag", lambda k, arr: _untimed(arr)[rng.permutation(len(arr))])
+    log = rewrite_clouds(s.log_path, tmp_path / "untimed.bag", lambda k, arr: _untimed(arr)[rng.permutation(len(arr))])
     with pytest.raises(InputError) as err:
         deskew(log, tmp_path / "out.bag", **gt(s))
     assert str(err.value) == (f"{log}: /points: clouds carry no per-point time field (fields: x, y, z, intensity) and "
@@ -415,7 +400,7 @@ def test_clouds_without_time_in_no_spinning_order_are_refused(sim, tmp_path):
                               "there is no motion within a sweep to compensate")
     assert not list(tmp_path.glob("out*"))
     # in firing order the azimuth gives each point's time (the header taken as the sweep's start)
-    log = _rewrite(s.log_path, tmp_path / "ordered.bag", lambda k, arr: _untimed(arr))
+    log = rewrite_clouds(s.log_path, tmp_path / "ordered.bag", lambda k, arr: _untimed(arr))
     res = deskew(log, tmp_path / "az.bag", **gt(s))
     assert res.metrics["point_time"] == "none (stamps derived from azimuth) (detected)"
     err, skew = errors(s, tmp_path / "az.bag")

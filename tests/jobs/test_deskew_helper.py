@@ -12,9 +12,6 @@ from lio_cli.config import with_overrides
 from lio_cli.config.deskew import DeskewConfig
 from lio_cli.core.sweep_motion import PoseSpline, sweep_knots
 from lio_cli.errors import InputError, ProcessingError
-from lio_cli.io.pointcloud import cloud_dtype, stamp_to_ns
-from lio_cli.io.reader import open_log
-from lio_cli.io.writer import LogWriter
 from lio_cli.jobs import deskew as deskew_job
 from lio_cli.jobs import deskew_helper, deskew_poses
 from lio_cli.jobs.deskew import DeskewJob, run_deskew
@@ -183,27 +180,21 @@ def test_the_helper_writes_the_bytes_one_process_writes(walk, tmp_path, two_core
     assert len(recorded[0][0]) > 5  # the poses went over in batches as they settled
 
 
-def _unsigned_from(src: Path, dst: Path, first: int) -> Path:
-    """A copy of ``src`` whose clouds from the ``first``-th on carry their time field as uint32 nanoseconds."""
-    with open_log(src) as r, LogWriter(dst, "ros1") as w:
-        for topic, info in r.topics.items():
-            w.add_topic(topic, info.msgtype, latching=topic == "/tf_static")
-        k = 0
-        for topic, _, t, msg in r.messages():
-            if topic == "/points":
-                if k >= first:
-                    arr = np.frombuffer(np.asarray(msg.data).tobytes(), dtype=cloud_dtype(msg))
-                    new = np.empty(len(arr), dtype=[(n, "<u4" if n == "time" else arr.dtype[n]) for n in arr.dtype.names])
-                    for n in arr.dtype.names:
-                        new[n] = np.rint(arr[n] * 1e9) if n == "time" else arr[n]
-                    msg = w.make.pointcloud2(stamp_to_ns(msg.header.stamp), msg.header.frame_id, new)
-                k += 1
-            w.write(topic, t, msg)
-    return dst
+def _unsigned_time(first: int):
+    """An edit giving the clouds from the ``first``-th on their time field as uint32 nanoseconds."""
+    def edit(k, arr):
+        if k < first:
+            return arr
+        new = np.empty(len(arr), dtype=[(n, "<u4" if n == "time" else arr.dtype[n]) for n in arr.dtype.names])
+        for n in arr.dtype.names:
+            new[n] = np.rint(arr[n] * 1e9) if n == "time" else arr[n]
+        return new
+    return edit
 
 
-def test_a_bad_cloud_the_helper_meets_is_the_one_line_error_and_nothing_is_written(walk, tmp_path, two_cores):
-    log = _unsigned_from(walk, tmp_path / "mixed.bag", first=12)
+def test_a_bad_cloud_the_helper_meets_is_the_one_line_error_and_nothing_is_written(walk, tmp_path, two_cores,
+                                                                                   rewrite_clouds):
+    log = rewrite_clouds(walk, tmp_path / "mixed.bag", _unsigned_time(12))
     with pytest.raises(InputError) as err:
         run(log, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
     assert str(err.value) == (f"{log}: /points: the per-point time field 'time' is unsigned, so it cannot hold the "
