@@ -31,11 +31,11 @@ connection metadata (definitions, hashes, latching, QoS) and /tf_static. A ROS 1
 or an MCAP file (or back) is converted field for field instead (counted in metrics.json).
 
 [bold]Motion[/bold] (metrics.json says which): --trajectory FILE (TUM or LOG:/topic of the base, e.g.
-from lio odom; interpolated on SE(3)); else the IMU: lio's IMU-primed odometry runs, and each sweep gets the
-gyro's rotation (with the bias and clock offset the odometry had at that scan) and the odometry's translation;
-else, asked for with --motion constant-velocity, LiDAR-only odometry. On two or more cores the output is
-written by a second process beside the odometry, taking each scan's pose as it settles (same bytes, about the
-odometry's time in all).
+from lio odom; interpolated on SE(3)); else the IMU: lio's IMU-primed odometry runs, and each sweep
+gets the gyro's rotation (with the bias and clock offset the odometry had at that scan) and the
+odometry's translation; else, asked for with --motion constant-velocity, LiDAR-only odometry. On two
+or more cores a second process writes the output beside the odometry, taking each scan's pose as it
+settles (the same bytes; a run takes about the odometry's time).
 
 OUT's format: --format, else its suffix (.bag ROS 1, .mcap MCAP), else the input's (a ROS 2 bag folder).
 Also written: OUT-stem.metrics.json (scans written and skipped and why, motion source, times) and
