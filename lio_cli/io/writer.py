@@ -11,6 +11,7 @@ holds), whose messages are then written as stored with ``write_record``.
 from __future__ import annotations
 
 from functools import cached_property
+from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import InputError
@@ -27,7 +28,9 @@ FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), 
 class LogWriter:
     """``add_topic(topic, msgtype)`` then ``write(topic, time_ns, msg)`` in any order of time."""
 
-    def __init__(self, path: str | Path, fmt: str, force: bool = False, mcap_profile: str = "ros2") -> None:
+    def __init__(self, path: str | Path, fmt: str, force: bool = False, mcap_profile: str = "ros2",
+                 on_temp: Callable[[Path], None] | None = None) -> None:
+        """``on_temp``: told the temporary path (file or ROS 2 folder) before it is created."""
         if fmt not in WRITE_FORMATS:
             raise InputError(f"unknown output format '{fmt}' (choose from {', '.join(WRITE_FORMATS)})")
         self.path = Path(path)
@@ -36,11 +39,11 @@ class LogWriter:
         # rosbags names a ROS 2 bag's storage file after its folder, so a ROS 2 bag is written under its
         # final name inside a temporary sibling folder (not as a hidden temp name that would stick).
         self._tmpdir = temp_sibling(self.path) if fmt in ("ros2", "ros2-mcap") else None
+        self._tmp = self._tmpdir / self.path.name if self._tmpdir is not None else temp_sibling(self.path)
+        if on_temp is not None:
+            on_temp(self.temp_path)
         if self._tmpdir is not None:
             self._tmpdir.mkdir()
-            self._tmp = self._tmpdir / self.path.name
-        else:
-            self._tmp = temp_sibling(self.path)
         self._topics: dict[str, tuple[str, object]] = {}
         self._seq: dict[str, int] = {}
         self._mcap_profile = mcap_profile
@@ -51,6 +54,9 @@ class LogWriter:
         except Exception as err:
             self._discard()
             raise InputError(f"{self.path}: cannot create log ({err})") from err
+        except BaseException:  # interrupted while creating it
+            self._discard()
+            raise
 
     @cached_property
     def typestore(self):
@@ -223,6 +229,12 @@ class LogWriter:
         self._seq[topic] += 1
 
     def close(self) -> None:
+        """``finish`` then ``commit``."""
+        self.finish()
+        self.commit()
+
+    def finish(self) -> None:
+        """Write the log's end (indexes, summaries) into its temporary; nothing is in place yet."""
         try:
             if self.format == "mcap":
                 self._w.finish()
@@ -232,7 +244,17 @@ class LogWriter:
         except Exception as err:
             self.abort()
             raise InputError(f"{self.path}: cannot finish writing log ({err})") from err
-        replace_path(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
+
+    def commit(self) -> None:
+        """Rename the finished log into place."""
+        try:
+            replace_path(self._tmp, self.path)
+        except BaseException:
+            self._discard()
+            raise
         if self._tmpdir is not None:
             remove_path(self._tmpdir)
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import pickle
 import queue
+import signal
 import struct
 import subprocess
 import sys
@@ -90,16 +91,19 @@ class Helper:
         return cls(proc)
 
     def _listen(self) -> None:
-        while True:
-            msg = _receive(self.proc.stdout)
-            if msg is not None and msg[0] == "written":
-                self.written = msg[1]
-            elif msg is not None and msg[0] == "temp":
-                self.temps.append(Path(msg[1]))
-            else:
-                self._replies.put(msg)
+        try:
+            while True:
+                msg = _receive(self.proc.stdout)
                 if msg is None:
                     return
+                if msg[0] == "written":
+                    self.written = msg[1]
+                elif msg[0] == "temp":
+                    self.temps.append(Path(msg[1]))
+                else:
+                    self._replies.put(msg)
+        finally:  # the end of its answers, however the stream ended
+            self._replies.put(None)
 
     def send(self, kind: str, value) -> None:
         """Send one message; when the helper has stopped, raise the error that stopped it."""
@@ -150,6 +154,8 @@ class Helper:
             self.proc.stdin.close()
         except OSError:
             pass
+        if self.proc.poll() is None:
+            self.proc.terminate()  # it may be writing scans and not reading its pipe: discard now
         try:
             self.proc.wait(_WAIT_S)
         except subprocess.TimeoutExpired:
@@ -161,11 +167,16 @@ class Helper:
 
 
 class _Aborted(Exception):
-    """The parent's pipe closed without the end (or the commit) message."""
+    """The parent's pipe closed without the end (or the commit) message, or it ended the helper (SIGTERM)."""
+
+
+def _terminated(signum, frame):
+    raise _Aborted
 
 
 def main() -> None:
     """The helper process: read the setup and poses on stdin, write, answer on stdout."""
+    signal.signal(signal.SIGTERM, _terminated)
     inp = sys.stdin.buffer
     out = os.fdopen(os.dup(1), "wb")  # the answers' channel; anything else written to fd 1 goes to stderr
     os.dup2(2, 1)

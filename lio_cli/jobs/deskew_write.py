@@ -28,46 +28,51 @@ def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion,
                before_commit: Callable[[dict], None] | None = None) -> dict:
     """Write ``job.out`` (and ``job.map``) from ``reader``; returns the pass's statistics. ``level``: the
     rotation (4x4) from the motion's world frame to the map's, asked once every pose has come. ``on_temp``:
-    told each temporary output as it is made; ``before_commit``: called with the statistics once everything
-    is written, before anything is renamed into place (an exception there discards it all)."""
+    told each temporary output before it is made; ``before_commit``: called with the statistics once
+    everything is written and closed, before anything is renamed into place (an exception there discards it
+    all; after it only the renames remain)."""
     cfg = job.config
     voxels = VoxelMap(cfg.map_voxel_m) if job.map is not None else None
     t0 = time.perf_counter()
     map_tmp = None
+    w = LogWriter(job.out, fmt, force=job.force, mcap_profile=mcap_profile(reader), on_temp=on_temp)
     try:
-        with LogWriter(job.out, fmt, force=job.force, mcap_profile=mcap_profile(reader)) as w:
+        scans = _write_records(reader, w, plan, motion, cfg, voxels, progress, done0, total)
+        t_map = time.perf_counter()
+        if voxels is not None:
+            points = voxels.points()
+            if level is not None:
+                A = level()
+                points = (points @ A[:3, :3].T.astype(np.float32)) + A[:3, 3].astype(np.float32)
+            check_writable(job.map, job.force)
+            map_tmp = temp_sibling(job.map)
             if on_temp is not None:
-                on_temp(w.temp_path)
-            scans = _write_records(reader, w, plan, motion, cfg, voxels, progress, done0, total)
-            t_map = time.perf_counter()
-            if voxels is not None:
-                points = voxels.points()
-                if level is not None:
-                    A = level()
-                    points = (points @ A[:3, :3].T.astype(np.float32)) + A[:3, 3].astype(np.float32)
-                check_writable(job.map, job.force)
-                map_tmp = temp_sibling(job.map)
-                if on_temp is not None:
-                    on_temp(map_tmp)
-                map_tmp.write_bytes(point_map_bytes(points, job.map.suffix))
-            t_map = time.perf_counter() - t_map
-            stats = scans.summary()
-            stats["imu_gap_scans"] = motion.imu_gap_scans
-            stats["copied_topics"] = {"as_stored": scans.copy.copied, "converted": scans.copy.converted}
-            if voxels is not None:
-                stats["map"] = {"path": str(job.map), "points": len(voxels), "voxel_m": voxels.voxel_m,
-                                "frame": "the motion source's world frame"}
-            stats["time_s"] = {"write_pass": round(time.perf_counter() - t0, 4), **scans.times(),
-                               "map": round(t_map, 4)}
-            if before_commit is not None:
-                before_commit(stats)
+                on_temp(map_tmp)
+            map_tmp.write_bytes(point_map_bytes(points, job.map.suffix))
+        t_map = time.perf_counter() - t_map
+        w.finish()
+        stats = scans.summary()
+        stats["imu_gap_scans"] = motion.imu_gap_scans
+        stats["copied_topics"] = {"as_stored": scans.copy.copied, "converted": scans.copy.converted}
+        if voxels is not None:
+            stats["map"] = {"path": str(job.map), "points": len(voxels), "voxel_m": voxels.voxel_m,
+                            "frame": "the motion source's world frame"}
+        stats["time_s"] = {"write_pass": round(time.perf_counter() - t0, 4), **scans.times(), "map": round(t_map, 4)}
+        if before_commit is not None:
+            before_commit(stats)
+    except BaseException:
+        w.abort()
         if map_tmp is not None:
-            replace_path(map_tmp, job.map)
-            map_tmp = None
+            remove_path(map_tmp)
+        raise
+    try:
+        w.commit()  # from here on only renames
     except BaseException:
         if map_tmp is not None:
             remove_path(map_tmp)
         raise
+    if map_tmp is not None:
+        replace_path(map_tmp, job.map)
     return stats
 
 

@@ -1,7 +1,9 @@
 """``lio deskew`` writing beside its odometry: the odometry's settled poses, the pose feed's splines, and the
 helper process, which must write the same bytes as one process and leave nothing behind when either side fails."""
 
+import dataclasses
 import re
+import signal
 import time
 from pathlib import Path
 
@@ -231,7 +233,8 @@ def test_a_failing_odometry_stops_the_helper_and_its_files_go(walk, tmp_path, tw
     monkeypatch.setattr(deskew_job.Helper, "start", staticmethod(tracked))
     with pytest.raises(ProcessingError, match="^the odometry gave up$"):
         run(walk, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
-    assert len(helpers) == 1 and helpers[0].proc.returncode == 1  # it saw the pipe close without the end
+    # ended by the parent: its pipe closed and SIGTERM (exit 1 once its handler is set, else killed by it)
+    assert len(helpers) == 1 and helpers[0].proc.returncode in (1, -signal.SIGTERM)
     assert leftovers(tmp_path, "out") == []
 
 
@@ -267,10 +270,43 @@ def test_interrupted_before_the_commit_nothing_is_renamed(walk, tmp_path, two_co
             raise KeyboardInterrupt
         send(self, kind, value)
 
+    start, helpers = deskew_helper.Helper.start, []
     monkeypatch.setattr(deskew_helper.Helper, "send", interrupted)
+    monkeypatch.setattr(deskew_job.Helper, "start", staticmethod(lambda: helpers.append(start()) or helpers[-1]))
+    t0 = time.perf_counter()
     with pytest.raises(KeyboardInterrupt):
         run(walk, tmp_path / "out.bag", True, map=tmp_path / "out.ply")
+    assert time.perf_counter() - t0 < 30  # not the minute abort() would wait before killing it
+    assert helpers[0].proc.returncode == 1  # it discarded its files itself (its SIGTERM handler)
     assert leftovers(tmp_path, "out") == []
+
+
+def test_a_final_clock_offset_rewrites_after_the_odometry_and_the_helper_s_files_go(walk, tmp_path, two_cores,
+                                                                                    monkeypatch):
+    """When the odometry's final clock offset disagrees with what it applied, the helper's work is dropped and
+    the one-process writer runs with the final offset: the same bytes as without a helper."""
+    real, recorded = deskew_job.run_odometry, []
+
+    def moved(log, cfg, source, progress, reader, settled):
+        if not recorded:
+            batches = []
+            result = real(log, cfg, source, progress, reader, lambda b: (batches.append(b), settled(b)))
+            recorded.append((batches, dataclasses.replace(result, final_offset_ns=2_000_000)))
+        else:
+            for b in recorded[0][0]:
+                settled(b)
+        return recorded[0][1]
+
+    monkeypatch.setattr(deskew_job, "run_odometry", moved)
+    two = run(walk, tmp_path / "two.bag", True, map=tmp_path / "two.ply")
+    one = run(walk, tmp_path / "one.bag", False, map=tmp_path / "one.ply")
+    assert two.metrics["writing"] == ("after the odometry (the clock offset it measured by its end differs from what "
+                                      "it applied online: every scan is written with the final one)")
+    assert one.metrics["writing"] == "after the odometry"
+    assert (tmp_path / "one.bag").read_bytes() == (tmp_path / "two.bag").read_bytes()
+    assert (tmp_path / "one.ply").read_bytes() == (tmp_path / "two.ply").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        f"{a}.{b}" for a in ("one", "two") for b in ("bag", "ply", "metrics.json", "config.yaml"))
 
 
 @pytest.mark.parametrize("helper", [True, False])
@@ -296,5 +332,6 @@ def test_the_helper_runs_this_lio_cli_from_any_working_directory(tmp_path, monke
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(deskew_helper, "_cpus", lambda: 2)
     h = deskew_helper.Helper.start()
-    h.abort()  # the helper imported its modules and waited for the setup: EOF, exit 1
-    assert h.proc.returncode == 1
+    h.proc.stdin.close()  # the helper imports its modules and waits for the setup: EOF, exit 1 (7: wrong one)
+    assert h.proc.wait(60) == 1
+    h.abort()
