@@ -266,7 +266,8 @@ class LogWriter:
                 self._w.close()
         except Exception:  # noqa: BLE001 - the temp output is discarded anyway
             pass
-        self._discard()
+        finally:  # an interrupt while closing too
+            self._discard()
 
     def __enter__(self) -> "LogWriter":
         return self

@@ -53,3 +53,29 @@ def test_bad_format_and_missing_folder(tmp_path):
         LogWriter(tmp_path / "x.bag", "bag")
     with pytest.raises(InputError, match="output folder does not exist"):
         LogWriter(tmp_path / "nope" / "x.bag", "ros1")
+
+
+def test_finish_then_commit_and_the_temporary_named_before_it_exists(tmp_path, write_format, logs):
+    """finish() writes the log's end into its temporary (nothing in place yet), commit() renames it; the
+    temporary (a ROS 2 bag's folder) is named to ``on_temp`` before it is created."""
+    path = logs.path(write_format, "fc")
+    named = []
+    w = LogWriter(path, write_format, on_temp=lambda p: named.append((p, p.exists())))
+    assert named == [(w.temp_path, False)] and w.temp_path.exists()
+    w.add_topic("/imu", "sensor_msgs/msg/Imu")
+    w.finish()
+    assert w.temp_path.exists() and not path.exists()
+    w.commit()
+    assert path.exists() and not w.temp_path.exists()
+    with open_log(path) as log:
+        assert list(log.topics) == ["/imu"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_an_interrupt_while_finishing_leaves_no_temporary(tmp_path, monkeypatch):
+    w = LogWriter(tmp_path / "x.bag", "ros1")
+    w.add_topic("/imu", "sensor_msgs/msg/Imu")
+    monkeypatch.setattr(w._w, "close", lambda: (_ for _ in ()).throw(KeyboardInterrupt))
+    with pytest.raises(KeyboardInterrupt):
+        w.finish()
+    assert list(tmp_path.iterdir()) == []
