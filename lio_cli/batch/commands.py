@@ -60,6 +60,17 @@ def score_trajectory(log: Path, gt: str, est: Trajectory) -> dict:
     return score(Trajectory(ref.stamps_ns, ref.poses, gt), Trajectory(est.stamps_ns, est.poses, "estimate")).to_dict()
 
 
+def registration_threads(command: str, config: BaseModel) -> int | None:
+    """The kiss-icp thread count a run's registrations ask for (None: it registers no scans). kiss-icp fixes
+    the count for a whole process at its first registration, so runs asking for different counts each need
+    a fresh process (calibrate's 1 is what makes its result repeatable)."""
+    if command in ("odom", "calibrate"):
+        return config.registration.threads
+    if command == "deskew":
+        return None if config.trajectory.path is not None else config.odometry.registration.threads
+    return None
+
+
 def run_command(command: str, log: Path, config: BaseModel, gt: str | None, folder: Path) -> dict:
     """Run the command's job on ``log`` and write its files into ``folder``; return its metrics."""
     if command == "odom":

@@ -21,6 +21,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
 from ..errors import ConfigError, InputError
+from .commands import registration_threads
 from .runs import RunTask, execute, pool_initializer, record
 
 Done = Callable[[dict], None]
@@ -57,8 +58,8 @@ class Executor:
     def open(self) -> Iterator[Callable[[list[RunTask], Done], None]]:
         """Connect (Dask: to the scheduler, or start the local cluster) and yield ``run(tasks, done)``; an
         unreachable scheduler is an ``InputError`` here, before anything is written."""
-        if self.kind == "serial":
-            yield _run_serial
+        if self.kind == "serial":  # in this process, unless the runs need processes of their own
+            yield lambda tasks, done: (_run_pool if _mixed_threads(tasks) else _run_serial_all)(tasks, 1, done)
         elif self.kind == "local":
             yield lambda tasks, done: _run_pool(tasks, self.workers, done)
         else:
@@ -66,9 +67,16 @@ class Executor:
                 yield lambda tasks, done: _run_dask(client, tasks, done)
 
 
-def _run_serial(tasks: list[RunTask], done: Done) -> None:
+def _run_serial_all(tasks: list[RunTask], workers: int, done: Done) -> None:
     for task in tasks:
         done(execute(task))
+
+
+def _mixed_threads(tasks: list[RunTask]) -> bool:
+    """Runs whose registrations ask for different kiss-icp thread counts. kiss-icp keeps the count of a
+    process's first registration, so each such run needs a fresh process to register as its command alone
+    would (calibrate's 1 thread is what makes its result repeat exactly)."""
+    return len({registration_threads(t.command, t.config) for t in tasks} - {None}) > 1
 
 
 def choose_executor(jobs: int | None, dask: str | None, workers: int | None) -> Executor:
@@ -116,7 +124,7 @@ def _pool_pass(tasks: list[RunTask], workers: int, done: Done, final: bool) -> l
     ctx = multiprocessing.get_context("spawn")
     stop = ctx.Event()
     pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=pool_initializer,
-                               initargs=(stop,))
+                               initargs=(stop,), max_tasks_per_child=1 if _mixed_threads(tasks) else None)
     futures = {pool.submit(execute, t): t for t in tasks}
     lost: list[RunTask] = []
     try:

@@ -427,3 +427,47 @@ def test_force_never_replaces_a_folder_no_run_wrote(sim, pooled, tmp_path, capsy
     assert (out / "walk_a" / "notes.txt").read_text() == "precious\n"
     assert sorted(p.name for p in (out / "walk_a").iterdir()) == ["notes.txt"]
     assert (out / "walk_b" / "odom.tum").stat().st_mtime_ns == before
+
+
+@pytest.mark.parametrize("second, fresh", [("calibrate", True), ("odom", False)])
+def test_runs_asking_for_different_registration_threads_each_get_a_fresh_process(sim, tmp_path, monkeypatch,
+                                                                                 second, fresh):
+    """kiss-icp keeps the thread count of a process's first registration. With --jobs 1 the runs go in this
+    process, but a calibrate run (1 thread: its result repeats exactly) beside an odom run (all cores) gets a
+    worker process of its own, as each run does then."""
+    from lio_cli.batch import executors
+
+    real, seen = executors.ProcessPoolExecutor, []
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs.get("max_tasks_per_child"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(executors, "ProcessPoolExecutor", recording)
+    log = sim.logs["walk_a"]
+    manifest = write_manifest(tmp_path / "runs.yaml", f"""\
+output: out
+runs:
+  - log: {log}
+    name: first
+  - log: {log}
+    name: second
+    command: {second}
+""")
+    assert run_lio("batch", manifest, "--jobs", "1", "-q")[0] == 0
+    assert seen == ([1] if fresh else [])  # one worker, a fresh one per run; else the runs run in this process
+    assert [r["status"] for r in summary_of(tmp_path / "out")["runs"]] == ["ok", "ok"]
+
+
+def test_registration_threads_of_each_command():
+    from lio_cli.batch.commands import registration_threads
+    from lio_cli.config.calibrate import CalibrateConfig
+    from lio_cli.config.deskew import DeskewConfig
+    from lio_cli.config.fuse import FuseConfig
+    from lio_cli.config.odom import OdomConfig
+
+    assert registration_threads("odom", OdomConfig()) == 0
+    assert registration_threads("calibrate", CalibrateConfig()) == 1
+    assert registration_threads("deskew", DeskewConfig()) == 0
+    assert registration_threads("deskew", DeskewConfig.model_validate({"trajectory": {"path": "x.tum"}})) is None
+    assert registration_threads("fuse", FuseConfig()) is None
