@@ -161,9 +161,8 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progr
         if helper is not None:
             helper.send("poses", batch)
 
-    if progress is not None:
-        written = (lambda: helper.written) if helper is not None else (lambda: 0)
-        odo_progress = lambda done, total: progress(done + written(), 2 * n_scans)  # noqa: E731
+    if progress is not None:  # the odometry's scans, then the writer's (those it has left after the odometry)
+        odo_progress = lambda done, total: progress(done, 2 * n_scans)  # noqa: E731
     try:
         if helper is not None:
             helper.send("setup", setup)
@@ -176,6 +175,8 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progr
     if helper is not None and odo.final_offset_ns is None:
         stats, mounting = helper.finish(odo.level, None if progress is None else
                                         (lambda written: progress(n_scans + written, 2 * n_scans)))
+        if progress is not None:
+            progress(2 * n_scans, 2 * n_scans)  # its last reports come at most every 0.1 s
         return stats, odo, t_motion, mounting, "beside the odometry, in a second process"
     writing = "after the odometry"
     if helper is not None:

@@ -335,3 +335,13 @@ def test_the_helper_runs_this_lio_cli_from_any_working_directory(tmp_path, monke
     h.proc.stdin.close()  # the helper imports its modules and waits for the setup: EOF, exit 1 (7: wrong one)
     assert h.proc.wait(60) == 1
     h.abort()
+
+
+@pytest.mark.parametrize("helper", [True, False])
+def test_progress_runs_up_to_both_passes_and_never_back(walk, tmp_path, two_cores, helper):
+    calls = []
+    cfg = DeskewConfig()
+    run_deskew(DeskewJob(walk, tmp_path / "out.bag", cfg, helper=helper), lambda d, t: calls.append((d, t)))
+    assert {t for _, t in calls} == {60} and calls[-1] == (60, 60)  # 30 scans, two passes
+    done = [d for d, _ in calls]
+    assert done == sorted(done) and done[:30] == list(range(1, 31))  # the odometry's scans first
