@@ -58,8 +58,8 @@ class Executor:
     def open(self) -> Iterator[Callable[[list[RunTask], Done], None]]:
         """Connect (Dask: to the scheduler, or start the local cluster) and yield ``run(tasks, done)``; an
         unreachable scheduler is an ``InputError`` here, before anything is written."""
-        if self.kind == "serial":  # in this process, unless the runs need processes of their own
-            yield lambda tasks, done: (_run_pool if _mixed_threads(tasks) else _run_serial_all)(tasks, 1, done)
+        if self.kind == "serial":
+            yield _run_here
         elif self.kind == "local":
             yield lambda tasks, done: _run_pool(tasks, self.workers, done)
         else:
@@ -67,7 +67,11 @@ class Executor:
                 yield lambda tasks, done: _run_dask(client, tasks, done)
 
 
-def _run_serial_all(tasks: list[RunTask], workers: int, done: Done) -> None:
+def _run_here(tasks: list[RunTask], done: Done) -> None:
+    """In this process, unless the runs need processes of their own (``_mixed_threads``): then one at a time,
+    each in a fresh one."""
+    if _mixed_threads(tasks):
+        return _run_pool(tasks, 1, done)
     for task in tasks:
         done(execute(task))
 
