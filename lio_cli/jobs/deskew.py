@@ -116,7 +116,7 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
             helper = Helper.start() if job.helper else None
             stats, odo, t_motion, mounting, writing = _from_odometry(helper, reader, setup, progress, n_scans)
             description, details = odo.description, odo.details
-            notes.extend(n for n in [*odo.notes, *mounting.notes] if n not in notes)
+            notes.extend([*odo.notes, *mounting.notes])  # repeats go below
     wall = time.perf_counter() - t_wall
     gaps = stats.pop("imu_gap_scans")
     notes = list(dict.fromkeys(notes))  # the odometry and this run resolve the same extrinsics
@@ -153,20 +153,13 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progr
     scan to be written with that offset (see ``PoseFeed``): the helper's files are then discarded."""
     job, fmt, plan, source, imu_topic, mounting, T_base_lidar = setup
     t_motion = time.perf_counter()
-    poses: list = []
-    odo_progress = None
-
-    def sink(batch: list) -> None:
-        poses.append(batch)
-        if helper is not None:
-            helper.send("poses", batch)
-
-    if progress is not None:  # the odometry's scans, then the writer's (those it has left after the odometry)
-        odo_progress = lambda done, total: progress(done, 2 * n_scans)  # noqa: E731
+    # the odometry's scans, then the writer's (those it has left after the odometry)
+    odo_progress = None if progress is None else (lambda done, total: progress(done, 2 * n_scans))
     try:
         if helper is not None:
             helper.send("setup", setup)
-        odo = run_odometry(job.log, job.config, source, odo_progress, reader, sink)
+        odo = run_odometry(job.log, job.config, source, odo_progress, reader,
+                           None if helper is None else (lambda batch: helper.send("poses", batch)))
     except BaseException:
         if helper is not None:
             helper.abort()
@@ -184,7 +177,7 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progr
         writing += (" (the clock offset it measured by its end differs from what it applied online: every scan "
                     "is written with the final one)")
     mounting = copy.deepcopy(mounting)  # as the helper's: what the writing resolves comes after the odometry's notes
-    motion = settled_motion(job.log, job.config, source, imu_topic, mounting, T_base_lidar, iter(poses),
+    motion = settled_motion(job.log, job.config, source, imu_topic, mounting, T_base_lidar, iter(odo.batches),
                             odo.final_offset_ns)
     try:
         stats = write_pass(job, reader, fmt, plan, motion, progress, n_scans, 2 * n_scans, lambda: odo.level)

@@ -242,24 +242,22 @@ class OdometryMotion:
     notes: list[str]
     level: np.ndarray  # the rotation (4x4) that levels the odometry's world frame: the map's
     final_offset_ns: int | None  # the IMU clock offset for every scan (see PoseFeed), or None: as applied
+    batches: list[list[SettledPose]]  # the settled poses, as they were handed on
 
 
 def run_odometry(log: Path, cfg: DeskewConfig, source: str, progress: Progress | None, reader: LogReader | None,
-                 settled: Callable[[list[SettledPose]], None]) -> OdometryMotion:
-    """Run lio's odometry for the motion, handing its settled poses on."""
-    first: list[SettledPose] = []
-    shifts = [0, 0]  # the least and the most the clock tracker had shifted the IMU by at any scan
+                 settled: Callable[[list[SettledPose]], None] | None = None) -> OdometryMotion:
+    """Run lio's odometry for the motion, handing its settled poses on to ``settled`` as they come."""
+    batches: list[list[SettledPose]] = []
 
     def sink(batch: list[SettledPose]) -> None:
-        if not first:
-            first.append(batch[0])
-            shifts[:] = [batch[0].imu_shift_ns] * 2
-        shifts[:] = [min(shifts[0], *(p.imu_shift_ns for p in batch)), max(shifts[1], *(p.imu_shift_ns for p in batch))]
-        settled(batch)
+        batches.append(batch)
+        if settled is not None:
+            settled(batch)
 
     result = run_odom(OdomJob(log, cfg.odom_config(source)), progress=progress, reader=reader, settled=sink)
     traj, m = result.trajectory, result.metrics
-    level = traj.poses[0] @ inv_pose(first[0].pose)
+    level = traj.poses[0] @ inv_pose(batches[0][0].pose)
     details = {"odometry": {"scans": m["scans"], "initialisation": m["initialisation"], "fusion": m["fusion"],
                             "extrinsics": m["extrinsics"], "time_s": m["time_s"]["total"],
                             "final_gyro_bias_radps": m["final_gyro_bias_radps"]}}
@@ -267,20 +265,20 @@ def run_odometry(log: Path, cfg: DeskewConfig, source: str, progress: Progress |
     n = len(traj)
     if source == "constant-velocity":
         return OdometryMotion(f"LiDAR-only odometry ({n} scan poses, constant-velocity prior), cubic interpolation "
-                              "between scans", details, notes, level, None)
+                              "between scans", details, notes, level, None, batches)
     if m["final_gyro_bias_radps"] is None:
         cal = cfg.calibration.gyro_bias_radps
         notes.append("the odometry never started its IMU state: the gyro bias is taken as "
                      f"{'the calibration' if cal is not None else 'zero'}")
     clock, given_ns = m.get("imu_time_offset"), cfg.calibration.imu_time_offset_ns
     final_ns = int(round(clock["estimated_s"] * 1e9)) if clock else given_ns
-    if max(abs(given_ns + s - final_ns) for s in shifts) > OFFSET_AGREE_NS:
+    if max(abs(given_ns + p.imu_shift_ns - final_ns) for b in batches for p in b) > OFFSET_AGREE_NS:
         details["imu_time_offset_s"] = final_ns * 1e-9
         details["imu_time_offset"] = "the odometry's final estimate, for every scan (it moved its offset online)"
         return OdometryMotion(f"IMU: gyro rotation within each sweep (bias as lio's IMU-primed odometry had it at "
                               f"that scan, clock offset as it measured by its end), translation from its {n} scan "
-                              "poses", details, notes, level, final_ns)
+                              "poses", details, notes, level, final_ns, batches)
     details["imu_time_offset_s"] = clock["total_s"] if clock else cfg.calibration.imu_time_offset_s
     details["imu_time_offset"] = "as the odometry applied it at each scan (within 1 ms of its final estimate)"
     return OdometryMotion(f"IMU: gyro rotation within each sweep (bias and clock offset as lio's IMU-primed odometry "
-                          f"had them at that scan), translation from its {n} scan poses", details, notes, level, None)
+                          f"had them at that scan), translation from its {n} scan poses", details, notes, level, None, batches)

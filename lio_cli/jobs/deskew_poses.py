@@ -28,7 +28,7 @@ from .odom import SettledPose
 
 _STEP_POSES = 21  # the extrapolation step is the median interval of this many first poses
 _KEEP = 600  # poses kept behind the latest sweep (a scan that much out of order is not covered)
-_BEHIND = "more than 600 scans out of order"
+_BEHIND = f"more than {_KEEP} scans out of order"
 OFFSET_AGREE_NS = 1_000_000  # the clock tracker's own threshold for applying an offset (APPLY_MIN_S)
 
 
@@ -47,8 +47,7 @@ class PoseFeed:
         self.ended = False
         self.first_ns: int | None = None
         self.step_ns: int | None = None  # the start's extrapolation
-        self._first_steps: list[int] = []
-        self._steps: list[int] = []  # every interval, for the end's extrapolation (the median of all)
+        self._steps: list[int] = []  # every interval: the first ones for the start's extrapolation, all for the end's
         self._end_step_ns: int | None = None
         self._prev_i0: int | None = None  # the previous sweep's first pose (counted from the first pose ever)
 
@@ -56,8 +55,8 @@ class PoseFeed:
         batch = next(self._batches, None)
         if batch is None:
             self.ended = True
-            if self.step_ns is None:
-                self.step_ns = int(np.median(self._first_steps)) if self._first_steps else 0
+            if self.step_ns is None:  # fewer than _STEP_POSES poses in all
+                self.step_ns = int(np.median(self._steps)) if self._steps else 0
             return False
         for p in batch:
             if self._stamps and p.stamp_ns <= self._stamps[-1]:
@@ -66,10 +65,8 @@ class PoseFeed:
                 self.first_ns = p.stamp_ns
             else:
                 self._steps.append(p.stamp_ns - self._stamps[-1])
-                if self.step_ns is None:
-                    self._first_steps.append(self._steps[-1])
-                    if len(self._first_steps) == _STEP_POSES - 1:
-                        self.step_ns = int(np.median(self._first_steps))
+                if self.step_ns is None and len(self._steps) == _STEP_POSES - 1:
+                    self.step_ns = int(np.median(self._steps))
             self._poses.append(p)
             self._stamps.append(p.stamp_ns)
         return True

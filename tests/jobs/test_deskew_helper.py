@@ -151,23 +151,27 @@ def test_the_feed_gives_each_sweep_the_bias_and_offset_of_its_own_pose():
     assert final.imu_state(int(stamps[1]))[1] == 7
 
 
+def replaying(real, edit=lambda result: result):
+    """A ``run_odometry`` that runs the odometry once (its result passed through ``edit``) and after that hands
+    the same poses on again."""
+    recorded = []
+
+    def replay(log, cfg, source, progress, reader, settled=None):
+        if not recorded:
+            recorded.append(edit(real(log, cfg, source, progress, reader, settled)))
+        elif settled is not None:
+            for batch in recorded[0].batches:
+                settled(batch)
+        return recorded[0]
+
+    return replay, recorded
+
+
 @pytest.mark.parametrize("motion", ["imu", "constant-velocity"])
 def test_the_helper_writes_the_bytes_one_process_writes(walk, tmp_path, two_cores, monkeypatch, motion):
     """Both runs take the same odometry (its first run replayed): kiss-icp's parallel sums differ in their last
     bits from run to run, and its thread count is fixed by the first registration a process makes."""
-    real, recorded = deskew_job.run_odometry, []
-
-    def once(log, cfg, source, progress, reader, settled):
-        if not recorded:
-            batches = []
-            result = real(log, cfg, source, progress, reader, lambda b: (batches.append(b), settled(b)))
-            recorded.append((batches, result))
-            return result
-        batches, result = recorded[0]
-        for b in batches:
-            settled(b)
-        return result
-
+    once, recorded = replaying(deskew_job.run_odometry)
     monkeypatch.setattr(deskew_job, "run_odometry", once)
     one = run(walk, tmp_path / "one.bag", False, map=tmp_path / "one.ply", motion=motion)
     two = run(walk, tmp_path / "two.bag", True, map=tmp_path / "two.ply", motion=motion)
@@ -179,7 +183,7 @@ def test_the_helper_writes_the_bytes_one_process_writes(walk, tmp_path, two_core
     a, b = ({k: v for k, v in r.metrics.items() if k not in drop} for r in (one, two))
     assert a == b
     assert one.metrics["scans"]["deskewed"] == 30 and one.notes == two.notes
-    assert len(recorded[0][0]) > 5  # the poses went over in batches as they settled
+    assert len(recorded[0].batches) > 5  # the poses went over in batches as they settled
 
 
 def _unsigned_time(first: int):
@@ -215,7 +219,8 @@ def test_a_failing_odometry_stops_the_helper_and_its_files_go(walk, tmp_path, tw
         seen = []
 
         def sink(batch):
-            settled(batch)
+            if settled is not None:
+                settled(batch)
             seen.extend(batch)
             if seen[-1].stamp_ns - seen[0].stamp_ns > 10**9:  # a second of poses went to the helper
                 raise ProcessingError("the odometry gave up")
@@ -285,18 +290,7 @@ def test_a_final_clock_offset_rewrites_after_the_odometry_and_the_helper_s_files
                                                                                     monkeypatch):
     """When the odometry's final clock offset disagrees with what it applied, the helper's work is dropped and
     the one-process writer runs with the final offset: the same bytes as without a helper."""
-    real, recorded = deskew_job.run_odometry, []
-
-    def moved(log, cfg, source, progress, reader, settled):
-        if not recorded:
-            batches = []
-            result = real(log, cfg, source, progress, reader, lambda b: (batches.append(b), settled(b)))
-            recorded.append((batches, dataclasses.replace(result, final_offset_ns=2_000_000)))
-        else:
-            for b in recorded[0][0]:
-                settled(b)
-        return recorded[0][1]
-
+    moved, _ = replaying(deskew_job.run_odometry, lambda r: dataclasses.replace(r, final_offset_ns=2_000_000))
     monkeypatch.setattr(deskew_job, "run_odometry", moved)
     two = run(walk, tmp_path / "two.bag", True, map=tmp_path / "two.ply")
     one = run(walk, tmp_path / "one.bag", False, map=tmp_path / "one.ply")
