@@ -20,6 +20,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
+from ..cpus import usable_cpus
 from ..errors import ConfigError, InputError
 from .commands import registration_threads
 from .runs import RunTask, execute, pool_initializer, record
@@ -28,13 +29,6 @@ Done = Callable[[dict], None]
 DASK_INSTALL = ("--dask needs the optional Dask dependency: pip install 'lio-cli[dask]' "
                 "(or pip install 'dask[distributed]')")
 DASK_RETRIES = 1  # a task whose worker was lost (or that raised on the worker) runs once more, then fails
-
-
-def default_jobs() -> int:
-    try:
-        return len(os.sched_getaffinity(0)) or 1
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 @dataclass(frozen=True)
@@ -88,7 +82,7 @@ def choose_executor(jobs: int | None, dask: str | None, workers: int | None) -> 
     if dask is None:
         if workers is not None:
             raise ConfigError("--workers goes with --dask local; for local processes use --jobs N")
-        n = default_jobs() if jobs is None else jobs
+        n = usable_cpus() if jobs is None else jobs
         if n < 1:
             raise ConfigError(f"--jobs must be 1 or more, got {n}")
         return Executor("serial" if n == 1 else "local", n)
@@ -96,7 +90,7 @@ def choose_executor(jobs: int | None, dask: str | None, workers: int | None) -> 
         raise ConfigError("--jobs and --dask exclude each other: with --dask the cluster's workers run the logs")
     dask_available()
     if dask == "local":
-        n = default_jobs() if workers is None else workers
+        n = usable_cpus() if workers is None else workers
         if n < 1:
             raise ConfigError(f"--workers must be 1 or more, got {n}")
         return Executor("dask", n, "local")
@@ -207,4 +201,4 @@ def _run_dask(client, tasks: list[RunTask], done: Done) -> None:
         raise
 
 
-__all__ = ["DASK_INSTALL", "DASK_RETRIES", "Executor", "choose_executor", "dask_available", "default_jobs"]
+__all__ = ["DASK_INSTALL", "DASK_RETRIES", "Executor", "choose_executor", "dask_available"]

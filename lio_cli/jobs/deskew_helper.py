@@ -27,6 +27,7 @@ import time
 import traceback
 from pathlib import Path
 
+from ..cpus import usable_cpus
 from ..errors import LioError, ProcessingError
 from ..io.files import remove_path
 
@@ -51,13 +52,6 @@ def _receive(stream):
     return pickle.loads(data) if len(data) == n else None
 
 
-def _cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def _peak_rss_mb() -> float | None:
     try:
         import resource  # POSIX only
@@ -80,7 +74,7 @@ class Helper:
     @classmethod
     def start(cls) -> Helper | None:
         """A helper process, or None on a single core or when none can be started (then the caller writes)."""
-        if _cpus() < 2:
+        if usable_cpus() < 2:
             return None
         root = str(Path(__file__).resolve().parents[2])  # this lio_cli, whatever the working directory holds
         code = f"import sys; sys.path.insert(0, {root!r}); from lio_cli.jobs.deskew_helper import main; main()"

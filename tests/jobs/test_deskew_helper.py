@@ -34,7 +34,7 @@ def walk(tmp_path_factory) -> Path:
 
 @pytest.fixture()
 def two_cores(monkeypatch):
-    monkeypatch.setattr(deskew_helper, "_cpus", lambda: 2)  # the helper runs wherever the suite does
+    monkeypatch.setattr(deskew_helper, "usable_cpus", lambda: 2)  # the helper runs wherever the suite does
 
 
 def run(log, out, helper, *, map=None, **overrides):
@@ -315,7 +315,7 @@ def test_strict_refuses_a_scan_the_odometry_s_poses_do_not_cover(walk, tmp_path,
 
 
 def test_a_single_core_writes_in_one_process(walk, tmp_path, monkeypatch):
-    monkeypatch.setattr(deskew_helper, "_cpus", lambda: 1)
+    monkeypatch.setattr(deskew_helper, "usable_cpus", lambda: 1)
     assert run(walk, tmp_path / "out.bag", True).metrics["writing"] == "after the odometry"
 
 
@@ -324,7 +324,7 @@ def test_the_helper_runs_this_lio_cli_from_any_working_directory(tmp_path, monke
     (tmp_path / "lio_cli").mkdir()
     (tmp_path / "lio_cli" / "__init__.py").write_text("import sys\nsys.exit(7)\n")  # were it imported
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(deskew_helper, "_cpus", lambda: 2)
+    monkeypatch.setattr(deskew_helper, "usable_cpus", lambda: 2)
     h = deskew_helper.Helper.start()
     h.proc.stdin.close()  # the helper imports its modules and waits for the setup: EOF, exit 1 (7: wrong one)
     assert h.proc.wait(60) == 1
