@@ -231,3 +231,14 @@ def test_a_static_imu_log_gives_allan_kalibr_and_plot(tmp_path, capsys):
     assert "gyroscope_noise_density:" in kal.read_text()
     assert (plots / "allan_deviation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "skipped: the LiDAR-IMU time offset, rotation and translation because the log has no LiDAR topic" in err
+
+
+def test_a_real_vehicle_that_never_rests_is_told_where_it_moves(real_logs, tmp_path, capsys):
+    """robot_localization's test1.bag: a ground vehicle moving from 0.9 s to its end with pauses under a second.
+    The message once listed four blips of its first two seconds "and 5 more", hiding 130 s of motion."""
+    log = real_logs / "groovy_imu_wheel_stereo" / "groovy.bag"
+    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
+    assert err == (f"lio: error: {log}: no still stretch of 1 s in the IMU data: it moves during 0.9-133.1 s (s after "
+                   "its first stamp, pauses shorter than 1 s included; the longest still stretch lasts 0.7 s); record "
+                   "a few seconds standing still or name a still interval (the log has no LiDAR: the IMU at rest is "
+                   "all there is to calibrate)")

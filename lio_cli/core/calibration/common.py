@@ -134,9 +134,17 @@ def outliers_3d(norms: np.ndarray, floor: float, sigmas: float = 5.0) -> np.ndar
     return norms > sigmas * max(float(np.median(norms)) / 1.5382, floor)
 
 
-def time_ranges_text(stamps_ns: np.ndarray, mask: np.ndarray, t0_ns: int, limit: int = 4) -> str:
-    """'2.0-5.5 s, 7.1-9.0 s' for the runs where ``mask`` holds, in seconds after ``t0_ns``."""
+def time_ranges_text(stamps_ns: np.ndarray, mask: np.ndarray, t0_ns: int, limit: int = 4, join_ns: int = 0) -> str:
+    """'2.0-5.5 s, 7.1-9.0 s' for the runs where ``mask`` holds, in seconds after ``t0_ns``. Runs apart by less
+    than ``join_ns`` (from the last sample of one to the first of the next) are given as one."""
     runs = true_runs(mask)
+    joined: list[tuple[int, int]] = []
+    for a, b in runs:
+        if joined and stamps_ns[a] - stamps_ns[joined[-1][1] - 1] < join_ns:
+            joined[-1] = (joined[-1][0], b)
+        else:
+            joined.append((a, b))
+    runs = joined
     parts = [f"{(stamps_ns[a] - t0_ns) / NS_PER_S:.1f}-{(stamps_ns[b - 1] - t0_ns) / NS_PER_S:.1f} s" for a, b in runs[:limit]]
     if len(runs) > limit:
         parts.append(f"and {len(runs) - limit} more")

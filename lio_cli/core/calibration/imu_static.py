@@ -122,10 +122,13 @@ def find_still_stretch(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2
         if e - s >= need_ns:
             return s, e
         longest = max(longest, e - s)
-    moving = time_ranges_text(stamps_ns, ~mask, int(stamps_ns[0]))
+    # a pause too short to hold the stretch joins the motion around it: else a log moving from 2 s to its end
+    # with a few short pauses reads as four blips of motion in its first seconds "and 5 more"
+    moving = time_ranges_text(stamps_ns, ~mask, int(stamps_ns[0]), join_ns=int(need_ns) + 2 * trim_ns)
     raise InputError(f"no still stretch of {opts.min_duration_s:g} s in the IMU data: it moves during {moving} "
-                     f"(s after its first stamp; the longest still stretch lasts {longest / NS_PER_S:.1f} s); record "
-                     f"a few seconds standing still or name a still interval")
+                     f"(s after its first stamp, pauses shorter than {opts.min_duration_s:g} s included; the longest "
+                     f"still stretch lasts {longest / NS_PER_S:.1f} s); record a few seconds standing still or name a "
+                     f"still interval")
 
 
 def estimate_imu_static(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2: np.ndarray,

@@ -49,10 +49,27 @@ def test_a_given_interval_is_used_as_is_and_flagged_when_it_moves(handheld):
 def test_no_still_stretch_says_where_the_imu_moves(handheld):
     imu = handheld.imu
     late = imu.stamps_ns >= imu.stamps_ns[0] + 5 * NS  # cut the standing start away
-    msg = ("no still stretch of 1 s in the IMU data: it moves during 0.0-25.0 s (s after its first stamp; the longest "
-           "still stretch lasts 0.0 s); record a few seconds standing still or name a still interval")
+    msg = ("no still stretch of 1 s in the IMU data: it moves during 0.0-25.0 s (s after its first stamp, pauses "
+           "shorter than 1 s included; the longest still stretch lasts 0.0 s); record a few seconds standing still "
+           "or name a still interval")
     with pytest.raises(InputError, match=re.escape(msg)):
         find_still_stretch(imu.stamps_ns[late], imu.gyro_radps[late], imu.accel_mps2[late])
+
+
+def test_short_pauses_do_not_hide_where_the_imu_moves():
+    """A vehicle moving to the end with pauses under a second (a real log, robot_localization's test1.bag, read
+    "0.9-1.3 s, 1.3-1.3 s, 1.3-1.7 s, 2.3-2.3 s, and 5 more" and hid its 130 s of motion): one range."""
+    rate, n = 100, 100 * 60
+    stamps = np.arange(n, dtype=np.int64) * (NS // rate)
+    t = stamps / NS
+    gyro = np.zeros((n, 3))
+    accel = np.tile([0.0, 0.0, 9.81], (n, 1))
+    moving = (t >= 0.5) & ~((t >= 10.0) & (t < 10.8)) & ~((t >= 20.0) & (t < 20.8)) & ~((t >= 40.0) & (t < 40.8))
+    gyro[moving, 2] = 0.5 + 0.3 * np.sin(7.0 * t[moving])
+    with pytest.raises(InputError) as err:
+        find_still_stretch(stamps, gyro, accel)
+    assert "it moves during 0.3-60.0 s (s after" in str(err.value)  # the window of 0.4 s sees it coming
+    assert "the longest still stretch lasts 0.2 s" in str(err.value)  # 0.8 s less the window and trims
 
 
 def test_bad_arrays_are_one_line_input_errors():
