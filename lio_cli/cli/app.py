@@ -63,7 +63,20 @@ def register_commands(names: list[str] | None = None) -> typer.Typer:
         if name not in _registered:
             importlib.import_module(f"{__package__}.{name}").register(app)
             _registered.add(name)
+    for cmd in app.registered_commands:
+        if cmd.help:
+            cmd.help = reflow(cmd.help)
     return app
+
+
+def reflow(text: str) -> str:
+    """A command's help for any terminal width: rich keeps every line break of the text, so prose wrapped at
+    110 columns came out ragged in an 80-column terminal (a full line, then a few words, in turn). The lines
+    of each prose paragraph are joined for rich to wrap; a paragraph with an indented line (examples, a table
+    of inputs) stays as written."""
+    paragraphs = text.split("\n\n")
+    return "\n\n".join(p if any(line[:1].isspace() for line in p.splitlines()) else
+                        " ".join(line.strip() for line in p.splitlines()) for p in paragraphs)
 
 
 def _command_in(args: list[str]) -> str | None:
