@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import InputError
 from .decode import IMU, ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED, TWIST_STAMPED
+from .imu_units import accel_scale
 from .reader import LogReader
 from .stamped_bytes import BODY_DTYPES, split_header, split_standard
 
@@ -188,6 +189,9 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
             slow.append(t)
     for t in slow:
         out[t] = _read_typestore(log, t)
+    for t, cols in out.items():
+        if isinstance(cols, ImuColumns):
+            cols.accel_mps2 *= accel_scale(log, t)[0]  # an IMU writing g (Livox): to m/s^2
     return {t: out[t] for t in topics}
 
 

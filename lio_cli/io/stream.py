@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import InputError
 from ..model.records import ImuBatch, Record, TimeConvention
 from .decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odometry, decode_pose, imu_sample
+from .imu_units import accel_scale
 from .reader import LogReader
 from .pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,
@@ -121,6 +122,16 @@ class SensorStream:
         self._last: dict[str, int] = {}
         self._last_rec: dict[str, int] = {}  # record time of each topic's last accepted message
         self._conventions: dict[tuple, TimeConvention] = {}
+        self._scales: dict[str, float] = {}  # per IMU topic: its accelerations to m/s^2
+
+    def _accel_scale(self, topic: str) -> float:
+        """1, or standard gravity for an IMU topic that writes its accelerations in g (``imu_units``); judged on
+        the log the stream reads (a ``RecordFeed`` names it as ``reader``)."""
+        scale = self._scales.get(topic)
+        if scale is None:
+            log = self.log if isinstance(self.log, LogReader) else getattr(self.log, "reader", None)
+            scale = self._scales[topic] = accel_scale(log, topic)[0] if log is not None else 1.0
+        return scale
 
     def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
         kind = self.kind_of[topic]
@@ -220,12 +231,12 @@ class SensorStream:
             nonlocal imu
             if imu:
                 stamps, gyros, accels = zip(*imu)
-                batch = ImuBatch(
-                    imu_frame,
-                    np.array(stamps, dtype=np.int64),
-                    np.array(gyros, dtype=np.float64).reshape(-1, 3),
-                    np.array(accels, dtype=np.float64).reshape(-1, 3),
-                )
+                accel = np.array(accels, dtype=np.float64).reshape(-1, 3)
+                scale = self._accel_scale(imu_topic)
+                if scale != 1.0:
+                    accel *= scale
+                batch = ImuBatch(imu_frame, np.array(stamps, dtype=np.int64),
+                                 np.array(gyros, dtype=np.float64).reshape(-1, 3), accel)
                 imu = []
                 yield Record("imu", imu_topic, int(batch.stamps_ns[0]), batch)
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import InputError
 from .decode import IMU, KIND_FLAGS, KIND_TYPES, ODOMETRY
+from .imu_units import accel_scale
 from .peek import peek
 from .reader import LogReader
 
@@ -96,7 +97,7 @@ def choose_topic(log: LogReader, kind: str, requested: str | None = None, requir
     word = _KIND_WORDS[kind]
     if requested is not None:
         _check_requested(log, kind, requested)
-        return TopicChoice(requested, f"asked for with {KIND_FLAGS[kind]}")
+        return _with_units(log, kind, TopicChoice(requested, f"asked for with {KIND_FLAGS[kind]}"))
     # a topic declared but never published is as good as absent
     candidates = sorted(t for t, i in log.topics.items()
                         if i.msgtype in accepted and t not in exclude and i.count > 0)
@@ -136,7 +137,15 @@ def choose_topic(log: LogReader, kind: str, requested: str | None = None, requir
     why = f"the only {word} topic" if not refused else f"the only {word} topic left (left out {left_out})"
     if kind == "gt" and says_ground_truth(left[0]):
         why = "named as ground truth" + (f" (left out {left_out})" if refused else "")
-    return TopicChoice(left[0], why)
+    return _with_units(log, kind, TopicChoice(left[0], why))
+
+
+def _with_units(log: LogReader, kind: str, choice: TopicChoice) -> TopicChoice:
+    """An IMU's choice says when its accelerations are read as g (every reader scales them alike)."""
+    if kind != "imu":
+        return choice
+    _, note = accel_scale(log, choice.topic)
+    return choice if note is None else TopicChoice(choice.topic, f"{choice.why}; {note}")
 
 
 def _check_requested(log: LogReader, kind: str, requested: str) -> None:

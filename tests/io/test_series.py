@@ -22,7 +22,8 @@ def _build(w) -> None:
     rng = np.random.default_rng(4)
     for k in range(30):
         t = T0 + k * 10_000_000 + 123
-        msg = m.imu(t, "imu_link" if k else "imu", rng.normal(size=3), rng.normal(size=3))
+        # accelerations around gravity in m/s^2 (read_series scales an IMU writing g: see test_imu_units)
+        msg = m.imu(t, "imu_link" if k else "imu", rng.normal(size=3), rng.normal(size=3) + [0.0, 0.0, 9.81])
         msg.orientation = m.quaternion(rng.normal(size=4))
         msg.orientation_covariance = rng.normal(size=9)
         w.write("/imu", t + 1000, msg)

@@ -119,6 +119,38 @@ def _tiny_log(path: Path, topics: dict[str, str], write) -> Path:
     return path
 
 
+def _imu_rewritten(src: Path, dst: Path, edit) -> Path:
+    """``src`` with every /imu message replaced by ``edit(stamp_ns, frame, gyro, accel)``'s (same four)."""
+    def write(w):
+        with open_log(src) as reader:
+            for topic, _, t_ns, msg in reader.messages():
+                if topic == "/imu":
+                    g, a = msg.angular_velocity, msg.linear_acceleration
+                    stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                    msg = w.make.imu(*edit(stamp, msg.header.frame_id, [g.x, g.y, g.z], [a.x, a.y, a.z]))
+                w.write(topic, t_ns, msg)
+
+    with open_log(src) as reader:
+        topics = {t: i.msgtype for t, i in reader.topics.items()}
+    return _tiny_log(dst, topics, write)
+
+
+def test_an_imu_writing_g_is_read_in_m_per_s2(tmp_path):
+    """Livox's IMU writes g: read as m/s^2 the walk came out 4 m off (a 15 s drive 19 m) with no word of it,
+    the odometry "starting" at 4.4 m/s on a platform standing still."""
+    res = simulate("handheld", tmp_path / "h.bag", "ros1", duration_s=6.0, seed=1, columns=360)
+    log = _imu_rewritten(res.log_path, tmp_path / "g.bag",
+                         lambda stamp, frame, g, a: (stamp, frame, g, [v / 9.80665 for v in a]))
+    rc, m = _odom(log, tmp_path / "g.tum", "--gt", "/ground_truth")
+    rc0, m0 = _odom(res.log_path, tmp_path / "ms2.tum", "--gt", "/ground_truth")
+    assert rc == rc0 == 0
+    assert m["start"]["kind"] == m0["start"]["kind"] == "standing"
+    assert m["accuracy"]["ate_trans_rmse_m"] == pytest.approx(m0["accuracy"]["ate_trans_rmse_m"], abs=1e-3)
+    assert m0["accuracy"]["ate_trans_rmse_m"] < 0.05
+    assert "its accelerations are in g, not m/s^2" in m["topic_roles"]["imu"]["why"]
+    assert "in g" not in m0["topic_roles"]["imu"]["why"]
+
+
 def test_filter_outputs_and_zero_imus_are_not_taken_for_sensors(tmp_path):
     odom, imu = "nav_msgs/msg/Odometry", "sensor_msgs/msg/Imu"
     eye = np.eye(4)
@@ -176,16 +208,7 @@ def test_wheel_verdict_reads_until_the_twist_moves(tmp_path, monkeypatch):
 def test_an_imu_topic_of_zeros_is_refused(tmp_path, capsys):
     res = simulate("handheld", tmp_path / "h.bag", "ros1", duration_s=2.0, seed=1, columns=180)
 
-    def keep_but_zero_imu(w):
-        with open_log(res.log_path) as reader:
-            for topic, _, t_ns, msg in reader.messages():
-                if topic == "/imu":
-                    msg = w.make.imu(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, "imu", [0, 0, 0], [0, 0, 0])
-                w.write(topic, t_ns, msg)
-
-    with open_log(res.log_path) as reader:
-        topics = {t: i.msgtype for t, i in reader.topics.items()}
-    log = _tiny_log(tmp_path / "zero.bag", topics, keep_but_zero_imu)
+    log = _imu_rewritten(res.log_path, tmp_path / "zero.bag", lambda stamp, frame, g, a: (stamp, frame, [0, 0, 0], [0, 0, 0]))
     rc, _ = _odom(log, tmp_path / "o.tum")
     assert rc == 2
     assert capsys.readouterr().err.strip() == (
@@ -198,18 +221,8 @@ def test_sensors_on_different_clocks_stop_with_the_option_that_fixes_it(tmp_path
     res = simulate("handheld", tmp_path / "h.bag", "ros1", duration_s=4.0, seed=1, columns=180)
     uptime_shift_ns = -(1_700_000_000 - 1622) * 10**9
 
-    def imu_on_uptime(w):
-        with open_log(res.log_path) as reader:
-            for topic, _, t_ns, msg in reader.messages():
-                if topic == "/imu":
-                    stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + uptime_shift_ns
-                    g, a = msg.angular_velocity, msg.linear_acceleration
-                    msg = w.make.imu(stamp, msg.header.frame_id, [g.x, g.y, g.z], [a.x, a.y, a.z])
-                w.write(topic, t_ns, msg)
-
-    with open_log(res.log_path) as reader:
-        topics = {t: i.msgtype for t, i in reader.topics.items()}
-    log = _tiny_log(tmp_path / "clocks.bag", topics, imu_on_uptime)
+    log = _imu_rewritten(res.log_path, tmp_path / "clocks.bag",
+                         lambda stamp, frame, g, a: (stamp + uptime_shift_ns, frame, g, a))
     rc, _ = _odom(log, tmp_path / "o.tum")
     assert rc == 2
     err = capsys.readouterr().err.strip()
