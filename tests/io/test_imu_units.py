@@ -41,7 +41,7 @@ def test_accelerations_in_g_are_scaled_by_every_reader(logs, write_format):
         np.testing.assert_allclose(read_series(log, ["/imu"])["/imu"].accel_mps2, accel, rtol=1e-12)
         why = choose_topic(log, "imu").why
         assert why.startswith("the only IMU topic; its accelerations are in g, not m/s^2 (median magnitude ")
-        assert why.endswith(f"over its first 200 samples, where gravity reads 9.8 in m/s^2): scaled by 9.80665")
+        assert why.endswith("over its first 200 samples, where gravity reads 9.8 in m/s^2): scaled by 9.80665")
         assert choose_topic(log, "imu", "/imu").why.startswith("asked for with --imu-topic; its accelerations are in g")
 
 
