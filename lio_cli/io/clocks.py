@@ -4,6 +4,10 @@ Drivers start in any order, so first stamps may differ by seconds; but each mess
 (nearly) the moment it arrives, so a header stamp minus its record time is about the same for every sensor
 on one clock. Two sensors whose offsets differ by more than a few scan periods are on different clocks
 (say, an IMU on its uptime and a LiDAR on epoch time): using them together would be silently wrong.
+
+Unless their first stamps agree: then the sensors are on one clock and what differs is how late each was
+recorded (a LiDAR's large clouds queued 0.5 s behind its stamps, while the IMU's small messages were not).
+A log recorded from drivers already running starts every topic at once, so there the stamps alone tell.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ def check_same_clock(log: LogReader, reference: str, other: str, other_offset_ns
     if len(h_ref) == 0 or len(h_oth) == 0:
         return
     apart = float(np.median(d_oth)) + other_offset_ns - float(np.median(d_ref))
-    if abs(apart) <= CLOCK_TOLERANCE_NS:
+    if abs(apart) <= CLOCK_TOLERANCE_NS or abs(int(h_oth[0]) + other_offset_ns - int(h_ref[0])) <= CLOCK_TOLERANCE_NS:
         return
     shift = -apart * 1e-9
     raise InputError(
