@@ -125,7 +125,11 @@ def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
         a = result.score
         rpe = "-" if a.rpe_trans_rmse_m is None else f"{a.rpe_trans_rmse_m:.4f} m"
         err_console.print(f"against {a.reference}: ATE {a.ate_trans_rmse_m:.4f} m, {a.ate_rot_rmse_deg:.3f} deg "
-                          f"(SE(3)-aligned rmse over {a.matches} poses); RPE over {a.rpe_delta}: {rpe}", markup=False)
+                          f"({_ALIGNED[a.alignment].format(n=a.matches)}); RPE over {a.rpe_delta}: {rpe}", markup=False)
+
+
+_ALIGNED = {"se3": "SE(3)-aligned rmse over {n} poses",
+            "origin": "rmse over {n} poses aligned at the first: the reference's positions lie on a line or a point"}
 
 
 def register(app: typer.Typer) -> None:

@@ -19,6 +19,10 @@ from ..geometry import inv_pose
 MODES = ("none", "se3", "sim3", "scale", "origin", "posyaw")
 
 
+class DegenerateAlignment(InputError):
+    """Positions on a line or a point: no rotation (Umeyama) to align them by."""
+
+
 @dataclass
 class Alignment:
     """``T_ref_est`` as rotation, translation and scale (identity for ``none``)."""
@@ -59,7 +63,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[np.ndar
     cov = dst_c.T @ src_c / n
     U, d, Vt = np.linalg.svd(cov)
     if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
-        raise InputError(
+        raise DegenerateAlignment(
             "the trajectory is degenerate for Umeyama alignment (positions on a line or a point); "
             "use --align origin or --align none"
         )

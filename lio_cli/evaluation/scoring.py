@@ -6,13 +6,15 @@ from dataclasses import asdict, dataclass, replace
 
 from ..model.trajectory import Trajectory
 from . import EvalOptions, evaluate
+from .alignment import DegenerateAlignment
 
 RPE_METRES_FROM_M = 20.0  # paths at least this long get RPE over 10 m, shorter ones over 1 s
 
 
 @dataclass(frozen=True)
 class Score:
-    """ATE (SE(3)-aligned APE translation rmse) and RPE of one trajectory against a reference."""
+    """ATE (APE translation rmse, SE(3)-aligned; from the first pose, ``alignment`` origin, when the reference's
+    positions lie on a line or a point) and RPE of one trajectory against a reference."""
 
     reference: str
     matches: int
@@ -30,7 +32,15 @@ class Score:
 def score(ref: Trajectory, est: Trajectory, options: EvalOptions | None = None) -> Score:
     """ATE and RPE of ``est`` against ``ref``; RPE over 10 m on paths of 20 m or more, else over 1 s."""
     o = options or EvalOptions()
-    ate = evaluate(ref, est, o)
+    try:
+        ate = evaluate(ref, est, o)
+    except DegenerateAlignment:
+        if o.align != "se3":
+            raise
+        # positions on a line or a point (a platform standing still): no rotation to align by; score from the
+        # first pose, as a run that finished deserves a number rather than losing its outputs
+        o = replace(o, align="origin")
+        ate = evaluate(ref, est, o)
     length = ate.drift["path_length_m"] or 0.0
     delta, unit = (10.0, "m") if length >= RPE_METRES_FROM_M else (1.0, "s")
     rpe = evaluate(ref, est, replace(o, delta=delta, delta_unit=unit))

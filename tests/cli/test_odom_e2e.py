@@ -129,6 +129,23 @@ def test_gt_option_scores_against_log_topic_or_file(logs, tmp_path, capsys):
     assert acc_file["ate_trans_rmse_m"] == pytest.approx(_ate(res.gt_path, out, 20_000_000), rel=1e-6)
 
 
+def test_gt_of_a_platform_standing_still_is_scored_from_the_first_pose(tmp_path, capsys):
+    """A reference whose positions are one point has no rotation to align by: the run once stopped with exit 2
+    and wrote nothing, naming an --align odom does not have. Scored from the first pose, as lio evaluate
+    --align origin scores it."""
+    res = simulate("handheld", tmp_path / "still.bag", "ros1", duration_s=1.4, seed=1, columns=180)  # rests 1.5 s
+    out = tmp_path / "s.tum"
+    assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--gt", str(res.gt_path)]) == 0
+    acc = json.loads((tmp_path / "s.metrics.json").read_text())["accuracy"]
+    assert acc["alignment"] == "origin" and acc["matches"] == 14
+    ref, est = Trajectory(*read_tum(res.gt_path), name="gt"), Trajectory(*read_tum(out), name="est")
+    expected = evaluate(ref, est, EvalOptions(max_diff_ns=2_000_000, align="origin")).stats["ape"]["trans"]["rmse"]
+    assert acc["ate_trans_rmse_m"] == pytest.approx(expected, rel=1e-6) and expected < 0.02
+    assert capsys.readouterr().err.startswith(
+        f"against {res.gt_path}: ATE {expected:.4f} m, {acc['ate_rot_rmse_deg']:.3f} deg (rmse over 14 poses aligned at "
+        "the first: the reference's positions lie on a line or a point); RPE over 1 s: ")
+
+
 @pytest.mark.parametrize("scenario, threshold", [("handheld", 0.08), ("corridor", 0.20)])
 def test_complementary_filter_also_beats_lidar_only(scenario, threshold, logs, tmp_path):
     res = logs[scenario]
