@@ -41,6 +41,8 @@ def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs
     assert f"motion: trajectory {bag.gt_path} (201 poses of the base over 2.0 s, cubic interpolation)" in err
     assert "other topics: 603 messages converted to mcap" in err  # a ROS 1 bag written as MCAP (ros2 profile)
     assert f"wrote {out} (mcap) and {ply} (" in err
+    assert err.rstrip().endswith(f"its clouds are de-skewed: run odometry on it without de-skewing again (lio odom {out} "
+                                 "--deskew none; kiss-icp: deskew false)")
     for p in (out, ply, tmp_path / "walk_deskewed.metrics.json", tmp_path / "walk_deskewed.config.yaml"):
         assert p.exists()
     metrics = json.loads((tmp_path / "walk_deskewed.metrics.json").read_text())
