@@ -46,6 +46,8 @@ final-position error and drift per distance travelled.
                              valid fix (or --origin); fixes without a
                              valid status are dropped and counted;
                              translation metrics only
+  -                          standard input (TUM or KITTI), as in
+                             lio odom run.bag -o - | lio evaluate gt.tum -
 
 [bold]Steps[/bold]: pair stamps (nearest within --t-max-diff; --interpolate
 resamples the denser trajectory at the other's stamps, as evo does), align

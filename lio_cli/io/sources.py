@@ -7,6 +7,7 @@ A TUM or KITTI file, or a topic of a log (``LOG:/topic``, ``LOG#/topic``), or a 
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -51,15 +52,21 @@ def load_trajectory(
 
     ``origin``: the ENU origin of a NavSatFix topic (default: its first valid fix).
     """
-    path_text, topic_spec = split_source(spec)
-    path = Path(path_text)
-    if not path.exists():
-        raise InputError(f"{path}: no such file or folder")
-    if topic_spec is None and looks_like_log(path):
-        return read_log_trajectory(path, topic, required_kind="gt", origin=origin)
-    if topic_spec is not None:
-        return read_log_trajectory(path, topic_spec, origin=origin)
-    text = read_text(path)  # once: a pipe (`--gt <(...)`) gives its bytes only once
+    if spec == "-":  # standard input: `lio odom LOG -o - | lio evaluate GT -`
+        if sys.stdin is None or sys.stdin.isatty():
+            raise InputError("-: standard input is a terminal; pipe a TUM or KITTI trajectory into it "
+                             "(lio odom LOG -o - | lio evaluate GT -)")
+        path, text = Path("-"), sys.stdin.read()
+    else:
+        path_text, topic_spec = split_source(spec)
+        path = Path(path_text)
+        if not path.exists():
+            raise InputError(f"{path}: no such file or folder")
+        if topic_spec is None and looks_like_log(path):
+            return read_log_trajectory(path, topic, required_kind="gt", origin=origin)
+        if topic_spec is not None:
+            return read_log_trajectory(path, topic_spec, origin=origin)
+        text = read_text(path)  # once: a pipe (`--gt <(...)`) gives its bytes only once
     cols = sniff_columns(path, text)
     if cols == 12:
         poses = read_kitti(path, text)

@@ -61,6 +61,18 @@ def test_json_gives_the_hand_computed_numbers(capsys, three):
     assert json.loads(out)["options"]["align"] == "none"
 
 
+def test_an_estimate_from_standard_input(capsys, three, monkeypatch):
+    """`lio odom LOG -o - | lio evaluate GT -`: once "-: no such file or folder"."""
+    gt, est = three
+    monkeypatch.setattr("sys.stdin", io.StringIO(est.read_text()))
+    code, out, err = _run(capsys, gt, "-", "--align", "none", "--json")
+    assert code == 0, err
+    assert json.loads(out)["estimates"][0]["ape"]["trans"]["rmse"] == pytest.approx(math.sqrt(0.25 / 3), rel=EXACT)
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+    code, _, err = _run(capsys, gt, "-")
+    assert code == 2 and err.strip() == "lio: error: -: no poses in file"
+
+
 def test_table_and_csv(capsys, three, tmp_path):
     gt, est = three
     code, out, _ = _run(capsys, gt, est, est, "--align", "origin")
