@@ -13,6 +13,9 @@ from ..model.records import TransformRecord
 from .reader import LogReader
 
 TF_STATIC_TOPIC = "/tf_static"
+TF_TOPIC = "/tf"
+_TF_MESSAGES = 2000  # /tf messages looked at for mountings published there
+_MOVING_FRAMES = {"map", "odom", "world", "earth", "utm", "gps", "enu"}
 
 
 # Two chains between the same frames that differ by more than this contradict each other.
@@ -40,6 +43,7 @@ class FrameTree:
         self.conflicts: list[dict] = []
         self._conflicted: dict[frozenset, str] = {}  # edge -> the message a lookup through it raises
         self.warnings: list[str] = []
+        self.tf_edges: set[frozenset] = set()  # edges taken from /tf (``_add_fixed_tf``), not /tf_static
         for tr in transforms or []:
             self.add(tr)
 
@@ -74,6 +78,11 @@ class FrameTree:
                                "angle_deg": round(float(np.degrees(da)), 4), "message": message})
         for a, b in [*hops, (tr.parent, tr.child)]:
             self._conflicted.setdefault(frozenset((a, b)), message)
+
+    def source(self, target: str, source: str) -> str:
+        """Where the chain ``target`` -> ``source`` comes from: /tf_static, or /tf when an edge of it does."""
+        hops = self.path(target, source) or []
+        return TF_TOPIC if any(frozenset(h) in self.tf_edges for h in hops) else TF_STATIC_TOPIC
 
     @property
     def frames(self) -> list[str]:
@@ -131,8 +140,14 @@ def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTre
     """All transforms on /tf_static (usually a handful of latched messages at the start)."""
     tree = FrameTree(where=f"{log.path}: {topic}")
     info = log.topics.get(topic)
-    if info is None or info.msgtype != TF_MESSAGE:
-        return tree
+    if info is not None and info.msgtype == TF_MESSAGE:
+        _read_all(log, topic, info.count, tree)
+    if topic == TF_STATIC_TOPIC:
+        _add_fixed_tf(log, tree)
+    return tree
+
+
+def _read_all(log: LogReader, topic: str, count: int, tree: FrameTree) -> None:
     seen = 0
     messages = log.messages([topic])
     try:
@@ -141,7 +156,7 @@ def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTre
                 _check_quaternion(tree, ts, topic)
                 tree.add(tr)
             seen += 1
-            if seen >= info.count:
+            if seen >= count:
                 break
     except InputError as err:
         if str(err).startswith(f"{log.path}:"):
@@ -149,7 +164,47 @@ def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTre
         raise InputError(f"{log.path}: {topic}: {err}") from err
     finally:
         messages.close()  # release the reader's cursor now, not at garbage collection
-    return tree
+
+
+def _add_fixed_tf(log: LogReader, tree: FrameTree) -> None:
+    """Edges that /tf repeats unchanged over its first messages, where /tf_static has no chain between their
+    frames: a mounting published as /tf (a tf1 static_transform_publisher, an old robot_state_publisher, a
+    recording that missed the latched /tf_static) is a mounting all the same. Odometry frames (map, odom,
+    world...) move however still they look at the start, so they stay out; each edge taken is a warning."""
+    info = log.topics.get(TF_TOPIC)
+    if info is None or info.msgtype != TF_MESSAGE or info.count == 0:
+        return
+    seen: dict[tuple[str, str], tuple[np.ndarray, int]] = {}
+    messages = log.messages([TF_TOPIC])
+    try:
+        for n, (_, _, _, msg) in enumerate(messages):
+            for tr in decode_tf(msg):
+                key = (tr.parent, tr.child)
+                first = seen.get(key)
+                if first is None:
+                    seen[key] = (tr.pose, 1)
+                elif first[1] > 0:  # -1: it moved
+                    same = np.array_equal(first[0], tr.pose)
+                    seen[key] = (first[0], first[1] + 1 if same else -1)
+            if n + 1 >= _TF_MESSAGES:
+                break
+    except InputError:
+        return  # a damaged /tf is no mounting: nothing taken from it
+    finally:
+        messages.close()
+    for (parent, child), (pose, count) in seen.items():
+        if count < 2 or _moving_frame(parent) or _moving_frame(child) or tree.path(parent, child) is not None:
+            continue
+        tree.add(TransformRecord(0, parent, child, pose))
+        tree.tf_edges.add(frozenset((parent, child)))
+        tree.warnings.append(f"{TF_TOPIC}: {parent} -> {child} taken as a mounting (the same over its {count} "
+                             f"messages among the first {_TF_MESSAGES} of {TF_TOPIC}; {TF_STATIC_TOPIC} has no chain "
+                             "between them)")
+
+
+def _moving_frame(name: str) -> bool:
+    low = name.lower()
+    return low in _MOVING_FRAMES or low.endswith("odom") or low.endswith("_map")
 
 
 def _check_quaternion(tree: FrameTree, ts, topic: str) -> None:

@@ -253,7 +253,7 @@ def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | Non
 def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:
     T = tree.lookup(base, frame) if frame else None
     if T is not None:
-        return T, f"/tf_static ({base} -> {frame})"
+        return T, f"{tree.source(base, frame)} ({base} -> {frame})"
     if prior.T_base_lidar is not None:
         return prior.matrix("T_base_lidar"), "--calib"
     est.notes.append(f"no T_base_lidar ({base} -> {frame or '?'}) in /tf_static or --calib: the LiDAR is taken as the "

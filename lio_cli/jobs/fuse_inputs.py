@@ -136,7 +136,7 @@ def imu_extrinsic(tree: FrameTree, cfg: FuseConfig, base: str, frame: str, topic
             raise
         return cfg.calibration.matrix("T_base_imu"), "--calib (/tf_static contradicts itself on this chain)"
     if T is not None:
-        return T, f"/tf_static ({base} -> {f})"
+        return T, f"{tree.source(base, f)} ({base} -> {f})"
     if cfg.calibration.T_base_imu is not None:
         return cfg.calibration.matrix("T_base_imu"), "--calib"
     raise InputError(f"{log}: IMU {topic} is in frame '{f or '(none)'}' and neither /tf_static nor --calib gives "

@@ -101,7 +101,7 @@ class Mounting:
             self.sources[name] = "--calib (/tf_static contradicts itself on this chain)"
             return self.calibration.matrix(name)
         if T is not None:
-            self.sources[name] = f"/tf_static ({self.base} -> {frame})"
+            self.sources[name] = f"{self.tree.source(self.base, frame)} ({self.base} -> {frame})"
             return T
         if self.calibration.matrix(name) is not None:
             self.sources[name] = "--calib"

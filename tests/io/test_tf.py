@@ -57,6 +57,49 @@ def test_log_without_tf_static_gives_empty_tree(logs):
     assert tree.frames == [] and tree.lookup("a", "b") is None
 
 
+def _tf_log(logs, fmt: str, static: bool):
+    """/tf at 10 Hz for 1 s: base_link -> imu_link and imu_link -> velodyne fixed, odom -> base_link standing
+    still (a moving frame, whatever it shows), base_link -> arm moving; /tf_static with base_link -> imu_link when
+    ``static`` (a different value: /tf_static wins)."""
+    def build(w):
+        m = w.make
+        w.add_topic("/tf", "tf2_msgs/msg/TFMessage")
+        if static:
+            w.add_topic("/tf_static", "tf2_msgs/msg/TFMessage", latching=True)
+            w.write("/tf_static", logs.T0_NS, m.tf_message([m.transform_stamped(logs.T0_NS, "base_link", "imu_link", pose(7))]))
+        for k in range(10):
+            t = logs.T0_NS + k * 100_000_000
+            w.write("/tf", t, m.tf_message([
+                m.transform_stamped(t, "/base_link", "imu_link", logs.T_BASE_IMU),
+                m.transform_stamped(t, "imu_link", "velodyne", logs.T_IMU_LIDAR),
+                m.transform_stamped(t, "odom", "base_link", np.eye(4)),
+                m.transform_stamped(t, "base_link", "arm", make_pose(t=[0.01 * k, 0, 0]))]))
+    return logs.write(fmt, build)
+
+
+def test_a_mounting_published_on_tf_is_taken_with_a_warning(logs, write_format):
+    """Extrinsics on /tf only (a tf1 static_transform_publisher, a recording that missed the latched
+    /tf_static): once identity with a warning, which put a 15 s walk 1.2 m off instead of 0.021 m."""
+    with open_log(_tf_log(logs, write_format, static=False)) as log:
+        tree = read_static_frames(log)
+    np.testing.assert_allclose(tree.lookup("base_link", "velodyne"), logs.T_BASE_IMU @ logs.T_IMU_LIDAR, atol=1e-9)
+    assert tree.source("base_link", "velodyne") == "/tf"
+    assert tree.lookup("base_link", "arm") is None and tree.lookup("odom", "base_link") is None
+    assert tree.warnings == [
+        "/tf: base_link -> imu_link taken as a mounting (the same over its 10 messages among the first 2000 of /tf; "
+        "/tf_static has no chain between them)",
+        "/tf: imu_link -> velodyne taken as a mounting (the same over its 10 messages among the first 2000 of /tf; "
+        "/tf_static has no chain between them)"]
+
+
+def test_tf_static_wins_over_tf(logs):
+    with open_log(_tf_log(logs, "ros1", static=True)) as log:
+        tree = read_static_frames(log)
+    np.testing.assert_allclose(tree.lookup("base_link", "imu_link"), pose(7), atol=POSE_TOL)
+    assert tree.source("base_link", "imu_link") == "/tf_static" and tree.source("base_link", "velodyne") == "/tf"
+    assert len(tree.warnings) == 1 and tree.warnings[0].startswith("/tf: imu_link -> velodyne taken as a mounting")
+
+
 def test_bad_transform_on_tf_static_names_file_and_topic(logs):
     def build(w):
         w.add_topic("/tf_static", "tf2_msgs/msg/TFMessage")
