@@ -73,10 +73,12 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
             why.append("attitude from the IMU's orientation")
     if imu is not None and "gyro" in imu_use:
         sel = (imu.stamps_ns >= t0) & (imu.stamps_ns <= t0 + window_ns)
-        w, f = prep.imu_w_b[sel], prep.imu_f_b[sel]
+        # stillness is judged on what the sensor measured: the lever-arm terms that move its readings to the
+        # base vanish at rest, and the angular acceleration in them only adds the gyro's noise (lever.py)
+        w, f_imu = prep.imu_w_b[sel], imu.accel_mps2[sel]
         if len(w) >= 10:
             gyro_dev = float(np.linalg.norm(w - w.mean(axis=0), axis=1).max())
-            acc_dev = float(np.abs(np.linalg.norm(f, axis=1) - gravity_mps2).max())
+            acc_dev = float(np.abs(np.linalg.norm(f_imu, axis=1) - gravity_mps2).max())
             # a steady turn looks like a gyro bias: a "bias" above MAX_GYRO_BIAS_RADPS is taken as motion
             standing = (gyro_dev < GYRO_STILL_RADPS and acc_dev < ACCEL_STILL_MPS2
                         and float(np.linalg.norm(w.mean(axis=0))) < MAX_GYRO_BIAS_RADPS)

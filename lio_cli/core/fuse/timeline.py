@@ -14,6 +14,7 @@ import numpy as np
 
 from ...errors import InputError
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
+from .lever import imu_in_base
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
 
@@ -49,19 +50,6 @@ class Prepared:
     @property
     def t1_ns(self) -> int:
         return self.coverage[-1][1]
-
-
-def imu_in_base(imu: ImuSeries) -> tuple[np.ndarray, np.ndarray]:
-    """Angular rate and specific force of the base origin in base axes, lever arm removed:
-    ``f_base = R_bi f_imu - (alpha x r + w x (w x r))`` with ``alpha`` the rate's time derivative."""
-    R_bi, r = imu.T_base_imu[:3, :3], imu.T_base_imu[:3, 3]
-    w = imu.gyro_radps @ R_bi.T
-    f = imu.accel_mps2 @ R_bi.T
-    if np.any(r) and len(w) > 2:
-        t_s = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
-        alpha = np.gradient(w, t_s, axis=0)
-        f = f - np.cross(alpha, r) - np.cross(w, np.cross(w, r))
-    return w, f
 
 
 def _runs(stamps: np.ndarray, gap_ns: int) -> list[tuple[int, int]]:
