@@ -43,14 +43,22 @@ class LidarSteps:
         the scan may start the IMU state."""
         st = self.stats
         tick = time.perf_counter()
-        guess, knots, knot_poses, gyro_primed = self._lidar_prior(t_prev, t_ref)
+        imu_gap = self._imu_hole(t_prev, t_ref)  # held rates would prime it wrongly: constant velocity instead
+        guess, knots, knot_poses, gyro_primed = self._lidar_prior(t_prev, t_ref, imu_gap)
         st.times_s["propagate"] += time.perf_counter() - tick
-        points = self._prepare(cloud, knots, knot_poses, t_ref)
-        if points is None:
-            return None
-        tick = time.perf_counter()
-        frame, source = self._reg.downsample(points)
-        measured = self._reg.register(source, guess, adaptive=True, gate_m=_GYRO_PRIOR_GATE_M if gyro_primed else None)
+        if imu_gap and self._reg is not None and not self._reg.empty:  # no rotation prior: hypotheses
+            tick = time.perf_counter()
+            blind = self._register_blind(cloud, t_prev, t_ref, guess)
+            if blind is None:
+                return None
+            points, frame, measured = blind
+        else:
+            points = self._prepare(cloud, knots, knot_poses, t_ref)
+            if points is None:
+                return None
+            tick = time.perf_counter()
+            frame, source = self._reg.downsample(points)
+            measured = self._reg.register(source, guess, adaptive=True, gate_m=_GYRO_PRIOR_GATE_M if gyro_primed else None)
         st.times_s["register"] += time.perf_counter() - tick
         if self.planar:
             measured = project_to_se2(measured)
@@ -76,7 +84,9 @@ class LidarSteps:
             self._lost = 0
         result = self._finish(t_ref, pose, None if failed else frame,
                               None if failed else inv_pose(guess) @ measured, dirs_b, failed)
-        if self.use_imu and self.imu_mounted and self._imu and not failed and window and not self.gyro_only:
+        if imu_gap:
+            self._window = []  # the IMU state starts from scans after the gap
+        elif self.use_imu and self.imu_mounted and self._imu and not failed and window and not self.gyro_only:
             if self._first_f_base is None:
                 imu = ImuBatch.concat(self._imu)
                 ba = np.zeros(3) if self._bias_prior[1] is None else np.asarray(self._bias_prior[1], dtype=np.float64)
