@@ -105,6 +105,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         self.clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
         self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
+        self._imu_gap_from: tuple | None = None  # (pose, stamp, event) before an IMU gap the scans are in
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:
@@ -284,6 +285,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         cost_ns, hole_ns = imu_gap_ns(imu.stamps_ns, t_prev, t_ref)
         if cost_ns > MAX_IMU_GAP_NS:  # rates interpolated or held across it would prime the scan wrongly
             return self._imu_gap_step(cloud, t_prev, t_ref, hole_ns)
+        self._imu_gap_from = None
         prop = propagate(self.state, imu, t_ref, self.ext,
                          noise=cfg.fusion.imu if cfg.fusion.method == "ekf" else None, planar=self.planar)
         st.imu_gaps += int(prop.gap)

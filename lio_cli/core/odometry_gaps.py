@@ -7,10 +7,12 @@ widened by how far an IMU prediction drifts over that long (``bridge_gate_m``). 
 cannot explain takes the usual recovery path (LiDAR-only, the IMU state started again). A gap longer than
 ``max_bridge_s``, one in which the IMU has a gap too, or one without an IMU state restarts from the LiDAR.
 
-An IMU gap (no sample for longer than ``MAX_IMU_GAP_NS``, see ``imu_gap_ns``) within a scan's interval would prime the scan with rates
-held or interpolated across it, wrong by degrees at a walker's yaw rates: such a scan is registered LiDAR-only
-(constant-velocity guess, kiss-icp's adaptive threshold) and the IMU state starts again from LiDAR-only scans after
-the gap, as at start-up.
+An IMU gap (no sample for longer than ``MAX_IMU_GAP_NS``, see ``imu_gap_ns``) within a scan's interval would
+prime the scan with rates interpolated or held across it, wrong by many degrees at a walker's yaw swings: such a
+scan is registered LiDAR-only from yaw hypotheses around constant velocity (each de-skewed by its own motion; the
+best fit to the map wins), kept out of the map, and the IMU state is re-seeded from it (pose, mean velocity since
+the gap began) keeping its biases and gravity. An IMU gap longer than ``max_gap_s`` drops the IMU state instead; it
+starts again from LiDAR-only scans after the gap, as at start-up.
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ _MAX_BRIDGE_GATE_M = 2.0  # kiss-icp's initial adaptive threshold
 # walker's yaw swings, beyond ICP's reach: it is registered from yaw hypotheses around it and the best fit is kept.
 _BLIND_YAWS_RAD = np.radians([0.0, 8.0, -8.0, 16.0, -16.0, 24.0, -24.0])
 _BLIND_GATE_M = 1.0
+_RESEED_SIGMA_RAD = 0.05  # the state re-seeded from such a scan: its pose and velocity are this uncertain
+_RESEED_SIGMA_M = 0.1
+_RESEED_SIGMA_MPS = 0.5
 
 
 def bridge_gate_m(gap_s: float) -> float:
@@ -95,12 +100,38 @@ class Gaps:
         return hole
 
     def _imu_gap_step(self, cloud: PointCloud, t_prev: int, t_ref: int, hole_ns: int):  # -> ScanResult | None
-        """An IMU-mode scan over an IMU gap: LiDAR-only, and the IMU state starts again after the gap."""
-        self._event("imu gap", f"no IMU sample for {hole_ns * 1e-9:.3g} s in the scan's interval: registered "
-                               "LiDAR-only (yaw hypotheses around constant velocity); the IMU state starts again from "
-                               "LiDAR-only scans after the gap")
+        """An IMU-mode scan over an IMU gap: registered LiDAR-only and kept out of the map (it is a few degrees off);
+        the IMU state is re-seeded from it (its pose, the mean velocity since the gap began, their covariance
+        widened) and keeps its biases and gravity, so the first scan after the gap is IMU-primed again."""
+        kept, g_world = self.state, self._g_world
+        if self._imu_gap_from is None:  # the gap's first scan: (last pose before it, its stamp, its event)
+            self._imu_gap_from = (self._last_pose, self._last_ns, {})
+            self._imu_gap_from[2].update(kind="imu gap", scan=self.stats.scans, after_stamp_ns=self._last_ns)
+            self.events.append(self._imu_gap_from[2])
+        pose0, t0, event = self._imu_gap_from
         self._lose_imu_state()
-        return self._lidar_step(cloud, t_prev, t_ref)
+        if t0 is not None and (t_ref - t0) * 1e-9 > self.cfg.max_gap_s:  # too long to leave out of the map
+            self._imu_gap_from = None
+            event["reason"] += f"; after {(t_ref - t0) * 1e-9:.3g} s the IMU state starts again from LiDAR-only scans"
+            return self._lidar_step(cloud, t_prev, t_ref)
+        res = self._lidar_step(cloud, t_prev, t_ref, window=False, mapped=False)
+        self._g_world = g_world
+        if res is None:  # skipped: the state stays where the last scan left it
+            self.state = kept
+            return None
+        s = kept.copy()
+        s.stamp_ns, s.R, s.p = t_ref, res.pose[:3, :3].copy(), res.pose[:3, 3].copy()
+        if not res.failed and t0 is not None and t_ref > t0:
+            s.v = (res.pose[:3, 3] - pose0[:3, 3]) / ((t_ref - t0) * 1e-9)
+        s.P[0:9, :] = 0.0
+        s.P[:, 0:9] = 0.0
+        s.P[0:9, 0:9] = np.diag([_RESEED_SIGMA_RAD**2] * 3 + [_RESEED_SIGMA_M**2] * 3 + [_RESEED_SIGMA_MPS**2] * 3)
+        self.state = s
+        scans = self.stats.scans - event["scan"] + 1
+        event["reason"] = (f"no IMU sample for {hole_ns * 1e-9:.3g} s: {scans} scan{'s' * (scans > 1)} registered "
+                           "LiDAR-only (yaw hypotheses around constant velocity), kept out of the map; the IMU state "
+                           "re-seeded from them")
+        return res
 
     def _register_blind(self, cloud: PointCloud, t_prev: int, t_ref: int, guess: np.ndarray):
         """(points, map frame, pose) of a scan without a rotation prior, or None if too few points: from yaw

@@ -37,10 +37,10 @@ class LidarSteps:
     """Registration without the IMU state (gyro-primed where the IMU is mounted)."""
 
     def _lidar_step(self, cloud: PointCloud, t_prev: int, t_ref: int, retry: bool = False,
-                    window: bool = True) -> ScanResult | None:
+                    window: bool = True, mapped: bool = True) -> ScanResult | None:
         """Register one scan LiDAR-only. ``retry``: a scan the IMU prediction could not explain; return None
         (and change nothing) if it fails here too, since then the scan is bad, not the IMU state. ``window``:
-        the scan may start the IMU state."""
+        the scan may start the IMU state. ``mapped``: the scan joins the map (unless it failed)."""
         st = self.stats
         tick = time.perf_counter()
         imu_gap = self._imu_hole(t_prev, t_ref)  # held rates would prime it wrongly: constant velocity instead
@@ -82,8 +82,9 @@ class LidarSteps:
                 self._event("map restarted", f"the map's first scan matched none of the {self._lost} after it")
         else:
             self._lost = 0
-        result = self._finish(t_ref, pose, None if failed else frame,
-                              None if failed else inv_pose(guess) @ measured, dirs_b, failed)
+        keep = mapped and not failed
+        result = self._finish(t_ref, pose, frame if keep else None, inv_pose(guess) @ measured if keep else None,
+                              dirs_b, failed)
         if imu_gap:
             self._window = []  # the IMU state starts from scans after the gap
         elif self.use_imu and self.imu_mounted and self._imu and not failed and window and not self.gyro_only:
