@@ -64,7 +64,7 @@ def test_a_lidar_gap_the_imu_covers_is_bridged(drive, tmp_path):
     k = np.searchsorted(stamps, [t0, t0 + 1_500_000_000])
     assert np.linalg.norm(poses[k[1], :3, 3] - poses[k[0], :3, 3]) > 8.0  # the platform moved during the gap
     ate, ate_base = m["accuracy"]["ate_trans_rmse_m"], base["accuracy"]["ate_trans_rmse_m"]
-    assert ate < max(2.0 * ate_base, ate_base + 0.03), (ate, ate_base)
+    assert ate < max(2.0 * ate_base, ate_base + 0.05), (ate, ate_base)
     assert m["scans"]["time_gaps"] == 1 and m["scans"]["recoveries"] == 0
     (event,) = [e for e in m["events"] if e["kind"] == "time gap"]
     assert "bridged by the IMU state and wheel speed; the scan after it registered" in event["reason"]
@@ -94,7 +94,7 @@ def test_an_imu_gap_during_fast_yaw_does_not_prime_the_scans(walk, tmp_path):
     log = _without(walk.log_path, tmp_path / "gap.bag", "/imu", peak - 200_000_000, peak + 200_000_000)
     m = _odom(log, tmp_path / "gap.tum")
     ate, ate_base = m["accuracy"]["ate_trans_rmse_m"], base["accuracy"]["ate_trans_rmse_m"]
-    assert ate < max(2.0 * ate_base, ate_base + 0.03), (ate, ate_base)
+    assert ate < max(2.0 * ate_base, ate_base + 0.05), (ate, ate_base)
     assert m["scans"]["imu_gaps"] >= 3 and m["scans"]["registration_failures"] == 0
     (event,) = [e for e in m["events"] if e["kind"] == "imu gap"]
     assert event["reason"].startswith("no IMU sample for 0.4")
