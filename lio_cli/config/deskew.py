@@ -31,8 +31,8 @@ class TrajectoryInput(Strict):
 
 # The in-process odometry (motion imu or constant-velocity) takes these fields of lio odom's configuration;
 # input, calibration, prior and deskew come from the deskew configuration.
-_ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_lost_scans", "estimate_time_offset",
-                    "max_speed_mps", "gravity_mps2", "registration", "fusion")
+_ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_bridge_s", "max_lost_scans",
+                    "estimate_time_offset", "max_speed_mps", "gravity_mps2", "registration", "fusion")
 OdometryPass = create_model(
     "OdometryPass", __base__=Strict, __doc__="Settings of the odometry run in-process (as lio odom's fields).",
     **{name: (OdomConfig.model_fields[name].annotation, OdomConfig.model_fields[name]) for name in _ODOMETRY_FIELDS},

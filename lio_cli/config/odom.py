@@ -83,7 +83,12 @@ class OdomConfig(Strict):
     planar: Optional[bool] = Field(None, description="force SE(2) mode; default: on for LaserScan input")
     init_window_s: float = Field(
         1.0, gt=0, le=60, description="LiDAR-only scans over this long start the IMU state (standing or moving start)")
-    max_gap_s: float = Field(1.0, gt=0, description="a longer pause between scans restarts from the LiDAR instead of integrating")
+    max_gap_s: float = Field(
+        1.0, gt=0, description="a longer pause between scans is a time gap: bridged by the IMU state (see max_bridge_s), "
+                               "else restarted from the LiDAR")
+    max_bridge_s: float = Field(
+        3.0, ge=0, description="a time gap up to this long that the IMU covers is bridged: the state is propagated across "
+                               "it (with wheel speed) and the next scan registered from that prediction; 0: never")
     max_lost_scans: int = Field(20, ge=1, description="LiDAR-only registration failing this many scans in a row ends the run (exit 1)")
     estimate_time_offset: bool = Field(
         True, description="estimate a small IMU-LiDAR clock offset while running (on top of the calibration's) and apply it")

@@ -13,7 +13,8 @@ back to LiDAR-only scans, from which the IMU state is started again. The interna
 scan's base frame; ``output_alignment`` levels it by the gravity found.
 
 ``LioOdometry`` is assembled from mixins: the LiDAR-only step in ``odometry_lidar``, the state updates and
-guards in ``odometry_updates``, the start and restart of the IMU state in ``odometry_restart``.
+guards in ``odometry_updates``, the start and restart of the IMU state in ``odometry_restart``, LiDAR gaps
+bridged by the IMU state and scans over IMU gaps in ``odometry_gaps``.
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ from ..model.records import ImuBatch, OdometryRecord, PointCloud
 from .bootstrap import Bootstrap
 from .clock_offset import ClockOffsetTracker
 from .degeneracy import degenerate_directions
-from .imu import NavState, gravity_vector, propagate
+from .imu import MAX_IMU_GAP_NS, NavState, gravity_vector, imu_gap_ns, propagate
 from .motion_compensation import constant_velocity_knots, deskew, to_base
+from .odometry_gaps import Gaps
 from .odometry_lidar import Diverged, LidarSteps, ScanResult
 from .odometry_restart import Restart, WindowScan
 from .odometry_updates import StateUpdates
@@ -64,7 +66,7 @@ class OdomStats:
         counts = {k: v for k, v in vars(self).items() if k not in ("scans", "times_s")}
         return {"total": self.scans, **counts}
 
-class LioOdometry(StateUpdates, Restart, LidarSteps):
+class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
     """Feed IMU batches, wheel records and scans (in time order); get one pose per scan."""
 
     def __init__(self, cfg: OdomConfig, T_base_lidar: np.ndarray, *, use_imu: bool, planar: bool,
@@ -103,6 +105,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps):
         self.clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
         self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
+        self._imu_gap_from: tuple | None = None  # (pose, stamp, event) before an IMU gap the scans are in
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:
@@ -190,9 +193,13 @@ class LioOdometry(StateUpdates, Restart, LidarSteps):
             st.skipped_out_of_order += 1  # a scan ending before the previous one cannot be placed
             return None
         t_prev = cloud.start_ns if self._last_ns is None else self._last_ns
-        if (t_ref - t_prev) * 1e-9 > cfg.max_gap_s:  # a gap is a gap: restart from the LiDAR, never integrate
+        if (t_ref - t_prev) * 1e-9 > cfg.max_gap_s:  # bridged by the IMU state if it can, else restart
             st.time_gaps += 1
-            self._event("time gap", f"{(t_ref - t_prev) * 1e-9:.3g} s without a scan: restarted from the LiDAR")
+            refused = self._bridge_refused(t_prev, t_ref)
+            if refused is None:
+                return self._bridge(cloud, t_prev, t_ref)
+            self._event("time gap", f"{(t_ref - t_prev) * 1e-9:.3g} s without a scan ({refused}): restarted from "
+                                    "the LiDAR")
             self._lose_imu_state()
             self._last_delta = np.eye(4)
             t_prev = cloud.start_ns
@@ -269,10 +276,16 @@ class LioOdometry(StateUpdates, Restart, LidarSteps):
         return ScanResult(t_ref, pose, bool(dirs_b), failed)
 
     # ---- IMU-primed -----------------------------------------------------------------------------
-    def _imu_step(self, cloud: PointCloud, t_prev: int, t_ref: int) -> ScanResult | None:
+    def _imu_step(self, cloud: PointCloud, t_prev: int, t_ref: int,
+                  bridge_gate_m: float | None = None) -> ScanResult | None:
+        """``bridge_gate_m``: the first scan after a bridged time gap, registered with this gate and full iterations."""
         cfg, st = self.cfg, self.stats
         tick = time.perf_counter()
         imu = self._imu_window(t_prev)
+        cost_ns, hole_ns = imu_gap_ns(imu.stamps_ns, t_prev, t_ref)
+        if cost_ns > MAX_IMU_GAP_NS:  # rates interpolated or held across it would prime the scan wrongly
+            return self._imu_gap_step(cloud, t_prev, t_ref, hole_ns)
+        self._imu_gap_from = None
         prop = propagate(self.state, imu, t_ref, self.ext,
                          noise=cfg.fusion.imu if cfg.fusion.method == "ekf" else None, planar=self.planar)
         st.imu_gaps += int(prop.gap)
@@ -295,12 +308,12 @@ class LioOdometry(StateUpdates, Restart, LidarSteps):
         tick = time.perf_counter()
         guess = self._guess(t_prev, t_ref)
         frame, source = self._reg.downsample(points)
-        measured = self._reg.register(source, guess)
+        measured = self._reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m)
         st.times_s["register"] += time.perf_counter() - tick
         dirs_b = self._degeneracy(points, self.state.R)
         if self.planar:
             measured = project_to_se2(measured)
-        failed = self._registration_failed(measured, guess)
+        failed = self._registration_failed(measured, guess, bridge_gate_m)
         if failed:
             st.registration_failures += 1
             # the prediction cannot explain the scan: if the LiDAR alone can, the state is suspect and starts

@@ -37,20 +37,28 @@ class LidarSteps:
     """Registration without the IMU state (gyro-primed where the IMU is mounted)."""
 
     def _lidar_step(self, cloud: PointCloud, t_prev: int, t_ref: int, retry: bool = False,
-                    window: bool = True) -> ScanResult | None:
+                    window: bool = True, mapped: bool = True) -> ScanResult | None:
         """Register one scan LiDAR-only. ``retry``: a scan the IMU prediction could not explain; return None
         (and change nothing) if it fails here too, since then the scan is bad, not the IMU state. ``window``:
-        the scan may start the IMU state."""
+        the scan may start the IMU state. ``mapped``: the scan joins the map (unless it failed)."""
         st = self.stats
         tick = time.perf_counter()
-        guess, knots, knot_poses, gyro_primed = self._lidar_prior(t_prev, t_ref)
+        imu_gap = self._imu_hole(t_prev, t_ref)  # held rates would prime it wrongly: constant velocity instead
+        guess, knots, knot_poses, gyro_primed = self._lidar_prior(t_prev, t_ref, imu_gap)
         st.times_s["propagate"] += time.perf_counter() - tick
-        points = self._prepare(cloud, knots, knot_poses, t_ref)
-        if points is None:
-            return None
-        tick = time.perf_counter()
-        frame, source = self._reg.downsample(points)
-        measured = self._reg.register(source, guess, adaptive=True, gate_m=_GYRO_PRIOR_GATE_M if gyro_primed else None)
+        if imu_gap and self._reg is not None and not self._reg.empty:  # no rotation prior: hypotheses
+            tick = time.perf_counter()
+            blind = self._register_blind(cloud, t_prev, t_ref, guess)
+            if blind is None:
+                return None
+            points, frame, measured = blind
+        else:
+            points = self._prepare(cloud, knots, knot_poses, t_ref)
+            if points is None:
+                return None
+            tick = time.perf_counter()
+            frame, source = self._reg.downsample(points)
+            measured = self._reg.register(source, guess, adaptive=True, gate_m=_GYRO_PRIOR_GATE_M if gyro_primed else None)
         st.times_s["register"] += time.perf_counter() - tick
         if self.planar:
             measured = project_to_se2(measured)
@@ -74,9 +82,12 @@ class LidarSteps:
                 self._event("map restarted", f"the map's first scan matched none of the {self._lost} after it")
         else:
             self._lost = 0
-        result = self._finish(t_ref, pose, None if failed else frame,
-                              None if failed else inv_pose(guess) @ measured, dirs_b, failed)
-        if self.use_imu and self.imu_mounted and self._imu and not failed and window and not self.gyro_only:
+        keep = mapped and not failed
+        result = self._finish(t_ref, pose, frame if keep else None, inv_pose(guess) @ measured if keep else None,
+                              dirs_b, failed)
+        if imu_gap:
+            self._window = []  # the IMU state starts from scans after the gap
+        elif self.use_imu and self.imu_mounted and self._imu and not failed and window and not self.gyro_only:
             if self._first_f_base is None:
                 imu = ImuBatch.concat(self._imu)
                 ba = np.zeros(3) if self._bias_prior[1] is None else np.asarray(self._bias_prior[1], dtype=np.float64)

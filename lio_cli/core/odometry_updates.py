@@ -54,15 +54,16 @@ class StateUpdates:
             return f"IMU biases implausible (gyro {np.linalg.norm(s.bg):.2f} rad/s, accel {np.linalg.norm(s.ba):.2f} m/s^2)"
         return None
 
-    def _registration_failed(self, measured: np.ndarray, guess: np.ndarray) -> bool:
-        """Non-finite, untouched (no correspondence at all), or implausibly far from the IMU prediction."""
+    def _registration_failed(self, measured: np.ndarray, guess: np.ndarray, gate_m: float | None = None) -> bool:
+        """Non-finite, untouched (no correspondence at all), or implausibly far from the IMU prediction (further than
+        ``gate_m`` too, for a prediction across a bridged gap registered with that gate)."""
         if not np.isfinite(measured).all():
             return True
         if self._reg.empty:
             return False
         if untouched(measured, guess):  # ICP returns the guess itself when nothing matched
             return True
-        return exceeds_jump(measured, guess, _MAX_JUMP_M, _MAX_JUMP_RAD)
+        return exceeds_jump(measured, guess, max(_MAX_JUMP_M, gate_m or 0.0), _MAX_JUMP_RAD)
 
     def _guess(self, t_prev: int, t_ref: int) -> np.ndarray:
         prior = self.cfg.prior
@@ -124,10 +125,11 @@ class StateUpdates:
         if delta:
             self._shift_imu(delta)
 
-    def _lidar_prior(self, t_prev: int, t_ref: int):
-        """(guess, deskew knots, knot poses): gyro rotation when the IMU can give it, else the configured prior."""
+    def _lidar_prior(self, t_prev: int, t_ref: int, imu_gap: bool = False):
+        """(guess, deskew knots, knot poses): gyro rotation when the IMU can give it (it covers the interval without
+        ``imu_gap``), else the configured prior."""
         dt = (t_ref - t_prev) * 1e-9
-        if self.use_imu and self.imu_mounted and self._imu and self.imu_until_ns() >= t_ref:
+        if self.use_imu and self.imu_mounted and self._imu and self.imu_until_ns() >= t_ref and not imu_gap:
             v = np.zeros(3)  # world velocity of the last inter-scan motion: p_last - p_prev over its duration
             if self._last_dt_s > 0:
                 v = self._last_pose[:3, :3] @ self._last_delta[:3, :3].T @ self._last_delta[:3, 3] / self._last_dt_s
