@@ -126,6 +126,8 @@ def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
         rpe = "-" if a.rpe_trans_rmse_m is None else f"{a.rpe_trans_rmse_m:.4f} m"
         err_console.print(f"against {a.reference}: ATE {a.ate_trans_rmse_m:.4f} m, {a.ate_rot_rmse_deg:.3f} deg "
                           f"({_ALIGNED[a.alignment].format(n=a.matches)}); RPE over {a.rpe_delta}: {rpe}", markup=False)
+        if a.note:
+            note(a.note, quiet)
 
 
 _ALIGNED = {"se3": "SE(3)-aligned rmse over {n} poses",

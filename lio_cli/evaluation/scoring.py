@@ -4,11 +4,14 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 
+import numpy as np
+
 from ..model.trajectory import Trajectory
 from . import EvalOptions, evaluate
 from .alignment import DegenerateAlignment
 
 RPE_METRES_FROM_M = 20.0  # paths at least this long get RPE over 10 m, shorter ones over 1 s
+LINE_SPREAD_PER_ERROR = 20.0
 
 
 @dataclass(frozen=True)
@@ -24,6 +27,7 @@ class Score:
     rpe_trans_rmse_m: float | None
     final_error_m: float | None
     alignment: str = "se3"
+    note: str | None = None  # why a number means less than it says
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -41,6 +45,16 @@ def score(ref: Trajectory, est: Trajectory, options: EvalOptions | None = None) 
         # first pose, as a run that finished deserves a number rather than losing its outputs
         o = replace(o, align="origin")
         ate = evaluate(ref, est, o)
+    note = None
+    if o.align == "se3":
+        # near a line the alignment's rotation about it is set by the little the path strays from the line: when
+        # that is under ~20x the position error, so is the rotation (a 2 s straight drive read 87 deg of error)
+        pos = ate.association.ref.poses[:, :3, 3]
+        spread = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(pos.T))[1], 0.0)))
+        if spread < LINE_SPREAD_PER_ERROR * ate.stats["ape"]["trans"]["rmse"]:
+            note = (f"the reference's positions lie near a line (they stray {spread:.3g} m from it): the alignment "
+                    "cannot fix the rotation about it, so the rotation error says little (lio evaluate --align origin "
+                    "measures from the first pose)")
     length = ate.drift["path_length_m"] or 0.0
     delta, unit = (10.0, "m") if length >= RPE_METRES_FROM_M else (1.0, "s")
     rpe = evaluate(ref, est, replace(o, delta=delta, delta_unit=unit))
@@ -53,4 +67,5 @@ def score(ref: Trajectory, est: Trajectory, options: EvalOptions | None = None) 
         rpe_trans_rmse_m=rpe.stats["rpe"]["trans"]["rmse"] if len(rpe.rpe_pairs) else None,
         final_error_m=ate.drift["final_error_m"],
         alignment=o.align,
+        note=note,
     )

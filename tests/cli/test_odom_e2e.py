@@ -146,6 +146,21 @@ def test_gt_of_a_platform_standing_still_is_scored_from_the_first_pose(tmp_path,
         "the first: the reference's positions lie on a line or a point); RPE over 1 s: ")
 
 
+def test_a_reference_near_a_line_says_its_rotation_error_means_little(tmp_path, capsys):
+    """2 s of a car cruising straight: SE(3) alignment may spin the estimate about the line (87 deg of "rotation
+    error" on such a log, the translation right); the score says so, and a walk's does not."""
+    res = simulate("drive", tmp_path / "line.bag", "ros1", duration_s=2.0, seed=0, columns=360, start="moving")
+    out = tmp_path / "l.tum"
+    assert main(["odom", str(res.log_path), "-o", str(out), "--gt", str(res.gt_path)]) == 0
+    acc = json.loads((tmp_path / "l.metrics.json").read_text())["accuracy"]
+    assert acc["alignment"] == "se3" and acc["ate_trans_rmse_m"] < 0.1
+    assert acc["note"].startswith("the reference's positions lie near a line (they stray ")
+    assert acc["note"] in capsys.readouterr().err
+    walk = simulate("handheld", tmp_path / "walk.bag", "ros1", duration_s=10.0, seed=0, columns=360)  # it turns
+    assert main(["odom", str(walk.log_path), "-o", str(tmp_path / "w.tum"), "-q", "--gt", str(walk.gt_path)]) == 0
+    assert json.loads((tmp_path / "w.metrics.json").read_text())["accuracy"]["note"] is None
+
+
 @pytest.mark.parametrize("scenario, threshold", [("handheld", 0.08), ("corridor", 0.20)])
 def test_complementary_filter_also_beats_lidar_only(scenario, threshold, logs, tmp_path):
     res = logs[scenario]
