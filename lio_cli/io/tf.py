@@ -79,6 +79,22 @@ class FrameTree:
         for a, b in [*hops, (tr.parent, tr.child)]:
             self._conflicted.setdefault(frozenset((a, b)), message)
 
+    def root(self, frame: str) -> str | None:
+        """The one frame of ``frame``'s tree that is no transform's child (Ouster's os_sensor above os_lidar and
+        os_imu), or None when ``frame`` is not in a tree or the tree has no single root."""
+        frame = frame.lstrip("/")
+        if frame not in self._edges:
+            return None
+        seen, todo = {frame}, deque([frame])
+        while todo:
+            for nxt in self._edges[todo.popleft()]:
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+        children = {t.child for t in self.transforms}
+        roots = sorted(seen - children)
+        return roots[0] if len(roots) == 1 else None
+
     def source(self, target: str, source: str) -> str:
         """Where the chain ``target`` -> ``source`` comes from: /tf_static, or /tf when an edge of it does."""
         hops = self.path(target, source) or []

@@ -78,21 +78,34 @@ class Mounting:
 
     tree: FrameTree
     calibration: Calibration
-    base: str
+    base: str | None  # None until the first lookup when /tf_static names no usual base frame (``_base_for``)
     notes: list[str]
     sources: dict[str, str] = field(default_factory=dict)
 
     @classmethod
     def of(cls, tree: FrameTree, calibration: Calibration, base_frame: str | None, notes: list[str]) -> "Mounting":
-        base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
+        base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), None if tree.frames else "base")
         notes.extend(w for w in tree.warnings if w not in notes)
         return cls(tree, calibration, base, notes, {"T_base_imu": "not used (no IMU in this run)"})
+
+    def _base_for(self, frame: str) -> str:
+        """The base frame; when /tf_static names none of the usual ones, the root of the tree holding the first
+        sensor frame looked up (a driver's own tree, as Ouster's os_sensor -> os_lidar, os_imu): the IMU-LiDAR
+        mounting it gives is used, where identity was assumed for both before."""
+        if self.base is None:
+            root = self.tree.root(frame) if frame else None
+            self.base = root or "base"
+            if root is not None:
+                self.notes.append(f"base frame '{root}': the root of /tf_static's tree holding '{frame.lstrip('/')}' "
+                                  f"(none is named {', '.join(BASE_FRAME_NAMES)}; --base-frame chooses another)")
+        return self.base
 
     def resolve(self, name: str, frame: str) -> np.ndarray:
         """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity.
 
         A /tf_static that contradicts itself on the chain needed stops the run (exit 2) unless the calibration
         gives this extrinsic."""
+        self._base_for(frame)
         try:
             T = self.tree.lookup(self.base, frame) if frame else None
         except TfConflict:

@@ -234,6 +234,34 @@ def test_sensors_on_different_clocks_stop_with_the_option_that_fixes_it(tmp_path
     assert rc == 0 and m["accuracy"]["ate_trans_rmse_m"] < 0.05
 
 
+def test_a_driver_tree_without_a_base_frame_gives_the_mounting(tmp_path):
+    """/tf_static as Ouster's driver writes it: os_sensor -> lidar, os_sensor -> imu, no base_link/base/
+    base_footprint. Both extrinsics were taken as identity (with the IMU turned 180 deg: a walk 0.35 m off and
+    its de-skew 65 mm); the tree's root is the base now."""
+    from lio_cli.io.decode import decode_tf
+
+    res = simulate("handheld", tmp_path / "h.bag", "ros1", duration_s=8.0, seed=1, columns=360,
+                   imu_rotation_deg=(0.0, 0.0, 180.0))
+
+    def renamed(w):
+        with open_log(res.log_path) as reader:
+            for topic, _, t_ns, msg in reader.messages():
+                if topic == "/tf_static":
+                    msg = w.make.tf_message([w.make.transform_stamped(tr.stamp_ns, "os_sensor", tr.child, tr.pose)
+                                             for tr in decode_tf(msg)])
+                w.write(topic, t_ns, msg)
+
+    with open_log(res.log_path) as reader:
+        topics = {t: i.msgtype for t, i in reader.topics.items()}
+    log = _tiny_log(tmp_path / "os.bag", topics, renamed)
+    rc, m = _odom(log, tmp_path / "os.tum", "--gt", "/ground_truth")
+    assert rc == 0 and m["accuracy"]["ate_trans_rmse_m"] < 0.06
+    assert m["extrinsics"] == {"base_frame": "os_sensor", "T_base_imu": "/tf_static (os_sensor -> imu)",
+                               "T_base_lidar": "/tf_static (os_sensor -> lidar)"}
+    assert "base frame 'os_sensor': the root of /tf_static's tree holding 'lidar' (none is named base_link, base, " \
+           "base_footprint; --base-frame chooses another)" in m["notes"]
+
+
 def test_clouds_recorded_late_are_not_a_clock_mismatch(tmp_path):
     """Large clouds queued 0.6 s behind their stamps while the IMU's messages were recorded at once: both on one
     clock (their first stamps agree), which the check once refused as "0.6 s apart beyond their recording
