@@ -186,3 +186,15 @@ def test_dash_is_no_stdout_for_cov_or_plot(capsys, planar, tmp_path, monkeypatch
     assert code == 2 and out == ""
     assert err.strip() == f"lio: error: {option} writes {what}, not standard output: give {option} a path"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_rate_the_memory_budget_cannot_hold_is_refused_and_writes_nothing(capsys, planar, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # --rate 1e6 on a 20 s log reached 24 GB and was OOM-killed; 1e5 took 3 GB
+    code, out, err = _run(capsys, planar, "--rate", "1e5", "-o", "f.tum", "--cov", "f.cov", "--plot", "p")
+    assert code == 2 and out == ""
+    assert err.strip() == (
+        "lio: error: fusing needs about 1921 MB, over the memory budget of 1024 MB (--max-memory), and a 12 s log is "
+        "too short to fuse in chunks (that needs over 60 s): --rate 100000 Hz is 500 times the IMU rate of 200 Hz, "
+        "and poses between IMU samples carry no measurement of their own: lower --rate to 200 Hz or less, or raise "
+        "--max-memory to 1922 (MB) or more")
+    assert list(tmp_path.iterdir()) == []
