@@ -13,13 +13,14 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from ..errors import ConfigError, InputError, ProcessingError
+from ..errors import ConfigError, ProcessingError
 from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult
-from ..io.files import check_writable, write_text_atomic
+from ..io.files import write_text_atomic
 from ..io.sources import split_source
 from ..jobs.evaluate import EvaluateJob, run_evaluate
 from ..io.trajectory_files import STAMP_UNITS_NS, parse_stamp_ns
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
+from .evaluate_outputs import check_evaluate_outputs, plot_names
 from .evaluate_extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
 
 HELP = """Trajectory errors against ground truth: APE/RPE as evo, KITTI, drift.
@@ -210,12 +211,7 @@ def evaluate_cmd(
     _stamp_unit(est_stamp_unit, "--est-stamp-unit")
     csv_path = None if csv_out in (None, "-") else Path(csv_out)
     inputs = [Path(split_source(spec)[0]) for spec in (gt, *estimates)] + ([times] if times is not None else [])
-    if csv_path is not None:
-        check_writable(csv_path, force, inputs)
-    if plot is not None:
-        from ..evaluation.plots import GROUPS_PLOT, OFFSET_PLOT
-
-        _prepare_plot_dir(plot, force, inputs, (OFFSET_PLOT,) * estimate_offset + (GROUPS_PLOT,) * bool(groups))
+    check_evaluate_outputs(csv_path, plot, force, inputs, plot_names(estimate_offset, bool(groups)))
 
     opts = EvalOptions(max_diff_ns=int(round(t_max_diff * 1e9)), offset_ns=offset_ns,
                        method="interpolate" if interpolate else "nearest", align=align_mode, n_align=n_align,
@@ -257,18 +253,6 @@ def evaluate_cmd(
     if as_json:
         print_json(report)
     _check_limits(results, limits)
-
-
-def _prepare_plot_dir(folder: Path, force: bool, inputs: list[Path], extra: tuple[str, ...] = ()) -> None:
-    from ..evaluation.plots import PLOT_FILES
-
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: exists and is not a folder")
-    if not folder.exists():  # created only once the metrics are computed
-        check_writable(folder, force, inputs)
-        return
-    for name in (*PLOT_FILES, *extra, "metrics.json"):
-        check_writable(folder / name, force, inputs)
 
 
 def _jsonable(obj):

@@ -74,7 +74,7 @@ def fuse_cmd(
     gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help="Gyro noise density, rad/s/sqrt(Hz).", show_default=False)] = None,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the other sensors' clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
     base_frame: BaseFrameOpt = None,
-    max_memory: Annotated[Optional[float], typer.Option("--max-memory", help="Estimation memory budget in MB; a longer run is fused in overlapping chunks (default 1024).", show_default=False)] = None,
+    max_memory: Annotated[Optional[float], typer.Option("--max-memory", help="Estimation memory budget in MB; a longer run is fused in overlapping chunks, one that chunks cannot fit is refused before fusing (default 1024).", show_default=False)] = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,
     fmt: FormatOpt = None,

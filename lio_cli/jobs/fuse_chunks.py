@@ -5,7 +5,9 @@ The core keeps per filter instant ("knot": an output or an update) about ``65 n^
 RTS smoother needs predicted and filtered state and covariance and the transition of every knot; n = 15 for
 the IMU-driven EKF, 21 with odometry increments: 15-29 kB measured), a few kB for the planar smoother, and
 about 1.6 kB per IMU sample, output and update when only filtering. An hour at 200 Hz with smoothing would be
-~10 GB; chunked, it is the budget.
+~10 GB; chunked, it is the budget. When chunks cannot bring it under the budget (a span of at most two
+chunks, or the shortest chunk alone over it: e.g. ``--rate`` far above the IMU's rate, where every output is
+a knot) the run is refused before fusing, naming the estimate, the budget and what to change.
 
 A chunk is fused alone over its span plus ``overlap`` on each side, so every kept instant has data before and
 after it. Each chunk's world starts at its own origin; chunk k is carried onto chunk k-1 by a rotation about
@@ -23,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..core.fuse import FuseInputs, FuseOptions, FuseResult, SourceReport, fuse
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from ..geometry import so3_exp_one, yaw_of
 
 SMOOTH_BYTES_PER_N2 = 65
@@ -82,17 +84,52 @@ def plan(inputs: FuseInputs, options: FuseOptions, use: dict[str, list[str]], bu
     knots = knot_count(inputs, use, options.rate_hz)
     per = bytes_per_knot(options, use)
     est = knots * per / 1e6
-    if est <= budget_mb or hi - lo <= 2 * MIN_CHUNK_S * 1e9:
+    if est <= budget_mb:
         return MemoryPlan(knots, per, est, budget_mb, [(lo, hi)], 0)
     span_s = (hi - lo) * 1e-9
+    if span_s <= 2 * MIN_CHUNK_S:
+        raise _over_budget(est, budget_mb, est, f"a {span_s:.3g} s log is too short to fuse in chunks "
+                           f"(that needs over {2 * MIN_CHUNK_S:g} s)", inputs, options, use)
     knots_per_s = knots / span_s
     overlap_s = MAX_OVERLAP_S
     chunk_s = max(MIN_CHUNK_S, budget_mb * 1e6 / per / knots_per_s - 2 * overlap_s)
     overlap_s = min(MAX_OVERLAP_S, chunk_s / 3)
+    chunk_mb = knots_per_s * (chunk_s + 2 * overlap_s) * per / 1e6
+    if chunk_mb > budget_mb * 1.001:
+        raise _over_budget(est, budget_mb, chunk_mb, f"even the shortest chunk ({chunk_s:g} s plus {overlap_s:g} s "
+                           f"of overlap each side) needs {int(np.ceil(chunk_mb))} MB", inputs, options, use)
     n = int(np.ceil(span_s / chunk_s))
     edges = np.linspace(lo, hi, n + 1).round().astype(np.int64)
     return MemoryPlan(knots, per, est, budget_mb, [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])],
                       int(overlap_s * 1e9))
+
+
+def _fastest_source(inputs: FuseInputs, use: dict[str, list[str]]) -> tuple[str, float]:
+    """The motion source in use with the most samples per second, and that rate (Hz)."""
+    best = ("", 0.0)
+    for name in ("imu", "wheel", "odom"):
+        s = getattr(inputs, name)
+        if s is None or name not in use or len(s) < 2:
+            continue
+        hz = (len(s) - 1) / max((int(s.stamps_ns[-1]) - int(s.stamps_ns[0])) * 1e-9, 1e-9)
+        best = max(best, (name, hz), key=lambda b: b[1])
+    return best
+
+
+def _over_budget(est_mb: float, budget_mb: float, need_mb: float, why: str, inputs: FuseInputs,
+                 options: FuseOptions, use: dict[str, list[str]]) -> ConfigError:
+    """The refusal of a run the memory budget cannot hold, with what to change (before any fusing)."""
+    raise_to = f"raise --max-memory to {int(np.ceil(need_mb))} (MB) or more"
+    src, hz = _fastest_source(inputs, use)
+    src = {"imu": "IMU", "wheel": "wheel odometry", "odom": "odometry"}.get(src, src)
+    rate = options.rate_hz
+    if rate and hz and rate > hz:
+        advice = (f"--rate {rate:g} Hz is {rate / hz:.0f} times the {src} rate of {hz:.0f} Hz, and poses between "
+                  f"{src} samples carry no measurement of their own: lower --rate to {hz:.0f} Hz or less, or {raise_to}")
+    else:
+        advice = ("fuse --no-smooth or " if options.smooth else "") + raise_to  # every IMU sample is a knot anyway
+    return ConfigError(f"fusing needs about {est_mb:.0f} MB, over the memory budget of {budget_mb:g} MB "
+                       f"(--max-memory), and {why}: {advice}")
 
 
 def _slice(series, a: int, b: int):

@@ -12,9 +12,10 @@ import numpy as np
 from ..core.fuse import COVARIANCE_LAYOUT
 from ..errors import InputError
 from ..io.files import atomic_output, check_writable
+from ..io.output_paths import refuse_shared_outputs, refuse_stdout
 from ..io.trajectory_files import format_stamp, format_tum
 from .fuse import FuseRun
-from .outputs import check_outputs, write_run
+from .outputs import check_outputs, run_outputs, write_run
 
 PLOT_FILES = ("fuse_top_view.png", "fuse_speed_yaw_rate.png")
 COV_HEADER = ("# lio fuse per-pose covariance: stamp_s, then the 6x6 matrix row-major (36 values) over "
@@ -24,7 +25,20 @@ COV_HEADER = ("# lio fuse per-pose covariance: stamp_s, then the 6x6 matrix row-
 
 def check_fuse_outputs(out: Path | None, force: bool, inputs: Iterable[Path], cov: Path | None = None,
                        plot: Path | None = None) -> None:
-    """Every file the run will write may be written and is no input (before any work)."""
+    """Every file the run will write may be written, is no input and no other output (before any work)."""
+    refuse_stdout("--cov", cov, "the covariance to a file")
+    refuse_stdout("--plot", plot, "PNG files into a folder")
+    named: list[tuple[str, Path]] = []
+    if out is not None:
+        traj, metrics, config = run_outputs(out)
+        named += [("the trajectory (-o)", traj), (f"the metrics file written beside -o {out}", metrics),
+                  (f"the config file written beside -o {out}", config)]
+    if cov is not None:
+        named.append(("the covariance file (--cov)", cov))
+    if plot is not None:
+        named.append(("the plot folder (--plot)", plot))
+        named += [(f"the plot {name} of --plot {plot}", plot / name) for name in PLOT_FILES]
+    refuse_shared_outputs(named)
     inputs = list(inputs)
     if out is not None:
         check_outputs(out, force, inputs)

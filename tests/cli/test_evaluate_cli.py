@@ -239,3 +239,31 @@ def test_usage_errors_exit_2(capsys, three, tmp_path):
     code, _, err = _run(capsys, gt, "missing.tum", "--plot", tmp_path / "plots")
     assert code == 2 and err.strip() == "lio: error: missing.tum: no such file or folder"
     assert not (tmp_path / "plots").exists()  # nothing is left behind by a failed run
+
+
+@pytest.mark.parametrize("csv_name, message", [
+    ("p/metrics.json", "p/metrics.json: would be both the CSV file (--csv) and the file metrics.json of --plot p"),
+    ("p/ape.png", "p/ape.png: would be both the CSV file (--csv) and the file ape.png of --plot p"),
+    ("p", "p: would be both the CSV file (--csv) and the plot folder (--plot)"),
+])
+def test_csv_and_plot_sharing_a_path_are_refused_before_anything_is_written(capsys, three, tmp_path, monkeypatch,
+                                                                           csv_name, message):
+    gt, est = three
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p").mkdir()
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    code, out, err = _run(capsys, gt, est, "--csv", csv_name, "--plot", "p", "--force")
+    assert code == 2 and out == ""
+    assert err.strip() == f"lio: error: {message}; give each output its own path"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+def test_plot_dash_is_no_stdout(capsys, three, tmp_path, monkeypatch):
+    gt, est = three
+    monkeypatch.chdir(tmp_path)
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    code, _, err = _run(capsys, gt, est, "--plot", "-")
+    assert code == 2
+    assert err.strip() == ("lio: error: --plot writes PNG files and metrics.json into a folder, not standard output: "
+                           "give --plot a path")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before

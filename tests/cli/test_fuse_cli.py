@@ -143,3 +143,58 @@ def test_ardrone_twist_only_runs(real_logs, capsys, tmp_path):
     m = json.loads((tmp_path / "a.metrics.json").read_text())
     assert m["sources"]["wheel"]["measurements"] == ["velocity"]  # a drone: lateral speed, no wheel constraint
     assert m["updates"]["wheel"] == 25217
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-o", "f.tum", "--cov", "f.tum"], "f.tum: would be both the trajectory (-o) and the covariance file (--cov)"),
+    (["-o", "f3.tum", "--cov", "f3.metrics.json"],
+     "f3.metrics.json: would be both the metrics file written beside -o f3.tum and the covariance file (--cov)"),
+    (["-o", "f4.tum", "--cov", "f4.config.yaml"],
+     "f4.config.yaml: would be both the config file written beside -o f4.tum and the covariance file (--cov)"),
+    (["-o", "f2.tum", "--plot", "f2.tum"], "f2.tum: would be both the trajectory (-o) and the plot folder (--plot)"),
+    (["-o", "-", "--cov", "p", "--plot", "p"],
+     "p: would be both the covariance file (--cov) and the plot folder (--plot)"),
+    (["-o", "g.tum", "--plot", "p", "--cov", "p/fuse_top_view.png"],
+     "p/fuse_top_view.png: would be both the covariance file (--cov) and the plot fuse_top_view.png of --plot p"),
+])
+def test_outputs_that_share_a_path_are_refused_before_anything_is_written(capsys, planar, tmp_path, monkeypatch,
+                                                                         args, message):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, planar, *args, "-q")
+    assert code == 2 and out == ""
+    assert err.strip() == f"lio: error: {message}; give each output its own path"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_force_does_not_let_one_output_replace_another(capsys, planar, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "f.tum").write_text("keep\n")
+    (tmp_path / "link.cov").symlink_to("f.tum")
+    code, _, err = _run(capsys, planar, "-o", "f.tum", "--cov", "link.cov", "--force", "-q")
+    assert code == 2
+    assert err.strip() == ("lio: error: link.cov: would be both the trajectory (-o) and the covariance file (--cov); "
+                           "give each output its own path")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.tum", "link.cov"]
+    assert (tmp_path / "f.tum").read_text() == "keep\n"
+
+
+@pytest.mark.parametrize("option, what", [("--cov", "the covariance to a file"),
+                                          ("--plot", "PNG files into a folder")])
+def test_dash_is_no_stdout_for_cov_or_plot(capsys, planar, tmp_path, monkeypatch, option, what):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, planar, "-o", "f.tum", option, "-", "-q")
+    assert code == 2 and out == ""
+    assert err.strip() == f"lio: error: {option} writes {what}, not standard output: give {option} a path"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_rate_the_memory_budget_cannot_hold_is_refused_and_writes_nothing(capsys, planar, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # --rate 1e6 on a 20 s log reached 24 GB and was OOM-killed; 1e5 took 3 GB
+    code, out, err = _run(capsys, planar, "--rate", "1e5", "-o", "f.tum", "--cov", "f.cov", "--plot", "p")
+    assert code == 2 and out == ""
+    assert err.strip() == (
+        "lio: error: fusing needs about 1921 MB, over the memory budget of 1024 MB (--max-memory), and a 12 s log is "
+        "too short to fuse in chunks (that needs over 60 s): --rate 100000 Hz is 500 times the IMU rate of 200 Hz, "
+        "and poses between IMU samples carry no measurement of their own: lower --rate to 200 Hz or less, or raise "
+        "--max-memory to 1922 (MB) or more")
+    assert list(tmp_path.iterdir()) == []

@@ -73,3 +73,35 @@ def test_merged_reports_add_up():
     m = merge_reports([{"wheel": a}, {"wheel": b}])["wheel"]
     assert (m.received, m.updates, m.rejected) == (7, 4, {"nan": 3, "outlier": 1})
     assert m.by_kind == {"wheel_velocity": {"updates": 1, "outlier": 1}}
+
+
+def test_plan_refuses_a_short_log_over_budget_naming_the_rate_far_above_the_imu():
+    import pytest
+
+    from lio_cli.errors import ConfigError
+
+    inp = _inputs(seconds=20)
+    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    with pytest.raises(ConfigError) as err:  # it returned one chunk of 3.2 GB: 24 GB RSS at 1e6 Hz, OOM-killed
+        plan(inp, FuseOptions(rate_hz=1e5), use, 1024.0)
+    assert str(err.value) == (
+        "fusing needs about 3200 MB, over the memory budget of 1024 MB (--max-memory), and a 20 s log is too short "
+        "to fuse in chunks (that needs over 60 s): --rate 100000 Hz is 1000 times the IMU rate of 100 Hz, and poses "
+        "between IMU samples carry no measurement of their own: lower --rate to 100 Hz or less, or raise "
+        "--max-memory to 3201 (MB) or more")
+    assert len(plan(inp, FuseOptions(rate_hz=100.0), use, 1024.0).chunks) == 1  # the IMU's own rate: 3.5 MB
+
+
+def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
+    import pytest
+
+    from lio_cli.errors import ConfigError
+
+    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    with pytest.raises(ConfigError) as err:  # it split into 30 s chunks of 72 MB each
+        plan(_inputs(), FuseOptions(smooth=True), use, 20.0)
+    assert str(err.value) == (
+        "fusing needs about 161 MB, over the memory budget of 20 MB (--max-memory), and even the shortest chunk "
+        "(30 s plus 10 s of overlap each side) needs 81 MB: fuse --no-smooth or raise --max-memory to 81 (MB) or more")
+    fits = plan(_inputs(), FuseOptions(smooth=True), use, 81.0)
+    assert len(fits.chunks) == 4

@@ -1,0 +1,46 @@
+"""``lio evaluate``'s files (``--csv FILE``, ``--plot DIR`` with its PNGs and metrics.json), every one checked
+before any work: writable, no input, and no two of them the same file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from ..io.files import check_writable
+from ..io.output_paths import refuse_shared_outputs, refuse_stdout
+
+
+def plot_names(estimate_offset: bool, groups: bool) -> tuple[str, ...]:
+    """The files ``--plot DIR`` writes into DIR."""
+    from ..evaluation.plots import GROUPS_PLOT, OFFSET_PLOT, PLOT_FILES
+
+    return (*PLOT_FILES, *(OFFSET_PLOT,) * estimate_offset, *(GROUPS_PLOT,) * groups, "metrics.json")
+
+
+def check_evaluate_outputs(csv_path: Path | None, plot: Path | None, force: bool, inputs: list[Path],
+                           names: tuple[str, ...]) -> None:
+    refuse_stdout("--plot", plot, "PNG files and metrics.json into a folder")
+    named: list[tuple[str, Path]] = []
+    if csv_path is not None:
+        named.append(("the CSV file (--csv)", csv_path))
+    if plot is not None:
+        named.append(("the plot folder (--plot)", plot))
+        named += [(f"the file {name} of --plot {plot}", plot / name) for name in names]
+    refuse_shared_outputs(named)
+    if csv_path is not None:
+        check_writable(csv_path, force, inputs)
+    if plot is not None:
+        _check_plot_dir(plot, force, inputs, names)
+
+
+def _check_plot_dir(folder: Path, force: bool, inputs: list[Path], names: tuple[str, ...]) -> None:
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: exists and is not a folder")
+    if not folder.exists():  # created only once the metrics are computed
+        check_writable(folder, force, inputs)
+        return
+    for name in names:
+        check_writable(folder / name, force, inputs)
+
+
+__all__ = ["check_evaluate_outputs", "plot_names"]
