@@ -91,7 +91,8 @@ def _data_lines(text: str) -> tuple[list[int], list[list[str]]]:
 def _unit_hint(path: Path, lineno: int, text: str, what: str) -> InputError:
     return InputError(
         f"{path}:{lineno}: {what} {text} is too large for seconds (beyond year 2262); the file's stamps look "
-        f"like ms, us or ns: say so with --gt-stamp-unit/--est-stamp-unit"
+        f"like ms, us or ns, and TUM stamps are seconds: write them so (lio evaluate also reads other units with "
+        f"--gt-stamp-unit/--est-stamp-unit)"
     )
 
 

@@ -55,7 +55,10 @@ def test_tum_stamp_units(tmp_path: Path):
     p.write_text("1700000000123456789 0 0 0 0 0 0 1\n1700000000223456789 1 0 0 0 0 0 1\n")
     s, _ = read_tum(p, stamp_unit="ns")
     np.testing.assert_array_equal(s, [1_700_000_000_123_456_789, 1_700_000_000_223_456_789])
-    with pytest.raises(InputError, match=r"t.tum:1: stamp 1700000000123456789 is too large for seconds .*--est-stamp-unit"):
+    # odom --gt, deskew --trajectory and fuse --odom read it too: the message names evaluate's options as evaluate's
+    with pytest.raises(InputError, match=r"t.tum:1: stamp 1700000000123456789 is too large for seconds .*TUM stamps are "
+                                         r"seconds: write them so \(lio evaluate also reads other units with "
+                                         r"--gt-stamp-unit/--est-stamp-unit\)$"):
         read_tum(p)
     p.write_text("1500 0 0 0 0 0 0 1\n2500.5 1 0 0 0 0 0 1\n")
     np.testing.assert_array_equal(read_tum(p, stamp_unit="ms")[0], [1_500_000_000, 2_500_500_000])
