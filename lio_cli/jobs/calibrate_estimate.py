@@ -118,6 +118,8 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
         if centre_ns:
             off = replace(off, imu_time_offset_s=off.imu_time_offset_s + centre_ns / NS_PER_S)
     except InputError as err:
+        if str(err).startswith("too short"):
+            raise InputError(f"{where}: {err}") from err  # no offset given or not changes that
         if prior_offset is None or not str(err).startswith("too little"):
             raise InputError(f"{where}: {err}; or give the clock offset with --imu-time-offset SECONDS (or "
                              "imu_time_offset_s in --calib)") from err

@@ -102,6 +102,10 @@ def check_overlap(imu_stamps_ns: np.ndarray, traj_stamps_ns: np.ndarray, imu_tim
     i0, i1 = int(imu_stamps_ns[0]) + off_ns, int(imu_stamps_ns[-1]) + off_ns
     t0, t1 = int(traj_stamps_ns[0]), int(traj_stamps_ns[-1])
     overlap_s = (min(i1, t1) - max(i0, t0)) / NS_PER_S
+    if overlap_s < min_overlap_s and overlap_s >= min(i1 - i0, t1 - t0) / NS_PER_S - 0.2:
+        # the shorter of the two lies within the other (give or take a scan): the log is short, not the clocks off
+        raise InputError(f"too short: the IMU and the LiDAR trajectory share {max(overlap_s, 0.0):.1f} s (need "
+                         f"{min_overlap_s:g} s): record longer")
     if overlap_s < min_overlap_s:
         gap_s = (t0 - i0) / NS_PER_S
         raise InputError(f"clock mismatch: the IMU and the LiDAR share {max(overlap_s, 0.0):.1f} s of time "

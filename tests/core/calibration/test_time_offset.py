@@ -61,6 +61,16 @@ def test_clock_mismatch_is_refused(handheld):
         estimate_time_offset(handheld.lidar_stamps_ns, handheld.T_world_lidar, wall, handheld.imu.gyro_radps)
 
 
+def test_a_short_log_is_too_short_not_a_clock_mismatch(handheld):
+    """2.5 s of a log on one clock: once "clock mismatch: ... are they stamped by different clocks?", which sent
+    users to --imu-time-offset (given or not, the same words)."""
+    keep = handheld.lidar_stamps_ns < handheld.lidar_stamps_ns[0] + 2_500_000_000
+    with pytest.raises(InputError, match=r"^too short: the IMU and the LiDAR trajectory share 2\.[0-9] s \(need 3 s\): "
+                                         r"record longer$"):
+        estimate_time_offset(handheld.lidar_stamps_ns[keep], handheld.T_world_lidar[keep], handheld.imu.stamps_ns,
+                             handheld.imu.gyro_radps)
+
+
 def test_offset_beyond_the_search_is_refused(handheld):
     msg = ("the IMU-LiDAR time offset lies beyond the +-0.02 s searched (best at the edge): a clock mismatch between "
            "the sensors?")
