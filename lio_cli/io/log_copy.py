@@ -20,7 +20,7 @@ from dataclasses import replace
 
 from ..errors import InputError
 from .reader import LogConnection, LogReader, RawRecord
-from .writer import FORMAT_ENCODINGS, LogWriter
+from .writer import FORMAT_ENCODINGS, LogWriter, latched_qos
 
 
 def mcap_profile(reader: LogReader) -> str:
@@ -54,7 +54,8 @@ class LogCopy:
                 found = (self.writer.add_mirror(conn, topic), False)
             else:  # the writer's own encoding and standard definition; the other format's metadata stays behind
                 target = replace(conn, encoding=self.writer.encoding, msgdef="", msgdef_format="", digest="",
-                                 qos=() if self.writer.encoding == "ros1" else conn.qos,
+                                 qos=() if self.writer.encoding == "ros1" else (conn.qos or (
+                                     latched_qos() if conn.latching else ())),
                                  callerid=conn.callerid if self.writer.encoding == "ros1" else None,
                                  latching=conn.latching if self.writer.encoding == "ros1" else None)
                 found = (self.writer.add_mirror(target, topic), True)

@@ -25,6 +25,16 @@ TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"
 FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), "mcap": ("cdr", "ros1")}
 
 
+def latched_qos() -> tuple:
+    """ROS 2's form of a ROS 1 latched topic (/tf_static): transient local, reliable, the last message kept, so
+    a player offers it to late subscribers as ROS 1 did (an empty profile plays it volatile)."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    never = QosTime(0, 0)
+    return (Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, never, never,
+                QosLiveliness.SYSTEM_DEFAULT, never, False),)
+
+
 class LogWriter:
     """``add_topic(topic, msgtype)`` then ``write(topic, time_ns, msg)`` in any order of time."""
 
@@ -107,13 +117,18 @@ class LogWriter:
         if self.format == "ros1":
             conn = self._w.add_connection(topic, msgtype, typestore=self.typestore, latching=int(latching))
         elif self.format in ("ros2", "ros2-mcap"):
-
-            conn = self._w.add_connection(topic, msgtype, typestore=self.typestore)
+            conn = self._w.add_connection(topic, msgtype, typestore=self.typestore,
+                                          offered_qos_profiles=latched_qos() if latching else ())
         else:
             if msgtype not in self._schemas:
                 msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
                 self._schemas[msgtype] = self._w.register_schema(msgtype, "ros2msg", msgdef.encode())
-            conn = self._w.register_channel(topic, "cdr", self._schemas[msgtype])
+            meta = {}
+            if latching:
+                from rosbags.rosbag2.metadata import dump_qos_v8
+
+                meta["offered_qos_profiles"] = dump_qos_v8(list(latched_qos()))
+            conn = self._w.register_channel(topic, "cdr", self._schemas[msgtype], meta)
         self._topics[topic] = (msgtype, conn)
         self._seq[topic] = 0
 

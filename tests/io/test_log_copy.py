@@ -145,3 +145,21 @@ def test_ros1_and_ros2_bags_convert_field_for_field(logs, tmp_path, src_fmt, out
         return imu, gt, tf, pts
 
     assert content(out) == content(src)
+
+
+@pytest.mark.parametrize("out_fmt", ["ros2", "mcap"])
+def test_a_latched_ros1_topic_becomes_transient_local_in_ros2(logs, tmp_path, out_fmt):
+    """/tf_static latched in ROS 1 came out of a conversion with an empty QoS profile, which a ROS 2 player offers
+    volatile: a node started after the first message never got the extrinsics."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import QosDurability
+    from rosbags.rosbag2.metadata import parse_qos
+
+    src = logs.sensor_log("ros1")  # /tf_static written latched
+    out = tmp_path / f"copy{SUFFIX[out_fmt]}"
+    copy_all(src, out, out_fmt)
+    with AnyReader([out]) as r:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in r.connections}
+    tf_static = qos["/tf_static"] if not isinstance(qos["/tf_static"], str) else parse_qos(qos["/tf_static"])
+    assert [(q.durability, q.depth) for q in tf_static] == [(QosDurability.TRANSIENT_LOCAL, 1)]
+    assert not qos["/imu"]  # not latched: no profile, as before
