@@ -121,8 +121,8 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
     gaps = stats.pop("imu_gap_scans")
     notes = list(dict.fromkeys(notes))  # the odometry and this run resolve the same extrinsics
     resolved = with_overrides(cfg, {
-        "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
-        "input.base_frame": mounting.base, "motion": source, "output_format": fmt,
+        "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
+        "input.base_frame": mounting.base, "motion": source,
     }, "resolved configuration")
     span_s = reader.duration_ns * 1e-9
     metrics = {
