@@ -26,7 +26,7 @@ from ..io.reader import LogReader, open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from .deskew_helper import Helper
-from .deskew_motion import Progress, resolve_motion, run_odometry, settled_motion, trajectory_motion
+from .deskew_motion import Progress, check_covered, resolve_motion, run_odometry, settled_motion, trajectory_motion
 from .deskew_scan import plan_scans
 from .deskew_write import write_pass
 from .odom_inputs import Mounting
@@ -107,7 +107,8 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
             motion, description, details = trajectory_motion(cfg, T_base_lidar)
             t_motion = time.perf_counter() - t_motion
             try:
-                stats = write_pass(job, reader, fmt, plan, motion, progress, 0, n_scans)
+                stats = write_pass(job, reader, fmt, plan, motion, progress, 0, n_scans, before_commit=lambda st:
+                                   check_covered(st, motion, cfg.trajectory.path, lidar))
             finally:
                 motion.close()
             writing = "after the motion was read"
@@ -119,6 +120,7 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
             notes.extend([*odo.notes, *mounting.notes])  # repeats go below
     wall = time.perf_counter() - t_wall
     gaps = stats.pop("imu_gap_scans")
+    stats.pop("scan_span_ns", None)
     notes = list(dict.fromkeys(notes))  # the odometry and this run resolve the same extrinsics
     resolved = with_overrides(cfg, {
         "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
