@@ -19,6 +19,7 @@ import yaml
 
 from ..config import dump_model, with_overrides
 from ..config.deskew import DeskewConfig
+from ..errors import InputError
 from ..io.detect import input_paths
 from ..io.files import atomic_output, check_writable
 from ..io.map_files import check_map_suffix
@@ -54,8 +55,23 @@ class DeskewResult:
     notes: list[str] = field(default_factory=list)
 
 
+_FILE_SUFFIXES = {"ros1": ".bag", "mcap": ".mcap"}  # the formats written as one file: readers go by its suffix
+
+
 def output_format(out: Path, asked: str | None, reader: LogReader) -> str:
-    """``--format``, else OUT's suffix (.bag ros1, .mcap mcap), else the input's format (and ROS 2 storage)."""
+    """``--format``, else OUT's suffix (.bag ros1, .mcap mcap), else the input's format (and ROS 2 storage).
+    A ROS 1 bag or MCAP file must carry its suffix (rosbags and MCAP tools open by it); a ROS 2 bag is a folder."""
+    fmt = _output_format(out, asked, reader)
+    want = _FILE_SUFFIXES.get(fmt)
+    if want is not None and Path(out).suffix != want:
+        got = f"'{Path(out).suffix}'" if Path(out).suffix else "no suffix"
+        raise InputError(f"{out}: {'a ROS 1 bag' if fmt == 'ros1' else 'an MCAP file'} needs the {want} suffix "
+                         f"(OUT has {got}; readers go by it): name it {Path(out).stem}{want} (a ROS 2 bag, "
+                         "--format ros2, is a folder and needs none)")
+    return fmt
+
+
+def _output_format(out: Path, asked: str | None, reader: LogReader) -> str:
     if asked is not None:
         return asked
     suffix = Path(out).suffix

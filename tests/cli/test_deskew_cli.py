@@ -17,7 +17,8 @@ def logs(tmp_path_factory):
     root = tmp_path_factory.mktemp("logs")
     bag = simulate("handheld", root / "walk.bag", "ros1", duration_s=2.0, seed=4, columns=128, start="moving")
     ros2 = simulate("handheld", root / "walk_ros2", "ros2", duration_s=1.0, seed=4, columns=64, start="moving")
-    return bag, ros2
+    mcap = simulate("handheld", root / "walk_mcap.mcap", "mcap", duration_s=1.0, seed=4, columns=64, start="moving")
+    return bag, ros2, mcap
 
 
 def records(path):
@@ -78,7 +79,7 @@ def test_an_existing_output_is_kept_without_force(logs, tmp_path, capsys):
 
 
 def test_the_output_is_never_the_input_or_inside_it(logs, tmp_path, capsys):
-    bag, ros2 = logs
+    bag, ros2, _ = logs
     log = bag.log_path
     for extra in ([], ["--force"]):
         assert main(["deskew", str(log), str(log), "--trajectory", str(bag.gt_path), *extra]) == 2
@@ -129,6 +130,25 @@ def test_a_trajectory_on_another_clock_is_refused_not_copied(logs, tmp_path, cap
     assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(late)]) == 2
     assert err_line(capsys).endswith("covers none of the 20 scans of /points (1700000000.000..1700000001.999 s)")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["late.tum", "zero.tum"]
+
+
+@pytest.mark.parametrize("log,out,line", [
+    (0, "nosuffix", "a ROS 1 bag needs the .bag suffix (OUT has no suffix; readers go by it): name it nosuffix.bag"),
+    (0, "o.bag2", "a ROS 1 bag needs the .bag suffix (OUT has '.bag2'; readers go by it): name it o.bag"),
+    (2, "nosuffix", "an MCAP file needs the .mcap suffix (OUT has no suffix; readers go by it): name it nosuffix.mcap"),
+])
+def test_a_bag_or_mcap_file_without_its_suffix_is_refused(logs, tmp_path, capsys, log, out, line):
+    path = tmp_path / out
+    assert main(["deskew", str(logs[log].log_path), str(path), "--trajectory", str(logs[log].gt_path)]) == 2
+    assert err_line(capsys) == f"lio: error: {path}: {line} (a ROS 2 bag, --format ros2, is a folder and needs none)"
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_ros2_output_needs_no_suffix(logs, tmp_path):
+    bag = logs[0]
+    out = tmp_path / "folder"
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "--format", "ros2", "-q"]) == 0
+    assert (out / "metadata.yaml").exists() and records(out)
 
 
 @pytest.mark.parametrize("args,line", [
