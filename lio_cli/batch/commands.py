@@ -19,8 +19,9 @@ from ..config.calibrate import CalibrateConfig
 from ..config.deskew import DeskewConfig
 from ..config.fuse import FuseConfig
 from ..config.odom import OdomConfig
-from ..errors import ConfigError
+from ..errors import ConfigError, InputError
 from ..evaluation.scoring import score
+from ..io.detect import detect_format
 from ..io.sources import load_trajectory
 from ..model.trajectory import Trajectory
 from .manifest import RunSpec
@@ -47,9 +48,15 @@ def metrics_file(command: str) -> str:
 
 
 def _deskew_out(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
-    suffix = {"ros1": ".bag", "mcap": ".mcap"}.get(cfg.output_format or "", "")
-    if cfg.output_format is None and log.suffix in (".bag", ".mcap"):
-        suffix = log.suffix
+    """The output log of a deskew run: a file with the suffix of its format (the input's unless asked: a folder
+    of split ROS 1 bags gives a .bag), a folder for a ROS 2 bag."""
+    fmt = cfg.output_format or cfg.input.format
+    if fmt is None:
+        try:
+            fmt, _ = detect_format(Path(log))
+        except InputError:  # the run itself says what is wrong with the log
+            fmt = None
+    suffix = {"ros1": ".bag", "mcap": ".mcap"}.get(fmt or "", "")
     return folder / f"{STEMS['deskew']}{suffix}"
 
 

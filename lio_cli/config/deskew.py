@@ -1,7 +1,8 @@
 """``lio deskew``'s configuration: everything a run needs besides the log, the output and the map file.
 
-The ``.config.yaml`` a run writes is this model after resolution (topics, base frame, motion source and
-output format filled in), so ``lio deskew LOG OUT --config that.config.yaml`` repeats the run exactly.
+The ``.config.yaml`` a run writes is this model after resolution (topics, base frame and motion source filled
+in), so ``lio deskew LOG OUT --config that.config.yaml`` repeats the run exactly. The input and output formats
+stay as asked (None: detected from the log, OUT's suffix): a format found for one log must not bind another.
 """
 
 from __future__ import annotations

@@ -15,7 +15,8 @@ from . import Strict
 
 
 class InputConfig(Strict):
-    """Which parts of the log to read and how (None: detected; the resolved config names what was used)."""
+    """Which parts of the log to read and how (None: detected; the resolved config names the topics and base
+    frame used, but keeps ``format`` as asked: a detected format would bind the next log it is used with)."""
 
     format: Optional[Literal["ros1", "ros2", "mcap"]] = Field(None, description="log format; default: detected")
     lidar_topic: Optional[str] = Field(None, description="PointCloud2 or LaserScan topic; default: the only one")

@@ -210,7 +210,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         fmt, span_s = reader.format, reader.duration_ns * 1e-9
     cal = compose(est, T_base_lidar, T_ref, wheel)
     rows = table(cal, ref, ref_name)
-    resolved = with_overrides(cfg, {"input.format": fmt, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
+    resolved = with_overrides(cfg, {"input.lidar_topic": lidar, "input.imu_topic": imu_topic,
                                     "input.wheel_topic": wheel, "input.base_frame": base}, "resolved configuration")
     wall = time.perf_counter() - t_wall
     notes = list(dict.fromkeys(est.notes))

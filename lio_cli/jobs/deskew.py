@@ -19,6 +19,7 @@ import yaml
 
 from ..config import dump_model, with_overrides
 from ..config.deskew import DeskewConfig
+from ..errors import InputError
 from ..io.detect import input_paths
 from ..io.files import atomic_output, check_writable
 from ..io.map_files import check_map_suffix
@@ -26,7 +27,7 @@ from ..io.reader import LogReader, open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from .deskew_helper import Helper
-from .deskew_motion import Progress, resolve_motion, run_odometry, settled_motion, trajectory_motion
+from .deskew_motion import Progress, check_covered, resolve_motion, run_odometry, settled_motion, trajectory_motion
 from .deskew_scan import plan_scans
 from .deskew_write import write_pass
 from .odom_inputs import Mounting
@@ -54,8 +55,23 @@ class DeskewResult:
     notes: list[str] = field(default_factory=list)
 
 
+_FILE_SUFFIXES = {"ros1": ".bag", "mcap": ".mcap"}  # the formats written as one file: readers go by its suffix
+
+
 def output_format(out: Path, asked: str | None, reader: LogReader) -> str:
-    """``--format``, else OUT's suffix (.bag ros1, .mcap mcap), else the input's format (and ROS 2 storage)."""
+    """``--format``, else OUT's suffix (.bag ros1, .mcap mcap), else the input's format (and ROS 2 storage).
+    A ROS 1 bag or MCAP file must carry its suffix (rosbags and MCAP tools open by it); a ROS 2 bag is a folder."""
+    fmt = _output_format(out, asked, reader)
+    want = _FILE_SUFFIXES.get(fmt)
+    if want is not None and Path(out).suffix != want:
+        got = f"'{Path(out).suffix}'" if Path(out).suffix else "no suffix"
+        raise InputError(f"{out}: {'a ROS 1 bag' if fmt == 'ros1' else 'an MCAP file'} needs the {want} suffix "
+                         f"(OUT has {got}; readers go by it): name it {Path(out).stem}{want} (a ROS 2 bag, "
+                         "--format ros2, is a folder and needs none)")
+    return fmt
+
+
+def _output_format(out: Path, asked: str | None, reader: LogReader) -> str:
     if asked is not None:
         return asked
     suffix = Path(out).suffix
@@ -107,7 +123,8 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
             motion, description, details = trajectory_motion(cfg, T_base_lidar)
             t_motion = time.perf_counter() - t_motion
             try:
-                stats = write_pass(job, reader, fmt, plan, motion, progress, 0, n_scans)
+                stats = write_pass(job, reader, fmt, plan, motion, progress, 0, n_scans, before_commit=lambda st:
+                                   check_covered(st, motion, cfg.trajectory.path, lidar))
             finally:
                 motion.close()
             writing = "after the motion was read"
@@ -119,10 +136,11 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
             notes.extend([*odo.notes, *mounting.notes])  # repeats go below
     wall = time.perf_counter() - t_wall
     gaps = stats.pop("imu_gap_scans")
+    stats.pop("scan_span_ns", None)
     notes = list(dict.fromkeys(notes))  # the odometry and this run resolve the same extrinsics
     resolved = with_overrides(cfg, {
-        "input.format": reader.format, "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
-        "input.base_frame": mounting.base, "motion": source, "output_format": fmt,
+        "input.lidar_topic": lidar, "input.imu_topic": imu_topic,
+        "input.base_frame": mounting.base, "motion": source,
     }, "resolved configuration")
     span_s = reader.duration_ns * 1e-9
     metrics = {

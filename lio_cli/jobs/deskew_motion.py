@@ -42,6 +42,7 @@ _IMU_MARGIN_NS = 50_000_000  # IMU kept around a sweep for interpolation at its 
 # a trajectory is continued this far beyond its ends: a sweep sampled on the trajectory's own clock grid may
 # start a few ns before it once its offsets went through a float32 time field (7.5 ns at 0.1 s)
 _TRAJECTORY_SLACK_NS = 1_000_000
+_OTHER_CLOCK_NS = 60_000_000_000  # a trajectory this far from every scan belongs to another clock
 
 Progress = Callable[[int, int | None], None]
 
@@ -218,6 +219,24 @@ def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> tuple[Moti
             f"trajectory {tc.path} ({len(traj)} poses of the {tc.frame} over {span:.1f} s, {tc.interpolation} "
             "interpolation)",
             {"trajectory": tc.path, "poses": len(traj), "frame": tc.frame, "interpolation": tc.interpolation})
+
+
+def check_covered(stats: dict, motion: Motion, path: str, topic: str) -> None:
+    """Refuse a trajectory that covers none of the scans (before anything is renamed into place): the run would
+    be a copy of the log. Far apart, it is on another clock (a TUM from 0 beside a log in epoch time)."""
+    scans, span = stats["scans"], stats.get("scan_span_ns")
+    if scans["deskewed"] or span is None or not any(w.startswith("not covered") for w in scans["unchanged_why"]):
+        return
+    first, last = motion.span()
+    apart = max(span[0] - last, first - span[1])
+    why = (f": {apart * 1e-9:.6g} s apart, it looks stamped on another clock" if apart > _OTHER_CLOCK_NS
+           else "")
+    raise InputError(f"{path}: the trajectory ({_fmt_s(first)}..{_fmt_s(last)} s) covers none of the "
+                     f"{scans['total']} scans of {topic} ({_fmt_s(span[0])}..{_fmt_s(span[1])} s){why}")
+
+
+def _fmt_s(ns: int) -> str:
+    return f"{ns * 1e-9:.3f}"
 
 
 def settled_motion(log: Path, cfg: DeskewConfig, source: str, imu_topic: str | None, mounting: Mounting,

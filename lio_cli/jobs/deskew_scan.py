@@ -117,6 +117,7 @@ class ScanWriter:
         self._shift_m: list[float] = []  # median point correction per de-skewed scan
         self._max_shift_m = 0.0
         self._times = {"decode": 0.0, "sweep_motion": 0.0, "deskew": 0.0, "encode_write": 0.0}
+        self.span_ns: tuple[int, int] | None = None  # first point to last of the scans the motion was asked for
 
     def output(self, conn: LogConnection) -> None:
         """The output connection of one input connection of the LiDAR topic."""
@@ -151,6 +152,8 @@ class ScanWriter:
         if cloud.end_ns - cloud.start_ns > MAX_SWEEP_NS:
             return self._unchanged(rec, msg, cloud, f"point times span more than {MAX_SWEEP_NS * 1e-9:g} s")
         t_ref = cloud.end_ns if self.cfg.reference == "end" else cloud.start_ns
+        span = self.span_ns or (cloud.start_ns, cloud.end_ns)
+        self.span_ns = (min(span[0], cloud.start_ns), max(span[1], cloud.end_ns))
         tick = time.perf_counter()
         got = self.motion.sweep(cloud.start_ns, cloud.end_ns, t_ref)
         self._times["sweep_motion"] += time.perf_counter() - tick

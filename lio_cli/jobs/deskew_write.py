@@ -53,6 +53,7 @@ def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion,
         w.finish()
         stats = scans.summary()
         stats["imu_gap_scans"] = motion.imu_gap_scans
+        stats["scan_span_ns"] = scans.span_ns
         stats["copied_topics"] = {"as_stored": scans.copy.copied, "converted": scans.copy.converted}
         if voxels is not None:
             stats["map"] = {"path": str(job.map), "points": len(voxels), "voxel_m": voxels.voxel_m,

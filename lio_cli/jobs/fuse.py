@@ -95,7 +95,7 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     t_fuse = time.perf_counter() - t_fuse
     _add_gps_drops(result, sources)
     resolved = with_overrides(cfg, {
-        "input.format": fmt, "input.imu_topic": _topic(sources, "imu"), "input.wheel_topic": _topic(sources, "wheel"),
+        "input.imu_topic": _topic(sources, "imu"), "input.wheel_topic": _topic(sources, "wheel"),
         "input.gps_topic": _topic(sources, "gps"), "input.base_frame": sources.base_frame,
         "input.wheel_twist_frame": sources.wheel_twist_frame,
         "input.gps_origin": _gps_origin(sources), "use": sources.use,

@@ -209,7 +209,7 @@ class _OdomRun:
         elif cfg.frame == "imu":
             P = P @ odo.ext.T_base_imu
         resolved = with_overrides(cfg, {
-            "input.format": self.reader.format, "input.lidar_topic": inputs.lidar, "input.imu_topic": inputs.imu,
+            "input.lidar_topic": inputs.lidar, "input.imu_topic": inputs.imu,
             "input.wheel_topic": inputs.wheel, "input.base_frame": self.mounting.base, "deskew": inputs.deskew,
             "planar": inputs.planar,
         }, "resolved configuration")

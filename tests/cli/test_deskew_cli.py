@@ -17,7 +17,8 @@ def logs(tmp_path_factory):
     root = tmp_path_factory.mktemp("logs")
     bag = simulate("handheld", root / "walk.bag", "ros1", duration_s=2.0, seed=4, columns=128, start="moving")
     ros2 = simulate("handheld", root / "walk_ros2", "ros2", duration_s=1.0, seed=4, columns=64, start="moving")
-    return bag, ros2
+    mcap = simulate("handheld", root / "walk_mcap.mcap", "mcap", duration_s=1.0, seed=4, columns=64, start="moving")
+    return bag, ros2, mcap
 
 
 def records(path):
@@ -32,7 +33,7 @@ def err_line(capsys) -> str:
 
 
 def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs, tmp_path, capsys):
-    bag, _ = logs
+    bag, *_ = logs
     out, ply = tmp_path / "walk_deskewed.mcap", tmp_path / "walk.ply"
     rc = main(["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "--map", str(ply)])
     assert rc == 0
@@ -57,7 +58,7 @@ def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs
 
 
 def test_json_summary_on_stdout(logs, tmp_path, capsys):
-    bag, _ = logs
+    bag, *_ = logs
     rc = main(["deskew", str(bag.log_path), str(tmp_path / "o.bag"), "--trajectory", str(bag.gt_path), "--json", "-q",
                "--topic-suffix", "_deskewed", "--reference", "start"])
     assert rc == 0
@@ -66,7 +67,7 @@ def test_json_summary_on_stdout(logs, tmp_path, capsys):
 
 
 def test_an_existing_output_is_kept_without_force(logs, tmp_path, capsys):
-    bag, _ = logs
+    bag, *_ = logs
     out = tmp_path / "o.bag"
     out.write_bytes(b"precious")
     args = ["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "-q"]
@@ -78,7 +79,7 @@ def test_an_existing_output_is_kept_without_force(logs, tmp_path, capsys):
 
 
 def test_the_output_is_never_the_input_or_inside_it(logs, tmp_path, capsys):
-    bag, ros2 = logs
+    bag, ros2, _ = logs
     log = bag.log_path
     for extra in ([], ["--force"]):
         assert main(["deskew", str(log), str(log), "--trajectory", str(bag.gt_path), *extra]) == 2
@@ -97,7 +98,7 @@ def test_the_output_is_never_the_input_or_inside_it(logs, tmp_path, capsys):
 
 
 def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, capsys):
-    bag, _ = logs
+    bag, *_ = logs
     stamps, poses = read_tum(bag.gt_path)
     half = tmp_path / "half.tum"
     half.write_text(format_tum(stamps[:100], poses[:100]))
@@ -112,6 +113,44 @@ def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, c
     assert "copied unchanged (11 not covered by the motion: after the trajectory ends)" in capsys.readouterr().err
 
 
+def test_a_trajectory_on_another_clock_is_refused_not_copied(logs, tmp_path, capsys):
+    """A TUM from 0 beside a log in epoch time covers no scan: the run would be a copy of the log."""
+    bag, *_ = logs
+    stamps, poses = read_tum(bag.gt_path)
+    zero = tmp_path / "zero.tum"
+    zero.write_text(format_tum(stamps - stamps[0], poses))
+    out = tmp_path / "o.bag"
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(zero), "--map", str(tmp_path / "m.ply")]) == 2
+    assert err_line(capsys) == (f"lio: error: {zero}: the trajectory (0.000..2.000 s) covers none of the 20 scans of "
+                                "/points (1700000000.000..1700000001.999 s): 1.7e+09 s apart, it looks stamped on "
+                                "another clock")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["zero.tum"]  # nothing written
+    late = tmp_path / "late.tum"  # near but after every scan: the ranges, no clock guess
+    late.write_text(format_tum(stamps + 3_000_000_000, poses))
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(late)]) == 2
+    assert err_line(capsys).endswith("covers none of the 20 scans of /points (1700000000.000..1700000001.999 s)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["late.tum", "zero.tum"]
+
+
+@pytest.mark.parametrize("log,out,line", [
+    (0, "nosuffix", "a ROS 1 bag needs the .bag suffix (OUT has no suffix; readers go by it): name it nosuffix.bag"),
+    (0, "o.bag2", "a ROS 1 bag needs the .bag suffix (OUT has '.bag2'; readers go by it): name it o.bag"),
+    (2, "nosuffix", "an MCAP file needs the .mcap suffix (OUT has no suffix; readers go by it): name it nosuffix.mcap"),
+])
+def test_a_bag_or_mcap_file_without_its_suffix_is_refused(logs, tmp_path, capsys, log, out, line):
+    path = tmp_path / out
+    assert main(["deskew", str(logs[log].log_path), str(path), "--trajectory", str(logs[log].gt_path)]) == 2
+    assert err_line(capsys) == f"lio: error: {path}: {line} (a ROS 2 bag, --format ros2, is a folder and needs none)"
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_ros2_output_needs_no_suffix(logs, tmp_path):
+    bag = logs[0]
+    out = tmp_path / "folder"
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "--format", "ros2", "-q"]) == 0
+    assert (out / "metadata.yaml").exists() and records(out)
+
+
 @pytest.mark.parametrize("args,line", [
     (["--map", "m.xyz"], "lio: error: m.xyz: a map is written as .ply or .pcd; name the file with one of those suffixes"),
     (["--topic-suffix", "a b"], "lio: error: options: topic_suffix: 'a b' is not a topic-name suffix (letters, "
@@ -124,7 +163,7 @@ def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, c
     (["--motion", "imu"], "lio: error: --trajectory gives the motion; it cannot be combined with --motion imu"),
 ])
 def test_bad_options_are_one_line_and_exit_2(logs, tmp_path, capsys, args, line):
-    bag, _ = logs
+    bag, *_ = logs
     cwd = os.getcwd()
     os.chdir(tmp_path)
     try:
@@ -150,7 +189,7 @@ def test_missing_extrinsics_warn_once_each(logs, tmp_path, capsys):
     """Without /tf_static the odometry and the writing pass assume identity for the same extrinsics: one warning each."""
     from lio_cli.io.writer import LogWriter
 
-    bag, _ = logs
+    bag, *_ = logs
     log = tmp_path / "notf.bag"
     with open_log(bag.log_path) as r, LogWriter(log, "ros1") as w:
         for topic, info in r.topics.items():

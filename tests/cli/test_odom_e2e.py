@@ -79,7 +79,8 @@ def test_outputs_metrics_and_config_beside_trajectory(logs, tmp_path):
     written = load_model(OdomConfig, tmp_path / "c.config.yaml")
     assert (written.deskew, written.planar) == ("imu", False)  # resolved: no "auto" left
     assert (written.input.lidar_topic, written.input.imu_topic, written.input.wheel_topic) == ("/points", "/imu", "/wheel/odom")
-    assert (written.input.format, written.input.base_frame) == ("ros2", "base")
+    assert (written.input.base_frame, metrics["format"]) == ("base", "ros2")
+    assert written.input.format is None  # detected, not asked for: it must not bind the next log
     sc = metrics["scans"]
     assert sc["total"] == sc["used"] == 60
     assert sc["degenerate"] > 40  # a featureless corridor: the axis is unconstrained in most scans
