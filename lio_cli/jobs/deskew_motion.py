@@ -42,6 +42,7 @@ _IMU_MARGIN_NS = 50_000_000  # IMU kept around a sweep for interpolation at its 
 # a trajectory is continued this far beyond its ends: a sweep sampled on the trajectory's own clock grid may
 # start a few ns before it once its offsets went through a float32 time field (7.5 ns at 0.1 s)
 _TRAJECTORY_SLACK_NS = 1_000_000
+_TRAJECTORY_MAX_EXTEND_NS = 200_000_000  # beyond a trajectory's ends: at most one pose interval, and never more than this
 _OTHER_CLOCK_NS = 60_000_000_000  # a trajectory this far from every scan belongs to another clock
 
 Progress = Callable[[int, int | None], None]
@@ -212,7 +213,11 @@ def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> tuple[Moti
     if traj.position_only:
         raise InputError(f"{tc.path}: a GPS track has positions only; de-skewing needs orientations too")
     poses = traj.poses @ inv_pose(T_base_lidar) if tc.frame == "lidar" else traj.poses
-    spline = PoseSpline(traj.stamps_ns, poses, cubic=tc.interpolation == "cubic", extrapolate_ns=_TRAJECTORY_SLACK_NS,
+    # a sweep up to one pose interval beyond either end is covered by the end segment's velocity: lio odom stamps
+    # each pose at its scan's end, so its first scan begins a whole interval before the trajectory does
+    step_ns = int(np.median(np.diff(traj.stamps_ns))) if len(traj) > 1 else 0
+    slack_ns = min(max(step_ns, _TRAJECTORY_SLACK_NS), _TRAJECTORY_MAX_EXTEND_NS)
+    spline = PoseSpline(traj.stamps_ns, poses, cubic=tc.interpolation == "cubic", extrapolate_ns=slack_ns,
                         max_gap_ns=int(round(tc.max_gap_s * 1e9)))
     span = (traj.stamps_ns[-1] - traj.stamps_ns[0]) * 1e-9
     return (Motion("trajectory", T_base_lidar, spline=spline),

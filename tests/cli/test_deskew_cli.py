@@ -104,13 +104,25 @@ def test_a_trajectory_that_misses_scans_is_refused_with_strict(logs, tmp_path, c
     half.write_text(format_tum(stamps[:100], poses[:100]))
     out = tmp_path / "o.bag"
     assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(half), "--strict"]) == 2
-    # the first scan missed: from 0.9 s to its last column, 127/128 of 0.1 s later (1 ns off in the float32 time)
-    assert err_line(capsys) == (f"lio: error: {bag.log_path}: /points: the scan of 1700000000.900000000 s to "
-                                "1700000000.999218749 s is after the trajectory ends (1700000000.000000000 s to "
+    # the first scan missed: from 1.0 s to its last column, 127/128 of 0.1 s later (1 ns off in the float32 time);
+    # the one before, to 0.999 s, is 9 ms past the last pose, within one pose interval (10 ms): extended to it
+    assert err_line(capsys) == (f"lio: error: {bag.log_path}: /points: the scan of 1700000001.000000000 s to "
+                                "1700000001.099218749 s is after the trajectory ends (1700000000.000000000 s to "
                                 "1700000000.990000000 s); without --strict such scans are copied unchanged and counted")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["half.tum"]  # nothing half-written
     assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(half)]) == 0
-    assert "copied unchanged (11 not covered by the motion: after the trajectory ends)" in capsys.readouterr().err
+    assert "copied unchanged (10 not covered by the motion: after the trajectory ends)" in capsys.readouterr().err
+
+
+def test_lio_odoms_trajectory_covers_every_scan(logs, tmp_path, capsys):
+    """lio odom stamps each pose at its scan's end, so the first scan begins one interval before its trajectory:
+    `lio odom ... && lio deskew ... --trajectory odom.tum --strict` was always refused for that scan."""
+    bag, *_ = logs
+    odom = tmp_path / "o.tum"
+    assert main(["odom", str(bag.log_path), "-o", str(odom), "-q"]) == 0
+    out = tmp_path / "d.bag"
+    assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(odom), "--strict", "-q"]) == 0
+    assert json.loads((tmp_path / "d.metrics.json").read_text())["scans"]["deskewed"] == 20
 
 
 def test_a_trajectory_on_another_clock_is_refused_not_copied(logs, tmp_path, capsys):
