@@ -45,7 +45,8 @@ class RunEntry(Strict):
 
     log: str
     command: Optional[Command] = None
-    name: Optional[str] = Field(None, description="the run's folder under the output root; default: the log's stem")
+    name: Optional[str] = Field(None, description="the run's folder under the output root; default: the log's stem; "
+                                "{stem} and {parent} (the log's folder name) stand for parts of each log's path")
     group: Optional[str] = None
     gt: Optional[str] = None
     config: Optional[str] = Field(None, description="a YAML configuration file of the command (as --config)")
@@ -55,6 +56,7 @@ class RunEntry(Strict):
 
 class Defaults(Strict):
     command: Command = "odom"
+    name: Optional[str] = Field(None, description="every run's folder name, with {stem} and {parent}")
     group: Optional[str] = None
     gt: Optional[str] = None
     config: Optional[str] = None
@@ -101,13 +103,13 @@ def load_manifest(path: Path) -> Manifest:
 
 
 def shorthand(command: str, patterns: list[str], gt: str | None, group: str | None, config: str | None,
-              calib: str | None, options: dict[str, Any]) -> Manifest:
+              calib: str | None, options: dict[str, Any], name: str | None = None) -> Manifest:
     """The manifest ``lio batch COMMAND 'PATTERN'... [--gt ...] [--set k=v]`` stands for."""
     if command not in BATCH_COMMANDS:
         raise ConfigError(f"batch runs {', '.join(BATCH_COMMANDS)}, not '{command}'")
     if not patterns:
         raise ConfigError(f"lio batch {command}: give one or more logs or glob patterns")
-    data = {"defaults": {"command": command, "gt": gt, "group": group, "config": config, "calib": calib,
+    data = {"defaults": {"command": command, "name": name, "gt": gt, "group": group, "config": config, "calib": calib,
                          "options": options},
             "runs": [{"log": p} for p in patterns]}
     return _validate(data, "options")
@@ -152,6 +154,17 @@ def gt_for(gt: str | None, log: Path, base: Path) -> str | None:
     return str(_path(text, base))
 
 
+_NAME_KEYS = ("{stem}", "{parent}")
+
+
+def _run_name(pattern: str | None, log: Path) -> str:
+    """A run's folder name: the log's stem, or ``pattern`` with {stem} and {parent} (the log's folder) filled in
+    (logs of one name in several folders: 'seqs/*/data.bag' with '{parent}_{stem}')."""
+    if pattern is None:
+        return log_stem(log)
+    return pattern.replace("{stem}", log_stem(log)).replace("{parent}", log.parent.name)
+
+
 def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
     """One ``RunSpec`` per run (globs expanded); run names must be unique (they are folders)."""
     d = manifest.defaults
@@ -160,9 +173,11 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
     for i, entry in enumerate(manifest.runs):
         at = f"{where}: runs[{i}]"
         logs = _logs(entry.log, base, at)
-        if entry.name is not None and len(logs) > 1:
+        pattern = entry.name if entry.name is not None else d.name
+        if pattern is not None and len(logs) > 1 and not any(k in pattern for k in _NAME_KEYS):
             raise ConfigError(f"{at}: name: one name for {len(logs)} logs matched by '{entry.log}'; "
-                              "drop the name (each run is named after its log) or list the logs one by one")
+                              "drop the name (each run is named after its log), give a pattern such as "
+                              "'{parent}_{stem}', or list the logs one by one")
         command = entry.command or d.command
         # the defaults' options are fields of the defaults' command: other commands' runs take only their own
         options = {**(flatten(d.options) if command == d.command else {}), **flatten(entry.options)}
@@ -171,12 +186,13 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
             return getattr(entry, key) if key in entry.model_fields_set else getattr(d, key)
 
         for log in logs:
-            name = entry.name or log_stem(log)
+            name = _run_name(pattern, log)
             if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
                 raise ConfigError(f"{at}: name: '{name}' cannot name a run folder")
             if name in seen:
                 raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); "
-                                  "set name: on one of them")
+                                  "set name: on one of them, or name every run by its folder too: name: "
+                                  "'{parent}_{stem}' (the shorthand: --name '{parent}_{stem}')")
             seen[name] = str(log)
             gt = pick("gt")
             if command == "deskew" and "gt" not in entry.model_fields_set:

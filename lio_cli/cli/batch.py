@@ -63,6 +63,7 @@ def batch(
     output: Annotated[Optional[Path], typer.Option("-O", "--output", help="Output root (overrides the manifest's output:).", show_default=False)] = None,
     gt: Annotated[Optional[str], typer.Option("--gt", help="Shorthand: ground truth of every run, a topic (/ground_truth) or a file; {stem} and {dir} stand for the log's stem and folder.", show_default=False)] = None,
     group: Annotated[Optional[str], typer.Option("--group", help="Shorthand: a group name for every run.", show_default=False)] = None,
+    name: Annotated[Optional[str], typer.Option("--name", help="Shorthand: each run's folder name, {stem} and {parent} (the log's folder) filled in; default: the log's stem. E.g. --name '{parent}_{stem}' for 'seqs/*/data.bag'.", show_default=False)] = None,
     sets: Annotated[Optional[list[str]], typer.Option("--set", help="Shorthand: FIELD=VALUE of the command's configuration (repeat), e.g. --set prior=constant-velocity.", show_default=False)] = None,
     config: Annotated[Optional[str], typer.Option("--config", help="Shorthand: the command's YAML configuration for every run.", show_default=False)] = None,
     calib: Annotated[Optional[str], typer.Option("--calib", help="Shorthand: a calibration YAML for every run.", show_default=False)] = None,
@@ -76,14 +77,14 @@ def batch(
 ) -> int:
     executor = choose_executor(jobs, dask, workers)
     if what[0] in BATCH_COMMANDS:
-        manifest = shorthand(what[0], what[1:], gt, group, config, calib, _options(sets or []))
+        manifest = shorthand(what[0], what[1:], gt, group, config, calib, _options(sets or []), name)
         base, where = Path.cwd(), "lio batch"
     else:
         if len(what) > 1:
             raise ConfigError(f"lio batch takes one manifest, or a command ({', '.join(BATCH_COMMANDS)}) and logs; "
                               f"got '{what[0]}' and {len(what) - 1} more")
         given = [f for f, v in (("--gt", gt), ("--group", group), ("--set", sets), ("--config", config),
-                                ("--calib", calib)) if v]
+                                ("--calib", calib), ("--name", name)) if v]
         if given:
             raise ConfigError(f"{given[0]} goes with the shorthand (lio batch COMMAND LOGS...); in a manifest put it "
                               "under defaults: or a run")

@@ -293,7 +293,8 @@ runs:
     ("runs:\n  - log: a.bag\n    options: {{fusion: {{alpha: 2}}}}\n",
      "{m}: runs[0]: options: fusion.alpha: Input should be less than or equal to 1"),
     ("runs:\n  - log: a.bag\n  - log: sub/a.bag\n",
-     "{m}: runs[1]: two runs are named 'a' ({d}/a.bag and {d}/sub/a.bag); set name: on one of them"),
+     "{m}: runs[1]: two runs are named 'a' ({d}/a.bag and {d}/sub/a.bag); set name: on one of them, or name every "
+     "run by its folder too: name: '{{parent}}_{{stem}}' (the shorthand: --name '{{parent}}_{{stem}}')"),
     ("runs:\n  - log: 'nothing/*.bag'\n", "{m}: runs[0]: log: 'nothing/*.bag' matches no file or folder"),
     ("runs:\n  - log: a.bag\n    command: deskew\n    gt: /ground_truth\n",
      "{m}: runs[0]: gt: deskew writes no trajectory to score; drop gt"),

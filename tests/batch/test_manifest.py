@@ -86,7 +86,24 @@ def test_one_name_for_a_glob_is_refused(tmp_path):
     with pytest.raises(ConfigError) as err:
         _manifest(tmp_path, "runs:\n  - log: '*.bag'\n    name: both\n")
     assert str(err.value) == (f"{tmp_path / 'm.yaml'}: runs[0]: name: one name for 2 logs matched by '*.bag'; "
-                              "drop the name (each run is named after its log) or list the logs one by one")
+                              "drop the name (each run is named after its log), give a pattern such as "
+                              "'{parent}_{stem}', or list the logs one by one")
+
+
+def test_logs_of_one_name_in_several_folders_are_named_by_pattern(tmp_path):
+    """'seqs/*/data.bag' (one recording per folder, each data.bag): the shorthand could not run it at all, a
+    manifest only with every log listed by hand."""
+    for seq in ("s1", "s2"):
+        (tmp_path / "seqs" / seq).mkdir(parents=True)
+        (tmp_path / "seqs" / seq / "data.bag").write_bytes(b"")
+    with pytest.raises(ConfigError) as err:
+        expand(shorthand("odom", ["seqs/*/data.bag"], None, None, None, None, {}), tmp_path, "lio batch")
+    assert str(err.value).endswith("set name: on one of them, or name every run by its folder too: name: "
+                                   "'{parent}_{stem}' (the shorthand: --name '{parent}_{stem}')")
+    m = shorthand("odom", ["seqs/*/data.bag"], None, None, None, None, {}, name="{parent}_{stem}")
+    assert [(s.name, s.log.parent.name) for s in expand(m, tmp_path, "lio batch")] == [("s1_data", "s1"), ("s2_data", "s2")]
+    specs = _manifest(tmp_path, "runs:\n  - log: 'seqs/*/data.bag'\n    name: 'run_{parent}'\n")
+    assert [s.name for s in specs] == ["run_s1", "run_s2"]
 
 
 def test_the_readme_manifest_expands(tmp_path):
