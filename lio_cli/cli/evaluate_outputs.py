@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..io.files import check_writable
-from ..io.output_paths import refuse_shared_outputs, refuse_stdout
+from ..io.output_paths import plot_outputs, refuse_shared_outputs, refuse_stdout
 
 
 def plot_names(estimate_offset: bool, groups: bool) -> tuple[str, ...]:
@@ -23,10 +23,7 @@ def check_evaluate_outputs(csv_path: Path | None, plot: Path | None, force: bool
     named: list[tuple[str, Path]] = []
     if csv_path is not None:
         named.append(("the CSV file (--csv)", csv_path))
-    if plot is not None:
-        named.append(("the plot folder (--plot)", plot))
-        named += [(f"the file {name} of --plot {plot}", plot / name) for name in names]
-    refuse_shared_outputs(named)
+    refuse_shared_outputs(named + plot_outputs(plot, names))
     if csv_path is not None:
         check_writable(csv_path, force, inputs)
     if plot is not None:

@@ -29,10 +29,17 @@ def refuse_shared_outputs(outputs: Iterable[tuple[str, Path]]) -> None:
         seen[key] = what
 
 
+def plot_outputs(plot: Path | None, names: Iterable[str], kind: str = "file") -> list[tuple[str, Path]]:
+    """The (what, path) entries of a ``--plot`` folder and the files it will hold, for ``refuse_shared_outputs``."""
+    if plot is None:
+        return []
+    return [("the plot folder (--plot)", plot), *((f"the {kind} {name} of --plot {plot}", plot / name) for name in names)]
+
+
 def refuse_stdout(option: str, path: Path | str | None, what: str) -> None:
     """``-`` for an option that writes a file or folder (not standard output)."""
     if path is not None and str(path) == "-":
         raise ConfigError(f"{option} writes {what}, not standard output: give {option} a path")
 
 
-__all__ = ["refuse_shared_outputs", "refuse_stdout"]
+__all__ = ["plot_outputs", "refuse_shared_outputs", "refuse_stdout"]

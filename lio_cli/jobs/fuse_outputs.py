@@ -12,7 +12,7 @@ import numpy as np
 from ..core.fuse import COVARIANCE_LAYOUT
 from ..errors import InputError
 from ..io.files import atomic_output, check_writable
-from ..io.output_paths import refuse_shared_outputs, refuse_stdout
+from ..io.output_paths import plot_outputs, refuse_shared_outputs, refuse_stdout
 from ..io.trajectory_files import format_stamp, format_tum
 from .fuse import FuseRun
 from .outputs import check_outputs, run_outputs, write_run
@@ -35,10 +35,7 @@ def check_fuse_outputs(out: Path | None, force: bool, inputs: Iterable[Path], co
                   (f"the config file written beside -o {out}", config)]
     if cov is not None:
         named.append(("the covariance file (--cov)", cov))
-    if plot is not None:
-        named.append(("the plot folder (--plot)", plot))
-        named += [(f"the plot {name} of --plot {plot}", plot / name) for name in PLOT_FILES]
-    refuse_shared_outputs(named)
+    refuse_shared_outputs(named + plot_outputs(plot, PLOT_FILES, "plot"))
     inputs = list(inputs)
     if out is not None:
         check_outputs(out, force, inputs)
