@@ -122,16 +122,12 @@ class SensorStream:
         self._last: dict[str, int] = {}
         self._last_rec: dict[str, int] = {}  # record time of each topic's last accepted message
         self._conventions: dict[tuple, TimeConvention] = {}
-        self._scales: dict[str, float] = {}  # per IMU topic: its accelerations to m/s^2
+        # an IMU topic's accelerations in g are scaled to m/s^2 (``imu_units``, which keeps each log's verdicts),
+        # judged on the log read: deskew's ``RecordFeed`` names its reader
+        self._scale_log = log if isinstance(log, LogReader) else getattr(log, "reader", None)
 
     def _accel_scale(self, topic: str) -> float:
-        """1, or standard gravity for an IMU topic that writes its accelerations in g (``imu_units``); judged on
-        the log the stream reads (a ``RecordFeed`` names it as ``reader``)."""
-        scale = self._scales.get(topic)
-        if scale is None:
-            log = self.log if isinstance(self.log, LogReader) else getattr(self.log, "reader", None)
-            scale = self._scales[topic] = accel_scale(log, topic)[0] if log is not None else 1.0
-        return scale
+        return accel_scale(self._scale_log, topic)[0] if self._scale_log is not None else 1.0
 
     def _decode(self, topic: str, msgtype: str, msg) -> Record | None:
         kind = self.kind_of[topic]
