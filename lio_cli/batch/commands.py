@@ -23,6 +23,7 @@ from ..errors import ConfigError, InputError
 from ..evaluation.scoring import score
 from ..io.detect import detect_format
 from ..io.sources import load_trajectory
+from ..io.writer import FILE_SUFFIXES
 from ..model.trajectory import Trajectory
 from .manifest import RunSpec
 
@@ -56,7 +57,7 @@ def _deskew_out(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
             fmt, _ = detect_format(Path(log))
         except InputError:  # the run itself says what is wrong with the log
             fmt = None
-    suffix = {"ros1": ".bag", "mcap": ".mcap"}.get(fmt or "", "")
+    suffix = FILE_SUFFIXES.get(fmt or "", "")
     return folder / f"{STEMS['deskew']}{suffix}"
 
 

@@ -23,6 +23,9 @@ WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"
 # the message encodings each output format holds
 FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), "mcap": ("cdr", "ros1")}
+# the formats written as one file, and their suffixes (readers go by them; a ROS 2 bag is a folder)
+FILE_SUFFIXES = {"ros1": ".bag", "mcap": ".mcap"}
+SUFFIX_FORMATS = {suffix: fmt for fmt, suffix in FILE_SUFFIXES.items()}
 
 
 def latched_qos() -> tuple:

@@ -26,6 +26,7 @@ from ..io.map_files import check_map_suffix
 from ..io.reader import LogReader, open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
+from ..io.writer import FILE_SUFFIXES, SUFFIX_FORMATS
 from .deskew_helper import Helper
 from .deskew_motion import Progress, check_covered, resolve_motion, run_odometry, settled_motion, trajectory_motion
 from .deskew_scan import plan_scans
@@ -55,14 +56,11 @@ class DeskewResult:
     notes: list[str] = field(default_factory=list)
 
 
-_FILE_SUFFIXES = {"ros1": ".bag", "mcap": ".mcap"}  # the formats written as one file: readers go by its suffix
-
-
 def output_format(out: Path, asked: str | None, reader: LogReader) -> str:
     """``--format``, else OUT's suffix (.bag ros1, .mcap mcap), else the input's format (and ROS 2 storage).
     A ROS 1 bag or MCAP file must carry its suffix (rosbags and MCAP tools open by it); a ROS 2 bag is a folder."""
     fmt = _output_format(out, asked, reader)
-    want = _FILE_SUFFIXES.get(fmt)
+    want = FILE_SUFFIXES.get(fmt)
     if want is not None and Path(out).suffix != want:
         got = f"'{Path(out).suffix}'" if Path(out).suffix else "no suffix"
         raise InputError(f"{out}: {'a ROS 1 bag' if fmt == 'ros1' else 'an MCAP file'} needs the {want} suffix "
@@ -74,9 +72,8 @@ def output_format(out: Path, asked: str | None, reader: LogReader) -> str:
 def _output_format(out: Path, asked: str | None, reader: LogReader) -> str:
     if asked is not None:
         return asked
-    suffix = Path(out).suffix
-    if suffix in (".bag", ".mcap"):
-        return {".bag": "ros1", ".mcap": "mcap"}[suffix]
+    if Path(out).suffix in SUFFIX_FORMATS:
+        return SUFFIX_FORMATS[Path(out).suffix]
     if reader.format == "ros2":
         try:
             meta = yaml.safe_load((reader.paths[0] / "metadata.yaml").read_text())["rosbag2_bagfile_information"]

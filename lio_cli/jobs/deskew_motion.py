@@ -164,7 +164,6 @@ class Motion:
     """The base's motion from one source; ``sweep`` gives its poses over one scan. ``spline``: the whole
     trajectory (trajectory source), else ``feed``: the odometry's poses as they settle."""
 
-    source: str
     T_base_lidar: np.ndarray
     spline: PoseSpline | None = None
     feed: PoseFeed | None = None
@@ -220,7 +219,7 @@ def trajectory_motion(cfg: DeskewConfig, T_base_lidar: np.ndarray) -> tuple[Moti
     spline = PoseSpline(traj.stamps_ns, poses, cubic=tc.interpolation == "cubic", extrapolate_ns=slack_ns,
                         max_gap_ns=int(round(tc.max_gap_s * 1e9)))
     span = (traj.stamps_ns[-1] - traj.stamps_ns[0]) * 1e-9
-    return (Motion("trajectory", T_base_lidar, spline=spline),
+    return (Motion(T_base_lidar, spline=spline),
             f"trajectory {tc.path} ({len(traj)} poses of the {tc.frame} over {span:.1f} s, {tc.interpolation} "
             "interpolation)",
             {"trajectory": tc.path, "poses": len(traj), "frame": tc.frame, "interpolation": tc.interpolation})
@@ -254,7 +253,7 @@ def settled_motion(log: Path, cfg: DeskewConfig, source: str, imu_topic: str | N
     feed = PoseFeed(batches, max_gap_ns=int(round(cfg.trajectory.max_gap_s * 1e9)), offset_ns=cal.imu_time_offset_ns,
                     default_bias=bias, final_offset_ns=final_offset_ns)
     imu = ImuWindow(log, cfg.input.format, imu_topic) if source == "imu" else None
-    return Motion(source, T_base_lidar, feed=feed, imu=imu, mounting=mounting)
+    return Motion(T_base_lidar, feed=feed, imu=imu, mounting=mounting)
 
 
 @dataclass
@@ -303,6 +302,6 @@ def run_odometry(log: Path, cfg: DeskewConfig, source: str, progress: Progress |
                               f"that scan, clock offset as it measured by its end), translation from its {n} scan "
                               "poses", details, notes, level, final_ns, batches)
     details["imu_time_offset_s"] = clock["total_s"] if clock else cfg.calibration.imu_time_offset_s
-    details["imu_time_offset"] = "as the odometry applied it at each scan (within 1 ms of its final estimate)"
+    details["imu_time_offset"] = f"as the odometry applied it at each scan (within {OFFSET_AGREE_NS / 1e6:g} ms of its final estimate)"
     return OdometryMotion(f"IMU: gyro rotation within each sweep (bias and clock offset as lio's IMU-primed odometry "
                           f"had them at that scan), translation from its {n} scan poses", details, notes, level, None, batches)

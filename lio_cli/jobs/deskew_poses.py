@@ -23,13 +23,14 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from ..core.clock_offset import APPLY_MIN_S
 from ..core.sweep_motion import PoseSpline
 from .odom import SettledPose
 
 _STEP_POSES = 21  # the extrapolation step is the median interval of this many first poses
 _KEEP = 600  # poses kept behind the latest sweep (a scan that much out of order is not covered)
 _BEHIND = f"more than {_KEEP} scans out of order"
-OFFSET_AGREE_NS = 1_000_000  # the clock tracker's own threshold for applying an offset (APPLY_MIN_S)
+OFFSET_AGREE_NS = round(APPLY_MIN_S * 1e9)  # the clock tracker's own threshold for applying an offset
 
 
 class PoseFeed:

@@ -22,6 +22,7 @@ from .. import __version__
 from ..errors import ConfigError
 from ..geometry import make_pose
 from ..io.files import check_writable, write_text_atomic
+from ..io.writer import SUFFIX_FORMATS
 from ..io.trajectory_files import format_tum
 from .gps import GpsSpec, gps_fixes
 from .motion import ypr_to_matrix
@@ -84,7 +85,7 @@ def format_for(out: Path, fmt: str | None) -> str:
         if fmt not in FORMATS:
             raise ConfigError(f"unknown output format '{fmt}' (choose from ros1, ros2, ros2-mcap, mcap)")
         return fmt
-    return {".bag": "ros1", ".mcap": "mcap"}.get(Path(out).suffix, "ros2")
+    return SUFFIX_FORMATS.get(Path(out).suffix, "ros2")
 
 
 def _imu_spec(sc: Scenario, opts: SimulationOptions, rng: np.random.Generator) -> ImuSpec:
