@@ -207,9 +207,11 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             return self._imu_step(cloud, t_prev, t_ref)
         return self._lidar_step(cloud, t_prev, t_ref)
 
-    def _event(self, kind: str, reason: str) -> None:
-        t = None if self._last_ns is None else self._last_ns
-        self.events.append({"kind": kind, "scan": self.stats.scans, "after_stamp_ns": t, "reason": reason})
+    def _event(self, kind: str, reason: str) -> dict:
+        """Record an event (and return it: a gap's reason is completed as its scans come)."""
+        event = {"kind": kind, "scan": self.stats.scans, "after_stamp_ns": self._last_ns, "reason": reason}
+        self.events.append(event)
+        return event
 
     def _lose_imu_state(self) -> None:
         self.state = None  # gravity survives in _g_world, as the last healthy state had it
@@ -217,6 +219,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             self.clock.reset()
         self._window = []
         self._doubt = 0
+        self._imu_gap_from = None  # a restart ends any IMU gap the scans were in
 
     def _prepare(self, cloud: PointCloud, knots_ns, knot_poses, t_ref: int) -> np.ndarray | None:
         """De-skewed points in the base frame at ``t_ref`` within the range limits, or None if too few."""

@@ -77,10 +77,8 @@ class Gaps:
         if self.clock is not None:
             self.clock.reset()  # its window of rates has a hole
         gap_s = (t_ref - t_prev) * 1e-9
-        event = {"kind": "time gap", "scan": self.stats.scans, "after_stamp_ns": self._last_ns,
-                 "reason": f"{gap_s:.3g} s without a scan: bridged by the IMU state"
-                           f"{' and wheel speed' if self.stats.wheel_updates > wheel_updates else ''}"}
-        self.events.append(event)
+        event = self._event("time gap", f"{gap_s:.3g} s without a scan: bridged by the IMU state"
+                                        f"{' and wheel speed' if self.stats.wheel_updates > wheel_updates else ''}")
         recoveries = self.stats.recoveries
         res = self._imu_step(cloud, t_last, t_ref, bridge_gate_m=bridge_gate_m(gap_s))
         if res is None:  # the scan was skipped: the next one bridges the gap again from where it began
@@ -95,7 +93,10 @@ class Gaps:
         """The scan's interval has an IMU gap (counted) where the IMU would otherwise prime it."""
         if not (self.use_imu and self.imu_mounted and self._imu):
             return False
-        hole = imu_gap_ns(self._imu_window(t_prev).stamps_ns, t_prev, t_ref)[0] > MAX_IMU_GAP_NS
+        stamps = self._imu_window(t_prev).stamps_ns
+        if not len(stamps) or stamps[0] > t_prev:
+            return False  # before the IMU starts: no gap, nothing to prime with (a gap's end is not known online)
+        hole = imu_gap_ns(stamps, t_prev, t_ref)[0] > MAX_IMU_GAP_NS
         self.stats.imu_gaps += int(hole)
         return hole
 
@@ -105,11 +106,12 @@ class Gaps:
         widened) and keeps its biases and gravity, so the first scan after the gap is IMU-primed again."""
         kept, g_world = self.state, self._g_world
         if self._imu_gap_from is None:  # the gap's first scan: (last pose before it, its stamp, its event)
-            self._imu_gap_from = (self._last_pose, self._last_ns, {})
-            self._imu_gap_from[2].update(kind="imu gap", scan=self.stats.scans, after_stamp_ns=self._last_ns)
-            self.events.append(self._imu_gap_from[2])
-        pose0, t0, event = self._imu_gap_from
-        self._lose_imu_state()
+            event = self._event("imu gap", f"no IMU sample for {hole_ns * 1e-9:.3g} s")
+            self._imu_gap_from = (self._last_pose, self._last_ns, event)
+        gap_from = self._imu_gap_from
+        pose0, t0, event = gap_from
+        self._lose_imu_state()  # for _lidar_step: LiDAR-only; the gap's start is kept
+        self._imu_gap_from = gap_from
         if t0 is not None and (t_ref - t0) * 1e-9 > self.cfg.max_gap_s:  # too long to leave out of the map
             self._imu_gap_from = None
             event["reason"] += f"; after {(t_ref - t0) * 1e-9:.3g} s the IMU state starts again from LiDAR-only scans"

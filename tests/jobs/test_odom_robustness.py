@@ -84,6 +84,8 @@ def test_first_scan_before_the_first_imu_message_still_uses_the_imu_extrinsic(tm
     assert m["extrinsics"]["T_base_imu"] == "/tf_static (base -> imu)"
     assert m["notes"] == []
     assert m["accuracy"]["ate_trans_rmse_m"] < 0.06, m["accuracy"]
+    # the scans before the IMU starts are LiDAR-only scans, not IMU gaps searched over yaw hypotheses
+    assert m["scans"]["imu_gaps"] == 0 and not [e for e in m["events"] if e["kind"] == "imu gap"]
 
 
 @pytest.fixture(scope="module")
