@@ -5,9 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import InputError
 from ..io.files import check_writable
-from ..io.output_paths import plot_outputs, refuse_shared_outputs, refuse_stdout
+from ..io.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 
 
 def plot_names(estimate_offset: bool, groups: bool) -> tuple[str, ...]:
@@ -27,17 +26,7 @@ def check_evaluate_outputs(csv_path: Path | None, plot: Path | None, force: bool
     if csv_path is not None:
         check_writable(csv_path, force, inputs)
     if plot is not None:
-        _check_plot_dir(plot, force, inputs, names)
-
-
-def _check_plot_dir(folder: Path, force: bool, inputs: list[Path], names: tuple[str, ...]) -> None:
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: exists and is not a folder")
-    if not folder.exists():  # created only once the metrics are computed
-        check_writable(folder, force, inputs)
-        return
-    for name in names:
-        check_writable(folder / name, force, inputs)
+        check_plot_dir(plot, names, force, inputs)
 
 
 __all__ = ["check_evaluate_outputs", "plot_names"]

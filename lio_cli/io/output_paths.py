@@ -7,7 +7,8 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..errors import ConfigError, InputError
+from .files import check_writable
 
 
 def _identity(path: Path) -> tuple:
@@ -36,10 +37,22 @@ def plot_outputs(plot: Path | None, names: Iterable[str], kind: str = "file") ->
     return [("the plot folder (--plot)", plot), *((f"the {kind} {name} of --plot {plot}", plot / name) for name in names)]
 
 
+def check_plot_dir(folder: Path, names: Iterable[str], force: bool, inputs: list[Path]) -> None:
+    """A ``--plot`` folder: a folder (or nothing yet: created when the plots are made) whose files ``names`` may
+    be written."""
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: exists and is not a folder")
+    if not folder.exists():
+        check_writable(folder, force, inputs)
+        return
+    for name in names:
+        check_writable(folder / name, force, inputs)
+
+
 def refuse_stdout(option: str, path: Path | str | None, what: str) -> None:
     """``-`` for an option that writes a file or folder (not standard output)."""
     if path is not None and str(path) == "-":
         raise ConfigError(f"{option} writes {what}, not standard output: give {option} a path")
 
 
-__all__ = ["plot_outputs", "refuse_shared_outputs", "refuse_stdout"]
+__all__ = ["check_plot_dir", "plot_outputs", "refuse_shared_outputs", "refuse_stdout"]

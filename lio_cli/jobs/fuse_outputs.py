@@ -12,7 +12,7 @@ import numpy as np
 from ..core.fuse import COVARIANCE_LAYOUT
 from ..errors import InputError
 from ..io.files import atomic_output, check_writable
-from ..io.output_paths import plot_outputs, refuse_shared_outputs, refuse_stdout
+from ..io.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 from ..io.trajectory_files import format_stamp, format_tum
 from .fuse import FuseRun
 from .outputs import check_outputs, run_outputs, write_run
@@ -42,13 +42,7 @@ def check_fuse_outputs(out: Path | None, force: bool, inputs: Iterable[Path], co
     if cov is not None:
         check_writable(cov, force, inputs)
     if plot is not None:
-        if plot.exists() and not plot.is_dir():
-            raise InputError(f"{plot}: exists and is not a folder")
-        if not plot.exists():
-            check_writable(plot, force, inputs)
-        else:
-            for name in PLOT_FILES:
-                check_writable(plot / name, force, inputs)
+        check_plot_dir(plot, PLOT_FILES, force, inputs)
 
 
 def format_covariances(stamps_ns: np.ndarray, cov: np.ndarray) -> str:
