@@ -106,6 +106,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
         self._imu_gap_from: tuple | None = None  # (pose, stamp, event) before an IMU gap the scans are in
+        self._blind_tree: tuple | None = None  # (scans in the map, its k-d tree) for scans over an IMU gap
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:
@@ -207,6 +208,11 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             return self._imu_step(cloud, t_prev, t_ref)
         return self._lidar_step(cloud, t_prev, t_ref)
 
+    @property
+    def _imu_noise(self):
+        """The IMU noise propagation carries (the EKF's), or None (the complementary filter keeps no covariance)."""
+        return self.cfg.fusion.imu if self.cfg.fusion.method == "ekf" else None
+
     def _event(self, kind: str, reason: str) -> dict:
         """Record an event (and return it: a gap's reason is completed as its scans come)."""
         event = {"kind": kind, "scan": self.stats.scans, "after_stamp_ns": self._last_ns, "reason": reason}
@@ -282,7 +288,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
     def _imu_step(self, cloud: PointCloud, t_prev: int, t_ref: int,
                   bridge_gate_m: float | None = None) -> ScanResult | None:
         """``bridge_gate_m``: the first scan after a bridged time gap, registered with this gate and full iterations."""
-        cfg, st = self.cfg, self.stats
+        st = self.stats
         tick = time.perf_counter()
         imu = self._imu_window(t_prev)
         cost_ns, hole_ns = imu_gap_ns(imu.stamps_ns, t_prev, t_ref)
@@ -290,7 +296,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             return self._imu_gap_step(cloud, t_prev, t_ref, hole_ns)
         self._imu_gap_from = None
         prop = propagate(self.state, imu, t_ref, self.ext,
-                         noise=cfg.fusion.imu if cfg.fusion.method == "ekf" else None, planar=self.planar)
+                         noise=self._imu_noise, planar=self.planar)
         st.imu_gaps += int(prop.gap)
         saved = self.state
         self.state = prop.state

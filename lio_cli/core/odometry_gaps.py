@@ -66,7 +66,7 @@ class Gaps:
         step_ns = int(self._last_dt_s * 1e9) if self._last_dt_s > 0 else _BRIDGE_STEP_NS
         t_last = max(t_prev, t_ref - step_ns)  # the scan's own interval is the IMU step's
         imu = self._imu_window(t_prev)
-        noise = self.cfg.fusion.imu if self.cfg.fusion.method == "ekf" else None
+        noise = self._imu_noise
         saved, t, wheel_updates = self.state, t_prev, self.stats.wheel_updates
         while t < t_last:
             t_next = min(t + step_ns, t_last)
@@ -142,7 +142,9 @@ class Gaps:
         voxel) is kept."""
         reg = self._reg
         up = np.array([0.0, 0.0, 1.0]) if self._g_world is None else -self._g_world / np.linalg.norm(self._g_world)
-        tree = ckdtree_class()(reg.map.point_cloud())
+        if self._blind_tree is None or self._blind_tree[0] != reg.scans:  # the map grew since: a new tree
+            self._blind_tree = (reg.scans, ckdtree_class()(reg.map.point_cloud()))  # (scans in the map, tree)
+        tree = self._blind_tree[1]  # the scans of one IMU gap stay out of the map: one tree serves them all
         best, best_cost = None, np.inf
         for yaw in _BLIND_YAWS_RAD:
             pose = guess.copy()
