@@ -280,7 +280,7 @@ def run_odometry(log: Path, cfg: DeskewConfig, source: str, progress: Progress |
 
     result = run_odom(OdomJob(log, cfg.odom_config(source)), progress=progress, reader=reader, settled=sink)
     traj, m = result.trajectory, result.metrics
-    level = traj.poses[0] @ inv_pose(batches[0][0].pose)
+    level = result.alignment
     details = {"odometry": {"scans": m["scans"], "initialisation": m["initialisation"], "fusion": m["fusion"],
                             "extrinsics": m["extrinsics"], "time_s": m["time_s"]["total"],
                             "final_gyro_bias_radps": m["final_gyro_bias_radps"]}}

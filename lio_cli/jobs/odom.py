@@ -69,6 +69,7 @@ class OdomResult:
     notes: list[str] = field(default_factory=list)  # warnings: things the user should fix or know
     roles: dict[str, dict] = field(default_factory=dict)  # topic taken per role, and why
     score: Score | None = None
+    alignment: np.ndarray | None = None  # 4x4: levels the odometry's internal world (its settled poses') frame
 
 
 class DivergedRun(ProcessingError):
@@ -203,7 +204,8 @@ class _OdomRun:
         cfg, odo, inputs = self.cfg, self.odo, self.inputs
         wall = time.perf_counter() - self.t_wall
         stamps = odo.stamps_ns
-        P = odo.output_alignment() @ np.stack(odo.poses)
+        level = odo.output_alignment()
+        P = level @ np.stack(odo.poses)
         if cfg.frame == "lidar":
             P = P @ odo.ext.T_base_lidar
         elif cfg.frame == "imu":
@@ -245,7 +247,7 @@ class _OdomRun:
             "notes": self.notes,
         }
         traj = Trajectory(np.asarray(stamps, dtype=np.int64), P, f"{self.reader.path}:odom", "odom")
-        return OdomResult(traj, resolved, st, start["reason"], metrics, self.notes, inputs.describe())
+        return OdomResult(traj, resolved, st, start["reason"], metrics, self.notes, inputs.describe(), alignment=level)
 
 
 def _clock_summary(odo: LioOdometry, cfg: OdomConfig) -> dict | None:
