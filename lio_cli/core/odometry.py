@@ -56,6 +56,7 @@ class OdomStats:
     wheel_updates: int = 0
     wheel_zero_skipped: int = 0
     lidar_only_scans: int = 0  # registered without the IMU state: start-up window, recoveries, no IMU
+    steady_scans: int = 0  # IMU-primed scans registered with steady_iterations
     recoveries: int = 0
     time_gaps: int = 0
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
@@ -317,7 +318,10 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         tick = time.perf_counter()
         guess = self._guess(t_prev, t_ref)
         frame, source = self._reg.downsample(points)
-        measured = self._reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m)
+        steady = self._steady(imu)
+        st.steady_scans += int(steady)
+        measured = self._reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m,
+                                      steady=steady)
         st.times_s["register"] += time.perf_counter() - tick
         dirs_b = self._degeneracy(points, self.state.R)
         if self.planar:
@@ -349,7 +353,8 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             reason = reason or self._state_implausible()
             if reason is None:
                 self._g_world = self.state.g.copy()  # the latest gravity of a healthy state
-                self._track_clock(t_ref, measured)
+                if not steady:  # a steady scan's registration leans on the IMU's timing: it cannot time it
+                    self._track_clock(t_ref, measured)
         st.times_s["fuse"] += time.perf_counter() - tick
         self._lost = 0
         result = self._finish(t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False)

@@ -12,6 +12,7 @@ import numpy as np
 from ..geometry import inv_pose
 from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
                      pose_innovation_nis, position_noise)
+from ..model.records import ImuBatch
 from .imu import NavState, flatten_planar, propagate
 from .motion_compensation import constant_velocity_knots
 from .pose_checks import exceeds_jump, scale_delta, untouched
@@ -116,6 +117,20 @@ class StateUpdates:
         if self.planar:
             flatten_planar(self.state)
         return self.state.pose()
+
+    def _steady(self, imu: ImuBatch) -> bool:
+        """May this IMU-primed scan's registration stop after ``steady_iterations``? Yes once the IMU clock is
+        timed (or not tracked), and on a scan whose IMU turns slower than ``steady_rate_degps``: there the
+        prediction is good (a steady drive's ICP only slides along the road's surfaces in its later iterations)
+        and the scan could not time the clock anyway (a turn can; the tracker needs fully converged poses)."""
+        if not self._reg.has_steady:
+            return False
+        if self.clock is None or self.clock.done:
+            return True
+        if not len(imu):
+            return False
+        rate = np.linalg.norm(imu.gyro_radps - self.state.bg, axis=1).max()
+        return bool(rate < np.radians(self.cfg.registration.steady_rate_degps))
 
     def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
         if self.clock is None or self.clock.done:

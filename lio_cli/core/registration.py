@@ -52,6 +52,11 @@ class ScanRegistration:
         wide.adaptive_threshold.fixed_threshold = None
         wide.registration.max_num_iterations = rc.max_iterations or _KISS_ITERATIONS
         self._wide_registration = get_registration(wide)
+        self._steady_registration = None  # fewer iterations where the IMU prediction can be leant on
+        if rc.steady_iterations is not None and imu_prior:
+            steady = kiss.model_copy(deep=True)
+            steady.registration.max_num_iterations = rc.steady_iterations
+            self._steady_registration = get_registration(steady)
         self._adaptive = get_threshold_estimator(wide)
         self.scans = 0  # scans added to the map
 
@@ -65,12 +70,17 @@ class ScanRegistration:
         source = voxel_down_sample(frame, self.voxel_size_m * self.source_factor)
         return frame, source
 
+    @property
+    def has_steady(self) -> bool:
+        return self._steady_registration is not None
+
     def register(self, source: np.ndarray, guess: np.ndarray, adaptive: bool = False,
-                 gate_m: float | None = None) -> np.ndarray:
+                 gate_m: float | None = None, steady: bool = False) -> np.ndarray:
         """T_world_base that best aligns ``source`` (base frame) to the map, starting from ``guess``.
 
         ``adaptive``: the guess may be coarse, so kiss-icp's full iterations are used, with correspondences
-        gated at ``gate_m`` or, when None, by kiss-icp's adaptive threshold.
+        gated at ``gate_m`` or, when None, by kiss-icp's adaptive threshold. ``steady``: the guess is an IMU
+        prediction good enough to lean on: ``steady_iterations`` (when configured).
         """
         if self.map.empty():
             return guess
@@ -78,7 +88,8 @@ class ScanRegistration:
             sigma = self._adaptive.get_threshold() if gate_m is None else gate_m / 3.0
             return self._wide_registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
         sigma = self._threshold.get_threshold()
-        return self._registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
+        reg = self._steady_registration if steady and self._steady_registration is not None else self._registration
+        return reg.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
     def accept(self, correction: np.ndarray | None, frame: np.ndarray, pose: np.ndarray) -> None:
         """Feed the registration's deviation from its guess to the threshold models and add ``frame`` at ``pose``."""
