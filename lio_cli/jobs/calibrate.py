@@ -35,7 +35,7 @@ from .calibrate_passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Pr
                                read_imu, refine_spans)
 from .calibrate_report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
                                rotation_observable, table)
-from .odom_inputs import BASE_FRAME_NAMES
+from .odom_inputs import named_base, root_base
 from .outputs import beside, json_text
 
 PLOT_NAME = "allan_deviation.png"
@@ -105,7 +105,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         wheel = choose_topic(reader, "wheel", cfg.input.wheel_topic, required=cfg.input.wheel_topic is not None).topic \
             if lidar else None
         tree = read_static_frames(reader)
-        base = cfg.input.base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), "base")
+        base = named_base(tree, cfg.input.base_frame)  # None: the root of the sensors' tree (``_root_base``)
+        est.notes.extend(tree.warnings)
         still_s = None if cfg.still is None else parse_still(cfg.still)
         t0 = time.perf_counter()
         T_base_lidar = lidar_source = first_ns = None
@@ -132,6 +133,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             if imu is None:
                 raise InputError(f"{where}: {imu_topic}: no IMU sample could be read")
             imu_frame = arrays.imu_frame
+            base = base or _root_base(tree, arrays.lidar_frame or imu_frame, est)
             still_ns = _still_ns(imu, still_s)
             T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
@@ -205,6 +207,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             steps.allan(imu, est, where)
             times["allan"] = time.perf_counter() - t0
         if lidar is None:
+            base = base or _root_base(tree, imu_frame, est)
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, None)
             T_ref = None
         fmt, span_s = reader.format, reader.duration_ns * 1e-9
@@ -250,6 +253,13 @@ def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | Non
     return t0 + int(round(still_s[0] * 1e9)), t0 + int(round(still_s[1] * 1e9))
 
 
+def _root_base(tree, frame: str | None, est: steps.Estimates) -> str:
+    base, note = root_base(tree, frame)
+    if note:
+        est.notes.append(note)
+    return base
+
+
 def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:
     T = tree.lookup(base, frame) if frame else None
     if T is not None:
@@ -272,7 +282,7 @@ def _reference(prior: Calibration, tree, base: str, imu_frame: str,
     fields = {"T_base_imu": T.tolist()}
     if T_base_lidar is not None:
         fields["T_base_lidar"] = np.asarray(T_base_lidar).tolist()
-    return Calibration.model_validate(fields), "/tf_static"
+    return Calibration.model_validate(fields), tree.source(base, imu_frame)
 
 
 def _allan_summary(r) -> dict:

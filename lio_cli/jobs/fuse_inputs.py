@@ -29,7 +29,7 @@ from .fuse_convert import (
     calibrated_wheel, carries_lateral_speed, gps_series, imu_series, pose_series, trajectory_series, twist_frame,
     wheel_series,
 )
-from .odom_inputs import BASE_FRAME_NAMES
+from .odom_inputs import BASE_FRAME_NAMES, named_base, root_base
 
 MOTION = ("imu", "wheel", "odom")
 
@@ -108,18 +108,24 @@ def check_clocks(reader: LogReader, roles: dict[str, TopicChoice], imu_offset_ns
         check_same_clock(reader, others[0], topics["imu"], imu_offset_ns)
 
 
-def base_frame_of(cfg: FuseConfig, tree: FrameTree, wheel_child: str | None, imu_frame: str | None) -> str:
+def base_frame_of(cfg: FuseConfig, tree: FrameTree, wheel_child: str | None, imu_frame: str | None,
+                  notes: list[str] | None = None) -> str:
     """--base-frame; else a usual base name in /tf_static; else the wheel twist's child frame; else the IMU's
-    frame when it has a base's name; else ``base``."""
-    if cfg.input.base_frame:
-        return cfg.input.base_frame
-    named = next((b for b in BASE_FRAME_NAMES if b in tree.frames), None)
+    frame when it has a base's name; else the root of /tf_static's tree holding the IMU's (or the wheels') frame
+    (a driver's own tree, as odom and deskew take it; a note says so); else ``base``."""
+    named = named_base(tree, cfg.input.base_frame)
     if named:
         return named
     for f in (wheel_child, imu_frame):
         f = (f or "").lstrip("/")
         if f in BASE_FRAME_NAMES:
             return f
+    for f in (imu_frame, wheel_child):
+        base, note = root_base(tree, f)
+        if note:
+            if notes is not None:
+                notes.append(note)
+            return base
     return "base"
 
 
@@ -156,7 +162,7 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     imu_cols = cols.get(roles["imu"].topic) if "imu" in roles else None
     wheel_cols = cols.get(roles["wheel"].topic) if "wheel" in roles else None
     base = base_frame_of(cfg, tree, wheel_cols.child_frame_id if wheel_cols is not None else None,
-                         imu_cols.frame_id if imu_cols is not None else None)
+                         imu_cols.frame_id if imu_cols is not None else None, notes)
     inputs, extrinsics, twist = FuseInputs(), {}, None
     if imu_cols is not None and len(imu_cols):
         T, why = imu_extrinsic(tree, cfg, base, imu_cols.frame_id, imu_cols.topic, reader.path)

@@ -72,6 +72,22 @@ def choose_inputs(reader: LogReader, cfg: OdomConfig) -> OdomInputs:
     return OdomInputs(roles, use_imu, planar, deskew)
 
 
+def root_base(tree: FrameTree, frame: str | None) -> tuple[str, str | None]:
+    """The base frame of a /tf_static that names none of BASE_FRAME_NAMES: the root of the tree holding ``frame``
+    (a driver's own tree, as Ouster's os_sensor -> os_lidar, os_imu, whose IMU-LiDAR mounting is then used, where
+    identity was assumed for both before), with a note saying so; else ``base`` (no note)."""
+    root = tree.root(frame) if frame else None
+    if root is None:
+        return "base", None
+    return root, (f"base frame '{root}': the root of /tf_static's tree holding '{frame.lstrip('/')}' "
+                  f"(none is named {', '.join(BASE_FRAME_NAMES)}; --base-frame chooses another)")
+
+
+def named_base(tree: FrameTree, base_frame: str | None) -> str | None:
+    """--base-frame, else the first of BASE_FRAME_NAMES that /tf_static holds, else None (see ``root_base``)."""
+    return base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), None)
+
+
 @dataclass
 class Mounting:
     """Extrinsics as they are resolved (the LiDAR's at the first scan, the IMU's at its first message)."""
@@ -84,20 +100,17 @@ class Mounting:
 
     @classmethod
     def of(cls, tree: FrameTree, calibration: Calibration, base_frame: str | None, notes: list[str]) -> "Mounting":
-        base = base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), None if tree.frames else "base")
+        base = named_base(tree, base_frame) or (None if tree.frames else "base")
         notes.extend(w for w in tree.warnings if w not in notes)
         return cls(tree, calibration, base, notes, {"T_base_imu": "not used (no IMU in this run)"})
 
     def _base_for(self, frame: str) -> str:
-        """The base frame; when /tf_static names none of the usual ones, the root of the tree holding the first
-        sensor frame looked up (a driver's own tree, as Ouster's os_sensor -> os_lidar, os_imu): the IMU-LiDAR
-        mounting it gives is used, where identity was assumed for both before."""
+        """The base frame; when /tf_static names none of the usual ones, ``root_base`` of the first sensor frame
+        looked up."""
         if self.base is None:
-            root = self.tree.root(frame) if frame else None
-            self.base = root or "base"
-            if root is not None:
-                self.notes.append(f"base frame '{root}': the root of /tf_static's tree holding '{frame.lstrip('/')}' "
-                                  f"(none is named {', '.join(BASE_FRAME_NAMES)}; --base-frame chooses another)")
+            self.base, note = root_base(self.tree, frame)
+            if note:
+                self.notes.append(note)
         return self.base
 
     def resolve(self, name: str, frame: str) -> np.ndarray:
