@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -10,8 +11,9 @@ import typer
 
 from ..config import load_calibration, load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
+from ..errors import ConfigError
 from ..io.pointcloud import parse_time_convention
-from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate
+from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, yaml_text
 from ..jobs.calibrate_report import format_table
 from ..jobs.outputs import log_stem
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
@@ -34,7 +36,8 @@ T_base_lidar is taken from /tf_static (else --calib, else identity: base = LiDAR
 to IMU stamps to put them on the LiDAR's clock; biases in the IMU frame; 1-sigmas beside the values.
 
 On stderr: a table of each value, its 1-sigma and its difference from --calib (else /tf_static) in degrees,
-cm and ms. Also written: OUT-stem.metrics.json and OUT-stem.config.yaml. Bad input (no IMU, no still
+cm and ms. Also written: OUT-stem.metrics.json and OUT-stem.config.yaml (with -o - the YAML goes to stdout
+and no other file is written). Bad input (no IMU, no still
 stretch where one is needed, too little motion, clocks that disagree): one line, exit 2, nothing written.
 
 [bold]Examples[/bold]
@@ -55,7 +58,7 @@ stretch where one is needed, too little motion, clocks that disagree): one line,
 
 def calibrate(
     log: LogArg,
-    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="Calibration YAML to write (default: LOG's name + .calib.yaml).", show_default=False)] = None,
+    output: Annotated[Optional[str], typer.Option("--output", "-o", help="Calibration YAML to write, or - for stdout (then no metrics or config file). Default: LOG's name + .calib.yaml.", show_default=False)] = None,
     still: Annotated[Optional[str], typer.Option("--still", help="START:END seconds after the first IMU sample where the IMU rests (default: found).", show_default=False)] = None,
     allan: Annotated[bool, typer.Option("--allan", help="Allan variance of the whole log (a static IMU recording of hours): noise and random walks.")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for the Allan deviation plot (needs --allan).", show_default=False)] = None,
@@ -86,12 +89,18 @@ def calibrate(
         "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic, "input.base_frame": base_frame,
         "input.point_time": point_time, "imu_time_offset_s": imu_time_offset,
     })
-    out = Path(output) if output is not None else Path(f"{log_stem(log)}.calib.yaml")
+    to_stdout = output == "-"
+    if to_stdout and as_json:
+        raise ConfigError("-o - and --json both write to stdout; choose one")
+    out = None if to_stdout else Path(output) if output is not None else Path(f"{log_stem(log)}.calib.yaml")
     job = CalibrateJob(Path(log), out, cfg, plot, kalibr, force, tuple(p for p in (config, calib) if p is not None))
     check_calibrate_outputs(job)
     with job_progress("calibrating", quiet) as update:
         result = run_calibrate(job, progress=update)
     _report(result, quiet)
+    if to_stdout:
+        sys.stdout.write(yaml_text(result.calibration))
+        sys.stdout.flush()
     if as_json:
         print_json({k: result.metrics[k] for k in ("log", "output", "topics", "reference", "calibration", "table",
                                                     "skipped", "notes", "time_s")})
@@ -110,7 +119,8 @@ def _report(result: CalibrateResult, quiet: bool) -> None:
         err_console.print(s.line(), markup=False)
     for n in result.notes:
         note(f"note: {n}", quiet)
-    note(f"wrote {m['output']}; {m['time_s']['total']:.1f} s wall", quiet)
+    where = "the calibration to stdout" if m["output"] == "-" else m["output"]
+    note(f"wrote {where}; {m['time_s']['total']:.1f} s wall", quiet)
 
 
 def register(app: typer.Typer) -> None:

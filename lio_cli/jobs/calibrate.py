@@ -47,7 +47,7 @@ class CalibrateJob:
     ``kalibr``: also write Kalibr's imu.yaml (both need ``config.allan``)."""
 
     log: Path
-    out: Path
+    out: Path | None  # None: nothing is written (``-o -``: the CLI prints the YAML, ``yaml_text``)
     config: CalibrateConfig = field(default_factory=CalibrateConfig)
     plot_dir: Path | None = None
     kalibr: Path | None = None
@@ -76,7 +76,7 @@ def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
     if (job.plot_dir is not None or job.kalibr is not None) and not job.config.allan:
         raise ConfigError("--plot and --kalibr write the Allan variance results: give --allan too")
     inputs = [*input_paths(job.log), *job.extra_inputs]
-    outs = [Path(job.out), *sidecars(job.out)]
+    outs = [] if job.out is None else [Path(job.out), *sidecars(job.out)]
     if job.kalibr is not None:
         outs.append(Path(job.kalibr))
     if job.plot_dir is not None:
@@ -218,7 +218,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
     wall = time.perf_counter() - t_wall
     notes = list(dict.fromkeys(est.notes))
     metrics = {
-        "command": "calibrate", "log": str(job.log), "format": fmt, "output": str(job.out),
+        "command": "calibrate", "log": str(job.log), "format": fmt, "output": "-" if job.out is None else str(job.out),
         "topics": {"lidar": lidar, "imu": imu_topic, "wheel": wheel}, "base_frame": base,
         "T_base_lidar_from": lidar_source, "reference": ref_name,
         "lidar_trajectory": None if traj is None else traj.description,
@@ -293,7 +293,6 @@ def _allan_summary(r) -> dict:
 
 
 def _write(job: CalibrateJob, cal: Calibration, resolved: CalibrateConfig, metrics: dict, est) -> None:
-    metrics_path, config_path = sidecars(job.out)
     if job.kalibr is not None:
         with atomic_output(job.kalibr, job.force) as tmp:
             tmp.write_text(kalibr_imu_yaml(est.allan, metrics["topics"]["imu"], est.allan.rate_hz))
@@ -301,15 +300,19 @@ def _write(job: CalibrateJob, cal: Calibration, resolved: CalibrateConfig, metri
         Path(job.plot_dir).mkdir(parents=True, exist_ok=True)
         with atomic_output(Path(job.plot_dir) / PLOT_NAME, job.force) as tmp:
             tmp.write_bytes(allan_plot_png(est.allan, f"Allan deviation: {Path(job.log).name}"))
+    if job.out is None:
+        return
+    metrics_path, config_path = sidecars(job.out)
     with atomic_output(config_path, job.force) as tmp:
         tmp.write_text(dump_model(resolved))
     with atomic_output(metrics_path, job.force) as tmp:
         tmp.write_text(json_text(metrics))
     with atomic_output(job.out, job.force) as tmp:
-        tmp.write_text(_yaml_text(cal))
+        tmp.write_text(yaml_text(cal))
 
 
-def _yaml_text(cal: Calibration) -> str:
+def yaml_text(cal: Calibration) -> str:
+    """The calibration YAML as written (with its header comment)."""
     import yaml
 
     head = ("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame (4x4, metres);\n"

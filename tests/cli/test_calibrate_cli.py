@@ -154,6 +154,21 @@ def test_the_default_output_is_the_log_stem_in_the_current_folder(walk, tmp_path
     assert err == "lio: error: walk.calib.yaml: already exists; pass --force to overwrite it"
 
 
+def test_dash_output_prints_the_yaml_on_stdout_and_writes_nothing(walk, walk_run, tmp_path, capsys, monkeypatch):
+    """-o - wrote three files named '-', '-.metrics.json' and '-.config.yaml' into the current folder."""
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = run([walk.log_path, "-o", "-"], capsys)
+    assert rc == 0, err
+    assert list(tmp_path.iterdir()) == []
+    assert out.startswith("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame")
+    (tmp_path.parent / "dash.yaml").write_text(out)
+    got, want = load_calibration(tmp_path.parent / "dash.yaml"), load_calibration(walk_run[1])
+    np.testing.assert_allclose(got.matrix("T_base_imu"), want.matrix("T_base_imu"), atol=1e-6)
+    assert err.splitlines()[-1].startswith("wrote the calibration to stdout;")
+    err = one_error([walk.log_path, "-o", "-", "--json"], capsys, tmp_path)
+    assert err == "lio: error: -o - and --json both write to stdout; choose one"
+
+
 def test_no_imu(tmp_path, capsys):
     log = static_log(tmp_path / "noimu.bag", imu=False)
     err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
