@@ -124,8 +124,12 @@ class Ekf3d:
                 if self.smooth:
                     self.Phi = F @ self.Phi
                 return
-            elif u is None:
-                F, q = on_list(hold_step, x, dt, L), gap_noise(L, self.noise, dt)
+            elif u is None:  # an IMU gap (or before its first sample): noise from where it started
+                ii = self.ii
+                since = t_a - (self.imu_list[ii] if ii >= 0 else self.prep.t0_ns)
+                rate = float(np.linalg.norm(self.imu_w[ii])) if ii >= 0 else 0.0
+                F = on_list(hold_step, x, dt, L)
+                q = gap_noise(L, self.noise, dt, since_s=max(since, 0) * 1e-9, rate_radps=rate)
             else:
                 F, q = on_list(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
         np.dot(F.dot(P), F.T, out=P)

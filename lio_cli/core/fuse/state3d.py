@@ -242,16 +242,27 @@ def hold_step(x: np.ndarray, dt: float, L: Layout, tau_s: float = GAP_TAU_S) -> 
     return F
 
 
-def gap_noise(L: Layout, noise, dt: float, tau_s: float = GAP_TAU_S) -> np.ndarray:
+def gap_noise(L: Layout, noise, dt: float, tau_s: float = GAP_TAU_S, since_s: float = 0.0,
+              rate_radps: float = 0.0) -> np.ndarray:
     """Process noise of ``hold_step``: the Gauss-Markov velocity (stationary variance ``q tau / 2``), its
     position random walk (``q dt^3 / 3`` at first, ``q tau^2 dt`` in the long run), a rotation error
-    capped at pi^2 (any heading), and the biases' random walks."""
+    capped at pi^2 (any heading), and the biases' random walks.
+
+    ``since_s``: how long the gap had lasted when this step starts. A gap crossed in several steps (split by
+    the updates and outputs inside it) gets the position and rotation noise of one step across it: the cubic
+    terms grow with the whole gap's length, and summed per piece they fell a hundredfold short (ten 0.1 s
+    steps give 1/100 of one 1 s step's), so the odometry poses inside a 1 s IMU gap were rejected as outliers
+    while the held rotation drifted. ``rate_radps``: the turn rate when the gap began (the last gyro sample):
+    the held rotation falls behind by up to that rate times the gap's length, a rotation variance of
+    ``rate^2 t^2`` on top of the angular-acceleration term."""
     qa, qw = noise.cv_accel_density**2, noise.cv_angular_accel_density**2
     q = np.full(L.n, 1e-16)
     e2 = math.exp(-2.0 * dt / tau_s)
+    a, b = since_s, since_s + dt
     q[DV] = 0.5 * qa * tau_s * (1.0 - e2)
-    q[DP] = min(qa * dt**3 / 3.0, qa * tau_s * tau_s * dt)
-    q[TH] = min(qw * dt**3 / 3.0, math.pi**2)
+    q[DP] = min(qa * b**3 / 3.0, qa * tau_s * tau_s * b) - min(qa * a**3 / 3.0, qa * tau_s * tau_s * a)
+    r2 = rate_radps * rate_radps
+    q[TH] = min(qw * b**3 / 3.0 + r2 * b * b, math.pi**2) - min(qw * a**3 / 3.0 + r2 * a * a, math.pi**2)
     if L.model == "cv":
         q[DB] = 0.5 * qw * tau_s * (1.0 - e2)
     else:
