@@ -110,6 +110,8 @@ class _OdomRun:
         self.odo: LioOdometry | None = None
         self.pending: deque[PointCloud] = deque()
         self.early_imu: list[ImuBatch] = []  # IMU that arrived before the first scan
+        self.first_scan_ns: int | None = None  # the first scan's start, the first IMU stamp (for a late IMU's note)
+        self.first_imu_ns: int | None = None
         self.t_read = 0.0
         self.done = 0
 
@@ -173,6 +175,7 @@ class _OdomRun:
 
     def _start(self, cloud: PointCloud) -> None:
         cal = self.cfg.calibration
+        self.first_scan_ns = cloud.start_ns
         self.odo = LioOdometry(self.cfg, self.mounting.resolve("T_base_lidar", cloud.frame_id),
                                use_imu=self.inputs.use_imu, planar=self.inputs.planar,
                                gyro_bias=cal.gyro_bias_radps, accel_bias=cal.accel_bias_mps2)
@@ -180,6 +183,8 @@ class _OdomRun:
             self._add_imu(batch)
 
     def _add_imu(self, batch: ImuBatch) -> None:
+        if self.first_imu_ns is None and len(batch):
+            self.first_imu_ns = int(batch.stamps_ns[0])
         if not self.odo.imu_mounted:  # the IMU's extrinsic by its own frame_id, whenever its first message arrives
             self.odo.set_imu_extrinsic(self.mounting.resolve("T_base_imu", batch.frame_id))
         self.odo.add_imu(batch)
@@ -200,6 +205,19 @@ class _OdomRun:
             if self.progress:
                 self.progress(self.done, self.reader.topics[self.inputs.lidar].count)
 
+    def _late_imu_note(self, stamps: list[int]) -> None:
+        """An IMU that starts later than the start-up window after the first scan leaves the scans before it
+        LiDAR-only, with no rotation prior: say so (a walk's turns there are easily lost; a vehicle's rarely)."""
+        if not self.inputs.use_imu or self.first_imu_ns is None or self.first_scan_ns is None:
+            return
+        lag_s = (self.first_imu_ns - self.first_scan_ns) * 1e-9
+        before = sum(1 for t in stamps if t < self.first_imu_ns)
+        if lag_s > self.cfg.init_window_s and before:
+            note = (f"the IMU starts {lag_s:.1f} s after the first scan: the {before} scans before its first sample "
+                    "are LiDAR-only (no rotation prior; fast turns there are easily lost)")
+            if note not in self.notes:
+                self.notes.append(note)
+
     def _result(self) -> OdomResult:
         cfg, odo, inputs = self.cfg, self.odo, self.inputs
         wall = time.perf_counter() - self.t_wall
@@ -217,6 +235,7 @@ class _OdomRun:
         }, "resolved configuration")
         st = odo.stats
         start = _start_summary(odo, inputs.use_imu)
+        self._late_imu_note(stamps)
         span_s = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
         metrics = {
             "log": str(self.reader.path),
