@@ -254,6 +254,6 @@ def test_a_real_vehicle_that_never_rests_is_told_where_it_moves(real_logs, tmp_p
     log = real_logs / "groovy_imu_wheel_stereo" / "groovy.bag"
     err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
     assert err == (f"lio: error: {log}: no still stretch of 1 s in the IMU data: it moves during 0.9-133.1 s (s after "
-                   "its first stamp, pauses shorter than 1 s included; the longest still stretch lasts 0.7 s); record "
+                   "its first stamp, pauses shorter than 1 s included; the longest still stretch lasts 0.67 s); record "
                    "a few seconds standing still or name a still interval (the log has no LiDAR: the IMU at rest is "
                    "all there is to calibrate)")

@@ -14,6 +14,8 @@ simulator's ``ImuSpec`` and Kalibr's ``*_noise_density``.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,9 +127,10 @@ def find_still_stretch(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2
     # a pause too short to hold the stretch joins the motion around it: else a log moving from 2 s to its end
     # with a few short pauses reads as four blips of motion in its first seconds "and 5 more"
     moving = time_ranges_text(stamps_ns, ~mask, int(stamps_ns[0]), join_ns=int(need_ns) + 2 * trim_ns)
+    # the longest stretch rounded down: 0.97 s read "lasts 1.0 s" beside "no still stretch of 1 s"
     raise InputError(f"no still stretch of {opts.min_duration_s:g} s in the IMU data: it moves during {moving} "
                      f"(s after its first stamp, pauses shorter than {opts.min_duration_s:g} s included; the longest "
-                     f"still stretch lasts {longest / NS_PER_S:.1f} s); record a few seconds standing still or name a "
+                     f"still stretch lasts {math.floor(longest / NS_PER_S * 100) / 100:g} s); record a few seconds standing still or name a "
                      f"still interval")
 
 

@@ -50,7 +50,7 @@ def test_no_still_stretch_says_where_the_imu_moves(handheld):
     imu = handheld.imu
     late = imu.stamps_ns >= imu.stamps_ns[0] + 5 * NS  # cut the standing start away
     msg = ("no still stretch of 1 s in the IMU data: it moves during 0.0-25.0 s (s after its first stamp, pauses "
-           "shorter than 1 s included; the longest still stretch lasts 0.0 s); record a few seconds standing still "
+           "shorter than 1 s included; the longest still stretch lasts 0 s); record a few seconds standing still "
            "or name a still interval")
     with pytest.raises(InputError, match=re.escape(msg)):
         find_still_stretch(imu.stamps_ns[late], imu.gyro_radps[late], imu.accel_mps2[late])
@@ -70,6 +70,21 @@ def test_short_pauses_do_not_hide_where_the_imu_moves():
         find_still_stretch(stamps, gyro, accel)
     assert "it moves during 0.3-60.0 s (s after" in str(err.value)  # the window of 0.4 s sees it coming
     assert "the longest still stretch lasts 0.2 s" in str(err.value)  # 0.8 s less the window and trims
+
+
+def test_a_stretch_just_short_of_the_need_is_not_rounded_up_to_it():
+    """A pause of 1.57 s (less the window and trims: 0.975 s of stretch) was "the longest still
+    stretch lasts 1.0 s" beside "no still stretch of 1 s": now rounded down."""
+    rate, n = 100, 100 * 20
+    stamps = np.arange(n, dtype=np.int64) * (NS // rate)
+    t = stamps / NS
+    gyro = np.zeros((n, 3))
+    accel = np.tile([0.0, 0.0, 9.81], (n, 1))
+    moving = (t >= 0.5) & ~((t >= 10.0) & (t < 11.57))
+    gyro[moving, 2] = 0.5 + 0.3 * np.sin(7.0 * t[moving])
+    with pytest.raises(InputError) as err:
+        find_still_stretch(stamps, gyro, accel)
+    assert "the longest still stretch lasts 0.97 s" in str(err.value)
 
 
 def test_bad_arrays_are_one_line_input_errors():
