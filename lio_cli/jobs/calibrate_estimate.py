@@ -33,6 +33,8 @@ COARSE_MAX_ROTATION_SIGMA_RAD = np.radians(5.0)
 CHECK_WINDOW_SCANS = 20  # about 2 s at 10 Hz
 CHECK_REL_TOL = 0.25
 CHECK_ABS_TOL_DEG = 5.0
+IMU_GAP_S = 0.05  # the IMU silent this long (and 5 sample intervals) is a gap...
+IMU_GAP_MARGIN_S = 0.25  # ...whose scans, this far either side (a clock offset moves it), are left out
 
 
 @dataclass
@@ -111,6 +113,10 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     ``floors``: (rotation, lever arm, refined rotation) per-axis 1-sigmas not to report below (``floors_of``)."""
     bias0 = est.static.gyro_bias_radps if est.static is not None else None
     centre_ns = cfg.start_offset_ns  # the search spans +-max_offset_s around it
+    traj, gap_note = without_imu_gaps(traj, imu, (est.offset.imu_time_offset_s if est.offset is not None
+                                                  else centre_ns / NS_PER_S))
+    if gap_note is not None and gap_note not in est.notes:
+        est.notes.append(gap_note)
     try:
         off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns + centre_ns, imu.gyro_radps,
                                    gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,
@@ -171,11 +177,46 @@ def _kept_offset(bias: np.ndarray | None, offset_s: float, why: str) -> TimeOffs
                       intervals=0, rms_residual_rad=float("nan"), notes=(why,))
 
 
+def imu_gaps(imu: ImuBatch) -> list[tuple[int, int]]:
+    """(last stamp before, first stamp after) of every stretch the IMU is silent for ``IMU_GAP_S`` and five of
+    its sample intervals."""
+    dt = np.diff(imu.stamps_ns)
+    if not len(dt):
+        return []
+    gap = np.flatnonzero(dt > max(IMU_GAP_S * NS_PER_S, 5.0 * float(np.median(dt))))
+    return [(int(imu.stamps_ns[k]), int(imu.stamps_ns[k + 1])) for k in gap]
+
+
+def without_imu_gaps(traj: LidarTrajectory, imu: ImuBatch, offset_s: float) -> tuple[LidarTrajectory, str | None]:
+    """The trajectory without its scans over an IMU gap (the gyro and accelerometer interpolated across one are
+    fiction: on a walk with a 1 s gap the rotation came out 0.75 deg off, the lever arm 3.5 cm, and the notes
+    blamed the motion), and a note saying so (None: no gap)."""
+    gaps = imu_gaps(imu)
+    if not gaps:  # (or none under the trajectory, below)
+        return traj, None
+    s, margin = traj.stamps_ns, int(IMU_GAP_MARGIN_S * NS_PER_S)
+    shift = int(round(offset_s * NS_PER_S))  # IMU stamp + offset = LiDAR time
+    out = np.zeros(len(s), bool)
+    for a, b in gaps:
+        out |= (s >= a + shift - margin) & (s <= b + shift + margin)
+    t0 = int(imu.stamps_ns[0])
+    where = ", ".join(f"{(b - a) / NS_PER_S:.2f} s at {(a - t0) / NS_PER_S:.1f}-{(b - t0) / NS_PER_S:.1f} s"
+                      for a, b in gaps[:4]) + (f" and {len(gaps) - 4} more" if len(gaps) > 4 else "")
+    note = (f"the IMU has {len(gaps)} gap{'s' if len(gaps) > 1 else ''} ({where} after its first stamp): the "
+            f"{int(out.sum())} scans over {'them' if len(gaps) > 1 else 'it'} are left out of the LiDAR-IMU estimates")
+    if not out.any():
+        return traj, None
+    kept = LidarTrajectory(s[~out], traj.T_world_lidar[~out], int((~out).sum()), traj.scans_total,
+                           f"{traj.description}; {int(out.sum())} scans over IMU gaps left out")
+    return kept, note
+
+
 def consistent_scans(traj: LidarTrajectory, imu: ImuBatch, offset_s: float, bias: np.ndarray | None,
                      window: int = CHECK_WINDOW_SCANS) -> tuple[LidarTrajectory, int]:
     """The LiDAR-only trajectory without the stretches where it lost track: over every ``window`` scan
     intervals the angle the LiDAR turned must match the gyro's (angles do not depend on the mounting, and a
     window of seconds hardly on a clock offset of up to 0.1 s). Returns (trajectory kept, scans left out)."""
+    traj, _ = without_imu_gaps(traj, imu, offset_s)
     s, P = traj.stamps_ns, traj.T_world_lidar
     if len(s) < window + 2:
         return traj, 0

@@ -140,3 +140,26 @@ def rewrite_clouds():
     """``rewrite_clouds(src, dst, edit)``: a copy of a ROS 1 log with each /points cloud passed through
     ``edit(k, structured array)``."""
     return _rewrite_clouds
+
+
+def _without_messages(src, dst, topic: str, t0_ns: int, t1_ns: int):
+    """A ROS 1 copy of ``src`` without the ``topic`` messages stamped in [t0, t1)."""
+    from lio_cli.io.reader import open_log
+    from lio_cli.io.writer import LogWriter
+
+    with open_log(src) as reader, LogWriter(dst, "ros1") as w:
+        for name, info in reader.topics.items():
+            w.add_topic(name, info.msgtype, latching=name == "/tf_static")
+        for name, _, t_ns, msg in reader.messages():
+            if name == topic:
+                stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                if t0_ns <= stamp < t1_ns:
+                    continue
+            w.write(name, t_ns, msg)
+    return dst
+
+
+@pytest.fixture
+def without_messages():
+    """``without_messages(src, dst, topic, t0_ns, t1_ns)``: a gap in one topic of a ROS 1 log."""
+    return _without_messages

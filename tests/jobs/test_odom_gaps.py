@@ -15,9 +15,7 @@ import numpy as np
 import pytest
 
 from lio_cli.cli.app import main
-from lio_cli.io.reader import open_log
 from lio_cli.io.trajectory_files import read_tum
-from lio_cli.io.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
 
@@ -25,20 +23,6 @@ def _odom(log: Path, out: Path, *extra) -> dict:
     rc = main(["odom", str(log), "-o", str(out), "-q", "--force", "--gt", "/ground_truth", *map(str, extra)])
     assert rc == 0
     return json.loads(out.with_name(out.stem + ".metrics.json").read_text())
-
-
-def _without(src: Path, dst: Path, topic: str, t0_ns: int, t1_ns: int) -> Path:
-    """A copy of ``src`` without the ``topic`` messages stamped in [t0, t1)."""
-    with open_log(src) as reader, LogWriter(dst, "ros1") as w:
-        for name, info in reader.topics.items():
-            w.add_topic(name, info.msgtype, latching=name == "/tf_static")
-        for name, _, t_ns, msg in reader.messages():
-            if name == topic:
-                stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-                if t0_ns <= stamp < t1_ns:
-                    continue
-            w.write(name, t_ns, msg)
-    return dst
 
 
 @pytest.fixture(scope="module")
@@ -53,13 +37,13 @@ def walk(tmp_path_factory):
     return simulate("handheld", root / "walk.bag", "ros1", duration_s=10.0, seed=1, columns=360)
 
 
-def test_a_lidar_gap_the_imu_covers_is_bridged(drive, tmp_path):
+def test_a_lidar_gap_the_imu_covers_is_bridged(drive, tmp_path, without_messages):
     """1.5 s without scans at 8 m/s: the state is carried across the gap by the IMU and wheels, and the first
     scan after it registers close to that prediction."""
     base = _odom(drive.log_path, tmp_path / "base.tum")
     stamps, poses = read_tum(drive.gt_path)
     t0 = int(stamps[0]) + 5 * 10**9
-    log = _without(drive.log_path, tmp_path / "gap.bag", "/points", t0, t0 + 1_500_000_000)
+    log = without_messages(drive.log_path, tmp_path / "gap.bag", "/points", t0, t0 + 1_500_000_000)
     m = _odom(log, tmp_path / "gap.tum")
     k = np.searchsorted(stamps, [t0, t0 + 1_500_000_000])
     assert np.linalg.norm(poses[k[1], :3, 3] - poses[k[0], :3, 3]) > 8.0  # the platform moved during the gap
@@ -71,8 +55,8 @@ def test_a_lidar_gap_the_imu_covers_is_bridged(drive, tmp_path):
     assert float(event["reason"].rsplit("registered ", 1)[1].split(" m ")[0]) < 0.5
 
 
-def test_a_lidar_gap_beyond_max_bridge_s_restarts_from_the_lidar(drive, tmp_path):
-    log = _without(drive.log_path, tmp_path / "gap.bag", "/points", int(read_tum(drive.gt_path)[0][0]) + 5 * 10**9,
+def test_a_lidar_gap_beyond_max_bridge_s_restarts_from_the_lidar(drive, tmp_path, without_messages):
+    log = without_messages(drive.log_path, tmp_path / "gap.bag", "/points", int(read_tum(drive.gt_path)[0][0]) + 5 * 10**9,
                    int(read_tum(drive.gt_path)[0][0]) + 6_500_000_000)
     config = tmp_path / "c.yaml"
     config.write_text("max_bridge_s: 1.0\n")
@@ -81,7 +65,7 @@ def test_a_lidar_gap_beyond_max_bridge_s_restarts_from_the_lidar(drive, tmp_path
     assert event["reason"].endswith("without a scan (longer than max_bridge_s, 1 s): restarted from the LiDAR")
 
 
-def test_an_imu_gap_during_fast_yaw_does_not_prime_the_scans(walk, tmp_path):
+def test_an_imu_gap_during_fast_yaw_does_not_prime_the_scans(walk, tmp_path, without_messages):
     """No IMU for 0.4 s around the walk's fastest yaw: the scans in it are registered LiDAR-only and the IMU state
     is re-seeded from them; the event says so."""
     base = _odom(walk.log_path, tmp_path / "base.tum")
@@ -91,7 +75,7 @@ def test_an_imu_gap_during_fast_yaw_does_not_prime_the_scans(walk, tmp_path):
     inside = (stamps > stamps[0] + 3 * 10**9) & (stamps < stamps[-1] - 2 * 10**9)  # after the start-up window
     peak = int(stamps[inside][np.argmax(rate[inside])])
     assert rate[inside].max() > 2.0  # rad/s: fast yaw
-    log = _without(walk.log_path, tmp_path / "gap.bag", "/imu", peak - 200_000_000, peak + 200_000_000)
+    log = without_messages(walk.log_path, tmp_path / "gap.bag", "/imu", peak - 200_000_000, peak + 200_000_000)
     m = _odom(log, tmp_path / "gap.tum")
     ate, ate_base = m["accuracy"]["ate_trans_rmse_m"], base["accuracy"]["ate_trans_rmse_m"]
     assert ate < max(2.0 * ate_base, ate_base + 0.05), (ate, ate_base)
