@@ -14,7 +14,7 @@ from pydantic import Field, create_model, field_validator
 
 from ..model.calibration import Calibration
 from . import Strict
-from .odom import InputConfig, OdomConfig
+from .odom import InputConfig, OdomConfig, RegistrationConfig
 
 MOTIONS = ("auto", "trajectory", "imu", "constant-velocity")
 OUTPUT_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
@@ -33,10 +33,22 @@ class TrajectoryInput(Strict):
 # The in-process odometry (motion imu or constant-velocity) takes these fields of lio odom's configuration;
 # input, calibration, prior and deskew come from the deskew configuration.
 _ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_bridge_s", "max_lost_scans",
-                    "estimate_time_offset", "max_speed_mps", "gravity_mps2", "registration", "fusion")
+                    "estimate_time_offset", "max_speed_mps", "gravity_mps2", "fusion")
+
+
+class DeskewRegistration(RegistrationConfig):
+    """lio odom's registration settings, but ICP stops after 5 iterations where the IMU prediction can be leant
+    on (``steady_iterations``): faster on drives, and the de-skewed points as accurate or more
+    (benchmarks/bench_deskew.py). A default of this class, so a YAML naming other registration fields keeps it."""
+
+    steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[
+        "steady_iterations"].description)
+
+
 OdometryPass = create_model(
     "OdometryPass", __base__=Strict, __doc__="Settings of the odometry run in-process (as lio odom's fields).",
     **{name: (OdomConfig.model_fields[name].annotation, OdomConfig.model_fields[name]) for name in _ODOMETRY_FIELDS},
+    registration=(DeskewRegistration, DeskewRegistration()),
 )
 
 
@@ -54,9 +66,7 @@ class DeskewConfig(Strict):
     topic_suffix: Optional[str] = Field(None, description="write de-skewed clouds to TOPIC+suffix, keep the raw ones")
     strict: bool = Field(False, description="refuse a scan the motion does not cover instead of copying it unchanged")
     map_voxel_m: float = Field(0.1, gt=0, description="voxel size of --map")
-    # the in-process odometry stops ICP after 5 iterations where the IMU prediction can be leant on (see
-    # steady_iterations): faster on drives, and the de-skewed points as accurate or more (benchmarks/bench_deskew.py)
-    odometry: OdometryPass = OdometryPass(registration={"steady_iterations": 5})
+    odometry: OdometryPass = OdometryPass()
 
     @field_validator("topic_suffix")
     @classmethod

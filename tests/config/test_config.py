@@ -102,3 +102,26 @@ def test_calibrate_takes_the_clock_offset_its_clock_check_suggests_even_between_
         CalibrateConfig(max_offset_s=2e9)
     with pytest.raises(ValueError, match=r"1e\+10 is out of range \(\|value\| <= 1e\+09\)"):
         CalibrateConfig(wheel_radius_m=1e10)
+
+
+@pytest.mark.parametrize("text, steady", [
+    ("{}", 5),
+    ("odometry:\n  fusion:\n    degeneracy_every: 4\n", 5),  # was None: the section replaced deskew's default
+    ("odometry:\n  registration:\n    max_range_m: 80\n", 5),
+    ("odometry:\n  registration:\n    steady_iterations: null\n", None),
+])
+def test_deskew_keeps_its_steady_iterations_unless_told(tmp_path, text, steady):
+    from lio_cli.config.deskew import DeskewConfig
+
+    path = tmp_path / "deskew.yaml"
+    path.write_text(text)
+    cfg = load_model(DeskewConfig, path)
+    assert cfg.odom_config("imu").registration.steady_iterations == steady
+    assert OdomConfig().registration.steady_iterations is None  # lio odom: full iterations
+    assert load_model(DeskewConfig, _dumped(tmp_path, cfg)).odometry == cfg.odometry  # the written config repeats it
+
+
+def _dumped(tmp_path, cfg):
+    path = tmp_path / "again.yaml"
+    path.write_text(dump_model(cfg))
+    return path
