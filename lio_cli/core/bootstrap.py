@@ -52,6 +52,7 @@ class Bootstrap:
     gyro_bias: np.ndarray  # IMU frame
     scans: int
     reason: str
+    gravity_aligned: bool = True  # False: too little excitation, gravity is the window's mean specific force
 
 
 def lidar_still(poses: np.ndarray) -> bool:
@@ -155,10 +156,12 @@ def align(stamps_ns: np.ndarray, poses: np.ndarray, imu: ImuBatch, ext: Extrinsi
             rows.append(np.hstack([ex, ex * tau[k]])[None] / WHEEL_SIGMA_MPS)
             rhs.append(np.array([wheel_speeds[k] - ex @ B[k]]) / WHEEL_SIGMA_MPS)
     A, b = np.vstack(rows), np.concatenate(rhs)
+    aligned = True
     if g_world is None:
         x, *_ = np.linalg.lstsq(A, b, rcond=None)
         g_free = x[3:]
         if abs(np.linalg.norm(g_free) / gravity_mps2 - 1.0) > GRAVITY_TOLERANCE:
+            aligned = False
             # too little excitation to separate gravity from acceleration: the mean specific force points up
             g_free = -(poses[0, :3, :3] @ ext.R_base_imu @ (win.accel_mps2.mean(axis=0) - ba))
         g = gravity_mps2 * g_free / np.linalg.norm(g_free)
@@ -171,4 +174,4 @@ def align(stamps_ns: np.ndarray, poses: np.ndarray, imu: ImuBatch, ext: Extrinsi
     speed = float(np.linalg.norm(v_end))
     return Bootstrap(False, int(stamps_ns[-1]), v_end, v0, g, bg, n,
                      f"moving start: velocity {speed:.2f} m/s, gravity and gyro bias aligned from {n} LiDAR-only "
-                     f"scans over {tau[-1]:.2f} s")
+                     f"scans over {tau[-1]:.2f} s", aligned)
