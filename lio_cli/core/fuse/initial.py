@@ -3,7 +3,9 @@
 Attitude: the IMU's own orientation where it is used (then the world's yaw is the IMU's, as in
 robot_localization), else roll and pitch from gravity (yaw zero), else those of the first odometry pose.
 A standing start (gyro and accelerometer still over the first window) also gives the gyro bias and a
-velocity known to be zero; a moving start takes the first wheel velocity when there is one.
+velocity known to be zero, and gravity is the mean specific force. A moving start's specific force holds the
+motion's accelerations too: gravity and the velocity then come from the IMU aligned with the odometry poses or
+the wheels (``start_gravity``); the first wheel velocity, when there is one, is taken as measured.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry import gravity_aligned_rotation, so3_exp_one, yaw_of
+from .start_gravity import gravity_from_motion
 from .timeline import Prepared
 
 GYRO_STILL_RADPS = 0.05
@@ -55,6 +58,33 @@ def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | N
     return None
 
 
+def _level(prep: Prepared, t0: int, window_ns: int, gravity_mps2: float, standing: bool, R: np.ndarray,
+           why: list[str]) -> tuple[np.ndarray, np.ndarray | None]:
+    """Roll and pitch from gravity, and the base-frame velocity where that finds it: at a standing start the
+    mean specific force over the window; at a moving start the IMU aligned with the odometry or the wheels
+    (``start_gravity``), which tell gravity from the motion's accelerations; the mean over the window's first
+    fifth only when nothing can, and then said."""
+    found = None
+    if not standing:
+        found = gravity_from_motion(prep, t0, window_ns, gravity_mps2)
+        if found is not None and found.aligned:
+            why.append(f"roll, pitch and velocity aligned with the {found.source} over {found.poses} poses")
+            return gravity_aligned_rotation(found.up_base), found.v_base
+    imu = prep.imu
+    near = (imu.stamps_ns >= t0) & (imu.stamps_ns <= t0 + (window_ns if standing else window_ns // 5))
+    f_mean = prep.imu_f_b[near].mean(axis=0) if near.any() else prep.imu_f_b[0]
+    if np.linalg.norm(f_mean) <= 0.5 * gravity_mps2:
+        return R, None
+    if standing:
+        why.append("roll and pitch from gravity")
+    else:
+        lacks = ("no odometry or wheels cover the start" if found is None else
+                 f"the {found.source} over {found.poses} poses could not tell gravity from acceleration")
+        why.append(f"roll and pitch from the mean specific force over {window_ns // 5 / 1e9:.2f} s, tilted by "
+                   f"whatever the motion accelerated ({lacks})")
+    return gravity_aligned_rotation(f_mean), None
+
+
 def without_yaw(R: np.ndarray) -> np.ndarray:
     return so3_exp_one(np.array([0.0, 0.0, -float(yaw_of(R))])) @ R
 
@@ -63,7 +93,7 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
     t0 = prep.t0_ns
     R = np.eye(3)
     yaw_from, why = "start", []
-    bg, standing = np.zeros(3), False
+    bg, standing, v_base = np.zeros(3), False, None
     imu_use = prep.use.get("imu", set())
     imu = prep.imu
     if imu is not None and prep.imu_R_wb is not None:
@@ -92,15 +122,11 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
             else:
                 why.append(f"moving start (gyro spread {gyro_dev:.3f} rad/s, accel spread {acc_dev:.2f} m/s^2)")
         if yaw_from == "start" and "accel" in imu_use:
-            near = (imu.stamps_ns >= t0) & (imu.stamps_ns <= t0 + (window_ns if standing else window_ns // 5))
-            f_mean = prep.imu_f_b[near].mean(axis=0) if near.any() else prep.imu_f_b[0]
-            if np.linalg.norm(f_mean) > 0.5 * gravity_mps2:
-                R = gravity_aligned_rotation(f_mean)
-                why.append("roll and pitch from gravity")
+            R, v_base = _level(prep, t0, window_ns, gravity_mps2, standing, R, why)
     elif yaw_from == "start" and prep.odom is not None and len(prep.odom):
         R = without_yaw(prep.odom.poses[0, :3, :3])
         why.append("roll and pitch of the first odometry pose")
-    v = np.zeros(3)
+    v = np.zeros(3) if v_base is None else R @ v_base
     v_sigma = STANDING_VELOCITY_SIGMA_MPS if standing else noise.init_velocity_sigma_mps
     if not standing and prep.wheel is not None and len(prep.wheel):
         k = int(np.searchsorted(prep.wheel.stamps_ns, t0))
