@@ -37,12 +37,15 @@ _ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_br
 
 
 class DeskewRegistration(RegistrationConfig):
-    """lio odom's registration settings, but ICP stops after 5 iterations where the IMU prediction can be leant
-    on (``steady_iterations``): faster on drives, and the de-skewed points as accurate or more
-    (benchmarks/bench_deskew.py). A default of this class, so a YAML naming other registration fields keeps it."""
+    """lio odom's registration settings, but ICP stops early where the IMU prediction can be leant on: after 2
+    iterations on scans turning slower than 5 deg/s, after 5 on any once the IMU clock is timed (see
+    ``steady_iterations``): faster on drives, and the de-skewed points as accurate or more
+    (benchmarks/bench_deskew.py). Defaults of this class, so a YAML naming other registration fields keeps them."""
 
     steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[
         "steady_iterations"].description)
+    slow_iterations: Optional[int] = Field(2, gt=0, description=RegistrationConfig.model_fields[
+        "slow_iterations"].description)
 
 
 OdometryPass = create_model(

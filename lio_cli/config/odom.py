@@ -48,9 +48,12 @@ class RegistrationConfig(Strict):
         None, gt=0, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
     convergence: float = Field(1e-4, gt=0)
     steady_iterations: Optional[int] = Field(
-        None, gt=0, description="ICP iterations for IMU-primed scans that turn slower than steady_rate_degps, and for "
-        "all once the IMU clock is timed (None: as max_iterations); lio deskew uses 5")
-    steady_rate_degps: float = Field(5.0, ge=0, description="see steady_iterations")
+        None, gt=0, description="ICP iterations of IMU-primed scans once the online IMU clock estimate is done (None: "
+        "max_iterations); lio deskew uses 5")
+    slow_iterations: Optional[int] = Field(
+        None, gt=0, description="ICP iterations of IMU-primed scans whose IMU turns slower than slow_rate_degps (None: "
+        "as steady_iterations); lio deskew uses 2")
+    slow_rate_degps: float = Field(5.0, ge=0, description="see slow_iterations")
     initial_threshold_m: float = Field(2.0, gt=0, description="adaptive threshold's start (no IMU prior)")
     max_correspondence_m: Optional[float] = Field(
         None, gt=0, description="fixed correspondence distance; default: 0.5 m with an IMU prior, adaptive without")

@@ -56,7 +56,7 @@ class OdomStats:
     wheel_updates: int = 0
     wheel_zero_skipped: int = 0
     lidar_only_scans: int = 0  # registered without the IMU state: start-up window, recoveries, no IMU
-    steady_scans: int = 0  # IMU-primed scans registered with steady_iterations
+    capped_icp_scans: int = 0  # IMU-primed scans registered with steady_ or slow_iterations
     recoveries: int = 0
     time_gaps: int = 0
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
@@ -318,10 +318,10 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         tick = time.perf_counter()
         guess = self._guess(t_prev, t_ref)
         frame, source = self._reg.downsample(points)
-        steady = self._steady(imu)
-        st.steady_scans += int(steady)
+        cap = self._icp_cap(imu)
+        st.capped_icp_scans += int(cap is not None)
         measured = self._reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m,
-                                      steady=steady)
+                                      iterations=cap)
         st.times_s["register"] += time.perf_counter() - tick
         dirs_b = self._degeneracy(points, self.state.R)
         if self.planar:
@@ -353,7 +353,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             reason = reason or self._state_implausible()
             if reason is None:
                 self._g_world = self.state.g.copy()  # the latest gravity of a healthy state
-                if not steady:  # a steady scan's registration leans on the IMU's timing: it cannot time it
+                if cap is None:  # a capped registration leans on the IMU's timing: it cannot time it
                     self._track_clock(t_ref, measured)
         st.times_s["fuse"] += time.perf_counter() - tick
         self._lost = 0

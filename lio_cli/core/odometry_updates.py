@@ -118,19 +118,19 @@ class StateUpdates:
             flatten_planar(self.state)
         return self.state.pose()
 
-    def _steady(self, imu: ImuBatch) -> bool:
-        """May this IMU-primed scan's registration stop after ``steady_iterations``? Yes once the IMU clock is
-        timed (or not tracked), and on a scan whose IMU turns slower than ``steady_rate_degps``: there the
-        prediction is good (a steady drive's ICP only slides along the road's surfaces in its later iterations)
-        and the scan could not time the clock anyway (a turn can; the tracker needs fully converged poses)."""
-        if not self._reg.has_steady:
-            return False
-        if self.clock is None or self.clock.done:
-            return True
-        if not len(imu):
-            return False
-        rate = np.linalg.norm(imu.gyro_radps - self.state.bg, axis=1).max()
-        return bool(rate < np.radians(self.cfg.registration.steady_rate_degps))
+    def _icp_cap(self, imu: ImuBatch) -> int | None:
+        """The ICP iterations of an IMU-primed scan whose prediction can be leant on (None: the full count).
+        ``slow_iterations`` where the IMU turns slower than ``slow_rate_degps`` (the prediction is good there, a
+        drive's ICP only slides along the road's surfaces in its later iterations, and such a scan cannot time
+        the clock anyway); ``steady_iterations`` for any scan once the IMU clock is timed (or not tracked).
+        A turning scan keeps full iterations while the clock tracker needs fully converged poses."""
+        rc = self.cfg.registration
+        if rc.steady_iterations is None and rc.slow_iterations is None:
+            return None
+        slow_cap = rc.slow_iterations or rc.steady_iterations
+        if len(imu) and np.linalg.norm(imu.gyro_radps - self.state.bg, axis=1).max() < np.radians(rc.slow_rate_degps):
+            return slow_cap
+        return rc.steady_iterations if self.clock is None or self.clock.done else None
 
     def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
         if self.clock is None or self.clock.done:

@@ -52,11 +52,8 @@ class ScanRegistration:
         wide.adaptive_threshold.fixed_threshold = None
         wide.registration.max_num_iterations = rc.max_iterations or _KISS_ITERATIONS
         self._wide_registration = get_registration(wide)
-        self._steady_registration = None  # fewer iterations where the IMU prediction can be leant on
-        if rc.steady_iterations is not None and imu_prior:
-            steady = kiss.model_copy(deep=True)
-            steady.registration.max_num_iterations = rc.steady_iterations
-            self._steady_registration = get_registration(steady)
+        self._kiss = kiss
+        self._capped: dict[int, object] = {}  # iterations -> registration (where the IMU prediction is leant on)
         self._adaptive = get_threshold_estimator(wide)
         self.scans = 0  # scans added to the map
 
@@ -70,17 +67,13 @@ class ScanRegistration:
         source = voxel_down_sample(frame, self.voxel_size_m * self.source_factor)
         return frame, source
 
-    @property
-    def has_steady(self) -> bool:
-        return self._steady_registration is not None
-
     def register(self, source: np.ndarray, guess: np.ndarray, adaptive: bool = False,
-                 gate_m: float | None = None, steady: bool = False) -> np.ndarray:
+                 gate_m: float | None = None, iterations: int | None = None) -> np.ndarray:
         """T_world_base that best aligns ``source`` (base frame) to the map, starting from ``guess``.
 
         ``adaptive``: the guess may be coarse, so kiss-icp's full iterations are used, with correspondences
-        gated at ``gate_m`` or, when None, by kiss-icp's adaptive threshold. ``steady``: the guess is an IMU
-        prediction good enough to lean on: ``steady_iterations`` (when configured).
+        gated at ``gate_m`` or, when None, by kiss-icp's adaptive threshold. ``iterations``: at most this many
+        (an IMU prediction good enough to lean on), else the configured maximum.
         """
         if self.map.empty():
             return guess
@@ -88,8 +81,16 @@ class ScanRegistration:
             sigma = self._adaptive.get_threshold() if gate_m is None else gate_m / 3.0
             return self._wide_registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
         sigma = self._threshold.get_threshold()
-        reg = self._steady_registration if steady and self._steady_registration is not None else self._registration
+        reg = self._registration if iterations is None else self._capped_registration(iterations)
         return reg.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
+
+    def _capped_registration(self, iterations: int):
+        reg = self._capped.get(iterations)
+        if reg is None:
+            kiss = self._kiss.model_copy(deep=True)
+            kiss.registration.max_num_iterations = iterations
+            reg = self._capped[iterations] = get_registration(kiss)
+        return reg
 
     def accept(self, correction: np.ndarray | None, frame: np.ndarray, pose: np.ndarray) -> None:
         """Feed the registration's deviation from its guess to the threshold models and add ``frame`` at ``pose``."""

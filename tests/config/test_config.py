@@ -104,20 +104,21 @@ def test_calibrate_takes_the_clock_offset_its_clock_check_suggests_even_between_
         CalibrateConfig(wheel_radius_m=1e10)
 
 
-@pytest.mark.parametrize("text, steady", [
-    ("{}", 5),
-    ("odometry:\n  fusion:\n    degeneracy_every: 4\n", 5),  # was None: the section replaced deskew's default
-    ("odometry:\n  registration:\n    max_range_m: 80\n", 5),
-    ("odometry:\n  registration:\n    steady_iterations: null\n", None),
+@pytest.mark.parametrize("text, caps", [
+    ("{}", (5, 2)),
+    ("odometry:\n  fusion:\n    degeneracy_every: 4\n", (5, 2)),  # was (None, None): the section replaced the default
+    ("odometry:\n  registration:\n    max_range_m: 80\n", (5, 2)),
+    ("odometry:\n  registration:\n    steady_iterations: null\n    slow_iterations: null\n", (None, None)),
 ])
-def test_deskew_keeps_its_steady_iterations_unless_told(tmp_path, text, steady):
+def test_deskew_keeps_its_icp_caps_unless_told(tmp_path, text, caps):
     from lio_cli.config.deskew import DeskewConfig
 
     path = tmp_path / "deskew.yaml"
     path.write_text(text)
     cfg = load_model(DeskewConfig, path)
-    assert cfg.odom_config("imu").registration.steady_iterations == steady
-    assert OdomConfig().registration.steady_iterations is None  # lio odom: full iterations
+    rc = cfg.odom_config("imu").registration
+    assert (rc.steady_iterations, rc.slow_iterations) == caps
+    assert (OdomConfig().registration.steady_iterations, OdomConfig().registration.slow_iterations) == (None, None)
     assert load_model(DeskewConfig, _dumped(tmp_path, cfg)).odometry == cfg.odometry  # the written config repeats it
 
 
