@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
@@ -28,9 +28,9 @@ from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
 from ..io.writer import FILE_SUFFIXES, SUFFIX_FORMATS
 from .deskew_helper import Helper
-from .deskew_motion import Progress, check_covered, resolve_motion, run_odometry, settled_motion, trajectory_motion
+from .deskew_motion import Progress, check_covered, resolve_motion, run_odometry, trajectory_motion
 from .deskew_scan import plan_scans
-from .deskew_write import write_pass
+from .deskew_write import WriteSetup, write_pass
 from .odom_inputs import Mounting
 from .outputs import beside, json_text
 
@@ -126,7 +126,7 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
                 motion.close()
             writing = "after the motion was read"
         else:
-            setup = (job, fmt, plan, source, imu_topic, mounting, T_base_lidar)
+            setup = WriteSetup(job, fmt, plan, source, imu_topic, mounting, T_base_lidar)
             helper = Helper.start() if job.helper else None
             stats, odo, t_motion, mounting, writing = _from_odometry(helper, reader, setup, progress, n_scans)
             description, details = odo.description, odo.details
@@ -161,19 +161,19 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
     return DeskewResult(job.out, fmt, resolved, metrics, notes)
 
 
-def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progress: Progress | None,
+def _from_odometry(helper: Helper | None, reader: LogReader, setup: WriteSetup, progress: Progress | None,
                    n_scans: int) -> tuple:
     """The odometry, and the writing pass over its settled poses: beside it in the helper process when there
     is one, else after it. After it too when the clock offset the odometry measured by its end asks for every
     scan to be written with that offset (see ``PoseFeed``): the helper's files are then discarded."""
-    job, fmt, plan, source, imu_topic, mounting, T_base_lidar = setup
+    job, mounting = setup.job, setup.mounting
     t_motion = time.perf_counter()
     # the odometry's scans, then the writer's (those it has left after the odometry)
     odo_progress = None if progress is None else (lambda done, total: progress(done, 2 * n_scans))
     try:
         if helper is not None:
             helper.send("setup", setup)
-        odo = run_odometry(job.log, job.config, source, odo_progress, reader,
+        odo = run_odometry(job.log, job.config, setup.source, odo_progress, reader,
                            None if helper is None else (lambda batch: helper.send("poses", batch)))
     except BaseException:
         if helper is not None:
@@ -191,14 +191,15 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: tuple, progr
         helper.abort()
         writing += (" (the clock offset it measured by its end differs from what it applied online: every scan "
                     "is written with the final one)")
-    mounting = copy.deepcopy(mounting)  # as the helper's: what the writing resolves comes after the odometry's notes
-    motion = settled_motion(job.log, job.config, source, imu_topic, mounting, T_base_lidar, iter(odo.batches),
-                            odo.final_offset_ns)
+    # as the helper's copy: what the writing resolves comes after the odometry's notes
+    setup = replace(setup, mounting=copy.deepcopy(mounting))
+    motion = setup.motion(iter(odo.batches), odo.final_offset_ns)
     try:
-        stats = write_pass(job, reader, fmt, plan, motion, progress, n_scans, 2 * n_scans, lambda: odo.level)
+        stats = write_pass(job, reader, setup.fmt, setup.plan, motion, progress, n_scans, 2 * n_scans,
+                           lambda: odo.level)
     finally:
         motion.close()
-    return stats, odo, t_motion, mounting, writing
+    return stats, odo, t_motion, setup.mounting, writing
 
 
 __all__ = ["DeskewJob", "DeskewResult", "check_deskew_outputs", "output_format", "run_deskew", "sidecars"]

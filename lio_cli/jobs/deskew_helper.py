@@ -185,13 +185,13 @@ def main() -> None:
 
     try:
         from ..io.reader import open_log
-        from .deskew_motion import settled_motion
         from .deskew_write import write_pass
 
         msg = _receive(inp)
         if msg is None:
             raise _Aborted
-        job, fmt, plan, source, imu_topic, mounting, T_base_lidar = msg[1]
+        setup = msg[1]  # deskew_write.WriteSetup
+        job = setup.job
 
         def batches():
             while True:
@@ -213,16 +213,16 @@ def main() -> None:
 
         def commit(stats: dict) -> None:
             stats["helper_peak_rss_mb"] = _peak_rss_mb()
-            answer(("ready", (stats, mounting)))
+            answer(("ready", (stats, setup.mounting)))
             msg = _receive(inp)
             if msg is None or msg[0] != "commit":
                 raise _Aborted
 
         cfg = job.config
         with open_log(job.log, cfg.input.format) as reader:
-            motion = settled_motion(job.log, cfg, source, imu_topic, mounting, T_base_lidar, batches())
+            motion = setup.motion(batches())
             try:
-                write_pass(job, reader, fmt, plan, motion, progress, 0, None, lambda: level[0],
+                write_pass(job, reader, setup.fmt, setup.plan, motion, progress, 0, None, lambda: level[0],
                            on_temp=lambda path: answer(("temp", str(path))), before_commit=commit)
             finally:
                 motion.close()

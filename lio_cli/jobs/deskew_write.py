@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,8 +19,27 @@ from ..io.files import check_writable, remove_path, replace_path, temp_sibling
 from ..io.map_files import point_map_bytes
 from ..io.reader import LogReader
 from ..io.writer import LogWriter
-from .deskew_motion import Motion, Progress, RecordFeed
+from .deskew_motion import Motion, Progress, RecordFeed, settled_motion
 from .deskew_scan import ScanPlan, ScanWriter
+
+
+@dataclass(frozen=True)
+class WriteSetup:
+    """A run from the odometry's poses, as resolved before the odometry starts: what the writing pass needs
+    besides the poses (the helper process gets it first, pickled)."""
+
+    job: object  # DeskewJob
+    fmt: str  # output format
+    plan: ScanPlan
+    source: str  # "imu" or "constant-velocity"
+    imu_topic: str | None
+    mounting: object  # odom_inputs.Mounting (the writer resolves the IMU's extrinsic through it)
+    T_base_lidar: np.ndarray
+
+    def motion(self, batches, final_offset_ns: int | None = None):
+        """``settled_motion`` over the odometry's pose ``batches``."""
+        return settled_motion(self.job.log, self.job.config, self.source, self.imu_topic, self.mounting,
+                              self.T_base_lidar, batches, final_offset_ns)
 
 
 def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion, progress: Progress | None,
