@@ -47,7 +47,10 @@ def test_an_asked_input_format_is_kept(logs, tmp_path, capsys):
     assert config(cfg)["input"]["format"] == "ros1"
     capsys.readouterr()
     assert main(["odom", str(logs["mcap"]), "-o", str(tmp_path / "m.tum"), "--config", str(cfg), "-q"]) == 2
-    assert "ros1" in capsys.readouterr().err
+    assert capsys.readouterr().err == (
+        f"lio: error: {logs['mcap']}: is an MCAP file, not a ROS 1 bag as asked (--format, --input-format or "
+        "input.format in --config; a .config.yaml written before this release pins the format it found: make it "
+        "null)\n")
 
 
 def test_deskew_config_reused_for_another_out_and_another_log(logs, tmp_path):

@@ -122,10 +122,16 @@ def test_format_override(logs, tmp_path):
     assert fmt_read == "mcap" and len(msgs) == 29 and topics["/imu"].count == 20
     with pytest.raises(InputError, match=r"unknown log format 'ros3' \(choose from ros1, ros2, mcap\)"):
         open_log(bag, "ros3")
-    with pytest.raises(InputError, match="a ROS 2 bag needs its folder with metadata.yaml"):
-        open_log(bag, "ros2")
-    with pytest.raises(InputError, match="cannot open as MCAP"):
-        open_log(bag, "mcap")
+    # a format the content contradicts: said so (it read "cannot open as MCAP ... truncated or corrupted")
+    asked = ("as asked (--format, --input-format or input.format in --config; a .config.yaml written before this "
+             "release pins the format it found: make it null)")
+    for fmt, name in (("ros2", "a ROS 2 bag"), ("mcap", "an MCAP file")):
+        with pytest.raises(InputError) as err:
+            open_log(bag, fmt)
+        assert str(err.value) == f"{bag}: is a ROS 1 bag, not {name} {asked}"
+    with pytest.raises(InputError) as err:
+        open_log(ros2, "ros1")
+    assert str(err.value) == f"{ros2}: is a ROS 2 bag, not a ROS 1 bag {asked}"
 
 
 def test_detect_format_rejects_what_is_not_a_log(tmp_path):
