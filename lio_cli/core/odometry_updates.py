@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import inv_pose
+from ..model.records import ImuBatch
 from .filter import (complementary_update, complementary_velocity_update, ekf_body_velocity_update, ekf_pose_update,
                      pose_innovation_nis, position_noise)
-from ..model.records import ImuBatch
 from .imu import NavState, flatten_planar, propagate
 from .motion_compensation import constant_velocity_knots
 from .pose_checks import exceeds_jump, scale_delta, untouched
