@@ -25,7 +25,7 @@ from .kalman import Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DP, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
+    CP_, CR_, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
     initial_estimate, on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
@@ -172,7 +172,10 @@ class Ekf3d:
         S = H.dot(PHt).tolist()
         for k in range(len(comps)):
             S[k][k] += var[k]
-        status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity")
+        # a reset (the wheels disagreed gate_max_rejects times in a row) inflates the velocity only: H's attitude
+        # columns ([v_b]x) are the linearisation's lever, not evidence that the attitude is off, and with them
+        # inflated a speed disagreement (a wheel slip) turned the heading by tens of degrees
+        status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity", reset_states=DV)
         self.wheel_rep.outcome("wheel_velocity", status)
 
     def _odom(self, t: int, i: int, x, P) -> None:

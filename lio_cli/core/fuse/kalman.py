@@ -80,13 +80,16 @@ def small_inv(S: np.ndarray) -> np.ndarray:
 
 def kalman_update(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn: np.ndarray,
                   inject: Callable[[np.ndarray, np.ndarray], None], gate: Gate | None, kind: str,
-                  allow_reset: bool = True) -> tuple[np.ndarray, str]:
+                  allow_reset: bool = True, reset_states=None) -> tuple[np.ndarray, str]:
     """Update ``x`` (via ``inject(x, dx)``) and return the new P and ``"ok"``, ``"reset"`` or ``"outlier"``
     (then P is returned unchanged and x untouched).
 
     On a gate reset the filter was overconfident: the covariance of the states the measurement touches is
     scaled up (``D P D`` with D = sqrt(d2/m) on those states, which keeps P positive definite) until the
-    innovation is typical, so the reset measurement actually pulls the state back.
+    innovation is typical, so the reset measurement actually pulls the state back. ``reset_states`` (an index
+    or slice of the error state) narrows that to the states the measurement is evidence about, where H also
+    touches others only through the linearisation (a body velocity's ``[v_b]x`` on the attitude: inflating the
+    attitude lets a speed disagreement turn the heading).
     """
     PHt = P @ H.T
     S = H @ PHt + Rn
@@ -103,7 +106,7 @@ def kalman_update(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn
         if reset:
             status = "reset"
             scale = np.ones(len(P))
-            scale[np.any(H != 0.0, axis=0)] = np.sqrt(max(1.0, d2 / len(r)))
+            scale[np.any(H != 0.0, axis=0) if reset_states is None else reset_states] = np.sqrt(max(1.0, d2 / len(r)))
             P = P * np.outer(scale, scale)
             PHt = P @ H.T
             Sinv = np.linalg.inv(H @ PHt + Rn)

@@ -1,7 +1,8 @@
 """The Kalman update of the 3D filter's hot loop (``kalman.kalman_update`` in place on one covariance buffer),
 for measurements whose model already has ``P H^T`` and ``S`` at hand: the 3-row ones (the IMU's orientation,
 the wheels' body velocity) with the inverse and the gate's distance unrolled on Python floats, the others
-through ``inverse_small``. The tests compare it with ``kalman_update``: equal up to rounding.
+through ``inverse_small``. The tests compare it with ``kalman_update``: equal up to rounding (gate resets,
+with or without ``reset_states``, included).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
 class Updater:
     """``kalman.kalman_update`` in place on one covariance buffer, given what the measurement model already
     has at hand: ``PHt = P H^T`` (may be a view of P) and ``S = H P H^T + Rn`` as nested lists. ``H`` and
-    ``Rn`` are only read on a gate reset."""
+    ``Rn`` are only read on a gate reset, which inflates the states ``reset_states`` (an index or slice of the
+    error state; default: every state H touches, see ``kalman.kalman_update``)."""
 
     def __init__(self, gate: Gate | None, inject):
         self.gate, self.inject = gate, inject
@@ -43,7 +45,7 @@ class Updater:
         self._Si3 = self._Si[3].reshape(-1)  # the 3x3 one's flat view (a flat list goes in faster)
 
     def __call__(self, x: np.ndarray, P: np.ndarray, r: list[float], PHt: np.ndarray, S: list[list[float]],
-                 H: np.ndarray, Rn, kind: str, allow_reset: bool = True) -> str:
+                 H: np.ndarray, Rn, kind: str, allow_reset: bool = True, reset_states=None) -> str:
         m = len(r)
         if m == 3:  # the usual measurement (orientation, body velocity): inverse_small and r^T Si r unrolled
             (a, b, c), (d, e, f), (g, h, i) = S
@@ -65,7 +67,7 @@ class Updater:
                 return "outlier"
             if not reset:
                 return self._apply(x, P, r, PHt, Si, 3, "ok")
-            return self._reset(x, P, r, H, Rn, d2)
+            return self._reset(x, P, r, H, Rn, d2, reset_states)
         Si = inverse_small(S)
         if Si is None:
             return "outlier"
@@ -82,15 +84,15 @@ class Updater:
             return "outlier"
         if not reset:
             return self._apply(x, P, r, PHt, Si, m, "ok")
-        return self._reset(x, P, r, H, Rn, d2)
+        return self._reset(x, P, r, H, Rn, d2, reset_states)
 
-    def _reset(self, x, P: np.ndarray, r: list[float], H: np.ndarray, Rn, d2: float) -> str:
-        """As kalman_update on a gate reset: inflate the touched states' covariance until the innovation is
-        typical, then update."""
+    def _reset(self, x, P: np.ndarray, r: list[float], H: np.ndarray, Rn, d2: float, reset_states=None) -> str:
+        """As kalman_update on a gate reset: inflate the covariance of ``reset_states`` (default: the states
+        H touches) until the innovation is typical, then update."""
         m = len(r)
         Rn = Rn if isinstance(Rn, np.ndarray) else np.diag(Rn)
         scale = np.ones(len(P))
-        scale[np.any(H != 0.0, axis=0)] = np.sqrt(max(1.0, d2 / m))
+        scale[np.any(H != 0.0, axis=0) if reset_states is None else reset_states] = np.sqrt(max(1.0, d2 / m))
         P *= np.outer(scale, scale)
         PHt = P @ H.T
         return self._apply(x, P, r, PHt, np.linalg.inv(H @ PHt + Rn), m, "reset")
