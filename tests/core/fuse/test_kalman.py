@@ -98,3 +98,16 @@ def test_knot_log_takes_states_as_lists_of_floats_alike():
     for key in ("x_pred", "x_filt"):
         assert out[1][key].dtype == np.float64 and np.array_equal(out[1][key], out[0][key])
     np.testing.assert_array_equal(out[1]["x_filt"], states[:, 1])
+
+
+def test_a_reset_inflates_only_the_reset_states_when_given():
+    """A measurement of state 1 whose H also reaches state 0 through a linearisation lever (a body velocity on
+    the attitude): with ``reset_states`` the reset inflates state 1 only, and state 0 keeps its variance."""
+    P = np.array([[0.01, 0.005], [0.005, 0.01]])
+    H, Rn, r = np.array([[0.5, 1.0]]), np.array([[0.01]]), np.array([3.0])
+    wide = kalman_update(np.zeros(2), P, r, H, Rn, add, Gate(1e-4, 0), "v")
+    narrow = kalman_update(np.zeros(2), P, r, H, Rn, add, Gate(1e-4, 0), "v", reset_states=[1])
+    assert wide[1] == narrow[1] == "reset"
+    assert wide[0][0, 0] > 10 * P[0, 0]  # H's lever column inflated with the rest
+    assert narrow[0][0, 0] <= P[0, 0]
+

@@ -9,7 +9,7 @@ import pytest
 from lio_cli.core.fuse import measure3d as m3
 from lio_cli.core.fuse import step3d
 from lio_cli.core.fuse.kalman import Gate, kalman_update
-from lio_cli.core.fuse.state3d import Layout, boxplus, ins_step, new_state
+from lio_cli.core.fuse.state3d import DV, Layout, boxplus, ins_step, new_state
 from lio_cli.core.fuse.update3d import Updater
 from lio_cli.geometry import so3_exp
 
@@ -66,6 +66,15 @@ def test_updater_equals_kalman_update_and_gates_alike():
         Pa, sa = kalman_update(xa, P.copy(), r, H, Rn, inject, Gate(0.999, 2), "k")
         PHt = Pb @ H.T
         sb = Updater(Gate(0.999, 2), inject)(xb, Pb, r.tolist(), PHt, (H @ PHt + Rn).tolist(), H, Rn, "k")
+        assert sa == sb
+        np.testing.assert_allclose(Pb, Pa, rtol=1e-10, atol=1e-15)
+        np.testing.assert_allclose(xb, xa, rtol=1e-10, atol=1e-13)
+        # a reset of the velocity only (the wheels' body velocity): the same too
+        xa, xb, Pb = x.copy(), x.copy(), P.copy()
+        Pa, sa = kalman_update(xa, P.copy(), r, H, Rn, inject, Gate(0.999, 0), "k", reset_states=DV)
+        PHt = Pb @ H.T
+        sb = Updater(Gate(0.999, 0), inject)(xb, Pb, r.tolist(), PHt, (H @ PHt + Rn).tolist(), H, Rn, "k",
+                                             reset_states=DV)
         assert sa == sb
         np.testing.assert_allclose(Pb, Pa, rtol=1e-10, atol=1e-15)
         np.testing.assert_allclose(xb, xa, rtol=1e-10, atol=1e-13)
