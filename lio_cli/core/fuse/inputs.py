@@ -153,7 +153,8 @@ class FuseOptions:
     ``gate_probability``: a measurement whose Mahalanobis distance exceeds the chi-square quantile of
     ``1 - gate_probability`` is rejected as an outlier (``0`` disables the gate); after
     ``gate_max_rejects`` rejections in a row of one measurement kind the next one is accepted with the
-    covariance of the states it touches inflated (the filter, not the sensor, is assumed wrong) and
+    covariance of the states it touches inflated (the filter, not the sensor, is assumed wrong; a wheel body
+    velocity inflates the velocity only, never the attitude its Jacobian reaches through ``[v_b]x``) and
     counted as ``gate_reset`` -- except a wheel yaw rate that disagrees with the gyro, never forced in.
     ``gap_periods``: a pause longer than this many median sample periods of a source is a gap; it is
     bridged in one step of the constant-velocity model, never integrated sample by sample.
