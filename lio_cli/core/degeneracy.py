@@ -28,7 +28,10 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
     cKDTree = ckdtree_class()  # here, not at import: scipy is a tenth of a second of start-up
 
-    _, nn = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(pts[::step], k=k)
+    # built for a few hundred queries: leaves of 64 points build faster than the default 16 and lose less in
+    # the queries (2.0 -> 1.4 ms per 16-beam scan; the neighbours are exact whatever the leaf size)
+    tree = cKDTree(pts, leafsize=64, balanced_tree=False, compact_nodes=False)
+    _, nn = tree.query(pts[::step], k=k)
     w, v = np.linalg.eigh(scatter_matrices(pts[nn.T]))
     normals = v[:, :, 0]  # smallest eigenvalue's vector
     # only neighbourhoods that are surfaces (not lines or blobs) carry a reliable normal
