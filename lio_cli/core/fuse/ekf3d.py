@@ -21,7 +21,7 @@ from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
 from .inputs import FuseOptions
-from .kalman import Gate, KnotLog
+from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
@@ -85,6 +85,7 @@ class Ekf3d:
         self.gps_offset: np.ndarray | None = None
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
+        self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
         self.ii = -1  # index of the last IMU sample at or before the current time
 
     def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
@@ -144,6 +145,7 @@ class Ekf3d:
         PHt = P.dot(H.T)
         status = self.update(x, P, r.tolist(), PHt, (H.dot(PHt) + Rn).tolist(), H, Rn, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
+        self.anchor.accepted(source, t, status)
 
     def _open(self, t: int, x, P) -> None:
         if self.log.open(t, x, P, self.Phi if self.smooth else None) and self.smooth:
@@ -174,8 +176,10 @@ class Ekf3d:
             S[k][k] += var[k]
         # a reset (the wheels disagreed gate_max_rejects times in a row) inflates the velocity only: H's attitude
         # columns ([v_b]x) are the linearisation's lever, not evidence that the attitude is off, and with them
-        # inflated a speed disagreement (a wheel slip) turned the heading by tens of degrees
-        status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity", reset_states=DV)
+        # inflated a speed disagreement (a wheel slip) turned the heading by tens of degrees. No reset at all while
+        # odometry poses or GPS are being accepted (kalman.Anchor): the filter is anchored, the wheels disagree
+        status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity", allow_reset=self.anchor.allows_reset(t),
+                             reset_states=DV)
         self.wheel_rep.outcome("wheel_velocity", status)
 
     def _odom(self, t: int, i: int, x, P) -> None:

@@ -155,7 +155,8 @@ class FuseOptions:
     ``gate_max_rejects`` rejections in a row of one measurement kind the next one is accepted with the
     covariance of the states it touches inflated (the filter, not the sensor, is assumed wrong; a wheel body
     velocity inflates the velocity only, never the attitude its Jacobian reaches through ``[v_b]x``) and
-    counted as ``gate_reset`` -- except a wheel yaw rate that disagrees with the gyro, never forced in.
+    counted as ``gate_reset`` -- except a wheel yaw rate that disagrees with the gyro, never forced in, and a
+    wheel speed while odometry poses or GPS are being accepted (``kalman.Anchor``: deferred until they lapse).
     ``gap_periods``: a pause longer than this many median sample periods of a source is a gap; it is
     bridged in one step of the constant-velocity model, never integrated sample by sample.
     ``snap_ns``: a wheel message stamped at most this far from an IMU sample is applied at that sample (one

@@ -52,6 +52,31 @@ class Gate:
         return False, False
 
 
+class Anchor:
+    """Whether a pose source (odometry poses or increments, GPS) is being accepted: an update of one that
+    passed the gate at t anchors the filter until t + twice that source's median period. While anchored, a
+    streak of rejected wheel speeds is the wheels disagreeing (a slip), not the filter being off: their gate
+    reset is deferred (the streak goes on, and the first rejection after the anchor lapses is forced in)."""
+
+    def __init__(self, periods_ns: dict[str, int], t0_ns: int):
+        self.window = {src: 2 * p for src, p in periods_ns.items() if p > 0}
+        self.until = t0_ns - 1
+
+    @classmethod
+    def of(cls, prep) -> Anchor:
+        """The pose sources of a ``timeline.Prepared``."""
+        periods = {src: int(np.median(np.diff(s.stamps_ns))) for src, s in (("odom", prep.odom), ("gps", prep.gps))
+                   if s is not None and len(s.stamps_ns) > 1}
+        return cls(periods, prep.t0_ns)
+
+    def accepted(self, source: str, t_ns: int, status: str) -> None:
+        if status == "ok" and source in self.window:
+            self.until = max(self.until, t_ns + self.window[source])
+
+    def allows_reset(self, t_ns: int) -> bool:
+        return t_ns > self.until
+
+
 def small_inv(S: np.ndarray) -> np.ndarray:
     """Inverse of a small matrix: closed form up to 3x3 (numpy's per-call overhead dominates a filter step
     there), numpy beyond. Raises LinAlgError when singular."""

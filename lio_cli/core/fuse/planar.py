@@ -17,7 +17,7 @@ import numpy as np
 from ...geometry import inv_pose, yaw_of
 from .initial import Start, initial_state
 from .inputs import FuseOptions
-from .kalman import Gate, KnotLog, kalman_update
+from .kalman import Anchor, Gate, KnotLog, kalman_update
 from .result import FuseResult, anchor_to_origin
 from .sanitize import median_period_ns
 from .smoother import rts_smooth
@@ -53,6 +53,7 @@ class PlanarEkf:
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
         self.pending_clone = False
+        self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -120,6 +121,7 @@ class PlanarEkf:
         self._open(t, x, P)
         P, status = kalman_update(x, P, r, H, Rn, self.boxplus, self.gate, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
+        self.anchor.accepted(source, t, status)
         return P
 
     def _row(self, cols: dict[int, float]) -> np.ndarray:
@@ -145,7 +147,8 @@ class PlanarEkf:
         w, use = self.prep.wheel, self.prep.use["wheel"]
         if ({"speed", "velocity"} & use) and np.isfinite(w.velocity_mps[i, 0]):
             P = self._update(t, x, P, np.array([w.velocity_mps[i, 0] - x[V]]), self._row({V: 1.0}),
-                             np.array([[w.velocity_var[i, 0]]]), "wheel", "wheel_speed")
+                             np.array([[w.velocity_var[i, 0]]]), "wheel", "wheel_speed",
+                             allow_reset=self.anchor.allows_reset(t))
         if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
             P = self._update(t, x, P, np.array([w.yaw_rate_radps[i] - x[W]]), self._row({W: 1.0}),
                              np.array([[w.yaw_rate_var[i]]]), "wheel", "wheel_yaw_rate", allow_reset=not self.use_gyro)

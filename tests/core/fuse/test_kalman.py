@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lio_cli.core.fuse.kalman import Gate, KnotLog, chi2_thresholds, kalman_update, small_inv
+from lio_cli.core.fuse.kalman import Anchor, Gate, KnotLog, chi2_thresholds, kalman_update, small_inv
 
 TOL = 1e-12
 
@@ -111,3 +111,19 @@ def test_a_reset_inflates_only_the_reset_states_when_given():
     assert wide[0][0, 0] > 10 * P[0, 0]  # H's lever column inflated with the rest
     assert narrow[0][0, 0] <= P[0, 0]
 
+
+
+def test_an_accepted_pose_source_defers_the_reset_for_two_of_its_periods():
+    a = Anchor({"odom": 100, "gps": 1000}, t0_ns=0)
+    assert a.allows_reset(0)
+    a.accepted("wheel", 10, "ok")  # not a pose source
+    a.accepted("odom", 10, "outlier")  # rejected: no anchor
+    assert a.allows_reset(11)
+    a.accepted("odom", 10, "ok")
+    assert not a.allows_reset(210) and a.allows_reset(211)
+    a.accepted("gps", 20, "ok")
+    a.accepted("odom", 30, "ok")  # a shorter window does not cut a longer one
+    assert not a.allows_reset(2020) and a.allows_reset(2021)
+    gate = Gate(1e-4, 2)  # the deferred streak: forced in at the first rejection after the anchor lapses
+    assert [gate.check("v", 1e6, 1, allow_reset=a.allows_reset(t)) for t in (100, 200, 300, 2100)] == [
+        (False, False)] * 3 + [(True, True)]
