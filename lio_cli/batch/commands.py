@@ -22,7 +22,7 @@ from ..config.odom import OdomConfig
 from ..errors import ConfigError, InputError
 from ..evaluation.scoring import score
 from ..io.detect import detect_format
-from ..io.sources import load_trajectory
+from ..io.sources import load_ground_truth
 from ..io.writer import FILE_SUFFIXES
 from ..model.trajectory import Trajectory
 from .manifest import RunSpec
@@ -61,10 +61,10 @@ def _deskew_out(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
     return folder / f"{STEMS['deskew']}{suffix}"
 
 
-def score_trajectory(log: Path, gt: str, est: Trajectory) -> dict:
-    """ATE/RPE of ``est`` against ``gt`` (a file, or a topic of the log), as ``lio odom --gt`` scores."""
-    spec = f"{log}:{gt}" if gt.startswith("/") and not Path(gt).exists() else gt
-    ref = load_trajectory(spec)
+def score_trajectory(log: Path, gt: str, est: Trajectory, ref: Trajectory | None = None) -> dict:
+    """ATE/RPE of ``est`` against ``gt`` (a file, or a topic of the log; ``ref``: it already read), as
+    ``lio odom --gt`` scores."""
+    ref = load_ground_truth(log, gt) if ref is None else ref
     return score(Trajectory(ref.stamps_ns, ref.poses, gt), Trajectory(est.stamps_ns, est.poses, "estimate")).to_dict()
 
 
@@ -92,9 +92,10 @@ def run_command(command: str, log: Path, config: BaseModel, gt: str | None, fold
         from ..jobs.fuse import FuseJob, run_fuse
         from ..jobs.fuse_outputs import write_fuse
 
+        ref = load_ground_truth(log, gt) if gt is not None else None  # bad input before the run, not after
         run = run_fuse(FuseJob(log, config))
-        if gt is not None:
-            run.metrics["accuracy"] = score_trajectory(log, gt, run.trajectory)
+        if ref is not None:
+            run.metrics["accuracy"] = score_trajectory(log, gt, run.trajectory, ref)
         write_fuse(run, folder / f"{STEMS['fuse']}.tum", False)
         return run.metrics
     if command == "calibrate":

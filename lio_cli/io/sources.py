@@ -92,6 +92,31 @@ def load_trajectory(
     )
 
 
+def load_ground_truth(log: str | Path, gt: str) -> Trajectory:
+    """A run's ground truth as ``lio odom --gt`` takes it: a file, or a topic of ``log`` (``/name`` that is no
+    file). An absolute path into an existing folder that is neither a file nor a topic of the log is reported
+    as the missing file it most likely is, not as a missing topic."""
+    if not gt.startswith("/") or Path(gt).exists():
+        return load_trajectory(gt)
+    try:
+        return load_trajectory(f"{log}:{gt}")
+    except InputError as err:
+        parent = Path(gt).parent
+        if parent == Path("/") or not parent.is_dir() or _has_topic(Path(log), gt):
+            raise
+        raise InputError(f"{gt}: no such file, nor a topic of {log}") from err
+
+
+def _has_topic(log: Path, topic: str) -> bool:
+    from .reader import open_log
+
+    try:
+        with open_log(log) as reader:
+            return topic in reader.topics
+    except InputError:
+        return False
+
+
 def read_log_trajectory(path: Path, topic_spec: str | None, required_kind: str = "gt",
                         origin: EnuFrame | None = None) -> Trajectory:
     """Poses of one topic of a log (Odometry, PoseStamped, TransformStamped), a TF chain ``tf:a.b``, or the

@@ -23,7 +23,7 @@ from ..errors import InputError, ProcessingError
 from ..evaluation.scoring import Score, score
 from ..io.pointcloud import parse_time_convention
 from ..io.reader import LogReader, open_log
-from ..io.sources import load_trajectory
+from ..io.sources import load_ground_truth
 from ..io.stream import SensorStream
 from ..io.tf import read_static_frames
 from ..model.records import ImuBatch, PointCloud
@@ -85,11 +85,11 @@ def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader |
     """Run odometry over ``job.log``; score against ``job.gt`` when given. ``reader``: ``job.log`` already
     open (a caller that reads the log again afterwards saves opening it twice; it stays open). ``settled``:
     called with each scan's ``SettledPose`` as soon as it is final (in order, every pose once)."""
+    # the ground truth first: a bad one is bad input before the run, not after it (its trajectory then lost)
+    ref = load_ground_truth(job.log, job.gt) if job.gt is not None else None
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
         result = _OdomRun(log, job.config, progress, settled).run()
-    if job.gt is not None:
-        spec = f"{job.log}:{job.gt}" if job.gt.startswith("/") and not Path(job.gt).exists() else job.gt
-        ref = load_trajectory(spec)
+    if ref is not None:
         result.score = score(Trajectory(ref.stamps_ns, ref.poses, job.gt), Trajectory(
             result.trajectory.stamps_ns, result.trajectory.poses, "odom"))
         result.metrics["accuracy"] = result.score.to_dict()

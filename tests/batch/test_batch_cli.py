@@ -273,9 +273,9 @@ runs:
     assert runs["truncated"]["reason"].startswith(f"{bad}: cannot open as ros1 log (")
     assert runs["gone"]["reason"] == (f"{gone}: no such file or folder on {host} (lio batch reads logs and writes "
                                       "results by path: they must be on storage every worker shares)")
-    # as lio odom --gt: an absolute path that is no file is taken for a topic of the log
-    assert runs["walk_b"]["reason"] == (f"{sim.logs['walk_b']}: topic {tmp_path / 'no_such_gt.tum'} not found; "
-                                        "ground-truth topics here: /ground_truth")
+    # as lio odom --gt: an absolute path that is no file is tried as a topic of the log; in an existing folder
+    # and no topic either, it is the missing file it most likely is
+    assert runs["walk_b"]["reason"] == f"{tmp_path / 'no_such_gt.tum'}: no such file, nor a topic of {sim.logs['walk_b']}"
     for name in ("truncated", "gone", "walk_b"):
         assert runs[name]["folder"] is None and runs[name]["metrics"]["ate_m"] is None
     # the finished run is complete and as the single command's; a failed run leaves no folder, even half-written

@@ -216,3 +216,24 @@ def test_existing_output_is_kept_without_force(base_log, tmp_path, capsys):
     assert main(["odom", str(base_log), "-o", str(out), "-q"]) == 2
     assert capsys.readouterr().err.strip() == f"lio: error: {out}: already exists; pass --force to overwrite it"
     assert out.read_text() == "precious\n"
+
+
+@pytest.mark.parametrize("gt", ["/nope", "{tmp}/missing.gt.tum", "{tmp}/bad.gt.tum"])
+def test_bad_ground_truth_is_refused_before_the_odometry_runs(base_log, tmp_path, capsys, monkeypatch, gt):
+    """A missing topic or file, or an unreadable file, after a long run lost the whole run's trajectory."""
+    from lio_cli.jobs import odom as odom_job
+
+    (tmp_path / "bad.gt.tum").write_text("1.0 2.0 3.0\n")
+    monkeypatch.setattr(odom_job._OdomRun, "run", lambda self: pytest.fail("odometry ran before the gt was read"))
+    gt = gt.format(tmp=tmp_path)
+    rc = main(["odom", str(base_log), "-o", str(tmp_path / "x.tum"), "-q", "--gt", gt])
+    assert rc == 2
+    err = capsys.readouterr().err.strip()
+    assert err == {
+        "/nope": f"lio: error: {base_log}: topic /nope not found; ground-truth topics here: /ground_truth",
+        # an absolute path into a folder that exists is a missing file, not a missing topic
+        f"{tmp_path}/missing.gt.tum": f"lio: error: {tmp_path}/missing.gt.tum: no such file, nor a topic of {base_log}",
+        f"{tmp_path}/bad.gt.tum": f"lio: error: {tmp_path}/bad.gt.tum: first line has 3 values; expected 8 (TUM: "
+                                  "stamp tx ty tz qx qy qz qw) or 12 (KITTI 3x4 pose)",
+    }[gt]
+    assert not (tmp_path / "x.tum").exists()
