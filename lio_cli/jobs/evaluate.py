@@ -16,6 +16,9 @@ from ..errors import ConfigError, InputError
 from ..evaluation import EvalOptions, EvalResult, Trajectory, evaluate
 
 FAR_ORIGIN_M = 20_000.0  # GPS fixes farther than this from the ENU origin get a warning
+# se3/sim3 on reference positions whose spread across their main direction is below this fraction of the spread
+# along it (a straight drive, a corridor) get a warning: the rotation about that line is barely determined
+LINE_LIKE_RATIO = 0.05
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,26 @@ def run_evaluate(job: EvaluateJob) -> EvaluateResult:
                     f"{t.name}: fixes lie up to {t.gps.farthest_m / 1e3:.0f} km from the ENU origin, whose axes "
                     f"tilt by {np.rad2deg(t.gps.farthest_m / 6.371e6):.2g} deg there; is --origin right?")
     for r in results:
+        line = _line_like(r)
+        if line is not None:
+            across, along = line
+            ape_rot = r.stats["ape"]["rot"]["rmse"]
+            seen = f" (APE rotation {ape_rot:.3g} deg here)" if ape_rot is not None else ""
+            out.warnings.append(
+                f"{r.name}: --align {r.options.align}: the reference positions it fits lie nearly on a line "
+                f"({across:.3g} m across it against {along:.3g} m along, std): the rotation about that line is "
+                f"barely determined and can add rotation error the estimate does not have{seen}; "
+                f"--align posyaw fits the yaw only")
         if r.offset is not None and r.offset.note:
             out.warnings.append(f"{r.name}: --estimate-offset: {r.offset.note}")
     return out
+
+
+def _line_like(r: EvalResult) -> tuple[float, float] | None:
+    """(std across, std along) of the reference positions an se3/sim3 alignment fitted when they lie nearly on
+    a line (Umeyama then picks the rotation about it from the estimate's errors), else None."""
+    if r.options.align not in ("se3", "sim3") or r.alignment.n_used < 3:
+        return None
+    p = r.association.ref.poses[: r.alignment.n_used, :3, 3]
+    sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False) / np.sqrt(len(p))
+    return (float(sv[1]), float(sv[0])) if sv[1] < LINE_LIKE_RATIO * sv[0] else None

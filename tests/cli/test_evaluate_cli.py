@@ -267,3 +267,27 @@ def test_plot_dash_is_no_stdout(capsys, three, tmp_path, monkeypatch):
     assert err.strip() == ("lio: error: --plot writes PNG files and metrics.json into a folder, not standard output: "
                            "give --plot a path")
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+def test_se3_on_a_nearly_straight_reference_warns_that_its_roll_is_a_guess(capsys, tmp_path):
+    """A straight drive: Umeyama turns the estimate about the line to absorb its small vertical error, and the
+    APE rotation then reports 0.74 deg that the estimate (rotations exact) does not have."""
+    x = np.arange(0, 40.0, 0.1)
+    stamps = np.arange(len(x)) * (S // 10)
+    ref = [make_pose(t=[v, 0.1 * np.sin(v), 0.0]) for v in x]
+    est = [make_pose(t=[v, 0.1 * np.sin(v), 0.03 * np.sin(0.5 * v)]) for v in x]
+    gt, es = _write(tmp_path / "gt.tum", stamps, ref), _write(tmp_path / "est.tum", stamps, est)
+    code, out, err = _run(capsys, gt, es, "--json")
+    assert code == 0
+    assert json.loads(out)["estimates"][0]["ape"]["rot"]["rmse"] == pytest.approx(0.7407, abs=1e-4)
+    assert [line for line in err.splitlines() if "warning" in line] == [
+        f"lio: warning: {es}: --align se3: the reference positions it fits lie nearly on a line (0.071 m across it "
+        "against 11.5 m along, std): the rotation about that line is barely determined and can add rotation error "
+        "the estimate does not have (APE rotation 0.741 deg here); --align posyaw fits the yaw only"]
+    code, out, err = _run(capsys, gt, es, "--json", "--align", "posyaw")
+    assert code == 0 and "warning" not in err and json.loads(out)["estimates"][0]["ape"]["rot"]["rmse"] == 0.0
+    # a curve fixes every rotation: no warning
+    ref = [make_pose(t=[10 * np.cos(v / 10), 10 * np.sin(v / 10), 0.0]) for v in x]
+    gt = _write(tmp_path / "gt.tum", stamps, ref)
+    code, out, err = _run(capsys, gt, gt, "--json")
+    assert code == 0 and "warning" not in err
