@@ -101,17 +101,21 @@ def explain_no_match(ref: Trajectory, est: Trajectory, max_diff_ns: int, offset_
         f"within --t-max-diff {max_diff_ns / 1e9:g} s (offset {offset_ns / 1e9:g} s)"
     )
     r0, e0 = abs(float(ref.stamps_ns[-1])), abs(float(est.stamps_ns[-1]))
+    # a unit mix-up scales the stamps and the span alike: epoch stamps against stamps from 0 (KITTI times.txt, a
+    # relative clock) differ as much in their ends, but not in their spans
+    r_span, e_span = float(ref.stamps_ns[-1] - ref.stamps_ns[0]), float(est.stamps_ns[-1] - est.stamps_ns[0])
+    span_ratio = e_span / r_span if r_span > 0 and e_span > 0 else None
     if r0 > 0 and e0 > 0:
         ratio = e0 / r0
         for factor, unit in ((1e9, "ns"), (1e6, "us"), (1e3, "ms")):
-            if 0.2 * factor < ratio < 5 * factor:
-                return f"{head}: {est.name}'s stamps look like {unit} read as seconds; pass --est-stamp-unit {unit}"
-            if 0.2 / factor < ratio < 5 / factor:
-                return f"{head}: {ref.name}'s stamps look like {unit} read as seconds; pass --gt-stamp-unit {unit}"
+            for f, name, flag in ((factor, est.name, "--est-stamp-unit"), (1 / factor, ref.name, "--gt-stamp-unit")):
+                if 0.2 * f < ratio < 5 * f and (span_ratio is None or 0.2 * f < span_ratio < 5 * f):
+                    return f"{head}: {name}'s stamps look like {unit} read as seconds; pass {flag} {unit}"
     shifted = est.stamps_ns + offset_ns
     if shifted[0] > ref.stamps_ns[-1] or shifted[-1] < ref.stamps_ns[0]:
-        gap = (ref.stamps_ns[0] - est.stamps_ns[0]) / 1e9
-        return f"{head}: the time ranges do not overlap; if the clocks differ by a constant, pass --t-offset {gap:.9g}"
+        gap_ns = int(ref.stamps_ns[0] - est.stamps_ns[0])  # from the integer: an epoch-sized gap keeps its ns
+        gap = f"{'-' if gap_ns < 0 else ''}{abs(gap_ns) // 10**9}.{abs(gap_ns) % 10**9:09d}".rstrip("0").rstrip(".")
+        return f"{head}: the time ranges do not overlap; if the clocks differ by a constant, pass --t-offset {gap}"
     i = np.clip(np.searchsorted(ref.stamps_ns, shifted), 1, len(ref) - 1) if len(ref) > 1 else np.zeros(len(est), int)
     gaps = np.minimum(np.abs(ref.stamps_ns[i] - shifted), np.abs(ref.stamps_ns[np.maximum(i - 1, 0)] - shifted))
     closest = float(gaps.min()) / 1e9

@@ -298,3 +298,16 @@ def test_evaluate_needs_three_matches_for_umeyama():
     ref = _traj([0, S], np.repeat(np.eye(4)[None], 2, axis=0), "gt")
     with pytest.raises(InputError, match=r"only 2 matching poses between gt and est \(need at least 3\)"):
         evaluate(ref, _traj([0, S], np.repeat(np.eye(4)[None], 2, axis=0), "est"))
+
+
+def test_no_match_of_epoch_against_relative_stamps_is_no_unit_mixup():
+    """KITTI times.txt (from 0) against an epoch reference, 6 s each: the ends' ratio (6 / 1.7e9) is that of ns
+    read as seconds, but the spans are equal, so it is no unit mix-up (it said "gt.tum's stamps look like ns read
+    as seconds"); the hint is the offset, to the nanosecond (it said --t-offset 1.7e+09, 0.1 s short)."""
+    poses = np.repeat(np.eye(4)[None], 61, axis=0)
+    ref = _traj(1_700_000_000 * S + 100 * MS + np.arange(61) * 100 * MS, poses, "gt.tum")
+    est = _traj(np.arange(61) * 100 * MS, poses, "k.txt")
+    with pytest.raises(InputError) as err:
+        associate(ref, est)
+    assert str(err.value).endswith(": the time ranges do not overlap; if the clocks differ by a constant, "
+                                   "pass --t-offset 1700000000.1")
