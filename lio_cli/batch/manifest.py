@@ -174,6 +174,11 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
         at = f"{where}: runs[{i}]"
         logs = _logs(entry.log, base, at)
         pattern = entry.name if entry.name is not None else d.name
+        unknown = sorted(set(re.findall(r"\{[^{}]*\}", pattern or "")) - set(_NAME_KEYS))
+        if unknown:  # it was taken literally: a folder 'hh_{nope}'
+            what = "is no placeholder" if len(unknown) == 1 else "are no placeholders"
+            raise ConfigError(f"{at}: name: {', '.join(unknown)} {what} (run names take {{stem}} and {{parent}}, the "
+                              "log's folder name)")
         if pattern is not None and len(logs) > 1 and not any(k in pattern for k in _NAME_KEYS):
             raise ConfigError(f"{at}: name: one name for {len(logs)} logs matched by '{entry.log}'; "
                               "drop the name (each run is named after its log), give a pattern such as "

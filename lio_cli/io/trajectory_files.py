@@ -88,7 +88,13 @@ def _data_lines(text: str) -> tuple[list[int], list[list[str]]]:
     return [n for n, _ in rows], [t for _, t in rows]
 
 
-def _unit_hint(path: Path, lineno: int, text: str, what: str) -> InputError:
+def _unit_hint(path: Path, lineno: int, text: str, what: str, unit: str = "s") -> InputError:
+    if unit != "s":  # read in the unit asked for: a finer one is what the file holds
+        finer = " or ".join(u for u, d in STAMP_UNITS_NS.items() if d > STAMP_UNITS_NS[unit])
+        return InputError(
+            f"{path}:{lineno}: {what} {text} is too large for {unit} (beyond year 2262); the file's stamps look "
+            f"like {finer}: give that unit (--gt-stamp-unit/--est-stamp-unit)"
+        )
     return InputError(
         f"{path}:{lineno}: {what} {text} is too large for seconds (beyond year 2262); the file's stamps look "
         f"like ms, us or ns, and TUM stamps are seconds: write them so (lio evaluate also reads other units with "
@@ -106,7 +112,7 @@ def _stamps_ns(path: Path, numbers: list[int], texts: list[str], unit: str) -> n
             raise InputError(f"{path}:{lineno}: stamp '{text}' is not a number") from err
         ns //= divisor
         if abs(ns) > _INT64_MAX:
-            raise _unit_hint(path, lineno, text, "stamp")
+            raise _unit_hint(path, lineno, text, "stamp", unit)
         out[k] = ns
     return out
 

@@ -90,6 +90,15 @@ def test_one_name_for_a_glob_is_refused(tmp_path):
                               "'{parent}_{stem}', or list the logs one by one")
 
 
+def test_an_unknown_placeholder_in_a_run_name_is_refused(tmp_path):
+    """'{nope}' was taken literally: a run folder named 'x_{nope}'."""
+    (tmp_path / "x.bag").write_bytes(b"")
+    with pytest.raises(ConfigError) as err:
+        _manifest(tmp_path, "runs:\n  - log: x.bag\n    name: '{parent}_{nope}_{Stem}'\n")
+    assert str(err.value) == (f"{tmp_path / 'm.yaml'}: runs[0]: name: {{Stem}}, {{nope}} are no placeholders (run names "
+                              "take {stem} and {parent}, the log's folder name)")
+
+
 def test_logs_of_one_name_in_several_folders_are_named_by_pattern(tmp_path):
     """'seqs/*/data.bag' (one recording per folder, each data.bag): the shorthand could not run it at all, a
     manifest only with every log listed by hand."""

@@ -60,6 +60,12 @@ def test_tum_stamp_units(tmp_path: Path):
                                          r"seconds: write them so \(lio evaluate also reads other units with "
                                          r"--gt-stamp-unit/--est-stamp-unit\)$"):
         read_tum(p)
+    # ns stamps read as us or ms: the unit asked for is named (it said "too large for seconds")
+    for unit, finer in (("us", "ns"), ("ms", "us or ns")):
+        with pytest.raises(InputError) as err:
+            read_tum(p, stamp_unit=unit)
+        assert str(err.value) == (f"{p}:1: stamp 1700000000123456789 is too large for {unit} (beyond year 2262); the "
+                                  f"file's stamps look like {finer}: give that unit (--gt-stamp-unit/--est-stamp-unit)")
     p.write_text("1500 0 0 0 0 0 0 1\n2500.5 1 0 0 0 0 0 1\n")
     np.testing.assert_array_equal(read_tum(p, stamp_unit="ms")[0], [1_500_000_000, 2_500_500_000])
 
