@@ -40,7 +40,10 @@ def resolve_config(spec: RunSpec) -> BaseModel:
         raise ConfigError(f"{spec.where}: gt: {spec.command} writes no trajectory to score; drop gt")
     model = CONFIGS[spec.command]
     # a calibration given to calibrate is the reference it compares with (its --calib), elsewhere the extrinsics
-    cfg = load_config(model, spec.config, spec.calib, "prior" if spec.command == "calibrate" else "calibration")
+    try:
+        cfg = load_config(model, spec.config, spec.calib, "prior" if spec.command == "calibrate" else "calibration")
+    except (ConfigError, InputError) as err:  # a missing or bad file: say which run of which manifest names it
+        raise type(err)(f"{spec.where}: {err}") from err
     return with_overrides(cfg, spec.options, f"{spec.where}: options")
 
 

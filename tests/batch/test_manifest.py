@@ -99,6 +99,16 @@ def test_an_unknown_placeholder_in_a_run_name_is_refused(tmp_path):
                               "take {stem} and {parent}, the log's folder name)")
 
 
+@pytest.mark.parametrize("field, what", [("calib", "calibration"), ("config", "config")])
+def test_a_missing_file_names_the_manifest_and_run(tmp_path, field, what):
+    """It said only "/.../nope.yaml: no such calibration file", without the manifest or the run naming it."""
+    (tmp_path / "x.bag").write_bytes(b"")
+    (spec,) = _manifest(tmp_path, f"runs:\n  - log: x.bag\n    command: odom\n    {field}: nope.yaml\n")
+    with pytest.raises(ConfigError) as err:
+        resolve_config(spec)
+    assert str(err.value) == f"{tmp_path / 'm.yaml'}: runs[0]: {tmp_path / 'nope.yaml'}: no such {what} file"
+
+
 def test_logs_of_one_name_in_several_folders_are_named_by_pattern(tmp_path):
     """'seqs/*/data.bag' (one recording per folder, each data.bag): the shorthand could not run it at all, a
     manifest only with every log listed by hand."""
