@@ -36,16 +36,19 @@ def _run(walk, seconds: float) -> ClockOffsetTracker:
     return tracker
 
 
-def test_a_round_applies_the_offset_and_the_closing_round_finds_nothing_left(walk):
+def test_rounds_apply_the_offset_until_one_finds_nothing_left(walk):
+    """2.5 s rounds: the first applies most of it, the next what it missed, the third finds the clocks agree
+    to under a millisecond, sharply, and ends the rounds (no closing round then)."""
     tracker = _run(walk, 8.0)
     assert tracker.applied_s == pytest.approx(OFFSET_S, abs=5e-4)
-    assert tracker.estimates[0]["applied"] and not tracker.estimates[-1]["applied"]
-    assert len(tracker.estimates) == 2 and tracker.estimates[-1]["final"] and tracker.done
+    assert [e["applied"] for e in tracker.estimates] == [True, True, False]
+    last = tracker.estimates[-1]
+    assert abs(last["offset_s"]) < 1e-3 and last["sigma_s"] <= 1e-3 and "final" not in last and tracker.done
     assert tracker.estimate_s == pytest.approx(OFFSET_S, abs=5e-4)
 
 
 def test_the_closing_round_measures_a_window_too_short_for_an_online_round(walk):
-    tracker = _run(walk, 4.0)  # under the 5 s of a round, over the 2.3 s of the closing one
+    tracker = _run(walk, clock_offset.WINDOW_S - 0.1)  # under a round's 2.5 s, over the closing one's 2.3 s
     assert tracker.applied_s == 0.0
     final = tracker.estimates[-1]
     assert final["final"] is True and final["applied"] is False and len(tracker.estimates) == 1
@@ -59,16 +62,18 @@ def test_too_short_a_window_measures_nothing(walk):
     assert tracker.estimates == [] and tracker.estimate_s == 0.0
 
 
-@pytest.mark.parametrize("offset_ms, sigma_ms, applied", [
-    (4.64, 1.535, True),  # 3 sigma and a millisecond: applied
-    (2.5, 0.75, True),
-    (0.9, 0.2, False),  # under a millisecond: the clocks agree; kept as the residual, not applied
-    (2.5, 2.1, False),  # too loose a round
+@pytest.mark.parametrize("offset_ms, sigma_ms, applied, ends", [
+    (4.64, 1.535, True, False),  # 3 sigma and a millisecond: applied
+    (2.5, 0.75, True, False),
+    (0.9, 0.2, False, True),  # under a millisecond, sharply: the clocks agree; kept as the residual, not applied
+    (2.5, 2.1, False, False),  # too loose a round
+    (2.4, 0.85, False, False),  # under 3 sigma, not agreement either: the rounds go on (they ended on a walk 15 ms off)
 ])
-def test_what_a_round_applies(monkeypatch, walk, offset_ms, sigma_ms, applied):
+def test_what_a_round_applies(monkeypatch, walk, offset_ms, sigma_ms, applied, ends):
     est = SimpleNamespace(imu_time_offset_s=offset_ms * 1e-3, sigma_s=sigma_ms * 1e-3)
     monkeypatch.setattr(clock_offset, "estimate_time_offset", lambda *a, **k: est)
-    tracker = _run(walk, 5.1)
+    tracker = _run(walk, 2 * clock_offset.WINDOW_S + 0.1)  # two rounds, unless the first ends them
     assert tracker.estimates[0]["applied"] is applied
-    assert tracker.applied_s == pytest.approx(offset_ms * 1e-3 if applied else 0.0)
+    assert len(tracker.estimates) == (1 if ends else 2)
+    assert tracker.applied_s == pytest.approx(2 * offset_ms * 1e-3 if applied else 0.0)
     assert tracker.residual_s == pytest.approx(offset_ms * 1e-3 if offset_ms == 0.9 else 0.0)
