@@ -22,7 +22,9 @@ WINDOW_S = 2.5  # registration poses per estimate (each round measures a third t
 # rounds get there sooner; 5 s rounds left -12.4 of a -15 ms offset at the end of a 20 s walk, 2.5 s -13.7)
 MAX_OFFSET_S = 0.1  # larger offsets are a clock mismatch, refused before the run
 APPLY_SIGMA_S = 0.002  # apply only a sharply determined offset...
-APPLY_MIN_S = 0.001  # ...that is clearly there (and at least 3 sigma)
+APPLY_MIN_S = 0.001  # ...that is clearly there...
+APPLY_SIGMAS = 3.5  # ...at least this many sigma from zero (at 3, one 2.5 s round of a walk without an offset
+# applied +4.6 +- 1.5 ms and the next rounds had to walk it back)
 ROUNDS = 12  # estimates at most (each later one measures what the earlier left)
 FINAL_WINDOW_S = 2.3  # the closing estimate over the poses the last round left (its overlap with the IMU: >= 2 s)
 
@@ -32,7 +34,7 @@ class ClockOffsetTracker:
     """Collects registration poses (T_world_lidar) and gyro samples; proposes offset corrections."""
 
     applied_s: float = 0.0  # total correction applied so far
-    residual_s: float = 0.0  # measured (>= 3 sigma) but not applied: too small to apply online, or after the last scan
+    residual_s: float = 0.0  # measured (>= APPLY_SIGMAS sigma) but not applied: too small to apply online, or after the last scan
     estimates: list[dict] = field(default_factory=list)
     _stamps: list[int] = field(default_factory=list)
     _poses: list[np.ndarray] = field(default_factory=list)
@@ -95,7 +97,7 @@ class ClockOffsetTracker:
             self.estimates.append({"scan": at_scan, "applied": False, "reason": str(err).split(";")[0]})
             return None
         offset, sigma = est.imu_time_offset_s, est.sigma_s
-        sharp = sigma <= APPLY_SIGMA_S and abs(offset) >= 3.0 * sigma  # clearly there and sharply determined
+        sharp = sigma <= APPLY_SIGMA_S and abs(offset) >= APPLY_SIGMAS * sigma  # clearly there, sharply determined
         apply = sharp and abs(offset) >= APPLY_MIN_S and not final
         entry = {"scan": at_scan, "offset_s": round(offset, 6), "sigma_s": round(sigma, 6), "applied": bool(apply)}
         self.estimates.append({**entry, "final": True} if final else entry)
@@ -104,7 +106,7 @@ class ClockOffsetTracker:
                 self.residual_s = offset if sharp else 0.0
                 if not final and abs(offset) < APPLY_MIN_S and sigma <= APPLY_MIN_S:
                     # the clocks agree to under a millisecond, sharply: nothing left to apply (an offset merely
-                    # under 3 sigma is not agreement: -2.4 +- 0.85 ms ended the rounds of a walk 15 ms off)
+                    # under APPLY_SIGMAS sigma is not agreement: -2.4 +- 0.85 ms ended the rounds of a walk 15 ms off)
                     self._rounds = ROUNDS
             return None
         self.residual_s = 0.0

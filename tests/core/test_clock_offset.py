@@ -63,8 +63,9 @@ def test_too_short_a_window_measures_nothing(walk):
 
 
 @pytest.mark.parametrize("offset_ms, sigma_ms, applied, ends", [
-    (4.64, 1.535, True, False),  # 3 sigma and a millisecond: applied
-    (2.5, 0.75, True, False),
+    (5.5, 1.5, True, False),  # 3.5 sigma and a millisecond: applied
+    (4.64, 1.535, False, False),  # 3.0 sigma: not (a 2.5 s round of a walk without an offset measured this)
+    (2.7, 0.75, True, False),
     (0.9, 0.2, False, True),  # under a millisecond, sharply: the clocks agree; kept as the residual, not applied
     (2.5, 2.1, False, False),  # too loose a round
     (2.4, 0.85, False, False),  # under 3 sigma, not agreement either: the rounds go on (they ended on a walk 15 ms off)
