@@ -190,25 +190,26 @@ def imu_gaps(imu: ImuBatch) -> list[tuple[int, int]]:
 def without_imu_gaps(traj: LidarTrajectory, imu: ImuBatch, offset_s: float) -> tuple[LidarTrajectory, str | None]:
     """The trajectory without its scans over an IMU gap (the gyro and accelerometer interpolated across one are
     fiction: on a walk with a 1 s gap the rotation came out 0.75 deg off, the lever arm 3.5 cm, and the notes
-    blamed the motion), and a note saying so (None: no gap)."""
-    gaps = imu_gaps(imu)
-    if not gaps:  # (or none under the trajectory, below)
-        return traj, None
+    blamed the motion), and a note when a gap lies under the trajectory (None: none does). The note does not
+    depend on what an earlier call already took out, so every pass gives the same one."""
     s, margin = traj.stamps_ns, int(IMU_GAP_MARGIN_S * NS_PER_S)
     shift = int(round(offset_s * NS_PER_S))  # IMU stamp + offset = LiDAR time
+    gaps = [(a, b) for a, b in imu_gaps(imu) if len(s) and a + shift - margin <= s[-1] and b + shift + margin >= s[0]]
+    if not gaps:
+        return traj, None
     out = np.zeros(len(s), bool)
     for a, b in gaps:
         out |= (s >= a + shift - margin) & (s <= b + shift + margin)
     t0 = int(imu.stamps_ns[0])
     where = ", ".join(f"{(b - a) / NS_PER_S:.2f} s at {(a - t0) / NS_PER_S:.1f}-{(b - t0) / NS_PER_S:.1f} s"
                       for a, b in gaps[:4]) + (f" and {len(gaps) - 4} more" if len(gaps) > 4 else "")
-    note = (f"the IMU has {len(gaps)} gap{'s' if len(gaps) > 1 else ''} ({where} after its first stamp): the "
-            f"{int(out.sum())} scans over {'them' if len(gaps) > 1 else 'it'} are left out of the LiDAR-IMU estimates")
-    if not out.any():
-        return traj, None
-    kept = LidarTrajectory(s[~out], traj.T_world_lidar[~out], int((~out).sum()), traj.scans_total,
-                           f"{traj.description}; {int(out.sum())} scans over IMU gaps left out")
-    return kept, note
+    note = (f"the IMU has {len(gaps)} gap{'s' if len(gaps) > 1 else ''} ({where} after its first stamp): the scans "
+            f"over {'them' if len(gaps) > 1 else 'it'} and {IMU_GAP_MARGIN_S:g} s either side are left out of the "
+            "LiDAR-IMU estimates")
+    if out.any():
+        traj = LidarTrajectory(s[~out], traj.T_world_lidar[~out], int((~out).sum()), traj.scans_total,
+                               f"{traj.description}; {int(out.sum())} scans over IMU gaps left out")
+    return traj, note
 
 
 def consistent_scans(traj: LidarTrajectory, imu: ImuBatch, offset_s: float, bias: np.ndarray | None,
