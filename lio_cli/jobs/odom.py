@@ -211,7 +211,7 @@ class _OdomRun:
         if not self.inputs.use_imu or self.first_imu_ns is None or self.first_scan_ns is None:
             return
         lag_s = (self.first_imu_ns - self.first_scan_ns) * 1e-9
-        before = sum(1 for t in stamps if t < self.first_imu_ns)
+        before = int(np.searchsorted(stamps, self.first_imu_ns))  # the stamps increase
         if lag_s > self.cfg.init_window_s and before:
             note = (f"the IMU starts {lag_s:.1f} s after the first scan: the {before} scans before its first sample "
                     "are LiDAR-only (no rotation prior; fast turns there are easily lost)")
