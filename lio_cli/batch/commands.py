@@ -64,10 +64,9 @@ def _deskew_out(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
     return folder / f"{STEMS['deskew']}{suffix}"
 
 
-def score_trajectory(log: Path, gt: str, est: Trajectory, ref: Trajectory | None = None) -> dict:
-    """ATE/RPE of ``est`` against ``gt`` (a file, or a topic of the log; ``ref``: it already read), as
-    ``lio odom --gt`` scores."""
-    ref = load_ground_truth(log, gt) if ref is None else ref
+def score_trajectory(ref: Trajectory, gt: str, est: Trajectory) -> dict:
+    """ATE/RPE of ``est`` against the ground truth ``ref`` (read from ``gt`` before the run), as ``lio odom --gt``
+    scores."""
     return score(Trajectory(ref.stamps_ns, ref.poses, gt), Trajectory(est.stamps_ns, est.poses, "estimate")).to_dict()
 
 
@@ -98,7 +97,7 @@ def run_command(command: str, log: Path, config: BaseModel, gt: str | None, fold
         ref = load_ground_truth(log, gt) if gt is not None else None  # bad input before the run, not after
         run = run_fuse(FuseJob(log, config))
         if ref is not None:
-            run.metrics["accuracy"] = score_trajectory(log, gt, run.trajectory, ref)
+            run.metrics["accuracy"] = score_trajectory(ref, gt, run.trajectory)
         write_fuse(run, folder / f"{STEMS['fuse']}.tum", False)
         return run.metrics
     if command == "calibrate":

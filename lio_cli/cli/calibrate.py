@@ -37,7 +37,7 @@ to IMU stamps to put them on the LiDAR's clock; biases in the IMU frame; 1-sigma
 
 On stderr: a table of each value, its 1-sigma and its difference from --calib (else /tf_static) in degrees,
 cm and ms. Also written: OUT-stem.metrics.json and OUT-stem.config.yaml (with -o - the YAML goes to stdout
-and no other file is written). Bad input (no IMU, no still
+and neither is written; --kalibr and --plot still write theirs). Bad input (no IMU, no still
 stretch where one is needed, too little motion, clocks that disagree): one line, exit 2, nothing written.
 
 [bold]Examples[/bold]

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..io.trajectory_files import format_stamp
 from ..geometry import interpolate_poses
 from ..model.trajectory import Trajectory
 
@@ -114,7 +115,7 @@ def explain_no_match(ref: Trajectory, est: Trajectory, max_diff_ns: int, offset_
     shifted = est.stamps_ns + offset_ns
     if shifted[0] > ref.stamps_ns[-1] or shifted[-1] < ref.stamps_ns[0]:
         gap_ns = int(ref.stamps_ns[0] - est.stamps_ns[0])  # from the integer: an epoch-sized gap keeps its ns
-        gap = f"{'-' if gap_ns < 0 else ''}{abs(gap_ns) // 10**9}.{abs(gap_ns) % 10**9:09d}".rstrip("0").rstrip(".")
+        gap = format_stamp(gap_ns).rstrip("0").rstrip(".")
         return f"{head}: the time ranges do not overlap; if the clocks differ by a constant, pass --t-offset {gap}"
     i = np.clip(np.searchsorted(ref.stamps_ns, shifted), 1, len(ref) - 1) if len(ref) > 1 else np.zeros(len(est), int)
     gaps = np.minimum(np.abs(ref.stamps_ns[i] - shifted), np.abs(ref.stamps_ns[np.maximum(i - 1, 0)] - shifted))

@@ -89,8 +89,11 @@ def _data_lines(text: str) -> tuple[list[int], list[list[str]]]:
 
 
 def _unit_hint(path: Path, lineno: int, text: str, what: str, unit: str = "s") -> InputError:
+    finer = " or ".join(u for u, d in STAMP_UNITS_NS.items() if d > STAMP_UNITS_NS[unit])
+    if unit == "ns":  # nothing finer: no unit makes it a time
+        return InputError(f"{path}:{lineno}: {what} {text} is beyond what int64 nanoseconds hold (year 2262); it is no "
+                          "time stamp in any unit")
     if unit != "s":  # read in the unit asked for: a finer one is what the file holds
-        finer = " or ".join(u for u, d in STAMP_UNITS_NS.items() if d > STAMP_UNITS_NS[unit])
         return InputError(
             f"{path}:{lineno}: {what} {text} is too large for {unit} (beyond year 2262); the file's stamps look "
             f"like {finer}: give that unit (--gt-stamp-unit/--est-stamp-unit)"

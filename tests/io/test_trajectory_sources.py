@@ -66,6 +66,11 @@ def test_tum_stamp_units(tmp_path: Path):
             read_tum(p, stamp_unit=unit)
         assert str(err.value) == (f"{p}:1: stamp 1700000000123456789 is too large for {unit} (beyond year 2262); the "
                                   f"file's stamps look like {finer}: give that unit (--gt-stamp-unit/--est-stamp-unit)")
+    p.write_text("17000000001234567890000 0 0 0 0 0 0 1\n")  # no unit makes this a time (it read "look like :")
+    with pytest.raises(InputError) as err:
+        read_tum(p, stamp_unit="ns")
+    assert str(err.value) == (f"{p}:1: stamp 17000000001234567890000 is beyond what int64 nanoseconds hold (year "
+                              "2262); it is no time stamp in any unit")
     p.write_text("1500 0 0 0 0 0 0 1\n2500.5 1 0 0 0 0 0 1\n")
     np.testing.assert_array_equal(read_tum(p, stamp_unit="ms")[0], [1_500_000_000, 2_500_500_000])
 

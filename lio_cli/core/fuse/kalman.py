@@ -16,6 +16,8 @@ from itertools import chain
 import numpy as np
 from scipy.special import gammaincinv
 
+from .sanitize import median_period_ns
+
 
 def chi2_thresholds(probability: float, max_dim: int = 8) -> np.ndarray:
     """``thr[m]``: the chi-square quantile of ``1 - probability`` with m degrees of freedom (inf: no gate)."""
@@ -65,8 +67,8 @@ class Anchor:
     @classmethod
     def of(cls, prep) -> Anchor:
         """The pose sources of a ``timeline.Prepared``."""
-        periods = {src: int(np.median(np.diff(s.stamps_ns))) for src, s in (("odom", prep.odom), ("gps", prep.gps))
-                   if s is not None and len(s.stamps_ns) > 1}
+        periods = {src: median_period_ns(s.stamps_ns) for src, s in (("odom", prep.odom), ("gps", prep.gps))
+                   if s is not None}  # 0 for a single message: no window
         return cls(periods, prep.t0_ns)
 
     def accepted(self, source: str, t_ns: int, status: str) -> None:

@@ -67,7 +67,7 @@ def _wheel_poses(prep: Prepared, imu: ImuBatch, t_a: int, t_b: int):
     """Wheel poses over the window in the frame of the base at ``t_a``: the gyro's rotations (no bias: the
     window is short) and the body velocity's integral (trapezoids)."""
     w = prep.wheel
-    if w is None or "wheel" not in prep.use:
+    if w is None or not ({"speed", "velocity"} & prep.use.get("wheel", set())):  # a yaw rate alone gives no path
         return None
     sel = np.flatnonzero((w.stamps_ns >= t_a) & (w.stamps_ns <= t_b) & np.isfinite(w.velocity_mps[:, 0]))
     if len(sel) < 2:
@@ -92,7 +92,9 @@ def gravity_from_motion(prep: Prepared, t0: int, window_ns: int, gravity_mps2: f
     t_a = max(t0, int(prep.imu.stamps_ns[0]))
     t_b = min(t0 + WINDOW_FACTOR * window_ns, int(prep.imu.stamps_ns[-1]))
     imu = _imu_batch(prep, t0, t_b)
-    for source, found in (("odometry", _odometry_poses(prep, t_a, t_b)), ("wheels", _wheel_poses(prep, imu, t_a, t_b))):
+    for source, poses_of in (("odometry", lambda: _odometry_poses(prep, t_a, t_b)),
+                             ("wheels", lambda: _wheel_poses(prep, imu, t_a, t_b))):  # the wheels only if needed
+        found = poses_of()
         if found is None:
             continue
         stamps, poses = found
