@@ -105,7 +105,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         wheel = choose_topic(reader, "wheel", cfg.input.wheel_topic, required=cfg.input.wheel_topic is not None).topic \
             if lidar else None
         tree = read_static_frames(reader)
-        base = named_base(tree, cfg.input.base_frame)  # None: the root of the sensors' tree (``_root_base``)
+        base = named_base(tree, cfg.input.base_frame)  # None: the root of the sensors' tree (``root_base``)
         est.notes.extend(tree.warnings)
         still_s = None if cfg.still is None else parse_still(cfg.still)
         t0 = time.perf_counter()
@@ -133,7 +133,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             if imu is None:
                 raise InputError(f"{where}: {imu_topic}: no IMU sample could be read")
             imu_frame = arrays.imu_frame
-            base = base or _root_base(tree, arrays.lidar_frame or imu_frame, est)
+            base = base or root_base(tree, arrays.lidar_frame or imu_frame, est.notes) or "base"
             still_ns = _still_ns(imu, still_s)
             T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
@@ -207,7 +207,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             steps.allan(imu, est, where)
             times["allan"] = time.perf_counter() - t0
         if lidar is None:
-            base = base or _root_base(tree, imu_frame, est)
+            base = base or root_base(tree, imu_frame, est.notes) or "base"
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, None)
             T_ref = None
         fmt, span_s = reader.format, reader.duration_ns * 1e-9
@@ -251,13 +251,6 @@ def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | Non
         return None
     t0 = int(imu.stamps_ns[0])
     return t0 + int(round(still_s[0] * 1e9)), t0 + int(round(still_s[1] * 1e9))
-
-
-def _root_base(tree, frame: str | None, est: steps.Estimates) -> str:
-    base, note = root_base(tree, frame)
-    if note:
-        est.notes.append(note)
-    return base
 
 
 def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:

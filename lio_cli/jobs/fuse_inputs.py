@@ -121,11 +121,9 @@ def base_frame_of(cfg: FuseConfig, tree: FrameTree, wheel_child: str | None, imu
         if f in BASE_FRAME_NAMES:
             return f
     for f in (imu_frame, wheel_child):
-        base, note = root_base(tree, f)
-        if note:
-            if notes is not None:
-                notes.append(note)
-            return base
+        root = root_base(tree, f, [] if notes is None else notes)
+        if root is not None:
+            return root
     return "base"
 
 

@@ -72,15 +72,15 @@ def choose_inputs(reader: LogReader, cfg: OdomConfig) -> OdomInputs:
     return OdomInputs(roles, use_imu, planar, deskew)
 
 
-def root_base(tree: FrameTree, frame: str | None) -> tuple[str, str | None]:
+def root_base(tree: FrameTree, frame: str | None, notes: list[str]) -> str | None:
     """The base frame of a /tf_static that names none of BASE_FRAME_NAMES: the root of the tree holding ``frame``
     (a driver's own tree, as Ouster's os_sensor -> os_lidar, os_imu, whose IMU-LiDAR mounting is then used, where
-    identity was assumed for both before), with a note saying so; else ``base`` (no note)."""
+    identity was assumed for both before), with a note in ``notes`` saying so; None when no tree holds it."""
     root = tree.root(frame) if frame else None
-    if root is None:
-        return "base", None
-    return root, (f"base frame '{root}': the root of /tf_static's tree holding '{frame.lstrip('/')}' "
-                  f"(none is named {', '.join(BASE_FRAME_NAMES)}; --base-frame chooses another)")
+    if root is not None:
+        notes.append(f"base frame '{root}': the root of /tf_static's tree holding '{frame.lstrip('/')}' "
+                     f"(none is named {', '.join(BASE_FRAME_NAMES)}; --base-frame chooses another)")
+    return root
 
 
 def named_base(tree: FrameTree, base_frame: str | None) -> str | None:
@@ -108,9 +108,7 @@ class Mounting:
         """The base frame; when /tf_static names none of the usual ones, ``root_base`` of the first sensor frame
         looked up."""
         if self.base is None:
-            self.base, note = root_base(self.tree, frame)
-            if note:
-                self.notes.append(note)
+            self.base = root_base(self.tree, frame, self.notes) or "base"
         return self.base
 
     def resolve(self, name: str, frame: str) -> np.ndarray:
