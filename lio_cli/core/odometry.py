@@ -318,7 +318,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         tick = time.perf_counter()
         guess = self._guess(t_prev, t_ref)
         frame, source = self._reg.downsample(points)
-        cap = self._icp_cap(imu)
+        cap = None if bridge_gate_m is not None else self._icp_cap(imu, t_prev, t_ref)  # a bridge: full iterations
         st.capped_icp_scans += int(cap is not None)
         measured = self._reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m,
                                       iterations=cap)

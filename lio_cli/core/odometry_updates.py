@@ -118,7 +118,7 @@ class StateUpdates:
             flatten_planar(self.state)
         return self.state.pose()
 
-    def _icp_cap(self, imu: ImuBatch) -> int | None:
+    def _icp_cap(self, imu: ImuBatch, t_prev: int, t_ref: int) -> int | None:
         """The ICP iterations of an IMU-primed scan whose prediction can be leant on (None: the full count).
         ``slow_iterations`` where the IMU turns slower than ``slow_rate_degps`` (the prediction is good there, a
         drive's ICP only slides along the road's surfaces in its later iterations, and such a scan cannot time
@@ -128,7 +128,9 @@ class StateUpdates:
         if rc.steady_iterations is None and rc.slow_iterations is None:
             return None
         slow_cap = rc.slow_iterations or rc.steady_iterations
-        if len(imu) and np.linalg.norm(imu.gyro_radps - self.state.bg, axis=1).max() < np.radians(rc.slow_rate_degps):
+        lo, hi = np.searchsorted(imu.stamps_ns, (t_prev, t_ref))
+        gyro = imu.gyro_radps[lo:hi + 1]  # the scan's interval (the window holds more on either side)
+        if len(gyro) and np.linalg.norm(gyro - self.state.bg, axis=1).max() < np.radians(rc.slow_rate_degps):
             return slow_cap
         return rc.steady_iterations if self.clock is None or self.clock.done else None
 

@@ -85,6 +85,8 @@ class ScanRegistration:
         return reg.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
     def _capped_registration(self, iterations: int):
+        if iterations >= self._kiss.registration.max_num_iterations:  # a cap never adds iterations
+            return self._registration
         reg = self._capped.get(iterations)
         if reg is None:
             kiss = self._kiss.model_copy(deep=True)
