@@ -107,7 +107,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         self._shift_ns = 0  # correction added to IMU stamps, as the clock tracker found it
         self._doubt = 0  # IMU-mode scans in a row whose innovation was implausible
         self._imu_gap_from: tuple | None = None  # (pose, stamp, event) before an IMU gap the scans are in
-        self._blind_tree: tuple | None = None  # (scans in the map, its k-d tree) for scans over an IMU gap
+        self._blind_tree: tuple | None = None  # (map, its scans, its k-d tree) for scans over an IMU gap
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:

@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import inv_pose, so3_exp
+from ..geometry import so3_exp
 from ..model.records import PointCloud
 from .imu import MAX_IMU_GAP_NS, imu_gap_ns, propagate
 from .kdtree import ckdtree_class
-from .motion_compensation import constant_velocity_knots
 
 _BRIDGE_STEP_NS = 100_000_000  # the wheel speed corrects a bridged state this often (the last scan interval if known)
 # How far an IMU prediction drifts over a gap of T: sigma_v T + sigma_a T^2 / 2, with the velocity and acceleration
@@ -142,16 +141,15 @@ class Gaps:
         voxel) is kept."""
         reg = self._reg
         up = np.array([0.0, 0.0, 1.0]) if self._g_world is None else -self._g_world / np.linalg.norm(self._g_world)
-        if self._blind_tree is None or self._blind_tree[0] != reg.scans:  # the map grew since: a new tree
-            self._blind_tree = (reg.scans, ckdtree_class()(reg.map.point_cloud()))  # (scans in the map, tree)
-        tree = self._blind_tree[1]  # the scans of one IMU gap stay out of the map: one tree serves them all
+        if self._blind_tree is None or self._blind_tree[:2] != (reg, reg.scans):  # the map grew or restarted
+            self._blind_tree = (reg, reg.scans, ckdtree_class()(reg.map.point_cloud()))  # (map, its scans, tree)
+        tree = self._blind_tree[2]  # the scans of one IMU gap stay out of the map: one tree serves them all
         best, best_cost = None, np.inf
         for yaw in _BLIND_YAWS_RAD:
             pose = guess.copy()
             pose[:3, :3] = so3_exp(up * yaw) @ guess[:3, :3]
             for _ in range(2):  # de-skewed by the hypothesis' motion, then by the registered one
-                knots, rel = constant_velocity_knots(inv_pose(self._last_pose) @ pose, t_prev, t_ref)
-                points = self._prepare(cloud, knots, self._last_pose[None] @ rel, t_ref)
+                points = self._prepare(cloud, *self._cv_knots(pose, t_prev, t_ref), t_ref)
                 if points is None:
                     return None
                 frame, source = reg.downsample(points)

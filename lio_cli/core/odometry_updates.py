@@ -163,7 +163,12 @@ class StateUpdates:
         prior = self.cfg.prior
         guess = self._last_pose @ (self._wheel_delta(t_prev, t_ref) if prior == "wheel" else
                                    np.eye(4) if prior == "none" else cv)
+        return (guess, *self._cv_knots(guess, t_prev, t_ref), False)
+
+    def _cv_knots(self, guess: np.ndarray, t_prev: int, t_ref: int) -> tuple:
+        """(knots, knot poses) de-skewing a scan by constant velocity from the last pose to ``guess``; (None, None)
+        with ``deskew: none``."""
         if self._deskew == "none":
-            return guess, None, None, False
+            return None, None
         knots, rel = constant_velocity_knots(inv_pose(self._last_pose) @ guess, t_prev, t_ref)
-        return guess, knots, self._last_pose[None] @ rel, False
+        return knots, self._last_pose[None] @ rel
