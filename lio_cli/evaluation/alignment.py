@@ -100,6 +100,13 @@ def posyaw(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, mu_dst - R @ mu_src
 
 
+def line_spread(positions: np.ndarray) -> tuple[float, float]:
+    """(std across, std along) the main direction of ``positions`` (N,3): how little an se3/sim3 alignment of
+    them has to fix its rotation about that line by."""
+    sv = np.linalg.svd(positions - positions.mean(axis=0), compute_uv=False) / np.sqrt(len(positions))
+    return float(sv[1]), float(sv[0])
+
+
 def align(ref_poses: np.ndarray, est_poses: np.ndarray, mode: str = "se3", n_align: int | None = None) -> Alignment:
     """The alignment of ``est_poses`` onto ``ref_poses`` (paired, same length)."""
     if mode not in MODES:

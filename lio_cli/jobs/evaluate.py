@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import ConfigError, InputError
 from ..evaluation import EvalOptions, EvalResult, Trajectory, evaluate
+from ..evaluation.alignment import line_spread
 
 FAR_ORIGIN_M = 20_000.0  # GPS fixes farther than this from the ENU origin get a warning
 # se3/sim3 on reference positions whose spread across their main direction is below this fraction of the spread
@@ -129,6 +130,5 @@ def _line_like(r: EvalResult) -> tuple[float, float] | None:
     a line (Umeyama then picks the rotation about it from the estimate's errors), else None."""
     if r.options.align not in ("se3", "sim3") or r.alignment.n_used < 3:
         return None
-    p = r.association.ref.poses[: r.alignment.n_used, :3, 3]
-    sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False) / np.sqrt(len(p))
-    return (float(sv[1]), float(sv[0])) if sv[1] < LINE_LIKE_RATIO * sv[0] else None
+    across, along = line_spread(r.association.ref.poses[: r.alignment.n_used, :3, 3])
+    return (across, along) if across < LINE_LIKE_RATIO * along else None
