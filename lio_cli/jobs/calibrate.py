@@ -25,6 +25,7 @@ from ..io.clocks import check_same_clock
 from ..io.decode import IMU, LASERSCAN
 from ..io.detect import input_paths
 from ..io.files import atomic_output, check_writable
+from ..io.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs
 from ..io.reader import open_log
 from ..io.tf import read_static_frames
 from ..io.topics import choose_topic
@@ -76,17 +77,17 @@ def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
     if (job.plot_dir is not None or job.kalibr is not None) and not job.config.allan:
         raise ConfigError("--plot and --kalibr write the Allan variance results: give --allan too")
     inputs = [*input_paths(job.log), *job.extra_inputs]
-    outs = [] if job.out is None else [Path(job.out), *sidecars(job.out)]
+    named = [] if job.out is None else [("the calibration (-o)", Path(job.out)),
+                                        *zip(("its metrics", "its config"), sidecars(job.out))]
     if job.kalibr is not None:
-        outs.append(Path(job.kalibr))
-    if job.plot_dir is not None:
-        if job.plot_dir.exists() and not job.plot_dir.is_dir():
-            raise ConfigError(f"--plot {job.plot_dir}: not a folder")
-        outs.append(Path(job.plot_dir) / PLOT_NAME)
+        named.append(("the Kalibr imu.yaml (--kalibr)", Path(job.kalibr)))
+    refuse_shared_outputs([*named, *plot_outputs(job.plot_dir, (PLOT_NAME,))])  # -o x.yaml --kalibr x.yaml
+    outs = [p for _, p in named]
     for p in outs:
-        if p.parent == job.plot_dir and not p.parent.exists():
-            continue  # the plot folder is made when the plot is written
         check_writable(p, job.force, inputs)
+    if job.plot_dir is not None:
+        check_plot_dir(Path(job.plot_dir), (PLOT_NAME,), job.force, inputs)
+        outs.append(Path(job.plot_dir) / PLOT_NAME)
     return outs
 
 

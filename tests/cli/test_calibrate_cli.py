@@ -227,6 +227,15 @@ def test_an_imu_only_log_that_never_rests(tmp_path, capsys):
 def test_allan_files_need_allan_and_a_bad_still_is_a_usage_error(walk, tmp_path, capsys):
     err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--kalibr", tmp_path / "imu.yaml"], capsys, tmp_path)
     assert err == "lio: error: --plot and --kalibr write the Allan variance results: give --allan too"
+    # one path for two outputs: the Kalibr file silently replaced the calibration; refused before any work
+    err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--allan", "--kalibr", tmp_path / "x.yaml"], capsys,
+                    tmp_path)
+    assert err == (f"lio: error: {tmp_path / 'x.yaml'}: would be both the calibration (-o) and the Kalibr imu.yaml "
+                   "(--kalibr); give each output its own path")
+    (tmp_path / "plots").write_text("")
+    err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--allan", "--plot", tmp_path / "plots"], capsys,
+                    tmp_path)
+    assert err == f"lio: error: {tmp_path / 'plots'}: exists and is not a folder"
     err = one_error([walk.log_path, "-o", tmp_path / "x.yaml", "--still", "5:2"], capsys, tmp_path)
     assert err == ("lio: error: options: still: '5:2' is not START:END in seconds after the first IMU sample with "
                    "0 <= START < END (e.g. 0:2.5)")
