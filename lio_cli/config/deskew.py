@@ -14,7 +14,7 @@ from pydantic import Field, create_model, field_validator
 
 from ..model.calibration import Calibration
 from . import Strict
-from .odom import InputConfig, OdomConfig, RegistrationConfig
+from .odom import FusionConfig, InputConfig, OdomConfig, RegistrationConfig
 
 MOTIONS = ("auto", "trajectory", "imu", "constant-velocity")
 OUTPUT_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
@@ -33,7 +33,7 @@ class TrajectoryInput(Strict):
 # The in-process odometry (motion imu or constant-velocity) takes these fields of lio odom's configuration;
 # input, calibration, prior and deskew come from the deskew configuration.
 _ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_bridge_s", "max_lost_scans",
-                    "estimate_time_offset", "max_speed_mps", "gravity_mps2", "fusion")
+                    "estimate_time_offset", "max_speed_mps", "gravity_mps2")
 
 
 class DeskewRegistration(RegistrationConfig):
@@ -48,10 +48,20 @@ class DeskewRegistration(RegistrationConfig):
         "slow_iterations"].description)
 
 
+class DeskewFusion(FusionConfig):
+    """lio odom's fusion settings, but the geometry of a scene far from degenerate (an open road) is analysed
+    every 8th scan instead of every 2nd: the same de-skewed points on drives, faster (benchmarks/bench_deskew.py).
+    A default of this class, so a YAML naming other fusion fields keeps it."""
+
+    degeneracy_every_clear: int = Field(8, ge=1, description=FusionConfig.model_fields[
+        "degeneracy_every_clear"].description)
+
+
 OdometryPass = create_model(
     "OdometryPass", __base__=Strict, __doc__="Settings of the odometry run in-process (as lio odom's fields).",
     **{name: (OdomConfig.model_fields[name].annotation, OdomConfig.model_fields[name]) for name in _ODOMETRY_FIELDS},
     registration=(DeskewRegistration, DeskewRegistration()),
+    fusion=(DeskewFusion, DeskewFusion()),
 )
 
 

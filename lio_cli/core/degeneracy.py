@@ -3,17 +3,31 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from .kdtree import ckdtree_class
 
 _DEGENERACY_MAX_POINTS = 8192  # the constraint analysis needs surfaces, not every point of a 128-beam scan
+CLEAR_MARGIN = 4.0  # a scan whose weakest direction is this many times above the ratio is far from degenerate
+
+
+class Degeneracy(NamedTuple):
+    directions: list[np.ndarray]  # degenerate horizontal directions (the points' frame)
+    margin: float  # weakest / strongest horizontal eigenvalue over the ratio (< 1: degenerate; 0: no surfaces)
 
 
 def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
                           queries: int = 250) -> list[np.ndarray]:
-    """Horizontal translation directions the scan's surfaces do not constrain (in the points' frame).
+    """Horizontal translation directions the scan's surfaces do not constrain (in the points' frame): see
+    ``analyse_degeneracy``."""
+    return analyse_degeneracy(points, planar, ratio, k, queries).directions
+
+
+def analyse_degeneracy(points: np.ndarray, planar: bool, ratio: float, k: int = 20,
+                       queries: int = 250) -> Degeneracy:
+    """Horizontal translation directions the scan's surfaces do not constrain, and how far the scan is from that.
 
     Normals from local PCA over ``k`` neighbours in the full scan (at up to ``queries`` sample points) give
     the point-to-plane information ``sum n n^T`` on translation. Its horizontal (x-y) block is examined: an
@@ -24,7 +38,7 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     dims = 2 if planar else 3
     pts = points[:: max(1, math.ceil(len(points) / _DEGENERACY_MAX_POINTS)), :dims]  # denser: every n-th point
     if len(pts) < k + 1:
-        return []
+        return Degeneracy([], 0.0)
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
     cKDTree = ckdtree_class()  # here, not at import: scipy is a tenth of a second of start-up
 
@@ -38,9 +52,12 @@ def degenerate_directions(points: np.ndarray, planar: bool, ratio: float, k: int
     surface = (w[:, 1] - w[:, 0]) > 0.3 * np.maximum(w[:, -1], 1e-12)
     info = normals[surface].T @ normals[surface]
     lam, vec = np.linalg.eigh(info[:2, :2])
-    if lam[-1] <= 0 or lam[0] >= ratio * lam[-1]:
-        return []
-    return [np.array([vec[0, 0], vec[1, 0], 0.0])]
+    if lam[-1] <= 0:
+        return Degeneracy([], 0.0)
+    margin = float(lam[0] / (ratio * lam[-1]))
+    if lam[0] >= ratio * lam[-1]:
+        return Degeneracy([], margin)
+    return Degeneracy([np.array([vec[0, 0], vec[1, 0], 0.0])], margin)
 
 
 def scatter_matrices(neighbours: np.ndarray) -> np.ndarray:

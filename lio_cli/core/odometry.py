@@ -30,7 +30,7 @@ from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch, OdometryRecord, PointCloud
 from .bootstrap import Bootstrap
 from .clock_offset import ClockOffsetTracker
-from .degeneracy import degenerate_directions
+from .degeneracy import CLEAR_MARGIN, analyse_degeneracy
 from .imu import MAX_IMU_GAP_NS, NavState, gravity_vector, imu_gap_ns, propagate
 from .motion_compensation import constant_velocity_knots, deskew, to_base
 from .odometry_gaps import Gaps
@@ -96,6 +96,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         self._deskew = cfg.resolved_deskew()
         self._bias_prior = (gyro_bias, accel_bias)  # from a calibration file, if any
         self._dirs_b: list[np.ndarray] = []  # degenerate directions of the last analysed scan (its base frame)
+        self._degeneracy_due = 0  # no analysis before this many scans are used (a clear scene is analysed less)
         self._g_world: np.ndarray | None = gravity_vector(cfg.gravity_mps2) if planar else None
         self._window: list[WindowScan] = []  # LiDAR-only scans that will start the IMU state
         self.stamps_ns: list[int] = []  # the trajectory so far (internal world frame); the start-up window's
@@ -253,10 +254,15 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
 
     def _degeneracy(self, points: np.ndarray, R_now: np.ndarray) -> list[np.ndarray]:
         tick = time.perf_counter()
+        fc = self.cfg.fusion
         if self._reg.empty:
             dirs_b = []
-        elif self.stats.used % self.cfg.fusion.degeneracy_every == 0:  # geometry changes little between scans
-            dirs_b = self._dirs_b = degenerate_directions(points, self.planar, self.cfg.fusion.degeneracy_ratio)
+        elif self.stats.used % fc.degeneracy_every == 0 and self.stats.used >= self._degeneracy_due:
+            # geometry changes little between scans; far from degenerate, it is looked at again later
+            found = analyse_degeneracy(points, self.planar, fc.degeneracy_ratio)
+            dirs_b = self._dirs_b = found.directions
+            clear = found.margin >= CLEAR_MARGIN
+            self._degeneracy_due = self.stats.used + (fc.degeneracy_every_clear if clear else fc.degeneracy_every)
         else:
             dirs_b = [R_now.T @ self._last_pose[:3, :3] @ d for d in self._dirs_b]
         self.stats.times_s["degeneracy"] += time.perf_counter() - tick

@@ -119,6 +119,8 @@ def test_deskew_keeps_its_icp_caps_unless_told(tmp_path, text, caps):
     rc = cfg.odom_config("imu").registration
     assert (rc.steady_iterations, rc.slow_iterations) == caps
     assert (OdomConfig().registration.steady_iterations, OdomConfig().registration.slow_iterations) == (None, None)
+    # and its sparser degeneracy analysis of clear scenes, also when the YAML names other fusion fields
+    assert (cfg.odom_config("imu").fusion.degeneracy_every_clear, OdomConfig().fusion.degeneracy_every_clear) == (8, 2)
     assert load_model(DeskewConfig, _dumped(tmp_path, cfg)).odometry == cfg.odometry  # the written config repeats it
 
 

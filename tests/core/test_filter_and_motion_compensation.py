@@ -6,7 +6,7 @@ from lio_cli.core.motion_compensation import constant_velocity_knots, deskew, to
 from lio_cli.core.filter import complementary_update, ekf_body_velocity_update, ekf_pose_update, position_noise
 from lio_cli.geometry import inv_pose, make_pose, so3_exp, transform_points
 from lio_cli.core.imu import NavState
-from lio_cli.core.degeneracy import degenerate_directions
+from lio_cli.core.degeneracy import CLEAR_MARGIN, analyse_degeneracy, degenerate_directions
 
 DESKEW_TOL_M = 1e-6
 
@@ -126,6 +126,10 @@ def test_corridor_is_degenerate_along_its_axis_and_room_is_not():
     assert len(dirs) == 1
     assert abs(dirs[0][0]) > 0.99
     assert degenerate_directions(_room(rng), planar=False, ratio=0.05) == []
+    # how far from degenerate: the corridor under 1, the room clear by the margin that spaces out the analyses
+    assert analyse_degeneracy(np.column_stack([x, y, z]), planar=False, ratio=0.05).margin < 0.2
+    room = analyse_degeneracy(_room(rng), planar=False, ratio=0.05)
+    assert room.directions == [] and room.margin > CLEAR_MARGIN
 
 
 def test_the_degeneracy_analysis_thins_any_scan_over_8192_points_to_at_most_that(monkeypatch):
