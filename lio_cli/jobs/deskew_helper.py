@@ -229,8 +229,12 @@ def main() -> None:
         answer(("committed", None))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
     except _Aborted:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # its files are discarded: a second SIGTERM ends it quietly
         sys.exit(1)
     except BaseException as err:  # noqa: BLE001 - every failure goes back to the parent, which reports it
+        # its files are discarded; the parent ends it (SIGTERM) once it has the error, maybe while it still
+        # answers: end quietly then (the handler's _Aborted raised here printed a traceback under the error line)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
         if not isinstance(err, (LioError, KeyboardInterrupt)):
             traceback.print_exc()  # a bug: its traceback, as the parent would have printed it
         try:

@@ -339,3 +339,47 @@ def test_progress_runs_up_to_both_passes_and_never_back(walk, tmp_path, two_core
     assert {t for _, t in calls} == {60} and calls[-1] == (60, 60)  # 30 scans, two passes
     done = [d for d, _ in calls]
     assert done == sorted(done) and done[:30] == list(range(1, 31))  # the odometry's scans first
+
+
+def test_a_helper_error_stays_one_line_when_the_parent_ends_it_while_it_answers(walk, tmp_path, two_cores,
+                                                                                   monkeypatch, capfd):
+    """The helper sends its error and the parent, which has it, ends the helper (SIGTERM) while it is still in
+    its error path: its SIGTERM handler raised there, and a 33-line traceback followed the one-line error on
+    stderr (a ROS 1 MCAP written as a bag, one run in two)."""
+    import subprocess
+    import sys
+
+    root = str(Path(deskew_helper.__file__).resolve().parents[2])
+    code = f"""
+import sys, time
+sys.path.insert(0, {root!r})
+from lio_cli.errors import InputError
+from lio_cli.jobs import deskew_helper as h, deskew_write as w
+def failing(*args, **kwargs):
+    raise InputError("walk.bag: /points: cannot be written")
+w.write_pass = failing
+send = h._send
+def answering_slowly(stream, obj):
+    send(stream, obj)
+    if obj[0] == "error":
+        time.sleep(5)  # still answering when the parent ends it
+h._send = answering_slowly
+h.main()
+"""
+    helpers = []
+
+    def start():
+        proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        helpers.append(deskew_helper.Helper(proc))
+        return helpers[-1]
+
+    monkeypatch.setattr(deskew_job.Helper, "start", staticmethod(start))
+    capfd.readouterr()
+    t0 = time.perf_counter()
+    with pytest.raises(InputError) as err:
+        run(walk, tmp_path / "out.bag", True)
+    assert str(err.value) == "walk.bag: /points: cannot be written"
+    assert time.perf_counter() - t0 < 4.5  # ended, not waited for
+    assert helpers[0].proc.returncode == -signal.SIGTERM
+    assert capfd.readouterr().err == ""
+    assert leftovers(tmp_path, "out") == []
