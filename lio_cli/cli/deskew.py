@@ -66,7 +66,7 @@ def deskew(
     input_format: Annotated[Optional[str], typer.Option("--input-format", help="Input format, overriding detection: ros1, ros2 or mcap.", show_default=False)] = None,
     map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the world-frame map of the de-skewed scans (.ply or .pcd).", show_default=False)] = None,
     map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", help="Voxel size of --map in metres (default 0.1).", show_default=False)] = None,
-    strict: Annotated[bool, typer.Option("--strict", help="Refuse (exit 2) instead of copying unchanged a scan the motion does not cover.")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse (exit 2) instead of copying unchanged a scan the motion does not cover or without a valid point or sweep.")] = False,
     config: ConfigOpt = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML: T_base_imu, T_base_lidar, imu_time_offset_s (used where /tf_static is silent).", show_default=False)] = None,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock.", show_default=False)] = None,

@@ -147,10 +147,14 @@ class ScanWriter:
             raise err if str(err).startswith(where) else InputError(f"{where}: {err}") from err
         self._times["decode"] += time.perf_counter() - tick
         self.absurd_times += cloud.bad_times
-        if len(cloud.points) == 0:
-            return self._unchanged(rec, msg, cloud, "no valid point")
-        if cloud.end_ns - cloud.start_ns > MAX_SWEEP_NS:
-            return self._unchanged(rec, msg, cloud, f"point times span more than {MAX_SWEEP_NS * 1e-9:g} s")
+        flaw = ("no valid point" if len(cloud.points) == 0 else
+                f"point times span more than {MAX_SWEEP_NS * 1e-9:g} s" if cloud.end_ns - cloud.start_ns > MAX_SWEEP_NS
+                else None)
+        if flaw is not None:
+            if self.cfg.strict:
+                raise InputError(f"{where}: the scan stamped {_fmt_ns(cloud.stamp_ns)}: {flaw}; without --strict such "
+                                 "scans are copied unchanged and counted")
+            return self._unchanged(rec, msg, cloud, flaw)
         t_ref = cloud.end_ns if self.cfg.reference == "end" else cloud.start_ns
         span = self.span_ns or (cloud.start_ns, cloud.end_ns)
         self.span_ns = (min(span[0], cloud.start_ns), max(span[1], cloud.end_ns))

@@ -338,6 +338,31 @@ def test_absurd_point_times_cost_nothing_and_lose_no_scan(sim, tmp_path, rewrite
     for c in "xyz":
         assert va[c][-1] == vb[c][-1]  # the bad point, untouched
     assert not np.array_equal(va["x"][:-1], vb["x"][:-1])  # the others de-skewed
+    # --strict refuses such a scan, as it refuses one the motion does not cover (it copied it, exit 0)
+    with pytest.raises(InputError) as err:
+        deskew(log, tmp_path / "strict.bag", strict=True, **gt(s))
+    stamp = decode_pointcloud2(a[6]).stamp_ns
+    assert str(err.value) == (f"{log}: /points: the scan stamped {stamp // 10**9}.{stamp % 10**9:09d} s: point times "
+                              "span more than 1 s; without --strict such scans are copied unchanged and counted")
+    assert not (tmp_path / "strict.bag").exists()
+
+
+def test_strict_refuses_a_scan_without_a_valid_point(sim, tmp_path, rewrite_clouds):
+    s = sim("ros1")
+
+    def blank(k, arr):
+        if k == 4:
+            arr["x"] = np.nan
+        return arr
+
+    log = rewrite_clouds(s.log_path, tmp_path / "blank.bag", blank)
+    assert deskew(log, tmp_path / "out.bag", **gt(s)).metrics["scans"]["unchanged_why"] == {"no valid point": 1}
+    with pytest.raises(InputError) as err:
+        deskew(log, tmp_path / "strict.bag", strict=True, **gt(s))
+    stamp = stamp_to_ns(clouds(log)[4].header.stamp)
+    assert str(err.value) == (f"{log}: /points: the scan stamped {stamp // 10**9}.{stamp % 10**9:09d} s: no valid "
+                              "point; without --strict such scans are copied unchanged and counted")
+    assert not (tmp_path / "strict.bag").exists()
 
 
 def test_map_lies_in_the_office_and_config_repeats_the_run(sim, tmp_path):
