@@ -47,10 +47,12 @@ def load_trajectory(
     rate_hz: float | None = None,
     stamp_unit: str = "s",
     origin: EnuFrame | None = None,
+    stamp_options: bool = False,
 ) -> Trajectory:
     """Read the trajectory ``spec`` names (file or ``LOG:/topic``); ``topic`` picks one in a bare log path.
 
-    ``origin``: the ENU origin of a NavSatFix topic (default: its first valid fix).
+    ``origin``: the ENU origin of a NavSatFix topic (default: its first valid fix). ``stamp_options``: the
+    command offers --times/--rate for KITTI poses (evaluate); the others need a TUM file.
     """
     if spec == "-":  # standard input: `lio odom LOG -o - | lio evaluate GT -`
         if sys.stdin is None or sys.stdin.isatty():
@@ -82,7 +84,9 @@ def load_trajectory(
                 raise InputError(f"--rate must be positive, got {rate_hz}")
             stamps = np.round(np.arange(len(poses)) * (1e9 / rate_hz)).astype(np.int64)
         else:
-            raise InputError(f"{path}: KITTI poses carry no stamps; give --times FILE (KITTI times.txt) or --rate HZ")
+            raise InputError(f"{path}: KITTI poses carry no stamps; " + (
+                "give --times FILE (KITTI times.txt) or --rate HZ" if stamp_options else
+                "give a TUM file (stamp tx ty tz qx qy qz qw per line, as lio odom writes)"))
         return Trajectory(stamps, poses, str(path), "kitti")
     if cols == 8:
         stamps, poses = read_tum(path, stamp_unit, text)

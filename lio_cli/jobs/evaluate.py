@@ -61,14 +61,14 @@ def run_evaluate(job: EvaluateJob) -> EvaluateResult:
     t_start = time.perf_counter()
     opts = job.options
     gt_traj = load_trajectory(job.gt, topic=job.gt_topic, times=job.times, rate_hz=job.rate_hz,
-                              stamp_unit=job.gt_stamp_unit, origin=job.origin)
+                              stamp_unit=job.gt_stamp_unit, origin=job.origin, stamp_options=True)
     ref = Trajectory(gt_traj.stamps_ns, gt_traj.poses, job.gt)
     # a GPS estimate shares the reference's ENU origin, so --align none compares like with like
     est_origin = job.origin or (gt_traj.gps.origin if gt_traj.gps is not None else None)
     loaded_all = []
     for spec in job.estimates:
         loaded = load_trajectory(spec, times=job.times, rate_hz=job.rate_hz, stamp_unit=job.est_stamp_unit,
-                                 origin=est_origin)
+                                 origin=est_origin, stamp_options=True)
         if loaded.kind == "kitti" and gt_traj.kind == "kitti" and len(loaded) != len(gt_traj):
             raise InputError(
                 f"{spec}: {len(loaded)} KITTI poses but the ground truth {job.gt} has {len(gt_traj)}; KITTI pose "

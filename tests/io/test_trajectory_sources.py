@@ -123,7 +123,12 @@ def test_kitti_bad_inputs(tmp_path: Path):
     with pytest.raises(InputError, match=r"2 KITTI poses but .*times.txt holds 1 stamps"):
         load_trajectory(str(p), times=t)
     with pytest.raises(InputError, match=r"KITTI poses carry no stamps; give --times FILE \(KITTI times.txt\) or --rate HZ"):
+        load_trajectory(str(p), stamp_options=True)
+    # odom --gt, fuse --odom and deskew --trajectory have no --times/--rate: the line named options they lack
+    with pytest.raises(InputError) as err:
         load_trajectory(str(p))
+    assert str(err.value) == (f"{p}: KITTI poses carry no stamps; give a TUM file (stamp tx ty tz qx qy qz qw per "
+                              "line, as lio odom writes)")
 
 
 def test_split_source_forms(tmp_path: Path):
