@@ -120,6 +120,11 @@ def choose_topic(log: LogReader, kind: str, requested: str | None = None, requir
         if kind == "imu" and refused and required:
             raise InputError(f"{log.path}: IMU topic {', '.join(refused)} carries only zeros (rates and accelerations): "
                              "not an IMU; run LiDAR-only with --prior constant-velocity --deskew constant-velocity")
+        silent = sorted(t for t, i in log.topics.items() if i.msgtype in accepted and t not in exclude and i.count == 0)
+        if required and silent and not candidates and kind in ("lidar", "imu"):  # declared, never published
+            empty = "" if any(i.count for i in log.topics.values()) else " (the log holds no message at all)"
+            raise InputError(f"{log.path}: no {word} data: {', '.join(silent)} {'is' if len(silent) == 1 else 'are'} "
+                             f"declared but never published{empty}; check the recording")
         if required:
             extra = f" ({left_out})" if left_out else ""
             raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)}){extra}")
