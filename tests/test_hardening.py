@@ -195,18 +195,19 @@ def clean_run(sim, tmp_path_factory) -> dict:
 
 # ---------------------------------------------------------------- data loss
 
+@pytest.mark.parametrize("command", ["odom", "deskew"])
 @pytest.mark.parametrize("force", [False, True], ids=["no-force", "force"])
 @pytest.mark.parametrize("case", ["same path", "symlink", "hard link", "ros2 folder", "file in ros2 folder",
                                   "new file in ros2 folder"])
-def test_odom_output_that_is_an_input_is_refused(sim, tmp_path, capsys, case, force):
+def test_output_that_is_an_input_is_refused(sim, tmp_path, capsys, case, force, command):
     """An output is never an input: the same path, the same file through a symbolic or hard link, or anything
     inside an input folder (a ROS 2 bag) is refused with exit 2 and a line saying it 'is an input', with or
     without --force (which must not be suggested); the input and its folder are left byte for byte as they
-    were and nothing is written beside them."""
+    were and nothing is written beside them (``lio odom -o``, ``lio deskew LOG OUT``)."""
     bag, folder = tmp_path / "in.bag", tmp_path / "in_ros2"
     shutil.copy2(sim["h"], bag)
     shutil.copytree(sim["h2"], folder)
-    out = tmp_path / "out.tum"
+    out = tmp_path / ("out.tum" if command == "odom" else "out.bag")
     log = {"same path": bag, "symlink": bag, "hard link": bag}.get(case, folder)
     if case == "same path":
         out = bag
@@ -219,9 +220,10 @@ def test_odom_output_that_is_an_input_is_refused(sim, tmp_path, capsys, case, fo
     elif case == "file in ros2 folder":
         out = folder / "metadata.yaml"
     else:
-        out = folder / "odom.tum"
+        out = folder / ("odom.tum" if command == "odom" else "d.bag")
     before, files = tree_hash(log), listing(tmp_path)
-    rc, _, err = lio(capsys, "odom", log, "-o", out, "-q", *(["--force"] if force else []))
+    args = ["odom", log, "-o", out] if command == "odom" else ["deskew", log, out]
+    rc, _, err = lio(capsys, *args, "-q", *(["--force"] if force else []))
     assert rc == 2
     assert "is an input" in one_line(err)
     assert "--force" not in err
@@ -309,14 +311,15 @@ def _interrupt_when_working(args, cwd: Path) -> tuple[int, str]:
     return p.returncode, "\n".join(lines)
 
 
-@pytest.mark.parametrize("command", ["odom", "info --check", "simulate"])
+@pytest.mark.parametrize("command", ["odom", "info --check", "simulate", "deskew"])
 def test_sigint_exits_130_with_one_line_and_no_temp_file(sim, tmp_path, command):
-    """Ctrl-C (SIGINT) while ``odom``, ``info --check`` or ``simulate`` works exits 130 (not 0, which tells the
-    shell the run succeeded) with one line on stderr saying it was 'interrupted', no traceback, and leaves no
-    file behind (no temp file, no partial output)."""
+    """Ctrl-C (SIGINT) while ``odom``, ``info --check``, ``simulate`` or ``deskew`` (its writing process too)
+    works exits 130 (not 0, which tells the shell the run succeeded) with one line on stderr saying it was
+    'interrupted', no traceback, and leaves no file behind (no temp file, no partial output)."""
     args = {"odom": ["odom", sim["long"], "-o", tmp_path / "o.tum"],
             "info --check": ["info", "--check", sim["long"]],
-            "simulate": ["simulate", "handheld", tmp_path / "s.bag", "--duration", "30"]}[command]
+            "simulate": ["simulate", "handheld", tmp_path / "s.bag", "--duration", "30"],
+            "deskew": ["deskew", sim["long"], tmp_path / "d.bag", "--map", tmp_path / "d.ply"]}[command]
     rc, text = _interrupt_when_working(args, tmp_path)
     assert rc == 130, f"exit {rc}, stderr:\n{text}"
     assert "interrupted" in one_line(text)
@@ -345,20 +348,22 @@ _WORK_S: dict[str, float] = {}
 
 
 @pytest.mark.parametrize("where", ["/proc", "under a file"])
-@pytest.mark.parametrize("command", ["odom -o", "evaluate --csv", "evaluate --plot"])
+@pytest.mark.parametrize("command", ["odom -o", "evaluate --csv", "evaluate --plot", "deskew"])
 def test_unwritable_output_is_refused_before_the_work(sim, long_trajectories, tmp_path, capsys, command, where):
     """An output location that cannot be written (in /proc, or a path under a regular file) is bad input: exit 2
     with one line naming it, found before the work starts (well under the time the work takes), never an
     'internal error' with exit 1 after the whole run."""
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
-    name = {"odom -o": "o.tum", "evaluate --csv": "e.csv", "evaluate --plot": "plots"}[command]
+    name = {"odom -o": "o.tum", "evaluate --csv": "e.csv", "evaluate --plot": "plots", "deskew": "d.bag"}[command]
     bad = Path("/proc") / f"lio-test-{name}" if where == "/proc" else blocker / name
     ok = tmp_path / name
 
     def run(out: Path) -> tuple[int, str, float]:
         if command == "odom -o":
             args = ["odom", sim["long"], "-o", out, "-q"]
+        elif command == "deskew":
+            args = ["deskew", sim["long"], out, "-q"]
         else:
             args = ["evaluate", *long_trajectories, command.split()[1], out, "-q"]
         t0 = time.perf_counter()

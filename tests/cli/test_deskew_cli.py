@@ -35,8 +35,10 @@ def err_line(capsys) -> str:
 def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs, tmp_path, capsys):
     bag, *_ = logs
     out, ply = tmp_path / "walk_deskewed.mcap", tmp_path / "walk.ply"
+    before = (bag.log_path.read_bytes(), bag.gt_path.read_bytes(), bag.log_path.stat().st_mtime_ns)
     rc = main(["deskew", str(bag.log_path), str(out), "--trajectory", str(bag.gt_path), "--map", str(ply)])
     assert rc == 0
+    assert (bag.log_path.read_bytes(), bag.gt_path.read_bytes(), bag.log_path.stat().st_mtime_ns) == before
     err = capsys.readouterr().err
     assert "/points: 20/20 scans de-skewed to the scan end" in err
     assert f"motion: trajectory {bag.gt_path} (201 poses of the base over 2.0 s, cubic interpolation)" in err
