@@ -34,6 +34,11 @@ PoseStamped = "geometry_msgs/msg/PoseStamped"
 TransformStamped = "geometry_msgs/msg/TransformStamped"
 TFMessage = "tf2_msgs/msg/TFMessage"
 
+# a driver's own message type, in no standard typestore (as ouster_ros/PacketMsg): ROS 1 definition
+PACKET = "lio_test/msg/Packet"
+PACKET_DEF = ("std_msgs/Header header\nuint8 KIND_IMU=1\nuint8 kind\nuint8[] buf\n" + "=" * 80 + "\n"
+              "MSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n")
+
 T_BASE_IMU = make_pose(so3_exp(np.array([0.0, 0.0, np.pi / 2])), np.array([0.1, 0.0, 0.05]))
 T_IMU_LIDAR = make_pose(so3_exp(np.array([0.02, -0.01, 0.3])), np.array([0.0, 0.2, 0.3]))
 
@@ -71,6 +76,66 @@ def velodyne_cloud(n: int = 52, header_at_end: bool = False) -> tuple[np.ndarray
     return arr, k * STEP_512_NS
 
 
+def copy_log(src: Path, out: Path, fmt: str):
+    """``src`` written as ``out`` in ``fmt`` by ``LogCopy`` (every connection; returns the ``LogCopy``, whose
+    ``copied``/``converted`` count what it did)."""
+    from lio_cli.io.log_copy import LogCopy
+    from lio_cli.io.reader import open_log
+
+    with open_log(src) as r, LogWriter(out, fmt) as w:
+        copy = LogCopy(r, w)
+        copy.mirror_all()
+        for rec in r.records():
+            copy.copy(rec)
+    return copy
+
+
+def packet_messages(n: int, t0_ns: int) -> list[tuple[int, bytes]]:
+    """``n`` ROS 1 serialised ``PACKET`` messages, 0.1 s apart from ``t0_ns``: (record time, bytes)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    store.register(get_types_from_msg(PACKET_DEF, PACKET))
+    T = store.types
+    out = []
+    for i in range(n):
+        t = t0_ns + i * SCAN_PERIOD_NS
+        header = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9),
+                                           frame_id="sensor")
+        msg = T[PACKET](header=header, kind=1, buf=np.arange(i + 3, dtype=np.uint8))
+        out.append((t, bytes(store.serialize_ros1(msg, PACKET))))
+    return out
+
+
+def ros1_mcap(bag: Path, out: Path, packets: int = 0) -> Path:
+    """The ROS 1 bag ``bag`` as an MCAP file of mcap's ros1 profile, as ROS 1 bag converters write it:
+    ``ros1msg`` schemas named ``pkg/Type``, ``ros1`` channels with caller id and latching metadata, no md5;
+    plus ``packets`` messages of a driver's own type (``PACKET``) on /packets."""
+    from mcap.writer import Writer
+    from rosbags.rosbag1 import Reader
+
+    with Reader(bag) as r, out.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="ros1", library="test")
+        schemas: dict[tuple, int] = {}
+        channels = {}
+        conns = [(c.id, c.topic, c.msgtype, c.msgdef.data, c.ext.callerid, c.ext.latching) for c in r.connections]
+        if packets:
+            conns.append((None, "/packets", PACKET, PACKET_DEF, "/driver", 0))
+        for cid, topic, msgtype, msgdef, callerid, latching in conns:
+            key = (msgtype, msgdef)
+            if key not in schemas:
+                schemas[key] = w.register_schema(msgtype.replace("/msg/", "/"), "ros1msg", msgdef.encode())
+            meta = {"latching": str(int(latching or 0))} | ({"callerid": callerid} if callerid else {})
+            channels[cid] = w.register_channel(topic, "ros1", schemas[key], meta)
+        stored = [(channels[c.id], t, data) for c, t, data in r.messages()]
+        stored += [(channels[None], t, data) for t, data in packet_messages(packets, r.start_time)]
+        for seq, (channel, t, data) in enumerate(stored):
+            w.add_message(channel, log_time=t, publish_time=t, sequence=seq, data=data)
+        w.finish()
+    return out
+
+
 class LogFactory:
     """Write tiny logs in ``root``: ``write(fmt, build)`` with ``build(writer)``, or ``sensor_log(fmt)``."""
 
@@ -81,6 +146,10 @@ class LogFactory:
     T0_NS, SCAN_PERIOD_NS, STEP_512_NS = T0_NS, SCAN_PERIOD_NS, STEP_512_NS
     T_BASE_IMU, T_IMU_LIDAR = T_BASE_IMU, T_IMU_LIDAR
     READ_FORMAT = READ_FORMAT
+    PACKET, PACKET_DEF = PACKET, PACKET_DEF
+    copy_log = staticmethod(copy_log)
+    ros1_mcap = staticmethod(ros1_mcap)
+    packet_messages = staticmethod(packet_messages)
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -147,6 +216,12 @@ class LogFactory:
 @pytest.fixture
 def logs(tmp_path: Path) -> LogFactory:
     return LogFactory(tmp_path)
+
+
+@pytest.fixture(scope="session")
+def log_tools() -> type[LogFactory]:
+    """The factory's helpers and constants (``copy_log``, ``ros1_mcap``...) for fixtures wider than a test."""
+    return LogFactory
 
 
 @pytest.fixture(params=WRITE_FORMATS)

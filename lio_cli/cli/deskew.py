@@ -27,8 +27,10 @@ where there is no return). Scans the motion does not cover, or without a valid p
 and counted (--strict refuses them).
 
 [bold]Everything else[/bold]: other topics' messages byte for byte with their record times, their
-connection metadata (definitions, hashes, latching, QoS) and /tf_static. A ROS 1 bag written as a ROS 2 bag
-or an MCAP file (or back) is converted field for field instead (counted in metrics.json).
+connection metadata (definitions, hashes, latching, QoS) and /tf_static. ROS 1 messages (a ROS 1 bag or
+a ROS 1 encoded MCAP file) written as a ROS 2 bag or an MCAP file, or back, are converted field for field
+instead, from the definitions the input stores (counted in metrics.json). An MCAP output is always ROS 2
+(CDR), which rosbags reads.
 
 [bold]Motion[/bold] (metrics.json says which): --trajectory FILE (TUM or LOG:/topic of the base, e.g.
 from lio odom; interpolated on SE(3)); else the IMU: lio's IMU-primed odometry runs, and each sweep

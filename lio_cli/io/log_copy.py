@@ -2,13 +2,15 @@
 input's encoding, converted otherwise.
 
 A ROS 1 bag holds ROS 1 encoded messages, a ROS 2 bag CDR; a bare MCAP file is written with CDR (the ros2
-profile, which rosbags and most MCAP tools read) unless the input is itself an MCAP file with ROS 1 encoded
-channels, which are then kept so. Messages whose encoding the output holds are copied byte for byte with
-their record times (MCAP: publish times and sequence numbers too) on connections that keep the input's
-definition, hash and metadata (``LogWriter.add_mirror``). The others (a ROS 1 bag written as a ROS 2 bag or
-MCAP file, or back) are converted by rosbags' own converter to the standard definitions of the other ROS
-version (a ROS 1 header's ``seq`` is dropped, or added as 0): equal field for field, not byte for byte, and
-counted in ``converted``.
+profile, which rosbags' AnyReader and most MCAP tools read; AnyReader refuses the ros1 profile), so the ROS 1
+encoded channels of an MCAP input are converted there too. Messages whose encoding the output holds are copied
+byte for byte with their record times (MCAP: publish times and sequence numbers too) on connections that keep
+the input's definition, hash (computed from the definition where the input has none: MCAP) and metadata
+(``LogWriter.add_mirror``). The others (ROS 1 written as ROS 2 or MCAP, or back) are converted by rosbags' own
+converter from the input's stored definition (the standard one where it stores none) to the other ROS
+version's standard definition, or, for a type that version lacks (a driver's own), to the input's definition
+in the other version's form (a ROS 1 header's ``seq`` is dropped, or added as 0): equal field for field, not
+byte for byte, and counted in ``converted``.
 """
 
 from __future__ import annotations
@@ -19,15 +21,9 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from ..errors import InputError
-from .reader import LogConnection, LogReader, RawRecord
+from .msgdefs import stored_typestore
+from .reader import LogConnection, LogReader, RawRecord, _first_line
 from .writer import FORMAT_ENCODINGS, LogWriter, latched_qos
-
-
-def mcap_profile(reader: LogReader) -> str:
-    """The profile of a bare MCAP copy of ``reader``: ``ros1`` for an MCAP file whose channels are all ROS 1
-    encoded (kept so), else ``ros2``."""
-    conns = reader.connections
-    return "ros1" if reader.format == "mcap" and conns and all(c.encoding == "ros1" for c in conns) else "ros2"
 
 
 class LogCopy:
@@ -42,8 +38,6 @@ class LogCopy:
 
     def holds(self, conn: LogConnection) -> bool:
         """The output format holds ``conn``'s encoding (its messages are copied as stored)."""
-        if self.writer.format == "mcap" and conn.encoding == "ros1":
-            return self.reader.format == "mcap"  # ROS 1 encoded MCAP stays so; a ROS 1 bag becomes ROS 2 MCAP
         return conn.encoding in FORMAT_ENCODINGS[self.writer.format]
 
     def output(self, conn: LogConnection, topic: str | None = None) -> tuple[int, bool]:
@@ -52,12 +46,14 @@ class LogCopy:
         if found is None:
             if self.holds(conn):
                 found = (self.writer.add_mirror(conn, topic), False)
-            else:  # the writer's own encoding and standard definition; the other format's metadata stays behind
+            else:  # the writer's encoding and definition; the other format's metadata stays behind
+                if conn.key not in self._converters:  # first: it gives the writer's typestore the input's own types
+                    self._converters[conn.key] = self._converter(conn)
+                ros1 = self.writer.encoding == "ros1"
                 target = replace(conn, encoding=self.writer.encoding, msgdef="", msgdef_format="", digest="",
-                                 qos=() if self.writer.encoding == "ros1" else (conn.qos or (
-                                     latched_qos() if conn.latching else ())),
-                                 callerid=conn.callerid if self.writer.encoding == "ros1" else None,
-                                 latching=conn.latching if self.writer.encoding == "ros1" else None)
+                                 qos=() if ros1 else (conn.qos or (latched_qos() if conn.ros1_latching else ())),
+                                 callerid=conn.callerid if ros1 else None, latching=conn.latching if ros1 else None,
+                                 metadata=(), schema_name="")
                 found = (self.writer.add_mirror(target, topic), True)
             self._out[(conn.key, topic)] = found
         return found
@@ -91,22 +87,33 @@ class LogCopy:
                              f"{conn.encoding} to {self.writer.encoding} encoding ({err})") from err
 
     def _converter(self, conn: LogConnection) -> Callable:
+        """Bytes in ``conn``'s encoding to the writer's, by rosbags' converter: from the input's stored
+        definition (the standard one where it stores none) to the writer's typestore, into which the input's
+        types that the other ROS version lacks are registered."""
         from rosbags.convert.converter import generate_message_converter
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+        from rosbags.typesys import Stores, get_typestore
 
-        src = get_typestore(Stores.ROS1_NOETIC if conn.encoding == "ros1" else Stores.ROS2_HUMBLE)
+        where = f"{self.reader.path}: {conn.topic}"
+        unusable = ""
+        try:
+            src = stored_typestore(conn)
+        except Exception as err:  # noqa: BLE001 - an unparsable definition: the standard one must do
+            src, unusable = None, _first_line(err)
+        if src is None:
+            src = get_typestore(Stores.ROS1_NOETIC if conn.encoding == "ros1" else Stores.ROS2_HUMBLE)
+            if conn.msgtype not in src.types:
+                what = (f"the input's definition of {conn.msgtype} cannot be used ({unusable or 'it does not define it'})"
+                        if conn.msgdef else f"the input stores no definition of {conn.msgtype}")
+                raise InputError(f"{where}: {what} and it is not a standard message type, so lio cannot convert it "
+                                 f"from {conn.encoding} to {self.writer.encoding} encoding; write the input's own "
+                                 "format instead (--format)")
         dst = self.writer.typestore
-        if conn.msgdef and conn.msgdef_format in ("ros1msg", "ros2msg"):  # types the standard stores lack
+        if conn.msgtype not in dst.types:  # a type the other version lacks: the input's definition, in its form
             try:
-                defined = get_types_from_msg(conn.msgdef, conn.msgtype)
-            except Exception:  # noqa: BLE001 - an unparsable definition: the standard one must do
-                defined = {}
-            for store in (src, dst):
-                store.register({k: v for k, v in defined.items() if k not in store.types})
-        if conn.msgtype not in src.types or conn.msgtype not in dst.types:
-            raise InputError(f"{self.reader.path}: {conn.topic}: {conn.msgtype} is not a standard message type, so "
-                             f"lio cannot convert it from {conn.encoding} to {self.writer.encoding} encoding; write "
-                             "the input's own format instead (--format)")
+                dst.register({k: v for k, v in src.fielddefs.items() if k not in dst.types})
+            except Exception as err:  # noqa: BLE001 - rosbags refuses a definition it cannot generate
+                raise InputError(f"{where}: cannot define {conn.msgtype} for {self.writer.format} from the "
+                                 f"input's definition ({_first_line(err)})") from err
         with contextlib.redirect_stdout(io.StringIO()):  # rosbags notes each migrated type on stdout
             return generate_message_converter(src, dst, conn.msgtype, conn.msgtype, {},
                                               src_is2=conn.encoding == "cdr", dst_is2=self.writer.encoding == "cdr")

@@ -11,6 +11,7 @@ from typing import NamedTuple
 
 from ..errors import InputError
 from ..model.records import TopicInfo
+from .msgdefs import types_from_ros2msg
 from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, _first_line
 
 _ENCODINGS = ("cdr", "ros1")
@@ -175,8 +176,7 @@ class McapLog(LogReader):
         if (handle.encoding, msgtype) not in self._registered:
             if schema is not None and schema.encoding in ("ros2msg", "ros1msg"):
                 text = schema.data.decode()
-                store.register(get_types_from_msg(text, msgtype) if ros1 else
-                               _types_from_ros2msg(text, msgtype, get_types_from_msg))
+                store.register(get_types_from_msg(text, msgtype) if ros1 else types_from_ros2msg(text, msgtype))
             elif msgtype not in store.types:  # no definition in the file: the standard one
                 store.register(get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE).fielddefs)
             if msgtype not in store.types:
@@ -187,24 +187,6 @@ class McapLog(LogReader):
 
     def close(self) -> None:
         self._file.close()
-
-
-def _types_from_ros2msg(text: str, name: str, get_types_from_msg) -> dict:
-    """Parse a ros2msg schema: the main definition plus '=== MSG: pkg/Type' sub-definitions."""
-    types: dict = {}
-    parts = text.split("=" * 80)
-    types.update(get_types_from_msg(parts[0], name))
-    for part in parts[1:]:
-        part = part.strip()
-        if not part.startswith("MSG:"):
-            continue
-        header, _, body = part.partition("\n")
-        sub = header.split(":", 1)[1].strip()
-        if "/msg/" not in sub:
-            pkg, _, typ = sub.partition("/")
-            sub = f"{pkg}/msg/{typ}"
-        types.update(get_types_from_msg(body, sub))
-    return types
 
 
 def _mcap_message_index_times(f, offset: int) -> list[int]:

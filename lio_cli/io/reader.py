@@ -62,6 +62,19 @@ class LogConnection:
     metadata: tuple[tuple[str, str], ...] = ()
     schema_name: str = ""
 
+    @property
+    def ros1_callerid(self) -> str | None:
+        """The ROS 1 caller id: the bag's, or an MCAP channel's ``callerid`` metadata (None when neither says)."""
+        return self.callerid if self.callerid is not None else dict(self.metadata).get("callerid")
+
+    @property
+    def ros1_latching(self) -> int | None:
+        """ROS 1 latching: the bag's, or an MCAP channel's ``latching`` metadata (None when neither says)."""
+        if self.latching is not None:
+            return self.latching
+        value = dict(self.metadata).get("latching", "")
+        return int(value) if value.isdigit() else None
+
 
 class RawRecord(NamedTuple):
     """One message as stored: its connection, record (log) time and serialised bytes; MCAP adds its publish

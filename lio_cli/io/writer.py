@@ -17,12 +17,14 @@ from pathlib import Path
 from ..errors import InputError
 from .files import check_writable, remove_path, replace_path, temp_sibling
 from .messages import MessageFactory
+from .msgdefs import output_definition
 from .reader import LogConnection
 
 WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"
-# the message encodings each output format holds
-FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), "mcap": ("cdr", "ros1")}
+# the message encodings each output format holds: a bare MCAP file is written with the ros2 profile (CDR), the
+# one rosbags' AnyReader and most MCAP tools read (its ros1 profile, ROS 1 encoded channels, AnyReader refuses)
+FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), "mcap": ("cdr",)}
 # the formats written as one file, and their suffixes (readers go by them; a ROS 2 bag is a folder)
 FILE_SUFFIXES = {"ros1": ".bag", "mcap": ".mcap"}
 SUFFIX_FORMATS = {suffix: fmt for fmt, suffix in FILE_SUFFIXES.items()}
@@ -41,7 +43,7 @@ def latched_qos() -> tuple:
 class LogWriter:
     """``add_topic(topic, msgtype)`` then ``write(topic, time_ns, msg)`` in any order of time."""
 
-    def __init__(self, path: str | Path, fmt: str, force: bool = False, mcap_profile: str = "ros2",
+    def __init__(self, path: str | Path, fmt: str, force: bool = False,
                  on_temp: Callable[[Path], None] | None = None) -> None:
         """``on_temp``: told the temporary path (file or ROS 2 folder) before it is created."""
         if fmt not in WRITE_FORMATS:
@@ -59,7 +61,6 @@ class LogWriter:
             self._tmpdir.mkdir()
         self._topics: dict[str, tuple[str, object]] = {}
         self._seq: dict[str, int] = {}
-        self._mcap_profile = mcap_profile
         self._mirrors: list[list] = []  # per key: [output connection, encoding, next sequence number]
         self._mirror_keys: dict[tuple, int] = {}  # identical connections share one output connection
         try:
@@ -111,7 +112,7 @@ class LogWriter:
 
             self._file = self._tmp.open("wb")
             self._w = Writer(self._file)
-            self._w.start(profile=self._mcap_profile, library="lio")
+            self._w.start(profile="ros2", library="lio")
             self._schemas: dict[str, int] = {}
 
     def add_topic(self, topic: str, msgtype: str, latching: bool = False) -> None:
@@ -144,8 +145,9 @@ class LogWriter:
         """A connection like ``conn`` (renamed to ``topic`` when given), for its messages as stored; returns the
         key ``write_record`` takes. ``conn.encoding`` must be one this format holds (``FORMAT_ENCODINGS``).
 
-        Kept: type, definition and hash; ROS 1 caller id and latching; ROS 2 QoS profiles; MCAP schema and
-        channel metadata (ROS 1 caller id/latching and ROS 2 QoS travel there as MCAP's profiles name them).
+        Kept: type, definition and hash (computed from the definition where ``conn`` has none: MCAP); ROS 1
+        caller id and latching (an MCAP channel's metadata names them); ROS 2 QoS profiles; MCAP schema and
+        channel metadata (ROS 2 QoS travel there as the ros2 profile names them).
         """
         if conn.encoding not in FORMAT_ENCODINGS[self.format]:
             raise InputError(f"{self.path}: a {self.format} log cannot hold {conn.encoding}-encoded messages "
@@ -165,30 +167,17 @@ class LogWriter:
         key = self._mirror_keys[sig] = len(self._mirrors) - 1
         return key
 
-    def _standard_msgdef(self, msgtype: str, topic: str, ros_version: int) -> tuple[str, str]:
-        if msgtype not in self.typestore.types:
-            raise InputError(f"{self.path}: {topic}: the input stores no definition of {msgtype} and it is not a "
-                             "standard type")
-        if ros_version == 1:
-            return self.typestore.generate_msgdef(msgtype)
-        return self.typestore.generate_msgdef(msgtype, ros_version=2)[0], self.typestore.hash_rihs01(msgtype)
+    def _definition(self, conn: LogConnection, topic: str) -> tuple[str, str]:
+        return output_definition(conn, self.typestore, 1 if self.format == "ros1" else 2, f"{self.path}: {topic}")
 
     def _mirror_connection(self, conn: LogConnection, topic: str):
         meta = dict(conn.metadata)
         if self.format == "ros1":
-            msgdef, digest = conn.msgdef, conn.digest
-            if not (msgdef and digest):
-                msgdef, digest = self._standard_msgdef(conn.msgtype, topic, 1)
-            callerid = conn.callerid if conn.callerid is not None else meta.get("callerid")
-            latching = conn.latching if conn.latching is not None else (
-                int(meta["latching"]) if meta.get("latching", "").isdigit() else None)
-            return self._w.add_connection(topic, conn.msgtype, msgdef=msgdef, md5sum=digest, callerid=callerid,
-                                          latching=latching)
+            msgdef, digest = self._definition(conn, topic)
+            return self._w.add_connection(topic, conn.msgtype, msgdef=msgdef, md5sum=digest,
+                                          callerid=conn.ros1_callerid, latching=conn.ros1_latching)
         if self.format in ("ros2", "ros2-mcap"):
-            msgdef, digest = conn.msgdef, conn.digest
-            if not msgdef or not digest:
-                std_def, std_hash = self._standard_msgdef(conn.msgtype, topic, 2)
-                msgdef, digest = msgdef or std_def, digest or std_hash
+            msgdef, digest = self._definition(conn, topic)
             qos = list(conn.qos)
             if not qos and meta.get("offered_qos_profiles"):
                 from rosbags.rosbag2.metadata import parse_qos
@@ -198,16 +187,12 @@ class LogWriter:
                                           offered_qos_profiles=qos)
         msgdef, fmt = conn.msgdef, conn.msgdef_format
         if not msgdef:
-            msgdef, _ = self._standard_msgdef(conn.msgtype, topic, 1 if conn.encoding == "ros1" else 2)
-            fmt = "ros1msg" if conn.encoding == "ros1" else "ros2msg"
-        name = conn.schema_name or (conn.msgtype.replace("/msg/", "/") if conn.encoding == "ros1" else conn.msgtype)
+            msgdef, _ = self._definition(conn, topic)
+            fmt = "ros2msg"
+        name = conn.schema_name or conn.msgtype
         schema_key = (name, fmt, msgdef)
         if schema_key not in self._schemas:
             self._schemas[schema_key] = self._w.register_schema(name, fmt, msgdef.encode())
-        if conn.callerid is not None:
-            meta["callerid"] = conn.callerid
-        if conn.latching is not None:
-            meta["latching"] = str(int(conn.latching))
         if conn.qos and "offered_qos_profiles" not in meta:
             from rosbags.rosbag2.metadata import dump_qos_v8
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.voxel_map import VoxelMap
-from ..io.log_copy import LogCopy, mcap_profile
+from ..io.log_copy import LogCopy
 from ..io.files import check_writable, remove_path, replace_path, temp_sibling
 from ..io.map_files import point_map_bytes
 from ..io.reader import LogReader
@@ -55,7 +55,7 @@ def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion,
     voxels = VoxelMap(cfg.map_voxel_m) if job.map is not None else None
     t0 = time.perf_counter()
     map_tmp = None
-    w = LogWriter(job.out, fmt, force=job.force, mcap_profile=mcap_profile(reader), on_temp=on_temp)
+    w = LogWriter(job.out, fmt, force=job.force, on_temp=on_temp)
     try:
         scans = _write_records(reader, w, plan, motion, cfg, voxels, progress, done0, total)
         t_map = time.perf_counter()

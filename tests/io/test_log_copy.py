@@ -5,20 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lio_cli.io.log_copy import LogCopy, mcap_profile
 from lio_cli.io.reader import open_log
 from lio_cli.io.writer import LogWriter
 
 SUFFIX = {"ros1": ".bag", "ros2": "", "ros2-mcap": "", "mcap": ".mcap"}
-
-
-def copy_all(src: Path, out: Path, fmt: str) -> LogCopy:
-    with open_log(src) as r, LogWriter(out, fmt, mcap_profile=mcap_profile(r)) as w:
-        copy = LogCopy(r, w)
-        copy.mirror_all()
-        for rec in r.records():
-            copy.copy(rec)
-    return copy
 
 
 def stored(path: Path) -> list[tuple]:
@@ -36,7 +26,7 @@ def connections(path: Path) -> list[tuple]:
 def test_same_format_copy_is_byte_identical_with_connections_and_empty_topics(logs, write_format, tmp_path):
     src = logs.sensor_log(write_format, extra=lambda w: w.add_topic("/never_published", "sensor_msgs/msg/Imu"))
     out = tmp_path / f"copy{SUFFIX[write_format]}"
-    copy = copy_all(src, out, write_format)
+    copy = logs.copy_log(src, out, write_format)
     assert stored(out) == stored(src)
     assert connections(out) == connections(src)
     assert "/never_published" in {c[0] for c in connections(out)}
@@ -47,38 +37,99 @@ def test_same_format_copy_is_byte_identical_with_connections_and_empty_topics(lo
 def test_an_output_that_holds_the_encoding_copies_bytes_across_formats(logs, tmp_path, src_fmt, out_fmt):
     src = logs.sensor_log(src_fmt)
     out = tmp_path / f"copy{SUFFIX[out_fmt]}"
-    copy_all(src, out, out_fmt)
+    logs.copy_log(src, out, out_fmt)
     strip = lambda rows: [r[:3] for r in rows]  # noqa: E731 - publish time/sequence exist in MCAP only
     assert strip(stored(out)) == strip(stored(src))
 
 
-def test_ros1_encoded_mcap_stays_ros1_encoded(logs, tmp_path):
-    """An MCAP file with ROS 1 channels (mcap's ros1 profile) is copied as it is: encoding, profile, metadata."""
+def decoded(path: Path, topic: str) -> list:
+    """(record time, the message's fields) of ``topic``, a ROS 1 header's seq left out (ROS 2 has none)."""
+    def plain(value):
+        if hasattr(value, "__dataclass_fields__"):
+            return tuple((name, plain(getattr(value, name))) for name in value.__dataclass_fields__
+                         if name != "__msgtype__" and not (name == "seq" and value.__msgtype__ == "std_msgs/msg/Header"))
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        return [plain(v) for v in value] if isinstance(value, list) else value
+
+    with open_log(path) as r:
+        return [(t, plain(m)) for _, _, t, m in r.messages([topic])]
+
+
+def anyreader_messages(path: Path) -> int:
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as r:
+        return sum(1 for c, _, raw in r.messages() if r.deserialize(raw, c.msgtype) is not None)
+
+
+def test_ros1_encoded_mcap_becomes_ros2_profile_mcap_that_rosbags_reads(logs, tmp_path):
+    """A ROS 1 profile MCAP copied as it was stayed unreadable to rosbags' AnyReader ("Profile is not ros2"):
+    its channels are converted to CDR, a driver's own type from the schema the file stores."""
     from mcap.reader import make_reader
-    from mcap.writer import Writer
-    from rosbags.typesys import Stores, get_typestore
 
-    ts = get_typestore(Stores.ROS1_NOETIC)
-    msgdef, _ = ts.generate_msgdef("std_msgs/msg/String")
-    src = tmp_path / "ros1.mcap"
-    with src.open("wb") as f:
-        w = Writer(f)
-        w.start(profile="ros1", library="test")
-        sid = w.register_schema("std_msgs/String", "ros1msg", msgdef.encode())
-        cid = w.register_channel("/chatter", "ros1", sid, metadata={"callerid": "/talker", "latching": "1"})
-        for i in range(3):
-            w.add_message(cid, log_time=100 + i, publish_time=90 + i, sequence=i,
-                          data=bytes(ts.serialize_ros1(ts.types["std_msgs/msg/String"](data=f"m{i}"), "std_msgs/msg/String")))
-        w.finish()
+    src = logs.ros1_mcap(logs.sensor_log("ros1"), tmp_path / "ros1.mcap", packets=3)
     out = tmp_path / "out.mcap"
-    copy = copy_all(src, out, "mcap")
-    assert stored(out) == stored(src) and copy.converted == {}
-    assert connections(out) == connections(src)
+    copy = logs.copy_log(src, out, "mcap")
+    assert copy.copied == {} and sum(copy.converted.values()) == len(stored(src))
     with out.open("rb") as f:
-        assert make_reader(f).get_header().profile == "ros1"
+        assert make_reader(f).get_header().profile == "ros2"
+    assert {c[2] for c in connections(out)} == {"cdr"}
+    assert anyreader_messages(out) == len(stored(src))
+    for topic in ("/packets", "/ground_truth", "/tf_static", "/odom"):
+        assert decoded(out, topic) == decoded(src, topic)
 
 
-def test_mcap_publish_times_and_sequence_numbers_are_kept(tmp_path):
+def test_ros1_encoded_mcap_copies_into_a_ros1_bag_with_md5_from_its_schemas(logs, tmp_path):
+    """An MCAP schema carries no md5, which a ROS 1 bag needs: it is computed from the stored definition (a
+    driver's type too), so the copy stays byte for byte and the bag's md5 sums are what ROS 1 gives."""
+    from rosbags.rosbag1 import Reader
+
+    bag = logs.sensor_log("ros1")
+    src = logs.ros1_mcap(bag, tmp_path / "ros1.mcap", packets=3)
+    out = tmp_path / "out.bag"
+    copy = logs.copy_log(src, out, "ros1")
+    assert copy.converted == {} and stored(out) == [r[:3] + (None, None) for r in stored(src)]
+    with Reader(bag) as a, Reader(out) as b:
+        md5 = {c.topic: c.digest for c in a.connections}
+        got = {c.topic: (c.digest, c.ext.callerid, c.ext.latching) for c in b.connections}
+    assert got.pop("/packets")[0] and {t: d for t, (d, _, _) in got.items()} == md5
+    assert got["/tf_static"][2] == 1  # latching from the channel metadata
+    assert anyreader_messages(out) == len(stored(src))
+
+
+def test_md5_sums_computed_for_a_real_ros1_mcap_are_its_recorders(logs, real_logs, tmp_path):
+    """The recorder of a real ROS 1 MCAP noted each channel's md5 in its metadata: the sums lio computes from
+    the schemas for a ROS 1 bag (ouster_ros/PacketMsg and rosgraph_msgs/Log among them) are those."""
+    from mcap.reader import make_reader
+    from rosbags.rosbag1 import Reader
+
+    src = real_logs / "ouster_os1_ros1_mcap" / "os1_64.mcap"
+    out = tmp_path / "os1.bag"
+    logs.copy_log(src, out, "ros1")
+    with src.open("rb") as f:
+        noted = {(c.topic, c.metadata["md5sum"]) for c in make_reader(f).get_summary().channels.values()}
+    with Reader(out) as r:
+        assert {(c.topic, c.digest) for c in r.connections} == noted
+    assert anyreader_messages(out) == len(stored(src))
+
+
+@pytest.mark.parametrize("out_fmt", ["ros1", "ros2", "mcap"])
+def test_a_drivers_own_type_converts_from_its_stored_definition(logs, tmp_path, out_fmt):
+    """It was refused ("the input stores no definition of ... and it is not a standard type") though the input
+    stores it: ROS 1 bag -> ROS 2 / MCAP, and a CDR MCAP (no hash) -> ROS 2 bag (RIHS01 computed) or ROS 1."""
+    bag = logs.sensor_log("ros1")
+    ros1 = logs.ros1_mcap(bag, tmp_path / "ros1.mcap", packets=3)
+    cdr = tmp_path / "cdr.mcap"
+    logs.copy_log(ros1, cdr, "mcap")  # the driver's type as a CDR channel whose schema is the only definition
+    for src in (ros1, cdr):
+        out = tmp_path / f"{src.stem}_out{SUFFIX[out_fmt]}"
+        logs.copy_log(src, out, out_fmt)
+        assert decoded(out, "/packets") == decoded(ros1, "/packets")
+        assert anyreader_messages(out) == len(stored(src))
+
+
+def test_mcap_publish_times_and_sequence_numbers_are_kept(logs, tmp_path):
     from mcap.writer import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -103,14 +154,14 @@ def test_mcap_publish_times_and_sequence_numbers_are_kept(tmp_path):
                           data=bytes(ts.serialize_cdr(m, "sensor_msgs/msg/Imu")))
         w.finish()
     out = tmp_path / "out.mcap"
-    copy_all(src, out, "mcap")
+    logs.copy_log(src, out, "mcap")
     rows = stored(out)
     assert rows == stored(src)
     assert [r[3] for r in rows] == [10**9 * i + 123 for i in range(5)]
     assert [r[4] for r in rows] == [40 + 3 * i for i in range(5)]
 
 
-def test_two_publishers_on_one_topic_stay_two_connections(tmp_path):
+def test_two_publishers_on_one_topic_stay_two_connections(logs, tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -123,7 +174,7 @@ def test_two_publishers_on_one_topic_stay_two_connections(tmp_path):
         w.write(a, 10, bytes(ts.serialize_ros1(String(data="from a"), "std_msgs/msg/String")))
         w.write(b, 20, bytes(ts.serialize_ros1(String(data="from b"), "std_msgs/msg/String")))
     out = tmp_path / "out.bag"
-    copy_all(src, out, "ros1")
+    logs.copy_log(src, out, "ros1")
     assert stored(out) == stored(src)
     assert [(c[0], c[5], c[6]) for c in connections(out)] == [("/chatter", "/talker_a", None), ("/chatter", "/talker_b", 1)]
 
@@ -132,7 +183,7 @@ def test_two_publishers_on_one_topic_stay_two_connections(tmp_path):
 def test_ros1_and_ros2_bags_convert_field_for_field(logs, tmp_path, src_fmt, out_fmt):
     src = logs.sensor_log(src_fmt)
     out = tmp_path / f"copy{SUFFIX[out_fmt]}"
-    copy = copy_all(src, out, out_fmt)
+    copy = logs.copy_log(src, out, out_fmt)
     assert copy.copied == {} and sum(copy.converted.values()) == len(stored(src))
 
     def content(path):
@@ -157,7 +208,7 @@ def test_a_latched_ros1_topic_becomes_transient_local_in_ros2(logs, tmp_path, ou
 
     src = logs.sensor_log("ros1")  # /tf_static written latched
     out = tmp_path / f"copy{SUFFIX[out_fmt]}"
-    copy_all(src, out, out_fmt)
+    logs.copy_log(src, out, out_fmt)
     with AnyReader([out]) as r:
         qos = {c.topic: c.ext.offered_qos_profiles for c in r.connections}
     tf_static = qos["/tf_static"] if not isinstance(qos["/tf_static"], str) else parse_qos(qos["/tf_static"])
