@@ -136,6 +136,31 @@ def ros1_mcap(bag: Path, out: Path, packets: int = 0) -> Path:
     return out
 
 
+def anyreader_count(path: Path) -> int:
+    """Messages rosbags' AnyReader reads and deserialises from ``path``."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([Path(path)]) as r:
+        return sum(1 for c, _, raw in r.messages() if r.deserialize(raw, c.msgtype) is not None)
+
+
+def decoded(path: Path, topic: str) -> list:
+    """(record time, the message's field values as nested tuples) of ``topic``: what a conversion between ROS 1
+    and ROS 2 keeps (a ROS 1 header's seq is left out: ROS 2 has none)."""
+    from lio_cli.io.reader import open_log
+
+    def plain(value):
+        if hasattr(value, "__dataclass_fields__"):
+            return tuple((name, plain(getattr(value, name))) for name in value.__dataclass_fields__
+                         if name != "__msgtype__" and not (name == "seq" and value.__msgtype__ == "std_msgs/msg/Header"))
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        return [plain(v) for v in value] if isinstance(value, list) else value
+
+    with open_log(path) as r:
+        return [(t, plain(m)) for _, _, t, m in r.messages([topic])]
+
+
 class LogFactory:
     """Write tiny logs in ``root``: ``write(fmt, build)`` with ``build(writer)``, or ``sensor_log(fmt)``."""
 
@@ -150,6 +175,8 @@ class LogFactory:
     copy_log = staticmethod(copy_log)
     ros1_mcap = staticmethod(ros1_mcap)
     packet_messages = staticmethod(packet_messages)
+    anyreader_count = staticmethod(anyreader_count)
+    decoded = staticmethod(decoded)
 
     def __init__(self, root: Path) -> None:
         self.root = root

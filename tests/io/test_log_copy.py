@@ -42,27 +42,6 @@ def test_an_output_that_holds_the_encoding_copies_bytes_across_formats(logs, tmp
     assert strip(stored(out)) == strip(stored(src))
 
 
-def decoded(path: Path, topic: str) -> list:
-    """(record time, the message's fields) of ``topic``, a ROS 1 header's seq left out (ROS 2 has none)."""
-    def plain(value):
-        if hasattr(value, "__dataclass_fields__"):
-            return tuple((name, plain(getattr(value, name))) for name in value.__dataclass_fields__
-                         if name != "__msgtype__" and not (name == "seq" and value.__msgtype__ == "std_msgs/msg/Header"))
-        if isinstance(value, np.ndarray):
-            return value.tolist()
-        return [plain(v) for v in value] if isinstance(value, list) else value
-
-    with open_log(path) as r:
-        return [(t, plain(m)) for _, _, t, m in r.messages([topic])]
-
-
-def anyreader_messages(path: Path) -> int:
-    from rosbags.highlevel import AnyReader
-
-    with AnyReader([path]) as r:
-        return sum(1 for c, _, raw in r.messages() if r.deserialize(raw, c.msgtype) is not None)
-
-
 def test_ros1_encoded_mcap_becomes_ros2_profile_mcap_that_rosbags_reads(logs, tmp_path):
     """A ROS 1 profile MCAP copied as it was stayed unreadable to rosbags' AnyReader ("Profile is not ros2"):
     its channels are converted to CDR, a driver's own type from the schema the file stores."""
@@ -75,9 +54,9 @@ def test_ros1_encoded_mcap_becomes_ros2_profile_mcap_that_rosbags_reads(logs, tm
     with out.open("rb") as f:
         assert make_reader(f).get_header().profile == "ros2"
     assert {c[2] for c in connections(out)} == {"cdr"}
-    assert anyreader_messages(out) == len(stored(src))
+    assert logs.anyreader_count(out) == len(stored(src))
     for topic in ("/packets", "/ground_truth", "/tf_static", "/odom"):
-        assert decoded(out, topic) == decoded(src, topic)
+        assert logs.decoded(out, topic) == logs.decoded(src, topic)
 
 
 def test_ros1_encoded_mcap_copies_into_a_ros1_bag_with_md5_from_its_schemas(logs, tmp_path):
@@ -95,7 +74,7 @@ def test_ros1_encoded_mcap_copies_into_a_ros1_bag_with_md5_from_its_schemas(logs
         got = {c.topic: (c.digest, c.ext.callerid, c.ext.latching) for c in b.connections}
     assert got.pop("/packets")[0] and {t: d for t, (d, _, _) in got.items()} == md5
     assert got["/tf_static"][2] == 1  # latching from the channel metadata
-    assert anyreader_messages(out) == len(stored(src))
+    assert logs.anyreader_count(out) == len(stored(src))
 
 
 def test_md5_sums_computed_for_a_real_ros1_mcap_are_its_recorders(logs, real_logs, tmp_path):
@@ -111,7 +90,7 @@ def test_md5_sums_computed_for_a_real_ros1_mcap_are_its_recorders(logs, real_log
         noted = {(c.topic, c.metadata["md5sum"]) for c in make_reader(f).get_summary().channels.values()}
     with Reader(out) as r:
         assert {(c.topic, c.digest) for c in r.connections} == noted
-    assert anyreader_messages(out) == len(stored(src))
+    assert logs.anyreader_count(out) == len(stored(src))
 
 
 @pytest.mark.parametrize("out_fmt", ["ros1", "ros2", "mcap"])
@@ -125,8 +104,8 @@ def test_a_drivers_own_type_converts_from_its_stored_definition(logs, tmp_path, 
     for src in (ros1, cdr):
         out = tmp_path / f"{src.stem}_out{SUFFIX[out_fmt]}"
         logs.copy_log(src, out, out_fmt)
-        assert decoded(out, "/packets") == decoded(ros1, "/packets")
-        assert anyreader_messages(out) == len(stored(src))
+        assert logs.decoded(out, "/packets") == logs.decoded(ros1, "/packets")
+        assert logs.anyreader_count(out) == len(stored(src))
 
 
 def test_mcap_publish_times_and_sequence_numbers_are_kept(logs, tmp_path):
