@@ -25,8 +25,10 @@ def _clouds(path, topic: str) -> list:
 
 
 def test_ouster_unsigned_point_times_refuse_the_end_reference_and_take_the_start(real_logs, tmp_path, capsys):
+    """A ROS 1 encoded MCAP (mcap's ros1 profile) written as a ROS 1 bag: byte for byte, the md5 sums from its
+    schemas (it was refused: "the input stores no definition of ouster_ros/msg/PacketMsg")."""
     log = real_logs / "ouster_os1_ros1_mcap" / "os1_64.mcap"
-    out = tmp_path / "os1.mcap"
+    out = tmp_path / "os1.bag"
     assert main(["deskew", str(log), str(out), "-q", "--motion", "constant-velocity"]) == 2
     assert capsys.readouterr().err.strip() == (
         f"lio: error: {log}: /os1_cloud_node/points: the per-point time field 't' is unsigned, so it cannot hold "
@@ -53,6 +55,19 @@ def test_ouster_unsigned_point_times_refuse_the_end_reference_and_take_the_start
         valid = np.isfinite(va["x"]) & ((va["x"] != 0) | (va["y"] != 0) | (va["z"] != 0))
         assert (va["t"][valid].astype(np.int64) >= shift).all()  # no valid point was clamped
     assert main(["info", str(out), "--check", "-q"]) == 0
+
+
+def test_a_ros1_encoded_mcap_written_as_mcap_or_ros2_is_converted_and_rosbags_reads_it(real_logs, tmp_path,
+                                                                                       log_tools):
+    """It kept the ros1 profile, which rosbags' AnyReader refuses, and a ROS 2 output refused /rosout
+    (rosgraph_msgs/Log is no ROS 2 type): the driver's and ROS 1's own types convert from the file's schemas."""
+    log = real_logs / "ouster_os1_ros1_mcap" / "os1_64.mcap"
+    for out, fmt in ((tmp_path / "os1.mcap", "mcap"), (tmp_path / "os1_ros2", "ros2")):
+        assert main(["deskew", str(log), str(out), "-q", "--motion", "constant-velocity", "--reference", "start",
+                     "--format", fmt]) == 0
+        assert log_tools.anyreader_count(out) == 273
+        for topic in ("/rosout", "/os1_node/imu_packets", "/tf_static"):
+            assert log_tools.decoded(out, topic) == log_tools.decoded(log, topic)
 
 
 def test_luminar_absolute_split_point_times_stay_and_the_points_move_with_the_truck(real_logs, tmp_path):
