@@ -104,9 +104,10 @@ class LogCopy:
             if conn.msgtype not in src.types:
                 what = (f"the input's definition of {conn.msgtype} cannot be used ({unusable or 'it does not define it'})"
                         if conn.msgdef else f"the input stores no definition of {conn.msgtype}")
+                keep = " or ".join(f for f, held in FORMAT_ENCODINGS.items() if conn.encoding in held)
                 raise InputError(f"{where}: {what} and it is not a standard message type, so lio cannot convert it "
-                                 f"from {conn.encoding} to {self.writer.encoding} encoding; write the input's own "
-                                 "format instead (--format)")
+                                 f"from {conn.encoding} to {self.writer.encoding} encoding; write a format that "
+                                 f"keeps {conn.encoding} instead (--format {keep})")
         dst = self.writer.typestore
         if conn.msgtype not in dst.types:  # a type the other version lacks: the input's definition, in its form
             try:
@@ -114,6 +115,10 @@ class LogCopy:
             except Exception as err:  # noqa: BLE001 - rosbags refuses a definition it cannot generate
                 raise InputError(f"{where}: cannot define {conn.msgtype} for {self.writer.format} from the "
                                  f"input's definition ({_first_line(err)})") from err
-        with contextlib.redirect_stdout(io.StringIO()):  # rosbags notes each migrated type on stdout
-            return generate_message_converter(src, dst, conn.msgtype, conn.msgtype, {},
-                                              src_is2=conn.encoding == "cdr", dst_is2=self.writer.encoding == "cdr")
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):  # rosbags notes each migrated type on stdout
+                return generate_message_converter(src, dst, conn.msgtype, conn.msgtype, {},
+                                                  src_is2=conn.encoding == "cdr", dst_is2=self.writer.encoding == "cdr")
+        except Exception as err:  # noqa: BLE001 - definitions rosbags cannot map onto each other
+            raise InputError(f"{where}: cannot convert {conn.msgtype} from {conn.encoding} to {self.writer.encoding} "
+                             f"encoding ({_first_line(err)})") from err

@@ -72,7 +72,30 @@ def stored_typestore(conn: LogConnection):
         return None
     store = get_typestore(Stores.EMPTY)
     store.register(types)
+    missing = _undefined(store.fielddefs, conn.msgtype)
+    if missing is not None:
+        raise ValueError(f"it uses {missing}, which it does not define")
     return store
+
+
+def _undefined(fielddefs: dict, msgtype: str) -> str | None:
+    """The first type ``msgtype`` uses, directly or through others, that ``fielddefs`` lacks (None: complete)."""
+    from rosbags.interfaces import Nodetype
+
+    seen, todo = set(), [msgtype]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        if name not in fielddefs:
+            return name
+        for _, (node, desc) in fielddefs[name][1]:
+            if node in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+                node, desc = desc[0]
+            if node == Nodetype.NAME:
+                todo.append(desc)
+    return None
 
 
 def digest_of_definition(conn: LogConnection, ros_version: int) -> tuple[str, str] | None:

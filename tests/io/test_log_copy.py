@@ -5,6 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lio_cli.errors import InputError
+
 from lio_cli.io.reader import open_log
 from lio_cli.io.writer import LogWriter
 
@@ -91,6 +93,30 @@ def test_md5_sums_computed_for_a_real_ros1_mcap_are_its_recorders(logs, real_log
     with Reader(out) as r:
         assert {(c.topic, c.digest) for c in r.connections} == noted
     assert logs.anyreader_count(out) == len(stored(src))
+
+
+@pytest.mark.parametrize("schema,what", [
+    (b"this is not ] a definition\n", "the input's definition of lio_test/msg/Packet cannot be used (it uses "
+                                      "lio_test/msg/this, which it does not define)"),
+    (None, "the input stores no definition of unknown"),  # a channel without schema: its type unknown too
+])
+def test_a_type_without_a_usable_definition_is_refused_saying_what_is_missing(logs, tmp_path, schema, what):
+    from mcap.writer import Writer
+
+    src = tmp_path / "in.mcap"
+    with src.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="ros1", library="test")
+        cid = w.register_channel("/packets", "ros1", w.register_schema("lio_test/Packet", "ros1msg", schema)
+                                 if schema else 0, {})
+        w.add_message(cid, log_time=1, publish_time=1, sequence=0, data=bytes(20))
+        w.finish()
+    for out, tail in ((tmp_path / "o.bag", " and it is not a standard type"),
+                      (tmp_path / "o.mcap", " and it is not a standard message type, so lio cannot convert it from "
+                                            "ros1 to cdr encoding; write a format that keeps ros1 instead (--format ros1)")):
+        with pytest.raises(InputError) as err:
+            logs.copy_log(src, out, "ros1" if out.suffix == ".bag" else "mcap")
+        assert str(err.value).endswith(f"/packets: {what}{tail}") and not out.exists()
 
 
 @pytest.mark.parametrize("out_fmt", ["ros1", "ros2", "mcap"])
