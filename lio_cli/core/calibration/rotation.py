@@ -32,6 +32,16 @@ from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, tu
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
 from .signals import GyroOrientation
 
+# window lengths to choose from (``window_s`` None): the one whose windows turn most for their length (mean squared
+# angle over the length: shorter windows are more of them). A handheld sweep of about 1 Hz (what the notes ask
+# for) turns back within a second, so 1 s windows saw half the angle of 0.5 s ones (on simulated 16-beam walks
+# the mounting came out 0.1-0.2 deg off about a horizontal axis, where 0.5 s gave 0.02-0.04); a vehicle turning
+# steadily turns more in longer windows and keeps 1 s (shorter ones told its registration's gain from the
+# mounting worse). A shorter one only when the trajectory spans MIN_WINDOWS of it: over a few seconds of scattered
+# poses half-second windows are too few apart for their covariance (6 s of poses scattered by 2 deg: errors of
+# 2.6 of its 1-sigmas)
+WINDOWS_S = (0.5, 1.0)
+MIN_WINDOWS = 40
 REG_SIGMA_RAD = 1.0  # regularisation of directions nothing observes (keeps the normal matrix invertible)
 REG_SIGMA_BIAS_RADPS = 1.0
 OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier
@@ -65,7 +75,7 @@ class RotationCalib(CalibrationResult):
 
 def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, imu_stamps_ns: np.ndarray,
                       gyro_radps: np.ndarray, *, imu_time_offset_s: float = 0.0,
-                      gyro_bias_radps: np.ndarray | None = None, window_s: float = 1.0,
+                      gyro_bias_radps: np.ndarray | None = None, window_s: float | None = None,
                       R_lidar_imu_prior: np.ndarray | None = None, prior_sigma_rad: float = np.radians(10.0),
                       max_sigma_rad: float = np.radians(1.0), frame: str = "LiDAR",
                       sigma_floor_rad: np.ndarray | None = None, refuse_sigma_rad: float | None = None) -> RotationCalib:
@@ -78,14 +88,10 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     istamps, gyro, _ = check_imu(imu_stamps_ns, gyro_radps)
     check_overlap(istamps, ls, imu_time_offset_s)
     bias = np.zeros(3) if gyro_bias_radps is None else np.asarray(gyro_bias_radps, np.float64).copy()
-    span = max(1, int(round(window_s * NS_PER_S / np.median(np.diff(ls)))))
-    ia, ib = interval_pairs(ls, span)
-    off_ns = int(round(imu_time_offset_s * NS_PER_S))
-    inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ib] <= istamps[-1] + off_ns)
-    ia, ib = ia[inside], ib[inside]
-    phi_l = lidar_increments(poses, ia, ib)
-    ok = keep_finite_increments(phi_l)
-    ia, ib, phi_l = ia[ok], ib[ok], phi_l[ok]
+    span_s = (ls[-1] - ls[0]) / NS_PER_S
+    lengths = [w for w in WINDOWS_S if w == max(WINDOWS_S) or span_s >= MIN_WINDOWS * w] if window_s is None else [window_s]
+    choices = [_windows(ls, poses, istamps, imu_time_offset_s, w) for w in lengths]
+    window_s, span, ia, ib, phi_l = max(choices, key=lambda c: (len(c[4]) >= 10, phi_turn(c[4]) / c[0], -c[0]))
     if len(ia) < 10:
         raise InputError(f"{frame}-IMU rotation: only {len(ia)} windows of {window_s:g} s overlap the IMU data (need 10)")
     ta, tb = ls[ia], ls[ib]
@@ -134,6 +140,23 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     return RotationCalib(R, sigma, cov[:3, :3], observable, bias, np.sqrt(np.diag(cov[3:6, 3:6])), int(keep.sum()),
                          float(noise * np.sqrt((fit.r * fit.r).mean())), tuple(notes),
                          gain.S if modelled else np.zeros((3, 3)), fit_cov)
+
+
+def _windows(ls: np.ndarray, poses: np.ndarray, istamps: np.ndarray, offset_s: float, window_s: float) -> tuple:
+    """(window_s, span in scans, start and end scans, LiDAR rotation increments) of the windows inside the IMU."""
+    span = max(1, int(round(window_s * NS_PER_S / np.median(np.diff(ls)))))
+    ia, ib = interval_pairs(ls, span)
+    off_ns = int(round(offset_s * NS_PER_S))
+    inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ib] <= istamps[-1] + off_ns)
+    ia, ib = ia[inside], ib[inside]
+    phi_l = lidar_increments(poses, ia, ib)
+    ok = keep_finite_increments(phi_l)
+    return window_s, span, ia[ok], ib[ok], phi_l[ok]
+
+
+def phi_turn(phi: np.ndarray) -> float:
+    """Mean squared angle of rotation increments (0 for none)."""
+    return float(np.mean(np.einsum("ni,ni->n", phi, phi))) if len(phi) else 0.0
 
 
 class _Fit(NamedTuple):
