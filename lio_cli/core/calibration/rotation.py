@@ -5,7 +5,8 @@ Over windows of ``window_s`` (all start scans, so windows overlap) the LiDAR tra
 offset) obey ``phi_lidar = R_lidar_imu (phi_imu - b dt)``. Kabsch gives a start; Gauss-Newton on the
 rotation and the gyro bias correction ``b`` (the gyro re-integrated with the bias each round, so long windows
 stay exact) gives the estimate, with an optional prior (e.g. /tf_static) that only matters along directions
-the motion does not show. Longer windows hold more rotation against the same per-pose noise.
+the motion does not show. Longer windows hold more rotation against the same per-pose noise, unless the
+motion turns back within them (a handheld sweep): the length is chosen per trajectory (``WINDOWS_S``).
 
 The trajectory is a registration's, and a registration need not turn as the sensor did: LiDAR-only odometry of
 a car follows about a third of its slow roll and pitch sways (``lio simulate drive``: the gyro-primed pass, even
