@@ -38,14 +38,18 @@ _ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_br
 
 class DeskewRegistration(RegistrationConfig):
     """lio odom's registration settings, but ICP stops early where the IMU prediction can be leant on: after 2
-    iterations on scans turning slower than 5 deg/s, after 5 on any once the IMU clock is timed (see
-    ``steady_iterations``): faster on drives, and the de-skewed points as accurate or more
-    (benchmarks/bench_deskew.py). Defaults of this class, so a YAML naming other registration fields keeps them."""
+    iterations on scans turning slower than 10 deg/s, after 5 on any once the IMU clock is timed (see
+    ``steady_iterations``): faster on drives and corridors, and the de-skewed points as accurate or more
+    (benchmarks/bench_deskew.py). 10 deg/s: the online clock estimate cannot time a stretch turning slower
+    (``calibration.time_offset``), so full iterations there bought it nothing. Defaults of this class, so a YAML
+    naming other registration fields keeps them."""
 
     steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[
         "steady_iterations"].description)
     slow_iterations: Optional[int] = Field(2, gt=0, description=RegistrationConfig.model_fields[
         "slow_iterations"].description)
+    slow_rate_degps: float = Field(10.0, ge=0, description=RegistrationConfig.model_fields[
+        "slow_rate_degps"].description)
 
 
 class DeskewFusion(FusionConfig):

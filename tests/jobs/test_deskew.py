@@ -460,7 +460,7 @@ def test_the_job_pickles_for_the_batch_runner():
 
 
 def test_icp_stops_early_on_a_drive_and_the_points_stay_as_accurate(sim, tmp_path):
-    """deskew's odometry stops ICP after 2 iterations on scans turning slower than 5 deg/s and after 5 once the
+    """deskew's odometry stops ICP after 2 iterations on scans turning slower than 10 deg/s and after 5 once the
     IMU clock is timed (the IMU prediction is leant on): on a drive, most scans. Its points are as accurate as
     with full iterations (the benchmark's 30 s drive: 2.11 / 7.59 mm against 2.83 / 9.45, a quarter less
     wall time); lio odom keeps full iterations."""
