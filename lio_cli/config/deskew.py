@@ -81,7 +81,8 @@ class DeskewConfig(Strict):
     output_format: Optional[Literal["ros1", "ros2", "ros2-mcap", "mcap"]] = Field(
         None, description="default: from OUT's suffix (.bag ros1, .mcap mcap), else the input's")
     topic_suffix: Optional[str] = Field(None, description="write de-skewed clouds to TOPIC+suffix, keep the raw ones")
-    strict: bool = Field(False, description="refuse a scan the motion does not cover instead of copying it unchanged")
+    strict: bool = Field(False, description="refuse a scan the motion does not cover, or without a valid point or "
+                         "sweep, instead of copying it unchanged")
     map_voxel_m: float = Field(0.1, gt=0, description="voxel size of --map")
     odometry: OdometryPass = OdometryPass()
 

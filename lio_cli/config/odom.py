@@ -73,8 +73,8 @@ class FusionConfig(Strict):
     degeneracy_ratio: float = Field(0.025, gt=0, description="horizontal eigenvalue ratio below which a direction is degenerate")
     degeneracy_every: int = Field(2, ge=1, description="analyse the geometry every n-th scan, reuse it between")
     degeneracy_every_clear: int = Field(2, ge=1, description=(
-        "analyse it every n-th scan (a multiple of degeneracy_every) while the last analysis found the weakest "
-        "direction 4x above degeneracy_ratio"))
+        "analyse it every n-th scan (rounded up to a multiple of degeneracy_every) while the last analysis found "
+        "the weakest direction 4x above degeneracy_ratio"))
     wheel_beta: float = Field(0.5, ge=0, le=1, description="complementary filter: weight of the wheel speed")
     wheel_speed_sigma_mps: float = Field(0.2, gt=0, description="wheel speed noise (covers slip episodes)")
     imu: ImuNoise = ImuNoise()

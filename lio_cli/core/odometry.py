@@ -96,7 +96,9 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         self._deskew = cfg.resolved_deskew()
         self._bias_prior = (gyro_bias, accel_bias)  # from a calibration file, if any
         self._dirs_b: list[np.ndarray] = []  # degenerate directions of the last analysed scan (its base frame)
-        self._degeneracy_due = 0  # no analysis before this many scans are used (a clear scene is analysed less)
+        # (no analysis before this many scans are used, the scan analysed last): a clear scene is analysed less
+        # often, and a scan registered again (a retry) analysed again; reset with the map
+        self._degeneracy_due = (0, -1)
         self._g_world: np.ndarray | None = gravity_vector(cfg.gravity_mps2) if planar else None
         self._window: list[WindowScan] = []  # LiDAR-only scans that will start the IMU state
         self.stamps_ns: list[int] = []  # the trajectory so far (internal world frame); the start-up window's
@@ -257,12 +259,14 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         fc = self.cfg.fusion
         if self._reg.empty:
             dirs_b = []
-        elif self.stats.used % fc.degeneracy_every == 0 and self.stats.used >= self._degeneracy_due:
-            # geometry changes little between scans; far from degenerate, it is looked at again later
+        elif self.stats.used % fc.degeneracy_every == 0 and (self.stats.used >= self._degeneracy_due[0]
+                                                            or self.stats.used == self._degeneracy_due[1]):
+            # geometry changes little between scans; far from degenerate, it is looked at again later. The scan
+            # analysed last is analysed again when it is registered again (a retry): its reuse would turn it
             found = analyse_degeneracy(points, self.planar, fc.degeneracy_ratio)
             dirs_b = self._dirs_b = found.directions
-            clear = found.margin >= CLEAR_MARGIN
-            self._degeneracy_due = self.stats.used + (fc.degeneracy_every_clear if clear else fc.degeneracy_every)
+            every = fc.degeneracy_every_clear if found.margin >= CLEAR_MARGIN else fc.degeneracy_every
+            self._degeneracy_due = (self.stats.used + every, self.stats.used)
         else:
             dirs_b = [R_now.T @ self._last_pose[:3, :3] @ d for d in self._dirs_b]
         self.stats.times_s["degeneracy"] += time.perf_counter() - tick

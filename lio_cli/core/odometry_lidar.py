@@ -79,6 +79,7 @@ class LidarSteps:
                 # the map's only scan matched none of the scans after it: that scan is the bad one (damaged, or
                 # another world), so the map starts again from the next scan, the pose carried by the prior
                 self._reg, self._map_restarts, self._window = None, self._map_restarts + 1, []
+                self._degeneracy_due = (0, -1)  # a new scene: analysed at once
                 self._event("map restarted", f"the map's first scan matched none of the {self._lost} after it")
         else:
             self._lost = 0

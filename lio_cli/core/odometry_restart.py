@@ -82,7 +82,7 @@ class Restart:
         st = self.stats
         used, degenerate = st.used, st.degenerate
         del self.stamps_ns[first.out_index:], self.poses[first.out_index:]
-        self._reg, self._dirs_b, self._degeneracy_due = None, [], 0
+        self._reg, self._dirs_b, self._degeneracy_due = None, [], (0, -1)
         self._last_pose, self._last_ns, self._last_delta, self._last_dt_s = self.state.pose(), None, np.eye(4), 0.0
         for w in win:
             t_prev = w.t_prev_ns if self._last_ns is None else self._last_ns
@@ -92,7 +92,7 @@ class Restart:
                 self._lidar_step(w.cloud, t_prev, w.stamp_ns)
         # the replayed scans were counted once already; they are IMU-primed now unless the replay lost the track
         st.used, st.degenerate = used, degenerate
-        self._degeneracy_due = 0  # its schedule counted the replayed scans
+        self._degeneracy_due = (0, -1)  # its schedule counted the replayed scans
         st.lidar_only_scans -= len(win)
 
     def _doubted_scan(self, cloud: PointCloud, t_prev: int, t_ref: int, measured: np.ndarray, guess: np.ndarray,

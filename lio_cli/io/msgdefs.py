@@ -98,11 +98,18 @@ def _undefined(fielddefs: dict, msgtype: str) -> str | None:
     return None
 
 
+class _Unusable(ValueError):
+    """The stored definition could not be parsed (or lacks a type it uses): the parser's first line."""
+
+
 def digest_of_definition(conn: LogConnection, ros_version: int) -> tuple[str, str] | None:
     """(definition, hash) of ``conn``'s type from its stored definition, or None when it stores none: for
     ROS 1 the definition as stored and its md5, for ROS 2 the definition as stored and its RIHS01 hash.
-    Raises (any exception) when the stored text cannot be parsed or lacks a type it uses."""
-    store = stored_typestore(conn)
+    Raises ``_Unusable`` when the stored text cannot be parsed or lacks a type it uses."""
+    try:
+        store = stored_typestore(conn)
+    except Exception as err:  # noqa: BLE001 - rosbags' parser raises what it meets in the stored text
+        raise _Unusable(_first_line(err)) from err
     if store is None:
         return None
     if ros_version == 1:
@@ -121,8 +128,8 @@ def output_definition(conn: LogConnection, typestore, ros_version: int, where: s
     if conn.msgdef:
         try:
             found = digest_of_definition(conn, ros_version)
-        except Exception as err:  # noqa: BLE001 - rosbags' parser raises what it meets
-            found, unusable = None, _first_line(err)
+        except _Unusable as err:  # only the stored text's parse: a failure past it is a bug, not bad input
+            found, unusable = None, str(err)
         if found is not None:
             return found
     msgtype = conn.msgtype

@@ -67,7 +67,7 @@ def _velocities(stamps_ns: np.ndarray, poses: np.ndarray, half: int = VELOCITY_H
 
     The step before alone carried two poses' noise divided by 0.1 s into every de-skew, and back into the poses:
     on 16-beam walks the refined poses scattered 2-2.5 cm per scan along the walk and the vertical (the bob of
-    the steps), 0.5 cm across. Over 0.3 s it is 0.4-0.5 cm along each, and the walk's changes of speed (steps
+    the steps), 0.5 cm across. Over three scan intervals (0.3 s at 10 Hz) it is 0.4-0.5 cm along each, and the walk's changes of speed (steps
     at about 2 Hz) are still followed."""
     n = len(poses)
     k = np.arange(n)

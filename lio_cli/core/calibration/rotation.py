@@ -92,7 +92,8 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     span_s = (ls[-1] - ls[0]) / NS_PER_S
     lengths = [w for w in WINDOWS_S if w == max(WINDOWS_S) or span_s >= MIN_WINDOWS * w] if window_s is None else [window_s]
     choices = [_windows(ls, poses, istamps, imu_time_offset_s, w) for w in lengths]
-    window_s, span, ia, ib, phi_l = max(choices, key=lambda c: (len(c[4]) >= 10, phi_turn(c[4]) / c[0], -c[0]))
+    dt_s = float(np.median(np.diff(ls))) / NS_PER_S  # a window is whole scans: its real length is span * dt_s
+    window_s, span, ia, ib, phi_l = max(choices, key=lambda c: (len(c[4]) >= 10, phi_turn(c[4]) / (c[1] * dt_s), -c[1]))
     if len(ia) < 10:
         raise InputError(f"{frame}-IMU rotation: only {len(ia)} windows of {window_s:g} s overlap the IMU data (need 10)")
     ta, tb = ls[ia], ls[ib]
