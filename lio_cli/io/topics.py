@@ -90,6 +90,18 @@ def _wheel_verdict(log: LogReader, topic: str) -> str | None:
     return None
 
 
+def unpublished(log: LogReader, kind: str) -> str:
+    """' (TOPIC is declared but never published)' for a log whose only ``kind`` topics hold no message (an empty
+    recording), else ''."""
+    accepted = KIND_TYPES[kind]
+    if any(i.msgtype in accepted and i.count > 0 for i in log.topics.values()):
+        return ""
+    silent = sorted(t for t, i in log.topics.items() if i.msgtype in accepted)
+    if not silent:
+        return ""
+    return f" ({', '.join(silent)} {'is' if len(silent) == 1 else 'are'} declared but never published)"
+
+
 def choose_topic(log: LogReader, kind: str, requested: str | None = None, required: bool = True,
                  exclude: tuple[str, ...] = ()) -> TopicChoice:
     """The topic for ``kind`` (lidar, imu, wheel, gt) and why; see the module's rules."""
@@ -120,11 +132,10 @@ def choose_topic(log: LogReader, kind: str, requested: str | None = None, requir
         if kind == "imu" and refused and required:
             raise InputError(f"{log.path}: IMU topic {', '.join(refused)} carries only zeros (rates and accelerations): "
                              "not an IMU; run LiDAR-only with --prior constant-velocity --deskew constant-velocity")
-        silent = sorted(t for t, i in log.topics.items() if i.msgtype in accepted and t not in exclude and i.count == 0)
-        if required and silent and not candidates and kind in ("lidar", "imu"):  # declared, never published
-            empty = "" if any(i.count for i in log.topics.values()) else " (the log holds no message at all)"
-            raise InputError(f"{log.path}: no {word} data: {', '.join(silent)} {'is' if len(silent) == 1 else 'are'} "
-                             f"declared but never published{empty}; check the recording")
+        silent = unpublished(log, kind) if kind in ("lidar", "imu") and not candidates else ""
+        if required and silent:  # declared, never published: not "no topic of the type"
+            empty = "" if any(i.count for i in log.topics.values()) else "the log holds no message at all: "
+            raise InputError(f"{log.path}: no {word} data{silent}; {empty}check the recording")
         if required:
             extra = f" ({left_out})" if left_out else ""
             raise InputError(f"{log.path}: no {word} topic (none of type {', '.join(accepted)}){extra}")

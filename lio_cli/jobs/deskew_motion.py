@@ -31,7 +31,7 @@ from ..geometry import inv_pose
 from ..io.reader import LogReader, RawRecord, open_log
 from ..io.sources import load_trajectory
 from ..io.stream import SensorStream
-from ..io.topics import choose_topic
+from ..io.topics import choose_topic, unpublished
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
 from .deskew_poses import OFFSET_AGREE_NS, PoseFeed
@@ -61,7 +61,8 @@ def resolve_motion(cfg: DeskewConfig, reader: LogReader) -> tuple[str, str | Non
         return motion, None
     imu = choose_topic(reader, "imu", cfg.input.imu_topic, required=False).topic
     if imu is None:
-        raise InputError(f"{reader.path}: no IMU topic (sensor_msgs/Imu) and no --trajectory to take the motion "
+        raise InputError(f"{reader.path}: no IMU topic (sensor_msgs/Imu){unpublished(reader, 'imu')} and no "
+                         "--trajectory to take the motion "
                          "from; give --trajectory FILE (e.g. from lio odom) or --motion constant-velocity for "
                          "LiDAR-only motion")
     return "imu", imu

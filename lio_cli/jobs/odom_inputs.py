@@ -12,7 +12,7 @@ from ..io.clocks import check_overlap, check_same_clock
 from ..io.decode import IMU, LASERSCAN
 from ..io.reader import LogReader
 from ..io.tf import FrameTree, TfConflict
-from ..io.topics import TopicChoice, choose_topic
+from ..io.topics import TopicChoice, choose_topic, unpublished
 from ..model.calibration import Calibration
 
 BASE_FRAME_NAMES = ("base_link", "base", "base_footprint")
@@ -57,7 +57,7 @@ def choose_inputs(reader: LogReader, cfg: OdomConfig) -> OdomInputs:
     if imu is None and needs_imu:
         what = "--prior imu" if cfg.prior == "imu" else "--deskew imu"
         raise InputError(
-            f"{reader.path}: no IMU topic (sensor_msgs/Imu) for {what}; run LiDAR-only with "
+            f"{reader.path}: no IMU topic (sensor_msgs/Imu){unpublished(reader, 'imu')} for {what}; run LiDAR-only with "
             "--prior constant-velocity --deskew constant-velocity, or name the topic with --imu-topic"
         )
     use_imu = imu is not None and needs_imu

@@ -35,8 +35,8 @@ def test_select_topic_ignores_topics_without_messages(logs):
         # required: the declared topic is named, not "no LiDAR topic (none of type ...)" beside a declared one
         with pytest.raises(InputError) as err:
             select_topic(log, "lidar")
-        assert str(err.value) == (f"{path}: no LiDAR data: /points is declared but never published (the log holds "
-                                  "no message at all); check the recording")
+        assert str(err.value) == (f"{path}: no LiDAR data (/points is declared but never published); the log holds "
+                                  "no message at all: check the recording")
 
 
 def test_select_topic_picks_the_only_one(logs):

@@ -398,21 +398,31 @@ def test_clouds_without_time_in_no_spinning_order_are_refused(sim, tmp_path, rew
     assert res.metrics["scans"]["deskewed"] == 20 and np.median(err) < 0.1 * np.median(skew)
 
 
-def test_no_motion_source_and_contradicting_options_are_refused(sim, tmp_path):
-    s = sim("ros1")
-    noimu = tmp_path / "noimu.bag"
-    with open_log(s.log_path) as r, LogWriter(noimu, "ros1") as w:
+def _without_imu(src, dst, declared: bool):
+    """A copy of ``src`` without /imu's messages; ``declared``: the topic still declared (a silent driver)."""
+    with open_log(src) as r, LogWriter(dst, "ros1") as w:
         for topic, info in r.topics.items():
-            if topic != "/imu":
+            if topic != "/imu" or declared:
                 w.add_topic(topic, info.msgtype)
         for topic, _, t, msg in r.messages():
             if topic != "/imu":
                 w.write(topic, t, msg)
+    return dst
+
+
+def test_no_motion_source_and_contradicting_options_are_refused(sim, tmp_path):
+    s = sim("ros1")
+    noimu = _without_imu(s.log_path, tmp_path / "noimu.bag", declared=False)
     with pytest.raises(InputError) as err:
         deskew(noimu, tmp_path / "out.bag")
     assert str(err.value) == (f"{noimu}: no IMU topic (sensor_msgs/Imu) and no --trajectory to take the motion from; "
                               "give --trajectory FILE (e.g. from lio odom) or --motion constant-velocity for "
                               "LiDAR-only motion")
+    silent = _without_imu(s.log_path, tmp_path / "silent_imu.bag", declared=True)  # a driver that did not start
+    with pytest.raises(InputError) as err:
+        deskew(silent, tmp_path / "out.bag")
+    assert str(err.value).startswith(f"{silent}: no IMU topic (sensor_msgs/Imu) (/imu is declared but never "
+                                     "published) and no --trajectory to take the motion from;")
     with pytest.raises(ConfigError) as err:
         deskew(s.log_path, tmp_path / "out.bag", motion="imu", **gt(s))
     assert str(err.value) == "--trajectory gives the motion; it cannot be combined with --motion imu"
