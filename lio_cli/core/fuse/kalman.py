@@ -79,6 +79,14 @@ class Anchor:
         return t_ns > self.until
 
 
+def reset_scale(H: np.ndarray, d2: float, reset_states=None) -> np.ndarray:
+    """Per-state standard-deviation factors of a gate reset: sqrt(d2 / m), at least 1, on ``reset_states``
+    (default: every state H touches), 1 elsewhere (``P * outer(scale, scale)`` stays positive definite)."""
+    scale = np.ones(H.shape[1])
+    scale[np.any(H != 0.0, axis=0) if reset_states is None else reset_states] = np.sqrt(max(1.0, d2 / len(H)))
+    return scale
+
+
 def small_inv(S: np.ndarray) -> np.ndarray:
     """Inverse of a small matrix: closed form up to 3x3 (numpy's per-call overhead dominates a filter step
     there), numpy beyond. Raises LinAlgError when singular."""
@@ -132,8 +140,7 @@ def kalman_update(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn
             return P, "outlier"
         if reset:
             status = "reset"
-            scale = np.ones(len(P))
-            scale[np.any(H != 0.0, axis=0) if reset_states is None else reset_states] = np.sqrt(max(1.0, d2 / len(r)))
+            scale = reset_scale(H, d2, reset_states)
             P = P * np.outer(scale, scale)
             PHt = P @ H.T
             Sinv = np.linalg.inv(H @ PHt + Rn)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .kalman import Gate
+from .kalman import Gate, reset_scale
 
 
 def inverse_small(S: list[list[float]]) -> list[list[float]] | None:
@@ -91,8 +91,7 @@ class Updater:
         H touches) until the innovation is typical, then update."""
         m = len(r)
         Rn = Rn if isinstance(Rn, np.ndarray) else np.diag(Rn)
-        scale = np.ones(len(P))
-        scale[np.any(H != 0.0, axis=0) if reset_states is None else reset_states] = np.sqrt(max(1.0, d2 / m))
+        scale = reset_scale(H, d2, reset_states)
         P *= np.outer(scale, scale)
         PHt = P @ H.T
         return self._apply(x, P, r, PHt, np.linalg.inv(H @ PHt + Rn), m, "reset")
