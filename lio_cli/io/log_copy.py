@@ -22,7 +22,7 @@ from dataclasses import replace
 
 from ..errors import InputError
 from .msgdefs import stored_typestore
-from .reader import LogConnection, LogReader, RawRecord, _first_line
+from .reader import LogConnection, LogReader, RawRecord, first_line
 from .writer import FORMAT_ENCODINGS, LogWriter, latched_qos
 
 
@@ -98,7 +98,7 @@ class LogCopy:
         try:
             src = stored_typestore(conn)
         except Exception as err:  # noqa: BLE001 - an unparsable definition: the standard one must do
-            src, unusable = None, _first_line(err)
+            src, unusable = None, first_line(err)
         if src is None:
             src = get_typestore(Stores.ROS1_NOETIC if conn.encoding == "ros1" else Stores.ROS2_HUMBLE)
             if conn.msgtype not in src.types:
@@ -114,11 +114,11 @@ class LogCopy:
                 dst.register({k: v for k, v in src.fielddefs.items() if k not in dst.types})
             except Exception as err:  # noqa: BLE001 - rosbags refuses a definition it cannot generate
                 raise InputError(f"{where}: cannot define {conn.msgtype} for {self.writer.format} from the "
-                                 f"input's definition ({_first_line(err)})") from err
+                                 f"input's definition ({first_line(err)})") from err
         try:
             with contextlib.redirect_stdout(io.StringIO()):  # rosbags notes each migrated type on stdout
                 return generate_message_converter(src, dst, conn.msgtype, conn.msgtype, {},
                                                   src_is2=conn.encoding == "cdr", dst_is2=self.writer.encoding == "cdr")
         except Exception as err:  # noqa: BLE001 - definitions rosbags cannot map onto each other
             raise InputError(f"{where}: cannot convert {conn.msgtype} from {conn.encoding} to {self.writer.encoding} "
-                             f"encoding ({_first_line(err)})") from err
+                             f"encoding ({first_line(err)})") from err

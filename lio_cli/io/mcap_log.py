@@ -12,7 +12,7 @@ from typing import NamedTuple
 from ..errors import InputError
 from ..model.records import TopicInfo
 from .msgdefs import types_from_ros2msg
-from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, _first_line
+from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, first_line
 
 _ENCODINGS = ("cdr", "ros1")
 
@@ -56,7 +56,7 @@ class McapLog(LogReader):
             summary = self._reader.get_summary()
         except _READ_ERRORS as err:
             raise InputError(
-                f"{path}: cannot open as MCAP ({_first_line(err)}); the file may be truncated or corrupted"
+                f"{path}: cannot open as MCAP ({first_line(err)}); the file may be truncated or corrupted"
             ) from err
         self._summary = summary
         if summary is None or summary.statistics is None:
@@ -101,7 +101,7 @@ class McapLog(LogReader):
                 end = t if end is None else max(end, t)
         except _READ_ERRORS as err:
             raise InputError(
-                f"{self.path}: MCAP file is truncated or corrupted ({_first_line(err)}); re-record or repair it"
+                f"{self.path}: MCAP file is truncated or corrupted ({first_line(err)}); re-record or repair it"
             ) from err
         self.start_ns, self.end_ns = start or 0, end or 0
 

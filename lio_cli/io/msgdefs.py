@@ -11,7 +11,7 @@ definition defines (the standard typestores lack a driver's own types, e.g. ``ou
 from __future__ import annotations
 
 from ..errors import InputError
-from .reader import LogConnection, _first_line
+from .reader import LogConnection, first_line
 
 _SEPARATOR = "=" * 80
 
@@ -109,7 +109,7 @@ def digest_of_definition(conn: LogConnection, ros_version: int) -> tuple[str, st
     try:
         store = stored_typestore(conn)
     except Exception as err:  # noqa: BLE001 - rosbags' parser raises what it meets in the stored text
-        raise _Unusable(_first_line(err)) from err
+        raise _Unusable(first_line(err)) from err
     if store is None:
         return None
     if ros_version == 1:

@@ -130,8 +130,7 @@ class LogReader:
         return max(0, self.end_ns - self.start_ns)
 
     def _wrap(self, what: str, err: BaseException) -> InputError:
-        detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        return InputError(f"{self.path}: {what} ({detail}); the log may be truncated or corrupted")
+        return InputError(f"{self.path}: {what} ({first_line(err)}); the log may be truncated or corrupted")
 
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
         """(topic, msgtype, record_time_ns, serialised bytes) in record-time order."""
@@ -225,7 +224,8 @@ class LogReader:
             raise self._wrap("cannot read messages", err) from err
 
 
-def _first_line(err: BaseException) -> str:
+def first_line(err: BaseException) -> str:
+    """An exception's first line for a one-line error (its type when it has no text)."""
     text = str(err).strip()
     line = text.splitlines()[0] if text else type(err).__name__
     return re.sub(r"\('(.*)',\)", r"\1", line)  # rosbags wraps messages as "...: ('detail',)"

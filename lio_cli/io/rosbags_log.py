@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..model.records import TopicInfo
 from .mcap_log import mcap_channel_spans
-from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, _first_line, _merge_span
+from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, first_line, _merge_span
 
 class _BagPath(type(Path())):
     """A path that reports the .bag suffix, so rosbags' AnyReader reads it as a ROS 1 bag."""
@@ -46,7 +46,7 @@ class RosbagsLog(LogReader):
                 self._reader.open()
         except _READ_ERRORS as err:
             raise InputError(
-                f"{path}: cannot open as {fmt} log ({_first_line(err)}); the log may be truncated or corrupted"
+                f"{path}: cannot open as {fmt} log ({first_line(err)}); the log may be truncated or corrupted"
             ) from err
         r = self._reader
         if r.message_count:
