@@ -91,9 +91,9 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
     bias = np.zeros(3) if gyro_bias_radps is None else np.asarray(gyro_bias_radps, np.float64).copy()
     span_s = (ls[-1] - ls[0]) / NS_PER_S
     lengths = [w for w in WINDOWS_S if w == max(WINDOWS_S) or span_s >= MIN_WINDOWS * w] if window_s is None else [window_s]
-    choices = [_windows(ls, poses, istamps, imu_time_offset_s, w) for w in lengths]
-    dt_s = float(np.median(np.diff(ls))) / NS_PER_S  # a window is whole scans: its real length is span * dt_s
-    window_s, span, ia, ib, phi_l = max(choices, key=lambda c: (len(c[4]) >= 10, phi_turn(c[4]) / (c[1] * dt_s), -c[1]))
+    dt_ns = float(np.median(np.diff(ls)))  # a window is whole scans: its real length is span * dt_ns
+    choices = [_windows(ls, poses, istamps, imu_time_offset_s, w, dt_ns) for w in lengths]
+    window_s, span, ia, ib, phi_l = max(choices, key=lambda c: (len(c[4]) >= 10, phi_turn(c[4]) / c[1], -c[1]))
     if len(ia) < 10:
         raise InputError(f"{frame}-IMU rotation: only {len(ia)} windows of {window_s:g} s overlap the IMU data (need 10)")
     ta, tb = ls[ia], ls[ib]
@@ -144,9 +144,11 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
                          gain.S if modelled else np.zeros((3, 3)), fit_cov)
 
 
-def _windows(ls: np.ndarray, poses: np.ndarray, istamps: np.ndarray, offset_s: float, window_s: float) -> tuple:
-    """(window_s, span in scans, start and end scans, LiDAR rotation increments) of the windows inside the IMU."""
-    span = max(1, int(round(window_s * NS_PER_S / np.median(np.diff(ls)))))
+def _windows(ls: np.ndarray, poses: np.ndarray, istamps: np.ndarray, offset_s: float, window_s: float,
+             dt_ns: float) -> tuple:
+    """(window_s, span in scans, start and end scans, LiDAR rotation increments) of the windows of ``window_s``
+    (whole scans ``dt_ns`` apart) inside the IMU."""
+    span = max(1, int(round(window_s * NS_PER_S / dt_ns)))
     ia, ib = interval_pairs(ls, span)
     off_ns = int(round(offset_s * NS_PER_S))
     inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ib] <= istamps[-1] + off_ns)
