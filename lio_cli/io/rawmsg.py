@@ -1,7 +1,9 @@
-"""Parse the two hot message types, sensor_msgs/PointCloud2 and sensor_msgs/Imu, straight from their bytes.
+"""Parse the hot message types, sensor_msgs/PointCloud2, sensor_msgs/Imu and nav_msgs/Odometry (wheel
+odometry), straight from their bytes.
 
-A LiDAR log is mostly these two; going through a generic typestore deserialiser costs more than the
-numpy work on the points. The parsers read ROS 1 serialisation and little-endian CDR (ROS 2, MCAP) and
+A LiDAR log is mostly these; going through a generic typestore deserialiser costs more than the
+numpy work on the points (an Odometry message: ~0.1 ms by the typestore, a 50 Hz wheel topic a tenth of a
+second per 30 s of log). The parsers read ROS 1 serialisation and little-endian CDR (ROS 2, MCAP) and
 return light objects with the attributes the decoders use (``header.stamp.sec``, ``fields``, ``data``...).
 They return ``None`` for anything they do not handle (big-endian CDR), so the caller falls back to the
 typestore; malformed bytes raise ``ValueError``/``struct.error``, which the log reader reports as a
@@ -14,6 +16,8 @@ import struct
 from typing import NamedTuple
 
 import numpy as np
+
+from .stamped_bytes import split_header
 
 _U32 = struct.Struct("<I")
 _STAMP_ROS1 = struct.Struct("<III")  # seq, sec, nsec
@@ -52,6 +56,47 @@ class RawPointCloud2(NamedTuple):
     row_step: int
     data: np.ndarray
     is_dense: bool
+
+
+class Vector3(NamedTuple):
+    x: float
+    y: float
+    z: float
+
+
+class Quaternion(NamedTuple):
+    x: float
+    y: float
+    z: float
+    w: float
+
+
+class Pose(NamedTuple):
+    position: Vector3
+    orientation: Quaternion
+
+
+class Twist(NamedTuple):
+    linear: Vector3
+    angular: Vector3
+
+
+class PoseWithCovariance(NamedTuple):
+    pose: Pose  # the covariance is not read by lio
+
+
+class TwistWithCovariance(NamedTuple):
+    twist: Twist  # the covariance is not read by lio
+
+
+class RawOdometry(NamedTuple):
+    """The nav_msgs/Odometry attributes lio reads (``header``, ``child_frame_id``, ``pose.pose``,
+    ``twist.twist``), as the typestore's message has them; not the covariances."""
+
+    header: Header
+    child_frame_id: str
+    pose: PoseWithCovariance
+    twist: TwistWithCovariance
 
 
 class RawImu(NamedTuple):
@@ -157,7 +202,25 @@ def parse_imu(buf, cdr: bool) -> RawImu | None:
                   _SIX_F8.unpack_from(buf, pos + 200))
 
 
+# position, orientation, the pose covariance (36 f8, skipped), linear and angular velocity, twist covariance
+_ODOM_BODY = struct.Struct("<7d288x6d288x")
+
+
+def parse_odometry(buf, cdr: bool) -> RawOdometry | None:
+    if cdr and (len(buf) < 4 or buf[1] != 1):
+        return None  # big-endian CDR: the typestore
+    stamp_ns, frame, kid, pos = split_header(buf, cdr, True)
+    if pos + _ODOM_BODY.size > len(buf):
+        raise ValueError(f"Odometry message of {len(buf)} bytes is shorter than its layout")
+    px, py, pz, qx, qy, qz, qw, lx, ly, lz, ax, ay, az = _ODOM_BODY.unpack_from(buf, pos)
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    return RawOdometry(Header(Time(sec, nsec), frame.decode()), kid.decode(),
+                       PoseWithCovariance(Pose(Vector3(px, py, pz), Quaternion(qx, qy, qz, qw))),
+                       TwistWithCovariance(Twist(Vector3(lx, ly, lz), Vector3(ax, ay, az))))
+
+
 RAW_PARSERS = {
     "sensor_msgs/msg/PointCloud2": parse_pointcloud2,
     "sensor_msgs/msg/Imu": parse_imu,
+    "nav_msgs/msg/Odometry": parse_odometry,
 }

@@ -35,6 +35,10 @@ _RAW_DIGESTS = {
         "6a62c6daae103f4ff57a132d6f95cec2",
         "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
     },
+    "nav_msgs/msg/Odometry": {
+        "cd5e73d190d741a2f92e81eda573aca7",
+        "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
+    },
 }
 
 
