@@ -23,3 +23,14 @@ def test_exp_one_and_log_one_match_scipy(angle):
 def test_log_one_near_pi_falls_back_correctly():
     phi = np.array([0.0, 0.0, np.pi - 1e-9])
     np.testing.assert_allclose(np.abs(g.so3_log_one(g.so3_exp(phi))), np.abs(phi), atol=1e-6)
+
+
+def test_pose_from_floats_is_bit_identical_to_the_array_version():
+    """The message decoders' one-pose path: the same bits as pose_from_xyz_quat, over quaternions of any norm."""
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        q = rng.normal(size=4) * 10 ** rng.uniform(-3, 3)
+        xyz = rng.normal(size=3) * 100
+        q = q / float(np.linalg.norm(q))
+        np.testing.assert_array_equal(g.pose_from_xyz_quat_one(tuple(xyz.tolist()), tuple(q.tolist())),
+                                      g.pose_from_xyz_quat(xyz, q))

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import pose_from_xyz_quat
+from ..geometry import pose_from_xyz_quat_one
 from .pointcloud import stamp_to_ns
 from ..model.records import NavSatFixRecord, OdometryRecord, PoseRecord, TransformRecord
 
@@ -40,11 +42,13 @@ def _quat(q) -> np.ndarray:
 
 
 def _pose_of(position, orientation, what: str) -> np.ndarray:
-    xyz, q = _vec(position), _quat(orientation)
+    xyz = (float(position.x), float(position.y), float(position.z))
+    q = _quat(orientation)
     norm = float(np.linalg.norm(q))
-    if not np.isfinite(xyz).all() or not np.isfinite(q).all() or norm < 1e-6:
+    if not (math.isfinite(xyz[0]) and math.isfinite(xyz[1]) and math.isfinite(xyz[2])) \
+            or not np.isfinite(q).all() or norm < 1e-6:
         raise InputError(f"{what} holds a non-finite position or a zero/NaN quaternion")
-    return pose_from_xyz_quat(xyz, q / norm)
+    return pose_from_xyz_quat_one(xyz, (q / norm).tolist())
 
 
 def imu_sample(msg) -> tuple[int, np.ndarray, np.ndarray]:
