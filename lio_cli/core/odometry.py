@@ -57,6 +57,7 @@ class OdomStats:
     wheel_zero_skipped: int = 0
     lidar_only_scans: int = 0  # registered without the IMU state: start-up window, recoveries, no IMU
     capped_icp_scans: int = 0  # IMU-primed scans registered with steady_ or slow_iterations
+    predicted_scans: int = 0  # slowly turning scans whose pose is the IMU prediction, unregistered (slow_register_every)
     recoveries: int = 0
     time_gaps: int = 0
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
@@ -99,6 +100,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         # (no analysis before this many scans are used, the scan analysed last): a clear scene is analysed less
         # often, and a scan registered again (a retry) analysed again; reset with the map
         self._degeneracy_due = (0, -1)
+        self._predicted_run = 0  # slowly turning scans given their IMU prediction since the last registered one
         self._g_world: np.ndarray | None = gravity_vector(cfg.gravity_mps2) if planar else None
         self._window: list[WindowScan] = []  # LiDAR-only scans that will start the IMU state
         self.stamps_ns: list[int] = []  # the trajectory so far (internal world frame); the start-up window's
@@ -321,6 +323,9 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             knot_poses = self._last_pose[None] @ rel
         else:
             knots = knot_poses = None
+        slow = bridge_gate_m is None and self._turning_slowly(imu, t_prev, t_ref)  # a bridge: full iterations
+        if self._predicted_only(slow):
+            return self._finish(t_ref, self.state.pose(), None, None, [], False)
         points = self._prepare(cloud, knots, knot_poses, t_ref)
         if points is None:
             self.state = saved  # the scan is skipped: keep the state where the last used scan left it
@@ -328,7 +333,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         tick = time.perf_counter()
         guess = self._guess(t_prev, t_ref)
         frame, source = self._reg.downsample(points)
-        cap = None if bridge_gate_m is not None else self._icp_cap(imu, t_prev, t_ref)  # a bridge: full iterations
+        cap = None if bridge_gate_m is not None else self._icp_cap(slow)
         st.capped_icp_scans += int(cap is not None)
         measured = self._reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m,
                                       iterations=cap)

@@ -118,21 +118,43 @@ class StateUpdates:
             flatten_planar(self.state)
         return self.state.pose()
 
-    def _icp_cap(self, imu: ImuBatch, t_prev: int, t_ref: int) -> int | None:
+    def _turning_slowly(self, imu: ImuBatch, t_prev: int, t_ref: int) -> bool:
+        """Whether the IMU turns slower than ``slow_rate_degps`` over the scan's interval (not looked at, False,
+        when no setting depends on it: lio odom's defaults)."""
+        rc = self.cfg.registration
+        if rc.steady_iterations is None and rc.slow_iterations is None and rc.slow_register_every == 1:
+            return False
+        lo, hi = np.searchsorted(imu.stamps_ns, (t_prev, t_ref))
+        gyro = imu.gyro_radps[lo:hi + 1]  # the scan's interval (the window holds more on either side)
+        return bool(len(gyro)) and bool(np.linalg.norm(gyro - self.state.bg, axis=1).max()
+                                        < np.radians(rc.slow_rate_degps))
+
+    def _icp_cap(self, slow: bool) -> int | None:
         """The ICP iterations of an IMU-primed scan whose prediction can be leant on (None: the full count).
-        ``slow_iterations`` where the IMU turns slower than ``slow_rate_degps`` (the prediction is good there, a
+        ``slow_iterations`` where the IMU turns slowly (``_turning_slowly``: the prediction is good there, a
         drive's ICP only slides along the road's surfaces in its later iterations, and such a scan cannot time
         the clock anyway); ``steady_iterations`` for any scan once the IMU clock is timed (or not tracked).
         A turning scan keeps full iterations while the clock tracker needs fully converged poses."""
         rc = self.cfg.registration
         if rc.steady_iterations is None and rc.slow_iterations is None:
             return None
-        slow_cap = rc.slow_iterations or rc.steady_iterations
-        lo, hi = np.searchsorted(imu.stamps_ns, (t_prev, t_ref))
-        gyro = imu.gyro_radps[lo:hi + 1]  # the scan's interval (the window holds more on either side)
-        if len(gyro) and np.linalg.norm(gyro - self.state.bg, axis=1).max() < np.radians(rc.slow_rate_degps):
-            return slow_cap
+        if slow:
+            return rc.slow_iterations or rc.steady_iterations
         return rc.steady_iterations if self.clock is None or self.clock.done else None
+
+    def _predicted_only(self, slow: bool) -> bool:
+        """Whether this scan's pose is its IMU prediction, without registering it: of consecutive slowly turning
+        scans only every ``slow_register_every``-th is registered (0.1 s of propagation from a state corrected
+        one scan before is millimetres off; such a scan cannot time the clock anyway). Never in doubt, nor on a
+        new map; a predicted scan stays out of the map."""
+        every = self.cfg.registration.slow_register_every
+        if slow and every > 1 and self._predicted_run < every - 1 and not self._doubt \
+                and self._reg is not None and not self._reg.empty:
+            self._predicted_run += 1
+            self.stats.predicted_scans += 1
+            return True
+        self._predicted_run = 0
+        return False
 
     def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
         if self.clock is None or self.clock.done:

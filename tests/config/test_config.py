@@ -105,10 +105,11 @@ def test_calibrate_takes_the_clock_offset_its_clock_check_suggests_even_between_
 
 
 @pytest.mark.parametrize("text, caps", [
-    ("{}", (5, 2)),
-    ("odometry:\n  fusion:\n    degeneracy_every: 4\n", (5, 2)),  # was (None, None): the section replaced the default
-    ("odometry:\n  registration:\n    max_range_m: 80\n", (5, 2)),
-    ("odometry:\n  registration:\n    steady_iterations: null\n    slow_iterations: null\n", (None, None)),
+    ("{}", (5, 2, 2)),
+    ("odometry:\n  fusion:\n    degeneracy_every: 4\n", (5, 2, 2)),  # was (None, None): the section replaced the default
+    ("odometry:\n  registration:\n    max_range_m: 80\n", (5, 2, 2)),
+    ("odometry:\n  registration:\n    steady_iterations: null\n    slow_iterations: null\n", (None, None, 2)),
+    ("odometry:\n  registration:\n    slow_register_every: 1\n", (5, 2, 1)),
 ])
 def test_deskew_keeps_its_icp_caps_unless_told(tmp_path, text, caps):
     from lio_cli.config.deskew import DeskewConfig
@@ -117,7 +118,8 @@ def test_deskew_keeps_its_icp_caps_unless_told(tmp_path, text, caps):
     path.write_text(text)
     cfg = load_model(DeskewConfig, path)
     rc = cfg.odom_config("imu").registration
-    assert (rc.steady_iterations, rc.slow_iterations) == caps
+    assert (rc.steady_iterations, rc.slow_iterations, rc.slow_register_every) == caps
+    assert OdomConfig().registration.slow_register_every == 1
     assert (rc.slow_rate_degps, OdomConfig().registration.slow_rate_degps) == (10.0, 5.0)
     assert (OdomConfig().registration.steady_iterations, OdomConfig().registration.slow_iterations) == (None, None)
     # and its sparser degeneracy analysis of clear scenes, also when the YAML names other fusion fields
