@@ -43,7 +43,8 @@ class DeskewRegistration(RegistrationConfig):
     (benchmarks/bench_deskew.py). 10 deg/s: the online clock estimate cannot time a stretch turning slower
     (``calibration.time_offset``), so full iterations there bought it nothing. Of such slowly turning scans only
     every second is registered: the others' poses are the IMU prediction, 0.1 s from a corrected state (a drive
-    runs ~25 % faster, its de-skewed points ~0.4 mm further from the truth). Defaults of this class, so a YAML
+    runs ~25 % faster; the writing pass de-skews them with the cubic through the registered poses, as accurate
+    as registering every scan: benchmarks/bench_deskew.py). Defaults of this class, so a YAML
     naming other registration fields keeps them."""
 
     steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[

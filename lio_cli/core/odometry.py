@@ -101,6 +101,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
         # often, and a scan registered again (a retry) analysed again; reset with the map
         self._degeneracy_due = (0, -1)
         self._predicted_run = 0  # slowly turning scans given their IMU prediction since the last registered one
+        self.predicted_ns: set[int] = set()  # the stamps of those scans (their poses are not registered ones)
         self._g_world: np.ndarray | None = gravity_vector(cfg.gravity_mps2) if planar else None
         self._window: list[WindowScan] = []  # LiDAR-only scans that will start the IMU state
         self.stamps_ns: list[int] = []  # the trajectory so far (internal world frame); the start-up window's
@@ -278,6 +279,7 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
                 dirs_b: list, failed: bool) -> ScanResult:
         """Record the scan's pose; ``frame`` (None for a failed scan, which stays out of the map) joins the map."""
         st = self.stats
+        self.predicted_ns.discard(t_ref)  # a scan registered again (a replay)
         if frame is not None:
             self._reg.accept(correction, frame, pose)
         delta = inv_pose(self._last_pose) @ pose
@@ -325,7 +327,9 @@ class LioOdometry(StateUpdates, Restart, LidarSteps, Gaps):
             knots = knot_poses = None
         slow = bridge_gate_m is None and self._turning_slowly(imu, t_prev, t_ref)  # a bridge: full iterations
         if self._predicted_only(slow):
-            return self._finish(t_ref, self.state.pose(), None, None, [], False)
+            result = self._finish(t_ref, self.state.pose(), None, None, [], False)
+            self.predicted_ns.add(t_ref)
+            return result
         points = self._prepare(cloud, knots, knot_poses, t_ref)
         if points is None:
             self.state = saved  # the scan is skipped: keep the state where the last used scan left it

@@ -84,7 +84,8 @@ def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader |
              settled: PoseSink | None = None) -> OdomResult:
     """Run odometry over ``job.log``; score against ``job.gt`` when given. ``reader``: ``job.log`` already
     open (a caller that reads the log again afterwards saves opening it twice; it stays open). ``settled``:
-    called with each scan's ``SettledPose`` as soon as it is final (in order, every pose once)."""
+    called with each scan's ``SettledPose`` as soon as it is final (in order, every pose once; not the
+    IMU predictions of ``registration.slow_register_every``)."""
     # the ground truth first: a bad one is bad input before the run, not after it (its trajectory then lost)
     ref = load_ground_truth(job.log, job.gt) if job.gt is not None else None
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
@@ -138,8 +139,10 @@ class _OdomRun:
             return
         odo = self.odo
         bias = None if odo.state is None else odo.state.bg.copy()
+        # a predicted scan's pose (``slow_register_every``) is left out: the cubic through its registered
+        # neighbours is the better pose there, where its own would put the prediction's error into the velocity
         self.settled([SettledPose(int(odo.stamps_ns[i]), odo.poses[i].copy(), bias, odo.imu_shift_ns)
-                      for i in range(self.sent, upto)])
+                      for i in range(self.sent, upto) if int(odo.stamps_ns[i]) not in odo.predicted_ns])
         self.sent = upto
 
     def _feed(self) -> None:

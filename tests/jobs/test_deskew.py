@@ -495,9 +495,11 @@ def test_icp_stops_early_on_a_drive_and_the_points_stay_as_accurate(sim, tmp_pat
 def test_every_second_slowly_turning_scan_takes_its_imu_prediction_and_the_points_stay_accurate(sim, tmp_path,
                                                                                                   monkeypatch):
     """deskew's odometry registers only every second of consecutive scans turning slower than 10 deg/s; the
-    others' poses are the IMU prediction (0.1 s from a corrected state). On a drive nearly half the scans; their
-    de-skewed points within 1.5x of registering every scan (the benchmark's 30 s drive: 2.5 / 9.8 mm against
-    2.1 / 7.5, a quarter less wall time). Never two in a row; lio odom registers every scan."""
+    others' poses are the IMU prediction (0.1 s from a corrected state), and the writing pass de-skews them with
+    the cubic through the registered poses. On a drive nearly half the scans; the de-skewed points about as
+    accurate as registering every scan (this 6 s drive: median +0.4 %, p95 +16 %; the benchmark's 30 s drive:
+    1.99 / 7.72 mm against 2.11 / 7.47 mm, a quarter less wall time; with the predicted poses themselves in the
+    cubic it was 2.53 / 9.84). Never two in a row; lio odom registers every scan."""
     import lio_cli.core.odometry as odometry
 
     registered = []
@@ -515,7 +517,7 @@ def test_every_second_slowly_turning_scan_takes_its_imu_prediction_and_the_point
     run_deskew(DeskewJob(s.log_path, tmp_path / "every1.bag", every1, None, False), None)
     (err, skew), (err1, _) = errors(s, tmp_path / "every2.bag"), errors(s, tmp_path / "every1.bag")
     assert np.median(skew) > 0.1
-    assert np.median(err) < 1.5 * np.median(err1) and np.percentile(err, 95) < 1.5 * np.percentile(err1, 95)
+    assert np.median(err) < 1.1 * np.median(err1) and np.percentile(err, 95) < 1.25 * np.percentile(err1, 95)
     assert np.median(err) < IMU_MEDIAN_M and np.percentile(err, 95) < IMU_P95_M
     assert run_odom(OdomJob(s.log_path)).metrics["scans"]["predicted_scans"] == 0
 
