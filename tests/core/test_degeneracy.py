@@ -60,6 +60,7 @@ def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(m
     from types import SimpleNamespace
 
     import lio_cli.core.odometry as odometry
+    import lio_cli.core.odometry_scan as odometry_scan
     from lio_cli.config.deskew import DeskewConfig
     from lio_cli.config.odom import OdomConfig
     from lio_cli.core.degeneracy import CLEAR_MARGIN, Degeneracy
@@ -70,7 +71,7 @@ def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(m
         analysed.append(int(points[0, 0]))
         return Degeneracy([np.array([1.0, 0.0, 0.0])], 10 * CLEAR_MARGIN)  # clear by far
 
-    monkeypatch.setattr(odometry, "analyse_degeneracy", fake)
+    monkeypatch.setattr(odometry_scan, "analyse_degeneracy", fake)
     for cfg, expected in ((OdomConfig(), [0, 0, 2, 4, 6, 8, 10]),
                           (DeskewConfig().odom_config("imu"), [0, 0, 8])):
         analysed.clear()

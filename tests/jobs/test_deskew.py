@@ -526,11 +526,11 @@ def test_an_open_road_is_analysed_for_degeneracy_a_quarter_as_often_with_the_sam
     """deskew's odometry looks at the scene's geometry every 8th scan while the last look found it far from
     degenerate (weakest direction 4x above the ratio), every 2nd otherwise, as lio odom always does. A drive
     never comes near a corridor's degeneracy: a quarter of the analyses, the same de-skewed points to the bit."""
-    import lio_cli.core.odometry as odometry
+    import lio_cli.core.odometry_scan as odometry_scan
 
     calls = []
-    real = odometry.analyse_degeneracy
-    monkeypatch.setattr(odometry, "analyse_degeneracy", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    real = odometry_scan.analyse_degeneracy
+    monkeypatch.setattr(odometry_scan, "analyse_degeneracy", lambda *a, **kw: calls.append(1) or real(*a, **kw))
     s = sim("ros1", scenario="drive", duration_s=6.0)
     sparse = deskew(s.log_path, tmp_path / "sparse.bag")
     n_sparse = len(calls)
