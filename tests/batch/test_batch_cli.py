@@ -140,6 +140,8 @@ def test_summary_json_csv_and_group_statistics(sim, pooled):
 
 
 def test_fuse_and_deskew_runs_equal_their_single_commands(sim, tmp_path):
+    """The batch's runs are the single commands' jobs: the same bytes, but for the de-skewed points' last bits
+    (kiss-icp's sums over its threads differ in them from run to run: README, deskew)."""
     log = sim.logs["walk_a"]
     ref = tmp_path / "ref"
     ref.mkdir()
@@ -160,10 +162,32 @@ runs:
     out = tmp_path / "out"
     assert (out / "fused" / "fused.tum").read_bytes() == (ref / "f.tum").read_bytes()
     assert (out / "fused" / "fused.config.yaml").read_bytes() == (ref / "f.config.yaml").read_bytes()
-    assert (out / "deskewed" / "deskewed.bag").read_bytes() == (ref / "d.bag").read_bytes()
+    assert_same_log_but_last_bits(out / "deskewed" / "deskewed.bag", ref / "d.bag", "/points")
     assert (out / "deskewed" / "deskewed.config.yaml").read_bytes() == (ref / "d.config.yaml").read_bytes()
     deskew = summary_of(out)["runs"][1]["metrics"]
     assert deskew["scans_used"] == deskew["scans_total"] == sim_scans(ref / "d.metrics.json")
+
+
+def assert_same_log_but_last_bits(a: Path, b: Path, lidar: str) -> None:
+    """Every message of ``a`` and ``b`` the same (topic, record time, bytes), but the clouds of ``lidar``, whose
+    points agree to 1e-9 m with everything else of the cloud equal."""
+    import numpy as np
+
+    from lio_cli.io.pointcloud import decode_pointcloud2
+    from lio_cli.io.reader import open_log
+
+    with open_log(a) as ra, open_log(b) as rb:
+        assert [(c.topic, c.msgtype) for c in ra.connections] == [(c.topic, c.msgtype) for c in rb.connections]
+        for (ta, ma), (tb, mb) in zip(((r.connection.topic, r) for r in ra.records()),
+                                      ((r.connection.topic, r) for r in rb.records()), strict=True):
+            assert (ta, ma.log_time_ns) == (tb, mb.log_time_ns)
+            if ta != lidar or ma.data == mb.data:
+                assert ma.data == mb.data
+                continue
+            ca, cb = decode_pointcloud2(ra.decode(ma)), decode_pointcloud2(rb.decode(mb))
+            assert (ca.stamp_ns, ca.frame_id) == (cb.stamp_ns, cb.frame_id)
+            np.testing.assert_array_equal(ca.point_stamps_ns, cb.point_stamps_ns)
+            np.testing.assert_allclose(ca.points, cb.points, rtol=0, atol=1e-9)
 
 
 def _leaves(node, path=""):
