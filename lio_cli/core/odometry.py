@@ -52,6 +52,7 @@ class OdomStats:
     lidar_only_scans: int = 0  # registered without the IMU state: start-up window, recoveries, no IMU
     capped_icp_scans: int = 0  # IMU-primed scans registered with steady_ or slow_iterations
     predicted_scans: int = 0  # slowly turning scans whose pose is the IMU prediction, unregistered (slow_register_every)
+    doubted_scans: int = 0  # IMU-primed scans whose registration the IMU state could not explain: placed LiDAR-only
     recoveries: int = 0
     time_gaps: int = 0
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,

@@ -100,6 +100,7 @@ class Restart:
         """A scan whose registration the IMU state cannot explain: its pose comes from LiDAR-only registration
         (gated around the gyro and the last poses, not around the doubted prediction); the state follows that
         pose and keeps its velocity, biases and gravity. Several such scans in a row drop the state."""
+        self.stats.doubted_scans += 1
         kept, g_world, doubt = self.state, self._g_world, self._doubt
         self._lose_imu_state()
         res = self._lidar_step(cloud, t_prev, t_ref, retry=True, window=False)

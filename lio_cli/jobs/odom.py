@@ -31,6 +31,8 @@ from ..model.trajectory import Trajectory
 from .odom_inputs import Mounting, OdomInputs, choose_inputs
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
+_DOUBT_NOTE_SCANS = 5  # this many scans the IMU state could not explain, and...
+_DOUBT_NOTE_SHARE = 0.02  # ...this share of the scans: a note (none on the simulated logs without a clock offset)
 
 Progress = Callable[[int, int | None], None]  # (scans done, scans in the log or None)
 
@@ -221,6 +223,17 @@ class _OdomRun:
             if note not in self.notes:
                 self.notes.append(note)
 
+    def _doubt_note(self, st: OdomStats) -> None:
+        """Many scans the IMU state could not explain (each placed by the LiDAR alone, and each restarting the
+        online clock estimate): an IMU clock offset beyond what that estimate can time (a walk's 20 ms and
+        more), or a wrong IMU extrinsic; the trajectory is then decimetres off where it is centimetres."""
+        n = st.doubted_scans
+        if n >= _DOUBT_NOTE_SCANS and n >= _DOUBT_NOTE_SHARE * st.used:
+            self.notes.append(
+                f"the IMU prediction and the registration disagreed on {n} of {st.used} scans (those were placed by "
+                "the LiDAR alone): an IMU clock offset of tens of ms or a wrong IMU extrinsic does this; measure them "
+                "with lio calibrate and give --imu-time-offset or --calib")
+
     def _result(self) -> OdomResult:
         cfg, odo, inputs = self.cfg, self.odo, self.inputs
         wall = time.perf_counter() - self.t_wall
@@ -239,6 +252,7 @@ class _OdomRun:
         st = odo.stats
         start = _start_summary(odo, inputs.use_imu)
         self._late_imu_note(stamps)
+        self._doubt_note(st)
         span_s = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
         metrics = {
             "log": str(self.reader.path),
