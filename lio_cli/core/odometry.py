@@ -221,9 +221,11 @@ class LioOdometry(ScanSteps, StateUpdates, Restart, LidarSteps, Gaps):
         self.events.append(event)
         return event
 
-    def _lose_imu_state(self) -> None:
+    def _lose_imu_state(self, keep_clock: bool = False) -> None:
+        """Drop the IMU state (LiDAR-only scans follow); ``keep_clock``: the clock estimate keeps its window (a
+        doubted scan, whose state comes back)."""
         self.state = None  # gravity survives in _g_world, as the last healthy state had it
-        if self.clock is not None:
+        if self.clock is not None and not keep_clock:
             self.clock.reset()
         self._window = []
         self._doubt = 0

@@ -102,12 +102,16 @@ class Restart:
         pose and keeps its velocity, biases and gravity. Several such scans in a row drop the state."""
         self.stats.doubted_scans += 1
         kept, g_world, doubt = self.state, self._g_world, self._doubt
-        self._lose_imu_state()
+        self._lose_imu_state(keep_clock=True)
         res = self._lidar_step(cloud, t_prev, t_ref, retry=True, window=False)
         self.state, self._g_world, self._doubt = kept, g_world, doubt
         if res is None:  # LiDAR-only failed: the prediction-gated registration is all there is
             pose = lean_on_prior(measured, guess, dirs_b)
             res = self._finish(t_ref, pose, frame, None, dirs_b, False)
+        elif reason is None:
+            # the LiDAR-only pose times the IMU clock as a registered one does: an offset of 20-30 ms makes such
+            # scans every few scans, and a window restarted at each was never long enough to find it
+            self._track_clock(t_ref, res.pose)
         self.state.R, self.state.p = res.pose[:3, :3].copy(), res.pose[:3, 3].copy()
         if reason is not None:
             self.stats.recoveries += 1
