@@ -57,6 +57,24 @@ def test_the_closing_round_measures_a_window_too_short_for_an_online_round(walk)
     assert tracker.estimate_s == tracker.residual_s
 
 
+def test_a_window_with_doubted_scans_applies_an_offset_measured_to_5_ms(walk, monkeypatch):
+    """An offset 4.5 sigma from zero at a 4 ms sigma: not applied from an ordinary window (2 ms at most), applied
+    from one holding a doubted scan's pose (the IMU state's disagreement is the evidence; 5 ms at most)."""
+    measured = SimpleNamespace(imu_time_offset_s=0.018, sigma_s=0.004)
+    monkeypatch.setattr(clock_offset, "estimate_time_offset", lambda *a, **kw: measured)
+    for doubted, applied in ((False, 0.0), (True, 0.018)):
+        tracker = ClockOffsetTracker()
+        tracker.add_imu(walk.imu.stamps_ns, walk.imu.gyro_radps)
+        stamps = walk.lidar_stamps_ns[walk.lidar_stamps_ns <= walk.lidar_stamps_ns[0] + 3_000_000_000]
+        proposed = []
+        for k, t in enumerate(stamps):
+            tracker.add_pose(int(t), walk.T_world_lidar[k])
+            tracker.doubted = tracker.doubted or (doubted and k == 5)
+            proposed.append(tracker.propose(np.zeros(3), k))
+        assert tracker.applied_s == applied and sum(proposed) == round(applied * 1e9)
+        assert tracker.estimates[0]["applied"] is doubted and not tracker.doubted  # the next window starts clean
+
+
 def test_too_short_a_window_measures_nothing(walk):
     tracker = _run(walk, 2.1)
     assert tracker.estimates == [] and tracker.estimate_s == 0.0
