@@ -55,8 +55,10 @@ class ClockOffsetTracker:
             self._imu_stamps.append(np.asarray(stamps_ns, dtype=np.int64))
             self._gyro.append(np.asarray(gyro_radps, dtype=np.float64))
 
-    def add_pose(self, stamp_ns: int, T_world_lidar: np.ndarray) -> None:
+    def add_pose(self, stamp_ns: int, T_world_lidar: np.ndarray, doubted: bool = False) -> None:
+        """``doubted``: the pose of a scan the IMU state could not explain (LiDAR-only), which marks the window."""
         if not self.done:
+            self.doubted = self.doubted or doubted
             self._stamps.append(int(stamp_ns))
             self._poses.append(T_world_lidar)
 

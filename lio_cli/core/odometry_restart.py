@@ -112,9 +112,7 @@ class Restart:
             # the LiDAR-only pose times the IMU clock as a registered one does: an offset of 20-30 ms makes such
             # scans every few scans, and a window restarted at each was never long enough to find it; the
             # window, marked, may apply a less sharply measured offset (``APPLY_SIGMA_DOUBTED_S``)
-            if self.clock is not None:
-                self.clock.doubted = True
-            self._track_clock(t_ref, res.pose)
+            self._track_clock(t_ref, res.pose, doubted=True)
         self.state.R, self.state.p = res.pose[:3, :3].copy(), res.pose[:3, 3].copy()
         if reason is not None:
             self.stats.recoveries += 1

@@ -110,6 +110,11 @@ class ScanSteps:
         self.state = prop.state
         self._wheel_update(t_prev, t_ref)
         st.times_s["propagate"] += time.perf_counter() - tick
+        slow = bridge_gate_m is None and self._turning_slowly(imu, t_prev, t_ref)  # a bridge: full iterations
+        if self._predicted_only(slow):
+            result = self._finish(t_ref, self.state.pose(), None, None, [], False)
+            self.predicted_ns.add(t_ref)
+            return result
         dt_scan = (t_ref - t_prev) * 1e-9
         if self._deskew == "imu":
             knots, knot_poses = prop.stamps_ns, prop.poses
@@ -118,11 +123,6 @@ class ScanSteps:
             knot_poses = self._last_pose[None] @ rel
         else:
             knots = knot_poses = None
-        slow = bridge_gate_m is None and self._turning_slowly(imu, t_prev, t_ref)  # a bridge: full iterations
-        if self._predicted_only(slow):
-            result = self._finish(t_ref, self.state.pose(), None, None, [], False)
-            self.predicted_ns.add(t_ref)
-            return result
         points = self._prepare(cloud, knots, knot_poses, t_ref)
         if points is None:
             self.state = saved  # the scan is skipped: keep the state where the last used scan left it

@@ -156,10 +156,10 @@ class StateUpdates:
         self._predicted_run = 0
         return False
 
-    def _track_clock(self, t_ref: int, measured: np.ndarray) -> None:
+    def _track_clock(self, t_ref: int, measured: np.ndarray, doubted: bool = False) -> None:
         if self.clock is None or self.clock.done:
             return
-        self.clock.add_pose(t_ref, measured @ self.ext.T_base_lidar)
+        self.clock.add_pose(t_ref, measured @ self.ext.T_base_lidar, doubted)
         delta = self.clock.propose(self.state.bg, self.stats.scans)
         if delta:
             self._shift_imu(delta)

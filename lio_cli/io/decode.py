@@ -45,8 +45,7 @@ def _pose_of(position, orientation, what: str) -> np.ndarray:
     xyz = (float(position.x), float(position.y), float(position.z))
     q = _quat(orientation)
     norm = float(np.linalg.norm(q))
-    if not (math.isfinite(xyz[0]) and math.isfinite(xyz[1]) and math.isfinite(xyz[2])) \
-            or not np.isfinite(q).all() or norm < 1e-6:
+    if not all(map(math.isfinite, xyz)) or not np.isfinite(q).all() or norm < 1e-6:
         raise InputError(f"{what} holds a non-finite position or a zero/NaN quaternion")
     return pose_from_xyz_quat_one(xyz, (q / norm).tolist())
 

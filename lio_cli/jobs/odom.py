@@ -224,9 +224,9 @@ class _OdomRun:
                 self.notes.append(note)
 
     def _doubt_note(self, st: OdomStats) -> None:
-        """Many scans the IMU state could not explain (each placed by the LiDAR alone, and each restarting the
-        online clock estimate): an IMU clock offset beyond what that estimate can time (a walk's 20 ms and
-        more), or a wrong IMU extrinsic; the trajectory is then decimetres off where it is centimetres."""
+        """Many scans the IMU state could not explain (each placed by the LiDAR alone): an IMU clock offset beyond
+        what the online estimate times (some walks 30-50 ms off), or a wrong IMU extrinsic; the trajectory is
+        then decimetres off where it is centimetres."""
         n = st.doubted_scans
         if n >= _DOUBT_NOTE_SCANS and n >= _DOUBT_NOTE_SHARE * st.used:
             self.notes.append(

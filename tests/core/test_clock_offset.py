@@ -68,8 +68,7 @@ def test_a_window_with_doubted_scans_applies_an_offset_measured_to_5_ms(walk, mo
         stamps = walk.lidar_stamps_ns[walk.lidar_stamps_ns <= walk.lidar_stamps_ns[0] + 3_000_000_000]
         proposed = []
         for k, t in enumerate(stamps):
-            tracker.add_pose(int(t), walk.T_world_lidar[k])
-            tracker.doubted = tracker.doubted or (doubted and k == 5)
+            tracker.add_pose(int(t), walk.T_world_lidar[k], doubted=doubted and k == 5)
             proposed.append(tracker.propose(np.zeros(3), k))
         assert tracker.applied_s == applied and sum(proposed) == round(applied * 1e9)
         assert tracker.estimates[0]["applied"] is doubted and not tracker.doubted  # the next window starts clean
