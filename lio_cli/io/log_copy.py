@@ -77,9 +77,7 @@ class LogCopy:
     def convert(self, rec: RawRecord) -> bytes:
         """The record's message in the writer's encoding (the standard definition of the other ROS version)."""
         conn = rec.connection
-        fn = self._converters.get(conn.key)
-        if fn is None:
-            fn = self._converters[conn.key] = self._converter(conn)
+        fn = self._converters[conn.key]  # made by output(), before any record of the connection
         try:
             return bytes(fn(rec.data))
         except Exception as err:  # noqa: BLE001 - corrupt bytes surface as any rosbags error

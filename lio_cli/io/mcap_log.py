@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 from ..errors import InputError
 from ..model.records import TopicInfo
-from .msgdefs import types_from_ros2msg
+from .msgdefs import types_of_definition
 from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, first_line
 
 _ENCODINGS = ("cdr", "ros1")
@@ -166,7 +166,7 @@ class McapLog(LogReader):
         return self._deserialize(rec.data, rec.connection.msgtype, handle)
 
     def _deserialize(self, raw, msgtype, handle: _Handle):
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+        from rosbags.typesys import Stores, get_typestore
 
         ros1 = handle.encoding == "ros1"
         store = self._typestores.get(handle.encoding)
@@ -174,9 +174,8 @@ class McapLog(LogReader):
             store = self._typestores[handle.encoding] = get_typestore(Stores.EMPTY)
         schema = handle.schema
         if (handle.encoding, msgtype) not in self._registered:
-            if schema is not None and schema.encoding in ("ros2msg", "ros1msg"):
-                text = schema.data.decode()
-                store.register(get_types_from_msg(text, msgtype) if ros1 else types_from_ros2msg(text, msgtype))
+            if schema is not None and schema.encoding in ("ros2msg", "ros1msg", "ros2idl"):
+                store.register(types_of_definition(schema.data.decode(), schema.encoding, msgtype))
             elif msgtype not in store.types:  # no definition in the file: the standard one
                 store.register(get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE).fielddefs)
             if msgtype not in store.types:

@@ -51,15 +51,19 @@ def _types_from_idl(text: str) -> dict:
 def stored_types(conn: LogConnection) -> dict:
     """Every type ``conn``'s stored definition defines (its own and those it uses; rosbags' ``Typesdict``), {}
     when the log stores none. A text that is no definition raises the parser's error (any exception)."""
-    if not conn.msgdef:
-        return {}
+    return types_of_definition(conn.msgdef, conn.msgdef_format, conn.msgtype) if conn.msgdef else {}
+
+
+def types_of_definition(text: str, fmt: str, msgtype: str) -> dict:
+    """The types a definition ``text`` of format ``fmt`` (ros2idl, ros2msg, else ROS 1 msg) defines for
+    ``msgtype``; raises the parser's error on a text that is no definition."""
     from rosbags.typesys import get_types_from_msg
 
-    if conn.msgdef_format == "ros2idl":
-        return _types_from_idl(conn.msgdef)
-    if conn.msgdef_format == "ros2msg":
-        return types_from_ros2msg(conn.msgdef, conn.msgtype)
-    return get_types_from_msg(conn.msgdef, conn.msgtype)
+    if fmt == "ros2idl":
+        return _types_from_idl(text)
+    if fmt == "ros2msg":
+        return types_from_ros2msg(text, msgtype)
+    return get_types_from_msg(text, msgtype)
 
 
 def stored_typestore(conn: LogConnection):
@@ -142,4 +146,5 @@ def output_definition(conn: LogConnection, typestore, ros_version: int, where: s
     return typestore.generate_msgdef(msgtype, ros_version=2)[0], typestore.hash_rihs01(msgtype)
 
 
-__all__ = ["digest_of_definition", "output_definition", "stored_types", "stored_typestore", "types_from_ros2msg"]
+__all__ = ["digest_of_definition", "output_definition", "stored_types", "stored_typestore", "types_from_ros2msg",
+           "types_of_definition"]

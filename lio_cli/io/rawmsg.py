@@ -17,7 +17,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .stamped_bytes import split_header
+from .decode import ODOMETRY
+from .stamped_bytes import BODY_DTYPES, split_header
 
 _U32 = struct.Struct("<I")
 _STAMP_ROS1 = struct.Struct("<III")  # seq, sec, nsec
@@ -204,6 +205,7 @@ def parse_imu(buf, cdr: bool) -> RawImu | None:
 
 # position, orientation, the pose covariance (36 f8, skipped), linear and angular velocity, twist covariance
 _ODOM_BODY = struct.Struct("<7d288x6d288x")
+assert _ODOM_BODY.size == BODY_DTYPES[ODOMETRY].itemsize  # the layout series and peek read in bulk
 
 
 def parse_odometry(buf, cdr: bool) -> RawOdometry | None:
@@ -212,6 +214,8 @@ def parse_odometry(buf, cdr: bool) -> RawOdometry | None:
     stamp_ns, frame, kid, pos = split_header(buf, cdr, True)
     if pos + _ODOM_BODY.size > len(buf):
         raise ValueError(f"Odometry message of {len(buf)} bytes is shorter than its layout")
+    if pos + _ODOM_BODY.size < len(buf):
+        return None  # more than the standard body (an MCAP channel stores no hash to tell): the typestore
     px, py, pz, qx, qy, qz, qw, lx, ly, lz, ax, ay, az = _ODOM_BODY.unpack_from(buf, pos)
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
     return RawOdometry(Header(Time(sec, nsec), frame.decode()), kid.decode(),

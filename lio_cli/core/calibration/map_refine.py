@@ -72,7 +72,6 @@ def _velocities(stamps_ns: np.ndarray, poses: np.ndarray, half: int = VELOCITY_H
     n = len(poses)
     k = np.arange(n)
     lo, hi = np.clip(k - 1 - half, 0, n - 1), np.clip(k + half, 0, n - 1)
-    lo = np.where(hi == lo, np.maximum(lo - 1, 0), lo)
     hi = np.where(hi == lo, np.minimum(hi + 1, n - 1), hi)
     t = np.asarray(stamps_ns, np.int64)
     v = (poses[hi, :3, 3] - poses[lo, :3, 3]) / ((t[hi] - t[lo]) * 1e-9)[:, None]
