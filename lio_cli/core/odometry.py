@@ -95,6 +95,7 @@ class LioOdometry(ScanSteps, StateUpdates, Restart, LidarSteps, Gaps):
         # (no analysis before this many scans are used, the scan analysed last): a clear scene is analysed less
         # often, and a scan registered again (a retry) analysed again; reset with the map
         self._degeneracy_due = (0, -1)
+        self._clear_scene = False  # the last degeneracy analysis found the scene far from degenerate
         self._predicted_run = 0  # slowly turning scans given their IMU prediction since the last registered one
         self.predicted_ns: set[int] = set()  # the stamps of those scans (their poses are not registered ones)
         self._g_world: np.ndarray | None = gravity_vector(cfg.gravity_mps2) if planar else None

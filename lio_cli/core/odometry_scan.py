@@ -61,7 +61,8 @@ class ScanSteps:
             # analysed last is analysed again when it is registered again (a retry): its reuse would turn it
             found = analyse_degeneracy(points, self.planar, fc.degeneracy_ratio)
             dirs_b = self._dirs_b = found.directions
-            every = fc.degeneracy_every_clear if found.margin >= CLEAR_MARGIN else fc.degeneracy_every
+            self._clear_scene = found.margin >= CLEAR_MARGIN
+            every = fc.degeneracy_every_clear if self._clear_scene else fc.degeneracy_every
             self._degeneracy_due = (self.stats.used + every, self.stats.used)
         else:
             dirs_b = [R_now.T @ self._last_pose[:3, :3] @ d for d in self._dirs_b]

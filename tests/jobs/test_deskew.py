@@ -496,10 +496,11 @@ def test_every_second_slowly_turning_scan_takes_its_imu_prediction_and_the_point
                                                                                                   monkeypatch):
     """deskew's odometry registers only every second of consecutive scans turning slower than 10 deg/s; the
     others' poses are the IMU prediction (0.1 s from a corrected state), and the writing pass de-skews them with
-    the cubic through the registered poses. On a drive nearly half the scans; the de-skewed points about as
-    accurate as registering every scan (this 6 s drive: median +0.4 %, p95 +16 %; the benchmark's 30 s drive:
-    1.99 / 7.72 mm against 2.11 / 7.47 mm, a quarter less wall time; with the predicted poses themselves in the
-    cubic it was 2.53 / 9.84). Never two in a row; lio odom registers every scan."""
+    the cubic through the registered poses; not on a young map (a start) nor in a scene near degeneracy (a
+    corridor). On a drive nearly half the scans; the de-skewed points about as accurate as registering every
+    scan (this 6 s drive: median -1 %, p95 +27 %, its start's scans; the benchmark's 30 s drive 1.97 / 7.42 mm
+    against 2.11 / 7.47 mm, a quarter less wall time; with the predicted poses themselves in the cubic it was
+    2.53 / 9.84). Never two in a row; lio odom registers every scan."""
     import lio_cli.core.odometry as odometry
 
     registered = []
@@ -517,7 +518,7 @@ def test_every_second_slowly_turning_scan_takes_its_imu_prediction_and_the_point
     run_deskew(DeskewJob(s.log_path, tmp_path / "every1.bag", every1, None, False), None)
     (err, skew), (err1, _) = errors(s, tmp_path / "every2.bag"), errors(s, tmp_path / "every1.bag")
     assert np.median(skew) > 0.1
-    assert np.median(err) < 1.1 * np.median(err1) and np.percentile(err, 95) < 1.25 * np.percentile(err1, 95)
+    assert np.median(err) < 1.1 * np.median(err1) and np.percentile(err, 95) < 1.35 * np.percentile(err1, 95)
     assert np.median(err) < IMU_MEDIAN_M and np.percentile(err, 95) < IMU_P95_M
     assert run_odom(OdomJob(s.log_path)).metrics["scans"]["predicted_scans"] == 0
 
@@ -532,10 +533,11 @@ def test_an_open_road_is_analysed_for_degeneracy_a_quarter_as_often_with_the_sam
     real = odometry_scan.analyse_degeneracy
     monkeypatch.setattr(odometry_scan, "analyse_degeneracy", lambda *a, **kw: calls.append(1) or real(*a, **kw))
     s = sim("ros1", scenario="drive", duration_s=6.0)
-    sparse = deskew(s.log_path, tmp_path / "sparse.bag")
+    every_scan = {"odometry.registration.slow_register_every": 1}  # the schedule alone (predicted scans skip it)
+    sparse = deskew(s.log_path, tmp_path / "sparse.bag", **every_scan)
     n_sparse = len(calls)
     calls.clear()
-    deskew(s.log_path, tmp_path / "every2.bag", **{"odometry.fusion.degeneracy_every_clear": 2})
+    deskew(s.log_path, tmp_path / "every2.bag", **{"odometry.fusion.degeneracy_every_clear": 2, **every_scan})
     used = sparse.metrics["motion"]["odometry"]["scans"]["used"]
     assert len(calls) >= 0.45 * used and n_sparse <= len(calls) / 3 + 1, (n_sparse, len(calls), used)
     a, b = clouds(tmp_path / "sparse.bag"), clouds(tmp_path / "every2.bag")
