@@ -42,9 +42,10 @@ class DeskewRegistration(RegistrationConfig):
     ``steady_iterations``): faster on drives and corridors, and the de-skewed points as accurate or more
     (benchmarks/bench_deskew.py). 10 deg/s: the online clock estimate cannot time a stretch turning slower
     (``calibration.time_offset``), so full iterations there bought it nothing. Of such slowly turning scans only
-    every second is registered: the others' poses are the IMU prediction, 0.1 s from a corrected state (a drive
-    runs ~25 % faster; the writing pass de-skews them with the cubic through the registered poses, as accurate
-    as registering every scan: benchmarks/bench_deskew.py). Defaults of this class, so a YAML
+    every second is registered once the map holds 20 scans, while the scene is far from degenerate: the others'
+    poses are the IMU prediction, 0.1 s from a corrected state (a drive runs ~25 % faster; the writing pass
+    de-skews them with the cubic through the registered poses, as accurate as registering every scan:
+    benchmarks/bench_deskew.py). Defaults of this class, so a YAML
     naming other registration fields keeps them."""
 
     steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[

@@ -56,8 +56,9 @@ class RegistrationConfig(Strict):
     slow_rate_degps: float = Field(5.0, ge=0, description="see slow_iterations")
     slow_register_every: int = Field(
         1, ge=1, le=4, description="of consecutive IMU-primed scans turning slower than slow_rate_degps, register only "
-        "every n-th; the others take the IMU prediction as their pose and stay out of the map (lio deskew uses 2 and "
-        "de-skews them with the cubic through the registered poses)")
+        "every n-th (once the map holds 20 scans, while the scene is far from degenerate); the others take the IMU "
+        "prediction as their pose and stay out of the map (lio deskew uses 2 and de-skews them with the cubic "
+        "through the registered poses)")
     initial_threshold_m: float = Field(2.0, gt=0, description="adaptive threshold's start (no IMU prior)")
     max_correspondence_m: Optional[float] = Field(
         None, gt=0, description="fixed correspondence distance; default: 0.5 m with an IMU prior, adaptive without")

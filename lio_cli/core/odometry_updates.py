@@ -25,8 +25,9 @@ _NIS_LIMIT = 100.0  # a pose innovation this far outside its covariance (chi-squ
 _NIS_SCANS = 3  # ...this many scans in a row means the IMU state no longer explains the scans
 _MOVING_MPS = 0.3  # faster than this, an exactly-zero wheel twist is not a wheel at rest
 _MAX_BIAS_GYRO_RADPS = 0.5
-_PREDICT_MIN_MAP_SCANS = 10  # a map this young registers every scan (a moving start's replayed window: a 16-beam
-# corridor's first scans 20-37 mm p95 with predicted scans among them, 1-8 mm without)
+_PREDICT_MIN_MAP_SCANS = 20  # a map this young registers every scan (a moving start's replayed window: a 16-beam
+# corridor's first scans 20-37 mm p95 with predicted scans among them, 1-8 mm without; at 10, a walk's standing
+# start still had 4 predicted scans, which moved kiss-icp on the de-skewed walk from 1.9 to 5.9 m)
 _MAX_BIAS_ACCEL_MPS2 = 3.0
 
 
@@ -149,7 +150,8 @@ class StateUpdates:
         scans only every ``slow_register_every``-th is registered (0.1 s of propagation from a state corrected
         one scan before is millimetres off; such a scan cannot time the clock anyway). Never in doubt, nor on a
         map of fewer than ``_PREDICT_MIN_MAP_SCANS`` scans (a start or a restart: the state just aligned from
-        LiDAR-only scans, and the map needs every scan); a predicted scan stays out of the map."""
+        LiDAR-only scans, and the map needs every scan), nor unless the last degeneracy analysis found the scene
+        clear (a corridor's accuracy moved with which scans were predicted); a predicted scan stays out of the map."""
         every = self.cfg.registration.slow_register_every
         if slow and every > 1 and self._predicted_run < every - 1 and not self._doubt and self._clear_scene \
                 and self._reg is not None and self._reg.scans >= _PREDICT_MIN_MAP_SCANS:

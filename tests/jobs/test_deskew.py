@@ -498,7 +498,7 @@ def test_every_second_slowly_turning_scan_takes_its_imu_prediction_and_the_point
     others' poses are the IMU prediction (0.1 s from a corrected state), and the writing pass de-skews them with
     the cubic through the registered poses; not on a young map (a start) nor in a scene near degeneracy (a
     corridor). On a drive nearly half the scans; the de-skewed points about as accurate as registering every
-    scan (this 6 s drive: median -1 %, p95 +27 %, its start's scans; the benchmark's 30 s drive 1.97 / 7.42 mm
+    scan (this 6 s drive: median -1 %, p95 +27 %, its start's scans; the benchmark's 30 s drive 1.98 / 7.44 mm
     against 2.11 / 7.47 mm, a quarter less wall time; with the predicted poses themselves in the cubic it was
     2.53 / 9.84). Never two in a row; lio odom registers every scan."""
     import lio_cli.core.odometry as odometry
