@@ -34,8 +34,8 @@ from lio_cli.config.calibrate import CalibrateConfig
 from lio_cli.config.odom import OdomConfig
 from lio_cli.errors import LioError
 from lio_cli.geometry import inv_pose, so3_log
-from lio_cli.jobs.calibrate import CalibrateJob, run_calibrate
-from lio_cli.jobs.odom import OdomJob, run_odom
+from lio_cli.jobs.calibrate.job import CalibrateJob, run_calibrate
+from lio_cli.jobs.odom.job import OdomJob, run_odom
 from lio_cli.model.calibration import Calibration
 from lio_cli.simulation.run import simulate
 

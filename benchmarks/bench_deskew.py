@@ -42,9 +42,9 @@ import numpy as np
 from bytecode_cache import use_bytecode_cache
 from lio_cli.evaluation import EvalOptions, evaluate
 from lio_cli.geometry import inv_pose
-from lio_cli.io.pointcloud import decode_pointcloud2
-from lio_cli.io.reader import open_log
-from lio_cli.io.trajectory_files import read_tum
+from lio_cli.io.messages.pointcloud import decode_pointcloud2
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.files.trajectory import read_tum
 from lio_cli.model.trajectory import Trajectory
 from lio_cli.simulation.deskew_truth import TrueMotion
 from lio_cli.simulation.run import simulate
@@ -158,7 +158,7 @@ def kiss(work: Path, raw: Path, deskewed: Path, truth: TrueMotion, period_s: flo
 
 def writer_cost(work: Path, out_fmt: str, src: Path) -> dict:
     """Seconds to write ``src``'s records from memory: rosbags' Writer alone vs lio's LogWriter."""
-    from lio_cli.io.writer import LogWriter
+    from lio_cli.io.logs.writer import LogWriter
 
     with open_log(src) as r:
         conns = r.connections

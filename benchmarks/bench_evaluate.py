@@ -44,7 +44,7 @@ from lio_cli.evaluation import Trajectory, align, ape_errors, associate, kitti_s
 from lio_cli.evaluation import rpe_errors, rpe_pairs, statistics  # noqa: E402
 from lio_cli.evaluation.offset import estimate_offset  # noqa: E402
 from lio_cli.geometry import make_pose, so3_exp  # noqa: E402
-from lio_cli.io.trajectory_files import format_tum, read_tum  # noqa: E402
+from lio_cli.io.files.trajectory import format_tum, read_tum  # noqa: E402
 
 SHIFT_NS = 137_000_000
 

@@ -40,9 +40,9 @@ from lio_cli.cli.app import main as lio
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.evaluation import EvalOptions, evaluate
 from lio_cli.geometry import interpolate_poses
-from lio_cli.io.sources import load_trajectory
-from lio_cli.io.trajectory_files import read_tum
-from lio_cli.jobs.fuse import FuseJob, run_fuse
+from lio_cli.io.sensors.sources import load_trajectory
+from lio_cli.io.files.trajectory import read_tum
+from lio_cli.jobs.fuse.job import FuseJob, run_fuse
 from lio_cli.model.trajectory import Trajectory
 from lio_cli.simulation.run import simulate
 

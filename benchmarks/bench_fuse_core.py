@@ -118,7 +118,7 @@ def _stamp(msg) -> int:
 
 
 def read_log(path: Path, imu_topic: str | None, odom_topic: str | None) -> tuple[ImuSeries | None, list]:
-    from lio_cli.io.reader import open_log
+    from lio_cli.io.logs.reader import open_log
 
     imu, odo = [], []
     with open_log(path) as reader:

@@ -33,7 +33,7 @@ from bytecode_cache import use_bytecode_cache
 from lio_cli.evaluation import EvalOptions, evaluate
 from lio_cli.model.trajectory import Trajectory
 from lio_cli.geometry import inv_pose
-from lio_cli.io.trajectory_files import format_tum, read_tum
+from lio_cli.io.files.trajectory import format_tum, read_tum
 from lio_cli.simulation.run import simulate
 
 SCENARIOS = ("handheld", "drive", "corridor", "planar")

@@ -43,7 +43,7 @@ SUFFIX = {"ros1": ".bag", "ros2": "", "ros2-mcap": "", "mcap": ".mcap"}
 
 def write_log(path: Path, fmt: str, duration_s: float, beams: int, columns: int, seed: int = 0) -> None:
     from lio_cli.geometry import make_pose
-    from lio_cli.io.writer import LogWriter
+    from lio_cli.io.logs.writer import LogWriter
 
     rng = np.random.default_rng(seed)
     n = beams * columns
@@ -91,7 +91,7 @@ def _import_all() -> None:
     import rosbags.typesys  # noqa: F401
 
     import lio_cli.jobs.info  # noqa: F401
-    import lio_cli.io.stream  # noqa: F401
+    import lio_cli.io.sensors.stream  # noqa: F401
 
 
 # Consumers hold on to a few messages; a loop that drops each one at once makes glibc hand every large
@@ -156,8 +156,8 @@ def measure_deser(path: Path, fmt: str) -> dict:
 
 
 def measure_decode(path: Path, fmt: str) -> dict:
-    from lio_cli.io.reader import open_log
-    from lio_cli.io.stream import SensorStream
+    from lio_cli.io.logs.reader import open_log
+    from lio_cli.io.sensors.stream import SensorStream
 
     _import_all()
     scans = imu = points = 0
@@ -177,7 +177,7 @@ def measure_decode(path: Path, fmt: str) -> dict:
 
 def measure_info(path: Path, fmt: str, repeat: int = 3) -> dict:
     from lio_cli.jobs.info import describe_log
-    from lio_cli.io.reader import open_log
+    from lio_cli.io.logs.reader import open_log
 
     _import_all()
     best = float("inf")

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate  # noqa: E402
 from lio_cli.geometry import so3_exp  # noqa: E402
-from lio_cli.io.trajectory_files import format_tum, read_tum  # noqa: E402
+from lio_cli.io.files.trajectory import format_tum, read_tum  # noqa: E402
 
 REL_TOL = 1e-9
 # Values below this (m, deg, rad, unitless) are zero up to float rounding in both tools (e.g. the APE minimum at

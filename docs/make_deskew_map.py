@@ -22,14 +22,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lio_cli.config.deskew import DeskewConfig  # noqa: E402
-from lio_cli.core.sweep_motion import PoseSpline  # noqa: E402
-from lio_cli.core.voxel_map import VoxelMap  # noqa: E402
-from lio_cli.io.map_files import read_point_map  # noqa: E402
-from lio_cli.io.pointcloud import decode_pointcloud2  # noqa: E402
-from lio_cli.io.reader import open_log  # noqa: E402
-from lio_cli.jobs.deskew import DeskewJob, run_deskew  # noqa: E402
+from lio_cli.core.deskew.sweep_motion import PoseSpline  # noqa: E402
+from lio_cli.core.deskew.voxel_map import VoxelMap  # noqa: E402
+from lio_cli.io.files.point_clouds import read_point_map  # noqa: E402
+from lio_cli.io.messages.pointcloud import decode_pointcloud2  # noqa: E402
+from lio_cli.io.logs.reader import open_log  # noqa: E402
+from lio_cli.jobs.deskew.job import DeskewJob, run_deskew  # noqa: E402
 from lio_cli.geometry import inv_pose  # noqa: E402
-from lio_cli.jobs.odom import OdomJob, run_odom  # noqa: E402
+from lio_cli.jobs.odom.job import OdomJob, run_odom  # noqa: E402
 from lio_cli.simulation.deskew_truth import TrueMotion  # noqa: E402
 from lio_cli.simulation.run import simulate  # noqa: E402
 

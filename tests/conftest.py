@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from lio_cli.geometry import make_pose, so3_exp
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.logs.writer import LogWriter
 
 # Every format LogWriter writes, and the reader format it comes back as.
 WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
@@ -79,8 +79,8 @@ def velodyne_cloud(n: int = 52, header_at_end: bool = False) -> tuple[np.ndarray
 def copy_log(src: Path, out: Path, fmt: str):
     """``src`` written as ``out`` in ``fmt`` by ``LogCopy`` (every connection; returns the ``LogCopy``, whose
     ``copied``/``converted`` count what it did)."""
-    from lio_cli.io.log_copy import LogCopy
-    from lio_cli.io.reader import open_log
+    from lio_cli.io.logs.copy import LogCopy
+    from lio_cli.io.logs.reader import open_log
 
     with open_log(src) as r, LogWriter(out, fmt) as w:
         copy = LogCopy(r, w)
@@ -147,7 +147,7 @@ def anyreader_count(path: Path) -> int:
 def decoded(path: Path, topic: str) -> list:
     """(record time, the message's field values as nested tuples) of ``topic``: what a conversion between ROS 1
     and ROS 2 keeps (a ROS 1 header's seq is left out: ROS 2 has none)."""
-    from lio_cli.io.reader import open_log
+    from lio_cli.io.logs.reader import open_log
 
     def plain(value):
         if hasattr(value, "__dataclass_fields__"):

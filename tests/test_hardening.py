@@ -28,7 +28,7 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.geometry import pose_to_xyz_quat
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.logs.writer import LogWriter
 
 REPO = Path(__file__).resolve().parents[1]
 

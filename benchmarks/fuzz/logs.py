@@ -38,7 +38,7 @@ def decode_log(path: Path, fmt: str) -> tuple[list[tuple[str, str, bool]], list[
 
 
 def write_log(path: Path, fmt: str, conns: list, msgs: list) -> None:
-    from lio_cli.io.writer import LogWriter
+    from lio_cli.io.logs.writer import LogWriter
 
     with LogWriter(path, fmt) as w:
         for topic, msgtype, latch in conns:

@@ -21,9 +21,9 @@ from ..config.fuse import FuseConfig
 from ..config.odom import OdomConfig
 from ..errors import ConfigError, InputError
 from ..evaluation.scoring import score
-from ..io.detect import detect_format
-from ..io.sources import load_ground_truth
-from ..io.writer import FILE_SUFFIXES
+from ..io.logs.detect import detect_format
+from ..io.sensors.sources import load_ground_truth
+from ..io.logs.writer import FILE_SUFFIXES
 from ..model.trajectory import Trajectory
 from .manifest import RunSpec
 
@@ -84,15 +84,15 @@ def registration_threads(command: str, config: BaseModel) -> int | None:
 def run_command(command: str, log: Path, config: BaseModel, gt: str | None, folder: Path) -> dict:
     """Run the command's job on ``log`` and write its files into ``folder``; return its metrics."""
     if command == "odom":
-        from ..jobs.odom import OdomJob, run_odom
+        from ..jobs.odom.job import OdomJob, run_odom
         from ..jobs.outputs import write_odom
 
         result = run_odom(OdomJob(log, config, gt))
         write_odom(result, folder / f"{STEMS['odom']}.tum", False)
         return result.metrics
     if command == "fuse":
-        from ..jobs.fuse import FuseJob, run_fuse
-        from ..jobs.fuse_outputs import write_fuse
+        from ..jobs.fuse.job import FuseJob, run_fuse
+        from ..jobs.fuse.outputs import write_fuse
 
         ref = load_ground_truth(log, gt) if gt is not None else None  # bad input before the run, not after
         run = run_fuse(FuseJob(log, config))
@@ -101,10 +101,10 @@ def run_command(command: str, log: Path, config: BaseModel, gt: str | None, fold
         write_fuse(run, folder / f"{STEMS['fuse']}.tum", False)
         return run.metrics
     if command == "calibrate":
-        from ..jobs.calibrate import CalibrateJob, run_calibrate
+        from ..jobs.calibrate.job import CalibrateJob, run_calibrate
 
         return run_calibrate(CalibrateJob(log, folder / f"{STEMS['calibrate']}.yaml", config)).metrics
-    from ..jobs.deskew import DeskewJob, run_deskew
+    from ..jobs.deskew.job import DeskewJob, run_deskew
 
     # a batch already keeps every core busy with one log each: no second process per log
     return run_deskew(DeskewJob(log, _deskew_out(folder, log, config), config, helper=False)).metrics

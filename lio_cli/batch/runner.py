@@ -10,8 +10,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import ConfigError, InputError
-from ..io.detect import input_paths
-from ..io.files import check_writable
+from ..io.logs.detect import input_paths
+from ..io.files.atomic import check_writable
 from .commands import resolve_config
 from .executors import Executor
 from .manifest import RunSpec

@@ -28,7 +28,7 @@ from pydantic import BaseModel
 
 from .. import __version__
 from ..errors import LioError
-from ..io.files import replace_path
+from ..io.files.atomic import replace_path
 from .commands import key_metrics, metrics_file, run_command
 
 HASH_FILE = "job.sha256"

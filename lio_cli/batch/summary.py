@@ -12,7 +12,7 @@ from typing import Any
 
 from .. import __version__
 from ..evaluation.groups import Group, group_statistics
-from ..io.files import write_text_atomic
+from ..io.files.atomic import write_text_atomic
 from ..jobs.outputs import json_text
 from .commands import KEY_METRICS
 

@@ -12,9 +12,9 @@ import typer
 from ..config import load_calibration, load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
 from ..errors import ConfigError
-from ..io.pointcloud import parse_time_convention
-from ..jobs.calibrate import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, yaml_text
-from ..jobs.calibrate_report import format_table
+from ..io.messages.pointcloud import parse_time_convention
+from ..jobs.calibrate.job import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, yaml_text
+from ..jobs.calibrate.report import format_table
 from ..jobs.outputs import log_stem
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
                      PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json)

@@ -9,8 +9,8 @@ import typer
 
 from ..config import load_config, with_overrides
 from ..config.deskew import DeskewConfig
-from ..io.pointcloud import parse_time_convention
-from ..jobs.deskew import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew
+from ..io.messages.pointcloud import parse_time_convention
+from ..jobs.deskew.job import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt,
                      QuietOpt, job_progress, note, print_json, warn)
 

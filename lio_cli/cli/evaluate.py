@@ -15,10 +15,10 @@ from rich.table import Table
 
 from ..errors import ConfigError, ProcessingError
 from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult
-from ..io.files import write_text_atomic
-from ..io.sources import split_source
+from ..io.files.atomic import write_text_atomic
+from ..io.sensors.sources import split_source
 from ..jobs.evaluate import EvaluateJob, run_evaluate
-from ..io.trajectory_files import STAMP_UNITS_NS, parse_stamp_ns
+from ..io.files.trajectory import STAMP_UNITS_NS, parse_stamp_ns
 from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
 from .evaluate_outputs import check_evaluate_outputs, plot_names
 from .evaluate_extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
@@ -242,7 +242,7 @@ def evaluate_cmd(
             write_text_atomic(csv_path, text, force)
             note(f"wrote {csv_path}", quiet)
     if plot is not None:
-        from ..evaluation.plots import write_plots
+        from ..plots.evaluate import write_plots
         import json
 
         plot.mkdir(exist_ok=True)

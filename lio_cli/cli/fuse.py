@@ -12,10 +12,10 @@ import typer
 from ..config import load_config, with_overrides
 from ..config.fuse import FuseConfig, parse_use
 from ..errors import ConfigError
-from ..io.detect import input_paths
-from ..io.trajectory_files import format_tum
-from ..jobs.fuse import FuseJob, FuseRun, run_fuse
-from ..jobs.fuse_outputs import check_fuse_outputs, write_fuse
+from ..io.logs.detect import input_paths
+from ..io.files.trajectory import format_tum
+from ..jobs.fuse.job import FuseJob, FuseRun, run_fuse
+from ..jobs.fuse.outputs import check_fuse_outputs, write_fuse
 from ..jobs.outputs import log_stem
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LogArg, QuietOpt,
                      WheelTopicOpt, job_progress, note, print_json, warn)

@@ -7,8 +7,8 @@ import time
 import typer
 from rich.table import Table
 
-from ..io.pointcloud import parse_time_convention
-from ..io.reader import open_log
+from ..io.messages.pointcloud import parse_time_convention
+from ..io.logs.reader import open_log
 from ..jobs.info import check_log, describe_log
 from .common import (FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, print_json,
                      progress_bar, warn)

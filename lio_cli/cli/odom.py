@@ -11,10 +11,10 @@ import typer
 from ..config import load_config, with_overrides
 from ..config.odom import OdomConfig
 from ..errors import ConfigError
-from ..io.detect import input_paths
-from ..io.pointcloud import parse_time_convention
-from ..io.trajectory_files import format_tum
-from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom
+from ..io.logs.detect import input_paths
+from ..io.messages.pointcloud import parse_time_convention
+from ..io.files.trajectory import format_tum
+from ..jobs.odom.job import DivergedRun, OdomJob, OdomResult, run_odom
 from ..jobs.outputs import check_outputs, log_stem, write_odom
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
                      PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json, warn)

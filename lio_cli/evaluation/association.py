@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..io.trajectory_files import format_stamp
+from ..io.files.trajectory import format_stamp
 from ..geometry import interpolate_poses
 from ..model.trajectory import Trajectory
 

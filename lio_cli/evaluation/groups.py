@@ -54,7 +54,7 @@ def parse_group(text: str) -> tuple[str, list[str]]:
 
 def _file_name(spec: str) -> str:
     """The file name of an estimate spec, with its topic for a log topic (``run1.bag:/odom``)."""
-    from ..io.sources import split_source
+    from ..io.sensors.sources import split_source
 
     path, topic = split_source(spec)
     return Path(path).name + (f":{topic}" if topic else "")

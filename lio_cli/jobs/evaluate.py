@@ -56,7 +56,7 @@ class EvaluateResult:
 
 
 def run_evaluate(job: EvaluateJob) -> EvaluateResult:
-    from ..io.sources import load_trajectory
+    from ..io.sensors.sources import load_trajectory
 
     t_start = time.perf_counter()
     opts = job.options

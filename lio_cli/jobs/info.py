@@ -12,11 +12,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import pose_to_xyz_quat, so3_log
-from ..io.decode import KIND_TYPES, POINTCLOUD2
-from ..io.pointcloud import decode_laserscan, decode_pointcloud2, detect_time_convention
-from ..io.reader import LogReader
-from ..io.stream import SensorStream
-from ..io.tf import read_static_frames
+from ..io.messages.decode import KIND_TYPES, POINTCLOUD2
+from ..io.messages.pointcloud import decode_laserscan, decode_pointcloud2, detect_time_convention
+from ..io.logs.reader import LogReader
+from ..io.sensors.stream import SensorStream
+from ..io.sensors.tf import read_static_frames
 from ..model.records import TimeConvention
 
 _TYPE_NAMES = {1: "int8", 2: "uint8", 3: "int16", 4: "uint16", 5: "int32", 6: "uint32", 7: "float32", 8: "float64"}

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.files import atomic_output, check_writable
-from ..io.trajectory_files import format_tum
+from ..io.files.atomic import atomic_output, check_writable
+from ..io.files.trajectory import format_tum
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")
 

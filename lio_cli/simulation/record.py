@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.writer import LogWriter
+from ..io.logs.writer import LogWriter
 from .gps import COVARIANCE_TYPE_DIAGONAL_KNOWN, COVARIANCE_TYPE_UNKNOWN, STATUS_FIX, GpsFixes
 from .motion import MotionState
 from .options import SimulationOptions

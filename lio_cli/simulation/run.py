@@ -21,9 +21,9 @@ import numpy as np
 from .. import __version__
 from ..errors import ConfigError
 from ..geometry import make_pose
-from ..io.files import check_writable, write_text_atomic
-from ..io.writer import SUFFIX_FORMATS
-from ..io.trajectory_files import format_tum
+from ..io.files.atomic import check_writable, write_text_atomic
+from ..io.logs.writer import SUFFIX_FORMATS
+from ..io.files.trajectory import format_tum
 from .gps import GpsSpec, gps_fixes
 from .motion import ypr_to_matrix
 from .options import TIME_CONVENTIONS, SimulationOptions, validate

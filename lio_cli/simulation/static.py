@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProcessingError
-from ..io.writer import LogWriter
+from ..io.logs.writer import LogWriter
 from .motion import MotionState, Trajectory
 from .options import SimulationOptions
 from .record import GT_MSGTYPES, TOPIC_IMU, TOPIC_TF_STATIC, gt_message, gt_type_of, static_transforms

@@ -173,8 +173,8 @@ def assert_same_log_but_last_bits(a: Path, b: Path, lidar: str) -> None:
     points agree to 1e-9 m with everything else of the cloud equal."""
     import numpy as np
 
-    from lio_cli.io.pointcloud import decode_pointcloud2
-    from lio_cli.io.reader import open_log
+    from lio_cli.io.messages.pointcloud import decode_pointcloud2
+    from lio_cli.io.logs.reader import open_log
 
     with open_log(a) as ra, open_log(b) as rb:
         assert [(c.topic, c.msgtype) for c in ra.connections] == [(c.topic, c.msgtype) for c in rb.connections]

@@ -9,7 +9,7 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.config import load_calibration
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.logs.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
 T0 = 1_700_000_000 * 10**9

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from lio_cli.cli.app import main
-from lio_cli.io.reader import open_log
-from lio_cli.io.trajectory_files import format_tum, read_tum
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.files.trajectory import format_tum, read_tum
 from lio_cli.simulation.run import simulate
 
 
@@ -201,7 +201,7 @@ def test_help_states_the_rules_of_the_de_skewed_cloud(capsys):
 
 def test_missing_extrinsics_warn_once_each(logs, tmp_path, capsys):
     """Without /tf_static the odometry and the writing pass assume identity for the same extrinsics: one warning each."""
-    from lio_cli.io.writer import LogWriter
+    from lio_cli.io.logs.writer import LogWriter
 
     bag, *_ = logs
     log = tmp_path / "notf.bag"

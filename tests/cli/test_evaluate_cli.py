@@ -13,8 +13,8 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.geometry import make_pose, so3_exp
-from lio_cli.io.trajectory_files import format_kitti, format_tum
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.files.trajectory import format_kitti, format_tum
+from lio_cli.io.logs.writer import LogWriter
 
 EXACT = 1e-9  # values go through 9-decimal files
 S = 1_000_000_000

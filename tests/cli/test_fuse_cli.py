@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from lio_cli.cli.app import main
-from lio_cli.io.trajectory_files import read_tum
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.files.trajectory import read_tum
+from lio_cli.io.logs.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
 RL_END = np.array([1.0206, 3.4292, 0.7419])  # robot_localization's test_ekf_localization_node_bag2 end point

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from lio_cli.cli.app import main
-from lio_cli.io.reader import open_log
-from lio_cli.io.pointcloud import cloud_dtype
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.messages.pointcloud import cloud_dtype
+from lio_cli.io.logs.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
 SCAN_TOPIC = "/points"
@@ -223,7 +223,7 @@ def test_existing_output_is_kept_without_force(base_log, tmp_path, capsys):
 @pytest.mark.parametrize("gt", ["/nope", "{tmp}/missing.gt.tum", "{tmp}/bad.gt.tum"])
 def test_bad_ground_truth_is_refused_before_the_odometry_runs(base_log, tmp_path, capsys, monkeypatch, gt):
     """A missing topic or file, or an unreadable file, after a long run lost the whole run's trajectory."""
-    from lio_cli.jobs import odom as odom_job
+    from lio_cli.jobs.odom import job as odom_job
 
     (tmp_path / "bad.gt.tum").write_text("1.0 2.0 3.0\n")
     monkeypatch.setattr(odom_job._OdomRun, "run", lambda self: pytest.fail("odometry ran before the gt was read"))

@@ -15,9 +15,9 @@ from lio_cli.config import load_model
 from lio_cli.config.odom import OdomConfig
 from lio_cli.evaluation import EvalOptions, evaluate
 from lio_cli.model.trajectory import Trajectory
-from lio_cli.io.reader import open_log
-from lio_cli.io.stream import SensorStream
-from lio_cli.io.trajectory_files import read_tum
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.sensors.stream import SensorStream
+from lio_cli.io.files.trajectory import read_tum
 from lio_cli.simulation.run import simulate
 
 DURATION_S = 6.0

@@ -11,7 +11,7 @@ from lio_cli.config.fuse import MEASUREMENTS, FuseConfig, parse_use
 from lio_cli.core.fuse import MEASUREMENTS as CORE_MEASUREMENTS
 from lio_cli.core.fuse import FuseOptions, NoiseOptions
 from lio_cli.errors import ConfigError
-from lio_cli.jobs.fuse import core_options
+from lio_cli.jobs.fuse.job import core_options
 
 
 def test_defaults_are_the_cores():

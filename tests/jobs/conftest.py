@@ -118,9 +118,9 @@ def fuse_logs(logs) -> FuseLogs:
 
 def _rewrite_clouds(src, dst, edit):
     """A copy of a ROS 1 log with each /points cloud (structured array) passed through ``edit(k, arr)``."""
-    from lio_cli.io.pointcloud import cloud_dtype, stamp_to_ns
-    from lio_cli.io.reader import open_log
-    from lio_cli.io.writer import LogWriter
+    from lio_cli.io.messages.pointcloud import cloud_dtype, stamp_to_ns
+    from lio_cli.io.logs.reader import open_log
+    from lio_cli.io.logs.writer import LogWriter
 
     with open_log(src) as r, LogWriter(dst, "ros1") as w:
         for topic, info in r.topics.items():
@@ -144,8 +144,8 @@ def rewrite_clouds():
 
 def _without_messages(src, dst, topic: str, t0_ns: int, t1_ns: int):
     """A ROS 1 copy of ``src`` without the ``topic`` messages stamped in [t0, t1)."""
-    from lio_cli.io.reader import open_log
-    from lio_cli.io.writer import LogWriter
+    from lio_cli.io.logs.reader import open_log
+    from lio_cli.io.logs.writer import LogWriter
 
     with open_log(src) as reader, LogWriter(dst, "ros1") as w:
         for name, info in reader.topics.items():

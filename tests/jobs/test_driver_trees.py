@@ -13,12 +13,12 @@ import pytest
 
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.evaluation import EvalOptions, evaluate
-from lio_cli.io.decode import decode_tf
-from lio_cli.io.reader import open_log
-from lio_cli.io.sources import load_trajectory
-from lio_cli.io.writer import LogWriter
-from lio_cli.jobs.calibrate import CalibrateJob, run_calibrate
-from lio_cli.jobs.fuse import FuseJob, run_fuse
+from lio_cli.io.messages.decode import decode_tf
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.sensors.sources import load_trajectory
+from lio_cli.io.logs.writer import LogWriter
+from lio_cli.jobs.calibrate.job import CalibrateJob, run_calibrate
+from lio_cli.jobs.fuse.job import FuseJob, run_fuse
 from lio_cli.model.trajectory import Trajectory
 from lio_cli.simulation.run import simulate
 

@@ -11,10 +11,10 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.geometry import so3_log
-from lio_cli.io.decode import decode_tf, imu_sample
-from lio_cli.io.reader import open_log
-from lio_cli.io.sources import load_trajectory
-from lio_cli.io.trajectory_files import read_tum
+from lio_cli.io.messages.decode import decode_tf, imu_sample
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.sensors.sources import load_trajectory
+from lio_cli.io.files.trajectory import read_tum
 from lio_cli.simulation import SCENARIOS, build_scenario, metrics_path_for, output_paths, simulate
 from lio_cli.simulation.motion import ypr_to_matrix
 from lio_cli.simulation.sensors import GRAVITY_MPS2, imu_truth

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from lio_cli.geometry import transform_points
-from lio_cli.io.decode import decode_tf
-from lio_cli.io.reader import open_log
-from lio_cli.io.trajectory_files import read_tum
+from lio_cli.io.messages.decode import decode_tf
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.files.trajectory import read_tum
 from lio_cli.simulation import build_scenario, output_paths, simulate
 from lio_cli.simulation.gps import GpsSpec, gauss_markov, gps_fixes
 from lio_cli.geodesy import EnuFrame

@@ -13,10 +13,10 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.geometry import so3_log
-from lio_cli.io.decode import decode_pose, decode_tf
-from lio_cli.io.reader import open_log
-from lio_cli.io.pointcloud import decode_pointcloud2, decode_laserscan
-from lio_cli.io.trajectory_files import read_tum
+from lio_cli.io.messages.decode import decode_pose, decode_tf
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.messages.pointcloud import decode_pointcloud2, decode_laserscan
+from lio_cli.io.files.trajectory import read_tum
 from lio_cli.simulation import SCENARIOS, build_scenario, output_paths, simulate
 
 NS = 1_000_000_000
@@ -294,7 +294,7 @@ def test_cli_options_reach_the_log(tmp_path, capsys):
     cloud = decode_pointcloud2(clouds[2])
     assert cloud.convention.name == "ouster"
     assert 0.5 * 64 * 32 < len(cloud.points) <= 64 * 32  # no dropouts: every ray that hits within range
-    from lio_cli.io.pointcloud import cloud_dtype
+    from lio_cli.io.messages.pointcloud import cloud_dtype
 
     rings = np.frombuffer(bytes(clouds[2].data), dtype=cloud_dtype(clouds[2]))["ring"]
     assert rings.max() == 63

@@ -278,9 +278,9 @@ def test_handheld_defeats_constant_velocity_but_not_the_gyro():
 
 def test_imu_read_back_from_the_log_integrates_to_the_tum_ground_truth(tmp_path):
     """The same check end to end: /imu and /tf_static as written to a bag, ground truth from x.gt.tum."""
-    from lio_cli.io.decode import decode_tf, imu_sample
-    from lio_cli.io.reader import open_log
-    from lio_cli.io.trajectory_files import read_tum
+    from lio_cli.io.messages.decode import decode_tf, imu_sample
+    from lio_cli.io.logs.reader import open_log
+    from lio_cli.io.files.trajectory import read_tum
     from lio_cli.simulation import output_paths, simulate
 
     out = tmp_path / "ideal.bag"

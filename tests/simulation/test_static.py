@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from lio_cli.io.decode import imu_sample
-from lio_cli.io.reader import open_log
-from lio_cli.io.trajectory_files import read_tum
-from lio_cli.io.writer import LogWriter
+from lio_cli.io.messages.decode import imu_sample
+from lio_cli.io.logs.reader import open_log
+from lio_cli.io.files.trajectory import read_tum
+from lio_cli.io.logs.writer import LogWriter
 from lio_cli.simulation import build_scenario, metrics_path_for, output_paths, simulate
 from lio_cli.simulation.sensors import ImuSpec, synthesize_imu
 from lio_cli.simulation.static import PIECE_SAMPLES, ImuEncoder, imu_pieces

@@ -21,7 +21,6 @@ from ...lazy import lazy_exports
 # plots, which would cost every odom and deskew run their import time.
 _WHERE = {
     "AllanFit": "allan", "AllanResult": "allan", "allan_deviation": "allan", "estimate_allan": "allan",
-    "allan_plot_png": "allan_report", "kalibr_imu_yaml": "allan_report",
     "ImuStatic": "imu_static", "StillOptions": "imu_static", "estimate_imu_static": "imu_static",
     "find_still_stretch": "imu_static",
     "LeverArmCalib": "lever_arm", "estimate_lever_arm": "lever_arm",
@@ -36,7 +35,7 @@ __getattr__ = lazy_exports(__name__, _WHERE)
 
 __all__ = [
     "AllanFit", "AllanResult", "ImuStatic", "LeverArmCalib", "RotationCalib", "StillOptions", "TimeOffset",
-    "WheelCalib", "allan_deviation", "allan_plot_png", "estimate_allan", "estimate_imu_static",
+    "WheelCalib", "allan_deviation", "estimate_allan", "estimate_imu_static",
     "estimate_lever_arm", "estimate_rotation", "estimate_time_offset", "estimate_wheel_scales",
-    "find_still_stretch", "kalibr_imu_yaml",
+    "find_still_stretch",
 ]

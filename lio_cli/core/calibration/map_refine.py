@@ -20,7 +20,7 @@ import numpy as np
 
 from ...geometry import cross_rows, so3_exp
 from ..kdtree import ckdtree_class
-from ..voxel_map import voxel_keys
+from ..deskew.voxel_map import voxel_keys
 from .signals import GyroOrientation
 
 NEIGHBOURS = 10  # map points per local plane

@@ -28,7 +28,7 @@ import numpy as np
 
 from ...model.calibration import Extrinsics
 from ...model.records import ImuBatch
-from ..bootstrap import align
+from ..odometry.bootstrap import align
 from ..imu import gyro_rotations
 from .timeline import Prepared
 

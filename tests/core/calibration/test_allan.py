@@ -7,7 +7,8 @@ import pytest
 import yaml
 
 from lio_cli.core.calibration.allan import allan_deviation, estimate_allan
-from lio_cli.core.calibration.allan_report import allan_plot_png, kalibr_imu_yaml
+from lio_cli.io.files.kalibr import kalibr_imu_yaml
+from lio_cli.plots.allan import allan_plot_png
 from lio_cli.errors import InputError
 from lio_cli.simulation.motion import Path2D, Progress, Trajectory
 from lio_cli.simulation.sensors import ImuSpec, synthesize_imu

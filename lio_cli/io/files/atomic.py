@@ -1,0 +1,109 @@
+"""Atomic outputs: write to a temporary sibling, then rename; never clobber without ``force``."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from ...errors import InputError
+
+
+def check_writable(path: Path, force: bool, inputs: Iterable[Path] = (),
+                   replaceable: Callable[[Path], bool] | None = None) -> None:
+    """Before any work: ``path`` is no input (``--force`` or not), may be replaced, and its folder takes files.
+
+    Refused: an output that is one of ``inputs`` (same path, same file through a link), lies inside an input
+    folder, or is a folder holding an input; an existing output without ``force``; a folder that does not
+    exist, is not a folder, or cannot be written (read-only file system, /proc, no permission). An existing
+    folder is replaced only when ``replaceable(folder)`` says it is one lio wrote (default: a ROS 2 bag).
+    """
+    path = Path(path)
+    for inp in inputs:
+        _refuse_input(path, Path(inp))
+    if path.exists() and not force:
+        raise InputError(f"{path}: already exists; pass --force to overwrite it")
+    if path.is_dir() and not path.is_symlink() and not (replaceable or is_ros2_bag_folder)(path):
+        what = "a ROS 2 bag" if replaceable is None else "an output"
+        raise InputError(f"{path}: is a folder that is not {what} lio wrote; lio replaces only such folders, "
+                         "even with --force: choose another output")
+    parent = path.parent
+    if not parent.exists():
+        raise InputError(f"{parent}: output folder does not exist")
+    if not parent.is_dir():
+        raise InputError(f"{parent}: is not a folder, so {path.name} cannot be written there")
+    try:  # the only reliable test of writability: create a file there
+        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
+    except OSError as err:
+        raise InputError(f"{path}: cannot write there ({err.strerror or err})") from err
+    os.close(fd)
+    os.unlink(probe)
+
+
+def is_ros2_bag_folder(path: Path) -> bool:
+    """A folder output may replace only a ROS 2 bag folder: metadata.yaml plus its storage files, nothing else."""
+    names = {p.name for p in path.iterdir()}
+    if "metadata.yaml" not in names:
+        return not names  # an empty folder holds nothing to lose
+    return all(n == "metadata.yaml" or n.endswith((".db3", ".mcap", ".db3-shm", ".db3-wal")) for n in names)
+
+
+def _refuse_input(out: Path, inp: Path) -> None:
+    if not inp.exists():
+        return
+    out_real, inp_real = os.path.realpath(out), os.path.realpath(inp)
+    same = out_real == inp_real or (out.exists() and os.path.samefile(out, inp))
+    inside = inp.is_dir() and out_real.startswith(inp_real.rstrip(os.sep) + os.sep)
+    holds = out.is_dir() and inp_real.startswith(out_real.rstrip(os.sep) + os.sep)
+    if same or inside or holds:
+        what = "the input" if same else "inside the input folder" if inside else "a folder holding the input"
+        raise InputError(f"{out}: is an input of this run ({what} {inp}); lio never writes over its inputs, "
+                         "whatever the options: choose another output")
+
+
+def temp_sibling(path: Path) -> Path:
+    """A fresh unused path beside ``path`` (same filesystem, so the final rename is atomic)."""
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    os.unlink(name)
+    return Path(name)
+
+
+def replace_path(tmp: Path, path: Path) -> None:
+    """Move the finished ``tmp`` onto ``path`` (a folder replaces a folder)."""
+    if path.is_dir() and not path.is_symlink():
+        old = temp_sibling(path)
+        path.rename(old)
+        tmp.rename(path)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, path)
+
+
+def remove_path(path: Path) -> None:
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists():
+        path.unlink()
+
+
+@contextmanager
+def atomic_output(path: Path, force: bool = False) -> Iterator[Path]:
+    """Yield a temporary path to write; on success it replaces ``path``, on error it is removed."""
+    path = Path(path)
+    check_writable(path, force)
+    tmp = temp_sibling(path)
+    try:
+        yield tmp
+    except BaseException:
+        remove_path(tmp)
+        raise
+    replace_path(tmp, path)
+
+
+def write_text_atomic(path: Path, text: str, force: bool = False) -> None:
+    with atomic_output(path, force) as tmp:
+        tmp.write_text(text)

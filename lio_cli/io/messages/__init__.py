@@ -1,0 +1,1 @@
+"""Message bytes <-> records: decoding (Imu, Odometry, PointCloud2, TF, NavSatFix), encoding, definitions."""

@@ -1,0 +1,1 @@
+"""``lio calibrate``: odometry passes, the estimators in order, the map refinement, the report."""

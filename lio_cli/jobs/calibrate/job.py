@@ -1,0 +1,317 @@
+"""The ``calibrate`` job: estimate, from one log, the calibration every other command reads with ``--calib``.
+
+``CalibrateJob`` (log, output YAML, configuration, optional Allan plot folder and Kalibr file) ->
+``run_calibrate`` -> ``CalibrateResult`` (the calibration, the table of values / 1-sigmas / differences from
+the reference, the skipped items with their reasons, metrics). Every output location is checked first; the
+log is read in one pass gathering the IMU and wheel arrays while the LiDAR-only odometry runs
+(``calibrate_passes``), the estimators run (``calibrate_estimate``), gyro-primed passes sharpen the
+trajectory and they run again. Bad input raises before anything is written; then the YAML, its
+``.metrics.json`` and ``.config.yaml`` (and the Kalibr file and the plot) are written atomically.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ...config import dump_model, with_overrides
+from ...config.calibrate import CalibrateConfig, parse_still
+from ...io.files.kalibr import kalibr_imu_yaml
+from ...plots.allan import allan_plot_png
+from ...errors import ConfigError, InputError
+from ...io.sensors.clocks import check_same_clock
+from ...io.messages.decode import IMU, LASERSCAN
+from ...io.logs.detect import input_paths
+from ...io.files.atomic import atomic_output, check_writable
+from ...io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs
+from ...io.logs.reader import open_log
+from ...io.sensors.tf import read_static_frames
+from ...io.sensors.topics import choose_topic
+from ...model.calibration import Calibration
+from . import estimate as steps
+from . import map as calibrate_map
+from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
+                               read_imu, refine_spans)
+from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
+                               rotation_observable, table)
+from ..odom.inputs import named_base, root_base
+from ..outputs import beside, json_text
+
+PLOT_NAME = "allan_deviation.png"
+
+
+@dataclass(frozen=True)
+class CalibrateJob:
+    """Everything one ``lio calibrate`` run needs. ``plot_dir``: write the Allan deviation plot there;
+    ``kalibr``: also write Kalibr's imu.yaml (both need ``config.allan``)."""
+
+    log: Path
+    out: Path | None  # None: nothing is written (``-o -``: the CLI prints the YAML, ``yaml_text``)
+    config: CalibrateConfig = field(default_factory=CalibrateConfig)
+    plot_dir: Path | None = None
+    kalibr: Path | None = None
+    force: bool = False
+    extra_inputs: tuple[Path, ...] = ()  # files read besides the log (--config, --calib): never outputs
+
+
+@dataclass
+class CalibrateResult:
+    calibration: Calibration  # what the YAML holds
+    table: list[dict]  # quantity, unit, value, sigma, diff (estimate - reference)
+    reference: str | None  # what the differences are against
+    skipped: list[steps.Skipped]
+    config: CalibrateConfig  # resolved: repeats the run
+    metrics: dict
+    notes: list[str] = field(default_factory=list)
+    outputs: list[Path] = field(default_factory=list)
+
+
+def sidecars(out: Path) -> tuple[Path, Path]:
+    return beside(Path(out), ".metrics.json"), beside(Path(out), ".config.yaml")
+
+
+def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
+    """Every output may be written and is none of the inputs (before any work); returns them."""
+    if (job.plot_dir is not None or job.kalibr is not None) and not job.config.allan:
+        raise ConfigError("--plot and --kalibr write the Allan variance results: give --allan too")
+    inputs = [*input_paths(job.log), *job.extra_inputs]
+    named = [] if job.out is None else [("the calibration (-o)", Path(job.out)),
+                                        *zip(("its metrics", "its config"), sidecars(job.out))]
+    if job.kalibr is not None:
+        named.append(("the Kalibr imu.yaml (--kalibr)", Path(job.kalibr)))
+    refuse_shared_outputs([*named, *plot_outputs(job.plot_dir, (PLOT_NAME,))])  # -o x.yaml --kalibr x.yaml
+    outs = [p for _, p in named]
+    for p in outs:
+        check_writable(p, job.force, inputs)
+    if job.plot_dir is not None:
+        check_plot_dir(Path(job.plot_dir), (PLOT_NAME,), job.force, inputs)
+        outs.append(Path(job.plot_dir) / PLOT_NAME)
+    return outs
+
+
+def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> CalibrateResult:
+    """Estimate the calibration of ``job.log`` and write it (with metrics, config and the Allan files)."""
+    t_wall = time.perf_counter()
+    outs = check_calibrate_outputs(job)
+    cfg, est, times = job.config, steps.Estimates(), {}
+    with open_log(job.log, cfg.input.format) as reader:
+        where = str(reader.path)
+        if not any(i.msgtype == IMU and i.count > 0 for i in reader.topics.values()) and cfg.input.imu_topic is None:
+            raise InputError(f"{where}: no IMU topic (sensor_msgs/Imu): lio calibrate calibrates an IMU (against the "
+                             "LiDAR and the wheels); name one with --imu-topic")
+        imu_topic = choose_topic(reader, "imu", cfg.input.imu_topic).topic
+        lidar = choose_topic(reader, "lidar", cfg.input.lidar_topic, required=cfg.input.lidar_topic is not None).topic
+        wheel = choose_topic(reader, "wheel", cfg.input.wheel_topic, required=cfg.input.wheel_topic is not None).topic \
+            if lidar else None
+        tree = read_static_frames(reader)
+        base = named_base(tree, cfg.input.base_frame)  # None: the root of the sensors' tree (``root_base``)
+        est.notes.extend(tree.warnings)
+        still_s = None if cfg.still is None else parse_still(cfg.still)
+        t0 = time.perf_counter()
+        T_base_lidar = lidar_source = first_ns = None
+        dropped = 0
+        if lidar is None:
+            imu = read_imu(reader, imu_topic)
+            imu_frame, traj = imu.frame_id, None
+            still_ns = _still_ns(imu, still_s)
+            times["read"] = time.perf_counter() - t0
+            steps.imu_at_rest(imu, still_ns, None if cfg.allan else "the log has no LiDAR: the IMU at rest is all "
+                              "there is to calibrate", est, where)
+            est.skip("the LiDAR-IMU time offset, rotation and translation", "the log has no LiDAR topic")
+        else:
+            check_same_clock(reader, lidar, imu_topic, cfg.start_offset_ns)
+            planar = reader.topics[lidar].msgtype == LASERSCAN
+            n = reader.topics[lidar].count
+            spans = refine_spans(cfg.refine_passes, planar)
+            counter = PassProgress(progress, n * (1 + len(spans)))  # until the passes' stretches are known
+            topics = {"lidar": lidar, "imu": imu_topic, "wheel": wheel}
+            first_ns = first_span_ns(len(spans), planar, reader.duration_ns)
+            traj, arrays = LidarPass(reader, cfg, topics, planar, counter).run(gather=True, span_ns=first_ns)
+            times["lidar_pass"] = time.perf_counter() - t0
+            imu = arrays.imu
+            if imu is None:
+                raise InputError(f"{where}: {imu_topic}: no IMU sample could be read")
+            imu_frame = arrays.imu_frame
+            base = base or root_base(tree, arrays.lidar_frame or imu_frame, est.notes) or "base"
+            still_ns = _still_ns(imu, still_s)
+            T_base_lidar, lidar_source = _lidar_mounting(tree, base, arrays.lidar_frame, cfg.prior, est)
+            ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, T_base_lidar)
+            T_ref = reference_T_lidar_imu(ref, T_base_lidar)
+            prior_offset = cfg.imu_time_offset_s if cfg.imu_time_offset_s is not None else \
+                cfg.prior.imu_time_offset_s if ref_name == "--calib" else None
+            t0 = time.perf_counter()
+            steps.imu_at_rest(imu, still_ns, None, est, where)
+            bias0 = None if est.static is None else est.static.gyro_bias_radps
+            # the refining passes' stretches are shares of the whole log, also when the first pass covered part
+            s0, s1 = int(traj.stamps_ns[0]), max(int(traj.stamps_ns[-1]), arrays.last_scan_end_ns or 0)
+            untils = [pass_until(span, s0, s1) for span in spans]
+            counter.plan(sum(n if u is None else n * (u - s0) / max(s1 - s0, 1) for u in untils))
+            while True:  # the first estimates; from all scans when the first part of the log cannot seed them
+                traj, dropped = steps.consistent_scans(traj, imu, cfg.start_offset_s, bias0)
+                try:
+                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
+                    break
+                except InputError:
+                    if first_ns is None:
+                        raise
+                est.notes.append(f"the LiDAR-only pass registered all of the log: its first {first_ns * 1e-9:.0f} s "
+                                 "showed too little motion to seed the estimates")
+                counter.plan(counter.total - counter.done + n)
+                t_all = time.perf_counter()
+                traj, _ = LidarPass(reader, cfg, {"lidar": lidar}, planar, counter).run()
+                times["lidar_pass_all"] = time.perf_counter() - t_all
+                first_ns = None
+            times["estimate"] = time.perf_counter() - t0 - times.get("lidar_pass_all", 0.0)
+            imu_topics = {"lidar": lidar, "imu": imu_topic}
+            for k, until in enumerate(untils, start=1):
+                t0 = time.perf_counter()
+                fused = PLANAR_FUSION_SIGMAS[k - 1] if planar else None  # 2D scans: see PLANAR_FUSION_SIGMAS
+                last = k == len(spans)
+                mapped = last and calibrate_map.wanted(cfg, planar, n, est.notes)
+                lp = LidarPass(reader, cfg, imu_topics, planar, counter)
+                lp.sweep_voxel = calibrate_map.SWEEP_VOXEL if mapped else None
+                traj, _ = lp.run(_mounting(est, T_ref), until_ns=until, fused_sigmas=fused)
+                times[f"refine_pass_{k}"] = time.perf_counter() - t0
+                if mapped:  # the final estimates, then the map rounds
+                    traj, est = calibrate_map.map_rounds(traj, lp.sweeps, lp.voxel_m, imu, cfg, est, where, T_ref,
+                                                         prior_offset, times)
+                    continue
+                t0 = time.perf_counter()
+                try:
+                    steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=last, prior_offset=prior_offset)
+                except InputError as err:
+                    if last:
+                        raise
+                    # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
+                    est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
+                times[f"estimate_{k}"] = time.perf_counter() - t0
+            wheel_traj, against = traj, None
+            if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
+                # The wheels of a 2D scanner whose IMU mounting is partly unknown (its yaw: turns about the
+                # vertical cannot show it, and nothing gives it) are measured against a gyro-primed pass, not
+                # fused: the fused passes' accelerations go through that yaw (a wrong one bends the path: speed
+                # scale 1-2.5 % off on 60 s); the LiDAR-only pass registers scans skewed by the turns (0.4-0.7 %
+                # off); the gyro de-skews them through any yaw alike (1-sigma 0.14 % speed, 0.04 % yaw rate).
+                t0 = time.perf_counter()
+                counter.plan(n)
+                wheel_traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(_mounting(est, T_ref))
+                times["wheel_pass"] = time.perf_counter() - t0
+                against = ("wheel scales measured against a gyro-primed pass (not fused with the IMU): the IMU's "
+                           "mounting is not fully known (give T_base_imu with --calib, or /tf_static, to use the "
+                           "fused one)")
+            est.notes.extend(imprecision_notes(est, traj.T_world_lidar))
+            steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
+        if cfg.allan:
+            t0 = time.perf_counter()
+            steps.allan(imu, est, where)
+            times["allan"] = time.perf_counter() - t0
+        if lidar is None:
+            base = base or root_base(tree, imu_frame, est.notes) or "base"
+            ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, None)
+            T_ref = None
+        fmt, span_s = reader.format, reader.duration_ns * 1e-9
+    cal = compose(est, T_base_lidar, T_ref, wheel)
+    rows = table(cal, ref, ref_name)
+    resolved = with_overrides(cfg, {"input.lidar_topic": lidar, "input.imu_topic": imu_topic,
+                                    "input.wheel_topic": wheel, "input.base_frame": base}, "resolved configuration")
+    wall = time.perf_counter() - t_wall
+    notes = list(dict.fromkeys(est.notes))
+    metrics = {
+        "command": "calibrate", "log": str(job.log), "format": fmt, "output": "-" if job.out is None else str(job.out),
+        "topics": {"lidar": lidar, "imu": imu_topic, "wheel": wheel}, "base_frame": base,
+        "T_base_lidar_from": lidar_source, "reference": ref_name,
+        "lidar_trajectory": None if traj is None else traj.description,
+        "lidar_only_pass": None if traj is None else "all scans" if first_ns is None else
+        f"the scans of the first {first_ns * 1e-9:g} s",
+        "lidar_only_scans_left_out": dropped,
+        "conventions": {"T_base_imu": "maps IMU points into the base frame",
+                        "imu_time_offset_s": "added to IMU stamps to put them on the LiDAR's clock"},
+        "calibration": cal.model_dump(mode="json", exclude_none=True), "table": rows,
+        "skipped": [{"item": s.item, "reason": s.reason} for s in est.skipped],
+        "estimators": {k: v.to_dict() for k, v in (("imu_static", est.static), ("time_offset", est.offset),
+                                                   ("rotation", est.rotation), ("lever_arm", est.lever),
+                                                   ("wheel", est.wheel)) if v is not None},
+        "allan": None if est.allan is None else _allan_summary(est.allan),
+        "time_s": {**{k: round(v, 4) for k, v in times.items()}, "total": round(wall, 4)},
+        "log_duration_s": round(span_s, 4), "notes": notes,
+    }
+    _write(job, cal, resolved, metrics, est)
+    return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs)
+
+
+def _mounting(est: steps.Estimates, T_ref) -> tuple[np.ndarray, float, np.ndarray]:
+    """What a gyro-primed pass needs of the estimates so far: (T_lidar_imu, clock offset, gyro bias)."""
+    return T_lidar_imu_of(est, T_ref), est.offset.imu_time_offset_s, est.rotation.gyro_bias_radps
+
+
+def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | None:
+    """--still START:END (seconds after the first IMU sample) as IMU stamps."""
+    if still_s is None:
+        return None
+    t0 = int(imu.stamps_ns[0])
+    return t0 + int(round(still_s[0] * 1e9)), t0 + int(round(still_s[1] * 1e9))
+
+
+def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:
+    T = tree.lookup(base, frame) if frame else None
+    if T is not None:
+        return T, f"{tree.source(base, frame)} ({base} -> {frame})"
+    if prior.T_base_lidar is not None:
+        return prior.matrix("T_base_lidar"), "--calib"
+    est.notes.append(f"no T_base_lidar ({base} -> {frame or '?'}) in /tf_static or --calib: the LiDAR is taken as the "
+                     "base (identity), so T_base_imu is the IMU in the LiDAR frame")
+    return np.eye(4), "identity (assumed)"
+
+
+def _reference(prior: Calibration, tree, base: str, imu_frame: str,
+               T_base_lidar: np.ndarray | None) -> tuple[Calibration | None, str | None]:
+    """What the estimates are compared with: --calib when it was given, else what /tf_static says."""
+    if prior.model_dump(exclude_none=True) != Calibration().model_dump(exclude_none=True):
+        return prior, "--calib"
+    T = tree.lookup(base, imu_frame) if imu_frame else None
+    if T is None:
+        return None, None
+    fields = {"T_base_imu": T.tolist()}
+    if T_base_lidar is not None:
+        fields["T_base_lidar"] = np.asarray(T_base_lidar).tolist()
+    return Calibration.model_validate(fields), tree.source(base, imu_frame)
+
+
+def _allan_summary(r) -> dict:
+    keep = ("noise_density", "noise_density_sigma", "random_walk", "random_walk_sigma", "noise_density_mean",
+            "random_walk_mean", "bias_instability", "white_slope", "random_walk_slope")
+    return {"rate_hz": r.rate_hz, "duration_s": r.duration_s,
+            **{s: {k: v for k, v in getattr(r, s).to_dict().items() if k in keep} for s in ("gyro", "accel")}}
+
+
+def _write(job: CalibrateJob, cal: Calibration, resolved: CalibrateConfig, metrics: dict, est) -> None:
+    if job.kalibr is not None:
+        with atomic_output(job.kalibr, job.force) as tmp:
+            tmp.write_text(kalibr_imu_yaml(est.allan, metrics["topics"]["imu"], est.allan.rate_hz))
+    if job.plot_dir is not None:
+        Path(job.plot_dir).mkdir(parents=True, exist_ok=True)
+        with atomic_output(Path(job.plot_dir) / PLOT_NAME, job.force) as tmp:
+            tmp.write_bytes(allan_plot_png(est.allan, f"Allan deviation: {Path(job.log).name}"))
+    if job.out is None:
+        return
+    metrics_path, config_path = sidecars(job.out)
+    with atomic_output(config_path, job.force) as tmp:
+        tmp.write_text(dump_model(resolved))
+    with atomic_output(metrics_path, job.force) as tmp:
+        tmp.write_text(json_text(metrics))
+    with atomic_output(job.out, job.force) as tmp:
+        tmp.write_text(yaml_text(cal))
+
+
+def yaml_text(cal: Calibration) -> str:
+    """The calibration YAML as written (with its header comment)."""
+    import yaml
+
+    head = ("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame (4x4, metres);\n"
+            "# imu_time_offset_s is added to IMU stamps to put them on the LiDAR's clock; *_sigma_* are 1-sigma\n"
+            "# (rotations about, translations along the base axes). Read by --calib of odom, deskew and fuse.\n")
+    return head + yaml.safe_dump(cal.model_dump(mode="json", exclude_none=True), sort_keys=False,
+                                 default_flow_style=None, width=120)

@@ -1,0 +1,1 @@
+"""``lio fuse``: inputs from a log and files, the fusion in chunks, the outputs."""

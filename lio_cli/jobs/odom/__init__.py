@@ -1,0 +1,1 @@
+"""``lio odom``: the job, its inputs (topics, extrinsics, clocks) and its run."""

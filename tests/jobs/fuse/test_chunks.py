@@ -1,0 +1,107 @@
+"""Memory planning and chunk stitching."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lio_cli.core.fuse import FuseInputs, FuseOptions, FuseResult, ImuSeries, SourceReport, WheelSeries
+from lio_cli.geometry import make_pose, so3_exp
+from lio_cli.jobs.fuse.chunks import align_onto, bytes_per_knot, knot_count, merge_reports, plan, slice_inputs
+
+T0 = 1_700_000_000 * 10**9
+
+
+def _inputs(seconds=100, imu_hz=100, wheel_hz=10):
+    st = T0 + np.arange(0, seconds * 10**9 + 1, 10**9 // imu_hz, dtype=np.int64)
+    ws = st[:: imu_hz // wheel_hz]
+    return FuseInputs(imu=ImuSeries(st, np.zeros((len(st), 3)), np.zeros((len(st), 3))),
+                      wheel=WheelSeries(ws, np.ones((len(ws), 3)), np.zeros(len(ws))))
+
+
+def test_knots_and_bytes():
+    inp = _inputs()
+    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    assert knot_count(inp, use, None) == 10001 + 1001
+    assert knot_count(inp, use, 20.0) == 10001 + 1001  # the IMU samples are held anyway
+    assert bytes_per_knot(FuseOptions(smooth=True), use) == 65 * 15 * 15
+    assert bytes_per_knot(FuseOptions(smooth=True), {**use, "odom": ["delta"]}) == 65 * 21 * 21
+    assert bytes_per_knot(FuseOptions(), use) == 1600
+
+
+def test_plan_keeps_one_chunk_within_budget_and_splits_beyond():
+    inp = _inputs()
+    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    one = plan(inp, FuseOptions(smooth=True), use, 1024.0)
+    assert len(one.chunks) == 1 and one.chunks[0] == (T0, T0 + 100 * 10**9)
+    many = plan(inp, FuseOptions(smooth=True), use, 100.0)  # ~161 MB needed
+    assert len(many.chunks) > 1 and many.chunks[0][0] == T0 and many.chunks[-1][1] == T0 + 100 * 10**9
+    assert all(b == c for (_, b), (c, _) in zip(many.chunks[:-1], many.chunks[1:]))
+    per_chunk_mb = (many.chunks[0][1] - many.chunks[0][0] + 2 * many.overlap_ns) * 1e-9 * 110.1 * many.bytes_per_knot / 1e6
+    assert per_chunk_mb <= 100.0 * 1.01
+
+
+def test_slice_keeps_the_samples_in_the_span():
+    s = slice_inputs(_inputs(), T0 + 10**9, T0 + 2 * 10**9)
+    assert len(s.imu) == 101 and len(s.wheel) == 11 and s.odom is None
+    assert s.imu.T_base_imu.shape == (4, 4)
+
+
+def _result(stamps, poses):
+    return FuseResult(np.asarray(stamps, np.int64), poses, None, np.zeros((len(stamps), 3)), "ekf", True, {})
+
+
+def test_alignment_recovers_a_yaw_and_a_shift():
+    st = T0 + np.arange(20) * 10**8
+    rng = np.random.default_rng(2)
+    poses = np.stack([make_pose(so3_exp(rng.normal(0, 0.3, 3)), rng.normal(0, 5, 3)) for _ in st])
+    A_true = make_pose(so3_exp(np.array([0.0, 0.0, 0.7])), np.array([3.0, -2.0, 0.5]))
+    prev = _result(st, poses)
+    nxt = _result(st, np.linalg.inv(A_true) @ poses)
+    A, joined = align_onto(prev, nxt, int(st[10]))
+    assert joined
+    np.testing.assert_allclose(A, A_true, atol=1e-12)
+    A, joined = align_onto(prev, _result(st + 10**10, poses), int(st[10]))
+    assert not joined and np.allclose(A[:3, :3], np.eye(3))
+
+
+def test_merged_reports_add_up():
+    a, b = SourceReport(received=3, updates=2), SourceReport(received=4, updates=1)
+    a.reject("nan")
+    b.reject("nan", 2)
+    a.outcome("wheel_velocity", "ok")
+    b.outcome("wheel_velocity", "outlier")
+    m = merge_reports([{"wheel": a}, {"wheel": b}])["wheel"]
+    assert (m.received, m.updates, m.rejected) == (7, 4, {"nan": 3, "outlier": 1})
+    assert m.by_kind == {"wheel_velocity": {"updates": 1, "outlier": 1}}
+
+
+def test_plan_refuses_a_short_log_over_budget_naming_the_rate_far_above_the_imu():
+    import pytest
+
+    from lio_cli.errors import ConfigError
+
+    inp = _inputs(seconds=20)
+    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    with pytest.raises(ConfigError) as err:  # it returned one chunk of 3.2 GB: 24 GB RSS at 1e6 Hz, OOM-killed
+        plan(inp, FuseOptions(rate_hz=1e5), use, 1024.0)
+    assert str(err.value) == (
+        "fusing needs about 3200 MB, over the memory budget of 1024 MB (--max-memory), and a 20 s log is too short "
+        "to fuse in chunks (that needs over 60 s): --rate 100000 Hz is 1000 times the IMU rate of 100 Hz, and poses "
+        "between IMU samples carry no measurement of their own: lower --rate to 100 Hz or less, or raise "
+        "--max-memory to 3201 (MB) or more")
+    assert len(plan(inp, FuseOptions(rate_hz=100.0), use, 1024.0).chunks) == 1  # the IMU's own rate: 3.5 MB
+
+
+def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
+    import pytest
+
+    from lio_cli.errors import ConfigError
+
+    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    with pytest.raises(ConfigError) as err:  # it split into 30 s chunks of 72 MB each
+        plan(_inputs(), FuseOptions(smooth=True), use, 20.0)
+    assert str(err.value) == (
+        "fusing needs about 161 MB, over the memory budget of 20 MB (--max-memory), and even the shortest chunk "
+        "(30 s plus 10 s of overlap each side) needs 81 MB: fuse --no-smooth or raise --max-memory to 81 (MB) or more")
+    fits = plan(_inputs(), FuseOptions(smooth=True), use, 81.0)
+    assert len(fits.chunks) == 4
