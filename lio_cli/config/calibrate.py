@@ -3,6 +3,12 @@
 The ``.config.yaml`` a run writes is this model after resolution (topics chosen, base frame found), so
 ``lio calibrate LOG --config that.config.yaml`` repeats the run. ``prior`` is what the estimates are compared
 with (``--calib``); /tf_static, when the log has it, is compared too.
+
+The IMU clock offset has one sign convention everywhere: added to IMU stamps to put them on the LiDAR's clock.
+odom, deskew and fuse apply theirs (``calibration.imu_time_offset_s``, which ``--imu-time-offset`` sets);
+calibrate measures it, so its ``--imu-time-offset`` sets ``imu_time_offset_s`` here: the value the measurement
+starts from and keeps where the motion cannot time the IMU. ``prior`` is the reference the results are
+compared with; of it only T_base_lidar and the clock offset are used, as defaults.
 """
 
 from __future__ import annotations
@@ -46,12 +52,14 @@ class CalibrateConfig(Strict):
 
     input: InputConfig = InputConfig()
     prior: Calibration = Field(Calibration(), description="a calibration to compare with (--calib); its "
-                               "T_base_lidar is used where /tf_static is silent")
+                               "T_base_lidar is used where /tf_static is silent, its imu_time_offset_s is the "
+                               "default of imu_time_offset_s")
     unbounded_fields = frozenset({"imu_time_offset_s"})
     imu_time_offset_s: Optional[float] = Field(
         None, ge=-MAX_CLOCK_OFFSET_S, le=MAX_CLOCK_OFFSET_S,  # as --calib's: an IMU on another clock (epoch) too
-        description="the IMU clock offset where the motion cannot time the IMU (a vehicle that does not swing its "
-        "sensor), kept instead of stopping; default: prior's when --calib gives one")
+        description="seconds added to IMU stamps to put them on the LiDAR's clock (as odom's "
+        "calibration.imu_time_offset_s): where the passes start and the search is centred, and kept where the "
+        "motion cannot time the IMU (a vehicle that does not swing its sensor); default: prior's")
     still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "
                                  "default: found automatically")
     allan: bool = Field(False, description="Allan variance of the whole log (a static IMU recording, hours)")
