@@ -76,8 +76,7 @@ def calibrate(log: Path, out: Path, cfg: CalibrateConfig | None = None, cpu: lis
 
 def walks(offsets) -> list[tuple[int, int, int, int, tuple]]:
     """(family, offset ms, sign, seed, (IMU rotation deg, lever arm m)) of the handheld logs: two families of
-    mountings (the first alone had looked met on the rotation where the second was not), each offset of
-    either sign."""
+    mountings, each offset of either sign."""
     out = []
     for i, ms in enumerate(offsets):
         for sign in (1, -1):

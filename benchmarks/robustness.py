@@ -4,10 +4,10 @@
 For every scenario x {still, moving start} x {IMU aligned, IMU rotated 180 deg roll + 90 deg yaw} x {IMU clock
 offset 0, -15 ms (added to IMU stamps: the IMU clock runs 15 ms ahead)}, `lio simulate` writes one ROS 1 bag (seed
 fixed, so every tool sees the same bytes) and four pipelines run on it, each in its own process: lio with default
-options, lio LiDAR-only (`--prior constant-velocity --deskew constant-velocity`), kiss-icp's own pipeline and RKO-LIO (extrinsics from
-/tf_static, `--base_frame base`; installed into a scratch venv as bench_odom.py does). ATE = APE translation
-RMSE after SE(3) alignment against the exact ground truth, lio's evaluation code (evo's definitions). The
-peers get no clock offset: nobody is told. planar (a 2D LaserScan, which neither peer reads) runs lio alone.
+options, lio LiDAR-only (`--prior constant-velocity --deskew constant-velocity`), kiss-icp's own pipeline and
+RKO-LIO (extrinsics from /tf_static, `--base_frame base`; installed into a scratch venv as bench_odom.py does).
+ATE = APE translation RMSE after SE(3) alignment against the exact ground truth, lio's evaluation code (evo's
+definitions). The peers get no clock offset: nobody is told. planar (a 2D LaserScan, which neither peer reads) runs lio alone.
 
 Targets (issue 8): in every cell lio default ATE <= 0.8x the better peer's and <= lio LiDAR-only's; lio's wall
 time / RKO-LIO's no worse than bench_odom.py's 1.1-1.6.

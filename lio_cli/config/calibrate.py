@@ -40,9 +40,8 @@ def parse_still(text: str) -> tuple[float, float]:
 
 
 class CalibrationRegistration(RegistrationConfig):
-    """odom's registration settings, on one thread by default: kiss-icp's parallel sums come out in a different
-    order from run to run, and a calibration's passes carry that on (the same 60 s log gave wheel speed scales
-    0.3 % apart); one thread costs a calibration no time measurably (7.1-7.3 s either way on a 40 s walk)."""
+    """odom's registration settings on one thread by default: kiss-icp's parallel sums change order from run to
+    run, and a calibration's passes would carry that on."""
 
     threads: int = Field(1, ge=0, description="1: the same log gives the same calibration; 0: all cores")
 
@@ -77,9 +76,8 @@ class CalibrateConfig(Strict):
     map_rounds: int = Field(
         3, ge=0, le=6,
         description="after the last pass, rounds that register each of its scans point-to-plane against one map of "
-        "all of them (de-skewed with the gyro through the estimates so far), the estimates taken again after each: "
-        "a sparse scanner's roll and pitch scatter shrinks to about a third; 3D scans and logs up to 3000 scans "
-        "only; 0 = the passes' poses")
+        "all of them (de-skewed with the gyro through the estimates so far), the estimates taken again after each; "
+        "3D scans and logs up to 3000 scans only; 0 = the passes' poses")
     registration: CalibrationRegistration = CalibrationRegistration()
 
     @property

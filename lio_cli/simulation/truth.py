@@ -1,9 +1,10 @@
 """``x.truth.json``: everything true about a simulated run that a tool could estimate or must know.
 
-The keys of runs without any real-log condition are those of earlier versions, value for value, so logs
-made before keep their exact truth files. A run with any condition (``--start moving``, ``--tilt-scale``, ``--imu-rotation``,
-``--gt-type``, ``--imu-start-delay``, ``--no-tf-static``, ``--wheel/--no-wheel``, ``--gps``) and every
-static run add a complete ``conditions`` block; GPS runs add ``gps``, static runs ``allan``.
+A run without any real-log condition writes the base keys only. A run with any condition (``--start moving``,
+``--tilt-scale``, ``--imu-rotation``, ``--gt-type``, ``--imu-start-delay``, ``--no-tf-static``,
+``--wheel/--no-wheel``, ``--gps``) and every static run add a complete ``conditions`` block; GPS runs add
+``gps``, static runs ``allan``. ``imu.imu_time_offset_s`` is added to IMU stamps to put them on the LiDAR's
+clock, as in a calibration.
 """
 
 from __future__ import annotations
