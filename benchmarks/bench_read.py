@@ -95,7 +95,7 @@ def _import_all() -> None:
 
 
 # Consumers hold on to a few messages; a loop that drops each one at once makes glibc hand every large
-# buffer back to the OS and fault it in again (measured: 590k page faults and 5x the time on a 1 GB log).
+# buffer back to the OS and fault it in again.
 # Both sides keep the last few messages alive, as any real consumer (and lio's reorder heap) does.
 KEEP = 16
 

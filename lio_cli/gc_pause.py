@@ -2,9 +2,9 @@
 
 The collector runs every few hundred container allocations and walks the young objects, then every so often
 all long-lived ones. Reading a log (index entries, per-message values) and a filter's per-sample Python
-lists allocate millions of containers that form no reference cycles, so those passes find nothing: on
-``lio fuse`` of a 2-minute log they were ~7 % of the CPU time. Reference counting still frees everything as
-usual; only cycles wait until the collector is back on (then they are collected).
+lists allocate millions of containers that form no reference cycles, so those passes find nothing and cost
+time. Reference counting still frees everything as usual; only cycles wait until the collector is back on
+(then they are collected).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ def freeze_start_up() -> None:
 
     For a process that runs one command and exits (``cli.app.entry``, which switches the collector off while
     importing: start-up allocates a few hundred thousand such objects and no garbage). Called again at exit,
-    the interpreter's last full pass skips what the run left (about 0.1 s of ``lio deskew``'s exit); objects
-    that die at exit are still freed by reference counting, as before."""
+    the interpreter's last full pass skips what the run left; objects that die at exit are still freed by
+    reference counting."""
     gc.freeze()
     gc.enable()
 

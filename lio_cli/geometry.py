@@ -65,8 +65,8 @@ def pose_from_xyz_quat(xyz: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
 
 def pose_from_xyz_quat_one(xyz, quat_xyzw) -> np.ndarray:
     """:func:`pose_from_xyz_quat` of ONE pose given as Python floats (a message's fields): the same operations
-    in the same order on floats, so the same bits, without numpy's per-call cost on a 4-vector (3 us vs 27;
-    an odometry or pose topic decodes one per message)."""
+    in the same order on floats, so the same bits, without numpy's per-call cost on a 4-vector (an odometry or
+    pose topic decodes one per message)."""
     x, y, z, w = quat_xyzw
     n = math.sqrt(((x * x + y * y) + z * z) + w * w)
     x, y, z, w = x / n, y / n, z / n, w / n

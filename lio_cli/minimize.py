@@ -1,5 +1,5 @@
-"""Bounded scalar minimisation (Brent's method) without scipy.optimize, whose import alone costs every odometry
-run about 0.1 s of start-up (the online clock-offset estimate needs one small search)."""
+"""Bounded scalar minimisation (Brent's method) without scipy.optimize, whose import would slow every odometry
+run's start-up (the online clock-offset estimate needs one small search)."""
 
 from __future__ import annotations
 

@@ -3,9 +3,9 @@
 ``so3_exp`` is ``Rotation.from_rotvec(v).as_matrix()`` and ``so3_log`` is ``Rotation.from_matrix(R).as_rotvec()``
 operation for operation (scipy's Cython loops: the same sums in the same order, the same series below 1e-3
 rad), so they give scipy's bits wherever numpy's sin/cos are the C library's (x86-64 Linux; a test checks),
-without importing scipy.spatial, which costs about a quarter of a second of a command's start-up.
-``so3_log_batch`` is ``so3_log`` with numpy's arctan2 for the angle (about 8 % of its results then differ from
-scipy's in the last bit): faster on large batches (``lio evaluate``), where atan2 per matrix would dominate.
+without importing scipy.spatial, which is slow to import at a command's start-up.
+``so3_log_batch`` is ``so3_log`` with numpy's arctan2 for the angle (some results then differ from scipy's in
+the last bit): faster on large batches (``lio evaluate``), where atan2 per matrix would dominate.
 """
 
 from __future__ import annotations

@@ -38,11 +38,11 @@ Conditions of real recordings: --start moving (in motion at every sensor's first
 
   lio simulate drive town.mcap --beams 64 --time-convention ouster --seed 7
 
-  lio simulate drive moving.bag --start moving --imu-rotation 0,0,30 --imu-time-offset 0.015 --gt-type odometry
+  lio simulate drive moving.bag --start moving --imu-rotation 0,0,30 --imu-time-offset -0.015 --gt-type odometry
 
   lio simulate handheld upside.mcap --start moving --imu-rotation 180,0,90 --imu-start-delay 0.15 --no-tf-static
 
-  lio simulate corridor corridor_ros2 --format ros2 --imu-time-offset 0.005 --gps --gps-origin 47.37,8.54,408
+  lio simulate corridor corridor_ros2 --format ros2 --imu-time-offset -0.005 --gps --gps-origin 47.37,8.54,408
 
   lio simulate static allan.mcap --duration 7200 --accel-noise 1.5e-3 --accel-walk 4e-4
 
@@ -63,7 +63,7 @@ def simulate_cmd(
     imu_rate: Annotated[float, typer.Option("--imu-rate", help="IMU rate in Hz.")] = 200.0,
     time_convention: Annotated[str, typer.Option("--time-convention", help="Per-point time field: velodyne (time, s), ouster (t, ns), livox (offset_time, ns), hesai (timestamp, absolute s).")] = "velodyne",
     header_stamp: Annotated[str, typer.Option("--header-stamp", help="What a cloud's header stamp marks: start or end of the sweep (end: relative times <= 0; velodyne or hesai only).")] = "start",
-    imu_time_offset: Annotated[float, typer.Option("--imu-time-offset", help="IMU clock offset in s: IMU stamp = true time + offset.")] = 0.0,
+    imu_time_offset: Annotated[float, typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (as imu_time_offset_s of a calibration): IMU stamp = true time - offset.")] = 0.0,
     noise_scale: Annotated[float, typer.Option("--noise-scale", help="Multiplies every sensor noise, bias and walk; 0 gives ideal sensors (and no wheel errors).")] = 1.0,
     range_noise: Annotated[Optional[float], typer.Option("--range-noise", help="LiDAR range noise std in m (default 0.015; planar 0.01).", show_default=False)] = None,
     dropout: Annotated[Optional[float], typer.Option("--dropout", help="Fraction of LiDAR returns lost (default 0.01).", show_default=False)] = None,

@@ -3,6 +3,12 @@
 The ``.config.yaml`` a run writes is this model after resolution (topics chosen, base frame found), so
 ``lio calibrate LOG --config that.config.yaml`` repeats the run. ``prior`` is what the estimates are compared
 with (``--calib``); /tf_static, when the log has it, is compared too.
+
+The IMU clock offset has one sign convention everywhere: added to IMU stamps to put them on the LiDAR's clock.
+odom, deskew and fuse apply theirs (``calibration.imu_time_offset_s``, which ``--imu-time-offset`` sets);
+calibrate measures it, so its ``--imu-time-offset`` sets ``imu_time_offset_s`` here: the value the measurement
+starts from and keeps where the motion cannot time the IMU. ``prior`` is the reference the results are
+compared with; of it only T_base_lidar and the clock offset are used, as defaults.
 """
 
 from __future__ import annotations
@@ -34,9 +40,8 @@ def parse_still(text: str) -> tuple[float, float]:
 
 
 class CalibrationRegistration(RegistrationConfig):
-    """odom's registration settings, on one thread by default: kiss-icp's parallel sums come out in a different
-    order from run to run, and a calibration's passes carry that on (the same 60 s log gave wheel speed scales
-    0.3 % apart); one thread costs a calibration no time measurably (7.1-7.3 s either way on a 40 s walk)."""
+    """odom's registration settings on one thread by default: kiss-icp's parallel sums change order from run to
+    run, and a calibration's passes would carry that on."""
 
     threads: int = Field(1, ge=0, description="1: the same log gives the same calibration; 0: all cores")
 
@@ -46,12 +51,14 @@ class CalibrateConfig(Strict):
 
     input: InputConfig = InputConfig()
     prior: Calibration = Field(Calibration(), description="a calibration to compare with (--calib); its "
-                               "T_base_lidar is used where /tf_static is silent")
+                               "T_base_lidar is used where /tf_static is silent, its imu_time_offset_s is the "
+                               "default of imu_time_offset_s")
     unbounded_fields = frozenset({"imu_time_offset_s"})
     imu_time_offset_s: Optional[float] = Field(
         None, ge=-MAX_CLOCK_OFFSET_S, le=MAX_CLOCK_OFFSET_S,  # as --calib's: an IMU on another clock (epoch) too
-        description="the IMU clock offset where the motion cannot time the IMU (a vehicle that does not swing its "
-        "sensor), kept instead of stopping; default: prior's when --calib gives one")
+        description="seconds added to IMU stamps to put them on the LiDAR's clock (as odom's "
+        "calibration.imu_time_offset_s): where the passes start and the search is centred, and kept where the "
+        "motion cannot time the IMU (a vehicle that does not swing its sensor); default: prior's")
     still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "
                                  "default: found automatically")
     allan: bool = Field(False, description="Allan variance of the whole log (a static IMU recording, hours)")
@@ -69,9 +76,8 @@ class CalibrateConfig(Strict):
     map_rounds: int = Field(
         3, ge=0, le=6,
         description="after the last pass, rounds that register each of its scans point-to-plane against one map of "
-        "all of them (de-skewed with the gyro through the estimates so far), the estimates taken again after each: "
-        "a sparse scanner's roll and pitch scatter shrinks to about a third; 3D scans and logs up to 3000 scans "
-        "only; 0 = the passes' poses")
+        "all of them (de-skewed with the gyro through the estimates so far), the estimates taken again after each; "
+        "3D scans and logs up to 3000 scans only; 0 = the passes' poses")
     registration: CalibrationRegistration = CalibrationRegistration()
 
     @property

@@ -37,16 +37,10 @@ _ODOMETRY_FIELDS = ("use_wheel", "planar", "init_window_s", "max_gap_s", "max_br
 
 
 class DeskewRegistration(RegistrationConfig):
-    """lio odom's registration settings, but ICP stops early where the IMU prediction can be leant on: after 2
-    iterations on scans turning slower than 10 deg/s, after 5 on any once the IMU clock is timed (see
-    ``steady_iterations``): faster on drives and corridors, and the de-skewed points as accurate or more
-    (benchmarks/bench_deskew.py). 10 deg/s: the online clock estimate cannot time a stretch turning slower
-    (``calibration.time_offset``), so full iterations there bought it nothing. Of such slowly turning scans only
-    every second is registered once the map holds 20 scans, while the scene is far from degenerate: the others'
-    poses are the IMU prediction, 0.1 s from a corrected state (a drive runs ~25 % faster; the writing pass
-    de-skews them with the cubic through the registered poses, as accurate as registering every scan:
-    benchmarks/bench_deskew.py). Defaults of this class, so a YAML
-    naming other registration fields keeps them."""
+    """lio odom's registration settings, but ICP stops early where the IMU prediction can be leant on (2
+    iterations below 10 deg/s, 5 once the IMU clock is timed) and registers every second slowly turning scan.
+    10 deg/s: the online clock estimate cannot time a slower stretch, so full iterations there buy it nothing.
+    Defaults of this class, so a YAML naming other registration fields keeps them."""
 
     steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[
         "steady_iterations"].description)
@@ -60,8 +54,7 @@ class DeskewRegistration(RegistrationConfig):
 
 class DeskewFusion(FusionConfig):
     """lio odom's fusion settings, but the geometry of a scene far from degenerate (an open road) is analysed
-    every 8th scan instead of every 2nd: the same de-skewed points on drives, faster (benchmarks/bench_deskew.py).
-    A default of this class, so a YAML naming other fusion fields keeps it."""
+    every 8th scan instead of every 2nd. A default of this class, so a YAML naming other fusion fields keeps it."""
 
     degeneracy_every_clear: int = Field(8, ge=1, description=FusionConfig.model_fields[
         "degeneracy_every_clear"].description)

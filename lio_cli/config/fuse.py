@@ -75,9 +75,7 @@ class FuseNoise(Strict):
     nonholonomic_rel_sigma: float = Field(
         0.03, ge=0, description="plus this share of the forward speed: a car's body pitches and slides (1 deg at "
         "10 m/s is 0.17 m/s of vertical body speed)")
-    # LiDAR odometry's pose errors are correlated from scan to scan (drift), not white: taken as independent at
-    # 10 Hz they must be inflated over the core's 0.02 m / 0.005 rad (bench_fuse: 0.1 / 0.02 gives lio odom
-    # trajectories fused with the IMU 5-20% lower ATE and 30% lower 0.05 s RPE than the core's values)
+    # above the core's 0.02 m / 0.005 rad: LiDAR odometry's pose errors drift (correlated), they are not white
     odom_position_sigma_m: float = Field(0.1, gt=0, description="per odometry pose without a covariance")
     odom_rotation_sigma_rad: float = Field(0.02, gt=0, description="per odometry pose without a covariance")
     gps_position_sigma_m: float = Field(2.0, gt=0)

@@ -7,6 +7,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+def on_lidar_clock(imu_stamps_ns: np.ndarray, imu_time_offset_ns: int) -> np.ndarray:
+    """IMU stamps moved onto the LiDAR's clock: the offset is added (``imu_time_offset_s``'s convention)."""
+    return imu_stamps_ns + np.int64(imu_time_offset_ns)
+
+
 @dataclass(frozen=True)
 class TimeConvention:
     """How a cloud carries per-point time.
@@ -80,6 +85,10 @@ class ImuBatch:
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
+
+    def shifted(self, offset_ns: int) -> "ImuBatch":
+        """The same samples re-stamped by :func:`on_lidar_clock`."""
+        return ImuBatch(self.frame_id, on_lidar_clock(self.stamps_ns, offset_ns), self.gyro_radps, self.accel_mps2)
 
     @staticmethod
     def concat(batches: list["ImuBatch"]) -> "ImuBatch":

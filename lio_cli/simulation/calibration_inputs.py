@@ -4,7 +4,7 @@ What ``lio calibrate`` gets from a log is a LiDAR odometry trajectory (LiDAR-onl
 LiDAR in the frame of its first scan, with a centimetre and a tenth of a degree of noise per pose), raw IMU
 arrays and wheel odometry arrays. :func:`calibration_inputs` makes those from a scenario's exact motion and
 sensor models, so tests and benchmarks know the truth. Conventions: ``imu_time_offset_s`` is ADDED to IMU
-stamps to put them on the LiDAR's clock (the simulator's ``ImuSpec.time_offset_ns`` is its negative).
+stamps to put them on the LiDAR's clock, as everywhere in lio.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def calibration_inputs(scenario: str | Scenario = "handheld", duration_s: float 
     rng = np.random.default_rng(seed)
     if imu_spec is None:
         imu_spec = ImuSpec(accel_bias0_mps2=rng.normal(0.0, 0.04, 3), gyro_bias0_radps=rng.normal(0.0, 0.003, 3))
-    imu_spec = replace(imu_spec, time_offset_ns=-int(round(imu_time_offset_s * NS)))
+    imu_spec = replace(imu_spec, imu_time_offset_ns=int(round(imu_time_offset_s * NS)))
     end_ns = START_NS + int(round(duration_s * NS))
     lidar_ns = np.arange(START_NS, end_ns + 1, int(round(NS / lidar_rate_hz)), dtype=np.int64)
     T_wl = sc.trajectory.poses((lidar_ns - START_NS) * 1e-9) @ sc.T_base_lidar

@@ -37,7 +37,7 @@ class SimulationOptions:
     imu_rate_hz: float = 200.0
     time_convention: str = "velodyne"
     header_stamp: str = "start"  # what a cloud's header stamp marks: the sweep's start or its end
-    imu_time_offset_s: float = 0.0
+    imu_time_offset_s: float = 0.0  # added to IMU stamps to put them on the LiDAR's clock (as a calibration's)
     noise_scale: float = 1.0
     range_noise_m: float | None = None
     dropout: float | None = None

@@ -90,7 +90,7 @@ def format_for(out: Path, fmt: str | None) -> str:
 
 def _imu_spec(sc: Scenario, opts: SimulationOptions, rng: np.random.Generator) -> ImuSpec:
     k = opts.noise_scale
-    spec = ImuSpec(rate_hz=opts.imu_rate_hz, time_offset_ns=int(round(opts.imu_time_offset_s * NS)))
+    spec = ImuSpec(rate_hz=opts.imu_rate_hz, imu_time_offset_ns=int(round(opts.imu_time_offset_s * NS)))
     spec.accel_noise_density = (opts.accel_noise_density if opts.accel_noise_density is not None else spec.accel_noise_density) * k
     spec.gyro_noise_density = (opts.gyro_noise_density if opts.gyro_noise_density is not None else spec.gyro_noise_density) * k
     spec.accel_bias_walk = (opts.accel_bias_walk if opts.accel_bias_walk is not None else spec.accel_bias_walk) * k

@@ -139,7 +139,8 @@ def laser_scan(world: World, traj: Trajectory, T_base_lidar: np.ndarray, spec: L
 class ImuSpec:
     """IMU errors. Noise densities are continuous-time (per sqrt(Hz)); the discrete white-noise std is
     density * sqrt(rate). Biases: constant initial value plus a random walk with the given density.
-    ``time_offset_ns``: stamp = true sampling instant + offset (the IMU clock runs ahead when > 0)."""
+    ``imu_time_offset_ns`` is added to IMU stamps to put them on the LiDAR's (true) clock: true sampling instant
+    = stamp + offset (the IMU clock lags when > 0)."""
 
     rate_hz: float = 200.0
     accel_noise_density: float = 2.0e-3  # m/s^2/sqrt(Hz)
@@ -148,7 +149,7 @@ class ImuSpec:
     gyro_bias_walk: float = 2.0e-5  # rad/s^2/sqrt(Hz)
     accel_bias0_mps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gyro_bias0_radps: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    time_offset_ns: int = 0
+    imu_time_offset_ns: int = 0
 
 
 @dataclass
@@ -175,12 +176,12 @@ def imu_truth(traj: Trajectory, T_base_imu: np.ndarray, t_s: np.ndarray) -> tupl
 def synthesize_imu(traj: Trajectory, T_base_imu: np.ndarray, spec: ImuSpec, start_ns: int, end_ns: int,
                    traj_start_ns: int, rng: np.random.Generator | None, continue_walk: bool = False) -> ImuData:
     """IMU samples stamped on a regular grid from ``start_ns`` to ``end_ns`` (inclusive) of the IMU clock;
-    the true sampling instant of stamp s is ``s - time_offset_ns``. ``rng`` None: no noise, no walk.
+    the true sampling instant of stamp s is ``s + imu_time_offset_ns``. ``rng`` None: no noise, no walk.
     The first sample's bias is ``spec``'s initial bias, or (``continue_walk``, for the next piece of a run
     made in pieces) one random-walk step after it."""
     period_ns = int(round(NS / spec.rate_hz))
     stamps = np.arange(start_ns, end_ns + 1, period_ns, dtype=np.int64)
-    t_true = (stamps - spec.time_offset_ns - traj_start_ns) * 1e-9
+    t_true = (stamps + spec.imu_time_offset_ns - traj_start_ns) * 1e-9
     gyro, accel = imu_truth(traj, T_base_imu, t_true)
     n, dt = len(stamps), period_ns * 1e-9
     ba = np.broadcast_to(np.asarray(spec.accel_bias0_mps2, float), (n, 3)).copy()

@@ -1,9 +1,10 @@
 """``x.truth.json``: everything true about a simulated run that a tool could estimate or must know.
 
-The keys of runs without any real-log condition are those of earlier versions, value for value, so logs
-made before keep their exact truth files. A run with any condition (``--start moving``, ``--tilt-scale``, ``--imu-rotation``,
-``--gt-type``, ``--imu-start-delay``, ``--no-tf-static``, ``--wheel/--no-wheel``, ``--gps``) and every
-static run add a complete ``conditions`` block; GPS runs add ``gps``, static runs ``allan``.
+A run without any real-log condition writes the base keys only. A run with any condition (``--start moving``,
+``--tilt-scale``, ``--imu-rotation``, ``--gt-type``, ``--imu-start-delay``, ``--no-tf-static``,
+``--wheel/--no-wheel``, ``--gps``) and every static run add a complete ``conditions`` block; GPS runs add
+``gps``, static runs ``allan``. ``imu.imu_time_offset_s`` is added to IMU stamps to put them on the LiDAR's
+clock, as in a calibration.
 """
 
 from __future__ import annotations
@@ -147,8 +148,9 @@ def truth_dict(sc: Scenario, opts: SimulationOptions, imu_spec: ImuSpec, bias: d
                start_ns: int, end_ns: int, facts: RunFacts) -> dict:
     imu = {
         "topic": TOPIC_IMU, "frame_id": "imu", "rate_hz": imu_spec.rate_hz,
-        "time_offset_s": imu_spec.time_offset_ns * 1e-9, "time_offset_ns": imu_spec.time_offset_ns,
-        "time_offset_meaning": "imu stamp = true sampling time + offset (LiDAR and ground truth carry true time)",
+        "imu_time_offset_s": imu_spec.imu_time_offset_ns * 1e-9, "imu_time_offset_ns": imu_spec.imu_time_offset_ns,
+        "imu_time_offset_meaning": "added to IMU stamps to put them on the LiDAR's clock (LiDAR and ground truth "
+                                   "carry true time)",
         "accel_bias_mps2": bias["accel_first"].tolist(), "gyro_bias_radps": bias["gyro_first"].tolist(),
         "accel_bias_final_mps2": bias["accel_last"].tolist(), "gyro_bias_final_radps": bias["gyro_last"].tolist(),
         "accel_bias_mean_mps2": bias["accel_mean"].tolist(), "gyro_bias_mean_radps": bias["gyro_mean"].tolist(),

@@ -20,7 +20,7 @@ G = 9.81
 def walk(tmp_path_factory):
     root = tmp_path_factory.mktemp("walk")
     return simulate("handheld", root / "walk.bag", "ros1", duration_s=8.0, seed=7, columns=512,
-                    imu_time_offset_s=-0.04, imu_rotation_deg=(0.0, 10.0, 45.0), imu_lever_arm_m=(0.2, 0.1, 0.0),
+                    imu_time_offset_s=0.04, imu_rotation_deg=(0.0, 10.0, 45.0), imu_lever_arm_m=(0.2, 0.1, 0.0),
                     tf_static=False)
 
 
@@ -94,7 +94,7 @@ def test_the_yaml_round_trips_into_odom_calib(walk, walk_run, tmp_path, capsys):
     assert rc == 0
     cal = load_calibration(out)
     t = json.loads(Path(walk.truth_path).read_text())
-    assert abs(1e3 * (cal.imu_time_offset_s + t["imu"]["time_offset_s"])) < 2.0
+    assert abs(1e3 * (cal.imu_time_offset_s - t["imu"]["imu_time_offset_s"])) < 2.0
     text = out.read_text()
     assert text.startswith("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame")
     for key in ("T_base_imu:", "T_base_lidar:", "imu_time_offset_s:", "imu_time_offset_sigma_s:", "gyro_bias_radps:",

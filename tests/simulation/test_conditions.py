@@ -140,7 +140,7 @@ def test_odometry_ground_truth_reads_back_as_the_tum_poses(tmp_path, twist):
 
 def test_imu_driver_starting_late_puts_the_first_scan_before_the_first_imu_message(tmp_path):
     out = tmp_path / "late.bag"
-    simulate("handheld", out, duration_s=0.5, seed=1, columns=16, imu_start_delay_s=0.15, imu_time_offset_s=0.015)
+    simulate("handheld", out, duration_s=0.5, seed=1, columns=16, imu_start_delay_s=0.15, imu_time_offset_s=-0.015)
     with open_log(out) as log:
         order = [(topic, t, m) for topic, _, t, m in log.messages()]
     sensors = [o[0] for o in order if o[0] in ("/points", "/imu")]
@@ -150,7 +150,7 @@ def test_imu_driver_starting_late_puts_the_first_scan_before_the_first_imu_messa
     assert _stamp(first_scan) == START_NS and _stamp(first_imu) == START_NS + 150_000_000
     cond = _truth(out)["conditions"]
     assert cond["first_scan_before_first_imu"] is True and cond["first_imu_stamp_ns"] == START_NS + 150_000_000
-    assert cond["imu_start_delay_s"] == 0.15 and _truth(out)["imu"]["time_offset_ns"] == 15_000_000
+    assert cond["imu_start_delay_s"] == 0.15 and _truth(out)["imu"]["imu_time_offset_ns"] == -15_000_000
 
 
 def test_no_tf_static_no_wheel_and_the_default_truth_keeps_its_keys(tmp_path):

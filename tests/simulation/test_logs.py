@@ -119,7 +119,7 @@ def test_time_conventions_decode_to_the_same_point_stamps(tmp_path, convention):
 
 def test_ground_truth_file_topic_and_truth_json_agree(tmp_path):
     out = tmp_path / "c.bag"
-    res = simulate("corridor", out, duration_s=DURATION_S, seed=2, imu_time_offset_s=0.004, **TINY)
+    res = simulate("corridor", out, duration_s=DURATION_S, seed=2, imu_time_offset_s=-0.004, **TINY)
     gt_path, truth_path = output_paths(out)
     assert (res.gt_path, res.truth_path) == (gt_path, truth_path) == (tmp_path / "c.gt.tum", tmp_path / "c.truth.json")
     stamps, poses = read_tum(gt_path)
@@ -131,7 +131,7 @@ def test_ground_truth_file_topic_and_truth_json_agree(tmp_path):
     truth = json.loads(truth_path.read_text())
     np.testing.assert_allclose(truth["T_base_imu"], sc.T_base_imu, atol=1e-12)
     np.testing.assert_allclose(truth["T_base_lidar"], sc.T_base_lidar, atol=1e-12)
-    assert truth["imu"]["time_offset_ns"] == 4_000_000 and truth["seed"] == 2 and truth["scenario"] == "corridor"
+    assert truth["imu"]["imu_time_offset_ns"] == -4_000_000 and truth["seed"] == 2 and truth["scenario"] == "corridor"
     assert np.linalg.norm(truth["imu"]["accel_bias_mps2"]) > 0 and np.linalg.norm(truth["imu"]["gyro_bias_radps"]) > 0
     assert truth["wheel"]["slip"]["left"] > 0 and truth["wheel"]["baseline_scale"] != 1.0
     with open_log(out) as log:
@@ -280,7 +280,7 @@ def test_sample_logs_are_small_and_hold_what_the_readme_says():
 def test_cli_options_reach_the_log(tmp_path, capsys):
     out = tmp_path / "town"
     rc, _, err = run(capsys, "simulate", "drive", out, "--format", "ros2-mcap", "--duration", 0.5, "--beams", 64,
-                     "--columns", 32, "--imu-rate", 400, "--imu-time-offset", -0.003, "--time-convention", "ouster",
+                     "--columns", 32, "--imu-rate", 400, "--imu-time-offset", 0.003, "--time-convention", "ouster",
                      "--range-noise", 0.0, "--dropout", 0.0, "--seed", 3, "--quiet")
     assert rc == 0, err
     assert err == ""  # --quiet: nothing on stderr
@@ -299,7 +299,7 @@ def test_cli_options_reach_the_log(tmp_path, capsys):
     rings = np.frombuffer(bytes(clouds[2].data), dtype=cloud_dtype(clouds[2]))["ring"]
     assert rings.max() == 63
     truth = json.loads((tmp_path / "town.truth.json").read_text())
-    assert truth["imu"]["time_offset_ns"] == -3_000_000 and truth["imu"]["rate_hz"] == 400.0
+    assert truth["imu"]["imu_time_offset_ns"] == 3_000_000 and truth["imu"]["rate_hz"] == 400.0
     assert truth["lidar"]["beams"] == 64 and truth["lidar"]["time_convention"] == "ouster"
     assert truth["lidar"]["range_noise_m"] == 0.0
     stamps = [m.header.stamp.sec * NS + m.header.stamp.nanosec for m in imu]

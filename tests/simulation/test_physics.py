@@ -87,10 +87,10 @@ def test_accelerometer_at_rest_reads_gravity_up_in_imu_frame():
 def test_imu_bias_noise_and_time_offset():
     sc = build_scenario("handheld")
     spec = ImuSpec(accel_bias0_mps2=np.array([0.05, -0.02, 0.03]), gyro_bias0_radps=np.array([0.002, 0.0, -0.001]),
-                   time_offset_ns=5_000_000)
-    ideal = synthesize_imu(sc.trajectory, sc.T_base_imu, ImuSpec(time_offset_ns=5_000_000), 0, NS, 0, rng=None)
+                   imu_time_offset_ns=-5_000_000)
+    ideal = synthesize_imu(sc.trajectory, sc.T_base_imu, ImuSpec(imu_time_offset_ns=-5_000_000), 0, NS, 0, rng=None)
     noisy = synthesize_imu(sc.trajectory, sc.T_base_imu, spec, 0, NS, 0, rng=np.random.default_rng(3))
-    # stamps on the IMU clock's regular grid; the samples belong to true time stamp - offset (at rest here)
+    # stamps on the IMU clock's regular grid; the samples belong to true time stamp + offset (at rest here)
     np.testing.assert_array_equal(noisy.stamps_ns, np.arange(0, NS + 1, 5_000_000))
     err = noisy.accel_mps2 - ideal.accel_mps2 - noisy.accel_bias_mps2
     expected_std = spec.accel_noise_density * np.sqrt(spec.rate_hz)
@@ -103,7 +103,7 @@ def test_imu_time_offset_shifts_the_signal():
     sc = build_scenario("handheld")
     offset_ns = 7_000_000
     a = synthesize_imu(sc.trajectory, sc.T_base_imu, ImuSpec(), 4 * NS, 5 * NS, 0, rng=None)
-    b = synthesize_imu(sc.trajectory, sc.T_base_imu, ImuSpec(time_offset_ns=offset_ns), 4 * NS + offset_ns,
+    b = synthesize_imu(sc.trajectory, sc.T_base_imu, ImuSpec(imu_time_offset_ns=-offset_ns), 4 * NS + offset_ns,
                        5 * NS + offset_ns, 0, rng=None)
     np.testing.assert_array_equal(b.stamps_ns - offset_ns, a.stamps_ns)
     np.testing.assert_allclose(b.gyro_radps, a.gyro_radps, atol=1e-12)

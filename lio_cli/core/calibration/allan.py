@@ -2,8 +2,7 @@
 
 The overlapping Allan variance of a rate signal sampled every ``dt`` at cluster size ``m`` (tau = m dt) is
 ``sum_k (th[k+2m] - 2 th[k+m] + th[k])^2 / (2 tau^2 (n - 2m + 1))`` with ``th`` the running integral of the
-rate: one cumulative sum, then O(n) per tau for log-spaced taus (the whole of a 2 h, 200 Hz, 6-axis log in
-seconds).
+rate: one cumulative sum, then O(n) per tau for log-spaced taus.
 
 Noise model (IEEE 952; the definitions of lio's simulator and of Kalibr):
 - white noise, density ``N`` (rad/s/sqrt(Hz) or m/s^2/sqrt(Hz); discrete std = N sqrt(rate)): AVAR = N^2 / tau,
@@ -41,10 +40,8 @@ MIN_DURATION_S = 60.0
 @dataclass(frozen=True, eq=False)
 class AllanFit(CalibrationResult):
     """Noise parameters of one sensor (3 axes). Densities as in the module doc. Sigmas are the Cramer-Rao
-    bound of the log's length (no estimator does better; in simulation the fit scatters about 1.2x this for the
-    random walk and 3x for the white noise, which starts at ``tau_min_samples``; a 2 h log pins one axis' random
-    walk to about 5%, the mean of three axes to 3%). A slope
-    is NaN (and its tau range NaN) when its term dominates too few taus to fit one."""
+    bound of the log's length (no estimator does better; the fit's own scatter is larger). A slope is NaN (and
+    its tau range NaN) when its term dominates too few taus to fit one."""
 
     noise_density: np.ndarray  # per axis
     noise_density_sigma: np.ndarray

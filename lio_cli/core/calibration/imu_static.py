@@ -124,10 +124,9 @@ def find_still_stretch(stamps_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2
         if e - s >= need_ns:
             return s, e
         longest = max(longest, e - s)
-    # a pause too short to hold the stretch joins the motion around it: else a log moving from 2 s to its end
-    # with a few short pauses reads as four blips of motion in its first seconds "and 5 more"
+    # a pause too short to hold the stretch joins the motion around it, so the message names the motion, not blips
     moving = time_ranges_text(stamps_ns, ~mask, int(stamps_ns[0]), join_ns=int(need_ns) + 2 * trim_ns)
-    # the longest stretch rounded down: 0.97 s read "lasts 1.0 s" beside "no still stretch of 1 s"
+    # the longest stretch rounded down, so it never reads as long as the stretch asked for
     raise InputError(f"no still stretch of {opts.min_duration_s:g} s in the IMU data: it moves during {moving} "
                      f"(s after its first stamp, pauses shorter than {opts.min_duration_s:g} s included; the longest "
                      f"still stretch lasts {math.floor(longest / NS_PER_S * 100) / 100:g} s); record a few seconds standing still or name a "

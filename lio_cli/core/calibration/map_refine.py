@@ -1,15 +1,12 @@
 """Sharper LiDAR poses for the calibration: every scan registered point-to-plane against one map of all scans.
 
 The scan-to-local-map registration of odometry (kiss-icp, point-to-point) on a sparse scanner scatters roll and
-pitch by 0.4-0.5 deg per scan on a 16-beam handheld walk: its map is the last few scans, each placed with the
-same scatter, and its point pairs are of rings that never coincide. The rotation increments the hand-eye
-fit reads are then mostly that scatter. Here the whole log's scans, de-skewed with the gyro through the current
-mounting estimate, form one map; planes fitted to its voxels average many scans, and every scan is registered
-point-to-plane against them. A few rounds (map, register, again) take the scatter to about a third.
-
-Registered against the true map, a de-skewed 16-beam scan lands within 0.01 deg, so what is left is the map's
-own blur and the de-skew: the caller re-estimates the mounting between rounds, so each round de-skews with a
-better one.
+pitch from scan to scan: its map is the last few scans, each placed with the same scatter, and its point pairs
+are of rings that never coincide. The rotation increments the hand-eye fit reads are then mostly that scatter.
+Here the whole log's scans, de-skewed with the gyro through the current mounting estimate, form one map; planes
+fitted to its voxels average many scans, and every scan is registered point-to-plane against them. What is left
+is the map's own blur and the de-skew, so the caller re-estimates the mounting between rounds (map, register,
+again) and each round de-skews with a better one.
 """
 
 from __future__ import annotations
@@ -53,8 +50,8 @@ def thin_sweep(points: np.ndarray, stamps_ns: np.ndarray, end_ns: int, voxel_m: 
 def _deskewed(sweep: Sweep, gyro: GyroOrientation, R_lidar_imu: np.ndarray, offset_s: float,
               v_lidar: np.ndarray) -> np.ndarray:
     """The sweep's points in the LiDAR frame at its end: the gyro's rotation through the mounting, the
-    translation at ``v_lidar`` (the LiDAR's velocity in its end frame). One sweep at a time: its arrays stay in
-    the cache (all sweeps at once ran 3x slower)."""
+    translation at ``v_lidar`` (the LiDAR's velocity in its end frame). One sweep at a time, so its arrays stay
+    in the cache."""
     te = gyro.relative_s(np.array([sweep.end_ns], np.int64), offset_s)
     dt = sweep.dt_s.astype(np.float64)
     in_imu = gyro.rotate(te[0] + dt, sweep.points.astype(np.float64) @ R_lidar_imu)  # the IMU's start frame
@@ -64,11 +61,8 @@ def _deskewed(sweep: Sweep, gyro: GyroOrientation, R_lidar_imu: np.ndarray, offs
 def _velocities(stamps_ns: np.ndarray, poses: np.ndarray, half: int = VELOCITY_HALF_SPAN) -> np.ndarray:
     """The LiDAR's velocity in its own frame over each scan: the difference of the poses ``half`` + 1 before and
     ``half`` after it, centred on the scan's middle (``half`` = 0: the step before; the ends take what there is).
-
-    The step before alone carried two poses' noise divided by 0.1 s into every de-skew, and back into the poses:
-    on 16-beam walks the refined poses scattered 2-2.5 cm per scan along the walk and the vertical (the bob of
-    the steps), 0.5 cm across. Over three scan intervals (0.3 s at 10 Hz) it is 0.4-0.5 cm along each, and the walk's changes of speed (steps
-    at about 2 Hz) are still followed."""
+    Several intervals keep two poses' noise over one short step out of every de-skew; a walk's steps are still
+    followed."""
     n = len(poses)
     k = np.arange(n)
     lo, hi = np.clip(k - 1 - half, 0, n - 1), np.clip(k + half, 0, n - 1)
@@ -80,8 +74,8 @@ def _velocities(stamps_ns: np.ndarray, poses: np.ndarray, half: int = VELOCITY_H
 
 class PlaneMap:
     """Voxel means of world points, each with the plane of its ``NEIGHBOURS`` nearest (centroid, normal); a
-    scan point is paired with the plane of the voxel it falls in (a hash lookup: a k-d tree query per point
-    cost twice the time and gave the same poses)."""
+    scan point is paired with the plane of the voxel it falls in (a hash lookup, cheaper than a k-d tree query
+    per point)."""
 
     def __init__(self, world: np.ndarray, voxel_m: float) -> None:
         keys, inside = voxel_keys(world, voxel_m)

@@ -9,10 +9,9 @@ the motion does not show. Longer windows hold more rotation against the same per
 motion turns back within them (a handheld sweep): the length is chosen per trajectory (``WINDOWS_S``).
 
 The trajectory is a registration's, and a registration need not turn as the sensor did: LiDAR-only odometry of
-a car follows about a third of its slow roll and pitch sways (``lio simulate drive``: the gyro-primed pass, even
-de-skewed with the true motion), and roll that comes with the turns then reads as a mounting tilted by about a
-degree. So a symmetric gain ``S`` (``phi_lidar = (I + S) R (phi_imu - b dt)``; a rotation has no symmetric part)
-is fitted too, and kept when it is clearly there and the motion can tell it from the mounting.
+a car follows only part of its slow roll and pitch sways, and roll that comes with the turns would read as a
+tilted mounting. So a symmetric gain ``S`` (``phi_lidar = (I + S) R (phi_imu - b dt)``; a rotation has no
+symmetric part) is fitted too, and kept when it is clearly there and the motion can tell it from the mounting.
 
 Errors are ``R_est = exp(e) R_true`` with ``e`` in the LiDAR frame: ``sigma_rad`` is the 1-sigma of e about
 the LiDAR's x, y, z axes. Pass the trajectory of the base instead and everything reads base for LiDAR.
@@ -34,15 +33,9 @@ from .handeye import align, imu_increments, interval_pairs, keep_finite_incremen
 from .signals import GyroOrientation
 
 # window lengths to choose from (``window_s`` None): the one whose windows turn most for their length (mean squared
-# angle over the length: shorter windows are more of them). A handheld sweep of about 1 Hz (what the notes ask
-# for) turns back within a second, so 1 s windows saw half the angle of 0.5 s ones (on simulated 16-beam walks
-# the mounting came out 0.1-0.2 deg off about a horizontal axis, where 0.5 s gave 0.02-0.04); a vehicle turning
-# steadily turns more in longer windows and keeps 1 s (shorter ones told its registration's gain from the
-# mounting worse). A shorter one only when the trajectory spans MIN_WINDOWS of it: over a few seconds of scattered
-# poses half-second windows are too few apart for their covariance (6 s of poses scattered by 2 deg: errors of
-# 2.6 of its 1-sigmas)
+# angle over the length); a handheld sweep turns back within a second, a vehicle turns more in longer windows
 WINDOWS_S = (0.5, 1.0)
-MIN_WINDOWS = 40
+MIN_WINDOWS = 40  # a shorter length only when the trajectory spans this many: fewer are too few for their covariance
 REG_SIGMA_RAD = 1.0  # regularisation of directions nothing observes (keeps the normal matrix invertible)
 REG_SIGMA_BIAS_RADPS = 1.0
 OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier

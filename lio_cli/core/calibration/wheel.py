@@ -83,10 +83,8 @@ def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, a
         raise InputError(f"wheel scales: the platform moved {dist.sum():.1f} m while wheel odometry ran; drive at least "
                          f"{MIN_DISTANCE_M:g} m (better tens of metres, with turns both ways)")
     first = fit_chain(windows)
-    # One chain of windows uses every k-th pose: its precision is set by the noise of the poses it ends on, and
-    # scan-to-scan jitter is largely independent, so chains starting at the poses in between are fitted too (with
-    # the first chain's noise levels) and averaged: the speed scale's scatter over draws of a 60 s drive halves
-    # (rms 0.15 -> 0.08 %). A long log, precise in one chain, fits fewer.
+    # one chain uses every k-th pose and scan-to-scan jitter is largely independent, so the chains starting at the
+    # poses in between are fitted too (with the first chain's noise levels) and averaged; a long log fits fewer
     starts = np.unique(np.linspace(0, k, min(k, max(1, MAX_WINDOWS // len(ia))), endpoint=False).astype(int))
     chains = [first] + [fit_chain(windows.with_windows(ia + j, ia + k + j), first.levels)
                         for j in starts[1:] if ia[-1] + k + j < len(ts)]

@@ -34,9 +34,8 @@ def fit_chain(win: Windows, levels: np.ndarray | None = None) -> Chain:
     sig0 = np.array([0.02, 0.02, np.radians(0.3)])
     fit = least_squares(lambda s: win.resid(s, sig0), np.array([1.0, 1.0, 0.0]), loss="cauchy", f_scale=3.0)
     good = np.ones(len(win.ia), bool)
-    # the scatter of the windows, once, from all of them (the median absolute deviation ignores the slips): one
-    # re-measured on the windows kept after each cut shrinks with every cut and trims good windows in turn,
-    # which made the result jump between draws of the same log
+    # the windows' scatter, once, from all of them (the MAD ignores the slips): re-measured after each cut it would
+    # shrink with every cut and trim good windows in turn
     r = win.resid(fit.x, sig0).reshape(-1, 3) * sig0
     scale = np.maximum(1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0), np.array([1e-4, 1e-4, 1e-5]))
     for it in range(4):  # flag far-out windows against that scatter, refit on the rest, repeat until stable
@@ -46,10 +45,9 @@ def fit_chain(win: Windows, levels: np.ndarray | None = None) -> Chain:
         good = new_good
         fit = least_squares(lambda s, sc=scale, g=good: win.resid(s, sc).reshape(-1, 3)[g].ravel(), fit.x)
         r = win.resid(fit.x, sig0).reshape(-1, 3) * sig0
-    # A far-out window is slip only if the windows around it do not make up for it. One badly registered pose
-    # throws both windows that share it out, by opposite amounts; leaving out only one of them (the other within
-    # the cut) keeps the other's error, uncancelled: 13 cm of a 42 m drive (0.3 % of speed scale) from one pose.
-    # Such a pose is bridged: the windows on either side joined into one that skips it, kept when it fits.
+    # A far-out window is slip only if the windows around it do not make up for it: one badly registered pose
+    # throws both windows that share it out by opposite amounts, so such a pose is bridged (the windows on either
+    # side joined into one that skips it, kept when it fits) rather than one window of the two left out.
     win, slips, skipped = _bridge(win, good, fit.x, np.median(r[good], axis=0), OUTLIER_SIGMAS * scale)
     fit = least_squares(lambda s: win.resid(s, scale), fit.x)
     # generalised least squares: consecutive windows share a pose, so their position and heading noise cancel

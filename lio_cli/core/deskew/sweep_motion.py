@@ -3,9 +3,8 @@
 ``PoseSpline`` gives ``T_world_base`` at any instant from stamped poses: a cubic through the four nearest
 poses (Lagrange, on positions and on rotation vectors relative to the interval's first pose), or SE(3)
 interpolation between the two nearest (``cubic=False``). A pose per scan (odometry at 10 Hz) cannot be
-interpolated linearly through a 3 rad/s yaw sweep that accelerates at 30 rad/s^2 (a quarter of a degree
-off mid-sweep, 4 cm at 10 m); the cubic follows it to a millimetre. Beyond the ends it extrapolates at the
-end segment's velocity for at most ``extrapolate_ns``.
+interpolated linearly through a fast, accelerating sweep; the cubic follows it. Beyond the ends it
+extrapolates at the end segment's velocity for at most ``extrapolate_ns``.
 
 ``gyro_sweep_poses`` takes the rotation within the sweep from the gyro instead (exact to its noise and
 bias) and the translation from the spline. ``deskew_to_sensor`` applies either to a scan's points.

@@ -2,21 +2,11 @@
 
 ``f_base = R_bi f_imu - (alpha x r + w x (w x r))``, ``r`` the IMU origin in base, ``alpha`` the angular
 acceleration. ``alpha`` is not measured: it is the slope of the gyro, and the slope of white noise grows as
-the step shrinks. The three-point derivative (``np.gradient``) of a 200 Hz MEMS gyro (1.7e-4 rad/s/sqrt(Hz),
-0.0024 rad/s a sample) has 0.34 rad/s^2 of noise, which a 1 m lever arm turns into 0.34 m/s^2 on every
-specific-force sample: twelve times the accelerometer's own 0.028 m/s^2.
-
-So ``alpha`` is the slope of a straight line fitted to the gyro over +-``ALPHA_HALF_WINDOW_NS`` around each
-sample. Its noise is ``sigma_w * sqrt(12 / (dt^2 N (N^2 - 1)))`` for N samples ``dt`` apart: 0.017 rad/s^2
-over 21 samples at 200 Hz, a twentieth of the three-point one, so a 1 m lever arm adds about 0.015 m/s^2 an
-axis, half the accelerometer's own noise, instead of twelve times it. Measured against the truth on
-``lio simulate`` (15 s, the scenarios' lever arms; error of the base specific force, rms an axis, the raw
-accelerometer's being 0.028; three-point -> this): drive (1 m) 0.281 -> 0.032, corridor (0.28 m)
-0.081 -> 0.028, planar (0.16 m) 0.053 -> 0.028, handheld (5 cm, angular accelerations of 15 rad/s^2 rms,
-the fastest scenario) 0.032 -> 0.031. The window costs accuracy only where large angular accelerations
-change within 50 ms *and* the lever arm is long: handheld with the IMU 0.7 m off, 0.200 -> 0.177 (+-25 ms
-would give 0.067 there, but 0.047 on the drive). Leaving ``alpha`` out is no answer: it is 0.14 m/s^2 rms
-on the drive, 0.69 on the handheld.
+the step shrinks, so a three-point derivative times a long lever arm buries the accelerometer's own noise.
+Here ``alpha`` is the slope of a straight line fitted to the gyro over +-``ALPHA_HALF_WINDOW_NS`` around each
+sample: its noise is ``sigma_w * sqrt(12 / (dt^2 N (N^2 - 1)))`` for N samples ``dt`` apart. The window costs
+accuracy only where large angular accelerations change within it *and* the lever arm is long; leaving
+``alpha`` out altogether is worse.
 """
 
 from __future__ import annotations

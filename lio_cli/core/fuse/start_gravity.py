@@ -12,8 +12,7 @@ preintegrated specific force), with
   start) and the wheels' body velocity, in that start frame.
 
 The alignment runs over twice the standing window (``standing_window_s``, 1 s: 2 s): its gravity term grows
-with the square of the span, and on ``lio simulate`` moving starts (odometry at 10 Hz) 1 s left 0.7-1.1 deg of
-tilt, 2 s 0.35-0.9 deg (the IMU's accelerometer bias, 0.05 m/s^2 there, alone is 0.3 deg).
+with the square of the span, so a longer window tells gravity from the motion better.
 
 What comes back is "up" and the velocity in base axes at the window's first instant, ``t0``: the alignment's at
 its first pose, carried back to ``t0`` by the gyro (the velocity's change over that short stretch, at most

@@ -250,9 +250,8 @@ def gap_noise(L: Layout, noise, dt: float, tau_s: float = GAP_TAU_S, since_s: fl
 
     ``since_s``: how long the gap had lasted when this step starts. A gap crossed in several steps (split by
     the updates and outputs inside it) gets the position and rotation noise of one step across it: the cubic
-    terms grow with the whole gap's length, and summed per piece they fell a hundredfold short (ten 0.1 s
-    steps give 1/100 of one 1 s step's), so the odometry poses inside a 1 s IMU gap were rejected as outliers
-    while the held rotation drifted. ``rate_radps``: the turn rate when the gap began (the last gyro sample):
+    terms grow with the whole gap's length, and summed per piece they would fall far short (ten 0.1 s steps give
+    1/100 of one 1 s step's). ``rate_radps``: the turn rate when the gap began (the last gyro sample):
     the held rotation falls behind by up to that rate times the gap's length, a rotation variance of
     ``rate^2 t^2`` on top of the angular-acceleration term."""
     qa, qw = noise.cv_accel_density**2, noise.cv_angular_accel_density**2

@@ -196,8 +196,8 @@ def _output(prep: Prepared, options: FuseOptions) -> None:
 def folded_outputs(prep: Prepared) -> tuple[list[int], list[int], list[int], list[bool]]:
     """The event stream as lists (times, kinds, indexes) plus ``out``: mark an output once the event is
     handled. An output right after another event at its stamp (outputs come last at a stamp) is folded into
-    that event; one at a stamp of its own stays an event (``out`` True, nothing else to do). Half the
-    events of a run whose outputs are the IMU stamps, which a filter loop then need not go round."""
+    that event; one at a stamp of its own stays an event (``out`` True, nothing else to do), so a filter loop
+    need not go round the folded ones."""
     t, k = prep.times, prep.kinds
     fold = np.zeros(len(t), bool)
     fold[1:] = (k[1:] == OUT) & (t[1:] == t[:-1]) & (k[:-1] != OUT)

@@ -120,7 +120,7 @@ class LioOdometry(ScanSteps, StateUpdates, Restart, LidarSteps, Gaps):
 
     def add_imu(self, batch: ImuBatch) -> None:
         if self._shift_ns:
-            batch = ImuBatch(batch.frame_id, batch.stamps_ns + self._shift_ns, batch.gyro_radps, batch.accel_mps2)
+            batch = batch.shifted(self._shift_ns)
         self._imu.append(batch)
         if self.clock is not None:
             self.clock.add_imu(batch.stamps_ns, batch.gyro_radps)
@@ -133,7 +133,7 @@ class LioOdometry(ScanSteps, StateUpdates, Restart, LidarSteps, Gaps):
     def _shift_imu(self, delta_ns: int) -> None:
         """Move every IMU sample, buffered and to come, by ``delta_ns`` onto the LiDAR's clock."""
         self._shift_ns += delta_ns
-        self._imu = [ImuBatch(b.frame_id, b.stamps_ns + delta_ns, b.gyro_radps, b.accel_mps2) for b in self._imu]
+        self._imu = [b.shifted(delta_ns) for b in self._imu]
         self._event("clock offset", f"IMU stamps moved by {delta_ns * 1e-6:+.2f} ms onto the LiDAR's clock "
                                     f"(estimated online; {self._shift_ns * 1e-6:+.2f} ms in all)")
 

@@ -173,7 +173,7 @@ class LidarPass:
                     if gather:
                         imu_batches.append(batch)
                     if with_imu:
-                        shifted = ImuBatch(batch.frame_id, batch.stamps_ns + offset_ns, batch.gyro_radps, batch.accel_mps2)
+                        shifted = batch.shifted(offset_ns)
                         if odo is None:
                             early.append(shifted)
                         else:

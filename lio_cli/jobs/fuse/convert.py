@@ -17,6 +17,7 @@ from ...io.messages.decode import ODOMETRY
 from ...io.sensors.series import ImuColumns, MotionColumns
 from ...model.calibration import WheelCalibration
 from ...model.gps import GpsTrack
+from ...model.records import on_lidar_clock
 
 UNMEASURED_VAR = 1e3  # a variance this large says "not measured"
 UNIT_QUAT_TOL = 1e-2  # |q| - 1 of a quaternion that counts as a rotation
@@ -40,7 +41,7 @@ def imu_series(cols: ImuColumns, T_base_imu: np.ndarray, offset_ns: int = 0, gyr
     gyro = cols.gyro_radps - (np.asarray(gyro_bias) if gyro_bias is not None else 0.0)
     accel = cols.accel_mps2 - (np.asarray(accel_bias) if accel_bias is not None else 0.0)
     valid = (cols.orientation_cov[:, 0] != -1.0) & unit_quaternions(cols.quat_xyzw)
-    return ImuSeries(cols.stamps_ns + np.int64(offset_ns), gyro, accel, T_base_imu, cols.quat_xyzw, valid,
+    return ImuSeries(on_lidar_clock(cols.stamps_ns, offset_ns), gyro, accel, T_base_imu, cols.quat_xyzw, valid,
                      cols.orientation_cov.reshape(-1, 3, 3))
 
 

@@ -162,7 +162,7 @@ class _OdomRun:
             if rec.kind == "imu":
                 batch: ImuBatch = rec.data
                 if offset_ns:
-                    batch = ImuBatch(batch.frame_id, batch.stamps_ns + offset_ns, batch.gyro_radps, batch.accel_mps2)
+                    batch = batch.shifted(offset_ns)
                 if self.odo is None:
                     self.early_imu.append(batch)
                 else:

@@ -38,10 +38,10 @@ def T_lidar_imu(t: dict) -> np.ndarray:
 @pytest.fixture(scope="module")
 def walks(tmp_path_factory):
     root = tmp_path_factory.mktemp("calib")
-    bag = simulate("handheld", root / "walk.bag", "ros1", duration_s=8.0, seed=5, columns=512, imu_time_offset_s=0.03,
+    bag = simulate("handheld", root / "walk.bag", "ros1", duration_s=8.0, seed=5, columns=512, imu_time_offset_s=-0.03,
                    imu_rotation_deg=(10.0, -5.0, 30.0), imu_lever_arm_m=(0.3, -0.2, 0.1), tf_static=False)
     mcap = simulate("handheld", root / "walk2.mcap", "mcap", duration_s=8.0, seed=6, columns=512,
-                    imu_time_offset_s=-0.06, imu_rotation_deg=(-20.0, 15.0, -60.0), imu_lever_arm_m=(-0.1, 0.25, 0.05))
+                    imu_time_offset_s=0.06, imu_rotation_deg=(-20.0, 15.0, -60.0), imu_lever_arm_m=(-0.1, 0.25, 0.05))
     return root, bag, mcap
 
 
@@ -78,7 +78,7 @@ def test_a_handheld_bag_without_tf_static_gives_offset_rotation_and_lever_arm(wa
     t = truth(bag)
     cal = bag_run.calibration
     # the simulator's offset is IMU stamp = true time + 0.03 s, so the one to add is -0.03 s
-    assert abs(1e3 * (cal.imu_time_offset_s + t["imu"]["time_offset_s"])) < OFFSET_TOL_MS
+    assert abs(1e3 * (cal.imu_time_offset_s - t["imu"]["imu_time_offset_s"])) < OFFSET_TOL_MS
     assert 0 < cal.imu_time_offset_sigma_s < 0.001
     # no /tf_static: the LiDAR is the base, so T_base_imu is the IMU in the LiDAR frame
     assert cal.matrix("T_base_lidar") == pytest.approx(np.eye(4))
@@ -116,7 +116,7 @@ def test_a_lidar_only_pass_over_part_of_the_log_seeds_the_same_calibration(walks
     monkeypatch.setattr(calibrate_passes, "FIRST_MIN_NS", 5_000_000_000)
     r = run_calibrate(CalibrateJob(bag.log_path, tmp_path / "c.yaml"))
     assert r.metrics["lidar_only_pass"] == "the scans of the first 5 s"
-    assert abs(1e3 * (r.calibration.imu_time_offset_s + t["imu"]["time_offset_s"])) < OFFSET_TOL_MS
+    assert abs(1e3 * (r.calibration.imu_time_offset_s - t["imu"]["imu_time_offset_s"])) < OFFSET_TOL_MS
     _check_mounting(r.calibration.matrix("T_base_imu"), T_lidar_imu(t))
     monkeypatch.setattr(calibrate_passes, "FIRST_SPAN", 0.1)
     monkeypatch.setattr(calibrate_passes, "FIRST_MIN_NS", 1_000_000_000)  # the platform is at rest for 1.5 s
@@ -148,7 +148,7 @@ def test_an_mcap_walk_with_tf_static_is_compared_with_it(walks, tmp_path):
     t = truth(mcap)
     r = run_calibrate(CalibrateJob(mcap.log_path, tmp_path / "m.yaml"))
     cal = r.calibration
-    assert abs(1e3 * (cal.imu_time_offset_s + t["imu"]["time_offset_s"])) < OFFSET_TOL_MS
+    assert abs(1e3 * (cal.imu_time_offset_s - t["imu"]["imu_time_offset_s"])) < OFFSET_TOL_MS
     assert cal.matrix("T_base_lidar") == pytest.approx(np.array(t["T_base_lidar"]), abs=1e-9)
     _check_mounting(cal.matrix("T_base_imu"), np.array(t["T_base_imu"]))
     assert r.reference == "/tf_static"
@@ -161,7 +161,7 @@ def test_an_mcap_walk_with_tf_static_is_compared_with_it(walks, tmp_path):
 @pytest.fixture(scope="module")
 def rover(tmp_path_factory):
     root = tmp_path_factory.mktemp("rover")
-    return simulate("planar", root / "rover_ros2", "ros2", duration_s=20.0, seed=3, imu_time_offset_s=0.02,
+    return simulate("planar", root / "rover_ros2", "ros2", duration_s=20.0, seed=3, imu_time_offset_s=-0.02,
                     wheel_radius_scale=(1.02, 1.01), wheel_baseline_scale=0.97)
 
 
@@ -186,7 +186,7 @@ def test_a_ground_robot_gives_wheel_scales_radius_and_baseline_and_says_what_it_
     # what it cannot see is kept from /tf_static; what it sees (roll, pitch) is measured
     T, Tt = r.calibration.matrix("T_base_imu"), np.array(t["T_base_imu"])
     assert np.degrees(np.abs(so3_log(T[:3, :3] @ Tt[:3, :3].T))).max() < TILT_TOL_DEG
-    assert abs(1e3 * (r.calibration.imu_time_offset_s + t["imu"]["time_offset_s"])) < 4.0  # 2D scans time the IMU less well
+    assert abs(1e3 * (r.calibration.imu_time_offset_s - t["imu"]["imu_time_offset_s"])) < 4.0  # 2D scans time the IMU less well
 
 
 def test_the_job_pickles(walks):
@@ -199,7 +199,7 @@ def test_wheels_without_the_imu_mounting_are_measured_against_a_gyro_primed_pass
     """No /tf_static: turning on the floor cannot show the IMU's yaw, so the fused passes of 2D scans would bend
     the path and the LiDAR-only one is skewed by the turns (0.7% off in yaw rate here); the gyro de-skews the
     scans through any yaw of the mounting alike."""
-    sim = simulate("planar", tmp_path / "rover.mcap", "mcap", duration_s=60.0, seed=401, imu_time_offset_s=0.02,
+    sim = simulate("planar", tmp_path / "rover.mcap", "mcap", duration_s=60.0, seed=401, imu_time_offset_s=-0.02,
                    wheel_radius_scale=(0.99, 1.012), wheel_baseline_scale=1.03, tf_static=False)
     t = truth(sim)
     w = t["wheel"]
@@ -217,7 +217,7 @@ def test_wheels_without_the_imu_mounting_are_measured_against_a_gyro_primed_pass
 def test_a_clock_offset_beyond_the_search_is_found_around_the_one_given(tmp_path):
     """The IMU stamped 0.45 s late, searched +-0.2 s: beyond the search around zero. Given roughly
     (--imu-time-offset), the passes start from it and the search is centred on it."""
-    sim = simulate("handheld", tmp_path / "late.bag", "ros1", duration_s=8.0, seed=7, columns=512, imu_time_offset_s=0.45)
+    sim = simulate("handheld", tmp_path / "late.bag", "ros1", duration_s=8.0, seed=7, columns=512, imu_time_offset_s=-0.45)
     cfg = CalibrateConfig(imu_time_offset_s=-0.4, max_offset_s=0.2)
     r = run_calibrate(CalibrateJob(sim.log_path, tmp_path / "late.calib.yaml", cfg))
     assert abs(1e3 * (r.calibration.imu_time_offset_s + 0.45)) < OFFSET_TOL_MS

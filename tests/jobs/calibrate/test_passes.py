@@ -53,14 +53,14 @@ def test_a_lidar_only_pass_gathering_the_sensors_registers_only_its_span_but_rea
 def walk(tmp_path_factory):
     root = tmp_path_factory.mktemp("passes")
     return simulate("handheld", root / "walk.bag", "ros1", duration_s=16.0, seed=8, columns=512,
-                    imu_time_offset_s=-0.02, imu_rotation_deg=(5.0, -8.0, 40.0), imu_lever_arm_m=(0.1, -0.1, 0.05),
+                    imu_time_offset_s=0.02, imu_rotation_deg=(5.0, -8.0, 40.0), imu_lever_arm_m=(0.1, -0.1, 0.05),
                     tf_static=False)
 
 
 def test_a_gyro_primed_pass_measures_the_mounting_rather_than_returning_the_one_it_was_primed_with(walk):
     t = json.loads(Path(walk.truth_path).read_text())
     T_true = inv_pose(np.array(t["T_base_lidar"])) @ np.array(t["T_base_imu"])
-    offset = -t["imu"]["time_offset_s"]
+    offset = t["imu"]["imu_time_offset_s"]
     bias = np.array(t["imu"]["gyro_bias_mean_radps"])
     primed = T_true.copy()
     primed[:3, :3] = so3_exp(np.radians([0.0, 0.0, 4.0])) @ T_true[:3, :3]  # 4 deg off about the weak axis
@@ -93,7 +93,7 @@ def test_map_rounds_shrink_the_roll_and_pitch_scatter_and_the_mounting_error(wal
 
     t = json.loads(Path(walk.truth_path).read_text())
     T_true = inv_pose(np.array(t["T_base_lidar"])) @ np.array(t["T_base_imu"])
-    offset = -t["imu"]["time_offset_s"]
+    offset = t["imu"]["imu_time_offset_s"]
     bias = np.array(t["imu"]["gyro_bias_mean_radps"])
     with open_log(walk.log_path, None) as reader:
         imu = read_imu(reader, "/imu")

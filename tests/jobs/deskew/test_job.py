@@ -169,7 +169,7 @@ def test_an_imu_clock_offset_is_taken_as_measured_by_the_odometry(sim, tmp_path)
     of what is left (its registrations were primed with the old offset), until one finds the clocks agree to
     under a millisecond; the writing pass takes that final offset for every scan, as the online one moved. (With
     5 s rounds this log ended at -9.5 ms online and -11.9 ms after a closing round; now -13.3 ms.)"""
-    s = sim("ros1", duration_s=15.0, columns=256, imu_time_offset_s=0.015)
+    s = sim("ros1", duration_s=15.0, columns=256, imu_time_offset_s=-0.015)
     true_s = -0.015  # added to IMU stamps to put them on the LiDAR's clock
     clock = run_odom(OdomJob(s.log_path)).metrics["imu_time_offset"]
     rounds = clock["estimates"]

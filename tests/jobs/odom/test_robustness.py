@@ -95,7 +95,7 @@ def test_an_imu_clock_offset_beyond_the_online_estimate_is_named_and_the_offset_
     ended 0.11 m off with no word. A warning names the disagreement and the fix; the offset given (as lio
     calibrate measures it: -40 ms here, the simulator's sign is the IMU's lag) takes the walk to 3 cm without a
     warning, and a log without an offset gets none."""
-    res = _sim(tmp_path_factory, "clock40", "handheld", duration_s=10.0, imu_time_offset_s=0.04)
+    res = _sim(tmp_path_factory, "clock40", "handheld", duration_s=10.0, imu_time_offset_s=-0.04)
     rc, m = _odom(res.log_path, tmp_path / "o.tum", "--gt", "/ground_truth")
     assert rc == 0
     n = m["scans"]["doubted_scans"]
@@ -116,7 +116,7 @@ def test_a_25_ms_imu_clock_offset_is_timed_through_the_scans_the_imu_state_doubt
     alone, and their poses now time the clock too instead of restarting its window each time (which left the
     estimate at 5 ms and the walk 0.171 m off): 24 ms found, 5 cm."""
     res = simulate("handheld", tmp_path_factory.mktemp("clock25") / "clock25.bag", "ros1", duration_s=12.0, seed=5,
-                   columns=360, imu_time_offset_s=-0.025)
+                   columns=360, imu_time_offset_s=0.025)
     rc, m = _odom(res.log_path, tmp_path / "o.tum", "--gt", "/ground_truth")
     assert rc == 0
     assert abs(m["imu_time_offset"]["estimated_s"] - 0.025) < 0.003, m["imu_time_offset"]
@@ -132,7 +132,7 @@ def test_a_40_ms_imu_clock_offset_is_timed_from_the_windows_the_imu_state_doubte
     import lio_cli.core.odometry.clock_offset as clock_offset
 
     res = simulate("handheld", tmp_path_factory.mktemp("clock40b") / "clock40b.bag", "ros1", duration_s=15.0,
-                   seed=3, columns=360, imu_time_offset_s=-0.04)
+                   seed=3, columns=360, imu_time_offset_s=0.04)
     rc, m = _odom(res.log_path, tmp_path / "o.tum", "--gt", "/ground_truth")
     assert rc == 0
     assert abs(m["imu_time_offset"]["estimated_s"] - 0.04) < 0.003, m["imu_time_offset"]
