@@ -18,7 +18,7 @@ from ...errors import InputError
 from ..files.atomic import check_writable, remove_path, replace_path, temp_sibling
 from ..messages.encode import MessageFactory
 from ..messages.msgdefs import output_definition
-from .reader import LogConnection
+from .base import LogConnection
 
 WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"

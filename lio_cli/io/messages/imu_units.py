@@ -13,7 +13,7 @@ import math
 import weakref
 
 from ..sensors.peek import peek
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 G_RANGE = (0.5, 2.0)  # median |a| of an IMU writing g; one writing m/s^2 reads 5-15 even in brisk motion

@@ -18,7 +18,7 @@ from ...errors import InputError
 from ..messages.decode import IMU, ODOMETRY
 from ..messages.pointcloud import stamp_to_ns
 from ..messages.rawmsg import RawImu
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 from ..messages.stamped_bytes import BODY_DTYPES, BULK_TYPES, split_standard
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from ...errors import InputError
 from ..messages.decode import IMU, ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED, TWIST_STAMPED
 from ..messages.imu_units import accel_scale
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 from ..messages.stamped_bytes import BODY_DTYPES, split_header, split_standard
 
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED)
