@@ -20,7 +20,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..messages.decode import IMU, ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED, TWIST_STAMPED
-from ..messages.imu_units import accel_scale
+from .imu_units import accel_scale
 from ..logs.base import LogReader
 from ..messages.stamped_bytes import BODY_DTYPES, split_header, split_standard
 

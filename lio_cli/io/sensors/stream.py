@@ -17,7 +17,7 @@ import numpy as np
 from ...errors import InputError
 from ...model.records import ImuBatch, Record, TimeConvention
 from ..messages.decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odometry, decode_pose, imu_sample
-from ..messages.imu_units import accel_scale
+from .imu_units import accel_scale
 from ..logs.base import LogReader
 from ..messages.pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,

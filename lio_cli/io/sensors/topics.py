@@ -24,7 +24,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..messages.decode import IMU, KIND_FLAGS, KIND_TYPES, ODOMETRY
-from ..messages.imu_units import accel_scale
+from .imu_units import accel_scale
 from .peek import peek
 from ..logs.base import LogReader
 

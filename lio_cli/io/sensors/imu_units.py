@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import weakref
 
-from ..sensors.peek import peek
+from .peek import peek
 from ..logs.base import LogReader
 
 STANDARD_GRAVITY_MPS2 = 9.80665
