@@ -50,8 +50,7 @@ def read_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
-# Definitions the raw parsers (rawmsg.py) are written for: ROS 1 md5 sums and ROS 2 RIHS01 hashes. A log
-# whose connection declares another definition of the type is deserialised by the typestore instead.
+# the definitions (ROS 1 md5, ROS 2 RIHS01) the raw parsers are written for; any other goes to the typestore
 _RAW_DIGESTS = {
     "sensor_msgs/msg/PointCloud2": {
         "1158d486dd51d683ce2f1be655c3c181",

@@ -40,8 +40,7 @@ class RosbagsLog(LogReader):
             except AnyReaderError as err:
                 if "no type definitions" not in str(err):
                     raise
-                # an old ROS 2 bag without stored definitions: use the standard ones (building a default
-                # typestore costs ~50 ms, so only when needed)
+                # an old ROS 2 bag without stored definitions: the standard ones (a typestore built only then)
                 default = get_typestore(Stores.ROS2_HUMBLE if fmt == "ros2" else Stores.ROS1_NOETIC)
                 self._reader = _any_reader(paths, fmt, default)
                 self._reader.open()
