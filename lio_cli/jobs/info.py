@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..geometry import pose_to_xyz_quat, so3_log
 from ..io.messages.decode import KIND_TYPES, POINTCLOUD2
 from ..io.messages.pointcloud import decode_laserscan, decode_pointcloud2, detect_time_convention
-from ..io.logs.reader import LogReader
+from ..io.logs.base import LogReader
 from ..io.sensors.stream import SensorStream
 from ..io.sensors.tf import read_static_frames
 from ..model.records import TimeConvention

@@ -1,12 +1,12 @@
 """rosbags' ROS 1 reader with the bag's message index held as int64 columns.
 
 rosbags' ``Reader.open`` turns every index entry of the bag into an ``IndexData`` tuple and sorts each
-connection's list with Python comparisons (by time only): ~40 ms for a 50k-message bag, before a message is
-read. ``ColumnIndexReader`` reads the same index records in one numpy call each into columns (time, chunk
-position, offset in chunk), stably sorted by time per connection: the order of rosbags' sort. The chunk
-reader (``bag1_raw``) and the per-topic spans use the columns; rosbags' ``indexes`` lists (what its own
-``messages`` reads) are made from them on first use of a connection. The rest of the open (bag header,
-connections, chunk infos and headers) is rosbags' own.
+connection's list with Python comparisons (by time only), before a message is read. ``ColumnIndexReader``
+reads the same index records in one numpy call each into columns (time, chunk position, offset in chunk),
+stably sorted by time per connection: the order of rosbags' sort. The chunk reader (``bag1_raw``) and the
+per-topic spans use the columns; rosbags' ``indexes`` lists (what its own ``messages`` reads) are made from
+them on first use of a connection. The rest of the open (bag header, connections, chunk infos and headers)
+is rosbags' own.
 """
 
 from __future__ import annotations

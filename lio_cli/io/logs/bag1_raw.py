@@ -1,11 +1,11 @@
 """Serialised messages of a few topics of one ROS 1 bag, straight from its chunks.
 
 rosbags' ``Reader.messages`` parses every record header into a dict of fields and merges the per-connection
-indexes one entry at a time: about 8 us per message, as much as the fusion filter spends on it. Here the
-same index entries (read into columns when the bag was opened: ``bag1_index``) are put in the same order (by
-record time; on equal times connection by connection in the order asked, each in its index order: what
-``heapq.merge`` yields) and each record is sliced out of its decompressed chunk with ``struct``. Same
-messages, same order, same bytes; anything unexpected raises (the caller reports the log as damaged).
+indexes one entry at a time. Here the same index entries (read into columns when the bag was opened:
+``bag1_index``) are put in the same order (by record time; on equal times connection by connection in the
+order asked, each in its index order: what ``heapq.merge`` yields) and each record is sliced out of its
+decompressed chunk with ``struct``. Same messages, same order, same bytes; anything unexpected raises (the
+caller reports the log as damaged).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from itertools import chain
 import numpy as np
 
 _U32 = struct.Struct("<I")
-_BLOCK = 65_536  # index entries turned into Python values at a time (the first blocks smaller: a peek at a
-_FIRST_BLOCK = 256  # topic's first messages converts a few hundred entries, not tens of thousands)
+_BLOCK = 65_536  # index entries turned into Python values at a time
+_FIRST_BLOCK = 256  # the first block's: a peek at a topic's first messages converts a few hundred entries
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
@@ -111,7 +111,7 @@ def connection_messages(reader, connections: list, chunks: dict[int, bytes] | No
                         progress: Callable[[int], None] | None = None) -> list[list[bytes]] | None:
     """Per connection, its serialised messages in index order (what ``messages`` yields of it), sliced
     chunk by chunk with the record headers checked for all of a chunk's entries at once (not one message at a
-    time: ~2 us each). None when a record is not a message-data record of rosbag's own header layout (time,
+    time). None when a record is not a message-data record of rosbag's own header layout (time,
     conn, op): ``messages`` reads those. Each chunk is decompressed once; ``progress`` gets the messages read
     after each."""
     cols = [reader.index_columns[c.id] for c in connections]

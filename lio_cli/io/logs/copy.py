@@ -22,7 +22,7 @@ from dataclasses import replace
 
 from ...errors import InputError
 from ..messages.msgdefs import stored_typestore
-from .reader import LogConnection, LogReader, RawRecord, first_line
+from .base import LogConnection, LogReader, RawRecord, first_line, read_errors
 from .writer import FORMAT_ENCODINGS, LogWriter, latched_qos
 
 
@@ -80,7 +80,7 @@ class LogCopy:
         fn = self._converters[conn.key]  # made by output(), before any record of the connection
         try:
             return bytes(fn(rec.data))
-        except Exception as err:  # noqa: BLE001 - corrupt bytes surface as any rosbags error
+        except read_errors() as err:
             raise InputError(f"{self.reader.path}: {conn.topic}: cannot convert a {conn.msgtype} message from "
                              f"{conn.encoding} to {self.writer.encoding} encoding ({err})") from err
 

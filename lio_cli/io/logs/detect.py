@@ -21,7 +21,6 @@ def magic(path: Path) -> bytes:
         raise InputError(f"{path}: cannot read ({err.strerror or err})") from err
 
 
-
 def _require_file_or_folder(path: Path) -> None:
     """Refuse before opening anything that is neither a regular file nor a folder: a FIFO or a device would block
     or stream forever."""
@@ -97,8 +96,6 @@ def paths_for(path: Path, fmt: str) -> list[Path]:
             raise InputError(f"{path}: give the .mcap file itself (the folder holds {len(mcaps)} .mcap files)")
         return mcaps
     return [path]
-
-
 
 
 def input_paths(log: Path) -> list[Path]:

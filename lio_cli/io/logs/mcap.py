@@ -12,7 +12,7 @@ from typing import NamedTuple
 from ...errors import InputError
 from ...model.records import TopicInfo
 from ..messages.msgdefs import types_of_definition
-from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, first_line
+from .base import LogConnection, LogReader, RawRecord, first_line, read_errors
 
 _ENCODINGS = ("cdr", "ros1")
 
@@ -54,7 +54,7 @@ class McapLog(LogReader):
             self._file = paths[0].open("rb")
             self._reader = make_reader(self._file, validate_crcs=True)
             summary = self._reader.get_summary()
-        except _READ_ERRORS as err:
+        except read_errors() as err:
             raise InputError(
                 f"{path}: cannot open as MCAP ({first_line(err)}); the file may be truncated or corrupted"
             ) from err
@@ -69,7 +69,7 @@ class McapLog(LogReader):
         counts = stats.channel_message_counts
         try:
             spans = mcap_channel_spans(self._file, summary)
-        except (OSError, struct.error, ValueError):
+        except read_errors():  # per-channel spans are a nicety for rates; the file's own span stands in
             spans = {}
         for cid, channel in summary.channels.items():
             msgtype = _msgtype(summary.schemas.get(channel.schema_id))
@@ -99,7 +99,7 @@ class McapLog(LogReader):
                 info.last_ns = t if info.last_ns is None else max(info.last_ns, t)
                 start = t if start is None else min(start, t)
                 end = t if end is None else max(end, t)
-        except _READ_ERRORS as err:
+        except read_errors() as err:
             raise InputError(
                 f"{self.path}: MCAP file is truncated or corrupted ({first_line(err)}); re-record or repair it"
             ) from err
@@ -135,8 +135,7 @@ class McapLog(LogReader):
             found = self._channels[channel.id] = (conn, _Handle(schema, channel.message_encoding))
         return found
 
-    @property
-    def connections(self) -> list[LogConnection]:
+    def _connections(self) -> list[LogConnection]:
         summary = self._summary
         if summary is None:  # no summary section: the channels met so far (all of them after one pass)
             return [c for c, _ in self._channels.values()]

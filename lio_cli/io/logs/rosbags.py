@@ -8,8 +8,9 @@ from pathlib import Path
 
 from ...errors import InputError
 from ...model.records import TopicInfo
+from .base import LogConnection, LogReader, RawRecord, first_line, merge_span, read_errors
 from .mcap import mcap_channel_spans
-from .reader import _READ_ERRORS, LogConnection, LogReader, RawRecord, first_line, _merge_span
+
 
 class _BagPath(type(Path())):
     """A path that reports the .bag suffix, so rosbags' AnyReader reads it as a ROS 1 bag."""
@@ -39,12 +40,11 @@ class RosbagsLog(LogReader):
             except AnyReaderError as err:
                 if "no type definitions" not in str(err):
                     raise
-                # an old ROS 2 bag without stored definitions: use the standard ones (building a default
-                # typestore costs ~50 ms, so only when needed)
+                # an old ROS 2 bag without stored definitions: the standard ones (a typestore built only then)
                 default = get_typestore(Stores.ROS2_HUMBLE if fmt == "ros2" else Stores.ROS1_NOETIC)
                 self._reader = _any_reader(paths, fmt, default)
                 self._reader.open()
-        except _READ_ERRORS as err:
+        except read_errors() as err:
             raise InputError(
                 f"{path}: cannot open as {fmt} log ({first_line(err)}); the log may be truncated or corrupted"
             ) from err
@@ -71,7 +71,7 @@ class RosbagsLog(LogReader):
         for conn in self._reader.connections:
             cols = conn.owner.index_columns.get(conn.id)
             if cols is not None and cols.shape[1]:
-                _merge_span(spans, conn.topic, int(cols[0, 0]), int(cols[0, -1]))
+                merge_span(spans, conn.topic, int(cols[0, 0]), int(cols[0, -1]))
         return spans
 
     def _iter_raw(self, topics: set[str] | None):
@@ -102,8 +102,7 @@ class RosbagsLog(LogReader):
     def _deserialize(self, raw, msgtype, handle):
         return self._reader.deserialize(raw, msgtype)
 
-    @property
-    def connections(self) -> list[LogConnection]:
+    def _connections(self) -> list[LogConnection]:
         return [self._connection(c) for c in self._reader.connections]
 
     def _connection(self, conn) -> LogConnection:
@@ -175,7 +174,7 @@ def _ros2_spans(folder: Path) -> dict[str, tuple[int, int]]:
             finally:
                 con.close()
             for name, first, last in rows:
-                _merge_span(spans, name, int(first), int(last))
+                merge_span(spans, name, int(first), int(last))
         elif storage.suffix == ".mcap":
             from mcap.reader import make_reader
 
@@ -184,7 +183,7 @@ def _ros2_spans(folder: Path) -> dict[str, tuple[int, int]]:
                 if summary is None:
                     continue
                 for cid, (first, last) in mcap_channel_spans(f, summary).items():
-                    _merge_span(spans, summary.channels[cid].topic, first, last)
+                    merge_span(spans, summary.channels[cid].topic, first, last)
     return spans
 
 

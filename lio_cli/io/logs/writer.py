@@ -18,12 +18,11 @@ from ...errors import InputError
 from ..files.atomic import check_writable, remove_path, replace_path, temp_sibling
 from ..messages.encode import MessageFactory
 from ..messages.msgdefs import output_definition
-from .reader import LogConnection
+from .base import LogConnection
 
 WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms\n"
-# the message encodings each output format holds: a bare MCAP file is written with the ros2 profile (CDR), the
-# one rosbags' AnyReader and most MCAP tools read (its ros1 profile, ROS 1 encoded channels, AnyReader refuses)
+# the message encodings each output format holds: bare MCAP is CDR (the ros2 profile; AnyReader refuses ros1's)
 FORMAT_ENCODINGS = {"ros1": ("ros1",), "ros2": ("cdr",), "ros2-mcap": ("cdr",), "mcap": ("cdr",)}
 # the formats written as one file, and their suffixes (readers go by them; a ROS 2 bag is a folder)
 FILE_SUFFIXES = {"ros1": ".bag", "mcap": ".mcap"}
@@ -51,8 +50,7 @@ class LogWriter:
         self.path = Path(path)
         self.format = fmt
         check_writable(self.path, force)
-        # rosbags names a ROS 2 bag's storage file after its folder, so a ROS 2 bag is written under its
-        # final name inside a temporary sibling folder (not as a hidden temp name that would stick).
+        # rosbags names a ROS 2 bag's storage file after its folder: its final name, in a temporary sibling folder
         self._tmpdir = temp_sibling(self.path) if fmt in ("ros2", "ros2-mcap") else None
         self._tmp = self._tmpdir / self.path.name if self._tmpdir is not None else temp_sibling(self.path)
         if on_temp is not None:
@@ -74,8 +72,8 @@ class LogWriter:
 
     @cached_property
     def typestore(self):
-        """The standard types of the output's ROS version (built on first use: about 30 ms, which a copy of
-        stored records never needs)."""
+        """The standard types of the output's ROS version (built on first use: a copy of stored records never
+        needs them)."""
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         store = get_typestore(Stores.ROS1_NOETIC if self.format == "ros1" else Stores.ROS2_HUMBLE)

@@ -63,8 +63,7 @@ def decode_odometry(msg, msgtype: str) -> OdometryRecord:
         try:
             pose = _pose_of(msg.pose.pose.position, msg.pose.pose.orientation, "Odometry pose")
         except InputError:
-            # velocity-only odometry (e.g. a quaternion of (0,0,0,0), as AR.Drone's driver writes): a wheel or
-            # velocity source needs only the twist, so the record carries it without a pose
+            # velocity-only odometry (a (0,0,0,0) quaternion, as AR.Drone's driver writes): the twist, no pose
             if not (np.isfinite(linear).all() and np.isfinite(angular).all()):
                 raise InputError("Odometry holds neither a valid pose (non-finite position or zero/NaN "
                                  "quaternion) nor a finite twist") from None

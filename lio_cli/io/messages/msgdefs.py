@@ -11,7 +11,7 @@ definition defines (the standard typestores lack a driver's own types, e.g. ``ou
 from __future__ import annotations
 
 from ...errors import InputError
-from ..logs.reader import LogConnection, first_line
+from ..logs.base import LogConnection, first_line
 
 _SEPARATOR = "=" * 80
 

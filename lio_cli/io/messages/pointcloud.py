@@ -210,8 +210,7 @@ def decode_pointcloud2(
             f"PointCloud2 has no per-point time field '{absent[0]}' (fields: {', '.join(sorted(names))})"
         )
     arr = _structured(msg)
-    # Validity first, on contiguous copies of the float columns, so that only valid points are converted:
-    # boolean masks over separate 1-D columns are several times faster than reductions over an (N,3) array.
+    # validity first, on contiguous 1-D columns (faster than reductions over (N,3)): only valid points converted
     x, y, z = (np.ascontiguousarray(arr[c]) for c in "xyz")
     valid = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ((x != 0) | (y != 0) | (z != 0))
     raw_t = raw_ns = None
@@ -270,8 +269,7 @@ def _offsets_ns(raw_t: np.ndarray, raw_ns: np.ndarray | None, conv: TimeConventi
             # in place: every temporary of this size is a fresh mmap (and page faults) per scan
             t = raw_t.astype(np.float64)
             if conv.absolute and conv.scale_ns == 1e9:
-                # seconds since epoch: subtract the header's whole seconds first (exact in float64), then
-                # its fraction, so only the field's own rounding remains (~0.1 us at today's epoch)
+                # seconds since epoch: the header's whole seconds first (exact), then its fraction: no rounding added
                 sec, nsec = divmod(header_ns, 1_000_000_000)
                 t -= float(sec)
                 t *= 1e9

@@ -2,8 +2,7 @@
 odometry), straight from their bytes.
 
 A LiDAR log is mostly these; going through a generic typestore deserialiser costs more than the
-numpy work on the points (an Odometry message: ~0.1 ms by the typestore, a 50 Hz wheel topic a tenth of a
-second per 30 s of log). The parsers read ROS 1 serialisation and little-endian CDR (ROS 2, MCAP) and
+numpy work on the points. The parsers read ROS 1 serialisation and little-endian CDR (ROS 2, MCAP) and
 return light objects with the attributes the decoders use (``header.stamp.sec``, ``fields``, ``data``...).
 They return ``None`` for anything they do not handle (big-endian CDR), so the caller falls back to the
 typestore; malformed bytes raise ``ValueError``/``struct.error``, which the log reader reports as a

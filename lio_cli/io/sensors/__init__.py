@@ -1,2 +1,2 @@
-"""A log as sensor data: topic roles, time-ordered streams, whole-topic series, clocks, frames, trajectory
-sources, GPS tracks."""
+"""A log as sensor data: topic roles, time-ordered streams, whole-topic series, clocks, IMU units, frames,
+trajectory sources, GPS tracks."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...errors import InputError
 from .peek import peek
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 
 CLOCK_TOLERANCE_NS = 500_000_000  # a few scan periods; recording latency is far smaller
 _FIRST = 5

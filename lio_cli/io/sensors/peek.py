@@ -3,7 +3,7 @@ frame ids and six numbers (an IMU's rates and accelerations, an odometry's twist
 
 The fixed-layout types (Imu, Odometry, TwistStamped) are read straight from their bytes with the same
 header split ``series`` reads whole topics with, so a check costs no typestore decoder (rosbags compiles
-one per type on its first use: ~10 ms each, more than the check itself). A message whose length does not
+one per type on its first use). A message whose length does not
 fit the standard layout, and every other type, is decoded as ``LogReader.decode`` decodes it (a
 PointCloud2 by lio's own parser, the rest by the typestore).
 """
@@ -18,7 +18,7 @@ from ...errors import InputError
 from ..messages.decode import IMU, ODOMETRY
 from ..messages.pointcloud import stamp_to_ns
 from ..messages.rawmsg import RawImu
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 from ..messages.stamped_bytes import BODY_DTYPES, BULK_TYPES, split_standard
 
 

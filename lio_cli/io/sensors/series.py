@@ -20,8 +20,8 @@ import numpy as np
 
 from ...errors import InputError
 from ..messages.decode import IMU, ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED, TWIST_STAMPED
-from ..messages.imu_units import accel_scale
-from ..logs.reader import LogReader
+from .imu_units import accel_scale
+from ..logs.base import LogReader
 from ..messages.stamped_bytes import BODY_DTYPES, split_header, split_standard
 
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, TRANSFORM_STAMPED)
@@ -167,8 +167,7 @@ def read_series(log: LogReader, topics: Iterable[str], progress: Progress | None
         else:
             raise InputError(f"{log.path}: topic {t} is {msgtype}, which fuse cannot read")
     if bulk:
-        # a ROS 1 bag's messages wait for the whole-topic parse of ``finish``; others are parsed as read (not
-        # held in memory for a parse that only ROS 1's fixed layout allows)
+        # a ROS 1 bag's topics are handed over whole for ``finish`` to parse; others are parsed as read
         by_topic = log.topic_messages(list(bulk), progress)
         if by_topic is not None:  # a ROS 1 bag's topics handed over whole
             for t, raws in by_topic.items():

@@ -17,8 +17,8 @@ import numpy as np
 from ...errors import InputError
 from ...model.records import ImuBatch, Record, TimeConvention
 from ..messages.decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odometry, decode_pose, imu_sample
-from ..messages.imu_units import accel_scale
-from ..logs.reader import LogReader
+from .imu_units import accel_scale
+from ..logs.base import LogReader
 from ..messages.pointcloud import (
     DEFAULT_SCAN_PERIOD_NS,
     MAX_POINT_TIME_SPREAD_NS,
@@ -55,8 +55,7 @@ class StreamStats:
         }
 
 
-# An IMU sample beyond these is damage, not motion (MEMS and tactical IMUs saturate near 16-200 g and
-# 35-70 rad/s): dropped and counted like a NaN one, so that it cannot blow up the filter.
+# an IMU sample beyond these is damage, not motion (IMUs saturate near 16-200 g, 35-70 rad/s): dropped, counted
 MAX_STAMP_JUMP_NS = 10_000_000_000  # strict: header stamps may run ahead of record time by at most this much
 MAX_IMU_ACCEL_MPS2 = 1e4
 MAX_IMU_GYRO_RADPS = 1e3
@@ -79,8 +78,7 @@ def _vector_problem(checks) -> str | None:
 def imu_sample_problem(gyro, accel) -> str | None:
     """Why an IMU sample is unusable (a NaN, or a value out of any IMU's range), or None if it is fine."""
     g, a = MAX_IMU_GYRO_RADPS, MAX_IMU_ACCEL_MPS2
-    # one call per sample: a fine sample passes six comparisons (NaN fails every comparison, so it, like
-    # infinity or an out-of-range value, takes the slow path that names the problem)
+    # a fine sample passes six comparisons; NaN, infinity or a value out of range take the path that names it
     if (-g <= gyro[0] <= g and -g <= gyro[1] <= g and -g <= gyro[2] <= g
             and -a <= accel[0] <= a and -a <= accel[1] <= a and -a <= accel[2] <= a):
         return None
@@ -122,8 +120,7 @@ class SensorStream:
         self._last: dict[str, int] = {}
         self._last_rec: dict[str, int] = {}  # record time of each topic's last accepted message
         self._conventions: dict[tuple, TimeConvention] = {}
-        # an IMU topic's accelerations in g are scaled to m/s^2 (``imu_units``, which keeps each log's verdicts),
-        # judged on the log read: deskew's ``RecordFeed`` names its reader
+        # the log whose IMU topics ``imu_units`` judges (deskew's ``RecordFeed`` names its reader)
         self._scale_log = log if isinstance(log, LogReader) else getattr(log, "reader", None)
 
     def _accel_scale(self, topic: str) -> float:
@@ -194,8 +191,7 @@ class SensorStream:
     def _accept(self, rec: Record, t_rec: int) -> bool:
         last = self._last.get(rec.topic)
         if self.strict and last is not None:
-            # header time running far ahead of record time: one of the two stamps lies (0 among 2023 stamps, a
-            # sensor clock jumping); the reorder heap puts a stamp of 0 first, so 'backwards' never sees it
+            # header time far ahead of record time: a stamp lies (a 0 sorts first, so 'backwards' never sees it)
             jump = (rec.stamp_ns - last) - (t_rec - self._last_rec[rec.topic])
             if jump > MAX_STAMP_JUMP_NS:
                 raise InputError(

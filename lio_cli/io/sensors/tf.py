@@ -10,7 +10,7 @@ from ...errors import InputError
 from ...geometry import inv_pose, so3_log
 from ..messages.decode import TF_MESSAGE, decode_tf
 from ...model.records import TransformRecord
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 
 TF_STATIC_TOPIC = "/tf_static"
 TF_TOPIC = "/tf"

@@ -24,9 +24,9 @@ import numpy as np
 
 from ...errors import InputError
 from ..messages.decode import IMU, KIND_FLAGS, KIND_TYPES, ODOMETRY
-from ..messages.imu_units import accel_scale
+from .imu_units import accel_scale
 from .peek import peek
-from ..logs.reader import LogReader
+from ..logs.base import LogReader
 
 _KIND_WORDS = {"lidar": "LiDAR", "imu": "IMU", "wheel": "wheel odometry", "gt": "ground-truth", "gps": "GPS (NavSatFix)"}
 _GT_TOKENS = {"gt", "groundtruth", "truth", "vicon", "mocap", "optitrack", "qualisys", "motioncapture"}

@@ -24,7 +24,7 @@ from ...core.calibration.map_refine import Sweep, thin_sweep
 from ...core.odometry.loop import Diverged, LioOdometry
 from ...errors import InputError, ProcessingError
 from ...io.messages.pointcloud import parse_time_convention
-from ...io.logs.reader import LogReader
+from ...io.logs.base import LogReader
 from ...io.sensors.stream import SensorStream, read_imu as read_imu_topic
 from ...model.records import ImuBatch, PointCloud
 

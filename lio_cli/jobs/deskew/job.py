@@ -23,7 +23,8 @@ from ...errors import InputError
 from ...io.logs.detect import input_paths
 from ...io.files.atomic import atomic_output, check_writable
 from ...io.files.point_clouds import check_map_suffix
-from ...io.logs.reader import LogReader, open_log
+from ...io.logs.base import LogReader
+from ...io.logs.reader import open_log
 from ...io.sensors.tf import read_static_frames
 from ...io.sensors.topics import choose_topic
 from ...io.logs.writer import FILE_SUFFIXES, SUFFIX_FORMATS

@@ -28,7 +28,8 @@ from ...config.deskew import DeskewConfig
 from ...core.deskew.sweep_motion import PoseSpline, gyro_sweep_poses, sweep_knots
 from ...errors import ConfigError, InputError
 from ...geometry import inv_pose
-from ...io.logs.reader import LogReader, RawRecord, open_log
+from ...io.logs.base import LogReader, RawRecord
+from ...io.logs.reader import open_log
 from ...io.sensors.sources import load_trajectory
 from ...io.sensors.stream import SensorStream
 from ...io.sensors.topics import choose_topic, unpublished

@@ -26,7 +26,7 @@ from ...io.logs.copy import LogCopy
 from ...io.messages.pointcloud import (decode_laserscan, decode_pointcloud2, detect_time_convention, parse_time_convention, spins,
                              stamp_to_ns)
 from ...io.messages.rawmsg import RawPointCloud2
-from ...io.logs.reader import LogConnection, LogReader, RawRecord
+from ...io.logs.base import LogConnection, LogReader, RawRecord
 from ...io.logs.writer import LogWriter
 from ...model.records import PointCloud, TimeConvention
 from .motion import Motion

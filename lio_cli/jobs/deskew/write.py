@@ -17,7 +17,7 @@ from ...core.deskew.voxel_map import VoxelMap
 from ...io.logs.copy import LogCopy
 from ...io.files.atomic import check_writable, remove_path, replace_path, temp_sibling
 from ...io.files.point_clouds import point_map_bytes
-from ...io.logs.reader import LogReader
+from ...io.logs.base import LogReader
 from ...io.logs.writer import LogWriter
 from .motion import Motion, Progress, RecordFeed, settled_motion
 from .scan import ScanPlan, ScanWriter

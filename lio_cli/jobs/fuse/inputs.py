@@ -18,7 +18,7 @@ from ...core.fuse.inputs import resolve_use
 from ...errors import InputError
 from ...io.sensors.clocks import check_same_clock
 from ...io.sensors.gps import read_gps_track
-from ...io.logs.reader import LogReader
+from ...io.logs.base import LogReader
 from ...io.sensors.series import POSE_TYPES, Progress, read_series
 from ...io.sensors.sources import load_trajectory
 from ...io.sensors.tf import FrameTree, TfConflict, read_static_frames

@@ -10,7 +10,7 @@ from ...config.odom import OdomConfig
 from ...errors import InputError
 from ...io.sensors.clocks import check_overlap, check_same_clock
 from ...io.messages.decode import IMU, LASERSCAN
-from ...io.logs.reader import LogReader
+from ...io.logs.base import LogReader
 from ...io.sensors.tf import FrameTree, TfConflict
 from ...io.sensors.topics import TopicChoice, choose_topic, unpublished
 from ...model.calibration import Calibration

@@ -22,7 +22,8 @@ from ...core.odometry.loop import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
 from ...evaluation.scoring import Score, score
 from ...io.messages.pointcloud import parse_time_convention
-from ...io.logs.reader import LogReader, open_log
+from ...io.logs.base import LogReader
+from ...io.logs.reader import open_log
 from ...io.sensors.sources import load_ground_truth
 from ...io.sensors.stream import SensorStream
 from ...io.sensors.tf import read_static_frames

@@ -11,7 +11,8 @@ import pytest
 
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.io.sensors.peek import _from_message, peek
-from lio_cli.io.logs.reader import LogReader, open_log
+from lio_cli.io.logs.base import LogReader
+from lio_cli.io.logs.reader import open_log
 from lio_cli.jobs.fuse.inputs import check_clocks, choose_sources
 
 from .test_series import T0, _build

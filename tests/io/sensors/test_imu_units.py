@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lio_cli.io.messages.imu_units import STANDARD_GRAVITY_MPS2, accel_scale
+from lio_cli.io.sensors.imu_units import STANDARD_GRAVITY_MPS2, accel_scale
 from lio_cli.io.logs.reader import open_log
 from lio_cli.io.sensors.series import read_series
 from lio_cli.io.sensors.stream import read_imu
