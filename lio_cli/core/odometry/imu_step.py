@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 
 from ...geometry import inv_pose, project_to_se2
 from ...model.records import PointCloud
