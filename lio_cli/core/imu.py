@@ -23,9 +23,7 @@ from ..model.records import ImuBatch
 
 GRAVITY_MPS2 = 9.81
 STATE_DIM = 18  # error state: rotation, position, velocity, gyro bias, accel bias, gravity (3 each)
-# An IMU gap: no sample for longer than this (5 periods of a 100 Hz IMU; see ``imu_gap_ns`` for a gap at an interval's
-# edge). Across a gap of T the rates are interpolated, which loses about alpha T^2 / 8 of rotation (alpha: angular
-# acceleration): 0.4 deg at 50 ms for a walker's 20 rad/s^2, which registration absorbs, but 6 deg at 0.2 s.
+# An IMU gap: no sample for longer than this (5 periods of a 100 Hz IMU); interpolated rates lose ~alpha T^2 / 8 of rotation.
 MAX_IMU_GAP_NS = 50_000_000
 
 

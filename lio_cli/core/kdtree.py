@@ -1,8 +1,8 @@
 """scipy's k-d tree (``cKDTree``) without the import of all of ``scipy.spatial``.
 
 ``from scipy.spatial import cKDTree`` runs scipy.spatial's ``__init__``, which also loads Qhull (with
-scipy.linalg), the distance functions (with scipy.special) and ``transform``: about 0.15 s of a command's
-start-up that the k-d tree does not need. Its extension module ``scipy/spatial/_ckdtree`` needs only numpy and
+scipy.linalg), the distance functions (with scipy.special) and ``transform``: start-up time the k-d tree does
+not need. Its extension module ``scipy/spatial/_ckdtree`` needs only numpy and
 scipy.sparse, so it is loaded by itself under its own name; an import of scipy.spatial later finds it there
 and uses the same class. Where scipy lays its files out otherwise (or scipy.spatial is loaded already),
 the ordinary import.

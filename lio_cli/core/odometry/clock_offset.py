@@ -18,16 +18,12 @@ import numpy as np
 from ...errors import InputError
 from ..calibration.time_offset import estimate_time_offset
 
-WINDOW_S = 2.5  # registration poses per estimate (each round measures a third to a half of what is left: short
-# rounds get there sooner; 5 s rounds left -12.4 of a -15 ms offset at the end of a 20 s walk, 2.5 s -13.7)
+WINDOW_S = 2.5  # registration poses per estimate (each round measures part of what is left: short rounds converge sooner)
 MAX_OFFSET_S = 0.1  # larger offsets are a clock mismatch, refused before the run
 APPLY_SIGMA_S = 0.002  # apply only a sharply determined offset...
-APPLY_SIGMA_DOUBTED_S = 0.005  # ...or this sharp, in a window the IMU state doubted scans of: its disagreement is
-# the evidence (a walk 40 ms off measures 18 +- 4 ms per round there, where nothing was applied: 0.69 m ATE, 0.12 m
-# applied; walks whose IMU extrinsic is wrong instead doubt scans too, and measured no offset to apply)
+APPLY_SIGMA_DOUBTED_S = 0.005  # ...or this sharp, in a window the IMU state doubted scans of (the doubt is evidence)
 APPLY_MIN_S = 0.001  # ...that is clearly there...
-APPLY_SIGMAS = 3.5  # ...at least this many sigma from zero (at 3, one 2.5 s round of a walk without an offset
-# applied +4.6 +- 1.5 ms and the next rounds had to walk it back)
+APPLY_SIGMAS = 3.5  # ...at least this many sigma from zero (fewer applies offsets that are not there)
 ROUNDS = 12  # estimates at most (each later one measures what the earlier left)
 FINAL_WINDOW_S = 2.3  # the closing estimate over the poses the last round left (its overlap with the IMU: >= 2 s)
 
@@ -114,8 +110,7 @@ class ClockOffsetTracker:
             if sigma <= APPLY_SIGMA_S:
                 self.residual_s = offset if sharp else 0.0
                 if not final and abs(offset) < APPLY_MIN_S and sigma <= APPLY_MIN_S:
-                    # the clocks agree to under a millisecond, sharply: nothing left to apply (an offset merely
-                    # under APPLY_SIGMAS sigma is not agreement: -2.4 +- 0.85 ms ended the rounds of a walk 15 ms off)
+                    # the clocks agree to under a millisecond, sharply (not merely under APPLY_SIGMAS): nothing to apply
                     self._rounds = ROUNDS
             return None
         self.residual_s = 0.0

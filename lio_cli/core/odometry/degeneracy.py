@@ -42,8 +42,7 @@ def analyse_degeneracy(points: np.ndarray, planar: bool, ratio: float, k: int = 
     step = max(1, len(pts) // queries)  # deterministic, evenly spread sample
     cKDTree = ckdtree_class()  # here, not at import: scipy is a tenth of a second of start-up
 
-    # built for a few hundred queries: leaves of 64 points build faster than the default 16 and lose less in
-    # the queries (2.0 -> 1.4 ms per 16-beam scan; the neighbours are exact whatever the leaf size)
+    # built for a few hundred queries: leaves of 64 build faster than 16 (the neighbours are exact whatever the leaf size)
     tree = cKDTree(pts, leafsize=64, balanced_tree=False, compact_nodes=False)
     _, nn = tree.query(pts[::step], k=k)
     w, v = np.linalg.eigh(scatter_matrices(pts[nn.T]))
@@ -67,7 +66,7 @@ def scatter_matrices(neighbours: np.ndarray) -> np.ndarray:
     For n >= 2 both sum over the k neighbours one after the other from the first (numpy's reduction over a
     middle axis, einsum's sum of products; a single neighbourhood takes einsum down another path), so the same
     sums taken over the outer axis of this layout, where each step adds whole contiguous rows, give the same
-    bits about four times faster (einsum's sums start from 0.0, which only turns an all-zero sum's -0.0 into
+    bits faster (einsum's sums start from 0.0, which only turns an all-zero sum's -0.0 into
     0.0: hence the ``+ 0.0``). ``degenerate_directions`` has at least k + 1 neighbourhoods."""
     k, n, d = neighbours.shape
     mean = np.add.reduce(neighbours, axis=0)

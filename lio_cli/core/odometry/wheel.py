@@ -24,3 +24,18 @@ def planar_delta(v_mps: float, omega_radps: float, dt_s: float) -> np.ndarray:
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[0, 3], T[1, 3] = v_mps * dt_s * np.cos(th / 2), v_mps * dt_s * np.sin(th / 2)
     return T
+
+
+def wheel_speed(records: Sequence[OdometryRecord], t_ns: int, half_window_ns: int) -> float:
+    """Mean forward speed of the records within ``half_window_ns`` of ``t_ns``, NaN if there are none."""
+    twist = mean_twist(records, t_ns - half_window_ns, t_ns + half_window_ns)
+    return np.nan if twist is None else twist[0]
+
+
+def wheel_delta(records: Sequence[OdometryRecord], t0_ns: int, t1_ns: int, lead_ns: int,
+                fallback: np.ndarray) -> np.ndarray:
+    """Planar motion over [t0, t1] from the mean twist of the records in [t0 - lead, t1]; ``fallback`` if none."""
+    twist = mean_twist(records, t0_ns - lead_ns, t1_ns)
+    if twist is None:
+        return fallback
+    return planar_delta(twist[0], twist[1], (t1_ns - t0_ns) * 1e-9)

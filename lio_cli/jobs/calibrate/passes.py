@@ -21,7 +21,7 @@ import numpy as np
 from ...config.calibrate import CalibrateConfig
 from ...config.odom import OdomConfig
 from ...core.calibration.map_refine import Sweep, thin_sweep
-from ...core.odometry.loop import Diverged, LioOdometry
+from ...core.odometry import Diverged, LioOdometry
 from ...errors import InputError, ProcessingError
 from ...io.messages.pointcloud import parse_time_convention
 from ...io.logs.base import LogReader

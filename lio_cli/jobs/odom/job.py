@@ -18,7 +18,7 @@ import numpy as np
 
 from ...config import with_overrides
 from ...config.odom import OdomConfig
-from ...core.odometry.loop import Diverged, LioOdometry, OdomStats
+from ...core.odometry import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
 from ...evaluation.scoring import Score, score
 from ...io.messages.pointcloud import parse_time_convention

@@ -50,36 +50,3 @@ def test_ckdtree_class_is_scipys_and_scipy_spatial_stays_unloaded():
             "d, i = C([[0.0, 0.0], [1.0, 1.0], [3.0, 0.0]]).query([[0.9, 1.2]], k=2); "
             "assert i.tolist() == [[1, 0]], i")
     subprocess.run([sys.executable, "-c", code], check=True)
-
-
-def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(monkeypatch):
-    """lio odom (degeneracy_every_clear = degeneracy_every = 2) analyses every 2nd scan, and a scan registered
-    again (a failed registration retried LiDAR-only, or a doubted one) again, as before the sparser schedule;
-    deskew's clear-scene schedule (8) skips the scans between, but not a retried scan (its reuse would turn the
-    directions by the motion between scans)."""
-    from types import SimpleNamespace
-
-    import lio_cli.core.odometry.loop as odometry
-    import lio_cli.core.odometry.imu_step as odometry_scan
-    from lio_cli.config.deskew import DeskewConfig
-    from lio_cli.config.odom import OdomConfig
-    from lio_cli.core.odometry.degeneracy import CLEAR_MARGIN, Degeneracy
-
-    analysed = []
-
-    def fake(points, planar, ratio):
-        analysed.append(int(points[0, 0]))
-        return Degeneracy([np.array([1.0, 0.0, 0.0])], 10 * CLEAR_MARGIN)  # clear by far
-
-    monkeypatch.setattr(odometry_scan, "analyse_degeneracy", fake)
-    for cfg, expected in ((OdomConfig(), [0, 0, 2, 4, 6, 8, 10]),
-                          (DeskewConfig().odom_config("imu"), [0, 0, 8])):
-        analysed.clear()
-        odo = SimpleNamespace(cfg=cfg, planar=False, _reg=SimpleNamespace(empty=False), _dirs_b=[],
-                              _last_pose=np.eye(4), _degeneracy_due=(0, -1),
-                              stats=SimpleNamespace(used=0, times_s={"degeneracy": 0.0}))
-        for used in (0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10):  # scan 0 registered twice (a retry)
-            odo.stats.used = used
-            dirs = odometry.LioOdometry._degeneracy(odo, np.full((5, 3), float(used)), np.eye(3))
-            assert len(dirs) == 1
-        assert analysed == expected, (cfg.fusion.degeneracy_every_clear, analysed)

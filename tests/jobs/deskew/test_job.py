@@ -501,12 +501,12 @@ def test_every_second_slowly_turning_scan_takes_its_imu_prediction_and_the_point
     scan (this 6 s drive: median -1 %, p95 +27 %, its start's scans; the benchmark's 30 s drive 1.98 / 7.44 mm
     against 2.11 / 7.47 mm, a quarter less wall time; with the predicted poses themselves in the cubic it was
     2.53 / 9.84). Never two in a row; lio odom registers every scan."""
-    import lio_cli.core.odometry.loop as odometry
+    from lio_cli.core.odometry import imu_step, lidar_step, recovery, scan
 
     registered = []
-    real_finish = odometry.LioOdometry._finish
-    monkeypatch.setattr(odometry.LioOdometry, "_finish", lambda self, t, pose, frame, *a: registered.append(
-        frame is not None) or real_finish(self, t, pose, frame, *a))
+    for step in (imu_step, lidar_step, recovery):  # every step records its scan with scan.finish
+        monkeypatch.setattr(step, "finish", lambda o, t, pose, frame, *a: registered.append(
+            frame is not None) or scan.finish(o, t, pose, frame, *a))
     s = sim("ros1", scenario="drive", duration_s=6.0)
     out = deskew(s.log_path, tmp_path / "every2.bag")
     scans = out.metrics["motion"]["odometry"]["scans"]
@@ -527,7 +527,7 @@ def test_an_open_road_is_analysed_for_degeneracy_a_quarter_as_often_with_the_sam
     """deskew's odometry looks at the scene's geometry every 8th scan while the last look found it far from
     degenerate (weakest direction 4x above the ratio), every 2nd otherwise, as lio odom always does. A drive
     never comes near a corridor's degeneracy: a quarter of the analyses, the same de-skewed points to the bit."""
-    import lio_cli.core.odometry.imu_step as odometry_scan
+    import lio_cli.core.odometry.scan as odometry_scan
 
     calls = []
     real = odometry_scan.analyse_degeneracy

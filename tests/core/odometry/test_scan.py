@@ -1,0 +1,76 @@
+"""What every scan step shares: points in range, the degeneracy schedule, the pose recorded."""
+
+import numpy as np
+
+from lio_cli.config.odom import RegistrationConfig
+from lio_cli.core.odometry.scan import finish, points_in_range, prepare
+from lio_cli.core.odometry.state import WindowScan
+from lio_cli.core.odometry.tuning import WHEEL_KEEP_NS
+from lio_cli.model.records import OdometryRecord, PointCloud, TimeConvention
+
+NS = 10**9
+
+
+def _cloud(points) -> PointCloud:
+    points = np.asarray(points, dtype=np.float64)
+    stamps = np.linspace(0, NS // 10, len(points)).astype(np.int64)
+    return PointCloud(0, "lidar", points, stamps, TimeConvention("stamps", "t", 1.0))
+
+
+def test_points_are_moved_into_the_base_frame_and_kept_within_the_range_limits():
+    T_base_lidar = np.eye(4)
+    T_base_lidar[:3, 3] = [0.0, 0.0, 1.0]
+    rc = RegistrationConfig(min_range_m=1.0, max_range_m=10.0)
+    points, rng, keep = points_in_range(_cloud([[0.0, 0.0, -0.5], [3.0, 4.0, -1.0], [20.0, 0.0, 0.0]]), None, None,
+                                        NS // 10, T_base_lidar, rc)
+    np.testing.assert_allclose(points, [[0.0, 0.0, 0.5], [3.0, 4.0, 0.0], [20.0, 0.0, 1.0]])
+    np.testing.assert_allclose(rng, [0.5, 5.0, np.hypot(20.0, 1.0)])
+    assert keep.tolist() == [False, True, False]
+
+
+def test_too_few_points_in_range_skip_the_scan_and_start_no_map(make_state):
+    o = make_state()
+    assert prepare(o, _cloud(np.full((10, 3), 5.0)), None, None, NS // 10) is None
+    assert o.stats.skipped_few_points == 1 and o.reg is None
+
+
+def test_a_scan_is_recorded_on_the_track_and_old_wheel_records_dropped(make_state):
+    o = make_state()
+    o.wheel = [OdometryRecord(t, "odom", "base", None, np.zeros(3), np.zeros(3)) for t in (0, 2 * NS, 3 * NS)]
+    res = finish(o, 3 * NS, np.eye(4), None, None, [np.array([1.0, 0.0, 0.0])], False)
+    assert res.degenerate and not res.failed and res.stamp_ns == 3 * NS
+    assert o.track.stamps_ns == [3 * NS] and o.stats.used == 1 and o.stats.degenerate == 1
+    assert [w.stamp_ns for w in o.wheel] == [3 * NS]  # older than WHEEL_KEEP_NS behind the scan: dropped
+    o.startup.scans = [WindowScan(NS, 2 * NS, np.eye(4), np.nan, None, 0)]  # a start-up window holds them
+    o.wheel.insert(0, OdometryRecord(NS - WHEEL_KEEP_NS // 2, "odom", "base", None, np.zeros(3), np.zeros(3)))
+    finish(o, 4 * NS, np.eye(4), None, None, [], False)
+    assert len(o.wheel) == 2
+
+
+def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(monkeypatch):
+    """lio odom (degeneracy_every_clear = degeneracy_every = 2) analyses every 2nd scan, and a scan registered
+    again (a failed registration retried LiDAR-only, or a doubted one) again, as before the sparser schedule;
+    deskew's clear-scene schedule (8) skips the scans between, but not a retried scan (its reuse would turn the
+    directions by the motion between scans)."""
+    import lio_cli.core.odometry.scan as scan
+    from lio_cli.config.deskew import DeskewConfig
+    from lio_cli.config.odom import OdomConfig
+    from lio_cli.core.odometry.degeneracy import CLEAR_MARGIN, Degeneracy
+    from lio_cli.core.odometry.state import DegeneracySchedule
+
+    analysed = []
+
+    def fake(points, planar, ratio):
+        analysed.append(int(points[0, 0]))
+        return Degeneracy([np.array([1.0, 0.0, 0.0])], 10 * CLEAR_MARGIN)  # clear by far
+
+    monkeypatch.setattr(scan, "analyse_degeneracy", fake)
+    for cfg, expected in ((OdomConfig(), [0, 0, 2, 4, 6, 8, 10]),
+                          (DeskewConfig().odom_config("imu"), [0, 0, 8])):
+        analysed.clear()
+        schedule = DegeneracySchedule()
+        for used in (0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10):  # scan 0 registered twice (a retry)
+            dirs = scan.scheduled_directions(schedule, np.full((5, 3), float(used)), np.eye(3), np.eye(4), used,
+                                             False, False, cfg.fusion)
+            assert len(dirs) == 1
+        assert analysed == expected, (cfg.fusion.degeneracy_every_clear, analysed)
