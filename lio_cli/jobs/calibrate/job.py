@@ -192,11 +192,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 times[f"estimate_{k}"] = time.perf_counter() - t0
             wheel_traj, against = traj, None
             if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
-                # The wheels of a 2D scanner whose IMU mounting is partly unknown (its yaw: turns about the
-                # vertical cannot show it, and nothing gives it) are measured against a gyro-primed pass, not
-                # fused: the fused passes' accelerations go through that yaw (a wrong one bends the path: speed
-                # scale 1-2.5 % off on 60 s); the LiDAR-only pass registers scans skewed by the turns (0.4-0.7 %
-                # off); the gyro de-skews them through any yaw alike (1-sigma 0.14 % speed, 0.04 % yaw rate).
+                # a 2D scanner's IMU yaw unknown: its wheels are measured against a gyro-primed pass, which
+                # de-skews through any yaw alike (a fused pass bends by a wrong yaw, a LiDAR-only one skews)
                 t0 = time.perf_counter()
                 counter.plan(n)
                 wheel_traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(_mounting(est, T_ref))

@@ -32,7 +32,7 @@ from .inputs import Mounting, OdomInputs, choose_inputs
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
 _DOUBT_NOTE_SCANS = 5  # this many scans the IMU state could not explain, and...
-_DOUBT_NOTE_SHARE = 0.02  # ...this share of the scans: a note (none on the simulated logs without a clock offset)
+_DOUBT_NOTE_SHARE = 0.02  # ...this share of the scans: a note
 
 Progress = Callable[[int, int | None], None]  # (scans done, scans in the log or None)
 
@@ -222,8 +222,7 @@ class _OdomRun:
 
     def _doubt_note(self, st: OdomStats) -> None:
         """Many scans the IMU state could not explain (each placed by the LiDAR alone): an IMU clock offset beyond
-        what the online estimate times (some walks 30-50 ms off), or a wrong IMU extrinsic; the trajectory is
-        then decimetres off where it is centimetres."""
+        what the online estimate times, or a wrong IMU extrinsic."""
         n = st.doubted_scans
         if n >= _DOUBT_NOTE_SCANS and n >= _DOUBT_NOTE_SHARE * st.used:
             self.notes.append(
