@@ -35,7 +35,8 @@ from lio_cli.config.odom import OdomConfig
 from lio_cli.errors import LioError
 from lio_cli.geometry import inv_pose, so3_log
 from lio_cli.jobs.calibrate.job import CalibrateJob, run_calibrate
-from lio_cli.jobs.odom.job import OdomJob, run_odom
+from lio_cli.jobs.contract import load_reference
+from lio_cli.jobs.odom.job import OdomJob, run_odom, score_odom
 from lio_cli.model.calibration import Calibration
 from lio_cli.simulation.run import simulate
 
@@ -230,7 +231,9 @@ def bench_end_to_end(root: Path, duration: float, rows: list, seeds: int = 3) ->
             for d in DRAWS_US:
                 moved = {**fields, "imu_time_offset_s": fields.get("imu_time_offset_s", 0.0) + d * 1e-6}
                 cfg = OdomConfig(calibration=Calibration.model_validate(moved))
-                ate[name].append(run_odom(OdomJob(sim.log_path, cfg, str(sim.gt_path))).score.ate_trans_rmse_m)
+                res = run_odom(OdomJob(sim.log_path, cfg))
+                score_odom(res, load_reference(sim.log_path, str(sim.gt_path)))
+                ate[name].append(res.score.ate_trans_rmse_m)
         ratios.append((ate["estimated"], ate["true"]))
         os.remove(sim.log_path)
     wall, cpu, ts = first

@@ -157,10 +157,8 @@ def _dask_client(address: str, workers: int):
     import dask
     from distributed import Client, LocalCluster
 
-    # a task whose worker is lost is rescheduled; allowed-failures 1: once, then it fails (KilledWorker). The
-    # workers' statistical profiler (a thread sampling every 10 ms) is off: nobody reads it, the runs pay for it.
-    # Dask's nanny gives workers MALLOC_TRIM_THRESHOLD_=65536, which returns memory to the system after every
-    # large numpy temporary: a 20 s odometry run then takes 1.7x the CPU; local workers keep glibc's default.
+    # a lost worker's task runs once more, then fails (KilledWorker); the workers' profiler is off (nobody reads
+    # it, the runs pay for it); workers keep glibc's malloc trim threshold (the nanny's small one costs CPU)
     with dask.config.set({"distributed.scheduler.allowed-failures": DASK_RETRIES,
                           "distributed.worker.profile.enabled": False,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):

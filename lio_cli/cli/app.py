@@ -70,10 +70,9 @@ def register_commands(names: list[str] | None = None) -> typer.Typer:
 
 
 def reflow(text: str) -> str:
-    """A command's help for any terminal width: rich keeps every line break of the text, so prose wrapped at
-    110 columns came out ragged in an 80-column terminal (a full line, then a few words, in turn). The lines
-    of each prose paragraph are joined for rich to wrap; a paragraph with an indented line (examples, a table
-    of inputs) stays as written."""
+    """A command's help for any terminal width: rich keeps every line break of the text, so the lines of each prose
+    paragraph are joined for rich to wrap; a paragraph with an indented line (examples, a table of inputs) stays
+    as written."""
     paragraphs = text.split("\n\n")
     return "\n\n".join(p if any(line[:1].isspace() for line in p.splitlines()) else
                         " ".join(line.strip() for line in p.splitlines()) for p in paragraphs)
@@ -150,7 +149,7 @@ def _main_guarded(args: list[str]) -> int:
 def entry() -> None:  # pragma: no cover - console script
     """The ``lio`` process: one command, then exit. The cyclic collector is off while the command's modules
     load and their objects are frozen out of its passes (``freeze_start_up``), then frozen again before exit
-    so the interpreter's last full pass walks nothing (0.1-0.2 s of ``lio deskew`` on a 30 s log)."""
+    so the interpreter's last full pass walks nothing."""
     gc.disable()
     _state["own_process"] = True
     rc = main()

@@ -1,5 +1,5 @@
 """``lio calibrate``: the calibration every other command reads with --calib, from one log
-(flags -> CalibrateJob -> run_calibrate -> print)."""
+(flags -> CalibrateJob -> run_calibrate -> write_calibrate -> print)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from ..config import load_calibration, load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
 from ..errors import ConfigError
 from ..io.messages.pointcloud import parse_time_convention
-from ..jobs.calibrate.job import CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, yaml_text
+from ..jobs.calibrate import (CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, write_calibrate,
+                              yaml_text)
 from ..jobs.calibrate.report import format_table
 from ..jobs.outputs import log_stem
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
@@ -97,6 +98,7 @@ def calibrate(
     check_calibrate_outputs(job)
     with job_progress("calibrating", quiet) as update:
         result = run_calibrate(job, progress=update)
+    write_calibrate(result, job.out, force, job.kalibr, job.plot_dir)
     _report(result, quiet)
     if to_stdout:
         sys.stdout.write(yaml_text(result.calibration))

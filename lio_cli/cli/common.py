@@ -12,8 +12,8 @@ import typer
 
 
 class _Console:
-    """A rich ``Console`` made on first use: rich.console is about 20 ms of start-up that a quiet run which
-    prints nothing never needs. Attributes and methods are the console's."""
+    """A rich ``Console`` made on first use: a quiet run that prints nothing never pays for importing rich.console.
+    Attributes and methods are the console's."""
 
     def __init__(self, **options: Any) -> None:
         self._options = options

@@ -1,5 +1,5 @@
 """``lio fuse``: offline fusion of odometry, IMU, wheels and GPS into one trajectory (flags -> FuseJob -> run_fuse
--> print)."""
+-> write_fuse -> print)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,7 @@ from ..config.fuse import FuseConfig, parse_use
 from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.files.trajectory import format_tum
-from ..jobs.fuse.job import FuseJob, FuseRun, run_fuse
-from ..jobs.fuse.outputs import check_fuse_outputs, write_fuse
+from ..jobs.fuse import FuseJob, FuseRun, check_fuse_outputs, run_fuse, write_fuse
 from ..jobs.outputs import log_stem
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LogArg, QuietOpt,
                      WheelTopicOpt, job_progress, note, print_json, warn)

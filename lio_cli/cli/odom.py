@@ -1,4 +1,5 @@
-"""``lio odom``: IMU-primed scan matching over a log (flags -> OdomJob -> run_odom -> print)."""
+"""``lio odom``: IMU-primed scan matching over a log (flags -> OdomJob -> run_odom -> score_odom -> write_odom ->
+print)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,9 @@ from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.files.trajectory import format_tum
-from ..jobs.odom.job import DivergedRun, OdomJob, OdomResult, run_odom
-from ..jobs.outputs import check_outputs, log_stem, write_odom
+from ..jobs.contract import load_reference
+from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom, score_odom, write_odom
+from ..jobs.outputs import check_outputs, log_stem
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
                      PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json, warn)
 
@@ -88,9 +90,10 @@ def odom(
             inputs.append(Path(gt))
         check_outputs(out, force, inputs)
 
+    reference = load_reference(Path(log), gt) if gt is not None else None
     with job_progress("odometry", quiet) as update:
         try:
-            result = run_odom(OdomJob(Path(log), cfg, gt), progress=update)
+            result = run_odom(OdomJob(Path(log), cfg), progress=update)
         except DivergedRun as err:  # the trajectory up to where the track was lost is still written
             if err.partial is not None:
                 traj = err.partial.trajectory
@@ -101,6 +104,8 @@ def odom(
                     write_odom(err.partial, out, force)
                     err.args = (f"{err}; the trajectory up to there is in {out}",)
             raise
+    if reference is not None:
+        score_odom(result, reference)
     for n in result.notes:
         warn(n)
     for role, choice in result.roles.items():

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 
 from ..io.files.atomic import atomic_output, check_writable
-from ..io.files.trajectory import format_tum
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")
 
@@ -71,10 +70,3 @@ def write_run(out: Path, text: str, config, metrics: dict, force: bool) -> None:
         tmp.write_text(dump_model(config))
     with atomic_output(metrics_path, force) as tmp:
         tmp.write_text(json_text(metrics))
-
-
-def write_odom(result, out: Path, force: bool) -> None:
-    """The odom run's TUM trajectory, resolved config and metrics."""
-    result.metrics["output"] = str(out)
-    write_run(out, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
-              result.metrics, force)

@@ -10,16 +10,27 @@ the gyro when there is one, else the wheels').
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
 from ..geometry import interpolate_poses, inv_pose, yaw_of
 from ..io.files.atomic import atomic_output
-from ..jobs.fuse.job import FuseRun
+from ..model.trajectory import Trajectory
 
+PLOT_FILES = ("fuse_top_view.png", "fuse_speed_yaw_rate.png")  # what ``write_plots`` writes, in order
 MAX_POINTS = 20_000  # per line: plenty for a PNG, bounded for hour-long runs
 _DPI = 110
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e"]
+
+
+class FusedRun(Protocol):
+    """What the plots read of a fuse run (a ``jobs.fuse.FuseRun``)."""
+
+    trajectory: Trajectory  # T_world_base
+    velocities_mps: np.ndarray | None  # (N,3) world frame
+    config: Any  # its estimator and smooth
+    sources: Any  # its ``inputs``: the wheel, imu, odom and gps series that were fused
 
 
 def _pyplot():
@@ -54,7 +65,7 @@ def _sorted(stamps: np.ndarray, *arrays):
     return (stamps[o], *(a[o] for a in arrays))
 
 
-def wheel_dead_reckoning(run: FuseRun) -> tuple[np.ndarray, str] | None:
+def wheel_dead_reckoning(run: FusedRun) -> tuple[np.ndarray, str] | None:
     """((M,2) x, y, label) of the wheels integrated alone in 2D from the fused start at the wheel stamps: their
     own yaw rate, or the gyro's where the wheels carry none."""
     w, imu = run.sources.inputs.wheel, run.sources.inputs.imu
@@ -81,7 +92,7 @@ def wheel_dead_reckoning(run: FuseRun) -> tuple[np.ndarray, str] | None:
     return tr.poses[0, :2, 3] + np.vstack([[0.0, 0.0], np.cumsum(step, axis=0)]), label
 
 
-def _odom_in_world(run: FuseRun) -> np.ndarray | None:
+def _odom_in_world(run: FusedRun) -> np.ndarray | None:
     od, tr = run.sources.inputs.odom, run.trajectory
     if od is None or len(od) == 0 or len(tr) < 2:
         return None
@@ -94,7 +105,7 @@ def _odom_in_world(run: FuseRun) -> np.ndarray | None:
     return (T_w @ inv_pose(T[0]) @ T)[:, :2, 3]
 
 
-def _gps_in_world(run: FuseRun) -> np.ndarray | None:
+def _gps_in_world(run: FusedRun) -> np.ndarray | None:
     g, tr = run.sources.inputs.gps, run.trajectory
     if g is None or len(g) == 0 or len(tr) < 2:
         return None
@@ -106,7 +117,7 @@ def _gps_in_world(run: FuseRun) -> np.ndarray | None:
     return (g.position_enu_m - offset)[:, :2]
 
 
-def plot_top_view(run: FuseRun, path: Path, force: bool = False) -> Path:
+def plot_top_view(run: FusedRun, path: Path, force: bool = False) -> Path:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 7))
     try:
@@ -139,7 +150,7 @@ def plot_top_view(run: FuseRun, path: Path, force: bool = False) -> Path:
         plt.close(fig)
 
 
-def _fused_rates(run: FuseRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fused_rates(run: FusedRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t_s, speed m/s, yaw rate rad/s) of the fused trajectory."""
     tr = run.trajectory
     t = (tr.stamps_ns - tr.stamps_ns[0]) * 1e-9
@@ -152,7 +163,7 @@ def _fused_rates(run: FuseRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t, speed, rate
 
 
-def plot_speed_yaw_rate(run: FuseRun, path: Path, force: bool = False) -> Path:
+def plot_speed_yaw_rate(run: FusedRun, path: Path, force: bool = False) -> Path:
     plt = _pyplot()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
     try:
@@ -186,10 +197,9 @@ def plot_speed_yaw_rate(run: FuseRun, path: Path, force: bool = False) -> Path:
         plt.close(fig)
 
 
-def write_plots(run: FuseRun, folder: Path, force: bool = False) -> list[Path]:
-    from ..jobs.fuse.outputs import PLOT_FILES
-
+def write_plots(run: FusedRun, folder: Path, force: bool = False) -> list[Path]:
+    """The ``PLOT_FILES`` of ``run`` in ``folder``."""
     return [plot_top_view(run, folder / PLOT_FILES[0], force), plot_speed_yaw_rate(run, folder / PLOT_FILES[1], force)]
 
 
-__all__ = ["plot_speed_yaw_rate", "plot_top_view", "wheel_dead_reckoning", "write_plots"]
+__all__ = ["PLOT_FILES", "FusedRun", "plot_speed_yaw_rate", "plot_top_view", "wheel_dead_reckoning", "write_plots"]

@@ -2,11 +2,11 @@
 
 ``CalibrateJob`` (log, output YAML, configuration, optional Allan plot folder and Kalibr file) ->
 ``run_calibrate`` -> ``CalibrateResult`` (the calibration, the table of values / 1-sigmas / differences from
-the reference, the skipped items with their reasons, metrics). Every output location is checked first; the
-log is read in one pass gathering the IMU and wheel arrays while the LiDAR-only odometry runs
-(``calibrate_passes``), the estimators run (``calibrate_estimate``), gyro-primed passes sharpen the
-trajectory and they run again. Bad input raises before anything is written; then the YAML, its
-``.metrics.json`` and ``.config.yaml`` (and the Kalibr file and the plot) are written atomically.
+the reference, the skipped items with their reasons, metrics) -> ``write_calibrate``. Every output location is
+checked first; the log is read in one pass gathering the IMU and wheel arrays while the LiDAR-only odometry runs
+(``passes``), the estimators run (``estimate``), gyro-primed passes sharpen the trajectory and they run again.
+Bad input raises before anything is written; ``write_calibrate`` then writes the YAML, its ``.metrics.json``
+and ``.config.yaml`` (and the Kalibr file and the plot), each atomically.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from ...io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared
 from ...io.logs.reader import open_log
 from ...io.sensors.tf import read_static_frames
 from ...io.sensors.topics import choose_topic
+from ...core.calibration import AllanResult
 from ...model.calibration import Calibration
 from . import estimate as steps
 from . import map as calibrate_map
@@ -67,6 +68,7 @@ class CalibrateResult:
     metrics: dict
     notes: list[str] = field(default_factory=list)
     outputs: list[Path] = field(default_factory=list)
+    allan: AllanResult | None = None  # with ``config.allan``: for the Kalibr file and the plot
 
 
 def sidecars(out: Path) -> tuple[Path, Path]:
@@ -93,7 +95,7 @@ def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
 
 
 def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> CalibrateResult:
-    """Estimate the calibration of ``job.log`` and write it (with metrics, config and the Allan files)."""
+    """Estimate the calibration of ``job.log`` (``write_calibrate`` writes it)."""
     t_wall = time.perf_counter()
     outs = check_calibrate_outputs(job)
     cfg, est, times = job.config, steps.Estimates(), {}
@@ -190,11 +192,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 times[f"estimate_{k}"] = time.perf_counter() - t0
             wheel_traj, against = traj, None
             if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
-                # The wheels of a 2D scanner whose IMU mounting is partly unknown (its yaw: turns about the
-                # vertical cannot show it, and nothing gives it) are measured against a gyro-primed pass, not
-                # fused: the fused passes' accelerations go through that yaw (a wrong one bends the path: speed
-                # scale 1-2.5 % off on 60 s); the LiDAR-only pass registers scans skewed by the turns (0.4-0.7 %
-                # off); the gyro de-skews them through any yaw alike (1-sigma 0.14 % speed, 0.04 % yaw rate).
+                # a 2D scanner's IMU yaw unknown: its wheels are measured against a gyro-primed pass, which
+                # de-skews through any yaw alike (a fused pass bends by a wrong yaw, a LiDAR-only one skews)
                 t0 = time.perf_counter()
                 counter.plan(n)
                 wheel_traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(_mounting(est, T_ref))
@@ -238,8 +237,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         "time_s": {**{k: round(v, 4) for k, v in times.items()}, "total": round(wall, 4)},
         "log_duration_s": round(span_s, 4), "notes": notes,
     }
-    _write(job, cal, resolved, metrics, est)
-    return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs)
+    return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs, est.allan)
 
 
 def _mounting(est: steps.Estimates, T_ref) -> tuple[np.ndarray, float, np.ndarray]:
@@ -287,23 +285,26 @@ def _allan_summary(r) -> dict:
             **{s: {k: v for k, v in getattr(r, s).to_dict().items() if k in keep} for s in ("gyro", "accel")}}
 
 
-def _write(job: CalibrateJob, cal: Calibration, resolved: CalibrateConfig, metrics: dict, est) -> None:
-    if job.kalibr is not None:
-        with atomic_output(job.kalibr, job.force) as tmp:
-            tmp.write_text(kalibr_imu_yaml(est.allan, metrics["topics"]["imu"], est.allan.rate_hz))
-    if job.plot_dir is not None:
-        Path(job.plot_dir).mkdir(parents=True, exist_ok=True)
-        with atomic_output(Path(job.plot_dir) / PLOT_NAME, job.force) as tmp:
-            tmp.write_bytes(allan_plot_png(est.allan, f"Allan deviation: {Path(job.log).name}"))
-    if job.out is None:
+def write_calibrate(result: CalibrateResult, out: Path | None, force: bool, kalibr: Path | None = None,
+                    plot_dir: Path | None = None) -> None:
+    """The calibration YAML ``out`` with its config and metrics beside it (``out`` None: none of them, e.g. for
+    ``-o -``), and the job's ``kalibr`` file and Allan plot in ``plot_dir`` (both need ``config.allan``)."""
+    if kalibr is not None:
+        with atomic_output(kalibr, force) as tmp:
+            tmp.write_text(kalibr_imu_yaml(result.allan, result.metrics["topics"]["imu"], result.allan.rate_hz))
+    if plot_dir is not None:
+        Path(plot_dir).mkdir(parents=True, exist_ok=True)
+        with atomic_output(Path(plot_dir) / PLOT_NAME, force) as tmp:
+            tmp.write_bytes(allan_plot_png(result.allan, f"Allan deviation: {Path(result.metrics['log']).name}"))
+    if out is None:
         return
-    metrics_path, config_path = sidecars(job.out)
-    with atomic_output(config_path, job.force) as tmp:
-        tmp.write_text(dump_model(resolved))
-    with atomic_output(metrics_path, job.force) as tmp:
-        tmp.write_text(json_text(metrics))
-    with atomic_output(job.out, job.force) as tmp:
-        tmp.write_text(yaml_text(cal))
+    metrics_path, config_path = sidecars(out)
+    with atomic_output(config_path, force) as tmp:
+        tmp.write_text(dump_model(result.config))
+    with atomic_output(metrics_path, force) as tmp:
+        tmp.write_text(json_text(result.metrics))
+    with atomic_output(out, force) as tmp:
+        tmp.write_text(yaml_text(result.calibration))
 
 
 def yaml_text(cal: Calibration) -> str:

@@ -2,10 +2,9 @@
 one map of all its scans (``core.calibration.map_refine``), de-skewed through the estimates so far, and the
 estimators run again after each round.
 
-On a 16-beam handheld walk the odometry's roll and pitch scatter 0.4-0.5 deg per scan, and the mounting came out
-0.24-0.65 deg off (ten simulated walks); after two rounds the scatter is about a third and the mounting within
-0.16 deg. A round is kept only when it makes the LiDAR's rotations agree better with the gyro's. 2D scans have no
-roll or pitch to sharpen and are left as the fused passes give them.
+The rounds sharpen the roll and pitch that scan-to-local-map odometry scatters, which is what limits the mounting.
+A round is kept only when it makes the LiDAR's rotations agree better with the gyro's. 2D scans have no roll or
+pitch to sharpen and are left as the fused passes give them.
 """
 
 from __future__ import annotations
@@ -48,15 +47,13 @@ def map_rounds(traj: LidarTrajectory, sweeps: dict[int, Sweep], voxel_m: float, 
     estimates of the passes before (their notes carry on). A round is kept only when the LiDAR's rotations then
     agree better with the gyro's (the hand-eye residual below ``KEEP_BELOW`` of the best so far); else the
     rounds stop there. Every candidate is estimated alike (final), so a clock offset kept as given on one and
-    estimated on another cannot decide (a car at 10 m/s: its 16-beam scans placed on the map followed its roll
-    only part of the way, and the mounting came out 2 deg off where the pass alone gave 0.08)."""
+    estimated on another cannot decide."""
     t0 = time.perf_counter()
     best, best_est, kept = traj, est.trial(), 0
     steps.extrinsics(best, imu, cfg, best_est, where, T_ref, final=True, prior_offset=prior_offset)
     times["estimate_final"] = time.perf_counter() - t0
     # each scan is registered against a map holding it and its neighbours, so the rounds' pose errors are shared
     # and their residuals understate them: the values move, the 1-sigmas (and what is observable) stay the pass's
-    # (the 7 s sample walk: a vertical lever arm of 1-sigma 4.9 cm came out 20 cm off)
     floors = steps.floors_of(best_est)
     for k in range(1, cfg.map_rounds + 1):
         t0 = time.perf_counter()

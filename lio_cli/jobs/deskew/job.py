@@ -1,11 +1,12 @@
 """The ``deskew`` job: write a copy of a log whose LiDAR clouds are motion-compensated.
 
-``DeskewJob`` (log, output, configuration, optional map) -> ``run_deskew`` -> ``DeskewResult``. The job
-checks every output location first, takes the motion from its source (``deskew_motion``: a first pass over
-the log when the odometry provides it), then streams the log once more into the output: every record of
-another topic copied as stored (``LogCopy``), every cloud of the LiDAR topic de-skewed into the sensor frame
-at its reference instant (``deskew_scan``). The output log, ``OUT-stem.metrics.json``, ``OUT-stem.config.yaml``
-and the map are each written to a temporary sibling and renamed: a failed run leaves none of them.
+``DeskewJob`` (log, output, configuration, optional map) -> ``run_deskew`` -> ``DeskewResult`` ->
+``write_deskew``. The job checks every output location first, takes the motion from its source (``motion``: a
+first pass over the log when the odometry provides it), then streams the log once more into the output: every
+record of another topic copied as stored (``LogCopy``), every cloud of the LiDAR topic de-skewed into the sensor
+frame at its reference instant (``scan``). The run writes the output log and the map as it streams (each to a
+temporary sibling, renamed at its end: a failed run leaves neither); ``write_deskew`` then places
+``OUT-stem.metrics.json`` and ``OUT-stem.config.yaml`` beside the log.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import yaml
 from ...config import dump_model, with_overrides
 from ...config.deskew import DeskewConfig
 from ...errors import InputError
-from ...io.logs.detect import input_paths
+from ...io.logs.detect import detect_format, input_paths
 from ...io.files.atomic import atomic_output, check_writable
 from ...io.files.point_clouds import check_map_suffix
 from ...io.logs.base import LogReader
@@ -89,6 +90,18 @@ def sidecars(out: Path) -> tuple[Path, Path]:
     return beside(Path(out), ".metrics.json"), beside(Path(out), ".config.yaml")
 
 
+def output_in(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
+    """The output log of a run into ``folder`` (``lio batch``): ``deskewed`` with the suffix of its format (the
+    input's unless asked: a folder of split ROS 1 bags gives a .bag), a folder for a ROS 2 bag."""
+    fmt = cfg.output_format or cfg.input.format
+    if fmt is None:
+        try:
+            fmt, _ = detect_format(Path(log))
+        except InputError:  # the run itself says what is wrong with the log
+            fmt = None
+    return folder / f"deskewed{FILE_SUFFIXES.get(fmt or '', '')}"
+
+
 def check_deskew_outputs(job: DeskewJob, extra_inputs: tuple[Path, ...] = ()) -> None:
     """Every output may be written and is none of the inputs (before any work)."""
     inputs = [*input_paths(job.log), *extra_inputs]
@@ -104,7 +117,8 @@ def check_deskew_outputs(job: DeskewJob, extra_inputs: tuple[Path, ...] = ()) ->
 
 
 def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult:
-    """De-skew every cloud of ``job.log``'s LiDAR topic into ``job.out``; write metrics, config and map."""
+    """De-skew every cloud of ``job.log``'s LiDAR topic into ``job.out`` (and the map into ``job.map``); the
+    metrics and the resolved config are ``write_deskew``'s."""
     t_wall = time.perf_counter()
     check_deskew_outputs(job)
     cfg, notes = job.config, []
@@ -154,12 +168,16 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
         "log_duration_s": round(span_s, 4), "real_time_factor": round(span_s / wall, 3) if wall > 0 else None,
         "notes": notes,
     }
-    metrics_path, config_path = sidecars(job.out)
-    with atomic_output(config_path, job.force) as tmp:
-        tmp.write_text(dump_model(resolved))
-    with atomic_output(metrics_path, job.force) as tmp:
-        tmp.write_text(json_text(metrics))
     return DeskewResult(job.out, fmt, resolved, metrics, notes)
+
+
+def write_deskew(result: DeskewResult, out: Path, force: bool) -> None:
+    """Finish a run: its resolved config and metrics beside the output log ``out`` (the job's, already written)."""
+    metrics_path, config_path = sidecars(out)
+    with atomic_output(config_path, force) as tmp:
+        tmp.write_text(dump_model(result.config))
+    with atomic_output(metrics_path, force) as tmp:
+        tmp.write_text(json_text(result.metrics))
 
 
 def _from_odometry(helper: Helper | None, reader: LogReader, setup: WriteSetup, progress: Progress | None,
@@ -203,4 +221,5 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: WriteSetup, 
     return stats, odo, t_motion, setup.mounting, writing
 
 
-__all__ = ["DeskewJob", "DeskewResult", "check_deskew_outputs", "output_format", "run_deskew", "sidecars"]
+__all__ = ["DeskewJob", "DeskewResult", "check_deskew_outputs", "output_format", "output_in", "run_deskew", "sidecars",
+           "write_deskew"]

@@ -3,7 +3,7 @@ fuse the log in overlapping time chunks and stitch them.
 
 The core keeps per filter instant ("knot": an output or an update) about ``65 n^2`` bytes when smoothing (the
 RTS smoother needs predicted and filtered state and covariance and the transition of every knot; n = 15 for
-the IMU-driven EKF, 21 with odometry increments: 15-29 kB measured), a few kB for the planar smoother, and
+the IMU-driven EKF, 21 with odometry increments), a few kB for the planar smoother, and
 about 1.6 kB per IMU sample, output and update when only filtering. An hour at 200 Hz with smoothing would be
 ~10 GB; chunked, it is the budget. When chunks cannot bring it under the budget (a span of at most two
 chunks, or the shortest chunk alone over it: e.g. ``--rate`` far above the IMU's rate, where every output is

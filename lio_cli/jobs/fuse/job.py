@@ -4,7 +4,8 @@ estimation core (``core.fuse``) into one trajectory of the base frame, gather me
 ``FuseJob`` (log + the whole configuration) is all a run needs; ``run_fuse`` returns the trajectory (the first
 output pose at the origin of a z-up world), per-pose covariances when asked, the resolved configuration (topics,
 base frame, wheel twist frame and the measurement selection filled in: written beside the outputs, it repeats
-the run exactly), metrics and notes. Nothing is printed or written here (``jobs.fuse_outputs`` writes).
+the run exactly), metrics and notes; ``score_fuse`` adds the accuracy against a ground truth. Nothing is printed
+or written here (``outputs.write_fuse`` writes).
 """
 
 from __future__ import annotations
@@ -19,9 +20,11 @@ import numpy as np
 from ...config import with_overrides
 from ...config.fuse import FuseConfig
 from ...core.fuse import COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult, NoiseOptions
+from ...evaluation.scoring import Score
 from ...gc_pause import cyclic_gc_paused
 from ...io.logs.reader import open_log
 from ...model.trajectory import Trajectory
+from ..contract import score_into
 from .chunks import MemoryPlan, fuse_chunked, plan
 from .inputs import FuseSources, gather_sources
 
@@ -47,6 +50,7 @@ class FuseRun:
     notes: list[str]
     roles: dict[str, dict]
     sources: FuseSources  # what was fused (for plots)
+    score: Score | None = None  # set by ``score_fuse``
 
 
 def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: bool = False) -> FuseOptions:
@@ -108,6 +112,11 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     metrics["notes"] = notes
     return FuseRun(traj, result.covariances if job.covariance else None, result.velocities_mps, resolved, metrics,
                    notes, sources.roles, sources)
+
+
+def score_fuse(run: FuseRun, reference: Trajectory) -> None:
+    """ATE/RPE against ``reference`` (``contract.load_reference``, read before the run) into ``run``."""
+    score_into(run, reference, "estimate")
 
 
 def _topic(sources: FuseSources, src: str) -> str | None:
@@ -187,4 +196,4 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
     return out
 
 
-__all__ = ["FuseJob", "FuseRun", "Progress", "core_options", "run_fuse"]
+__all__ = ["FuseJob", "FuseRun", "Progress", "core_options", "run_fuse", "score_fuse"]

@@ -14,10 +14,10 @@ from ...errors import InputError
 from ...io.files.atomic import atomic_output, check_writable
 from ...io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 from ...io.files.trajectory import format_stamp, format_tum
+from ...plots.fuse import PLOT_FILES, write_plots
 from .job import FuseRun
 from ..outputs import check_outputs, run_outputs, write_run
 
-PLOT_FILES = ("fuse_top_view.png", "fuse_speed_yaw_rate.png")
 COV_HEADER = ("# lio fuse per-pose covariance: stamp_s, then the 6x6 matrix row-major (36 values) over "
               f"({' '.join(COVARIANCE_LAYOUT)}): position error in world axes (m^2), rotation error about the base "
               "axes (rad^2, right perturbation)\n")
@@ -67,8 +67,6 @@ def write_fuse(run: FuseRun, out: Path | None, force: bool, cov: Path | None = N
         written.append(cov)
         run.metrics["covariance_file"] = str(cov)
     if plot is not None:
-        from ...plots.fuse import write_plots
-
         plot.mkdir(exist_ok=True)
         written += write_plots(run, plot, force)
         run.metrics["plots"] = [str(p) for p in written[-len(PLOT_FILES):]]

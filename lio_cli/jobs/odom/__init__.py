@@ -1,1 +1,23 @@
-"""``lio odom``: the job, its inputs (topics, extrinsics, clocks) and its run."""
+"""``lio odom``: the job, its inputs (topics, extrinsics, clocks) and its run.
+
+``COMMAND``: ``OdomJob`` -> ``run_odom`` -> ``score_odom`` (with ``--gt``) -> ``write_odom``.
+"""
+
+from ...config.odom import OdomConfig
+from ..contract import Command
+from .job import DivergedRun, OdomJob, OdomResult, run_odom, score_odom
+from .outputs import write_odom
+
+
+def _key_metrics(metrics: dict) -> dict:
+    scans = metrics["scans"]
+    return {"scans_total": scans["total"], "scans_used": scans["used"], "span_s": metrics.get("trajectory_span_s")}
+
+
+COMMAND = Command(
+    name="odom", config=OdomConfig, job=lambda log, config, out: OdomJob(log, config), run=run_odom,
+    write=write_odom, score=score_odom, stem="odom", output=lambda folder, log, config: folder / "odom.tum",
+    key_metrics=_key_metrics, threads=lambda config: config.registration.threads,
+)
+
+__all__ = ["COMMAND", "DivergedRun", "OdomJob", "OdomResult", "run_odom", "score_odom", "write_odom"]

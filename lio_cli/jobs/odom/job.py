@@ -1,8 +1,8 @@
 """The ``odom`` job: read a log's stream, resolve topics and extrinsics, drive ``LioOdometry``, gather metrics.
 
-``OdomJob`` (log + the whole configuration + optional ground truth) is all a run needs; ``run_odom`` returns
-the trajectory, the resolved configuration (topics, base frame and deskew filled in: written beside the
-outputs, it repeats the run exactly), metrics and notes.
+``OdomJob`` (log + the whole configuration) is all a run needs; ``run_odom`` returns the trajectory, the
+resolved configuration (topics, base frame and deskew filled in: written beside the outputs, it repeats the
+run exactly), metrics and notes; ``score_odom`` adds the accuracy against a ground truth.
 """
 
 from __future__ import annotations
@@ -20,20 +20,20 @@ from ...config import with_overrides
 from ...config.odom import OdomConfig
 from ...core.odometry import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
-from ...evaluation.scoring import Score, score
+from ...evaluation.scoring import Score
 from ...io.messages.pointcloud import parse_time_convention
 from ...io.logs.base import LogReader
 from ...io.logs.reader import open_log
-from ...io.sensors.sources import load_ground_truth
 from ...io.sensors.stream import SensorStream
 from ...io.sensors.tf import read_static_frames
 from ...model.records import ImuBatch, PointCloud
 from ...model.trajectory import Trajectory
+from ..contract import score_into
 from .inputs import Mounting, OdomInputs, choose_inputs
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
 _DOUBT_NOTE_SCANS = 5  # this many scans the IMU state could not explain, and...
-_DOUBT_NOTE_SHARE = 0.02  # ...this share of the scans: a note (none on the simulated logs without a clock offset)
+_DOUBT_NOTE_SHARE = 0.02  # ...this share of the scans: a note
 
 Progress = Callable[[int, int | None], None]  # (scans done, scans in the log or None)
 
@@ -55,11 +55,10 @@ PoseSink = Callable[[list[SettledPose]], None]
 
 @dataclass(frozen=True)
 class OdomJob:
-    """Everything one ``lio odom`` run needs. ``gt``: a TUM/KITTI file or a topic of the log to score against."""
+    """Everything one ``lio odom`` run needs."""
 
     log: Path
     config: OdomConfig = field(default_factory=OdomConfig)
-    gt: str | None = None
 
 
 @dataclass
@@ -71,7 +70,7 @@ class OdomResult:
     metrics: dict
     notes: list[str] = field(default_factory=list)  # warnings: things the user should fix or know
     roles: dict[str, dict] = field(default_factory=dict)  # topic taken per role, and why
-    score: Score | None = None
+    score: Score | None = None  # set by ``score_odom``
     alignment: np.ndarray | None = None  # 4x4: levels the odometry's internal world (its settled poses') frame
 
 
@@ -85,19 +84,17 @@ class DivergedRun(ProcessingError):
 
 def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None,
              settled: PoseSink | None = None) -> OdomResult:
-    """Run odometry over ``job.log``; score against ``job.gt`` when given. ``reader``: ``job.log`` already
-    open (a caller that reads the log again afterwards saves opening it twice; it stays open). ``settled``:
-    called with each scan's ``SettledPose`` as soon as it is final (in order, every pose once; not the
-    IMU predictions of ``registration.slow_register_every``)."""
-    # the ground truth first: a bad one is bad input before the run, not after it (its trajectory then lost)
-    ref = load_ground_truth(job.log, job.gt) if job.gt is not None else None
+    """Run odometry over ``job.log``. ``reader``: ``job.log`` already open (a caller that reads the log again
+    afterwards saves opening it twice; it stays open). ``settled``: called with each scan's ``SettledPose`` as
+    soon as it is final (in order, every pose once; not the IMU predictions of
+    ``registration.slow_register_every``)."""
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
-        result = _OdomRun(log, job.config, progress, settled).run()
-    if ref is not None:
-        result.score = score(Trajectory(ref.stamps_ns, ref.poses, job.gt), Trajectory(
-            result.trajectory.stamps_ns, result.trajectory.poses, "odom"))
-        result.metrics["accuracy"] = result.score.to_dict()
-    return result
+        return _OdomRun(log, job.config, progress, settled).run()
+
+
+def score_odom(result: OdomResult, reference: Trajectory) -> None:
+    """ATE/RPE against ``reference`` (``contract.load_reference``, read before the run) into ``result``."""
+    score_into(result, reference, "odom")
 
 
 class _OdomRun:
@@ -226,8 +223,7 @@ class _OdomRun:
 
     def _doubt_note(self, st: OdomStats) -> None:
         """Many scans the IMU state could not explain (each placed by the LiDAR alone): an IMU clock offset beyond
-        what the online estimate times (some walks 30-50 ms off), or a wrong IMU extrinsic; the trajectory is
-        then decimetres off where it is centimetres."""
+        what the online estimate times, or a wrong IMU extrinsic."""
         n = st.doubted_scans
         if n >= _DOUBT_NOTE_SCANS and n >= _DOUBT_NOTE_SHARE * st.used:
             self.notes.append(

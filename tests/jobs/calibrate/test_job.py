@@ -16,7 +16,7 @@ from lio_cli.config import load_calibration
 from lio_cli.config.calibrate import CalibrateConfig
 from lio_cli.geometry import inv_pose, so3_log
 from lio_cli.io.logs.reader import open_log
-from lio_cli.jobs.calibrate.job import CalibrateJob, run_calibrate
+from lio_cli.jobs.calibrate.job import CalibrateJob, run_calibrate, write_calibrate
 from lio_cli.model.calibration import Calibration
 from lio_cli.simulation.run import simulate
 
@@ -51,8 +51,10 @@ PROGRESS: list[tuple[int, int]] = []  # (scans done, scans planned) as bag_run r
 @pytest.fixture(scope="module")
 def bag_run(walks):
     root, bag, _ = walks
-    return run_calibrate(CalibrateJob(bag.log_path, root / "walk.calib.yaml"),
-                         progress=lambda done, total: PROGRESS.append((done, total)))
+    result = run_calibrate(CalibrateJob(bag.log_path, root / "walk.calib.yaml"),
+                           progress=lambda done, total: PROGRESS.append((done, total)))
+    write_calibrate(result, root / "walk.calib.yaml", False)
+    return result
 
 
 def test_progress_counts_every_pass_and_ends_at_its_total(walks, bag_run):

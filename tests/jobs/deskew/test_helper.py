@@ -16,7 +16,7 @@ from lio_cli.core.deskew.sweep_motion import PoseSpline, sweep_knots
 from lio_cli.errors import InputError, ProcessingError
 from lio_cli.jobs.deskew import job as deskew_job
 from lio_cli.jobs.deskew import helper as deskew_helper, poses as deskew_poses
-from lio_cli.jobs.deskew.job import DeskewJob, run_deskew
+from lio_cli.jobs.deskew.job import DeskewJob, run_deskew, write_deskew
 from lio_cli.jobs.deskew.poses import PoseFeed
 from lio_cli.jobs.odom.job import OdomJob, SettledPose, run_odom
 from lio_cli.simulation.run import simulate
@@ -39,7 +39,9 @@ def two_cores(monkeypatch):
 
 def run(log, out, helper, *, map=None, **overrides):
     cfg = with_overrides(DeskewConfig(), overrides)
-    return run_deskew(DeskewJob(Path(log), Path(out), cfg, map, helper=helper))
+    result = run_deskew(DeskewJob(Path(log), Path(out), cfg, map, helper=helper))
+    write_deskew(result, Path(out), False)
+    return result
 
 
 def leftovers(folder: Path, stem: str) -> list[str]:

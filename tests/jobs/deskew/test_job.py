@@ -19,7 +19,7 @@ from lio_cli.io.messages.pointcloud import cloud_dtype, decode_laserscan, decode
 from lio_cli.io.logs.reader import open_log
 from lio_cli.io.files.trajectory import format_tum, read_tum
 from lio_cli.io.logs.writer import LogWriter
-from lio_cli.jobs.deskew.job import DeskewJob, run_deskew
+from lio_cli.jobs.deskew.job import DeskewJob, output_in, run_deskew, write_deskew
 from lio_cli.jobs.odom.job import OdomJob, run_odom
 from lio_cli.simulation.deskew_truth import TrueMotion
 from lio_cli.simulation.run import simulate
@@ -51,7 +51,9 @@ def sim(tmp_path_factory):
 
 def deskew(log, out, *, map=None, force=False, progress=None, **overrides) -> object:
     cfg = with_overrides(DeskewConfig(), overrides)
-    return run_deskew(DeskewJob(Path(log), Path(out), cfg, map, force), progress)
+    result = run_deskew(DeskewJob(Path(log), Path(out), cfg, map, force), progress)
+    write_deskew(result, Path(out), force)
+    return result
 
 
 def gt(s) -> dict:
@@ -543,3 +545,18 @@ def test_an_open_road_is_analysed_for_degeneracy_a_quarter_as_often_with_the_sam
     a, b = clouds(tmp_path / "sparse.bag"), clouds(tmp_path / "every2.bag")
     assert len(a) == len(b) > 50
     assert all(bytes(x.data) == bytes(y.data) for x, y in zip(a, b))
+
+
+def test_a_folder_of_split_bags_gives_a_bag_file(tmp_path):
+    split = tmp_path / "split"
+    split.mkdir()
+    (split / "a_0.bag").write_bytes(b"#ROSBAG V2.0\n")  # detected by its magic
+    assert output_in(tmp_path, split, DeskewConfig()).name == "deskewed.bag"
+
+
+def test_the_asked_format_names_the_output(tmp_path):
+    log = tmp_path / "walk.bag"
+    log.write_bytes(b"#ROSBAG V2.0\n")
+    assert output_in(tmp_path, log, DeskewConfig()).name == "deskewed.bag"
+    assert output_in(tmp_path, log, DeskewConfig(output_format="mcap")).name == "deskewed.mcap"
+    assert output_in(tmp_path, log, DeskewConfig(output_format="ros2")).name == "deskewed"

@@ -13,15 +13,15 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from ..errors import ConfigError, ProcessingError
-from ..evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult
-from ..io.files.atomic import write_text_atomic
-from ..io.sensors.sources import split_source
-from ..jobs.evaluate import EvaluateJob, run_evaluate
-from ..io.files.trajectory import STAMP_UNITS_NS, parse_stamp_ns
-from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
-from .evaluate_outputs import check_evaluate_outputs, plot_names
-from .evaluate_extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
+from ...errors import ConfigError, ProcessingError
+from ...evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult
+from ...io.files.atomic import write_text_atomic
+from ...io.sensors.sources import split_source
+from ...jobs.evaluate import EvaluateJob, run_evaluate
+from ...io.files.trajectory import STAMP_UNITS_NS, parse_stamp_ns
+from ..common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
+from .outputs import check_evaluate_outputs, plot_names
+from .extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
 
 HELP = """Trajectory errors against ground truth: APE/RPE as evo, KITTI, drift.
 
@@ -242,7 +242,7 @@ def evaluate_cmd(
             write_text_atomic(csv_path, text, force)
             note(f"wrote {csv_path}", quiet)
     if plot is not None:
-        from ..plots.evaluate import write_plots
+        from ...plots.evaluate import write_plots
         import json
 
         plot.mkdir(exist_ok=True)

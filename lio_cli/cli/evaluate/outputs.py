@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..io.files.atomic import check_writable
-from ..io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
+from ...io.files.atomic import check_writable
+from ...io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 
 
 def plot_names(estimate_offset: bool, groups: bool) -> tuple[str, ...]:
     """The files ``--plot DIR`` writes into DIR."""
-    from ..plots.evaluate import GROUPS_PLOT, OFFSET_PLOT, PLOT_FILES
+    from ...plots.evaluate import GROUPS_PLOT, OFFSET_PLOT, PLOT_FILES
 
     return (*PLOT_FILES, *(OFFSET_PLOT,) * estimate_offset, *(GROUPS_PLOT,) * groups, "metrics.json")
 

@@ -8,11 +8,11 @@ import math
 
 from rich.table import Table
 
-from ..errors import ConfigError
-from ..evaluation import EvalResult
-from ..evaluation.groups import GROUP_STATS, Group, GroupStats, check_groups, expand_groups, groups_by_pattern, parse_group
-from ..geodesy import EnuFrame, check_geodetic
-from ..io.files.trajectory import parse_stamp_ns
+from ...errors import ConfigError
+from ...evaluation import EvalResult
+from ...evaluation.groups import GROUP_STATS, Group, GroupStats, check_groups, expand_groups, groups_by_pattern, parse_group
+from ...geodesy import EnuFrame, check_geodetic
+from ...io.files.trajectory import parse_stamp_ns
 
 # the metrics the group table shows (JSON and CSV carry every metric)
 GROUP_TABLE_METRICS = (
