@@ -79,7 +79,14 @@ class LioCommand(_HelpInRunPanel, TyperCommand):
 
 
 class LioGroup(_HelpInRunPanel, TyperGroup):
-    """The ``lio`` group's click class."""
+    """The ``lio`` group's click class: typer's --install-completion and --show-completion in the Run panel."""
+
+    def get_params(self, ctx):
+        params = super().get_params(ctx)
+        for p in params:
+            if p.name in ("install_completion", "show_completion"):
+                p.metavar, p.rich_help_panel = FLAG, RUN_PANEL
+        return params
 
 
 # Options many commands share, so they read the same everywhere.

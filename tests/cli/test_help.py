@@ -142,3 +142,35 @@ def test_flags_show_no_placeholder_and_the_help_option_is_in_the_run_panel(capsy
     run = out[out.index("╭─ Run "):]
     assert re.search(r"│ --help\s+-h\s+Show this message and exit\.", run)
     assert re.search(r"│ --no-wheel\s+Ignore wheel odometry", out)
+
+
+@pytest.mark.parametrize("words, cword, expected", [
+    ("lio od", 1, "odom"),
+    ("lio odom x.bag --prior ", 4, "imu\nconstant-velocity\nwheel\nnone"),
+    ("lio config ", 2, "odom\ndeskew\nfuse\ncalibrate"),
+])
+def test_shell_completion_through_the_entry_point(words, cword, expected, capsys, monkeypatch):
+    """What `lio --install-completion` installs asks the program itself: commands, options and choices."""
+    monkeypatch.setenv("_LIO_COMPLETE", "complete_bash")
+    monkeypatch.setenv("COMP_WORDS", words)
+    monkeypatch.setenv("COMP_CWORD", str(cword))
+    with pytest.raises(SystemExit) as exit_:
+        main([])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == expected
+
+
+def test_help_of_the_console_script_at_80_columns():
+    """The installed `lio`, not a test's in-process call: same width rules, the program named lio."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    lio = Path(sys.executable).parent / "lio"
+    env = {**os.environ, "COLUMNS": "80", "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    res = subprocess.run([str(lio), "simulate", "--help"], capture_output=True, text=True, timeout=60, env=env)
+    assert res.returncode == 0 and res.stderr == ""
+    lines = res.stdout.splitlines()
+    assert "Usage: lio simulate [OPTIONS]" in res.stdout
+    assert max(map(len, lines)) <= 80 and "…" not in res.stdout and "--time-convention" in res.stdout
