@@ -21,7 +21,7 @@ def field_doc(model: type[BaseModel], name: str) -> str:
     value = info.default
     if isinstance(value, BaseModel):
         doc = inspect.getdoc(type(value)) or ""
-        return doc.split("\n\n")[0].replace("\n", " ")
+        return doc.split("\n\n")[0].replace("\n", " ").replace("``", "")
     return ""
 
 
