@@ -41,7 +41,7 @@ def template(command: str) -> str:
 
 
 def config_cmd(
-    command: Annotated[Command, typer.Argument(metavar="COMMAND", help="Whose configuration: odom, deskew, fuse or calibrate.", show_default=False)],
+    command: Annotated[Command, typer.Argument(metavar="COMMAND", show_choices=False, help="Whose configuration: odom, deskew, fuse or calibrate.", show_default=False)],
     output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Write it to this file instead of stdout.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     force: ForceOpt = False,
     quiet: QuietOpt = False,
