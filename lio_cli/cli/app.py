@@ -18,7 +18,7 @@ except ImportError:  # pragma: no cover - depends on the installed typer
 from .. import __version__
 from ..errors import LioError
 from ..gc_pause import freeze_start_up
-from .common import err_console
+from .common import FLAG, RUN_PANEL, LioGroup, err_console
 
 app = typer.Typer(
     name="lio",
@@ -31,13 +31,13 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode="rich",
     context_settings={"help_option_names": ["-h", "--help"]},
-    add_completion=False,
+    cls=LioGroup,
 )
 
 _state = {"debug": False, "own_process": False}
 
 # One module per command; each exposes register(app).
-COMMANDS = ["info", "odom", "calibrate", "deskew", "fuse", "evaluate", "simulate", "batch"]
+COMMANDS = ["info", "odom", "calibrate", "deskew", "fuse", "evaluate", "simulate", "batch", "config"]
 
 
 def _version(value: bool) -> None:
@@ -48,8 +48,8 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _main(
-    version: Annotated[Optional[bool], typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = None,
-    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False,
+    version: Annotated[Optional[bool], typer.Option("--version", callback=_version, is_eager=True, metavar=FLAG, rich_help_panel=RUN_PANEL, help="Print the version and exit.")] = None,
+    debug: Annotated[bool, typer.Option("--debug", metavar=FLAG, rich_help_panel=RUN_PANEL, help="Show tracebacks on errors.")] = False,
 ) -> None:
     _state["debug"] = debug
 
@@ -76,6 +76,14 @@ def reflow(text: str) -> str:
     paragraphs = text.split("\n\n")
     return "\n\n".join(p if any(line[:1].isspace() for line in p.splitlines()) else
                         " ".join(line.strip() for line in p.splitlines()) for p in paragraphs)
+
+
+def usage_line(err: _ClickException) -> str:
+    """A usage error as one line: the reason, and where the help is."""
+    msg = " ".join(err.format_message().replace("Value error, ", "").split()).rstrip(".")
+    ctx = getattr(err, "ctx", None)
+    where = f"; see '{ctx.command_path} --help'" if ctx is not None else ""
+    return f"lio: error: {msg}{where}"
 
 
 def _command_in(args: list[str]) -> str | None:
@@ -119,7 +127,7 @@ def _main_guarded(args: list[str]) -> int:
     if _state["own_process"]:
         freeze_start_up()
     try:
-        rc = app(args=args, standalone_mode=False)
+        rc = app(args=args, prog_name="lio", standalone_mode=False)
     except typer.Exit as ex:
         return ex.exit_code
     except LioError as err:
@@ -133,8 +141,8 @@ def _main_guarded(args: list[str]) -> int:
         return _interrupted("terminated", 143)
     except typer.Abort:
         return 1
-    except _ClickException as err:  # usage errors: click prints usage and the reason, exit 2
-        err.show()
+    except _ClickException as err:  # usage errors (unknown option, bad choice...): one line, exit 2
+        err_console.print(usage_line(err), markup=False)
         return err.exit_code
     except Exception as err:  # anything else is a bug
         if _state["debug"]:

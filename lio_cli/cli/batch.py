@@ -14,7 +14,8 @@ from ..batch import choose_executor, expand, load_manifest, plan_batch, run_batc
 from ..batch.manifest import BATCH_COMMANDS
 from ..batch.summary import Summary
 from ..errors import ConfigError
-from .common import ForceOpt, JsonOpt, QuietOpt, err_console, note, print_json, progress_bar, warn
+from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, OUTPUT_PANEL, RUN_PANEL, ForceOpt, JsonOpt, LioCommand, QuietOpt,
+                     err_console, note, print_json, progress_bar, shown, warn)
 
 HELP = """Run lio odom, fuse, deskew or calibrate over many logs: each run is the very job the single command runs (same
 files, byte for byte), in its own folder under the output root, on all local cores or on a Dask cluster.
@@ -36,11 +37,9 @@ or options. --resume skips runs whose folder holds the same job's hash; Ctrl-C k
 [bold]Examples[/bold]
 
   lio batch odom 'logs/*.bag' --gt /ground_truth -O results/
-
   lio batch runs.yaml --jobs 2 --resume
-
-  lio batch fuse 'logs/*.mcap' --set estimator=planar -O fused/ --dask tcp://scheduler:8786 --json > summary.json
-
+  lio batch fuse 'logs/*.mcap' --set estimator=planar -O fused/
+  lio batch runs.yaml --dask tcp://scheduler:8786 --json > summary.json
   lio batch runs.yaml --dask local --workers 4
 """
 
@@ -60,20 +59,20 @@ def _options(sets: list[str]) -> dict:
 
 def batch(
     what: Annotated[list[str], typer.Argument(help="MANIFEST.yaml, or COMMAND (odom, fuse, deskew, calibrate) and logs or quoted globs.", metavar="MANIFEST | COMMAND LOG...", show_default=False)],
-    output: Annotated[Optional[Path], typer.Option("-O", "--output", help="Output root (overrides the manifest's output:).", show_default=False)] = None,
-    gt: Annotated[Optional[str], typer.Option("--gt", help="Shorthand: ground truth of every run, a topic (/ground_truth) or a file; {stem} and {dir} stand for the log's stem and folder.", show_default=False)] = None,
-    group: Annotated[Optional[str], typer.Option("--group", help="Shorthand: a group name for every run.", show_default=False)] = None,
-    name: Annotated[Optional[str], typer.Option("--name", help="Shorthand: each run's folder name, {stem} and {parent} (the log's folder) filled in; default: the log's stem. E.g. --name '{parent}_{stem}' for 'seqs/*/data.bag'.", show_default=False)] = None,
-    sets: Annotated[Optional[list[str]], typer.Option("--set", help="Shorthand: FIELD=VALUE of the command's configuration (repeat), e.g. --set prior=constant-velocity.", show_default=False)] = None,
-    config: Annotated[Optional[str], typer.Option("--config", help="Shorthand: the command's YAML configuration for every run.", show_default=False)] = None,
-    calib: Annotated[Optional[str], typer.Option("--calib", help="Shorthand: a calibration YAML for every run.", show_default=False)] = None,
-    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Local processes (default: one per core; 1 runs in this process).", show_default=False)] = None,
-    dask: Annotated[Optional[str], typer.Option("--dask", help="Run on Dask: a scheduler address (tcp://HOST:8786) or 'local'.", show_default=False)] = None,
-    workers: Annotated[Optional[int], typer.Option("--workers", help="With --dask local: the number of workers (default: one per core).", show_default=False)] = None,
-    resume: Annotated[bool, typer.Option("--resume", help="Skip runs whose folder holds the same job's hash; run the others.")] = False,
+    gt: Annotated[Optional[str], typer.Option("--gt", help="Shorthand: ground truth of every run, a topic (/ground_truth) or a file; {stem} and {dir} stand for the log's stem and folder.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    group: Annotated[Optional[str], typer.Option("--group", help="Shorthand: a group name for every run.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    name: Annotated[Optional[str], typer.Option("--name", help=shown("Shorthand: each run's folder name, with {stem} and {parent} (the log's folder), e.g. '{parent}_{stem}'.", "{stem}"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    sets: Annotated[Optional[list[str]], typer.Option("--set", metavar="FIELD=VALUE", help="Shorthand: a field of the command's configuration (repeat), e.g. --set prior=constant-velocity.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    config: Annotated[Optional[str], typer.Option("--config", help="Shorthand: the command's YAML configuration for every run.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    calib: Annotated[Optional[str], typer.Option("--calib", help="Shorthand: a calibration YAML for every run.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    output: Annotated[Optional[Path], typer.Option("-O", "--output", help="Output root (overrides the manifest's output:).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     as_json: JsonOpt = False,
-    quiet: QuietOpt = False,
     force: ForceOpt = False,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help=shown("Local processes; 1 runs in this process.", "one per core"), show_default=False, rich_help_panel=RUN_PANEL)] = None,
+    dask: Annotated[Optional[str], typer.Option("--dask", help="Run on Dask: a scheduler address (tcp://HOST:8786) or 'local'.", show_default=False, rich_help_panel=RUN_PANEL)] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", help=shown("With --dask local: the number of workers.", "one per core"), show_default=False, rich_help_panel=RUN_PANEL)] = None,
+    resume: Annotated[bool, typer.Option("--resume", metavar=FLAG, help="Skip runs whose folder holds the same job's hash; run the others.", rich_help_panel=RUN_PANEL)] = False,
+    quiet: QuietOpt = False,
 ) -> int:
     executor = choose_executor(jobs, dask, workers)
     if what[0] in BATCH_COMMANDS:
@@ -157,4 +156,4 @@ def _tables(summary: Summary) -> None:
 
 def register(app: typer.Typer) -> None:
     app.command("batch", help=HELP, short_help="Run a command over many logs (local processes or Dask).",
-                no_args_is_help=True)(batch)
+                no_args_is_help=True, cls=LioCommand)(batch)

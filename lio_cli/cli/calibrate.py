@@ -17,8 +17,9 @@ from ..jobs.calibrate import (CalibrateJob, CalibrateResult, check_calibrate_out
                               yaml_text)
 from ..jobs.calibrate.report import format_table
 from ..jobs.outputs import log_stem
-from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
-                     PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json)
+from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, OUTPUT_PANEL, BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt,
+                     ImuTopicOpt, JsonOpt, LidarTopicOpt, LioCommand, LogArg, PointTimeOpt, QuietOpt, WheelTopicOpt,
+                     err_console, job_progress, note, print_json, shown)
 
 HELP = """Estimate, from one log, the calibration that odom, deskew and fuse read with --calib, and write it
 to OUT.yaml (default: LOG's name + .calib.yaml in the current folder).
@@ -43,41 +44,35 @@ stretch where one is needed, too little motion, clocks that disagree): one line,
 
 [bold]Examples[/bold]
 
-  lio calibrate walk.bag                                  # writes walk.calib.yaml
-
-  lio calibrate walk.bag -o walk.calib.yaml && lio odom walk.bag --calib walk.calib.yaml
-
-  lio calibrate robot.mcap --wheel-radius 0.08 --wheel-baseline 0.42 --calib nominal.yaml
-
-  lio calibrate car.mcap --imu-time-offset 0       # a car cannot time its IMU: keep a known offset
-
-  lio calibrate robot.mcap -o robot.calib.yaml && lio fuse robot.mcap --calib robot.calib.yaml   # wheels corrected
-
+  lio calibrate walk.bag                        # writes walk.calib.yaml
+  lio odom walk.bag --calib walk.calib.yaml
+  lio calibrate robot.mcap --wheel-radius 0.08 --wheel-baseline 0.42
+  lio calibrate car.mcap --imu-time-offset 0    # keep a known offset
   lio calibrate imu_2h.mcap --allan --plot allan/ --kalibr imu.yaml
 """
 
 
 def calibrate(
     log: LogArg,
-    output: Annotated[Optional[str], typer.Option("--output", "-o", help="Calibration YAML to write, or - for stdout (then no metrics or config file). Default: LOG's name + .calib.yaml.", show_default=False)] = None,
-    still: Annotated[Optional[str], typer.Option("--still", help="START:END seconds after the first IMU sample where the IMU rests (default: found).", show_default=False)] = None,
-    allan: Annotated[bool, typer.Option("--allan", help="Allan variance of the whole log (a static IMU recording of hours): noise and random walks.")] = False,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for the Allan deviation plot (needs --allan).", show_default=False)] = None,
-    kalibr: Annotated[Optional[Path], typer.Option("--kalibr", help="Also write Kalibr's imu.yaml here (needs --allan).", show_default=False)] = None,
-    wheel_radius: Annotated[Optional[float], typer.Option("--wheel-radius", help="Nominal wheel radius in m: estimate the true one.", show_default=False)] = None,
-    wheel_baseline: Annotated[Optional[float], typer.Option("--wheel-baseline", help="Nominal wheel baseline in m: estimate the true one.", show_default=False)] = None,
-    calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with (its T_base_lidar is used where /tf_static is silent, its imu_time_offset_s where the motion cannot time the IMU).", show_default=False)] = None,
-    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock, kept where the motion cannot time the IMU (a vehicle that does not swing its sensor); measured otherwise.", show_default=False)] = None,
-    config: ConfigOpt = None,
-    base_frame: BaseFrameOpt = None,
+    fmt: FormatOpt = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,
     point_time: PointTimeOpt = None,
-    fmt: FormatOpt = None,
+    base_frame: BaseFrameOpt = None,
+    still: Annotated[Optional[str], typer.Option("--still", metavar="START:END", help=shown("Seconds after the first IMU sample where the IMU rests.", "found"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    allan: Annotated[bool, typer.Option("--allan", metavar=FLAG, help="Allan variance of the whole log (a static IMU recording of hours): noise and random walks.", rich_help_panel=INPUT_PANEL)] = False,
+    calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with; its T_base_lidar is used where /tf_static is silent, its imu_time_offset_s where the motion cannot time the IMU.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock, kept where the motion cannot time the IMU; measured otherwise.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    wheel_radius: Annotated[Optional[float], typer.Option("--wheel-radius", help="Nominal wheel radius in m: estimate the true one.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    wheel_baseline: Annotated[Optional[float], typer.Option("--wheel-baseline", help="Nominal wheel baseline in m: estimate the true one.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    output: Annotated[Optional[str], typer.Option("--output", "-o", help=shown("Calibration YAML, or - for stdout (then no metrics or config file).", "LOG-stem.calib.yaml"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for the Allan deviation plot (needs --allan).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    kalibr: Annotated[Optional[Path], typer.Option("--kalibr", help="Also write Kalibr's imu.yaml here (needs --allan).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     as_json: JsonOpt = False,
-    quiet: QuietOpt = False,
     force: ForceOpt = False,
+    config: ConfigOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     cfg = load_config(CalibrateConfig, config, calib, "prior")
     if imu_time_offset is None and calib is not None and "imu_time_offset_s" in load_calibration(calib).model_fields_set:
@@ -127,4 +122,4 @@ def _report(result: CalibrateResult, quiet: bool) -> None:
 
 def register(app: typer.Typer) -> None:
     app.command("calibrate", help=HELP, short_help="Calibration (IMU, LiDAR-IMU, wheels) from one log.",
-                no_args_is_help=True)(calibrate)
+                no_args_is_help=True, cls=LioCommand)(calibrate)

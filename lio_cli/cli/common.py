@@ -6,9 +6,10 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any, Literal, Optional, get_args
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
 
 class _Console:
@@ -34,18 +35,75 @@ class _Console:
 err_console = _Console(stderr=True, highlight=False, soft_wrap=True)
 out_console = _Console(highlight=False, soft_wrap=True)
 
+# The option panels of every command's --help, in this order; options of one concern share a panel.
+INPUT_PANEL = "Input and topics"
+MOTION_PANEL = "Motion model"
+CALIBRATION_PANEL = "Calibration"
+OUTPUT_PANEL = "Output"
+RUN_PANEL = "Run"
+FLAG = ""  # metavar of an on/off flag: no <bool> placeholder beside it
+
+
+def one_of(choices: Any) -> str:
+    """The metavar of a choice (a Literal type): its values, wrapping between values in a narrow column."""
+    return "<" + " | ".join(get_args(choices)) + ">"
+
+
+def shown(help: str, default: Any) -> str:
+    """``help`` with ``[default: ...]`` as typer shows a default, for options whose default lives in the
+    configuration (the flag itself defaults to None: not given, so --config's value stands)."""
+    text = ("on" if default else "off") if isinstance(default, bool) else default
+    return f"{help} [dim]\\[default: {text}][/dim]"
+
+
+def config_default(model: type, dotted: str) -> Any:
+    """The default of a configuration field, by its dotted name (``fusion.alpha``)."""
+    node = model()
+    for key in dotted.split("."):
+        node = getattr(node, key)
+    return node
+
+
+class _HelpInRunPanel:
+    """--help/-h shown in the Run panel without a <bool> placeholder."""
+
+    def get_help_option(self, ctx):
+        opt = super().get_help_option(ctx)
+        if opt is not None:
+            opt.metavar, opt.rich_help_panel = FLAG, RUN_PANEL
+        return opt
+
+
+class LioCommand(_HelpInRunPanel, TyperCommand):
+    """Every lio command's click class."""
+
+
+class LioGroup(_HelpInRunPanel, TyperGroup):
+    """The ``lio`` group's click class: typer's --install-completion and --show-completion in the Run panel."""
+
+    def get_params(self, ctx):
+        params = super().get_params(ctx)
+        for p in params:
+            if p.name in ("install_completion", "show_completion"):
+                p.metavar, p.rich_help_panel = FLAG, RUN_PANEL
+        return params
+
+
 # Options many commands share, so they read the same everywhere.
-LogArg = Annotated[Path, typer.Argument(help="Log: ROS 1 .bag (or a folder of split bags), ROS 2 bag folder or metadata.yaml, or .mcap file.", show_default=False)]
-FormatOpt = Annotated[Optional[str], typer.Option("--format", help="Input format, overriding detection: ros1, ros2 or mcap.", show_default=False)]
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
-QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or notes on stderr (errors still print).")]
-ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
-LidarTopicOpt = Annotated[Optional[str], typer.Option("--lidar-topic", help="PointCloud2 or LaserScan topic (default: the only one).", show_default=False)]
-ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="sensor_msgs/Imu topic (default: the only one).", show_default=False)]
-WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help="Wheel odometry topic, nav_msgs/Odometry or TwistStamped (default: the only one).", show_default=False)]
-PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, FIELD:UNIT[:abs|rel] (UNIT s|ms|us|ns) or SEC_FIELD+NSEC_FIELD[:abs|rel] (e.g. time_sec+time_nsec).", show_default=False)]
-ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)]
-BaseFrameOpt = Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)]
+LogArg = Annotated[Path, typer.Argument(metavar="LOG", help="ROS 1 .bag (or a folder of split bags), ROS 2 bag folder or metadata.yaml, or .mcap file.", show_default=False)]
+InputFormat = Literal["ros1", "ros2", "mcap"]
+FormatOpt = Annotated[Optional[InputFormat], typer.Option("--format", metavar=one_of(InputFormat), help="Input format, overriding detection.", show_default=False, rich_help_panel=INPUT_PANEL)]
+JsonOpt = Annotated[bool, typer.Option("--json", metavar=FLAG, help="Print a machine-readable summary on stdout.", rich_help_panel=OUTPUT_PANEL)]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", metavar=FLAG, help="No progress bar or notes on stderr (errors still print).", rich_help_panel=RUN_PANEL)]
+ForceOpt = Annotated[bool, typer.Option("--force", metavar=FLAG, help="Overwrite existing outputs.", rich_help_panel=OUTPUT_PANEL)]
+LidarTopicOpt = Annotated[Optional[str], typer.Option("--lidar-topic", help=shown("PointCloud2 or LaserScan topic.", "the only one"), show_default=False, rich_help_panel=INPUT_PANEL)]
+ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help=shown("sensor_msgs/Imu topic.", "the only one"), show_default=False, rich_help_panel=INPUT_PANEL)]
+WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help=shown("Wheel odometry topic: nav_msgs/Odometry or TwistStamped.", "the only one"), show_default=False, rich_help_panel=INPUT_PANEL)]
+PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help=shown("Per-point time, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, FIELD:UNIT[:abs|rel] with UNIT s, ms, us or ns, or SEC+NSEC[:abs|rel] (e.g. t:ns, time_sec+time_nsec).", "detected"), show_default=False, rich_help_panel=INPUT_PANEL)]
+BaseFrameOpt = Annotated[Optional[str], typer.Option("--base-frame", help=shown("Base frame in /tf_static.", "base_link, base or base_footprint"), show_default=False, rich_help_panel=INPUT_PANEL)]
+ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="YAML configuration: a run's .config.yaml or lio config's output; flags override its fields.", show_default=False, rich_help_panel=RUN_PANEL)]
+CalibOpt = Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu, T_base_lidar, imu_time_offset_s, used where /tf_static is silent.", show_default=False, rich_help_panel=CALIBRATION_PANEL)]
+ImuTimeOffsetOpt = Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (overrides --calib's imu_time_offset_s).", show_default=False, rich_help_panel=CALIBRATION_PANEL)]
 
 
 def print_json(obj: Any) -> None:

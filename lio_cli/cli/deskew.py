@@ -4,16 +4,17 @@ write_deskew -> print)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Literal, Optional
 
 import typer
 
 from ..config import load_config, with_overrides
-from ..config.deskew import DeskewConfig
+from ..config.deskew import MOTIONS, OUTPUT_FORMATS, DeskewConfig
 from ..io.messages.pointcloud import parse_time_convention
 from ..jobs.deskew import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew, write_deskew
-from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg, PointTimeOpt,
-                     QuietOpt, job_progress, note, print_json, warn)
+from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt,
+                     ForceOpt, ImuTimeOffsetOpt, ImuTopicOpt, InputFormat, JsonOpt, LidarTopicOpt, LioCommand, LogArg,
+                     PointTimeOpt, QuietOpt, config_default, job_progress, note, one_of, print_json, shown, warn)
 
 HELP = """Write OUT: a copy of LOG in which every cloud of the LiDAR topic is motion-compensated (de-skewed)
 and everything else is copied untouched.
@@ -47,39 +48,47 @@ de-skewed scans, voxel-downsampled.
 
 [bold]Examples[/bold]
 
-  lio deskew walk.bag walk_deskewed.bag && lio odom walk_deskewed.bag --deskew none   # de-skewed once only
-
-  lio odom run.mcap -o run.tum && lio deskew run.mcap run_deskewed.mcap --trajectory run.tum --map run.ply
-
-  lio deskew scans_ros2/ deskewed_ros2 --topic-suffix _deskewed --reference start
-
+  lio deskew walk.bag walk_deskewed.bag
+  lio odom walk_deskewed.bag --deskew none   # de-skewed once only
+  lio odom run.mcap -o run.tum
+  lio deskew run.mcap run_deskewed.mcap --trajectory run.tum --map run.ply
+  lio deskew scans_ros2/ deskewed_ros2 --topic-suffix _deskewed
   lio deskew lidar_only.bag out.bag --motion constant-velocity
 """
+
+Motion = Literal[MOTIONS]
+TrajectoryFrame = Literal["base", "lidar"]
+OutputFormat = Literal[OUTPUT_FORMATS]
+Reference = Literal["end", "start"]
+
+
+def _default(field: str):
+    return config_default(DeskewConfig, field)
 
 
 def deskew(
     log: LogArg,
-    out: Annotated[Path, typer.Argument(help="Output log: .bag (ROS 1), .mcap, or a ROS 2 bag folder.", show_default=False)],
-    trajectory: Annotated[Optional[str], typer.Option("--trajectory", help="Motion from this trajectory of the base (TUM file or LOG:/topic), e.g. from lio odom.", show_default=False)] = None,
-    trajectory_frame: Annotated[Optional[str], typer.Option("--trajectory-frame", help="base | lidar: the frame whose poses --trajectory holds (default base).", show_default=False)] = None,
-    motion: Annotated[Optional[str], typer.Option("--motion", help="auto | trajectory | imu | constant-velocity (default auto: --trajectory, else the IMU).", show_default=False)] = None,
-    reference: Annotated[Optional[str], typer.Option("--reference", help="end | start: the instant each cloud is de-skewed to and stamped with (default end).", show_default=False)] = None,
-    topic_suffix: Annotated[Optional[str], typer.Option("--topic-suffix", help="Write de-skewed clouds to TOPIC+SUFFIX and keep the raw topic.", show_default=False)] = None,
-    fmt: Annotated[Optional[str], typer.Option("--format", help="Output format: ros1, ros2, ros2-mcap, mcap (default: from OUT's suffix, else the input's).", show_default=False)] = None,
-    input_format: Annotated[Optional[str], typer.Option("--input-format", help="Input format, overriding detection: ros1, ros2 or mcap.", show_default=False)] = None,
-    map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the world-frame map of the de-skewed scans (.ply or .pcd).", show_default=False)] = None,
-    map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", help="Voxel size of --map in metres (default 0.1).", show_default=False)] = None,
-    strict: Annotated[bool, typer.Option("--strict", help="Refuse (exit 2) instead of copying unchanged a scan the motion does not cover or without a valid point or sweep.")] = False,
-    config: ConfigOpt = None,
-    calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML: T_base_imu, T_base_lidar, imu_time_offset_s (used where /tf_static is silent).", show_default=False)] = None,
-    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
-    base_frame: BaseFrameOpt = None,
+    out: Annotated[Path, typer.Argument(metavar="OUT", help="Output log: .bag (ROS 1), .mcap, or a ROS 2 bag folder.", show_default=False)],
+    input_format: Annotated[Optional[InputFormat], typer.Option("--input-format", metavar=one_of(InputFormat), help="Input format, overriding detection.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
     point_time: PointTimeOpt = None,
+    base_frame: BaseFrameOpt = None,
+    motion: Annotated[Optional[Motion], typer.Option("--motion", metavar=one_of(Motion), help=shown("Where the motion comes from; auto: --trajectory if given, else the IMU.", _default("motion")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    trajectory: Annotated[Optional[str], typer.Option("--trajectory", help="Motion from this trajectory of the base: a TUM file (e.g. from lio odom) or LOG:/topic.", show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    trajectory_frame: Annotated[Optional[TrajectoryFrame], typer.Option("--trajectory-frame", metavar=one_of(TrajectoryFrame), help=shown("The frame whose poses --trajectory holds.", _default("trajectory.frame")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    calib: CalibOpt = None,
+    imu_time_offset: ImuTimeOffsetOpt = None,
+    fmt: Annotated[Optional[OutputFormat], typer.Option("--format", metavar=one_of(OutputFormat), help=shown("Output format.", "OUT's suffix, else the input's"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    reference: Annotated[Optional[Reference], typer.Option("--reference", metavar=one_of(Reference), help=shown("The instant each cloud is de-skewed to and stamped with.", _default("reference")), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    topic_suffix: Annotated[Optional[str], typer.Option("--topic-suffix", help="Write de-skewed clouds to TOPIC+SUFFIX and keep the raw topic.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the world-frame map of the de-skewed scans (.ply or .pcd).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", help=shown("Voxel size of --map, m.", _default("map_voxel_m")), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     as_json: JsonOpt = False,
-    quiet: QuietOpt = False,
     force: ForceOpt = False,
+    strict: Annotated[bool, typer.Option("--strict", metavar=FLAG, help="Refuse (exit 2) a scan the motion does not cover or without a valid point, instead of copying it unchanged.", rich_help_panel=RUN_PANEL)] = False,
+    config: ConfigOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     cfg = load_config(DeskewConfig, config, calib)
     if point_time is not None:
@@ -125,4 +134,4 @@ def _report(result: DeskewResult, quiet: bool) -> None:
 
 def register(app: typer.Typer) -> None:
     app.command("deskew", help=HELP, short_help="A copy of a log with motion-compensated LiDAR clouds.",
-                no_args_is_help=True)(deskew)
+                no_args_is_help=True, cls=LioCommand)(deskew)

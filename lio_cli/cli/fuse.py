@@ -5,19 +5,20 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Literal, Optional
 
 import typer
 
 from ..config import load_config, with_overrides
-from ..config.fuse import FuseConfig, parse_use
+from ..config.fuse import DEFAULT_MAX_MEMORY_MB, FuseConfig, parse_use
 from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.files.trajectory import format_tum
 from ..jobs.fuse import FuseJob, FuseRun, check_fuse_outputs, run_fuse, write_fuse
 from ..jobs.outputs import log_stem
-from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LogArg, QuietOpt,
-                     WheelTopicOpt, job_progress, note, print_json, warn)
+from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, BaseFrameOpt,
+                     ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LioCommand, LogArg, QuietOpt, WheelTopicOpt,
+                     config_default, job_progress, note, one_of, print_json, shown, warn)
 
 HELP = """Fuse a log's IMU, wheel odometry, GPS and an odometry trajectory into one smooth trajectory of the base.
 
@@ -41,13 +42,16 @@ With -o - the trajectory goes to stdout and no metrics or config file is written
 [bold]Examples[/bold]
 
   lio fuse jackal.bag -o jackal_fused.tum --plot plots/
-
-  lio fuse run.mcap --odom run_odom.tum --rate 200 --smooth -o fused.tum --cov fused.cov
-
-  lio fuse office.bag --estimator planar --use imu:gyro --use wheel:speed,yaw_rate -o -
-
-  lio fuse drive.bag --gps-topic /gps/fix --use imu --use wheel --use gps --json > metrics.json
+  lio fuse run.mcap --odom run_odom.tum --rate 200 --smooth -o fused.tum
+  lio fuse office.bag --estimator planar --use imu:gyro --use wheel -o -
+  lio fuse drive.bag --use imu --use wheel --use gps --json > metrics.json
 """
+
+Estimator = Literal["ekf", "planar", "complementary"]
+
+
+def _default(field: str):
+    return config_default(FuseConfig, field)
 
 
 def _check_rate(rate: float | None) -> None:
@@ -57,29 +61,29 @@ def _check_rate(rate: float | None) -> None:
 
 def fuse_cmd(
     log: LogArg,
-    output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.fused.tum in the current folder.", show_default=False)] = None,
-    config: ConfigOpt = None,
-    calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False)] = None,
-    odom: Annotated[Optional[Path], typer.Option("--odom", help="Odometry trajectory to fuse: TUM or KITTI file (e.g. from lio odom), or LOG:/topic.", show_default=False)] = None,
-    odom_topic: Annotated[Optional[str], typer.Option("--odom-topic", help="Pose source of the log to fuse as odometry (Odometry, PoseStamped, TransformStamped).", show_default=False)] = None,
-    gps_topic: Annotated[Optional[str], typer.Option("--gps-topic", help="sensor_msgs/NavSatFix topic (default: the only one).", show_default=False)] = None,
-    use: Annotated[Optional[list[str]], typer.Option("--use", help="SOURCE or SOURCE:M1,M2 (repeat): only these sources and measurements enter. Default: every source found, the core's selection.", show_default=False)] = None,
-    estimator: Annotated[Optional[str], typer.Option("--estimator", help="ekf (3D error-state) | planar (SE(2)) | complementary.", show_default=False)] = None,
-    smooth: Annotated[Optional[bool], typer.Option("--smooth/--no-smooth", help="RTS smoother over the EKF (uses the future as well as the past).", show_default=False)] = None,
-    rate: Annotated[Optional[float], typer.Option("--rate", help="Output rate in Hz (default: every IMU sample).", show_default=False)] = None,
-    cov: Annotated[Optional[Path], typer.Option("--cov", help="Also write the per-pose 6x6 covariance (text: stamp and 36 values).", show_default=False)] = None,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for PNGs: top view of the sources and the fused trajectory; speed and yaw rate over time.", show_default=False)] = None,
-    accel_noise: Annotated[Optional[float], typer.Option("--accel-noise", help="Accelerometer noise density, m/s^2/sqrt(Hz) (vibration: larger).", show_default=False)] = None,
-    gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help="Gyro noise density, rad/s/sqrt(Hz).", show_default=False)] = None,
-    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the other sensors' clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
-    base_frame: BaseFrameOpt = None,
-    max_memory: Annotated[Optional[float], typer.Option("--max-memory", help="Estimation memory budget in MB; a longer run is fused in overlapping chunks, one that chunks cannot fit is refused before fusing (default 1024).", show_default=False)] = None,
+    fmt: FormatOpt = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,
-    fmt: FormatOpt = None,
+    gps_topic: Annotated[Optional[str], typer.Option("--gps-topic", help=shown("sensor_msgs/NavSatFix topic.", "the only one"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    odom: Annotated[Optional[Path], typer.Option("--odom", help="Odometry to fuse: a TUM or KITTI file (e.g. from lio odom), or LOG:/topic.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    odom_topic: Annotated[Optional[str], typer.Option("--odom-topic", help="A pose topic of LOG to fuse as odometry (Odometry, PoseStamped, TransformStamped).", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    base_frame: BaseFrameOpt = None,
+    use: Annotated[Optional[list[str]], typer.Option("--use", metavar="SOURCE[:M,...]", help=shown("Only these sources and measurements enter (repeat), e.g. imu:gyro, wheel:speed,yaw_rate.", "every source found"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    estimator: Annotated[Optional[Estimator], typer.Option("--estimator", metavar=one_of(Estimator), help=shown("ekf: 3D error-state; planar: SE(2); complementary.", _default("estimator")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    smooth: Annotated[Optional[bool], typer.Option("--smooth/--no-smooth", metavar=FLAG, help=shown("RTS smoother over the EKF (the future as well as the past).", _default("smooth")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    accel_noise: Annotated[Optional[float], typer.Option("--accel-noise", help=shown("Accelerometer noise density, m/s^2/sqrt(Hz) (vibration: larger).", _default("noise.accel_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help=shown("Gyro noise density, rad/s/sqrt(Hz).", _default("noise.gyro_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the other sensors' clock (overrides --calib's imu_time_offset_s).", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.fused.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    rate: Annotated[Optional[float], typer.Option("--rate", help=shown("Output rate in Hz.", "every IMU sample"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    cov: Annotated[Optional[Path], typer.Option("--cov", help="Also write each pose's 6x6 covariance (text: stamp and 36 values).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for PNGs: top view of the sources and the result; speed and yaw rate over time.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     as_json: JsonOpt = False,
-    quiet: QuietOpt = False,
     force: ForceOpt = False,
+    config: ConfigOpt = None,
+    max_memory: Annotated[Optional[float], typer.Option("--max-memory", help=shown("Memory budget in MB: a longer run is fused in overlapping chunks.", f"{DEFAULT_MAX_MEMORY_MB:g}"), show_default=False, rich_help_panel=RUN_PANEL)] = None,
+    quiet: QuietOpt = False,
 ) -> None:
     _check_rate(rate)
     cfg = load_config(FuseConfig, config, calib)
@@ -135,4 +139,4 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("fuse", help=HELP, no_args_is_help=True)(fuse_cmd)
+    app.command("fuse", help=HELP, no_args_is_help=True, cls=LioCommand)(fuse_cmd)

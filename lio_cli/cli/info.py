@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -10,8 +11,8 @@ from rich.table import Table
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.logs.reader import open_log
 from ..jobs.info import check_log, describe_log
-from .common import (FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, print_json,
-                     progress_bar, warn)
+from .common import (FLAG, RUN_PANEL, FormatOpt, JsonOpt, LioCommand, LogArg, PointTimeOpt, QuietOpt, err_console,
+                     out_console, print_json, progress_bar, warn)
 
 HELP = """Show what a log holds: format, time span, topics with types, counts and rates; for every scan topic
 its fields, point count and per-point time convention (and whether the header stamp marks the scan's start
@@ -24,7 +25,7 @@ long logs. --check decodes every sensor message and fails (exit 2) on the first 
 
   lio info sample_logs/handheld.bag
 
-  lio info run_2024_05_01/ --json | jq '.topics[] | select(.type=="sensor_msgs/msg/Imu")'
+  lio info run_2024_05_01/ --json | jq '.topics[].topic'
 
   lio info drive.mcap --check --point-time ouster
 """
@@ -33,9 +34,9 @@ long logs. --check decodes every sensor message and fails (exit 2) on the first 
 def info(
     log: LogArg,
     fmt: FormatOpt = None,
-    as_json: JsonOpt = False,
-    check: bool = typer.Option(False, "--check", help="Decode every sensor message: stamps in order, clouds non-empty, no NaN IMU samples."),
     point_time: PointTimeOpt = None,
+    as_json: JsonOpt = False,
+    check: Annotated[bool, typer.Option("--check", metavar=FLAG, help="Decode every sensor message: stamps in order, clouds non-empty, no NaN IMU samples.", rich_help_panel=RUN_PANEL)] = False,
     quiet: QuietOpt = False,
 ) -> None:
     conv = parse_time_convention(point_time) if point_time else None
@@ -94,4 +95,4 @@ def _print_human(s: dict, quiet: bool = False) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("info", help=HELP, short_help="What a log holds: topics, rates, cloud fields, per-point time, frames.", no_args_is_help=True)(info)
+    app.command("info", help=HELP, short_help="What a log holds: topics, rates, cloud fields, per-point time, frames.", no_args_is_help=True, cls=LioCommand)(info)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Literal, Optional
 
 import typer
 
@@ -18,8 +18,9 @@ from ..io.files.trajectory import format_tum
 from ..jobs.contract import load_reference
 from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom, score_odom, write_odom
 from ..jobs.outputs import check_outputs, log_stem
-from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
-                     PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json, warn)
+from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt, ForceOpt,
+                     FormatOpt, ImuTimeOffsetOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LioCommand, LogArg, PointTimeOpt,
+                     QuietOpt, WheelTopicOpt, config_default, one_of, err_console, job_progress, note, print_json, shown, warn)
 
 HELP = """Estimate the trajectory of the base frame from LiDAR scans primed by the IMU (and wheels).
 
@@ -36,38 +37,46 @@ With -o - the trajectory goes to stdout and no other file is written.
 [bold]Examples[/bold]
 
   lio odom sample_logs/handheld.bag -o handheld.tum
-
-  lio odom run.mcap --lidar-topic /os/points --fusion complementary --alpha 0.9 -o -  | head
-
+  lio odom run.mcap --lidar-topic /os/points -o - | head
+  lio odom run.mcap --fusion complementary --alpha 0.9 -o run.tum
   lio odom corridor_ros2/ --prior wheel --json > metrics.json
-
-  lio odom scan2d.bag --prior constant-velocity --deskew constant-velocity   # LiDAR only
+  lio odom scan2d.bag --prior constant-velocity   # LiDAR only
 """
+
+
+Prior = Literal["imu", "constant-velocity", "wheel", "none"]
+Deskew = Literal["auto", "imu", "constant-velocity", "none"]
+Fusion = Literal["ekf", "complementary"]
+Frame = Literal["base", "lidar", "imu"]
+
+
+def _default(field: str):
+    return config_default(OdomConfig, field)
 
 
 def odom(
     log: LogArg,
-    output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.tum in the current folder.", show_default=False)] = None,
-    config: ConfigOpt = None,
-    calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML: T_base_imu, T_base_lidar, imu_time_offset_s (used where /tf_static is silent).", show_default=False)] = None,
-    deskew: Annotated[Optional[str], typer.Option("--deskew", help="imu | constant-velocity | none.", show_default=False)] = None,
-    prior: Annotated[Optional[str], typer.Option("--prior", help="Initial guess for registration: imu | constant-velocity | wheel | none.", show_default=False)] = None,
-    fusion: Annotated[Optional[str], typer.Option("--fusion", help="ekf | complementary.", show_default=False)] = None,
-    alpha: Annotated[Optional[float], typer.Option("--alpha", help="Complementary filter weight of the scan match (0..1).", show_default=False)] = None,
-    no_wheel: Annotated[bool, typer.Option("--no-wheel", help="Ignore wheel odometry even if the log has it.")] = False,
-    frame: Annotated[Optional[str], typer.Option("--frame", help="Output the trajectory of: base | lidar | imu.", show_default=False)] = None,
-    gt: Annotated[Optional[str], typer.Option("--gt", help="Ground truth to score against at the end: a TUM/KITTI file, or a topic of LOG (e.g. /ground_truth). Prints ATE and RPE and adds them to metrics.", show_default=False)] = None,
-    planar: Annotated[Optional[bool], typer.Option("--planar/--no-planar", help="Force SE(2) mode (default: on for LaserScan).", show_default=False)] = None,
-    imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (as imu_time_offset_s of --calib; overrides it).", show_default=False)] = None,
-    base_frame: BaseFrameOpt = None,
+    fmt: FormatOpt = None,
     lidar_topic: LidarTopicOpt = None,
     imu_topic: ImuTopicOpt = None,
     wheel_topic: WheelTopicOpt = None,
+    no_wheel: Annotated[bool, typer.Option("--no-wheel", metavar=FLAG, help="Ignore wheel odometry even if the log has it.", rich_help_panel=INPUT_PANEL)] = False,
     point_time: PointTimeOpt = None,
-    fmt: FormatOpt = None,
+    base_frame: BaseFrameOpt = None,
+    gt: Annotated[Optional[str], typer.Option("--gt", help="Ground truth to score against at the end: a TUM/KITTI file or a topic of LOG (e.g. /ground_truth); prints ATE and RPE.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    prior: Annotated[Optional[Prior], typer.Option("--prior", metavar=one_of(Prior), help=shown("Initial guess of each registration.", _default("prior")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    deskew: Annotated[Optional[Deskew], typer.Option("--deskew", metavar=one_of(Deskew), help=shown("De-skewing; auto: imu with the IMU prior, none with none, else constant-velocity.", _default("deskew")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    fusion: Annotated[Optional[Fusion], typer.Option("--fusion", metavar=one_of(Fusion), help=shown("How the scan match corrects the IMU state.", _default("fusion.method")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    alpha: Annotated[Optional[float], typer.Option("--alpha", min=0, max=1, metavar="<float>", help=shown("Complementary filter's weight of the scan match.", _default("fusion.alpha")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    planar: Annotated[Optional[bool], typer.Option("--planar/--no-planar", metavar=FLAG, help=shown("SE(2) mode.", "on for LaserScan"), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    calib: CalibOpt = None,
+    imu_time_offset: ImuTimeOffsetOpt = None,
+    output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    frame: Annotated[Optional[Frame], typer.Option("--frame", metavar=one_of(Frame), help=shown("Whose trajectory is written.", _default("frame")), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     as_json: JsonOpt = False,
-    quiet: QuietOpt = False,
     force: ForceOpt = False,
+    config: ConfigOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     cfg = load_config(OdomConfig, config, calib)
     if point_time is not None:
@@ -140,4 +149,4 @@ _ALIGNED = {"se3": "SE(3)-aligned rmse over {n} poses",
 
 
 def register(app: typer.Typer) -> None:
-    app.command("odom", help=HELP, no_args_is_help=True)(odom)
+    app.command("odom", help=HELP, no_args_is_help=True, cls=LioCommand)(odom)

@@ -66,11 +66,11 @@ class FuseNoise(Strict):
     accel_bias_walk: float = Field(1.0e-3, gt=0, description="m/s^3/sqrt(Hz)")
     cv_accel_density: float = Field(1.0, gt=0, description="motion model without an IMU, m/s^2/sqrt(Hz)")
     cv_angular_accel_density: float = Field(1.0, gt=0, description="rad/s^2/sqrt(Hz)")
-    wheel_speed_sigma_mps: float = Field(0.05, gt=0)
+    wheel_speed_sigma_mps: float = Field(0.05, gt=0, description="wheel speed noise, m/s")
     wheel_speed_rel_sigma: float = Field(
         0.02, ge=0, description="plus this share of the speed, for each velocity component (a radius off by 1 % is "
         "0.1 m/s at 10 m/s): sigma = hypot(wheel_speed_sigma_mps, share x speed)")
-    wheel_yaw_rate_sigma_radps: float = Field(0.05, gt=0)
+    wheel_yaw_rate_sigma_radps: float = Field(0.05, gt=0, description="wheel yaw rate noise, rad/s")
     nonholonomic_sigma_mps: float = Field(0.05, gt=0, description="lateral/vertical body speed of a wheeled base")
     nonholonomic_rel_sigma: float = Field(
         0.03, ge=0, description="plus this share of the forward speed: a car's body pitches and slides (1 deg at "
@@ -78,13 +78,13 @@ class FuseNoise(Strict):
     # above the core's 0.02 m / 0.005 rad: LiDAR odometry's pose errors drift (correlated), they are not white
     odom_position_sigma_m: float = Field(0.1, gt=0, description="per odometry pose without a covariance")
     odom_rotation_sigma_rad: float = Field(0.02, gt=0, description="per odometry pose without a covariance")
-    gps_position_sigma_m: float = Field(2.0, gt=0)
+    gps_position_sigma_m: float = Field(2.0, gt=0, description="GPS position noise without a usable covariance, m")
     orientation_sigma_rad: float = Field(0.02, gt=0, description="IMU's own orientation")
     use_message_covariance: bool = Field(True, description="false: the sigmas above for every message")
-    init_velocity_sigma_mps: float = Field(1.0, gt=0)
-    init_tilt_sigma_rad: float = Field(0.05, gt=0)
-    init_gyro_bias_sigma_radps: float = Field(0.01, gt=0)
-    init_accel_bias_sigma_mps2: float = Field(0.2, gt=0)
+    init_velocity_sigma_mps: float = Field(1.0, gt=0, description="initial velocity uncertainty")
+    init_tilt_sigma_rad: float = Field(0.05, gt=0, description="initial roll and pitch uncertainty")
+    init_gyro_bias_sigma_radps: float = Field(0.01, gt=0, description="initial gyro bias uncertainty")
+    init_accel_bias_sigma_mps2: float = Field(0.2, gt=0, description="initial accelerometer bias uncertainty")
 
 
 class FuseConfig(Strict):
@@ -95,20 +95,24 @@ class FuseConfig(Strict):
     use: Optional[dict[Literal["imu", "wheel", "odom", "gps"], list[str]]] = Field(
         None, description="source -> measurements (imu: gyro, accel, orientation; wheel: speed, velocity, yaw_rate; "
                           "odom: pose or delta; gps: position); default: every source found, the core's selection")
-    estimator: Literal["ekf", "planar", "complementary"] = "ekf"
+    estimator: Literal["ekf", "planar", "complementary"] = Field(
+        "ekf", description="ekf (3D error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")
     smooth: bool = Field(False, description="RTS smoother over the EKF: every measurement before and after each instant")
     rate_hz: Optional[float] = Field(None, description="output rate; default: every IMU sample (exact stamps)")
     noise: FuseNoise = FuseNoise()
     gate_probability: float = Field(1e-4, ge=0, lt=1, description="chi-square gate; 0: none")
-    gate_max_rejects: int = Field(5, ge=1)
+    gate_max_rejects: int = Field(5, ge=1, description="after this many rejections in a row of one measurement "
+                                  "kind the next is accepted, the states it touches made more uncertain")
     gap_periods: float = Field(5.0, gt=1, description="a pause of this many median periods is a gap")
-    min_gap_s: float = Field(0.02, gt=0)
+    min_gap_s: float = Field(0.02, gt=0, description="a gap is at least this long")
     snap_s: float = Field(0.001, ge=0, description="wheel messages this close to an IMU sample are applied there")
-    standing_window_s: float = Field(1.0, gt=0)
-    gravity_mps2: float = Field(9.81, gt=0, le=30)
+    standing_window_s: float = Field(1.0, gt=0, description="the start window gravity and the first velocity are "
+                                     "found over (twice this at a moving start)")
+    gravity_mps2: float = Field(9.81, gt=0, le=30, description="magnitude of gravity, m/s^2")
     alpha_odom: float = Field(0.98, ge=0, le=1, description="complementary filter: weight of the odometry pose")
-    alpha_orientation: float = Field(0.02, ge=0, le=1)
-    alpha_gps: float = Field(0.05, ge=0, le=1)
+    alpha_orientation: float = Field(0.02, ge=0, le=1, description="complementary filter: weight of the IMU's own "
+                                     "orientation")
+    alpha_gps: float = Field(0.05, ge=0, le=1, description="complementary filter: weight of the GPS position")
     max_memory_mb: float = Field(DEFAULT_MAX_MEMORY_MB, gt=0, description=(
         "estimation memory budget: a run that would need more is fused in overlapping time chunks"))
 

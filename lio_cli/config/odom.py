@@ -39,14 +39,14 @@ class RegistrationConfig(Strict):
     """kiss-icp registration and voxel map."""
 
     voxel_size_m: Optional[float] = Field(None, gt=0, description="map voxel size; default from the first scans' ranges")
-    max_range_m: float = Field(100.0, gt=0)
-    min_range_m: float = Field(0.5, ge=0)
+    max_range_m: float = Field(100.0, gt=0, description="points farther from the LiDAR are dropped")
+    min_range_m: float = Field(0.5, ge=0, description="points closer to the LiDAR (the platform itself) are dropped")
     source_voxel_factor: Optional[float] = Field(
         None, gt=0, description="registration keeps one point per voxel_size x this; default 2.5 in 3D, 1.5 (kiss-icp's) for 2D scans")
     max_points_per_voxel: int = Field(5, gt=0, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
         None, gt=0, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
-    convergence: float = Field(1e-4, gt=0)
+    convergence: float = Field(1e-4, gt=0, description="ICP stops once an iteration's pose update is smaller")
     steady_iterations: Optional[int] = Field(
         None, gt=0, description="ICP iterations of IMU-primed scans once the online IMU clock estimate is done (None: "
         "max_iterations); lio deskew uses 5")
@@ -62,7 +62,7 @@ class RegistrationConfig(Strict):
     initial_threshold_m: float = Field(2.0, gt=0, description="adaptive threshold's start (no IMU prior)")
     max_correspondence_m: Optional[float] = Field(
         None, gt=0, description="fixed correspondence distance; default: 0.5 m with an IMU prior, adaptive without")
-    min_motion_m: float = Field(0.1, ge=0)
+    min_motion_m: float = Field(0.1, ge=0, description="adaptive threshold: only scans that moved this far update it")
     threads: int = Field(0, ge=0, description="0: all cores")
     min_points: int = Field(50, gt=0, description="scans with fewer valid points are skipped")
 
@@ -70,7 +70,7 @@ class RegistrationConfig(Strict):
 class FusionConfig(Strict):
     """How the registration result corrects the IMU state."""
 
-    method: Literal["ekf", "complementary"] = "ekf"
+    method: Literal["ekf", "complementary"] = Field("ekf", description="ekf (error-state) or complementary filter")
     alpha: float = Field(0.98, ge=0, le=1, description="complementary filter: weight of the scan match")
     position_sigma_m: float = Field(0.03, gt=0, description="registration position noise per scan")
     rotation_sigma_rad: float = Field(0.005, gt=0, description="registration rotation noise per scan")
@@ -92,10 +92,12 @@ class OdomConfig(Strict):
     calibration: Calibration = Field(Calibration(), description="used where /tf_static is silent (see --calib)")
     deskew: Literal["auto", "imu", "constant-velocity", "none"] = Field(
         "auto", description="auto: imu when the prior is imu, else constant-velocity (none when the prior is none)")
-    prior: Literal["imu", "constant-velocity", "wheel", "none"] = "imu"
+    prior: Literal["imu", "constant-velocity", "wheel", "none"] = Field(
+        "imu", description="initial guess of each registration: imu, constant-velocity, wheel or none")
     use_wheel: bool = Field(True, description="join wheel odometry to the prediction when a wheel topic exists")
-    scan_reference: Literal["end", "start"] = "end"
-    frame: Literal["base", "lidar", "imu"] = "base"
+    scan_reference: Literal["end", "start"] = Field(
+        "end", description="the instant of its scan each pose is de-skewed to and stamped with")
+    frame: Literal["base", "lidar", "imu"] = Field("base", description="whose trajectory is written")
     planar: Optional[bool] = Field(None, description="force SE(2) mode; default: on for LaserScan input")
     init_window_s: float = Field(
         1.0, gt=0, le=60, description="LiDAR-only scans over this long start the IMU state (standing or moving start)")
@@ -109,7 +111,7 @@ class OdomConfig(Strict):
     estimate_time_offset: bool = Field(
         True, description="estimate a small IMU-LiDAR clock offset while running (on top of the calibration's) and apply it")
     max_speed_mps: float = Field(70.0, gt=0, description="a faster IMU state is implausible and is started again from the LiDAR")
-    gravity_mps2: float = Field(9.81, gt=0, le=30)
+    gravity_mps2: float = Field(9.81, gt=0, le=30, description="magnitude of gravity, m/s^2")
     registration: RegistrationConfig = RegistrationConfig()
     fusion: FusionConfig = FusionConfig()
 

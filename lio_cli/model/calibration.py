@@ -78,19 +78,25 @@ class Calibration(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    T_base_imu: Optional[list[list[float]]] = None
-    T_base_lidar: Optional[list[list[float]]] = None
-    imu_time_offset_s: float = Field(0.0, description="t_lidar_clock = t_imu_stamp + offset")
-    gyro_bias_radps: Optional[list[float]] = None
-    accel_bias_mps2: Optional[list[float]] = None
+    T_base_imu: Optional[list[list[float]]] = Field(
+        None, description="4x4 rows mapping IMU points into the base frame (metres); null: /tf_static, else identity")
+    T_base_lidar: Optional[list[list[float]]] = Field(
+        None, description="4x4 rows mapping LiDAR points into the base frame (metres); null: /tf_static, else identity")
+    imu_time_offset_s: float = Field(0.0, description="seconds added to IMU stamps to put them on the LiDAR's clock: "
+                                     "t_lidar_clock = t_imu_stamp + offset")
+    gyro_bias_radps: Optional[list[float]] = Field(None, description="gyro bias x, y, z in the IMU frame, rad/s")
+    accel_bias_mps2: Optional[list[float]] = Field(None, description="accelerometer bias x, y, z in the IMU frame, m/s^2")
     # 1-sigmas beside the values (rotation about and translation along the base axes)
-    imu_time_offset_sigma_s: Optional[float] = Field(None, ge=0)
-    T_base_imu_rotation_sigma_rad: Optional[list[float]] = None
-    T_base_imu_translation_sigma_m: Optional[list[float]] = None
-    gyro_bias_sigma_radps: Optional[list[float]] = None
-    accel_bias_sigma_mps2: Optional[list[float]] = None
-    imu_noise: Optional[ImuNoiseCalibration] = None
-    wheel: Optional[WheelCalibration] = None
+    imu_time_offset_sigma_s: Optional[float] = Field(None, ge=0, description="1-sigma of imu_time_offset_s (read, not used)")
+    T_base_imu_rotation_sigma_rad: Optional[list[float]] = Field(
+        None, description="1-sigma of T_base_imu's rotation about the base x, y, z axes (a large one: not measured)")
+    T_base_imu_translation_sigma_m: Optional[list[float]] = Field(
+        None, description="1-sigma of T_base_imu's translation along the base x, y, z axes (read, not used)")
+    gyro_bias_sigma_radps: Optional[list[float]] = Field(None, description="1-sigma of gyro_bias_radps (read, not used)")
+    accel_bias_sigma_mps2: Optional[list[float]] = Field(None, description="1-sigma of accel_bias_mps2 (read, not used)")
+    imu_noise: Optional[ImuNoiseCalibration] = Field(None, description="IMU noise lio calibrate measured (read, not used)")
+    wheel: Optional[WheelCalibration] = Field(
+        None, description="wheel odometry speed and yaw-rate scales lio calibrate measured; odom and fuse apply them")
 
     @field_validator("T_base_imu", "T_base_lidar")
     @classmethod

@@ -169,8 +169,10 @@ def test_a_ros2_output_needs_no_suffix(logs, tmp_path):
     (["--map", "m.xyz"], "lio: error: m.xyz: a map is written as .ply or .pcd; name the file with one of those suffixes"),
     (["--topic-suffix", "a b"], "lio: error: options: topic_suffix: 'a b' is not a topic-name suffix (letters, "
                                 "digits, _ and / only, e.g. _deskewed)"),
-    (["--format", "zip"], "lio: error: options: output_format: Input should be 'ros1', 'ros2', 'ros2-mcap' or 'mcap'"),
-    (["--reference", "middle"], "lio: error: options: reference: Input should be 'end' or 'start'"),
+    (["--format", "zip"], "lio: error: Invalid value for '--format': 'zip' is not one of 'ros1', 'ros2', 'ros2-mcap', "
+                          "'mcap'; see 'lio deskew --help'"),
+    (["--reference", "middle"], "lio: error: Invalid value for '--reference': 'middle' is not one of 'end', 'start'; "
+                                "see 'lio deskew --help'"),
     (["--point-time", "tick"], "lio: error: unknown per-point time convention 'tick' (use velodyne, ouster, livox, "
                                "hesai, azimuth, none, FIELD:UNIT[:abs|rel] or SEC_FIELD+NSEC_FIELD[:abs|rel], e.g. time:s, "
                                "t:ns or time_sec+time_nsec)"),

@@ -240,7 +240,8 @@ def test_stamps_going_backwards(logs, capsys):
 def test_bad_format_option(logs, capsys):
     path = logs.sensor_log("ros1", duration_s=0.1)
     rc, _, err = run(capsys, "info", path, "--format", "rosbag")
-    assert_one_line_error(rc, err, "lio: error: unknown log format 'rosbag' (choose from ros1, ros2, mcap)")
+    assert_one_line_error(rc, err, "lio: error: Invalid value for '--format': 'rosbag' is not one of 'ros1', 'ros2', "
+                                   "'mcap'; see 'lio info --help'")
 
 
 # ---- app-level flags ---------------------------------------------------------------------------------

@@ -214,15 +214,18 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (("simulate", "flying", "x.bag"), "lio: error: unknown scenario 'flying' (choose from handheld, drive, corridor, planar, static)\n"),
+    (("simulate", "flying", "x.bag"), "lio: error: Invalid value for 'SCENARIO': 'flying' is not one of 'handheld', "
+     "'drive', 'corridor', 'planar', 'static'; see 'lio simulate --help'\n"),
     (("simulate", "handheld", "x.bag", "--time-convention", "sick"),
-     "lio: error: unknown --time-convention 'sick' (choose from velodyne, ouster, livox, hesai)\n"),
+     "lio: error: Invalid value for '--time-convention': 'sick' is not one of 'velodyne', 'ouster', 'livox', "
+     "'hesai'; see 'lio simulate --help'\n"),
     (("simulate", "handheld", "x.bag", "--beams", "24"), "lio: error: --beams must be 16, 32, 64 or 128 (got 24)\n"),
     (("simulate", "handheld", "x.bag", "--duration", "0"), "lio: error: --duration must be positive (got 0.0)\n"),
     (("simulate", "handheld", "x.bag", "--range-noise", "-0.1"), "lio: error: --range-noise must be >= 0 m (got -0.1)\n"),
     (("simulate", "handheld", "x.bag", "--imu-rate", "5"), "lio: error: --imu-rate must be between 10 and 2000 Hz (got 5.0)\n"),
     (("simulate", "handheld", "x.bag", "--format", "rosbag"),
-     "lio: error: unknown output format 'rosbag' (choose from ros1, ros2, ros2-mcap, mcap)\n"),
+     "lio: error: Invalid value for '--format': 'rosbag' is not one of 'ros1', 'ros2', 'ros2-mcap', 'mcap'; "
+     "see 'lio simulate --help'\n"),
 ])
 def test_bad_arguments_exit_2_with_one_line(tmp_path, capsys, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)

@@ -8,7 +8,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Literal, Optional
 
 import typer
 from rich.table import Table
@@ -19,7 +19,8 @@ from ...io.files.atomic import write_text_atomic
 from ...io.sensors.sources import split_source
 from ...jobs.evaluate import EvaluateJob, run_evaluate
 from ...io.files.trajectory import STAMP_UNITS_NS, parse_stamp_ns
-from ..common import ForceOpt, JsonOpt, QuietOpt, err_console, note, out_console, print_json, warn
+from ..common import (FLAG, INPUT_PANEL, OUTPUT_PANEL, ForceOpt, JsonOpt, LioCommand, QuietOpt, err_console, note,
+                      one_of, out_console, print_json, shown, warn)
 from .outputs import check_evaluate_outputs, plot_names
 from .extras import csv_with_groups, parse_offset_range, parse_origin, print_group_table, resolve_groups
 
@@ -79,32 +80,23 @@ Exit codes: 0 ok, 1 a --fail-above limit exceeded, 2 bad input.
 [bold]Examples[/bold]
 
   lio evaluate gt.tum odom.tum
-
   lio evaluate run.bag:/ground_truth lio.tum kiss.tum --plot plots/
-
   lio evaluate gt.txt est.txt --times times.txt --delta 100 --delta-unit m
-
   lio evaluate gt.tum est.tum --align sim3 --json | jq .metrics[0]
-
   lio evaluate gt.tum est.tum --fail-above ape_rmse=0.5
-
   lio evaluate run.bag:/fix lio.tum --align posyaw --interpolate
-
   lio evaluate gt.tum est.tum --estimate-offset --offset-range -1,1
-
   lio evaluate gt.tum --group lio='lio_*.tum' --group kiss='kiss_*.tum'
 """
 
+PAIRING_PANEL = "Pairing and alignment"
+METRICS_PANEL = "Metrics"
+Align = Literal[ALIGN_MODES]
+StampUnit = Literal[tuple(STAMP_UNITS_NS)]
 _DELTA_ALIASES = {"f": "frames", "frames": "frames", "frame": "frames", "m": "m", "meters": "m", "metres": "m",
                   "s": "s", "seconds": "s", "sec": "s", "d": "deg", "deg": "deg", "degrees": "deg",
                   "r": "rad", "rad": "rad", "radians": "rad"}
 _CSV_HEAD = ("estimate",)
-
-
-def _stamp_unit(value: str, flag: str) -> str:
-    if value not in STAMP_UNITS_NS:
-        raise ConfigError(f"{flag} must be one of {', '.join(STAMP_UNITS_NS)}, got '{value}'")
-    return value
 
 
 MAX_SECONDS = 1e9  # ~31 years: any larger time tolerance or offset is a typo, and overflows nanoseconds
@@ -137,32 +129,32 @@ def _known_metrics() -> set[str]:
 
 
 def evaluate_cmd(
-    gt: Annotated[str, typer.Argument(help="Ground truth: TUM/KITTI file, LOG:/topic, LOG:tf:parent.child, or a log with --gt-topic.", show_default=False)],
-    estimates: Annotated[Optional[list[str]], typer.Argument(help="One or more estimates (same forms as GT); may be left to --group.", show_default=False)] = None,
-    gt_topic: Annotated[Optional[str], typer.Option("--gt-topic", help="Ground-truth topic when GT is a bare log path.", show_default=False)] = None,
-    times: Annotated[Optional[Path], typer.Option("--times", help="KITTI times file (one stamp in s per line) for KITTI pose files.", show_default=False)] = None,
-    rate: Annotated[Optional[float], typer.Option("--rate", help="Stamp KITTI pose files at this rate (Hz) instead of --times.", show_default=False)] = None,
-    gt_stamp_unit: Annotated[str, typer.Option("--gt-stamp-unit", help="Unit of GT TUM stamps: s, ms, us, ns.")] = "s",
-    est_stamp_unit: Annotated[str, typer.Option("--est-stamp-unit", help="Unit of estimate TUM stamps: s, ms, us, ns.")] = "s",
-    t_max_diff: Annotated[float, typer.Option("--t-max-diff", help="Largest stamp difference (s) for a pair.")] = 0.01,
-    t_offset: Annotated[str, typer.Option("--t-offset", help="Seconds added to estimate stamps before pairing.")] = "0",
-    interpolate: Annotated[bool, typer.Option("--interpolate", help="Resample the denser trajectory at the other's stamps (linear + slerp) instead of taking the nearest pose.")] = False,
-    align_mode: Annotated[str, typer.Option("--align", help="Alignment: none, se3 (Umeyama), sim3 (Umeyama + scale), scale (scale only), origin (first poses coincide), posyaw (translation + yaw, 4 DoF).")] = "se3",
-    n_align: Annotated[Optional[int], typer.Option("--n-align", help="Fit se3/sim3/scale/posyaw on the first N paired poses only.", show_default=False)] = None,
-    origin: Annotated[Optional[str], typer.Option("--origin", help="ENU origin LAT,LON,ALT (deg, deg, m above the WGS84 ellipsoid) for GPS topics (default: the reference's first valid fix).", show_default=False)] = None,
-    estimate_offset: Annotated[bool, typer.Option("--estimate-offset", help="Find each estimate's constant time offset (most pairs, then least aligned error) and evaluate with it.")] = False,
-    offset_range: Annotated[Optional[str], typer.Option("--offset-range", help="LO,HI seconds searched by --estimate-offset (default: offsets overlapping the time ranges by half).", show_default=False)] = None,
-    group: Annotated[Optional[list[str]], typer.Option("--group", help="NAME=EST[,EST...]: statistics over these runs (EST may be a quoted glob); repeatable.", show_default=False)] = None,
-    group_by: Annotated[Optional[str], typer.Option("--group-by", help="REGEX on the estimates' file names; the first capture group (or the match) names each run's group.", show_default=False)] = None,
-    delta: Annotated[float, typer.Option("--delta", help="RPE step.")] = 1.0,
-    delta_unit: Annotated[str, typer.Option("--delta-unit", help="Unit of --delta: frames, m (path), s, deg or rad (accumulated rotation).")] = "frames",
-    all_pairs: Annotated[bool, typer.Option("--all-pairs", help="RPE over every start pose instead of consecutive windows.")] = False,
-    pairs_from_reference: Annotated[bool, typer.Option("--pairs-from-reference", help="Choose RPE pairs on the ground truth (default: on the aligned estimate, as evo).")] = False,
-    delta_tol: Annotated[float, typer.Option("--delta-tol", help="Relative tolerance of --delta with --all-pairs (m, s, deg, rad).")] = 0.1,
+    gt: Annotated[str, typer.Argument(metavar="GT", help="Ground truth: TUM/KITTI file, LOG:/topic, LOG:tf:parent.child, or a log with --gt-topic.", show_default=False)],
+    estimates: Annotated[Optional[list[str]], typer.Argument(metavar="EST...", help="One or more estimates (same forms as GT); may be left to --group.", show_default=False)] = None,
+    gt_topic: Annotated[Optional[str], typer.Option("--gt-topic", help="Ground-truth topic when GT is a bare log path.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    times: Annotated[Optional[Path], typer.Option("--times", help="KITTI times file (one stamp in s per line) for KITTI pose files.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    rate: Annotated[Optional[float], typer.Option("--rate", help="Stamp KITTI pose files at this rate (Hz) instead of --times.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    gt_stamp_unit: Annotated[StampUnit, typer.Option("--gt-stamp-unit", metavar=one_of(StampUnit), help="Unit of GT TUM stamps.", rich_help_panel=INPUT_PANEL)] = "s",
+    est_stamp_unit: Annotated[StampUnit, typer.Option("--est-stamp-unit", metavar=one_of(StampUnit), help="Unit of estimate TUM stamps.", rich_help_panel=INPUT_PANEL)] = "s",
+    origin: Annotated[Optional[str], typer.Option("--origin", metavar="LAT,LON,ALT", help=shown("ENU origin of GPS topics: deg, deg, m above the WGS84 ellipsoid.", "the reference's first valid fix"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    group: Annotated[Optional[list[str]], typer.Option("--group", metavar="NAME=EST,...", help="Statistics over these runs (EST may be a quoted glob); repeatable.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    group_by: Annotated[Optional[str], typer.Option("--group-by", metavar="REGEX", help="On the estimates' file names; the first capture group (or the match) names each run's group.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    t_max_diff: Annotated[float, typer.Option("--t-max-diff", help="Largest stamp difference (s) for a pair.", rich_help_panel=PAIRING_PANEL)] = 0.01,
+    t_offset: Annotated[str, typer.Option("--t-offset", help="Seconds added to estimate stamps before pairing.", rich_help_panel=PAIRING_PANEL)] = "0",
+    interpolate: Annotated[bool, typer.Option("--interpolate", metavar=FLAG, help="Resample the denser trajectory at the other's stamps (linear + slerp) instead of taking the nearest pose.", rich_help_panel=PAIRING_PANEL)] = False,
+    align_mode: Annotated[Align, typer.Option("--align", metavar=one_of(Align), help="Umeyama se3 or sim3 (+ scale), scale only, origin (first poses coincide), posyaw (translation + yaw).", rich_help_panel=PAIRING_PANEL)] = "se3",
+    n_align: Annotated[Optional[int], typer.Option("--n-align", help="Fit se3/sim3/scale/posyaw on the first N paired poses only.", show_default=False, rich_help_panel=PAIRING_PANEL)] = None,
+    estimate_offset: Annotated[bool, typer.Option("--estimate-offset", metavar=FLAG, help="Find each estimate's constant time offset (most pairs, then least aligned error) and evaluate with it.", rich_help_panel=PAIRING_PANEL)] = False,
+    offset_range: Annotated[Optional[str], typer.Option("--offset-range", metavar="LO,HI", help=shown("Seconds searched by --estimate-offset.", "offsets overlapping the time ranges by half"), show_default=False, rich_help_panel=PAIRING_PANEL)] = None,
+    delta: Annotated[float, typer.Option("--delta", help="RPE step.", rich_help_panel=METRICS_PANEL)] = 1.0,
+    delta_unit: Annotated[str, typer.Option("--delta-unit", help="Unit of --delta: frames, m (path), s, deg or rad (accumulated rotation).", rich_help_panel=METRICS_PANEL)] = "frames",
+    all_pairs: Annotated[bool, typer.Option("--all-pairs", metavar=FLAG, help="RPE over every start pose instead of consecutive windows.", rich_help_panel=METRICS_PANEL)] = False,
+    pairs_from_reference: Annotated[bool, typer.Option("--pairs-from-reference", metavar=FLAG, help="Choose RPE pairs on the ground truth (default: on the aligned estimate, as evo).", rich_help_panel=METRICS_PANEL)] = False,
+    delta_tol: Annotated[float, typer.Option("--delta-tol", help="Relative tolerance of --delta with --all-pairs (m, s, deg, rad).", rich_help_panel=METRICS_PANEL)] = 0.1,
+    fail_above: Annotated[Optional[list[str]], typer.Option("--fail-above", metavar="METRIC=VALUE", help="Exit 1 when any estimate's metric exceeds VALUE (repeatable).", show_default=False, rich_help_panel=METRICS_PANEL)] = None,
     as_json: JsonOpt = False,
-    csv_out: Annotated[Optional[str], typer.Option("--csv", help="Write one CSV row per estimate to FILE, or '-' for stdout.", show_default=False)] = None,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write PNG plots (top view, APE over time and distance, RPE histogram) and metrics.json into DIR.", show_default=False)] = None,
-    fail_above: Annotated[Optional[list[str]], typer.Option("--fail-above", help="METRIC=VALUE: exit 1 when any estimate's metric exceeds VALUE (repeatable).", show_default=False)] = None,
+    csv_out: Annotated[Optional[str], typer.Option("--csv", metavar="FILE", help="Write one CSV row per estimate to FILE, or '-' for stdout.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", metavar="DIR", help="Write PNG plots (top view, APE over time and distance, RPE histogram) and metrics.json into DIR.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     force: ForceOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -170,8 +162,6 @@ def evaluate_cmd(
     unit = _DELTA_ALIASES.get(delta_unit.lower())
     if unit is None:
         raise ConfigError(f"--delta-unit must be frames, m, s, deg or rad, got '{delta_unit}'")
-    if align_mode not in ALIGN_MODES:
-        raise ConfigError(f"--align must be one of {', '.join(ALIGN_MODES)}, got '{align_mode}'")
     if not 0 <= t_max_diff <= MAX_SECONDS:
         raise ConfigError(f"--t-max-diff must be between 0 and {MAX_SECONDS:g} s, got {t_max_diff}")
     if n_align is not None and n_align < 1:
@@ -207,8 +197,6 @@ def evaluate_cmd(
     unknown = sorted(set(limits) - _known_metrics())
     if unknown:
         raise ConfigError(f"--fail-above: unknown metric {', '.join(unknown)} (see lio evaluate --help for names)")
-    _stamp_unit(gt_stamp_unit, "--gt-stamp-unit")
-    _stamp_unit(est_stamp_unit, "--est-stamp-unit")
     csv_path = None if csv_out in (None, "-") else Path(csv_out)
     inputs = [Path(split_source(spec)[0]) for spec in (gt, *estimates)] + ([times] if times is not None else [])
     check_evaluate_outputs(csv_path, plot, force, inputs, plot_names(estimate_offset, bool(groups)))
@@ -358,4 +346,4 @@ def _check_limits(results: list[EvalResult], limits: dict[str, float]) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("evaluate", help=HELP, no_args_is_help=True)(evaluate_cmd)
+    app.command("evaluate", help=HELP, no_args_is_help=True, cls=LioCommand)(evaluate_cmd)

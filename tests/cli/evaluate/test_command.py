@@ -225,7 +225,8 @@ def test_plots_and_metrics_json(capsys, tmp_path):
 def test_usage_errors_exit_2(capsys, three, tmp_path):
     gt, est = three
     for args, message in (
-        (["--align", "umeyama"], "--align must be one of none, se3, sim3, scale, origin, posyaw, got 'umeyama'"),
+        (["--align", "umeyama"], "Invalid value for '--align': 'umeyama' is not one of 'none', 'se3', 'sim3', 'scale', "
+                                 "'origin', 'posyaw'; see 'lio evaluate --help'"),
         (["--delta-unit", "parsecs"], "--delta-unit must be frames, m, s, deg or rad, got 'parsecs'"),
         (["--t-offset", "soon"], "--t-offset 'soon' is not a number of seconds"),
         (["--json", "--csv", "-"], "--json and --csv - would both write to stdout; give --csv a file name"),
