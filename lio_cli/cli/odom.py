@@ -3,6 +3,7 @@ print)."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
@@ -16,8 +17,13 @@ from ..io.logs.detect import input_paths
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.files.trajectory import format_tum
 from ..jobs.contract import load_reference
-from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom, score_odom, write_odom
-from ..jobs.outputs import check_outputs, log_stem
+from ..io.files.atomic import check_writable
+from ..io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
+from ..io.files.point_clouds import check_map_suffix
+from ..jobs.odom import (DivergedRun, OdomJob, OdomResult, map_outputs, run_odom, score_odom, write_odom,
+                         write_odom_map, write_odom_plots)
+from ..jobs.outputs import check_outputs, log_stem, run_outputs
+from ..jobs.plot import plot_files
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
                      PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json, warn)
 
@@ -31,7 +37,12 @@ stamped with the instant its scan was de-skewed to (the scan's end by default).
 Writes OUT (TUM: stamp tx ty tz qx qy qz qw), OUT-stem.metrics.json and OUT-stem.config.yaml beside it.
 The .config.yaml is the whole run (topics, calibration, base frame, options): `lio odom LOG --config
 it` repeats the run exactly; flags given with --config override its fields one by one.
-With -o - the trajectory goes to stdout and no other file is written.
+With -o - the trajectory goes to stdout and no other file is written unless asked for:
+
+--map FILE.ply|.pcd: the map of the run, every de-skewed scan at its pose, voxel-downsampled (--map-voxel),
+in the trajectory's world frame; FILE-stem.png beside it shows it from above with the trajectory.
+--plot DIR: the pictures of lio plot (top view, x/y/z, roll/pitch/yaw, speed) of the trajectory, with the
+ground truth of --gt drawn under it (the odometry aligned to it as the score is).
 
 [bold]Examples[/bold]
 
@@ -42,6 +53,8 @@ With -o - the trajectory goes to stdout and no other file is written.
   lio odom corridor_ros2/ --prior wheel --json > metrics.json
 
   lio odom scan2d.bag --prior constant-velocity --deskew constant-velocity   # LiDAR only
+
+  lio odom walk.bag --map walk.ply --plot walk_plots/ --gt /ground_truth
 """
 
 
@@ -65,6 +78,9 @@ def odom(
     wheel_topic: WheelTopicOpt = None,
     point_time: PointTimeOpt = None,
     fmt: FormatOpt = None,
+    map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the run's map (.ply or .pcd) and its top view (.png beside it).", show_default=False, rich_help_panel="Output")] = None,
+    map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", help="Voxel size of --map in metres (default 0.1).", show_default=False, rich_help_panel="Output")] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write the pictures of the trajectory (as lio plot) into DIR.", show_default=False, rich_help_panel="Output")] = None,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
     force: ForceOpt = False,
@@ -84,16 +100,18 @@ def odom(
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
     out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.tum")
+    voxel_m = _map_voxel(map_file, map_voxel)
+    inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
+    if gt is not None and Path(gt).exists():
+        inputs.append(Path(gt))
+    _check_extra_outputs(out, map_file, plot, force, inputs)
     if out is not None:
-        inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
-        if gt is not None and Path(gt).exists():
-            inputs.append(Path(gt))
         check_outputs(out, force, inputs)
 
     reference = load_reference(Path(log), gt) if gt is not None else None
     with job_progress("odometry", quiet) as update:
         try:
-            result = run_odom(OdomJob(Path(log), cfg), progress=update)
+            result = run_odom(OdomJob(Path(log), cfg, voxel_m), progress=update)
         except DivergedRun as err:  # the trajectory up to where the track was lost is still written
             if err.partial is not None:
                 traj = err.partial.trajectory
@@ -110,14 +128,51 @@ def odom(
         warn(n)
     for role, choice in result.roles.items():
         note(f"{role}: {choice['topic'] or '-'} ({choice['why']})", quiet)
+    written = write_odom_map(result, map_file, force) if map_file is not None else []
+    if plot is not None:
+        pictures, notes = write_odom_plots(result, reference, plot, force)
+        written += pictures
+        for n in notes:
+            note(n, quiet)
     if to_stdout:
         sys.stdout.write(format_tum(result.trajectory.stamps_ns, result.trajectory.poses))
         sys.stdout.flush()
     else:
-        write_odom(result, out, force)
+        write_odom(result, out, force)  # last: its metrics name the map and pictures
     _report(result, None if to_stdout else out, quiet)
+    for path in written:
+        note(f"wrote {path}" + (f" ({result.metrics['map']['points']} points)" if path == map_file else ""), quiet)
     if as_json:
         print_json(result.metrics)
+
+
+def _map_voxel(map_file: Path | None, map_voxel: float | None) -> float | None:
+    """The voxel size of --map (None: no map)."""
+    if map_file is None:
+        if map_voxel is not None:
+            raise ConfigError("--map-voxel needs --map FILE")
+        return None
+    check_map_suffix(map_file)
+    voxel_m = 0.1 if map_voxel is None else map_voxel
+    if not (voxel_m > 0 and math.isfinite(voxel_m)):
+        raise ConfigError(f"--map-voxel must be a positive number of metres, got {map_voxel}")
+    return voxel_m
+
+
+def _check_extra_outputs(out: Path | None, map_file: Path | None, plot: Path | None, force: bool,
+                         inputs: list[Path]) -> None:
+    """--map and --plot: writable, no input, and no file of the run's twice (before any work)."""
+    refuse_stdout("--map", map_file, "a point cloud file")
+    refuse_stdout("--plot", plot, "PNG files into a folder")
+    named = [] if out is None else [(f"a file of the run (-o {out})", p) for p in run_outputs(out)]
+    if map_file is not None:
+        named += [("the map (--map)", map_file), ("the map's top view", map_outputs(map_file)[1])]
+    refuse_shared_outputs(named + plot_outputs(plot, plot_files()))
+    if map_file is not None:
+        for path in map_outputs(map_file):
+            check_writable(path, force, inputs)
+    if plot is not None:
+        check_plot_dir(plot, plot_files(), force, inputs)
 
 
 def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
