@@ -101,13 +101,14 @@ def test_pictures_decode_at_their_size(run):
 
 @pytest.mark.parametrize("args, message", [
     (["--map", "{root}/m.txt"], "{root}/m.txt: a map is written as .ply or .pcd; name the file with one of those suffixes"),
-    (["--map-voxel", "0.2"], "--map-voxel needs --map FILE"),
+    (["--map-voxel", "0.2"], "--map-voxel needs --map FILE (or --viz)"),
     (["--map", "{root}/m.pcd", "--map-voxel", "0"], "--map-voxel must be a positive number of metres, got 0.0"),
     (["--map", "{root}/o.ply", "-o", "{root}/o.ply"],
      "{root}/o.ply: would be both a file of the run (-o {root}/o.ply) and the map (--map); give each output its own path"),
     (["--plot", "{root}/map.ply"], "{root}/map.ply: exists and is not a folder"),
     (["--map", "{root}/map.ply"], "{root}/map.ply: already exists; pass --force to overwrite it"),
     (["--plot", "-"], "--plot writes PNG files into a folder, not standard output: give --plot a path"),
+    (["--viz-save", "{root}/v.mcap"], "{root}/v.mcap: a rerun recording is written as .rrd; name the file so"),
 ])
 def test_bad_output_requests_stop_before_the_run(args, message, run, tmp_path, capsys):
     sim, root = run
@@ -118,3 +119,28 @@ def test_bad_output_requests_stop_before_the_run(args, message, run, tmp_path, c
     assert main(argv) == 2
     assert capsys.readouterr().err.strip() == "lio: error: " + message.format(root=root)
     assert not out.exists() and not (root / "m.pcd").exists()
+
+
+def test_viz_save_records_each_scan_the_trajectory_and_the_map(run, tmp_path):
+    pytest.importorskip("rerun", reason="the viz extra (rerun-sdk) is not installed")
+    from rerun.chunk import RrdReader
+
+    sim, _ = run
+    rrd = tmp_path / "walk.rrd"
+    assert main(["odom", str(sim.log_path), "-o", str(tmp_path / "o.tum"), "--viz-save", str(rrd), "-q"]) == 0
+    rows, static = {}, {}
+    for chunk in RrdReader(rrd).stream():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+        static[chunk.entity_path] = static.get(chunk.entity_path, False) or chunk.is_static
+    assert rows["/world/scan"] == rows["/world/base"] == 30  # one per scan, on the scans' time line
+    assert static["/world"] and static["/map"] and static["/world/trajectory"]  # levelling, map, whole path
+    assert not list(tmp_path.glob(".walk.rrd*"))  # the temporary recording was renamed into place
+
+
+def test_viz_without_rerun_says_how_to_install_it(run, tmp_path, capsys, monkeypatch):
+    sim, _ = run
+    monkeypatch.setitem(__import__("sys").modules, "rerun", None)  # as if not installed
+    assert main(["odom", str(sim.log_path), "-o", str(tmp_path / "o.tum"), "--viz"]) == 2
+    assert capsys.readouterr().err.strip() == ("lio: error: --viz needs rerun, which is not installed: "
+                                               "pip install 'lio-cli[viz]' (or pip install rerun-sdk)")
+    assert not (tmp_path / "o.tum").exists()

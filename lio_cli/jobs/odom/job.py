@@ -30,7 +30,7 @@ from ...model.records import ImuBatch, PointCloud
 from ...model.trajectory import Trajectory
 from ..contract import score_into
 from .inputs import Mounting, OdomInputs, choose_inputs
-from .map import RunMap
+from .map import RunMap, ScanSink
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
 _DOUBT_NOTE_SCANS = 5  # this many scans the IMU state could not explain, and...
@@ -87,13 +87,14 @@ class DivergedRun(ProcessingError):
 
 
 def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None,
-             settled: PoseSink | None = None) -> OdomResult:
+             settled: PoseSink | None = None, scans: ScanSink | None = None) -> OdomResult:
     """Run odometry over ``job.log``. ``reader``: ``job.log`` already open (a caller that reads the log again
     afterwards saves opening it twice; it stays open). ``settled``: called with each scan's ``SettledPose`` as
     soon as it is final (in order, every pose once; not the IMU predictions of
-    ``registration.slow_register_every``)."""
+    ``registration.slow_register_every``). ``scans``: called as each scan in the map settles, with its stamp,
+    pose (internal world) and de-skewed points (base frame)."""
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
-        return _OdomRun(log, job.config, progress, settled, job.map_voxel_m).run()
+        return _OdomRun(log, job.config, progress, settled, job.map_voxel_m, scans).run()
 
 
 def score_odom(result: OdomResult, reference: Trajectory) -> None:
@@ -105,9 +106,10 @@ class _OdomRun:
     """One pass over a log's merged stream, feeding ``LioOdometry`` in time order."""
 
     def __init__(self, reader: LogReader, cfg: OdomConfig, progress: Progress | None,
-                 settled: PoseSink | None = None, map_voxel_m: float | None = None) -> None:
+                 settled: PoseSink | None = None, map_voxel_m: float | None = None,
+                 scans: ScanSink | None = None) -> None:
         self.reader, self.cfg, self.progress = reader, cfg, progress
-        self.map = RunMap(map_voxel_m) if map_voxel_m else None
+        self.map = RunMap(map_voxel_m, scans) if map_voxel_m or scans else None
         self.settled, self.sent = settled, 0  # poses handed to ``settled`` so far
         self.t_wall = time.perf_counter()
         self.notes: list[str] = []
@@ -139,6 +141,7 @@ class _OdomRun:
         result = self._result()
         if self.map is not None:
             self.map.settle(self.odo.stamps_ns, self.odo.poses, len(self.odo.poses))
+        if self.map is not None and self.map.voxels is not None:
             result.map_points = self.map.cloud(result.alignment)
             result.metrics["map"] = {"points": len(result.map_points), "voxel_m": self.map.voxel_m,
                                      "scans": self.map.scans, "frame": "the trajectory's world (levelled)"}

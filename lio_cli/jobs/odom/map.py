@@ -9,16 +9,22 @@ there, so the file holds one point per occupied voxel of the written frame.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ...core.deskew.voxel_map import VoxelMap
 
+ScanSink = Callable[[int, np.ndarray, np.ndarray], None]  # (stamp_ns, T_world_base, points in base) of a settled scan
+
 
 class RunMap:
-    """The map of one run; ``scan`` is the odometry's ``scan_sink``, ``settle`` follows its settled poses."""
+    """The map of one run; ``scan`` is the odometry's ``scan_sink``, ``settle`` follows its settled poses.
+    ``voxel_m`` None: no grid, only ``on_settled`` told of each settled scan."""
 
-    def __init__(self, voxel_m: float) -> None:
-        self.voxels = VoxelMap(voxel_m)
+    def __init__(self, voxel_m: float | None, on_settled: ScanSink | None = None) -> None:
+        self.voxels = VoxelMap(voxel_m) if voxel_m else None
+        self.on_settled = on_settled
         self.pending: dict[int, np.ndarray] = {}  # stamp -> de-skewed points of a scan whose pose may still change
         self.mapped = 0  # poses whose scans are in the grid (or had none)
         self.scans = 0  # scans in the grid
@@ -41,7 +47,10 @@ class RunMap:
             pts = self.pending.pop(int(stamps_ns[i]), None)
             if pts is not None:
                 T = poses[i]
-                self.voxels.add(pts @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32))
+                if self.voxels is not None:
+                    self.voxels.add(pts @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32))
+                if self.on_settled is not None:
+                    self.on_settled(int(stamps_ns[i]), T, pts)
                 self.scans += 1
         last = int(stamps_ns[upto - 1])
         for stamp in [s for s in self.pending if s <= last]:  # scans a replay dropped
