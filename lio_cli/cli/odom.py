@@ -42,10 +42,12 @@ With -o - the trajectory goes to stdout and no other file is written unless aske
 
 --map FILE.ply|.pcd: the map of the run, every de-skewed scan at its pose, voxel-downsampled (--map-voxel),
 in the trajectory's world frame; FILE-stem.png beside it shows it from above with the trajectory.
+
 --plot DIR: the pictures of lio plot (top view, x/y/z, roll/pitch/yaw, speed) of the trajectory, with the
 ground truth of --gt drawn under it (the odometry aligned to it as the score is).
+
 --viz shows the run in rerun's viewer as it goes (each scan at its pose, the trajectory, at the end the
-map); --viz-save FILE.rrd records the same (rerun FILE.rrd shows it). Both need pip install 'lio-cli[viz]'.
+map); --viz-save FILE.rrd records the same (rerun FILE.rrd shows it). Both need pip install 'lio-cli\\[viz]'.
 
 [bold]Examples[/bold]
 
@@ -84,7 +86,7 @@ def odom(
     map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the run's map (.ply or .pcd) and its top view (.png beside it).", show_default=False, rich_help_panel="Output")] = None,
     map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", help="Voxel size of --map in metres (default 0.1).", show_default=False, rich_help_panel="Output")] = None,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Write the pictures of the trajectory (as lio plot) into DIR.", show_default=False, rich_help_panel="Output")] = None,
-    viz: Annotated[bool, typer.Option("--viz", help="Show the run live in rerun's viewer: scans, trajectory, map (needs lio-cli[viz]).", rich_help_panel="Output")] = False,
+    viz: Annotated[bool, typer.Option("--viz", help="Show the run live in rerun's viewer: scans, trajectory, map (needs the viz extra).", rich_help_panel="Output")] = False,
     viz_save: Annotated[Optional[Path], typer.Option("--viz-save", help="Record what --viz shows to FILE.rrd (rerun's viewer opens it).", show_default=False, rich_help_panel="Output")] = None,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
