@@ -133,6 +133,14 @@ def yaw_of(R: np.ndarray) -> np.ndarray:
     return np.arctan2(R[..., 1, 0], R[..., 0, 0])
 
 
+def roll_pitch_yaw(R: np.ndarray) -> np.ndarray:
+    """(..., 3) roll, pitch, yaw (rad) of rotation matrix(es): R = Rz(yaw) Ry(pitch) Rx(roll), pitch in [-pi/2, pi/2]."""
+    R = np.asarray(R, dtype=np.float64)
+    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    pitch = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
+    return np.stack([roll, pitch, yaw_of(R)], axis=-1)
+
+
 def project_to_se2(T: np.ndarray) -> np.ndarray:
     """Closest planar pose(s): keep x, y and yaw; drop z, roll and pitch."""
     T = np.asarray(T, dtype=np.float64)

@@ -37,7 +37,7 @@ app = typer.Typer(
 _state = {"debug": False, "own_process": False}
 
 # One module per command; each exposes register(app).
-COMMANDS = ["info", "odom", "calibrate", "deskew", "fuse", "evaluate", "simulate", "batch", "config"]
+COMMANDS = ["info", "odom", "calibrate", "deskew", "fuse", "evaluate", "plot", "simulate", "batch", "config"]
 
 
 def _version(value: bool) -> None:

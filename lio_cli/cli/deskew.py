@@ -11,6 +11,9 @@ import typer
 from ..config import load_config, with_overrides
 from ..config.deskew import MOTIONS, OUTPUT_FORMATS, DeskewConfig
 from ..io.messages.pointcloud import parse_time_convention
+from ..io.files.atomic import check_writable
+from ..io.files.output_paths import refuse_shared_outputs
+from ..io.logs.detect import input_paths
 from ..jobs.deskew import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew, write_deskew
 from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt,
                      ForceOpt, ImuTimeOffsetOpt, ImuTopicOpt, InputFormat, JsonOpt, LidarTopicOpt, LioCommand, LogArg,
@@ -44,7 +47,7 @@ settles (the same bytes; a run takes about the odometry's time).
 OUT's format: --format, else its suffix (.bag ROS 1, .mcap MCAP), else the input's (a ROS 2 bag folder).
 Also written: OUT-stem.metrics.json (scans written and skipped and why, motion source, times) and
 OUT-stem.config.yaml (`--config` it to repeat the run). --map FILE.ply|.pcd: the world-frame map of all
-de-skewed scans, voxel-downsampled.
+de-skewed scans, voxel-downsampled, and FILE-stem.png beside it, the map seen from above.
 
 [bold]Examples[/bold]
 
@@ -100,15 +103,32 @@ def deskew(
         "input.point_time": point_time, "input.base_frame": base_frame, "calibration.imu_time_offset_s": imu_time_offset,
     })
     job = DeskewJob(Path(log), Path(out), cfg, map_file, force)
-    check_deskew_outputs(job, tuple(p for p in (config, calib) if p is not None))
+    extra_inputs = tuple(p for p in (config, calib) if p is not None)
+    check_deskew_outputs(job, extra_inputs)
+    preview = None if map_file is None else _check_preview(job, extra_inputs)
     with job_progress("de-skewing", quiet) as update:
         result = run_deskew(job, progress=update)
     write_deskew(result, job.out, force)
+    if preview is not None:
+        from ..io.files.point_clouds import read_point_map
+        from ..plots.map import write_map_preview
+
+        write_map_preview(read_point_map(map_file), preview, force, cfg.map_voxel_m)
     for n in result.notes:
         warn(n)
     _report(result, quiet)
     if as_json:
         print_json(result.metrics)
+
+
+def _check_preview(job: DeskewJob, extra_inputs: tuple[Path, ...]) -> Path:
+    """Where --map's top view goes, checked before the work."""
+    from ..plots.map import preview_path
+
+    preview = preview_path(job.map)
+    refuse_shared_outputs([("the output log", job.out), ("the map (--map)", job.map), ("the map's top view", preview)])
+    check_writable(preview, job.force, [*input_paths(job.log), *extra_inputs])
+    return preview
 
 
 def _report(result: DeskewResult, quiet: bool) -> None:
@@ -124,7 +144,11 @@ def _report(result: DeskewResult, quiet: bool) -> None:
     parts = ([f"{as_stored} messages copied as stored"] if as_stored or not converted else []) + \
         ([f"{converted} messages converted to {result.format}"] if converted else [])
     note(f"other topics: {', '.join(parts)}", quiet)
-    extra = f" and {m['map']['path']} ({m['map']['points']} points)" if "map" in m else ""
+    extra = ""
+    if "map" in m:
+        from ..plots.map import preview_path
+
+        extra = f", {m['map']['path']} ({m['map']['points']} points) and {preview_path(m['map']['path'])}"
     note(f"wrote {result.out} ({result.format}){extra}; {m['time_s']['total']:.1f} s wall, "
          f"{m['real_time_factor'] or 0:.1f}x real time", quiet)
     # its per-point times still say when each point was taken: an odometry that de-skews by them does it twice

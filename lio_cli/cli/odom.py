@@ -3,6 +3,7 @@ print)."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Annotated, Literal, Optional
@@ -16,8 +17,14 @@ from ..io.logs.detect import input_paths
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.files.trajectory import format_tum
 from ..jobs.contract import load_reference
-from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom, score_odom, write_odom
-from ..jobs.outputs import check_outputs, log_stem
+from ..io.files.atomic import check_writable
+from ..io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
+from ..io.files.point_clouds import check_map_suffix
+from ..jobs.odom import (DivergedRun, OdomJob, OdomResult, map_outputs, run_odom, score_odom, write_odom,
+                         write_odom_map, write_odom_plots)
+from ..jobs.outputs import check_outputs, log_stem, run_outputs
+from ..jobs.plot import plot_files
+from ..plots.live import LiveView, rerun_module
 from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt, ForceOpt,
                      FormatOpt, ImuTimeOffsetOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LioCommand, LogArg, PointTimeOpt,
                      QuietOpt, WheelTopicOpt, config_default, one_of, err_console, job_progress, note, print_json, shown, warn)
@@ -32,7 +39,16 @@ stamped with the instant its scan was de-skewed to (the scan's end by default).
 Writes OUT (TUM: stamp tx ty tz qx qy qz qw), OUT-stem.metrics.json and OUT-stem.config.yaml beside it.
 The .config.yaml is the whole run (topics, calibration, base frame, options): `lio odom LOG --config
 it` repeats the run exactly; flags given with --config override its fields one by one.
-With -o - the trajectory goes to stdout and no other file is written.
+With -o - the trajectory goes to stdout and no other file is written unless asked for:
+
+--map FILE.ply|.pcd: the map of the run, every de-skewed scan at its pose, voxel-downsampled (--map-voxel),
+in the trajectory's world frame; FILE-stem.png beside it shows it from above with the trajectory.
+
+--plot DIR: the pictures of lio plot (top view, x/y/z, roll/pitch/yaw, speed) of the trajectory, with the
+ground truth of --gt drawn under it (the odometry aligned to it as the score is).
+
+--viz shows the run in rerun's viewer as it goes (each scan at its pose, the trajectory, at the end the
+map); --viz-save FILE.rrd records the same (rerun FILE.rrd shows it). Both need pip install 'lio-cli\\[viz]'.
 
 [bold]Examples[/bold]
 
@@ -41,6 +57,7 @@ With -o - the trajectory goes to stdout and no other file is written.
   lio odom run.mcap --fusion complementary --alpha 0.9 -o run.tum
   lio odom corridor_ros2/ --prior wheel --json > metrics.json
   lio odom scan2d.bag --prior constant-velocity   # LiDAR only
+  lio odom walk.bag --map walk.ply --plot walk_plots/
 """
 
 
@@ -73,6 +90,11 @@ def odom(
     imu_time_offset: ImuTimeOffsetOpt = None,
     output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     frame: Annotated[Optional[Frame], typer.Option("--frame", metavar=one_of(Frame), help=shown("Whose trajectory is written.", _default("frame")), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the run's map (.ply or .pcd) and its top view (.png beside it).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", metavar="<float>", help=shown("Voxel size of --map in metres.", "0.1"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", metavar="DIR", help="Write the pictures of the trajectory (as lio plot) into DIR.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    viz: Annotated[bool, typer.Option("--viz", metavar=FLAG, help="Show the run live in rerun's viewer: scans, trajectory, map (needs the viz extra).", rich_help_panel=OUTPUT_PANEL)] = False,
+    viz_save: Annotated[Optional[Path], typer.Option("--viz-save", help="Record what --viz shows to FILE.rrd (rerun's viewer opens it).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     as_json: JsonOpt = False,
     force: ForceOpt = False,
     config: ConfigOpt = None,
@@ -93,16 +115,24 @@ def odom(
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
     out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.tum")
+    voxel_m = _map_voxel(map_file, viz or viz_save is not None, map_voxel)
+    inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
+    if gt is not None and Path(gt).exists():
+        inputs.append(Path(gt))
+    _check_extra_outputs(out, map_file, plot, viz_save, force, inputs)
+    if viz or viz_save is not None:
+        rerun_module()  # not installed: how to install it, before the work
     if out is not None:
-        inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
-        if gt is not None and Path(gt).exists():
-            inputs.append(Path(gt))
         check_outputs(out, force, inputs)
 
     reference = load_reference(Path(log), gt) if gt is not None else None
+    view = LiveView(viz_save, viz, log_stem(log)) if viz or viz_save is not None else None
     with job_progress("odometry", quiet) as update:
         try:
-            result = run_odom(OdomJob(Path(log), cfg), progress=update)
+            result = run_odom(OdomJob(Path(log), cfg, voxel_m), progress=update,
+                              scans=None if view is None else view.scan)
+            if view is not None:
+                view.finish(result.alignment, result.map_points)
         except DivergedRun as err:  # the trajectory up to where the track was lost is still written
             if err.partial is not None:
                 traj = err.partial.trajectory
@@ -113,20 +143,66 @@ def odom(
                     write_odom(err.partial, out, force)
                     err.args = (f"{err}; the trajectory up to there is in {out}",)
             raise
+        finally:
+            recording = None if view is None else view.close()
     if reference is not None:
         score_odom(result, reference)
     for n in result.notes:
         warn(n)
     for role, choice in result.roles.items():
         note(f"{role}: {choice['topic'] or '-'} ({choice['why']})", quiet)
+    written = write_odom_map(result, map_file, force) if map_file is not None else []
+    if plot is not None:
+        pictures, notes = write_odom_plots(result, reference, plot, force)
+        written += pictures
+        for n in notes:
+            note(n, quiet)
     if to_stdout:
         sys.stdout.write(format_tum(result.trajectory.stamps_ns, result.trajectory.poses))
         sys.stdout.flush()
     else:
-        write_odom(result, out, force)
+        write_odom(result, out, force)  # last: its metrics name the map and pictures
     _report(result, None if to_stdout else out, quiet)
+    if recording is not None:
+        written.append(recording)
+    for path in written:
+        note(f"wrote {path}" + (f" ({result.metrics['map']['points']} points)" if path == map_file else ""), quiet)
     if as_json:
         print_json(result.metrics)
+
+
+def _map_voxel(map_file: Path | None, viz: bool, map_voxel: float | None) -> float | None:
+    """The voxel size of the map of --map FILE or --viz (None: no map)."""
+    if map_file is None and not viz:
+        if map_voxel is not None:
+            raise ConfigError("--map-voxel needs --map FILE (or --viz)")
+        return None
+    if map_file is not None:
+        check_map_suffix(map_file)
+    voxel_m = 0.1 if map_voxel is None else map_voxel
+    if not (voxel_m > 0 and math.isfinite(voxel_m)):
+        raise ConfigError(f"--map-voxel must be a positive number of metres, got {map_voxel}")
+    return voxel_m
+
+
+def _check_extra_outputs(out: Path | None, map_file: Path | None, plot: Path | None, viz_save: Path | None,
+                         force: bool, inputs: list[Path]) -> None:
+    """--map, --plot and --viz-save: writable, no input, and no file of the run's twice (before any work)."""
+    refuse_stdout("--map", map_file, "a point cloud file")
+    refuse_stdout("--plot", plot, "PNG files into a folder")
+    refuse_stdout("--viz-save", viz_save, "a rerun recording (.rrd)")
+    if viz_save is not None and viz_save.suffix.lower() != ".rrd":
+        raise ConfigError(f"{viz_save}: a rerun recording is written as .rrd; name the file so")
+    named = [] if out is None else [(f"a file of the run (-o {out})", p) for p in run_outputs(out)]
+    if map_file is not None:
+        named += [("the map (--map)", map_file), ("the map's top view", map_outputs(map_file)[1])]
+    if viz_save is not None:
+        named.append(("the recording (--viz-save)", viz_save))
+    refuse_shared_outputs(named + plot_outputs(plot, plot_files()))
+    for path in [*(map_outputs(map_file) if map_file is not None else []), *([viz_save] if viz_save else [])]:
+        check_writable(path, force, inputs)
+    if plot is not None:
+        check_plot_dir(plot, plot_files(), force, inputs)
 
 
 def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:

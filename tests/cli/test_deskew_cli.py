@@ -4,6 +4,7 @@ import json
 import os
 from pathlib import Path
 
+import matplotlib.image as mpimg
 import pytest
 
 from lio_cli.cli.app import main
@@ -43,11 +44,12 @@ def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs
     assert "/points: 20/20 scans de-skewed to the scan end" in err
     assert f"motion: trajectory {bag.gt_path} (201 poses of the base over 2.0 s, cubic interpolation)" in err
     assert "other topics: 603 messages converted to mcap" in err  # a ROS 1 bag written as MCAP (ros2 profile)
-    assert f"wrote {out} (mcap) and {ply} (" in err
+    assert f"wrote {out} (mcap), {ply} (" in err and f" points) and {tmp_path / 'walk.png'};" in err
     assert err.rstrip().endswith(f"its clouds are de-skewed: run odometry on it without de-skewing again (lio odom {out} "
                                  "--deskew none; kiss-icp: deskew false)")
     for p in (out, ply, tmp_path / "walk_deskewed.metrics.json", tmp_path / "walk_deskewed.config.yaml"):
         assert p.exists()
+    assert mpimg.imread(tmp_path / "walk.png").shape == (800, 800, 4)  # the map from above
     metrics = json.loads((tmp_path / "walk_deskewed.metrics.json").read_text())
     assert metrics["scans"]["deskewed"] == 20 and metrics["output_format"] == "mcap"
     assert metrics["motion"]["source"] == "trajectory" and metrics["time_s"]["total"] > 0

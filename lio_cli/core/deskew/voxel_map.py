@@ -1,6 +1,7 @@
 """A voxel-downsampled point map that grows scan by scan: the first point to reach a voxel stays.
 
-Memory follows the mapped volume (one float32 point and one key per occupied voxel), not the log's length.
+Memory follows the mapped volume (one float32 point and one int64 key per occupied voxel), not the log's length;
+the keys are sorted numpy arrays, so a scan costs numpy work, not a Python step per point.
 """
 
 from __future__ import annotations
@@ -23,12 +24,24 @@ class VoxelMap:
         if not voxel_m > 0:
             raise ValueError(f"voxel size must be positive (got {voxel_m})")
         self.voxel_m = float(voxel_m)
-        self._seen: set[int] = set()
+        # the occupied voxels' keys, sorted: a large array merged rarely and a small one merged per scan
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._recent = np.zeros(0, dtype=np.int64)
+        self._count = 0
         self._chunks: list[np.ndarray] = []
         self.outside = 0  # points beyond the key range, left out
 
     def __len__(self) -> int:
-        return len(self._seen)
+        return self._count
+
+    def _occupied(self, keys: np.ndarray) -> np.ndarray:
+        """Which of ``keys`` name a voxel already occupied."""
+        found = np.zeros(len(keys), dtype=bool)
+        for known in (self._keys, self._recent):
+            if len(known):
+                i = np.minimum(np.searchsorted(known, keys), len(known) - 1)
+                found |= known[i] == keys
+        return found
 
     def add(self, points: np.ndarray) -> None:
         """Add world points (N,3); those falling in voxels already occupied are dropped."""
@@ -40,11 +53,15 @@ class VoxelMap:
         self.outside += int(len(pts) - inside.sum())
         keys, pts = keys[inside], pts[inside]
         uniq, first = np.unique(keys, return_index=True)
-        seen = self._seen
-        fresh = [i for i, k in zip(first.tolist(), uniq.tolist()) if k not in seen]
-        if fresh:
-            seen.update(keys[fresh].tolist())
-            self._chunks.append(pts[fresh].astype(np.float32))
+        fresh = ~self._occupied(uniq)
+        if not fresh.any():
+            return
+        new = uniq[fresh]  # sorted, as np.unique returns them
+        self._recent = np.insert(self._recent, np.searchsorted(self._recent, new), new)
+        if len(self._recent) > max(1 << 16, len(self._keys) >> 3):  # amortised: each key is merged O(log) times
+            self._keys, self._recent = np.sort(np.concatenate([self._keys, self._recent])), self._recent[:0]
+        self._count += int(fresh.sum())
+        self._chunks.append(pts[first[fresh]].astype(np.float32))
 
     def points(self) -> np.ndarray:
         """The map's points (M,3) float32, in the order their voxels were first reached."""

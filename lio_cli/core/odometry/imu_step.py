@@ -79,7 +79,7 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
     o.health.doubt, reason = implausible(nav.state, measured, dirs_b, cfg.fusion, o.health.doubt)
     if o.health.doubt:  # the innovation is not believable: follow the LiDAR, keep velocity, biases and gravity
         st.times_s["fuse"] += time.perf_counter() - tick
-        return doubted_scan(o, cloud, t_prev, t_ref, measured, guess, frame, dirs_b, reason)
+        return doubted_scan(o, cloud, t_prev, t_ref, measured, guess, frame, dirs_b, reason, points)
     # correct the state
     pose = correct(nav.state, measured, dirs_b, dt_scan, cfg.fusion, o.ext.R_base_imu, planar)
     reason = reason or state_implausible(nav.state, cfg.max_speed_mps)
@@ -89,7 +89,7 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
             track_clock(o, t_ref, measured)
     st.times_s["fuse"] += time.perf_counter() - tick
     o.health.lost = 0
-    result = finish(o, t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False)
+    result = finish(o, t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False, points)
     if reason is not None:
         st.recoveries += 1
         o.event("recovery", reason + ": back to LiDAR-only scans")

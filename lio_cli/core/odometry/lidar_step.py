@@ -83,7 +83,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
         o.health.lost = 0
     keep = mapped and not failed
     result = finish(o, t_ref, pose, frame if keep else None, inv_pose(guess) @ measured if keep else None,
-                    dirs_b, failed)
+                    dirs_b, failed, points)
     if imu_gap:
         o.startup.scans = []  # the IMU state starts from scans after the gap
     elif o.imu_ready() and not failed and window and not o.settings.gyro_only:

@@ -35,13 +35,15 @@ class LioOdometry:
 
     def __init__(self, cfg: OdomConfig, T_base_lidar: np.ndarray, *, use_imu: bool, planar: bool,
                  gyro_bias: np.ndarray | None = None, accel_bias: np.ndarray | None = None,
-                 gyro_only: bool = False) -> None:
+                 gyro_only: bool = False, scan_sink=None) -> None:
         """``gyro_only``: every scan is registered LiDAR-only, primed and de-skewed by the gyro's rotation (once
-        the IMU is mounted) but never fused with an IMU state: the poses are the registration's own."""
+        the IMU is mounted) but never fused with an IMU state: the poses are the registration's own.
+        ``scan_sink(stamp_ns, points or None)``: see ``OdomState.scan_sink``."""
         settings = Settings(cfg, use_imu, planar, gyro_only, (gyro_bias, accel_bias),
                             imu_prior=use_imu and cfg.prior == "imu", deskew=cfg.resolved_deskew())
         self.run = OdomState(settings, Extrinsics(np.eye(4), T_base_lidar))
         self.run.nav.g_world = gravity_vector(cfg.gravity_mps2) if planar else None
+        self.run.scan_sink = scan_sink
 
     # ---- inputs -------------------------------------------------------------------------------
     def set_imu_extrinsic(self, T_base_imu: np.ndarray) -> None:

@@ -34,7 +34,7 @@ def failed_registration(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int
 
 
 def doubted_scan(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, measured: np.ndarray, guess: np.ndarray,
-                 frame: np.ndarray, dirs_b: list, reason: str | None) -> ScanResult:
+                 frame: np.ndarray, dirs_b: list, reason: str | None, points: np.ndarray | None = None) -> ScanResult:
     """A scan whose registration the IMU state cannot explain: its pose comes from LiDAR-only registration (gated
     around the gyro and the last poses, not around the doubted prediction); the state follows that pose and keeps
     its velocity, biases and gravity. ``reason``: several such scans in a row, which drop the state."""
@@ -45,7 +45,7 @@ def doubted_scan(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, measu
     o.nav.state, o.nav.g_world, o.health.doubt = kept, g_world, doubt
     if res is None:  # LiDAR-only failed: the prediction-gated registration is all there is
         pose = lean_on_prior(measured, guess, dirs_b)
-        res = finish(o, t_ref, pose, frame, None, dirs_b, False)
+        res = finish(o, t_ref, pose, frame, None, dirs_b, False, points)
     elif reason is None:
         # the LiDAR-only pose times the IMU clock as a registered one does, its window marked (see
         # clock_offset.APPLY_SIGMA_DOUBTED_S)

@@ -80,12 +80,15 @@ def degeneracy(o: OdomState, points: np.ndarray, R_now: np.ndarray) -> list[np.n
 
 
 def finish(o: OdomState, t_ref: int, pose: np.ndarray, frame: np.ndarray | None, correction: np.ndarray | None,
-           dirs_b: list, failed: bool) -> ScanResult:
-    """Record the scan's pose; ``frame`` (None for a failed scan, which stays out of the map) joins the map."""
+           dirs_b: list, failed: bool, points: np.ndarray | None = None) -> ScanResult:
+    """Record the scan's pose; ``frame`` (None for a failed scan, which stays out of the map) joins the map, and
+    ``points`` (its de-skewed points) go to ``o.scan_sink`` with it."""
     o.track.predicted_ns.discard(t_ref)  # a scan registered again (a replay)
     if frame is not None:
         o.reg.accept(correction, frame, pose)
     o.track.append(t_ref, pose)
+    if o.scan_sink is not None:
+        o.scan_sink(t_ref, points if frame is not None else None)
     keep_from = o.startup.hold_ns if o.startup.scans else t_ref
     o.wheel = [w for w in o.wheel if w.stamp_ns > keep_from - WHEEL_KEEP_NS]  # bounded memory
     o.stats.degenerate += int(bool(dirs_b))

@@ -3,6 +3,7 @@ gaps, guards, the degeneracy schedule; and what a step returns (``ScanResult``) 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -224,6 +225,9 @@ class OdomState:
     reg: ScanRegistration | None = None  # the local map, once the first scan set its voxel size
     clock: ClockOffsetTracker | None = None  # online IMU-LiDAR time offset (once the IMU is mounted)
     imu_mounted: bool = False  # T_base_imu is known
+    # told each placed scan's de-skewed points in range (base frame at its stamp), or None when the scan stays out of
+    # the map; a replayed scan is told again
+    scan_sink: Callable[[int, np.ndarray | None], None] | None = None
 
     @property
     def cfg(self) -> OdomConfig:

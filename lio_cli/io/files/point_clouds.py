@@ -22,10 +22,10 @@ def point_map_bytes(points: np.ndarray, suffix: str) -> bytes:
     pts = np.ascontiguousarray(points, dtype="<f4").reshape(-1, 3)
     n = len(pts)
     if suffix.lower() == ".ply":
-        head = ("ply\nformat binary_little_endian 1.0\ncomment written by lio deskew\n"
+        head = ("ply\nformat binary_little_endian 1.0\ncomment written by lio\n"
                 f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
     else:
-        head = ("# .PCD v0.7 - written by lio deskew\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+        head = ("# .PCD v0.7 - written by lio\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
                 f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n")
     return head.encode("ascii") + pts.tobytes()
 

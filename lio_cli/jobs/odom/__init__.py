@@ -6,7 +6,7 @@
 from ...config.odom import OdomConfig
 from ..contract import Command
 from .job import DivergedRun, OdomJob, OdomResult, run_odom, score_odom
-from .outputs import write_odom
+from .outputs import map_outputs, write_odom, write_odom_map, write_odom_plots
 
 
 def _key_metrics(metrics: dict) -> dict:
@@ -20,4 +20,5 @@ COMMAND = Command(
     key_metrics=_key_metrics, threads=lambda config: config.registration.threads,
 )
 
-__all__ = ["COMMAND", "DivergedRun", "OdomJob", "OdomResult", "run_odom", "score_odom", "write_odom"]
+__all__ = ["COMMAND", "DivergedRun", "OdomJob", "OdomResult", "map_outputs", "run_odom", "score_odom", "write_odom",
+           "write_odom_map", "write_odom_plots"]

@@ -30,6 +30,7 @@ from ...model.records import ImuBatch, PointCloud
 from ...model.trajectory import Trajectory
 from ..contract import score_into
 from .inputs import Mounting, OdomInputs, choose_inputs
+from .map import RunMap, ScanSink
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
 _DOUBT_NOTE_SCANS = 5  # this many scans the IMU state could not explain, and...
@@ -55,10 +56,12 @@ PoseSink = Callable[[list[SettledPose]], None]
 
 @dataclass(frozen=True)
 class OdomJob:
-    """Everything one ``lio odom`` run needs."""
+    """Everything one ``lio odom`` run needs. ``map_voxel_m``: also build the map of the run (``OdomResult.map_points``)
+    at this voxel size."""
 
     log: Path
     config: OdomConfig = field(default_factory=OdomConfig)
+    map_voxel_m: float | None = None
 
 
 @dataclass
@@ -72,6 +75,7 @@ class OdomResult:
     roles: dict[str, dict] = field(default_factory=dict)  # topic taken per role, and why
     score: Score | None = None  # set by ``score_odom``
     alignment: np.ndarray | None = None  # 4x4: levels the odometry's internal world (its settled poses') frame
+    map_points: np.ndarray | None = None  # (M,3) float32: the run's map in the trajectory's world (``OdomJob.map_voxel_m``)
 
 
 class DivergedRun(ProcessingError):
@@ -83,13 +87,14 @@ class DivergedRun(ProcessingError):
 
 
 def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader | None = None,
-             settled: PoseSink | None = None) -> OdomResult:
+             settled: PoseSink | None = None, scans: ScanSink | None = None) -> OdomResult:
     """Run odometry over ``job.log``. ``reader``: ``job.log`` already open (a caller that reads the log again
     afterwards saves opening it twice; it stays open). ``settled``: called with each scan's ``SettledPose`` as
     soon as it is final (in order, every pose once; not the IMU predictions of
-    ``registration.slow_register_every``)."""
+    ``registration.slow_register_every``). ``scans``: called as each scan in the map settles, with its stamp,
+    pose (internal world) and de-skewed points (base frame)."""
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
-        return _OdomRun(log, job.config, progress, settled).run()
+        return _OdomRun(log, job.config, progress, settled, job.map_voxel_m, scans).run()
 
 
 def score_odom(result: OdomResult, reference: Trajectory) -> None:
@@ -101,8 +106,10 @@ class _OdomRun:
     """One pass over a log's merged stream, feeding ``LioOdometry`` in time order."""
 
     def __init__(self, reader: LogReader, cfg: OdomConfig, progress: Progress | None,
-                 settled: PoseSink | None = None) -> None:
+                 settled: PoseSink | None = None, map_voxel_m: float | None = None,
+                 scans: ScanSink | None = None) -> None:
         self.reader, self.cfg, self.progress = reader, cfg, progress
+        self.map = RunMap(map_voxel_m, scans) if map_voxel_m or scans else None
         self.settled, self.sent = settled, 0  # poses handed to ``settled`` so far
         self.t_wall = time.perf_counter()
         self.notes: list[str] = []
@@ -131,7 +138,14 @@ class _OdomRun:
                              f"{cfg.registration.min_points} valid points)")
         self.odo.close_clock()
         self._settle(len(self.odo.poses))
-        return self._result()
+        result = self._result()
+        if self.map is not None:
+            self.map.settle(self.odo.stamps_ns, self.odo.poses, len(self.odo.poses))
+        if self.map is not None and self.map.voxels is not None:
+            result.map_points = self.map.cloud(result.alignment)
+            result.metrics["map"] = {"points": len(result.map_points), "voxel_m": self.map.voxel_m,
+                                     "scans": self.map.scans, "frame": "the trajectory's world (levelled)"}
+        return result
 
     def _settle(self, upto: int) -> None:
         """Hand the poses up to ``upto`` not yet handed on to the ``settled`` sink."""
@@ -181,7 +195,8 @@ class _OdomRun:
         self.first_scan_ns = cloud.start_ns
         self.odo = LioOdometry(self.cfg, self.mounting.resolve("T_base_lidar", cloud.frame_id),
                                use_imu=self.inputs.use_imu, planar=self.inputs.planar,
-                               gyro_bias=cal.gyro_bias_radps, accel_bias=cal.accel_bias_mps2)
+                               gyro_bias=cal.gyro_bias_radps, accel_bias=cal.accel_bias_mps2,
+                               scan_sink=None if self.map is None else self.map.scan)
         for batch in self.early_imu:
             self._add_imu(batch)
 
@@ -204,6 +219,8 @@ class _OdomRun:
             self.pending.popleft()
             odo.process(cloud)
             self._settle(odo.settled)
+            if self.map is not None:
+                self.map.settle(odo.stamps_ns, odo.poses, odo.settled)
             self.done += 1
             if self.progress:
                 self.progress(self.done, self.reader.topics[self.inputs.lidar].count)

@@ -33,3 +33,21 @@ def test_far_points_are_counted_not_wrapped():
     assert len(m) == 1 and m.outside == 1
     with pytest.raises(ValueError):
         VoxelMap(0.0)
+
+
+def test_many_scans_keep_first_come_points_as_a_set_of_keys_would():
+    rng = np.random.default_rng(1)
+    m, seen, expected = VoxelMap(0.1), set(), []
+    for _ in range(12):  # ~150 000 voxels: the sorted keys are merged several times on the way
+        pts = rng.uniform(-3, 3, (20000, 3)) + rng.uniform(-2, 2, 3)
+        m.add(pts)
+        ijk = np.floor(pts / 0.1).astype(np.int64)
+        _, first = np.unique(ijk, axis=0, return_index=True)
+        for i in sorted(first, key=lambda i: tuple(ijk[i])):
+            if tuple(ijk[i]) not in seen:
+                seen.add(tuple(ijk[i]))
+                expected.append(pts[i])
+    assert len(m) == len(seen) > 1 << 16
+    got = m.points().astype(np.float64)
+    assert sorted(map(tuple, np.floor(got / 0.1).astype(np.int64))) == sorted(seen)
+    np.testing.assert_allclose(np.sort(got, axis=0), np.sort(np.array(expected), axis=0), rtol=1e-6)

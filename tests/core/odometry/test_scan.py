@@ -74,3 +74,33 @@ def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(m
                                              False, False, cfg.fusion)
             assert len(dirs) == 1
         assert analysed == expected, (cfg.fusion.degeneracy_every_clear, analysed)
+
+
+def test_the_scan_sink_gets_each_placed_scans_points_and_a_replay_tells_it_again(make_scan, still_imu):
+    from lio_cli.config.odom import OdomConfig
+    from lio_cli.core.odometry import LioOdometry
+
+    told: list[tuple[int, np.ndarray | None]] = []
+    odo = LioOdometry(OdomConfig(), np.eye(4), use_imu=True, planar=False,
+                      scan_sink=lambda stamp, pts: told.append((stamp, pts)))
+    odo.set_imu_extrinsic(np.eye(4))
+    odo.add_imu(still_imu(0, 3 * NS))
+    for k in range(1, 21):
+        odo.process(make_scan(np.eye(4), k * NS // 10))
+    assert odo.imu_mode  # the start-up window was aligned with the IMU and replayed
+    stamps = [s for s, _ in told]
+    assert sorted(set(stamps)) == odo.stamps_ns == [k * NS // 10 for k in range(1, 21)]
+    assert len(stamps) > len(set(stamps))  # the window's scans were told again when replayed
+    last = dict(told)
+    cloud = make_scan(np.eye(4), NS // 10)
+    for stamp, pts in last.items():
+        assert pts is not None and len(pts) == len(cloud.points)  # standing still: every point, where it was
+        np.testing.assert_allclose(pts, cloud.points, atol=1e-4)  # de-skewed by an IMU state at rest to 0.1 mm
+
+
+def test_a_failed_scan_is_told_with_no_points(make_state):
+    o = make_state()
+    told = []
+    o.scan_sink = lambda stamp, pts: told.append((stamp, pts))
+    finish(o, NS, np.eye(4), None, None, [], True, np.zeros((5, 3)))
+    assert told == [(NS, None)]
