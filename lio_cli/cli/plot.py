@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Literal, Optional, get_args
 
 import typer
 
@@ -12,7 +12,7 @@ from ..errors import ConfigError
 from ..io.files.output_paths import check_plot_dir, refuse_stdout
 from ..io.sensors.sources import split_source
 from ..jobs.plot import PLOT_ALIGN_MODES, PlotJob, plot_files, run_plot, write_plot
-from .common import ForceOpt, QuietOpt, note
+from .common import (INPUT_PANEL, OUTPUT_PANEL, ForceOpt, LioCommand, QuietOpt, note, one_of)
 
 HELP = """Draw trajectories: top view, x/y/z and roll/pitch/yaw over time, speed.
 
@@ -32,24 +32,23 @@ poses coincide).
 [bold]Examples[/bold]
 
   lio plot walk.odom.tum walk.gt.tum -o plots/
-
   lio plot walk.bag:/ground_truth walk.odom.tum --align se3
-
   lio plot poses.txt --rate 10 -o kitti_plots/
 """
 
-InputPanel, AlignPanel, OutputPanel = "Input and topics", "Alignment", "Output"
+Align = Literal["none", "se3", "sim3", "posyaw", "origin"]
+ALIGN_PANEL = "Pairing and alignment"
 
 
 def plot(
-    trajectories: Annotated[list[str], typer.Argument(help="Trajectories: TUM/KITTI files, LOG:/topic, LOG:tf:parent.child.", show_default=False)],
-    times: Annotated[Optional[Path], typer.Option("--times", help="KITTI times file (one stamp in s per line) for KITTI pose files.", show_default=False, rich_help_panel=InputPanel)] = None,
-    rate: Annotated[Optional[float], typer.Option("--rate", help="Stamp KITTI pose files at this rate (Hz) instead of --times.", show_default=False, rich_help_panel=InputPanel)] = None,
-    align_mode: Annotated[str, typer.Option("--align", help=f"Align each trajectory to the first: {', '.join(PLOT_ALIGN_MODES)}.", rich_help_panel=AlignPanel)] = "none",
-    t_max_diff: Annotated[float, typer.Option("--t-max-diff", help="Largest stamp difference (s) of a pose pair for --align.", rich_help_panel=AlignPanel)] = 0.01,
-    output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the PNGs (made if missing).", rich_help_panel=OutputPanel)] = Path("."),
-    force: Annotated[bool, typer.Option("--force", help="Overwrite existing PNGs.", rich_help_panel=OutputPanel)] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No notes on stderr (errors still print).", rich_help_panel=OutputPanel)] = False,
+    trajectories: Annotated[list[str], typer.Argument(metavar="TRAJ", help="Trajectories: TUM/KITTI files, LOG:/topic, LOG:tf:parent.child.", show_default=False)],
+    times: Annotated[Optional[Path], typer.Option("--times", help="KITTI times file (one stamp in s per line) for KITTI pose files.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    rate: Annotated[Optional[float], typer.Option("--rate", metavar="<float>", help="Stamp KITTI pose files at this rate (Hz) instead of --times.", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
+    align_mode: Annotated[Align, typer.Option("--align", metavar=one_of(Align), help="Align each trajectory to the first.", rich_help_panel=ALIGN_PANEL)] = "none",
+    t_max_diff: Annotated[float, typer.Option("--t-max-diff", metavar="<float>", help="Largest stamp difference (s) of a pose pair for --align.", rich_help_panel=ALIGN_PANEL)] = 0.01,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the PNGs (made if missing).", rich_help_panel=OUTPUT_PANEL)] = Path("."),
+    force: ForceOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
     if align_mode not in PLOT_ALIGN_MODES:
         raise ConfigError(f"--align must be one of {', '.join(PLOT_ALIGN_MODES)}, got '{align_mode}'")
@@ -69,4 +68,4 @@ def plot(
 
 def register(app: typer.Typer) -> None:
     app.command("plot", help=HELP, short_help="Draw trajectories: top view, x/y/z, roll/pitch/yaw, speed.",
-                no_args_is_help=True)(plot)
+                no_args_is_help=True, cls=LioCommand)(plot)

@@ -70,7 +70,7 @@ def test_a_log_topic_is_read_as_evaluate_reads_it(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["missing.tum"], "lio: error: missing.tum: no such file or folder"),
-    (["{a}", "--align", "scale"], "lio: error: --align must be one of none, se3, sim3, origin, posyaw, got 'scale'"),
+    (["{a}", "--align", "scale"], "lio: error: Invalid value for '--align': 'scale' is not one of 'none', 'se3', 'sim3', 'posyaw', 'origin'; see 'lio plot --help'"),
     (["{a}", "--times", "{a}", "--rate", "10"], "lio: error: give --times or --rate, not both"),
     (["{a}", "-o", "-"], "lio: error: -o writes PNG files into a folder, not standard output: give -o a path"),
     (["{kitti}"], "lio: error: {kitti}: KITTI poses carry no stamps; give --times FILE (KITTI times.txt) or --rate HZ"),
