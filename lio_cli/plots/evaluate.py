@@ -1,7 +1,7 @@
 """PNG plots of an evaluation (matplotlib, Agg backend): top view, APE over time and distance, RPE histogram;
 with --estimate-offset the error over the searched offsets, with groups the metrics of every run per group.
 
-Each function writes one file atomically (through ``lio_cli.io.files.atomic_output``) and returns its path.
+Each function writes one file atomically (``style.save_tight``) and returns its path.
 Figures are sized and lettered to be read at 100% zoom.
 """
 
@@ -11,38 +11,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.files.atomic import atomic_output
 from ..evaluation import EvalResult
+from .style import pyplot, save_tight, short_label
 
-_DPI = 110
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 
 
-def _pyplot():
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({"font.size": 12, "axes.titlesize": 14, "axes.labelsize": 12, "legend.fontsize": 11,
-                         "axes.grid": True, "grid.alpha": 0.3})
-    return plt
-
-
-def _save(fig, path: Path, force: bool) -> Path:
-    with atomic_output(path, force) as tmp:
-        fig.savefig(tmp, format="png", dpi=_DPI, bbox_inches="tight")
-    return path
-
-
-def _label(name: str) -> str:
-    return name if len(name) <= 40 else "..." + name[-37:]
 
 
 def plot_top_view(ref_positions: np.ndarray, results: list[EvalResult], path: Path, force: bool = False,
                   ref_as_points: bool = False) -> Path:
     """Ground truth and aligned estimates seen from above (x-y, equal axes); a GPS reference as points."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 7))
     if ref_as_points:
         ax.plot(ref_positions[:, 0], ref_positions[:, 1], "o", color="black", ms=3.5, alpha=0.6,
@@ -52,7 +33,7 @@ def plot_top_view(ref_positions: np.ndarray, results: list[EvalResult], path: Pa
     for k, r in enumerate(results):
         p = r.est_aligned[:, :3, 3]
         ax.plot(p[:, 0], p[:, 1], color=_COLORS[k % len(_COLORS)], lw=1.6,
-                label=f"{_label(r.name)} (APE rmse {r.stats['ape']['trans']['rmse']:.3g} m)")
+                label=f"{short_label(r.name)} (APE rmse {r.stats['ape']['trans']['rmse']:.3g} m)")
     ax.plot(ref_positions[0, 0], ref_positions[0, 1], "o", color="black", ms=8, label="start")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("east [m]" if ref_as_points else "x [m]")
@@ -61,14 +42,14 @@ def plot_top_view(ref_positions: np.ndarray, results: list[EvalResult], path: Pa
     ax.set_title(f"Top view (estimates aligned: {mode})")
     ax.legend(loc="best")
     try:
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 
 
 def plot_ape(results: list[EvalResult], path: Path, force: bool = False) -> Path:
     """APE translation over time (top) and over distance travelled along the ground truth (bottom)."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_t, ax_d) = plt.subplots(2, 1, figsize=(10, 7.5))
     t0 = min(int(r.association.ref.stamps_ns[0]) for r in results)
     for k, r in enumerate(results):
@@ -77,8 +58,8 @@ def plot_ape(results: list[EvalResult], path: Path, force: bool = False) -> Path
         ref_p = r.association.ref.positions
         dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref_p, axis=0), axis=1))])
         e = r.ape["trans"]
-        ax_t.plot(t, e, color=color, lw=1.3, label=_label(r.name))
-        ax_d.plot(dist, e, color=color, lw=1.3, label=_label(r.name))
+        ax_t.plot(t, e, color=color, lw=1.3, label=short_label(r.name))
+        ax_d.plot(dist, e, color=color, lw=1.3, label=short_label(r.name))
     ax_t.set_xlabel("time since start [s]")
     ax_d.set_xlabel("distance travelled along ground truth [m]")
     for ax in (ax_t, ax_d):
@@ -88,14 +69,14 @@ def plot_ape(results: list[EvalResult], path: Path, force: bool = False) -> Path
     ax_t.set_title(f"Absolute position error (alignment: {results[0].alignment.mode})")
     fig.tight_layout()
     try:
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 
 
 def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = False) -> Path:
     """Histograms of RPE translation and rotation errors."""
-    plt = _pyplot()
+    plt = pyplot()
     with_rot = [r for r in results if "rot" in r.rpe]  # position-only (GPS) runs have no rotation error
     fig, axes = plt.subplots(1, 2 if with_rot else 1, figsize=(12, 5) if with_rot else (7, 5), squeeze=False)
     ax_t, ax_r = axes[0][0], axes[0][-1] if with_rot else None
@@ -105,9 +86,9 @@ def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = Fals
     bins_r = np.histogram_bin_edges(np.concatenate([r.rpe["rot"] for r in with_rot]), bins=40) if with_rot else None
     for k, r in enumerate(results):
         color = _COLORS[k % len(_COLORS)]
-        ax_t.hist(r.rpe["trans"], bins=bins_t, color=color, alpha=0.5, label=_label(r.name))
+        ax_t.hist(r.rpe["trans"], bins=bins_t, color=color, alpha=0.5, label=short_label(r.name))
         if ax_r is not None and "rot" in r.rpe:
-            ax_r.hist(r.rpe["rot"], bins=bins_r, color=color, alpha=0.5, label=_label(r.name))
+            ax_r.hist(r.rpe["rot"], bins=bins_r, color=color, alpha=0.5, label=short_label(r.name))
     ax_t.set_xlabel("RPE translation [m]")
     if ax_r is not None:
         ax_r.set_xlabel("RPE rotation [deg]")
@@ -118,7 +99,7 @@ def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = Fals
     fig.suptitle(f"Relative pose error over {o.delta:g} {unit}{' (all pairs)' if o.all_pairs else ''}", fontsize=14)
     fig.tight_layout()
     try:
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 
@@ -126,17 +107,17 @@ def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = Fals
 def plot_offsets(results: list[EvalResult], path: Path, force: bool = False) -> Path:
     """Per estimate with an estimated offset: sampled matches and aligned error over the searched offsets (top),
     and the error close to the estimate (bottom)."""
-    plt = _pyplot()
+    plt = pyplot()
     runs = [r for r in results if r.offset is not None]
     fig, (ax_m, ax_z) = plt.subplots(2, 1, figsize=(10, 8))
     ax_e = ax_m.twinx()
     for k, r in enumerate(runs):
         f, color = r.offset, _COLORS[k % len(_COLORS)]
         ax_m.plot(f.grid_ns / 1e9, f.grid_matches / max(f.sampled, 1) * 100.0, color=color, lw=1.0, alpha=0.45)
-        ax_e.semilogy(f.curve_ns / 1e9, f.curve_cost, ".", color=color, ms=4, label=_label(r.name))
+        ax_e.semilogy(f.curve_ns / 1e9, f.curve_cost, ".", color=color, ms=4, label=short_label(r.name))
         rel_ms = (f.zoom_ns - f.offset_ns) / 1e6
         ax_z.plot(rel_ms, f.zoom_cost, color=color, lw=1.5,
-                  label=f"{_label(r.name)}: {f.offset_s:+.6f} s, rmse {f.rmse_m:.3g} m")
+                  label=f"{short_label(r.name)}: {f.offset_s:+.6f} s, rmse {f.rmse_m:.3g} m")
         ax_z.axvline(0.0, color=color, lw=0.8, ls=":")
     ax_m.set_xlabel("offset added to the estimate's stamps [s]")
     ax_m.set_ylabel("sampled stamps paired [%] (lines)")
@@ -148,7 +129,7 @@ def plot_offsets(results: list[EvalResult], path: Path, force: bool = False) -> 
     ax_z.legend(loc="upper center")
     fig.tight_layout()
     try:
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 
@@ -159,7 +140,7 @@ _GROUP_PANELS = (("ape_trans_rmse", "APE translation rmse [m]"), ("rpe_trans_rms
 
 def plot_groups(groups, results: list[EvalResult], path: Path, force: bool = False) -> Path:
     """Per group: every run's value (dots) with mean +- std (bar) for APE/RPE translation and APE rotation."""
-    plt = _pyplot()
+    plt = pyplot()
     metrics = {r.name: r.flat_metrics() for r in results}
     panels = [(k, t) for k, t in _GROUP_PANELS if any(g.metrics[k]["n"] for g in groups)]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels) + 1, 5), squeeze=False)
@@ -171,14 +152,14 @@ def plot_groups(groups, results: list[EvalResult], path: Path, force: bool = Fal
             s = g.metrics[key]
             if s["n"]:
                 ax.errorbar([k + 0.3], [s["mean"]], yerr=[[s["std"] or 0.0]], fmt="s", color=color, capsize=6, ms=7)
-        ax.set_xticks(range(len(groups)), [f"{_label(g.name)}\n({len(g.runs)} runs)" for g in groups])
+        ax.set_xticks(range(len(groups)), [f"{short_label(g.name)}\n({len(g.runs)} runs)" for g in groups])
         ax.set_xlim(-0.6, len(groups) - 0.4)
         ax.set_ylabel(title)
         ax.set_ylim(bottom=0.0)
     fig.suptitle("Statistics over runs: runs (dots), mean +- std (squares)", fontsize=14)
     fig.tight_layout()
     try:
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 

@@ -15,12 +15,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..geometry import interpolate_poses, inv_pose, yaw_of
-from ..io.files.atomic import atomic_output
 from ..model.trajectory import Trajectory
+from .style import pyplot, save_tight
 
 PLOT_FILES = ("fuse_top_view.png", "fuse_speed_yaw_rate.png")  # what ``write_plots`` writes, in order
 MAX_POINTS = 20_000  # per line: plenty for a PNG, bounded for hour-long runs
-_DPI = 110
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e"]
 
 
@@ -33,21 +32,6 @@ class FusedRun(Protocol):
     sources: Any  # its ``inputs``: the wheel, imu, odom and gps series that were fused
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({"font.size": 12, "axes.titlesize": 14, "legend.fontsize": 11, "axes.grid": True,
-                         "grid.alpha": 0.3})
-    return plt
-
-
-def _save(fig, path: Path, force: bool) -> Path:
-    with atomic_output(path, force) as tmp:
-        fig.savefig(tmp, format="png", dpi=_DPI, bbox_inches="tight")
-    return path
 
 
 def _thin(n: int) -> slice:
@@ -118,7 +102,7 @@ def _gps_in_world(run: FusedRun) -> np.ndarray | None:
 
 
 def plot_top_view(run: FusedRun, path: Path, force: bool = False) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 7))
     try:
         gps = _gps_in_world(run)
@@ -145,7 +129,7 @@ def plot_top_view(run: FusedRun, path: Path, force: bool = False) -> Path:
         ax.set_ylabel("y [m]")
         ax.set_title("Top view: sources and fused trajectory")
         ax.legend(loc="best")
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 
@@ -164,7 +148,7 @@ def _fused_rates(run: FusedRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def plot_speed_yaw_rate(run: FusedRun, path: Path, force: bool = False) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
     try:
         tr = run.trajectory
@@ -192,7 +176,7 @@ def plot_speed_yaw_rate(run: FusedRun, path: Path, force: bool = False) -> Path:
         a1.set_title("Speed and yaw rate")
         for a in (a1, a2):
             a.legend(loc="best")
-        return _save(fig, path, force)
+        return save_tight(fig, path, force)
     finally:
         plt.close(fig)
 

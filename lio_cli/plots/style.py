@@ -1,5 +1,6 @@
-"""What lio's newer pictures share: a matplotlib ``Figure`` of a fixed size (no pyplot state, so nothing to close
-and a PNG of exactly ``size_in * DPI`` pixels), its lettering, its colours, and an atomic PNG write."""
+"""What lio's pictures share: a matplotlib ``Figure`` of a fixed size (no pyplot state, so nothing to close and a
+PNG of exactly ``size_in * DPI`` pixels), its lettering, its colours, and atomic PNG writes; ``pyplot`` and
+``save_tight`` for the evaluate and fuse pictures, which are laid out by pyplot and cropped to their content."""
 
 from __future__ import annotations
 
@@ -47,3 +48,26 @@ def save_png(fig, path: Path, force: bool = False) -> Path:
     with atomic_output(Path(path), force) as tmp:
         fig.savefig(tmp, format="png", dpi=DPI)
     return Path(path)
+
+
+TIGHT_DPI = 110  # the pyplot-based pictures: cropped to their content, so their size follows what they hold
+_PYPLOT_RC = {"font.size": 12, "axes.titlesize": 14, "axes.labelsize": 12, "legend.fontsize": 11, "axes.grid": True,
+              "grid.alpha": 0.3}
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, lettered for the pyplot-based pictures."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update(_PYPLOT_RC)
+    return plt
+
+
+def save_tight(fig, path: Path, force: bool = False) -> Path:
+    """``fig`` as a PNG cropped to its content at ``path`` (atomically; an existing file only with ``force``)."""
+    with atomic_output(Path(path), force) as tmp:
+        fig.savefig(tmp, format="png", dpi=TIGHT_DPI, bbox_inches="tight")
+    return path
