@@ -45,7 +45,17 @@ ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="sensor_
 WheelTopicOpt = Annotated[Optional[str], typer.Option("--wheel-topic", help="Wheel odometry topic, nav_msgs/Odometry or TwistStamped (default: the only one).", show_default=False)]
 PointTimeOpt = Annotated[Optional[str], typer.Option("--point-time", help="Per-point time convention, overriding detection: velodyne, ouster, livox, hesai, azimuth, none, FIELD:UNIT[:abs|rel] (UNIT s|ms|us|ns) or SEC_FIELD+NSEC_FIELD[:abs|rel] (e.g. time_sec+time_nsec).", show_default=False)]
 ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (see the .config.yaml a run writes).", show_default=False)]
+PreferCalibOpt = Annotated[bool, typer.Option("--prefer-calib", help="Use --calib's extrinsics even where the log's /tf_static gives them (config: calibration.prefer_file: true); a note says how far apart the two are either way.", rich_help_panel="Calibration")]
 BaseFrameOpt = Annotated[Optional[str], typer.Option("--base-frame", help="Name of the base frame in /tf_static (default: base_link, base or base_footprint).", show_default=False)]
+
+
+def prefer_calib_override(prefer: bool, calib: Path | None, config: Path | None) -> bool | None:
+    """--prefer-calib as a configuration override (None: as the configuration says); it needs a calibration."""
+    if prefer and calib is None and config is None:
+        from ..errors import ConfigError
+
+        raise ConfigError("--prefer-calib prefers the extrinsics of --calib: give --calib FILE")
+    return True if prefer else None
 
 
 def print_json(obj: Any) -> None:
@@ -60,6 +70,18 @@ def note(msg: str, quiet: bool = False) -> None:
     """A line for people on stderr."""
     if not quiet:
         err_console.print(msg)
+
+
+def next_step(args: list[str], quiet: bool = False) -> None:
+    """``next: lio ARGS...``: a command to run next, quoted for a POSIX shell so it pastes as printed."""
+    import shlex
+
+    note("next: " + shlex.join(["lio", *(str(a) for a in args)]), quiet)
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``1 run``, ``2 runs`` (``many``: the plural when it is not word + s)."""
+    return f"{n} {word if n == 1 else many or word + 's'}"
 
 
 def warn(msg: str) -> None:

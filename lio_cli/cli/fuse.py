@@ -14,10 +14,10 @@ from ..config.fuse import FuseConfig, parse_use
 from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.files.trajectory import format_tum
-from ..jobs.fuse import FuseJob, FuseRun, check_fuse_outputs, run_fuse, write_fuse
-from ..jobs.outputs import log_stem
-from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LogArg, QuietOpt,
-                     WheelTopicOpt, job_progress, note, print_json, warn)
+from ..jobs.fuse import TAG, FuseJob, FuseRun, check_fuse_outputs, run_fuse, write_fuse
+from ..jobs.outputs import default_output
+from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LogArg, PreferCalibOpt,
+                     QuietOpt, WheelTopicOpt, job_progress, note, plural, prefer_calib_override, print_json, warn)
 
 HELP = """Fuse a log's IMU, wheel odometry, GPS and an odometry trajectory into one smooth trajectory of the base.
 
@@ -33,14 +33,15 @@ an odometry trajectory: --odom FILE (TUM/KITTI, e.g. from lio odom) or --odom-to
 other commands do; --use picks which measurement of which source enters (SOURCE or SOURCE:M1,M2; repeat):
 imu:gyro,accel,orientation  wheel:speed|velocity,yaw_rate  odom:pose|delta  gps:position.
 
-Writes OUT (TUM), OUT-stem.metrics.json (sources used, updates per source, rejected measurements and why, time)
-and OUT-stem.config.yaml (the whole run: `lio fuse LOG --config it` repeats it exactly). --cov FILE adds the
+Writes OUT (TUM; default LOG-stem.fuse.tum), OUT-stem.fuse.metrics.json (sources used, updates per source,
+rejected measurements and why, time) and OUT-stem.fuse.config.yaml (the whole run: `lio fuse LOG --config it`
+repeats it exactly). --cov FILE adds the
 per-pose 6x6 covariance, --plot DIR a top view of the sources and the result and speed and yaw rate over time.
 With -o - the trajectory goes to stdout and no metrics or config file is written.
 
 [bold]Examples[/bold]
 
-  lio fuse jackal.bag -o jackal_fused.tum --plot plots/
+  lio fuse jackal.bag --plot plots/        # jackal.fuse.tum, .metrics.json, .config.yaml
 
   lio fuse run.mcap --odom run_odom.tum --rate 200 --smooth -o fused.tum --cov fused.cov
 
@@ -57,9 +58,10 @@ def _check_rate(rate: float | None) -> None:
 
 def fuse_cmd(
     log: LogArg,
-    output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.fused.tum in the current folder.", show_default=False)] = None,
+    output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.fuse.tum in the current folder.", show_default=False)] = None,
     config: ConfigOpt = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False)] = None,
+    prefer_calib: PreferCalibOpt = False,
     odom: Annotated[Optional[Path], typer.Option("--odom", help="Odometry trajectory to fuse: TUM or KITTI file (e.g. from lio odom), or LOG:/topic.", show_default=False)] = None,
     odom_topic: Annotated[Optional[str], typer.Option("--odom-topic", help="Pose source of the log to fuse as odometry (Odometry, PoseStamped, TransformStamped).", show_default=False)] = None,
     gps_topic: Annotated[Optional[str], typer.Option("--gps-topic", help="sensor_msgs/NavSatFix topic (default: the only one).", show_default=False)] = None,
@@ -84,6 +86,7 @@ def fuse_cmd(
     _check_rate(rate)
     cfg = load_config(FuseConfig, config, calib)
     cfg = with_overrides(cfg, {
+        "calibration.prefer_file": prefer_calib_override(prefer_calib, calib, config),
         "input.format": fmt, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
         "input.gps_topic": gps_topic, "input.odom_topic": odom_topic, "input.odom_file": str(odom) if odom else None,
         "input.base_frame": base_frame, "use": parse_use(use) if use else None, "estimator": estimator,
@@ -94,7 +97,7 @@ def fuse_cmd(
     to_stdout = output == "-"
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
-    out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.fused.tum")
+    out = None if to_stdout else Path(output) if output else default_output(log, TAG, ".tum")
     inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
     if cfg.input.odom_file and Path(cfg.input.odom_file).exists():
         inputs.append(Path(cfg.input.odom_file))
@@ -123,15 +126,16 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
             continue
         rej = sum(r["count"] for r in s["rejected"].values())
         why = ", ".join(f"{r['count']} {k}" for k, r in s["rejected"].items())
-        parts.append(f"{src} {s['updates']} updates" + (f", {rej} rejected ({why})" if rej else ""))
+        parts.append(f"{src} {plural(s['updates'], 'update')}" + (f", {rej} rejected ({why})" if rej else ""))
     est = m["estimator"] + (" + smoother" if m["smoothed"] else "")
     chunks = m["memory"]["chunks"]
-    note(f"{m['output']['poses']} poses ({m['output']['stamps']}), {est}: {'; '.join(parts)}"
+    note(f"{plural(m['output']['poses'], 'pose')} ({m['output']['stamps']}), {est}: {'; '.join(parts)}"
          + (f"; fused in {chunks} chunks (memory budget {m['memory']['budget_mb']:g} MB)" if chunks > 1 else ""), quiet)
-    note(f"{m['time_s']['total']:.2f} s wall, {m['real_time_factor'] or 0:.0f}x real time"
-         + (f"; wrote {', '.join(str(p) for p in written)}" if written else ""), quiet)
+    note(f"{m['time_s']['total']:.2f} s wall, {m['real_time_factor'] or 0:.0f}x real time", quiet)
     if m.get("start"):
         note(f"start: {m['start']}", quiet)
+    if written:
+        note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 
 
 def register(app: typer.Typer) -> None:

@@ -10,8 +10,8 @@ from rich.table import Table
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.logs.reader import open_log
 from ..jobs.info import check_log, describe_log
-from .common import (FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, print_json,
-                     progress_bar, warn)
+from .common import (FormatOpt, JsonOpt, LogArg, PointTimeOpt, QuietOpt, err_console, out_console, plural,
+                     print_json, progress_bar, warn)
 
 HELP = """Show what a log holds: format, time span, topics with types, counts and rates; for every scan topic
 its fields, point count and per-point time convention (and whether the header stamp marks the scan's start
@@ -57,8 +57,10 @@ def _print_human(s: dict, quiet: bool = False) -> None:
     c = out_console
     c.print(f"[bold]{s['path']}[/bold]  ({s['format']})")
     if s["messages"]:
-        c.print(f"start {s['start_ns'] / 1e9:.3f} s   end {s['end_ns'] / 1e9:.3f} s   "
-                f"duration {s['duration_s']:.3f} s   {s['messages']} messages")
+        for what in ("start", "end"):
+            ns, date = s[f"{what}_ns"], s[f"{what}_utc"]
+            c.print(f"{what:<8} {ns // 10**9}.{ns % 10**9 // 10**6:03d} s" + (f"   {date.replace('T', ' ').replace('Z', ' UTC')}" if date else ""))
+        c.print(f"duration {s['duration_s']:.3f} s   {plural(s['messages'], 'message')}")
     else:
         c.print("empty log: no messages")
     table = Table(box=None, pad_edge=False)
@@ -90,7 +92,7 @@ def _print_human(s: dict, quiet: bool = False) -> None:
         warn(problem)
     if "check" in s and not quiet:
         n = sum(s["check"]["checked"].values())
-        err_console.print(f"check passed: {n} sensor messages decoded, stamps in order, clouds non-empty")
+        err_console.print(f"check passed: {plural(n, 'sensor message')} decoded, stamps in order, clouds non-empty")
 
 
 def register(app: typer.Typer) -> None:

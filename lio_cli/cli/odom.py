@@ -16,10 +16,11 @@ from ..io.logs.detect import input_paths
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.files.trajectory import format_tum
 from ..jobs.contract import load_reference
-from ..jobs.odom import DivergedRun, OdomJob, OdomResult, run_odom, score_odom, write_odom
-from ..jobs.outputs import check_outputs, log_stem
+from ..jobs.odom import TAG, DivergedRun, OdomJob, OdomResult, run_odom, score_odom, write_odom
+from ..jobs.outputs import check_outputs, default_output
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,
-                     PointTimeOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, print_json, warn)
+                     PointTimeOpt, PreferCalibOpt, QuietOpt, WheelTopicOpt, err_console, job_progress, note, plural,
+                     prefer_calib_override, print_json, warn)
 
 HELP = """Estimate the trajectory of the base frame from LiDAR scans primed by the IMU (and wheels).
 
@@ -28,14 +29,16 @@ stamp, the scan is registered to a local map (kiss-icp) starting from that predi
 complementary filter) corrects pose, velocity and IMU biases for the next scan. Each output pose is
 stamped with the instant its scan was de-skewed to (the scan's end by default).
 
-Writes OUT (TUM: stamp tx ty tz qx qy qz qw), OUT-stem.metrics.json and OUT-stem.config.yaml beside it.
+Writes OUT (TUM: stamp tx ty tz qx qy qz qw; default LOG-stem.odom.tum), and beside it
+OUT-stem.odom.metrics.json and OUT-stem.odom.config.yaml (one .odom in the name: walk.tum and
+walk.odom.tum both give walk.odom.metrics.json).
 The .config.yaml is the whole run (topics, calibration, base frame, options): `lio odom LOG --config
 it` repeats the run exactly; flags given with --config override its fields one by one.
 With -o - the trajectory goes to stdout and no other file is written.
 
 [bold]Examples[/bold]
 
-  lio odom sample_logs/handheld.bag -o handheld.tum
+  lio odom sample_logs/handheld.bag        # handheld.odom.tum, .metrics.json, .config.yaml
 
   lio odom run.mcap --lidar-topic /os/points --fusion complementary --alpha 0.9 -o -  | head
 
@@ -47,9 +50,10 @@ With -o - the trajectory goes to stdout and no other file is written.
 
 def odom(
     log: LogArg,
-    output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.tum in the current folder.", show_default=False)] = None,
+    output: Annotated[Optional[str], typer.Option("-o", "--output", help="TUM trajectory file, or - for stdout. Default: LOG-stem.odom.tum in the current folder.", show_default=False)] = None,
     config: ConfigOpt = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML: T_base_imu, T_base_lidar, imu_time_offset_s (used where /tf_static is silent).", show_default=False)] = None,
+    prefer_calib: PreferCalibOpt = False,
     deskew: Annotated[Optional[str], typer.Option("--deskew", help="imu | constant-velocity | none.", show_default=False)] = None,
     prior: Annotated[Optional[str], typer.Option("--prior", help="Initial guess for registration: imu | constant-velocity | wheel | none.", show_default=False)] = None,
     fusion: Annotated[Optional[str], typer.Option("--fusion", help="ekf | complementary.", show_default=False)] = None,
@@ -73,6 +77,7 @@ def odom(
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {
+        "calibration.prefer_file": prefer_calib_override(prefer_calib, calib, config),
         "deskew": deskew, "prior": prior, "frame": frame, "planar": planar, "fusion.method": fusion,
         "fusion.alpha": alpha, "use_wheel": False if no_wheel else None, "input.format": fmt,
         "input.lidar_topic": lidar_topic, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
@@ -83,12 +88,12 @@ def odom(
     to_stdout = output == "-"
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
-    out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.tum")
+    out = None if to_stdout else Path(output) if output else default_output(log, TAG, ".tum")
     if out is not None:
         inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
         if gt is not None and Path(gt).exists():
             inputs.append(Path(gt))
-        check_outputs(out, force, inputs)
+        check_outputs(out, TAG, force, inputs)
 
     reference = load_reference(Path(log), gt) if gt is not None else None
     with job_progress("odometry", quiet) as update:
@@ -113,18 +118,18 @@ def odom(
     if to_stdout:
         sys.stdout.write(format_tum(result.trajectory.stamps_ns, result.trajectory.poses))
         sys.stdout.flush()
-    else:
-        write_odom(result, out, force)
-    _report(result, None if to_stdout else out, quiet)
+    written = [] if to_stdout else write_odom(result, out, force)
+    _report(result, written, quiet)
     if as_json:
         print_json(result.metrics)
 
 
-def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
+def _report(result: OdomResult, written: list[Path], quiet: bool) -> None:
     st, m = result.stats, result.metrics
-    note(f"{st.used}/{st.scans} scans used, {st.degenerate} degenerate, {st.registration_failures} registration "
-         f"failures, {st.imu_gaps} IMU gaps; {m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x "
-         "real time" + ("" if out is None else f"; wrote {out}"), quiet)
+    note(f"{st.used}/{plural(st.scans, 'scan')} used, {st.degenerate} degenerate, "
+         f"{plural(st.registration_failures, 'registration failure')}, {plural(st.imu_gaps, 'IMU gap')}; "
+         f"{m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x "
+         "real time", quiet)
     note(f"start: {result.initialisation}", quiet)
     if result.score is not None:
         a = result.score
@@ -133,6 +138,8 @@ def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
                           f"({_ALIGNED[a.alignment].format(n=a.matches)}); RPE over {a.rpe_delta}: {rpe}", markup=False)
         if a.note:
             note(a.note, quiet)
+    if written:
+        note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 
 
 _ALIGNED = {"se3": "SE(3)-aligned rmse over {n} poses",

@@ -26,7 +26,7 @@ SCENARIO is one of:
 
   [bold]static[/bold]    an IMU at rest for hours (up to 48 h): white noise and bias random walks only, for Allan variance
 
-OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go x.gt.tum (pose of base in world, TUM), x.truth.json (true extrinsics, IMU biases and noise, clock offset, wheel radius/baseline errors, slip episode, start state, GPS georeference) and x.metrics.json (resolved options, topics, wall time).
+OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go x.gt.tum (pose of base in world, TUM), x.truth.json (true extrinsics, IMU biases and noise, clock offset, wheel radius/baseline errors, slip episode, start state, GPS georeference) and x.sim.metrics.json (resolved options, topics, wall time).
 
 Topics: /points or /scan (frame lidar, header stamp = sweep start unless --header-stamp end, recorded at sweep end), /imu (frame imu), /wheel/odom (odom -> base, not for handheld), /ground_truth (PoseStamped of base in world; --gt-type, --gt-topic), /tf_static (base -> imu, base -> lidar, base -> gps), /gps/fix with --gps. The platform stands still for the first 1.5 s unless --start moving. The same arguments and --seed give the same bytes.
 

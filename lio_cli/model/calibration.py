@@ -91,6 +91,7 @@ class Calibration(BaseModel):
     accel_bias_sigma_mps2: Optional[list[float]] = None
     imu_noise: Optional[ImuNoiseCalibration] = None
     wheel: Optional[WheelCalibration] = None
+    prefer_file: bool = Field(False, description="use these extrinsics even where /tf_static gives one (--prefer-calib)")
 
     @field_validator("T_base_imu", "T_base_lidar")
     @classmethod

@@ -6,7 +6,7 @@
 from ...config.odom import OdomConfig
 from ..contract import Command
 from .job import DivergedRun, OdomJob, OdomResult, run_odom, score_odom
-from .outputs import write_odom
+from .outputs import TAG, write_odom
 
 
 def _key_metrics(metrics: dict) -> dict:
@@ -16,8 +16,8 @@ def _key_metrics(metrics: dict) -> dict:
 
 COMMAND = Command(
     name="odom", config=OdomConfig, job=lambda log, config, out: OdomJob(log, config), run=run_odom,
-    write=write_odom, score=score_odom, stem="odom", output=lambda folder, log, config: folder / "odom.tum",
+    write=write_odom, score=score_odom, tag=TAG, output=lambda folder, log, config: folder / f"{TAG}.tum",
     key_metrics=_key_metrics, threads=lambda config: config.registration.threads,
 )
 
-__all__ = ["COMMAND", "DivergedRun", "OdomJob", "OdomResult", "run_odom", "score_odom", "write_odom"]
+__all__ = ["COMMAND", "TAG", "DivergedRun", "OdomJob", "OdomResult", "run_odom", "score_odom", "write_odom"]

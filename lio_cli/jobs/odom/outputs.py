@@ -1,4 +1,5 @@
-"""The files of an odom run: the TUM trajectory with ``.metrics.json`` and ``.config.yaml`` beside it."""
+"""The files of an odom run: the TUM trajectory with ``NAME.odom.metrics.json`` and ``NAME.odom.config.yaml``
+beside it."""
 
 from __future__ import annotations
 
@@ -8,12 +9,14 @@ from ...io.files.trajectory import format_tum
 from ..outputs import write_run
 from .job import OdomResult
 
+TAG = "odom"  # in the name of every file a run writes
 
-def write_odom(result: OdomResult, out: Path, force: bool) -> None:
-    """The odom run's TUM trajectory, resolved config and metrics."""
+
+def write_odom(result: OdomResult, out: Path, force: bool) -> list[Path]:
+    """The odom run's TUM trajectory, resolved config and metrics; returns the paths written."""
     result.metrics["output"] = str(out)
-    write_run(out, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
+    return write_run(out, TAG, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
               result.metrics, force)
 
 
-__all__ = ["write_odom"]
+__all__ = ["TAG", "write_odom"]
