@@ -13,8 +13,8 @@ from ..config import load_calibration, load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
 from ..errors import ConfigError
 from ..io.messages.pointcloud import parse_time_convention
-from ..jobs.calibrate import (TAG, CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, write_calibrate,
-                              yaml_text)
+from ..jobs.calibrate import (TAG, CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate,
+                              write_calibrate, yaml_text)
 from ..jobs.calibrate.report import format_table
 from ..jobs.outputs import default_output
 from .common import (BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LogArg,

@@ -110,7 +110,8 @@ def _report(result: DeskewResult, written: list[Path], quiet: bool) -> None:
     m = result.metrics
     sc = m["scans"]
     why = "; ".join(f"{n} {reason}" for reason, n in sc["unchanged_why"].items())
-    note(f"{m['lidar_topic']}: {sc['deskewed']}/{plural(sc['total'], 'scan')} de-skewed to the scan {result.config.reference}"
+    note(f"{m['lidar_topic']}: {sc['deskewed']}/{plural(sc['total'], 'scan')} de-skewed to the scan "
+         f"{result.config.reference}"
          + (f" on {m['output_topic']}" if m["output_topic"] != m["lidar_topic"] else "")
          + (f", {sc['unchanged']} copied unchanged ({why})" if sc["unchanged"] else ""), quiet)
     note(f"motion: {m['motion']['description']}", quiet)

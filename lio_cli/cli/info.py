@@ -59,7 +59,8 @@ def _print_human(s: dict, quiet: bool = False) -> None:
     if s["messages"]:
         for what in ("start", "end"):
             ns, date = s[f"{what}_ns"], s[f"{what}_utc"]
-            c.print(f"{what:<8} {ns // 10**9}.{ns % 10**9 // 10**6:03d} s" + (f"   {date.replace('T', ' ').replace('Z', ' UTC')}" if date else ""))
+            shown = "" if date is None else "   " + date.replace("T", " ").replace("Z", " UTC")
+            c.print(f"{what:<8} {ns // 10**9}.{ns % 10**9 // 10**6:03d} s{shown}")
         c.print(f"duration {s['duration_s']:.3f} s   {plural(s['messages'], 'message')}")
     else:
         c.print("empty log: no messages")

@@ -325,5 +325,5 @@ def yaml_text(cal: Calibration) -> str:
             "# imu_time_offset_s is added to IMU stamps to put them on the LiDAR's clock; *_sigma_* are 1-sigma\n"
             "# (rotations about, translations along the base axes). Read by --calib of odom, deskew and fuse.\n")
     # prefer_file is the reader's choice (--prefer-calib), not a measured value
-    return head + yaml.safe_dump(cal.model_dump(mode="json", exclude_none=True, exclude={"prefer_file"}), sort_keys=False,
-                                 default_flow_style=None, width=120)
+    fields = cal.model_dump(mode="json", exclude_none=True, exclude={"prefer_file"})
+    return head + yaml.safe_dump(fields, sort_keys=False, default_flow_style=None, width=120)

@@ -24,4 +24,5 @@ COMMAND = Command(
     threads=_threads,
 )
 
-__all__ = ["COMMAND", "TAG", "DeskewJob", "DeskewResult", "check_deskew_outputs", "output_in", "run_deskew", "write_deskew"]
+__all__ = ["COMMAND", "TAG", "DeskewJob", "DeskewResult", "check_deskew_outputs", "output_in", "run_deskew",
+           "write_deskew"]
