@@ -87,7 +87,7 @@ def point_errors(truth: TrueMotion, raw: Path, out: Path) -> tuple[np.ndarray, n
 
 def lio_deskew(log: Path, out: Path, work: Path, *args: str) -> dict:
     res = run([str(BIN / "lio"), "deskew", str(log), str(out), "-q", "--force", *args], work)
-    metrics = out.with_name(out.name.removesuffix(".bag") + ".metrics.json")
+    metrics = out.with_name(out.name.removesuffix(".bag") + ".deskew.metrics.json")
     res["metrics"] = json.loads(metrics.read_text()) if res["code"] == 0 else None
     return res
 

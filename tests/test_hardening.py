@@ -155,7 +155,7 @@ def set_cloud_array(msg, arr: np.ndarray) -> None:
 
 
 def metrics_of(tum: Path) -> dict:
-    return json.loads(tum.with_name(tum.stem + ".metrics.json").read_text())
+    return json.loads(tum.with_name(tum.stem + ".odom.metrics.json").read_text())
 
 
 def pose_matrix(T) -> np.ndarray:

@@ -43,9 +43,9 @@ class Executor:
         if self.kind == "serial":
             return "this process"
         if self.kind == "local":
-            return f"{self.workers} local processes"
+            return f"{self.workers} local process{'es' * (self.workers != 1)}"
         if self.address == "local":
-            return f"a local Dask cluster of {self.workers} workers"
+            return f"a local Dask cluster of {self.workers} worker{'s' * (self.workers != 1)}"
         return f"the Dask scheduler at {self.address}"
 
     @contextmanager

@@ -15,7 +15,7 @@ from ..batch.manifest import BATCH_COMMANDS
 from ..batch.summary import Summary
 from ..errors import ConfigError
 from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, OUTPUT_PANEL, RUN_PANEL, ForceOpt, JsonOpt, LioCommand, QuietOpt,
-                     err_console, note, print_json, progress_bar, shown, warn)
+                     err_console, note, plural, print_json, progress_bar, shown, warn)
 
 HELP = """Run lio odom, fuse, deskew or calibrate over many logs: each run is the very job the single command runs (same
 files, byte for byte), in its own folder under the output root, on all local cores or on a Dask cluster.
@@ -93,7 +93,7 @@ def batch(
     specs = expand(manifest, base, where)
     root = output if output is not None else (base / manifest.output if manifest.output else None)
     tasks = plan_batch(specs, root, resume, force)
-    note(f"{len(tasks)} runs on {executor.describe()}; results in {tasks[0].root}", quiet)
+    note(f"{plural(len(tasks), 'run')} on {executor.describe()}; results in {_shown(tasks[0].root)}/", quiet)
     with progress_bar("runs", len(tasks), quiet) as advance:
         def done(rec: dict) -> None:
             advance(1)
@@ -105,11 +105,26 @@ def batch(
         _tables(summary)
     c = summary.counts
     parts = [f"{c[k]} {k}" for k in ("ok", "skipped", "failed", "not-run") if c[k]]
-    note(f"{c['runs']} runs: {', '.join(parts)} in {summary.wall_s:.1f} s; summary in "
-         f"{summary.root / 'summary.json'} and summary.csv", quiet)
+    note(f"{plural(c['runs'], 'run')}: {', '.join(parts)} in {summary.wall_s:.1f} s; summary in "
+         f"{_shown(summary.root / 'summary.json')} and summary.csv", quiet)
     if as_json:
         print_json(summary.to_dict())
     return summary.exit_code
+
+
+def _shown(path: Path | str) -> str:
+    """``path`` relative to the current folder when it lies inside it (as the user would type it)."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def _reason(r: dict) -> str:
+    """A run's reason for the table: what went wrong first (the log's path, which the run's name stands for,
+    dropped; other paths relative), its exit class after it; summary.json keeps it in full."""
+    text = r["reason"].removeprefix(f"{r['log']}: ").replace(f"{Path.cwd()}/", "")
+    return f"{text} ({r['exit_class']})" if r["status"] == "failed" else text
 
 
 def _fmt(v, digits: int = 4) -> str:
@@ -117,7 +132,9 @@ def _fmt(v, digits: int = 4) -> str:
 
 
 def _tables(summary: Summary) -> None:
-    t = Table(title="lio batch", title_justify="left")
+    from rich import box
+
+    t = Table(title="lio batch", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
     # the group and command columns only when they tell runs apart
     scored = any(r["metrics"]["ate_m"] is not None for r in summary.runs)
     show = {"group": any(r["group"] for r in summary.runs),
@@ -125,7 +142,9 @@ def _tables(summary: Summary) -> None:
     cols = [c for c in ("run", "group", "command", "status", "time s", "scans", "ATE m", "RPE m") if show.get(c, True)]
     for col in cols:
         t.add_column(col, justify="right" if col in ("time s", "scans", "ATE m", "RPE m") else "left", no_wrap=True)
-    t.add_column("reason (in full: summary.json)", overflow="fold")
+    reasons = any(r["reason"] for r in summary.runs)
+    if reasons:  # folded, never cut: at 80 columns it gets what the figures leave
+        t.add_column("reason", overflow="fold", ratio=1)
     for r in summary.runs:
         m = r["metrics"]
         status = {"ok": "[green]ok[/green]", "skipped": "skipped", "failed": "[red]failed[/red]"}.get(
@@ -133,12 +152,12 @@ def _tables(summary: Summary) -> None:
         cells = {"run": r["name"], "group": r["group"] or "-", "command": r["command"], "status": status,
                  "time s": _fmt(r["time_s"], 1),
                  "scans": "-" if m["scans_total"] is None else f"{m['scans_used']}/{m['scans_total']}", "ATE m": _fmt(m["ate_m"]), "RPE m": _fmt(m["rpe_m"])}
-        reason = (f"{r['exit_class']}: " if r["status"] == "failed" else "") + r["reason"]
-        t.add_row(*(cells[c] for c in cols), reason if len(reason) <= 60 else reason[:59] + "…")
+        t.add_row(*(cells[c] for c in cols), *([_reason(r)] if reasons else []))
     err_console.print(t)
     if not summary.groups:
         return
-    g = Table(title="groups (mean ± std, min..max over the runs that finished)", title_justify="left")
+    g = Table(title="groups (mean ± std, min..max over the runs that finished)", title_justify="left",
+              box=box.SIMPLE_HEAD, pad_edge=False)
     for col in ("group", "runs", "ATE m", "RPE m", "real time x"):
         g.add_column(col)
     for name, gs in summary.groups.items():

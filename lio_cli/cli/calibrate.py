@@ -13,13 +13,13 @@ from ..config import load_calibration, load_config, with_overrides
 from ..config.calibrate import CalibrateConfig
 from ..errors import ConfigError
 from ..io.messages.pointcloud import parse_time_convention
-from ..jobs.calibrate import (CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate, write_calibrate,
-                              yaml_text)
+from ..jobs.calibrate import (TAG, CalibrateJob, CalibrateResult, check_calibrate_outputs, run_calibrate,
+                              write_calibrate, yaml_text)
 from ..jobs.calibrate.report import format_table
-from ..jobs.outputs import log_stem
+from ..jobs.outputs import default_output
 from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, OUTPUT_PANEL, BaseFrameOpt, ConfigOpt, ForceOpt, FormatOpt,
                      ImuTopicOpt, JsonOpt, LidarTopicOpt, LioCommand, LogArg, PointTimeOpt, QuietOpt, WheelTopicOpt,
-                     err_console, job_progress, note, print_json, shown)
+                     err_console, job_progress, note, prefer_calib_override, print_json, shown)
 
 HELP = """Estimate, from one log, the calibration that odom, deskew and fuse read with --calib, and write it
 to OUT.yaml (default: LOG's name + .calib.yaml in the current folder).
@@ -38,7 +38,7 @@ T_base_lidar is taken from /tf_static (else --calib, else identity: base = LiDAR
 to IMU stamps to put them on the LiDAR's clock; biases in the IMU frame; 1-sigmas beside the values.
 
 On stderr: a table of each value, its 1-sigma and its difference from --calib (else /tf_static) in degrees,
-cm and ms. Also written: OUT-stem.metrics.json and OUT-stem.config.yaml (with -o - the YAML goes to stdout
+cm and ms. Also written: OUT-stem.calib.metrics.json and OUT-stem.calib.config.yaml (with -o - the YAML goes to stdout
 and neither is written; --kalibr and --plot still write theirs). Bad input (no IMU, no still
 stretch where one is needed, too little motion, clocks that disagree): one line, exit 2, nothing written.
 
@@ -63,6 +63,7 @@ def calibrate(
     still: Annotated[Optional[str], typer.Option("--still", metavar="START:END", help=shown("Seconds after the first IMU sample where the IMU rests.", "found"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
     allan: Annotated[bool, typer.Option("--allan", metavar=FLAG, help="Allan variance of the whole log (a static IMU recording of hours): noise and random walks.", rich_help_panel=INPUT_PANEL)] = False,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="A calibration YAML to compare with; its T_base_lidar is used where /tf_static is silent, its imu_time_offset_s where the motion cannot time the IMU.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    prefer_calib: Annotated[bool, typer.Option("--prefer-calib", metavar=FLAG, help="Run the passes with --calib's T_base_lidar even where /tf_static gives one (config: prior.prefer_file: true); a note says how far apart the two are either way.", rich_help_panel=CALIBRATION_PANEL)] = False,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock, kept where the motion cannot time the IMU; measured otherwise.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
     wheel_radius: Annotated[Optional[float], typer.Option("--wheel-radius", help="Nominal wheel radius in m: estimate the true one.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
     wheel_baseline: Annotated[Optional[float], typer.Option("--wheel-baseline", help="Nominal wheel baseline in m: estimate the true one.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
@@ -80,6 +81,7 @@ def calibrate(
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {
+        "prior.prefer_file": prefer_calib_override(prefer_calib, calib, config),
         "still": still, "allan": True if allan else None, "wheel_radius_m": wheel_radius,
         "wheel_baseline_m": wheel_baseline, "input.format": fmt, "input.lidar_topic": lidar_topic,
         "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic, "input.base_frame": base_frame,
@@ -88,13 +90,13 @@ def calibrate(
     to_stdout = output == "-"
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
-    out = None if to_stdout else Path(output) if output is not None else Path(f"{log_stem(log)}.calib.yaml")
+    out = None if to_stdout else Path(output) if output is not None else default_output(log, TAG, ".yaml")
     job = CalibrateJob(Path(log), out, cfg, plot, kalibr, force, tuple(p for p in (config, calib) if p is not None))
     check_calibrate_outputs(job)
     with job_progress("calibrating", quiet) as update:
         result = run_calibrate(job, progress=update)
-    write_calibrate(result, job.out, force, job.kalibr, job.plot_dir)
-    _report(result, quiet)
+    written = write_calibrate(result, job.out, force, job.kalibr, job.plot_dir)
+    _report(result, written, quiet)
     if to_stdout:
         sys.stdout.write(yaml_text(result.calibration))
         sys.stdout.flush()
@@ -103,7 +105,7 @@ def calibrate(
                                                     "skipped", "notes", "time_s")})
 
 
-def _report(result: CalibrateResult, quiet: bool) -> None:
+def _report(result: CalibrateResult, written: list[Path], quiet: bool) -> None:
     m = result.metrics
     for role, topic in m["topics"].items():
         note(f"{role}: {topic or '-'}", quiet)
@@ -116,8 +118,8 @@ def _report(result: CalibrateResult, quiet: bool) -> None:
         err_console.print(s.line(), markup=False)
     for n in result.notes:
         note(f"note: {n}", quiet)
-    where = "the calibration to stdout" if m["output"] == "-" else m["output"]
-    note(f"wrote {where}; {m['time_s']['total']:.1f} s wall", quiet)
+    where = [*(["the calibration to stdout"] if m["output"] == "-" else []), *(str(p) for p in written)]
+    note(f"wrote {', '.join(where)}; {m['time_s']['total']:.1f} s wall", quiet)
 
 
 def register(app: typer.Typer) -> None:

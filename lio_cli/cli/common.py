@@ -104,6 +104,16 @@ BaseFrameOpt = Annotated[Optional[str], typer.Option("--base-frame", help=shown(
 ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="YAML configuration: a run's .config.yaml or lio config's output; flags override its fields.", show_default=False, rich_help_panel=RUN_PANEL)]
 CalibOpt = Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu, T_base_lidar, imu_time_offset_s, used where /tf_static is silent.", show_default=False, rich_help_panel=CALIBRATION_PANEL)]
 ImuTimeOffsetOpt = Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the LiDAR's clock (overrides --calib's imu_time_offset_s).", show_default=False, rich_help_panel=CALIBRATION_PANEL)]
+PreferCalibOpt = Annotated[bool, typer.Option("--prefer-calib", metavar=FLAG, help="Use --calib's extrinsics even where the log's /tf_static gives them (config: calibration.prefer_file: true); a note says how far apart the two are either way.", rich_help_panel=CALIBRATION_PANEL)]
+
+
+def prefer_calib_override(prefer: bool, calib: Path | None, config: Path | None) -> bool | None:
+    """--prefer-calib as a configuration override (None: as the configuration says); it needs a calibration."""
+    if prefer and calib is None and config is None:
+        from ..errors import ConfigError
+
+        raise ConfigError("--prefer-calib prefers the extrinsics of --calib: give --calib FILE")
+    return True if prefer else None
 
 
 def print_json(obj: Any) -> None:
@@ -118,6 +128,18 @@ def note(msg: str, quiet: bool = False) -> None:
     """A line for people on stderr."""
     if not quiet:
         err_console.print(msg)
+
+
+def next_step(args: list[str], quiet: bool = False) -> None:
+    """``next: lio ARGS...``: a command to run next, quoted for a POSIX shell so it pastes as printed."""
+    import shlex
+
+    note("next: " + shlex.join(["lio", *(str(a) for a in args)]), quiet)
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``1 run``, ``2 runs`` (``many``: the plural when it is not word + s)."""
+    return f"{n} {word if n == 1 else many or word + 's'}"
 
 
 def warn(msg: str) -> None:

@@ -16,8 +16,9 @@ from ..io.files.output_paths import refuse_shared_outputs
 from ..io.logs.detect import input_paths
 from ..jobs.deskew import DeskewJob, DeskewResult, check_deskew_outputs, run_deskew, write_deskew
 from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt,
-                     ForceOpt, ImuTimeOffsetOpt, ImuTopicOpt, InputFormat, JsonOpt, LidarTopicOpt, LioCommand, LogArg,
-                     PointTimeOpt, QuietOpt, config_default, job_progress, note, one_of, print_json, shown, warn)
+                     ForceOpt, ImuTimeOffsetOpt, ImuTopicOpt, InputFormat, JsonOpt, LidarTopicOpt, LioCommand,
+                     LogArg, PointTimeOpt, PreferCalibOpt, QuietOpt, config_default, job_progress, next_step, note,
+                     one_of, plural, prefer_calib_override, print_json, shown, warn)
 
 HELP = """Write OUT: a copy of LOG in which every cloud of the LiDAR topic is motion-compensated (de-skewed)
 and everything else is copied untouched.
@@ -45,8 +46,8 @@ or more cores a second process writes the output beside the odometry, taking eac
 settles (the same bytes; a run takes about the odometry's time).
 
 OUT's format: --format, else its suffix (.bag ROS 1, .mcap MCAP), else the input's (a ROS 2 bag folder).
-Also written: OUT-stem.metrics.json (scans written and skipped and why, motion source, times) and
-OUT-stem.config.yaml (`--config` it to repeat the run). --map FILE.ply|.pcd: the world-frame map of all
+Also written: OUT-stem.deskew.metrics.json (scans written and skipped and why, motion source, times) and
+OUT-stem.deskew.config.yaml (`--config` it to repeat the run). --map FILE.ply|.pcd: the world-frame map of all
 de-skewed scans, voxel-downsampled, and FILE-stem.png beside it, the map seen from above.
 
 [bold]Examples[/bold]
@@ -81,6 +82,7 @@ def deskew(
     trajectory: Annotated[Optional[str], typer.Option("--trajectory", help="Motion from this trajectory of the base: a TUM file (e.g. from lio odom) or LOG:/topic.", show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     trajectory_frame: Annotated[Optional[TrajectoryFrame], typer.Option("--trajectory-frame", metavar=one_of(TrajectoryFrame), help=shown("The frame whose poses --trajectory holds.", _default("trajectory.frame")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     calib: CalibOpt = None,
+    prefer_calib: PreferCalibOpt = False,
     imu_time_offset: ImuTimeOffsetOpt = None,
     fmt: Annotated[Optional[OutputFormat], typer.Option("--format", metavar=one_of(OutputFormat), help=shown("Output format.", "OUT's suffix, else the input's"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     reference: Annotated[Optional[Reference], typer.Option("--reference", metavar=one_of(Reference), help=shown("The instant each cloud is de-skewed to and stamped with.", _default("reference")), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
@@ -97,6 +99,7 @@ def deskew(
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {
+        "calibration.prefer_file": prefer_calib_override(prefer_calib, calib, config),
         "trajectory.path": trajectory, "trajectory.frame": trajectory_frame, "motion": motion, "reference": reference,
         "topic_suffix": topic_suffix, "output_format": fmt, "input.format": input_format, "map_voxel_m": map_voxel,
         "strict": True if strict else None, "input.lidar_topic": lidar_topic, "input.imu_topic": imu_topic,
@@ -108,15 +111,17 @@ def deskew(
     preview = None if map_file is None else _check_preview(job, extra_inputs)
     with job_progress("de-skewing", quiet) as update:
         result = run_deskew(job, progress=update)
-    write_deskew(result, job.out, force)
+    written = write_deskew(result, job.out, force)
     if preview is not None:
         from ..io.files.point_clouds import read_point_map
         from ..plots.map import write_map_preview
 
         write_map_preview(read_point_map(map_file), preview, force, cfg.map_voxel_m)
+        written.append(preview)
     for n in result.notes:
         warn(n)
-    _report(result, quiet)
+    _report(result, written, quiet)
+    next_step(_odom_args(result, lidar_topic, imu_topic, calib, imu_time_offset, base_frame), quiet)
     if as_json:
         print_json(result.metrics)
 
@@ -131,29 +136,40 @@ def _check_preview(job: DeskewJob, extra_inputs: tuple[Path, ...]) -> Path:
     return preview
 
 
-def _report(result: DeskewResult, quiet: bool) -> None:
+def _report(result: DeskewResult, written: list[Path], quiet: bool) -> None:
     m = result.metrics
     sc = m["scans"]
     why = "; ".join(f"{n} {reason}" for reason, n in sc["unchanged_why"].items())
-    note(f"{m['lidar_topic']}: {sc['deskewed']}/{sc['total']} scans de-skewed to the scan {result.config.reference}"
+    note(f"{m['lidar_topic']}: {sc['deskewed']}/{plural(sc['total'], 'scan')} de-skewed to the scan "
+         f"{result.config.reference}"
          + (f" on {m['output_topic']}" if m["output_topic"] != m["lidar_topic"] else "")
          + (f", {sc['unchanged']} copied unchanged ({why})" if sc["unchanged"] else ""), quiet)
     note(f"motion: {m['motion']['description']}", quiet)
     copied = m["copied_topics"]
     as_stored, converted = sum(copied["as_stored"].values()), sum(copied["converted"].values())
-    parts = ([f"{as_stored} messages copied as stored"] if as_stored or not converted else []) + \
-        ([f"{converted} messages converted to {result.format}"] if converted else [])
+    parts = ([f"{plural(as_stored, 'message')} copied as stored"] if as_stored or not converted else []) + \
+        ([f"{plural(converted, 'message')} converted to {result.format}"] if converted else [])
     note(f"other topics: {', '.join(parts)}", quiet)
-    extra = ""
     if "map" in m:
-        from ..plots.map import preview_path
-
-        extra = f", {m['map']['path']} ({m['map']['points']} points) and {preview_path(m['map']['path'])}"
-    note(f"wrote {result.out} ({result.format}){extra}; {m['time_s']['total']:.1f} s wall, "
-         f"{m['real_time_factor'] or 0:.1f}x real time", quiet)
+        note(f"map: {plural(m['map']['points'], 'point')} in {m['map']['path']}", quiet)
+    note(f"{m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x real time; wrote {written[0]} "
+         f"({result.format}), {', '.join(str(p) for p in written[1:])}", quiet)
     # its per-point times still say when each point was taken: an odometry that de-skews by them does it twice
-    note(f"its clouds are de-skewed: run odometry on it without de-skewing again (lio odom {result.out} --deskew none; "
-         "kiss-icp: deskew false)", quiet)
+    note("its clouds are de-skewed: run odometry on it without de-skewing again (kiss-icp: deskew false)", quiet)
+
+
+def _odom_args(result: DeskewResult, lidar_topic: str | None, imu_topic: str | None, calib: Path | None,
+               imu_time_offset: float | None, base_frame: str | None) -> list[str]:
+    """``lio odom``'s arguments for the output: what this run was told about the log, and the de-skewed topic."""
+    m = result.metrics
+    args = ["odom", str(result.out), "--deskew", "none"]
+    if m["output_topic"] != m["lidar_topic"] or lidar_topic is not None:  # raw and de-skewed topics both there
+        args += ["--lidar-topic", m["output_topic"]]
+    for flag, value in (("--imu-topic", imu_topic), ("--calib", calib), ("--imu-time-offset", imu_time_offset),
+                        ("--base-frame", base_frame)):
+        if value is not None:
+            args += [flag, str(value)]
+    return args
 
 
 def register(app: typer.Typer) -> None:

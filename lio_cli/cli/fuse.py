@@ -14,11 +14,12 @@ from ..config.fuse import DEFAULT_MAX_MEMORY_MB, FuseConfig, parse_use
 from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.files.trajectory import format_tum
-from ..jobs.fuse import FuseJob, FuseRun, check_fuse_outputs, run_fuse, write_fuse
-from ..jobs.outputs import log_stem
+from ..jobs.fuse import TAG, FuseJob, FuseRun, check_fuse_outputs, run_fuse, write_fuse
+from ..jobs.outputs import default_output
 from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, BaseFrameOpt,
                      ConfigOpt, ForceOpt, FormatOpt, ImuTopicOpt, JsonOpt, LioCommand, LogArg, QuietOpt, WheelTopicOpt,
-                     config_default, job_progress, note, one_of, print_json, shown, warn)
+                     PreferCalibOpt, config_default, job_progress, note, one_of, plural, prefer_calib_override,
+                     print_json, shown, warn)
 
 HELP = """Fuse a log's IMU, wheel odometry, GPS and an odometry trajectory into one smooth trajectory of the base.
 
@@ -34,15 +35,16 @@ an odometry trajectory: --odom FILE (TUM/KITTI, e.g. from lio odom) or --odom-to
 other commands do; --use picks which measurement of which source enters (SOURCE or SOURCE:M1,M2; repeat):
 imu:gyro,accel,orientation  wheel:speed|velocity,yaw_rate  odom:pose|delta  gps:position.
 
-Writes OUT (TUM), OUT-stem.metrics.json (sources used, updates per source, rejected measurements and why, time)
-and OUT-stem.config.yaml (the whole run: `lio fuse LOG --config it` repeats it exactly). --cov FILE adds the
+Writes OUT (TUM; default LOG-stem.fuse.tum), OUT-stem.fuse.metrics.json (sources used, updates per source,
+rejected measurements and why, time) and OUT-stem.fuse.config.yaml (the whole run: `lio fuse LOG --config it`
+repeats it exactly). --cov FILE adds the
 per-pose 6x6 covariance, --plot DIR a top view of the sources and the result and speed and yaw rate over time.
 With -o - the trajectory goes to stdout and no metrics or config file is written.
 
 [bold]Examples[/bold]
 
-  lio fuse jackal.bag -o jackal_fused.tum --plot plots/
-  lio fuse run.mcap --odom run_odom.tum --rate 200 --smooth -o fused.tum
+  lio fuse jackal.bag --plot plots/   # writes jackal.fuse.tum
+  lio fuse run.mcap --odom run.odom.tum --rate 200 --smooth -o fused.tum
   lio fuse office.bag --estimator planar --use imu:gyro --use wheel -o -
   lio fuse drive.bag --use imu --use wheel --use gps --json > metrics.json
 """
@@ -74,8 +76,9 @@ def fuse_cmd(
     accel_noise: Annotated[Optional[float], typer.Option("--accel-noise", help=shown("Accelerometer noise density, m/s^2/sqrt(Hz) (vibration: larger).", _default("noise.accel_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help=shown("Gyro noise density, rad/s/sqrt(Hz).", _default("noise.gyro_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    prefer_calib: PreferCalibOpt = False,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the other sensors' clock (overrides --calib's imu_time_offset_s).", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
-    output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.fused.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.fuse.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     rate: Annotated[Optional[float], typer.Option("--rate", help=shown("Output rate in Hz.", "every IMU sample"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     cov: Annotated[Optional[Path], typer.Option("--cov", help="Also write each pose's 6x6 covariance (text: stamp and 36 values).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Folder for PNGs: top view of the sources and the result; speed and yaw rate over time.", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
@@ -88,6 +91,7 @@ def fuse_cmd(
     _check_rate(rate)
     cfg = load_config(FuseConfig, config, calib)
     cfg = with_overrides(cfg, {
+        "calibration.prefer_file": prefer_calib_override(prefer_calib, calib, config),
         "input.format": fmt, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
         "input.gps_topic": gps_topic, "input.odom_topic": odom_topic, "input.odom_file": str(odom) if odom else None,
         "input.base_frame": base_frame, "use": parse_use(use) if use else None, "estimator": estimator,
@@ -98,7 +102,7 @@ def fuse_cmd(
     to_stdout = output == "-"
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
-    out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.fused.tum")
+    out = None if to_stdout else Path(output) if output else default_output(log, TAG, ".tum")
     inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
     if cfg.input.odom_file and Path(cfg.input.odom_file).exists():
         inputs.append(Path(cfg.input.odom_file))
@@ -127,15 +131,16 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
             continue
         rej = sum(r["count"] for r in s["rejected"].values())
         why = ", ".join(f"{r['count']} {k}" for k, r in s["rejected"].items())
-        parts.append(f"{src} {s['updates']} updates" + (f", {rej} rejected ({why})" if rej else ""))
+        parts.append(f"{src} {plural(s['updates'], 'update')}" + (f", {rej} rejected ({why})" if rej else ""))
     est = m["estimator"] + (" + smoother" if m["smoothed"] else "")
     chunks = m["memory"]["chunks"]
-    note(f"{m['output']['poses']} poses ({m['output']['stamps']}), {est}: {'; '.join(parts)}"
+    note(f"{plural(m['output']['poses'], 'pose')} ({m['output']['stamps']}), {est}: {'; '.join(parts)}"
          + (f"; fused in {chunks} chunks (memory budget {m['memory']['budget_mb']:g} MB)" if chunks > 1 else ""), quiet)
-    note(f"{m['time_s']['total']:.2f} s wall, {m['real_time_factor'] or 0:.0f}x real time"
-         + (f"; wrote {', '.join(str(p) for p in written)}" if written else ""), quiet)
+    note(f"{m['time_s']['total']:.2f} s wall, {m['real_time_factor'] or 0:.0f}x real time", quiet)
     if m.get("start"):
         note(f"start: {m['start']}", quiet)
+    if written:
+        note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 
 
 def register(app: typer.Typer) -> None:

@@ -12,7 +12,7 @@ from ..io.messages.pointcloud import parse_time_convention
 from ..io.logs.reader import open_log
 from ..jobs.info import check_log, describe_log
 from .common import (FLAG, RUN_PANEL, FormatOpt, JsonOpt, LioCommand, LogArg, PointTimeOpt, QuietOpt, err_console,
-                     out_console, print_json, progress_bar, warn)
+                     out_console, plural, print_json, progress_bar, warn)
 
 HELP = """Show what a log holds: format, time span, topics with types, counts and rates; for every scan topic
 its fields, point count and per-point time convention (and whether the header stamp marks the scan's start
@@ -58,8 +58,11 @@ def _print_human(s: dict, quiet: bool = False) -> None:
     c = out_console
     c.print(f"[bold]{s['path']}[/bold]  ({s['format']})")
     if s["messages"]:
-        c.print(f"start {s['start_ns'] / 1e9:.3f} s   end {s['end_ns'] / 1e9:.3f} s   "
-                f"duration {s['duration_s']:.3f} s   {s['messages']} messages")
+        for what in ("start", "end"):
+            ns, date = s[f"{what}_ns"], s[f"{what}_utc"]
+            shown = "" if date is None else "   " + date.replace("T", " ").replace("Z", " UTC")
+            c.print(f"{what:<8} {ns // 10**9}.{ns % 10**9 // 10**6:03d} s{shown}")
+        c.print(f"duration {s['duration_s']:.3f} s   {plural(s['messages'], 'message')}")
     else:
         c.print("empty log: no messages")
     table = Table(box=None, pad_edge=False)
@@ -91,7 +94,7 @@ def _print_human(s: dict, quiet: bool = False) -> None:
         warn(problem)
     if "check" in s and not quiet:
         n = sum(s["check"]["checked"].values())
-        err_console.print(f"check passed: {n} sensor messages decoded, stamps in order, clouds non-empty")
+        err_console.print(f"check passed: {plural(n, 'sensor message')} decoded, stamps in order, clouds non-empty")
 
 
 def register(app: typer.Typer) -> None:

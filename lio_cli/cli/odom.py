@@ -20,14 +20,15 @@ from ..jobs.contract import load_reference
 from ..io.files.atomic import check_writable
 from ..io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 from ..io.files.point_clouds import check_map_suffix
-from ..jobs.odom import (DivergedRun, OdomJob, OdomResult, map_outputs, run_odom, score_odom, write_odom,
+from ..jobs.odom import (TAG, DivergedRun, OdomJob, OdomResult, map_outputs, run_odom, score_odom, write_odom,
                          write_odom_map, write_odom_plots)
-from ..jobs.outputs import check_outputs, log_stem, run_outputs
+from ..jobs.outputs import check_outputs, default_output, log_stem, run_outputs
 from ..jobs.plot import plot_files
 from ..plots.live import LiveView, rerun_module
 from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt, ForceOpt,
                      FormatOpt, ImuTimeOffsetOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LioCommand, LogArg, PointTimeOpt,
-                     QuietOpt, WheelTopicOpt, config_default, one_of, err_console, job_progress, note, print_json, shown, warn)
+                     PreferCalibOpt, QuietOpt, WheelTopicOpt, config_default, err_console, job_progress, note, one_of,
+                     plural, prefer_calib_override, print_json, shown, warn)
 
 HELP = """Estimate the trajectory of the base frame from LiDAR scans primed by the IMU (and wheels).
 
@@ -36,7 +37,9 @@ stamp, the scan is registered to a local map (kiss-icp) starting from that predi
 complementary filter) corrects pose, velocity and IMU biases for the next scan. Each output pose is
 stamped with the instant its scan was de-skewed to (the scan's end by default).
 
-Writes OUT (TUM: stamp tx ty tz qx qy qz qw), OUT-stem.metrics.json and OUT-stem.config.yaml beside it.
+Writes OUT (TUM: stamp tx ty tz qx qy qz qw; default LOG-stem.odom.tum), and beside it
+OUT-stem.odom.metrics.json and OUT-stem.odom.config.yaml (one .odom in the name: walk.tum and
+walk.odom.tum both give walk.odom.metrics.json).
 The .config.yaml is the whole run (topics, calibration, base frame, options): `lio odom LOG --config
 it` repeats the run exactly; flags given with --config override its fields one by one.
 With -o - the trajectory goes to stdout and no other file is written unless asked for:
@@ -52,7 +55,7 @@ map); --viz-save FILE.rrd records the same (rerun FILE.rrd shows it). Both need 
 
 [bold]Examples[/bold]
 
-  lio odom sample_logs/handheld.bag -o handheld.tum
+  lio odom sample_logs/handheld.bag   # writes handheld.odom.tum
   lio odom run.mcap --lidar-topic /os/points -o - | head
   lio odom run.mcap --fusion complementary --alpha 0.9 -o run.tum
   lio odom corridor_ros2/ --prior wheel --json > metrics.json
@@ -87,8 +90,9 @@ def odom(
     alpha: Annotated[Optional[float], typer.Option("--alpha", min=0, max=1, metavar="<float>", help=shown("Complementary filter's weight of the scan match.", _default("fusion.alpha")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     planar: Annotated[Optional[bool], typer.Option("--planar/--no-planar", metavar=FLAG, help=shown("SE(2) mode.", "on for LaserScan"), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     calib: CalibOpt = None,
+    prefer_calib: PreferCalibOpt = False,
     imu_time_offset: ImuTimeOffsetOpt = None,
-    output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
+    output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.odom.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     frame: Annotated[Optional[Frame], typer.Option("--frame", metavar=one_of(Frame), help=shown("Whose trajectory is written.", _default("frame")), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     map_file: Annotated[Optional[Path], typer.Option("--map", help="Also write the run's map (.ply or .pcd) and its top view (.png beside it).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     map_voxel: Annotated[Optional[float], typer.Option("--map-voxel", metavar="<float>", help=shown("Voxel size of --map in metres.", "0.1"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
@@ -104,6 +108,7 @@ def odom(
     if point_time is not None:
         parse_time_convention(point_time)  # a bad spec is a usage error now, not after opening the log
     cfg = with_overrides(cfg, {
+        "calibration.prefer_file": prefer_calib_override(prefer_calib, calib, config),
         "deskew": deskew, "prior": prior, "frame": frame, "planar": planar, "fusion.method": fusion,
         "fusion.alpha": alpha, "use_wheel": False if no_wheel else None, "input.format": fmt,
         "input.lidar_topic": lidar_topic, "input.imu_topic": imu_topic, "input.wheel_topic": wheel_topic,
@@ -114,7 +119,7 @@ def odom(
     to_stdout = output == "-"
     if to_stdout and as_json:
         raise ConfigError("-o - and --json both write to stdout; choose one")
-    out = None if to_stdout else Path(output) if output else Path(f"{log_stem(log)}.tum")
+    out = None if to_stdout else Path(output) if output else default_output(log, TAG, ".tum")
     voxel_m = _map_voxel(map_file, viz or viz_save is not None, map_voxel)
     inputs = [*input_paths(Path(log)), *(p for p in (config, calib) if p is not None)]
     if gt is not None and Path(gt).exists():
@@ -123,7 +128,7 @@ def odom(
     if viz or viz_save is not None:
         rerun_module()  # not installed: how to install it, before the work
     if out is not None:
-        check_outputs(out, force, inputs)
+        check_outputs(out, TAG, force, inputs)
 
     reference = load_reference(Path(log), gt) if gt is not None else None
     view = LiveView(viz_save, viz, log_stem(log)) if viz or viz_save is not None else None
@@ -161,12 +166,10 @@ def odom(
         sys.stdout.write(format_tum(result.trajectory.stamps_ns, result.trajectory.poses))
         sys.stdout.flush()
     else:
-        write_odom(result, out, force)  # last: its metrics name the map and pictures
-    _report(result, None if to_stdout else out, quiet)
+        written = write_odom(result, out, force) + written  # last: its metrics name the map and pictures
     if recording is not None:
         written.append(recording)
-    for path in written:
-        note(f"wrote {path}" + (f" ({result.metrics['map']['points']} points)" if path == map_file else ""), quiet)
+    _report(result, written, quiet)
     if as_json:
         print_json(result.metrics)
 
@@ -193,7 +196,7 @@ def _check_extra_outputs(out: Path | None, map_file: Path | None, plot: Path | N
     refuse_stdout("--viz-save", viz_save, "a rerun recording (.rrd)")
     if viz_save is not None and viz_save.suffix.lower() != ".rrd":
         raise ConfigError(f"{viz_save}: a rerun recording is written as .rrd; name the file so")
-    named = [] if out is None else [(f"a file of the run (-o {out})", p) for p in run_outputs(out)]
+    named = [] if out is None else [(f"a file of the run (-o {out})", p) for p in run_outputs(out, TAG)]
     if map_file is not None:
         named += [("the map (--map)", map_file), ("the map's top view", map_outputs(map_file)[1])]
     if viz_save is not None:
@@ -205,11 +208,12 @@ def _check_extra_outputs(out: Path | None, map_file: Path | None, plot: Path | N
         check_plot_dir(plot, plot_files(), force, inputs)
 
 
-def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
+def _report(result: OdomResult, written: list[Path], quiet: bool) -> None:
     st, m = result.stats, result.metrics
-    note(f"{st.used}/{st.scans} scans used, {st.degenerate} degenerate, {st.registration_failures} registration "
-         f"failures, {st.imu_gaps} IMU gaps; {m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x "
-         "real time" + ("" if out is None else f"; wrote {out}"), quiet)
+    note(f"{st.used}/{plural(st.scans, 'scan')} used, {st.degenerate} degenerate, "
+         f"{plural(st.registration_failures, 'registration failure')}, {plural(st.imu_gaps, 'IMU gap')}; "
+         f"{m['time_s']['total']:.1f} s wall, {m['real_time_factor'] or 0:.1f}x "
+         "real time", quiet)
     note(f"start: {result.initialisation}", quiet)
     if result.score is not None:
         a = result.score
@@ -218,6 +222,10 @@ def _report(result: OdomResult, out: Path | None, quiet: bool) -> None:
                           f"({_ALIGNED[a.alignment].format(n=a.matches)}); RPE over {a.rpe_delta}: {rpe}", markup=False)
         if a.note:
             note(a.note, quiet)
+    if "path" in m.get("map", {}):
+        note(f"map: {plural(m['map']['points'], 'point')} in {m['map']['path']}", quiet)
+    if written:
+        note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 
 
 _ALIGNED = {"se3": "SE(3)-aligned rmse over {n} poses",

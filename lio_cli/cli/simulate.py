@@ -25,7 +25,7 @@ SCENARIO is one of:
 
 OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go
 x.gt.tum (pose of base in world), x.truth.json (true extrinsics, IMU biases and noise, clock offset, wheel
-errors, GPS georeference) and x.metrics.json (resolved options, topics, wall time).
+errors, GPS georeference) and x.sim.metrics.json (resolved options, topics, wall time).
 
 Topics: /points or /scan (frame lidar), /imu, /wheel/odom (not handheld), /ground_truth, /tf_static
 (base -> imu, lidar, gps), /gps/fix with --gps. The platform stands still for the first 1.5 s unless

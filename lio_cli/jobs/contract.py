@@ -29,16 +29,17 @@ class Command:
     config: type[BaseModel]  # the configuration model
     job: Callable[[Path, Any, Path], Any]  # (log, resolved config, main output) -> the job a batch run runs
     run: Callable[..., Any]  # (job, progress=None) -> result (with ``.metrics``); writes nothing it need not stream
-    write: Callable[[Any, Path | None, bool], Any]  # (result, main output, force): places the run's files
+    write: Callable[[Any, Path | None, bool], list[Path]]  # (result, main output, force): the run's files, written
     score: Callable[[Any, Trajectory], None] | None  # (result, reference): accuracy into the result; None: no trajectory
-    stem: str  # a batch run's files: STEM.tum (or .yaml, .bag ...), STEM.metrics.json, STEM.config.yaml
+    tag: str  # every file of a run carries it (walk.odom.tum, walk.odom.metrics.json; side_file); a batch run's
+    # folder holds TAG.tum (or .yaml, .bag ...), TAG.metrics.json and TAG.config.yaml
     output: Callable[[Path, Path, Any], Path]  # (run folder, log, config) -> the main output in a batch run's folder
     key_metrics: Callable[[dict], dict]  # the batch summary's columns this command fills from its metrics
     threads: Callable[[Any], int | None]  # kiss-icp threads its registrations ask for (None: it registers none)
     calibration_field: str = "calibration"  # the configuration field a --calib file fills
 
     def metrics_file(self) -> str:
-        return f"{self.stem}.metrics.json"
+        return f"{self.tag}.metrics.json"
 
 
 def load_reference(log: Path, gt: str) -> Trajectory:

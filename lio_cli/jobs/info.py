@@ -102,6 +102,8 @@ def describe_log(log: LogReader, convention: TimeConvention | None = None) -> di
         "format": log.format,
         "start_ns": log.start_ns,
         "end_ns": log.end_ns,
+        "start_utc": utc_date(log.start_ns),
+        "end_utc": utc_date(log.end_ns),
         "duration_s": log.duration_ns * 1e-9,
         "messages": sum(t.count for t in log.topics.values()),
         "topics": topics,
@@ -110,6 +112,19 @@ def describe_log(log: LogReader, convention: TimeConvention | None = None) -> di
         "static_transform_problems": [c["message"] for c in tree.conflicts] + tree.warnings,
         "frames": tree.frames,
     }
+
+
+EPOCH_FROM_NS = 946_684_800 * 10**9  # 2000-01-01: an earlier stamp is a clock since boot or simulation start
+
+
+def utc_date(ns: int | None) -> str | None:
+    """``ns`` as an ISO 8601 UTC date to the millisecond, or None when it cannot be a date (before 2000)."""
+    if ns is None or ns < EPOCH_FROM_NS:
+        return None
+    import datetime as dt
+
+    t = dt.datetime.fromtimestamp(ns // 10**9, dt.timezone.utc)
+    return f"{t:%Y-%m-%dT%H:%M:%S}.{ns % 10**9 // 10**6:03d}Z"
 
 
 def check_log(log: LogReader, convention: TimeConvention | None = None,

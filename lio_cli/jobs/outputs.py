@@ -1,5 +1,6 @@
-"""Where a run's files go and how they are written: the trajectory plus ``.metrics.json`` and
-``.config.yaml`` beside it, each atomically, after every location was checked before the work started."""
+"""Where a run's files go and how they are written: the main output plus ``NAME.TAG.metrics.json`` and
+``NAME.TAG.config.yaml`` beside it (TAG the command's: odom, fuse, deskew, calib; ``side_file``), each
+atomically, after every location was checked before the work started."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.files.atomic import atomic_output, check_writable
+from ..io.files.output_paths import side_file
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")
 
@@ -25,21 +27,25 @@ def log_stem(log: Path) -> str:
     return name or "odom"
 
 
-def beside(out: Path, suffix: str) -> Path:
-    """``out`` with its suffix replaced by ``suffix`` (``walk.tum`` -> ``walk.metrics.json``)."""
-    name = out.name[: -len(out.suffix)] if out.suffix else out.name
-    return out.with_name(name + suffix)
+def default_output(log: Path, tag: str, suffix: str) -> Path:
+    """A command's main output when none is given: LOG-stem.TAG.SUFFIX in the current folder (walk.odom.tum)."""
+    return Path(f"{log_stem(log)}.{tag}{suffix}")
 
 
-def run_outputs(out: Path) -> list[Path]:
-    """The files a run writing ``out`` produces: ``out`` itself, its metrics and its resolved config."""
-    return [out, beside(out, ".metrics.json"), beside(out, ".config.yaml")]
+def sidecars(out: Path, tag: str) -> tuple[Path, Path]:
+    """(metrics, resolved config) that command ``tag`` writes beside ``out``."""
+    return side_file(out, tag, ".metrics.json"), side_file(out, tag, ".config.yaml")
 
 
-def check_outputs(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
-    """Every file of ``run_outputs(out)`` may be written and is none of ``inputs`` (before any work)."""
+def run_outputs(out: Path, tag: str) -> list[Path]:
+    """The files a run of command ``tag`` writing ``out`` produces: ``out`` itself, its metrics and its config."""
+    return [Path(out), *sidecars(Path(out), tag)]
+
+
+def check_outputs(out: Path, tag: str, force: bool, inputs: Iterable[Path] = ()) -> None:
+    """Every file of ``run_outputs(out, tag)`` may be written and is none of ``inputs`` (before any work)."""
     inputs = list(inputs)
-    for path in run_outputs(out):
+    for path in run_outputs(out, tag):
         check_writable(path, force, inputs)
 
 
@@ -59,14 +65,16 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_run(out: Path, text: str, config, metrics: dict, force: bool) -> None:
-    """Write ``text`` to ``out`` and the resolved ``config`` and ``metrics`` beside it (each atomically)."""
+def write_run(out: Path, tag: str, text: str, config, metrics: dict, force: bool) -> list[Path]:
+    """Write ``text`` to ``out`` and the resolved ``config`` and ``metrics`` beside it (each atomically); return
+    the three paths."""
     from ..config import dump_model  # pydantic: loaded only by the commands that write a config
 
-    traj, metrics_path, config_path = run_outputs(out)
+    traj, metrics_path, config_path = run_outputs(out, tag)
     with atomic_output(traj, force) as tmp:
         tmp.write_text(text)
     with atomic_output(config_path, force) as tmp:
         tmp.write_text(dump_model(config))
     with atomic_output(metrics_path, force) as tmp:
         tmp.write_text(json_text(metrics))
+    return [traj, metrics_path, config_path]

@@ -97,6 +97,7 @@ class Calibration(BaseModel):
     imu_noise: Optional[ImuNoiseCalibration] = Field(None, description="IMU noise lio calibrate measured (read, not used)")
     wheel: Optional[WheelCalibration] = Field(
         None, description="wheel odometry speed and yaw-rate scales lio calibrate measured; odom and fuse apply them")
+    prefer_file: bool = Field(False, description="use these extrinsics even where /tf_static gives one (--prefer-calib)")
 
     @field_validator("T_base_imu", "T_base_lidar")
     @classmethod

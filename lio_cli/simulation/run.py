@@ -3,7 +3,7 @@ and the run's metrics.
 
 Outputs for ``OUT`` (``x.bag``, ``x.mcap`` or a ROS 2 folder ``x``): the log itself, ``x.gt.tum`` (pose of
 ``base`` in ``world``), ``x.truth.json`` (the true extrinsics, biases, clock offset, wheel errors, start state,
-GPS georeference) and ``x.metrics.json`` (the resolved options, topics, sizes, wall time). Everything is
+GPS georeference) and ``x.sim.metrics.json`` (the resolved options, topics, sizes, wall time). Everything is
 written atomically; existing outputs are refused unless ``force``.
 """
 
@@ -70,9 +70,9 @@ def output_paths(out: Path) -> tuple[Path, Path]:
 
 
 def metrics_path_for(out: Path) -> Path:
-    """x.metrics.json beside the log ``out``."""
+    """x.sim.metrics.json beside the log ``out`` (tagged, as every command's side files: never another's)."""
     out = Path(out)
-    return out.with_name(f"{_stem(out)}.metrics.json")
+    return out.with_name(f"{_stem(out)}.sim.metrics.json")
 
 
 def _stem(out: Path) -> str:
@@ -150,7 +150,7 @@ def _gps_spec(sc: Scenario, opts: SimulationOptions, duration_s: float) -> GpsSp
 def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s: float = 20.0, seed: int = 0,
              force: bool = False, progress: Callable[[float], None] | None = None, **options) -> SimulationResult:
     """Simulate ``scenario`` for ``duration_s`` and write the log ``out`` plus ``x.gt.tum``, ``x.truth.json`` and
-    ``x.metrics.json``.
+    ``x.sim.metrics.json``.
 
     ``options`` are :class:`SimulationOptions` fields. ``progress(dt_s)`` is called as simulated time advances.
     The same arguments always give the same bytes (the metrics' wall time aside).

@@ -24,12 +24,12 @@ LOGS = {
 class Sim:
     root: Path
     logs: dict[str, Path]  # name -> log
-    ref: Path  # folder of the single-command outputs: NAME.tum, NAME.config.yaml, NAME.metrics.json
+    ref: Path  # folder of the single-command outputs: NAME.tum, NAME.odom.config.yaml, NAME.odom.metrics.json
     thresholds: dict[str, float]
 
     def ref_files(self, name: str) -> dict[str, Path]:
-        return {"tum": self.ref / f"{name}.tum", "config": self.ref / f"{name}.config.yaml",
-                "metrics": self.ref / f"{name}.metrics.json"}
+        return {"tum": self.ref / f"{name}.tum", "config": self.ref / f"{name}.odom.config.yaml",
+                "metrics": self.ref / f"{name}.odom.metrics.json"}
 
 
 @pytest.fixture(scope="session")

@@ -160,12 +160,12 @@ runs:
     rc, _ = run_lio("batch", manifest, "--jobs", "1", "-q")
     assert rc == 0
     out = tmp_path / "out"
-    assert (out / "fused" / "fused.tum").read_bytes() == (ref / "f.tum").read_bytes()
-    assert (out / "fused" / "fused.config.yaml").read_bytes() == (ref / "f.config.yaml").read_bytes()
-    assert_same_log_but_last_bits(out / "deskewed" / "deskewed.bag", ref / "d.bag", "/points")
-    assert (out / "deskewed" / "deskewed.config.yaml").read_bytes() == (ref / "d.config.yaml").read_bytes()
+    assert (out / "fused" / "fuse.tum").read_bytes() == (ref / "f.tum").read_bytes()
+    assert (out / "fused" / "fuse.config.yaml").read_bytes() == (ref / "f.fuse.config.yaml").read_bytes()
+    assert_same_log_but_last_bits(out / "deskewed" / "deskew.bag", ref / "d.bag", "/points")
+    assert (out / "deskewed" / "deskew.config.yaml").read_bytes() == (ref / "d.deskew.config.yaml").read_bytes()
     deskew = summary_of(out)["runs"][1]["metrics"]
-    assert deskew["scans_used"] == deskew["scans_total"] == sim_scans(ref / "d.metrics.json")
+    assert deskew["scans_used"] == deskew["scans_total"] == sim_scans(ref / "d.deskew.metrics.json")
 
 
 def assert_same_log_but_last_bits(a: Path, b: Path, lidar: str) -> None:
@@ -229,7 +229,7 @@ runs:
             assert ours[key] == pytest.approx(value, rel=1e-6, abs=1e-8), key
         else:
             assert ours[key] == value, key
-    assert (out / "calib.config.yaml").read_bytes() == (ref / "c.config.yaml").read_bytes()
+    assert (out / "calib.config.yaml").read_bytes() == (ref / "c.calib.config.yaml").read_bytes()
     assert summary_of(tmp_path / "out")["runs"][0]["status"] == "ok"
     bad = write_manifest(tmp_path / "bad.yaml", manifest.read_text().replace("command: calibrate",
                                                                              "command: calibrate\n    gt: /ground_truth"))

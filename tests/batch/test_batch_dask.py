@@ -143,7 +143,7 @@ def test_dask_local_cluster(sim, tmp_path):
                "--dask", "local", "--workers", "1", "-q"])
     assert rc == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["executor"] == "a local Dask cluster of 1 workers"
+    assert summary["executor"] == "a local Dask cluster of 1 worker"
     assert_as_single_command(sim, out / "walk_a", "walk_a")
 
 

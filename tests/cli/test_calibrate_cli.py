@@ -138,7 +138,8 @@ def test_stderr_table_against_a_given_calib_in_degrees_cm_and_ms(walk, tmp_path,
     assert yaw[-1] == "deg" and abs(float(yaw[-2]) - 45.0) < 5.0  # against an identity prior
     assert row["T_base_imu translation x"][-1] == "cm"
     assert "skipped: the wheel odometry scales because the log has no wheel odometry" in lines
-    assert lines[-1].startswith(f"wrote {out};")
+    assert lines[-1].startswith(f"wrote {out}, {out.with_name('c.calib.metrics.json')}, "
+                                f"{out.with_name('c.calib.config.yaml')};")
 
 
 def test_the_default_output_is_the_log_stem_in_the_current_folder(walk, tmp_path, capsys, monkeypatch):

@@ -30,20 +30,20 @@ def storage(path) -> str:
 def test_a_config_from_a_bag_run_serves_an_mcap_and_a_ros2_log(command, logs, tmp_path):
     first = tmp_path / "first.tum"
     assert main([command, str(logs["ros1"]), "-o", str(first), "-q"]) == 0
-    cfg = tmp_path / "first.config.yaml"
+    cfg = tmp_path / f"first.{command}.config.yaml"
     assert config(cfg)["input"]["format"] is None
     for fmt in ("mcap", "ros2"):
         assert main([command, str(logs[fmt]), "-o", str(tmp_path / f"{fmt}.tum"), "--config", str(cfg), "-q"]) == 0
     again = tmp_path / "again.tum"  # the same log still repeats the run byte for byte
     assert main([command, str(logs["ros1"]), "-o", str(again), "--config", str(cfg), "-q"]) == 0
     assert again.read_bytes() == first.read_bytes()
-    assert (tmp_path / "again.config.yaml").read_bytes() == cfg.read_bytes()
+    assert (tmp_path / f"again.{command}.config.yaml").read_bytes() == cfg.read_bytes()
 
 
 def test_an_asked_input_format_is_kept(logs, tmp_path, capsys):
     out = tmp_path / "o.tum"
     assert main(["odom", str(logs["ros1"]), "-o", str(out), "--format", "ros1", "-q"]) == 0
-    cfg = tmp_path / "o.config.yaml"
+    cfg = tmp_path / "o.odom.config.yaml"
     assert config(cfg)["input"]["format"] == "ros1"
     capsys.readouterr()
     assert main(["odom", str(logs["mcap"]), "-o", str(tmp_path / "m.tum"), "--config", str(cfg), "-q"]) == 2
@@ -56,7 +56,7 @@ def test_an_asked_input_format_is_kept(logs, tmp_path, capsys):
 def test_deskew_config_reused_for_another_out_and_another_log(logs, tmp_path):
     first = tmp_path / "d.bag"
     assert main(["deskew", str(logs["ros1"]), str(first), "-q"]) == 0
-    cfg = tmp_path / "d.config.yaml"
+    cfg = tmp_path / "d.deskew.config.yaml"
     assert config(cfg)["input"]["format"] is None and config(cfg)["output_format"] is None
     rep = tmp_path / "rep.mcap"
     assert main(["deskew", str(logs["ros1"]), str(rep), "--config", str(cfg), "-q"]) == 0
@@ -70,4 +70,4 @@ def test_deskew_config_reused_for_another_out_and_another_log(logs, tmp_path):
 
 def test_deskew_asked_output_format_is_kept(logs, tmp_path):
     assert main(["deskew", str(logs["ros1"]), str(tmp_path / "d.mcap"), "--format", "mcap", "-q"]) == 0
-    assert config(tmp_path / "d.config.yaml")["output_format"] == "mcap"
+    assert config(tmp_path / "d.deskew.config.yaml")["output_format"] == "mcap"

@@ -44,18 +44,21 @@ def test_a_run_writes_the_log_its_sidecars_and_the_map_and_says_what_it_did(logs
     assert "/points: 20/20 scans de-skewed to the scan end" in err
     assert f"motion: trajectory {bag.gt_path} (201 poses of the base over 2.0 s, cubic interpolation)" in err
     assert "other topics: 603 messages converted to mcap" in err  # a ROS 1 bag written as MCAP (ros2 profile)
-    assert f"wrote {out} (mcap), {ply} (" in err and f" points) and {tmp_path / 'walk.png'};" in err
-    assert err.rstrip().endswith(f"its clouds are de-skewed: run odometry on it without de-skewing again (lio odom {out} "
-                                 "--deskew none; kiss-icp: deskew false)")
-    for p in (out, ply, tmp_path / "walk_deskewed.metrics.json", tmp_path / "walk_deskewed.config.yaml"):
+    sidecars = tmp_path / "walk_deskewed.deskew.metrics.json", tmp_path / "walk_deskewed.deskew.config.yaml"
+    preview = tmp_path / "walk.png"
+    assert f"map: 0 points in {ply}" not in err and f" points in {ply}\n" in err
+    assert f"real time; wrote {out} (mcap), {ply}, {sidecars[0]}, {sidecars[1]}, {preview}\n" in err
+    assert err.rstrip().endswith("its clouds are de-skewed: run odometry on it without de-skewing again (kiss-icp: "
+                                 f"deskew false)\nnext: lio odom {out} --deskew none")
+    for p in (out, ply, *sidecars, preview):
         assert p.exists()
-    assert mpimg.imread(tmp_path / "walk.png").shape == (800, 800, 4)  # the map from above
-    metrics = json.loads((tmp_path / "walk_deskewed.metrics.json").read_text())
+    assert mpimg.imread(preview).shape == (800, 800, 4)  # the map from above
+    metrics = json.loads((tmp_path / "walk_deskewed.deskew.metrics.json").read_text())
     assert metrics["scans"]["deskewed"] == 20 and metrics["output_format"] == "mcap"
     assert metrics["motion"]["source"] == "trajectory" and metrics["time_s"]["total"] > 0
     # the written configuration repeats the run
     again = tmp_path / "again.mcap"
-    assert main(["deskew", str(bag.log_path), str(again), "--config", str(tmp_path / "walk_deskewed.config.yaml"),
+    assert main(["deskew", str(bag.log_path), str(again), "--config", str(tmp_path / "walk_deskewed.deskew.config.yaml"),
                  "-q"]) == 0
     assert records(again) == records(out)
     assert capsys.readouterr().err == ""
@@ -126,7 +129,7 @@ def test_lio_odoms_trajectory_covers_every_scan(logs, tmp_path, capsys):
     assert main(["odom", str(bag.log_path), "-o", str(odom), "-q"]) == 0
     out = tmp_path / "d.bag"
     assert main(["deskew", str(bag.log_path), str(out), "--trajectory", str(odom), "--strict", "-q"]) == 0
-    assert json.loads((tmp_path / "d.metrics.json").read_text())["scans"]["deskewed"] == 20
+    assert json.loads((tmp_path / "d.deskew.metrics.json").read_text())["scans"]["deskewed"] == 20
 
 
 def test_a_trajectory_on_another_clock_is_refused_not_copied(logs, tmp_path, capsys):

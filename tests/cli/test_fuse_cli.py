@@ -42,7 +42,7 @@ def test_files_and_config_round_trip(capsys, planar, tmp_path):
     assert code == 0, err
     stamps, poses = read_tum(out)
     assert np.all(np.diff(stamps) == 20_000_000) and np.allclose(poses[0, :3, 3], 0.0)
-    m = json.loads((tmp_path / "fused.metrics.json").read_text())
+    m = json.loads((tmp_path / "fused.fuse.metrics.json").read_text())
     assert m["sources_used"] == ["gps", "imu", "wheel"] and m["smoothed"] is True
     assert m["sources"]["gps"]["rejected"]["no_fix"]["why"] == "the GPS fix status said invalid"
     assert set(m["time_s"]) == {"read", "fuse", "total", "cpu"} and m["output"]["poses"] == len(stamps)
@@ -54,7 +54,7 @@ def test_files_and_config_round_trip(capsys, planar, tmp_path):
         assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "poses (50 Hz), ekf + smoother: imu" in err
     again = tmp_path / "again.tum"
-    code, _, err = _run(capsys, planar, "--config", tmp_path / "fused.config.yaml", "-o", again)
+    code, _, err = _run(capsys, planar, "--config", tmp_path / "fused.fuse.config.yaml", "-o", again)
     assert code == 0, err
     assert again.read_bytes() == out.read_bytes()
 
@@ -132,7 +132,7 @@ def test_groovy_needs_the_xsens_extrinsic_and_then_runs(real_logs, capsys, tmp_p
     calib.write_text("T_base_imu: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n")
     code, _, err = _run(capsys, log, "-o", tmp_path / "g.tum", "--calib", calib, "--rate", 20)
     assert code == 0, err
-    m = json.loads((tmp_path / "g.metrics.json").read_text())
+    m = json.loads((tmp_path / "g.fuse.metrics.json").read_text())
     assert m["sources"]["imu"]["topic"] == "/xsens/imu_data"  # the all-zero IMU beside it is left out
     assert m["extrinsics"]["wheel_twist"].startswith("parent frame")  # this driver's twist is in its odom frame
 
@@ -140,17 +140,17 @@ def test_groovy_needs_the_xsens_extrinsic_and_then_runs(real_logs, capsys, tmp_p
 def test_ardrone_twist_only_runs(real_logs, capsys, tmp_path):
     code, _, err = _run(capsys, real_logs / "ardrone_twist_only" / "ardrone.bag", "-o", tmp_path / "a.tum", "--rate", 50)
     assert code == 0, err
-    m = json.loads((tmp_path / "a.metrics.json").read_text())
+    m = json.loads((tmp_path / "a.fuse.metrics.json").read_text())
     assert m["sources"]["wheel"]["measurements"] == ["velocity"]  # a drone: lateral speed, no wheel constraint
     assert m["updates"]["wheel"] == 25217
 
 
 @pytest.mark.parametrize("args, message", [
     (["-o", "f.tum", "--cov", "f.tum"], "f.tum: would be both the trajectory (-o) and the covariance file (--cov)"),
-    (["-o", "f3.tum", "--cov", "f3.metrics.json"],
-     "f3.metrics.json: would be both the metrics file written beside -o f3.tum and the covariance file (--cov)"),
-    (["-o", "f4.tum", "--cov", "f4.config.yaml"],
-     "f4.config.yaml: would be both the config file written beside -o f4.tum and the covariance file (--cov)"),
+    (["-o", "f3.tum", "--cov", "f3.fuse.metrics.json"],
+     "f3.fuse.metrics.json: would be both the metrics file written beside -o f3.tum and the covariance file (--cov)"),
+    (["-o", "f4.tum", "--cov", "f4.fuse.config.yaml"],
+     "f4.fuse.config.yaml: would be both the config file written beside -o f4.tum and the covariance file (--cov)"),
     (["-o", "f2.tum", "--plot", "f2.tum"], "f2.tum: would be both the trajectory (-o) and the plot folder (--plot)"),
     (["-o", "-", "--cov", "p", "--plot", "p"],
      "p: would be both the covariance file (--cov) and the plot folder (--plot)"),

@@ -102,6 +102,8 @@ def test_info_human_table(logs, capsys):
     rc, out, err = run(capsys, "info", path)
     assert rc == 0 and err == ""
     assert f"{path}  (ros1)" in out
+    assert re.search(r"^start    1700000000\.000 s   2023-11-14 22:13:20\.000 UTC$", out, re.M), out
+    assert re.search(r"^end      1700000000\.\d{3} s   2023-11-14 22:13:20\.\d{3} UTC$", out, re.M), out
     assert re.search(r"/imu\s+sensor_msgs/msg/Imu\s+30\s+100\.00", out)
     assert "velodyne: field 'time' in s, relative to header; header stamp marks the scan's start" in out
     assert "imu_link -> velodyne" in out and "fields      x:float32, y:float32, z:float32, intensity:float32, time:float32" in out

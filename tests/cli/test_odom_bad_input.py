@@ -48,7 +48,7 @@ def _cloud(msg, w, keep=None, nan_rows=None, replace_xyz=None):
 def _odom(log, tmp_path, *extra):
     out = tmp_path / "o.tum"
     rc = main(["odom", str(log), "-o", str(out), "-q", *extra])
-    metrics = json.loads((tmp_path / "o.metrics.json").read_text()) if rc == 0 else None
+    metrics = json.loads((tmp_path / "o.odom.metrics.json").read_text()) if rc == 0 else None
     return rc, metrics
 
 

@@ -75,8 +75,8 @@ def test_outputs_metrics_and_config_beside_trajectory(logs, tmp_path):
     res = logs["corridor"]
     out = tmp_path / "c.tum"
     assert _run(res.log_path, out) == 0
-    metrics = json.loads((tmp_path / "c.metrics.json").read_text())
-    written = load_model(OdomConfig, tmp_path / "c.config.yaml")
+    metrics = json.loads((tmp_path / "c.odom.metrics.json").read_text())
+    written = load_model(OdomConfig, tmp_path / "c.odom.config.yaml")
     assert (written.deskew, written.planar) == ("imu", False)  # resolved: no "auto" left
     assert (written.input.lidar_topic, written.input.imu_topic, written.input.wheel_topic) == ("/points", "/imu", "/wheel/odom")
     assert (written.input.base_frame, metrics["format"]) == ("base", "ros2")
@@ -119,14 +119,14 @@ def test_gt_option_scores_against_log_topic_or_file(logs, tmp_path, capsys):
     res = logs["corridor"]
     out = tmp_path / "c.tum"
     assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--gt", "/ground_truth"]) == 0
-    acc = json.loads((tmp_path / "c.metrics.json").read_text())["accuracy"]
+    acc = json.loads((tmp_path / "c.odom.metrics.json").read_text())["accuracy"]
     # the same number lio evaluate gives on the ground-truth file (which rounds poses to 1e-9 m)
     assert acc["ate_trans_rmse_m"] == pytest.approx(_ate(res.gt_path, out, 20_000_000), rel=1e-6)
     assert acc["matches"] == 60
     err = capsys.readouterr().err
     assert err.startswith(f"against /ground_truth: ATE {acc['ate_trans_rmse_m']:.4f} m")
     assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--force", "--gt", str(res.gt_path)]) == 0
-    acc_file = json.loads((tmp_path / "c.metrics.json").read_text())["accuracy"]
+    acc_file = json.loads((tmp_path / "c.odom.metrics.json").read_text())["accuracy"]
     assert acc_file["ate_trans_rmse_m"] == pytest.approx(_ate(res.gt_path, out, 20_000_000), rel=1e-6)
 
 
@@ -137,7 +137,7 @@ def test_gt_of_a_platform_standing_still_is_scored_from_the_first_pose(tmp_path,
     res = simulate("handheld", tmp_path / "still.bag", "ros1", duration_s=1.4, seed=1, columns=180)  # rests 1.5 s
     out = tmp_path / "s.tum"
     assert main(["odom", str(res.log_path), "-o", str(out), "-q", "--gt", str(res.gt_path)]) == 0
-    acc = json.loads((tmp_path / "s.metrics.json").read_text())["accuracy"]
+    acc = json.loads((tmp_path / "s.odom.metrics.json").read_text())["accuracy"]
     assert acc["alignment"] == "origin" and acc["matches"] == 14
     ref, est = Trajectory(*read_tum(res.gt_path), name="gt"), Trajectory(*read_tum(out), name="est")
     expected = evaluate(ref, est, EvalOptions(max_diff_ns=2_000_000, align="origin")).stats["ape"]["trans"]["rmse"]
@@ -153,13 +153,13 @@ def test_a_reference_near_a_line_says_its_rotation_error_means_little(tmp_path, 
     res = simulate("drive", tmp_path / "line.bag", "ros1", duration_s=2.0, seed=0, columns=360, start="moving")
     out = tmp_path / "l.tum"
     assert main(["odom", str(res.log_path), "-o", str(out), "--gt", str(res.gt_path)]) == 0
-    acc = json.loads((tmp_path / "l.metrics.json").read_text())["accuracy"]
+    acc = json.loads((tmp_path / "l.odom.metrics.json").read_text())["accuracy"]
     assert acc["alignment"] == "se3" and acc["ate_trans_rmse_m"] < 0.1
     assert acc["note"].startswith("the reference's positions lie near a line (they stray ")
     assert acc["note"] in capsys.readouterr().err
     walk = simulate("handheld", tmp_path / "walk.bag", "ros1", duration_s=10.0, seed=0, columns=360)  # it turns
     assert main(["odom", str(walk.log_path), "-o", str(tmp_path / "w.tum"), "-q", "--gt", str(walk.gt_path)]) == 0
-    assert json.loads((tmp_path / "w.metrics.json").read_text())["accuracy"]["note"] is None
+    assert json.loads((tmp_path / "w.odom.metrics.json").read_text())["accuracy"]["note"] is None
 
 
 @pytest.mark.parametrize("scenario, threshold", [("handheld", 0.08), ("corridor", 0.20)])
@@ -182,17 +182,17 @@ def test_written_config_repeats_the_run_byte_for_byte(logs, tmp_path):
     flags = ["--fusion", "complementary", "--alpha", "0.9", "--lidar-topic", "/points", "--calib", str(cal),
              "--base-frame", "base", "--point-time", "velodyne", "--no-wheel"]
     assert _run(res.log_path, first, flags) == 0
-    written = load_model(OdomConfig, tmp_path / "first.config.yaml")
+    written = load_model(OdomConfig, tmp_path / "first.odom.config.yaml")
     assert written.calibration.imu_time_offset_s == 0.001 and written.input.point_time == "velodyne"
     assert written.fusion.method == "complementary" and written.use_wheel is False
     again = tmp_path / "again.tum"
-    assert _run(res.log_path, again, ["--config", str(tmp_path / "first.config.yaml")]) == 0
+    assert _run(res.log_path, again, ["--config", str(tmp_path / "first.odom.config.yaml")]) == 0
     assert again.read_bytes() == first.read_bytes()
     default = tmp_path / "default.tum"
     assert _run(res.log_path, default) == 0
     assert default.read_bytes() != first.read_bytes()  # the flags mattered, so the config carried them
     # a flag given with --config overrides that one field only
     over = tmp_path / "over.tum"
-    assert _run(res.log_path, over, ["--config", str(tmp_path / "first.config.yaml"), "--alpha", "0.5"]) == 0
-    cfg = load_model(OdomConfig, tmp_path / "over.config.yaml")
+    assert _run(res.log_path, over, ["--config", str(tmp_path / "first.odom.config.yaml"), "--alpha", "0.5"]) == 0
+    cfg = load_model(OdomConfig, tmp_path / "over.odom.config.yaml")
     assert (cfg.fusion.alpha, cfg.fusion.method, cfg.calibration.imu_time_offset_s) == (0.5, "complementary", 0.001)

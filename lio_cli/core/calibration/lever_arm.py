@@ -93,8 +93,9 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
         if attempt == 1 or not bad.any():
             break
         keep[np.flatnonzero(keep)[bad]] = False
-        notes.append(f"{int(bad.sum())} windows left out: their accelerations disagree with the IMU's (bad "
-                     f"registrations?)")
+        n = int(bad.sum())
+        verb = "their accelerations disagree" if n != 1 else "its acceleration disagrees"
+        notes.append(f"{n} window{'s' * (n != 1)} left out: {verb} with the IMU's (bad registrations?)")
     cov = np.linalg.inv(H)
     cov[:3, :3] = floored(cov[:3, :3], sigma_floor_m)
     if refine:

@@ -107,8 +107,9 @@ def estimate_rotation(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, im
         bad = outliers_3d(noise * np.linalg.norm(fit.r, axis=1), OUTLIER_FLOOR_RAD)  # r is whitened
         if rnd == 0 and bad.any():
             keep[np.flatnonzero(keep)[bad]] = False
-            notes.append(f"{int(bad.sum())} windows left out: their rotation disagrees with the gyro's (bad "
-                         f"registrations?)")
+            n = int(bad.sum())
+            notes.append(f"{n} window{'s' * (n != 1)} left out: {'their' if n != 1 else 'its'} rotation disagrees "
+                         "with the gyro's (bad registrations?)")
     cov = fit.covariance(span)
     fit_cov = cov[:3, :3].copy()
     cov[:3, :3] = floored(cov[:3, :3], sigma_floor_rad)

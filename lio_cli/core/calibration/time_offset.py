@@ -101,8 +101,9 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
         if attempt == 1 or not bad.any():
             break
         keep[np.flatnonzero(keep)[bad]] = False
-        notes.append(f"{int(bad.sum())} scan intervals left out: their rotation disagrees with the gyro's (bad "
-                     f"registrations?)")
+        n = int(bad.sum())
+        notes.append(f"{n} scan interval{'s' * (n != 1)} left out: {'their' if n != 1 else 'its'} rotation "
+                     "disagrees with the gyro's (bad registrations?)")
     sigma = _offset_sigma(cost, off, R, b, r)
     if sigma > max_sigma_s:
         raise InputError(f"too little change in rotation to time the IMU against the LiDAR (1-sigma "

@@ -1,5 +1,6 @@
-"""Outputs of one run checked against each other before any work: no two of them may be the same file, or
-the later write would replace the earlier (``-o f.tum --cov f.tum``), whatever ``--force`` says."""
+"""Outputs of one run: the names of the files written beside its main output (one rule for every command), and
+the outputs checked against each other before any work: no two of them may be the same file, or the later write
+would replace the earlier (``-o f.tum --cov f.tum``), whatever ``--force`` says."""
 
 from __future__ import annotations
 
@@ -18,6 +19,21 @@ def _identity(path: Path) -> tuple:
         return ("inode", st.st_dev, st.st_ino)
     except OSError:
         return ("path", os.path.normcase(os.path.realpath(path)))
+
+
+def tagged_name(out: Path, tag: str) -> str:
+    """``out``'s name without its suffix, ending in ``.TAG`` once: the stem of the files a command ``tag`` writes
+    beside ``out`` (walk.tum and walk.odom.tum -> walk.odom; odom.tum -> odom; a folder walk_ros2 ->
+    walk_ros2.deskew), so no two commands' side files share a name."""
+    out = Path(out)
+    name = out.name[: -len(out.suffix)] if out.suffix else out.name
+    return name if name == tag or name.endswith(f".{tag}") else f"{name}.{tag}"
+
+
+def side_file(out: Path, tag: str, suffix: str) -> Path:
+    """The file ``suffix`` (e.g. ``.metrics.json``) that command ``tag`` writes beside ``out``: walk.odom.tum ->
+    walk.odom.metrics.json; walk_deskewed.bag -> walk_deskewed.deskew.metrics.json."""
+    return Path(out).with_name(tagged_name(out, tag) + suffix)
 
 
 def refuse_shared_outputs(outputs: Iterable[tuple[str, Path]]) -> None:
@@ -55,4 +71,4 @@ def refuse_stdout(option: str, path: Path | str | None, what: str) -> None:
         raise ConfigError(f"{option} writes {what}, not standard output: give {option} a path")
 
 
-__all__ = ["check_plot_dir", "plot_outputs", "refuse_shared_outputs", "refuse_stdout"]
+__all__ = ["check_plot_dir", "plot_outputs", "refuse_shared_outputs", "refuse_stdout", "side_file", "tagged_name"]

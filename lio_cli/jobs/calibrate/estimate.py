@@ -207,7 +207,7 @@ def without_imu_gaps(traj: LidarTrajectory, imu: ImuBatch, offset_s: float) -> t
             "LiDAR-IMU estimates")
     if out.any():
         traj = LidarTrajectory(s[~out], traj.T_world_lidar[~out], int((~out).sum()), traj.scans_total,
-                               f"{traj.description}; {int(out.sum())} scans over IMU gaps left out")
+                               f"{traj.description}; {_scans(int(out.sum()))} over IMU gaps left out")
     return traj, note
 
 
@@ -235,7 +235,7 @@ def consistent_scans(traj: LidarTrajectory, imu: ImuBatch, offset_s: float, bias
         return traj, 0
     keep = ~bad_pose
     kept = LidarTrajectory(s[keep], P[keep], int(keep.sum()), traj.scans_total,
-                           f"{traj.description}; {int(bad_pose.sum())} scans where it disagreed with the gyro's "
+                           f"{traj.description}; {_scans(int(bad_pose.sum()))} where it disagreed with the gyro's "
                            "turn angles left out")
     return kept, int(bad_pose.sum())
 
@@ -263,6 +263,10 @@ def wheels(arrays: SensorArrays, traj: LidarTrajectory, T_base_lidar: np.ndarray
     if against:
         est.notes.append(against)
     est.notes.extend(est.wheel.notes)
+
+
+def _scans(n: int) -> str:
+    return f"{n} scan{'s' * (n != 1)}"
 
 
 __all__ = ["Estimates", "Skipped", "allan", "consistent_scans", "extrinsics", "imu_at_rest", "wheels"]

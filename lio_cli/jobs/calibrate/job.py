@@ -38,10 +38,11 @@ from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, fi
                                read_imu, refine_spans)
 from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
                                rotation_observable, table)
-from ..odom.inputs import named_base, root_base
-from ..outputs import beside, json_text
+from ..odom.inputs import named_base, prefer_between, root_base
+from ..outputs import json_text, sidecars as tagged_sidecars
 
 PLOT_NAME = "allan_deviation.png"
+TAG = "calib"  # in the name of every file a run writes beside its YAML
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,7 @@ class CalibrateResult:
 
 
 def sidecars(out: Path) -> tuple[Path, Path]:
-    return beside(Path(out), ".metrics.json"), beside(Path(out), ".config.yaml")
+    return tagged_sidecars(Path(out), TAG)
 
 
 def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
@@ -256,7 +257,10 @@ def _still_ns(imu, still_s: tuple[float, float] | None) -> tuple[int, int] | Non
 def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.Estimates) -> tuple[np.ndarray, str]:
     T = tree.lookup(base, frame) if frame else None
     if T is not None:
-        return T, f"{tree.source(base, frame)} ({base} -> {frame})"
+        chain = f"{tree.source(base, frame)} ({base} -> {frame})"
+        if prior.T_base_lidar is None:
+            return T, chain
+        return prefer_between("T_base_lidar", chain, T, prior, est.notes)
     if prior.T_base_lidar is not None:
         return prior.matrix("T_base_lidar"), "--calib"
     est.notes.append(f"no T_base_lidar ({base} -> {frame or '?'}) in /tf_static or --calib: the LiDAR is taken as the "
@@ -267,7 +271,8 @@ def _lidar_mounting(tree, base: str, frame: str, prior: Calibration, est: steps.
 def _reference(prior: Calibration, tree, base: str, imu_frame: str,
                T_base_lidar: np.ndarray | None) -> tuple[Calibration | None, str | None]:
     """What the estimates are compared with: --calib when it was given, else what /tf_static says."""
-    if prior.model_dump(exclude_none=True) != Calibration().model_dump(exclude_none=True):
+    if prior.model_dump(exclude_none=True, exclude={"prefer_file"}) != \
+            Calibration().model_dump(exclude_none=True, exclude={"prefer_file"}):
         return prior, "--calib"
     T = tree.lookup(base, imu_frame) if imu_frame else None
     if T is None:
@@ -286,18 +291,22 @@ def _allan_summary(r) -> dict:
 
 
 def write_calibrate(result: CalibrateResult, out: Path | None, force: bool, kalibr: Path | None = None,
-                    plot_dir: Path | None = None) -> None:
+                    plot_dir: Path | None = None) -> list[Path]:
     """The calibration YAML ``out`` with its config and metrics beside it (``out`` None: none of them, e.g. for
-    ``-o -``), and the job's ``kalibr`` file and Allan plot in ``plot_dir`` (both need ``config.allan``)."""
+    ``-o -``), and the job's ``kalibr`` file and Allan plot in ``plot_dir`` (both need ``config.allan``); returns
+    the paths written, the YAML's first."""
+    written: list[Path] = []
     if kalibr is not None:
         with atomic_output(kalibr, force) as tmp:
             tmp.write_text(kalibr_imu_yaml(result.allan, result.metrics["topics"]["imu"], result.allan.rate_hz))
+        written.append(Path(kalibr))
     if plot_dir is not None:
         Path(plot_dir).mkdir(parents=True, exist_ok=True)
         with atomic_output(Path(plot_dir) / PLOT_NAME, force) as tmp:
             tmp.write_bytes(allan_plot_png(result.allan, f"Allan deviation: {Path(result.metrics['log']).name}"))
+        written.append(Path(plot_dir) / PLOT_NAME)
     if out is None:
-        return
+        return written
     metrics_path, config_path = sidecars(out)
     with atomic_output(config_path, force) as tmp:
         tmp.write_text(dump_model(result.config))
@@ -305,6 +314,7 @@ def write_calibrate(result: CalibrateResult, out: Path | None, force: bool, kali
         tmp.write_text(json_text(result.metrics))
     with atomic_output(out, force) as tmp:
         tmp.write_text(yaml_text(result.calibration))
+    return [Path(out), metrics_path, config_path, *written]
 
 
 def yaml_text(cal: Calibration) -> str:
@@ -314,5 +324,6 @@ def yaml_text(cal: Calibration) -> str:
     head = ("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame (4x4, metres);\n"
             "# imu_time_offset_s is added to IMU stamps to put them on the LiDAR's clock; *_sigma_* are 1-sigma\n"
             "# (rotations about, translations along the base axes). Read by --calib of odom, deskew and fuse.\n")
-    return head + yaml.safe_dump(cal.model_dump(mode="json", exclude_none=True), sort_keys=False,
-                                 default_flow_style=None, width=120)
+    # prefer_file is the reader's choice (--prefer-calib), not a measured value
+    fields = cal.model_dump(mode="json", exclude_none=True, exclude={"prefer_file"})
+    return head + yaml.safe_dump(fields, sort_keys=False, default_flow_style=None, width=120)

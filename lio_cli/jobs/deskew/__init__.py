@@ -5,7 +5,7 @@
 
 from ...config.deskew import DeskewConfig
 from ..contract import Command
-from .job import DeskewJob, DeskewResult, check_deskew_outputs, output_in, run_deskew, write_deskew
+from .job import TAG, DeskewJob, DeskewResult, check_deskew_outputs, output_in, run_deskew, write_deskew
 
 
 def _key_metrics(metrics: dict) -> dict:
@@ -20,8 +20,9 @@ def _threads(config: DeskewConfig) -> int | None:
 COMMAND = Command(
     # a batch already keeps every core busy with one log each: no second process per log
     name="deskew", config=DeskewConfig, job=lambda log, config, out: DeskewJob(log, out, config, helper=False),
-    run=run_deskew, write=write_deskew, score=None, stem="deskewed", output=output_in, key_metrics=_key_metrics,
+    run=run_deskew, write=write_deskew, score=None, tag=TAG, output=output_in, key_metrics=_key_metrics,
     threads=_threads,
 )
 
-__all__ = ["COMMAND", "DeskewJob", "DeskewResult", "check_deskew_outputs", "output_in", "run_deskew", "write_deskew"]
+__all__ = ["COMMAND", "TAG", "DeskewJob", "DeskewResult", "check_deskew_outputs", "output_in", "run_deskew",
+           "write_deskew"]

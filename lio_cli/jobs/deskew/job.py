@@ -6,7 +6,7 @@ first pass over the log when the odometry provides it), then streams the log onc
 record of another topic copied as stored (``LogCopy``), every cloud of the LiDAR topic de-skewed into the sensor
 frame at its reference instant (``scan``). The run writes the output log and the map as it streams (each to a
 temporary sibling, renamed at its end: a failed run leaves neither); ``write_deskew`` then places
-``OUT-stem.metrics.json`` and ``OUT-stem.config.yaml`` beside the log.
+``OUT-stem.deskew.metrics.json`` and ``OUT-stem.deskew.config.yaml`` beside the log.
 """
 
 from __future__ import annotations
@@ -34,7 +34,9 @@ from .motion import Progress, check_covered, resolve_motion, run_odometry, traje
 from .scan import plan_scans
 from .write import WriteSetup, write_pass
 from ..odom.inputs import Mounting
-from ..outputs import beside, json_text
+from ..outputs import json_text, sidecars as tagged_sidecars
+
+TAG = "deskew"  # in the name of every file a run writes beside its log
 
 
 @dataclass(frozen=True)
@@ -87,11 +89,11 @@ def _output_format(out: Path, asked: str | None, reader: LogReader) -> str:
 
 def sidecars(out: Path) -> tuple[Path, Path]:
     """(metrics, resolved config) written beside the output log."""
-    return beside(Path(out), ".metrics.json"), beside(Path(out), ".config.yaml")
+    return tagged_sidecars(Path(out), TAG)
 
 
 def output_in(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
-    """The output log of a run into ``folder`` (``lio batch``): ``deskewed`` with the suffix of its format (the
+    """The output log of a run into ``folder`` (``lio batch``): ``deskew`` with the suffix of its format (the
     input's unless asked: a folder of split ROS 1 bags gives a .bag), a folder for a ROS 2 bag."""
     fmt = cfg.output_format or cfg.input.format
     if fmt is None:
@@ -99,7 +101,7 @@ def output_in(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
             fmt, _ = detect_format(Path(log))
         except InputError:  # the run itself says what is wrong with the log
             fmt = None
-    return folder / f"deskewed{FILE_SUFFIXES.get(fmt or '', '')}"
+    return folder / f"{TAG}{FILE_SUFFIXES.get(fmt or '', '')}"
 
 
 def check_deskew_outputs(job: DeskewJob, extra_inputs: tuple[Path, ...] = ()) -> None:
@@ -171,13 +173,16 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
     return DeskewResult(job.out, fmt, resolved, metrics, notes)
 
 
-def write_deskew(result: DeskewResult, out: Path, force: bool) -> None:
-    """Finish a run: its resolved config and metrics beside the output log ``out`` (the job's, already written)."""
+def write_deskew(result: DeskewResult, out: Path, force: bool) -> list[Path]:
+    """Finish a run: its resolved config and metrics beside the output log ``out`` (the job's, already written);
+    returns every file of the run (the log, the map, the metrics, the config)."""
     metrics_path, config_path = sidecars(out)
     with atomic_output(config_path, force) as tmp:
         tmp.write_text(dump_model(result.config))
     with atomic_output(metrics_path, force) as tmp:
         tmp.write_text(json_text(result.metrics))
+    written_map = [Path(result.metrics["map"]["path"])] if "map" in result.metrics else []
+    return [Path(out), *written_map, metrics_path, config_path]
 
 
 def _from_odometry(helper: Helper | None, reader: LogReader, setup: WriteSetup, progress: Progress | None,

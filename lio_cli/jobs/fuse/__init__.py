@@ -6,12 +6,12 @@
 from ...config.fuse import FuseConfig
 from ..contract import Command
 from .job import FuseJob, FuseRun, run_fuse, score_fuse
-from .outputs import check_fuse_outputs, write_fuse
+from .outputs import TAG, check_fuse_outputs, write_fuse
 
 COMMAND = Command(
     name="fuse", config=FuseConfig, job=lambda log, config, out: FuseJob(log, config), run=run_fuse,
-    write=write_fuse, score=score_fuse, stem="fused", output=lambda folder, log, config: folder / "fused.tum",
+    write=write_fuse, score=score_fuse, tag=TAG, output=lambda folder, log, config: folder / f"{TAG}.tum",
     key_metrics=lambda metrics: {"poses": metrics["output"]["poses"]}, threads=lambda config: None,
 )
 
-__all__ = ["COMMAND", "FuseJob", "FuseRun", "check_fuse_outputs", "run_fuse", "score_fuse", "write_fuse"]
+__all__ = ["COMMAND", "TAG", "FuseJob", "FuseRun", "check_fuse_outputs", "run_fuse", "score_fuse", "write_fuse"]

@@ -25,6 +25,7 @@ from ...io.sensors.tf import FrameTree, TfConflict, read_static_frames
 from ...io.sensors.topics import TopicChoice, choose_topic
 from ...geodesy import EnuFrame
 from ...model.gps import GpsTrack
+from ..odom.inputs import prefer_between
 from .convert import (
     calibrated_wheel, carries_lateral_speed, gps_series, imu_series, pose_series, trajectory_series, twist_frame,
     wheel_series,
@@ -127,9 +128,10 @@ def base_frame_of(cfg: FuseConfig, tree: FrameTree, wheel_child: str | None, imu
     return "base"
 
 
-def imu_extrinsic(tree: FrameTree, cfg: FuseConfig, base: str, frame: str, topic: str, log: Path
-                  ) -> tuple[np.ndarray, str]:
-    """T_base_imu by the IMU's frame id: the base itself, /tf_static, or --calib; else bad input."""
+def imu_extrinsic(tree: FrameTree, cfg: FuseConfig, base: str, frame: str, topic: str, log: Path,
+                  notes: list[str] | None = None) -> tuple[np.ndarray, str]:
+    """T_base_imu by the IMU's frame id: the base itself, /tf_static (or --calib's with prefer_file, a note in
+    ``notes`` when both give it and they differ), or --calib; else bad input."""
     f = frame.lstrip("/")
     if f == base:
         return np.eye(4), f"identity: the IMU's frame '{f}' is the base frame"
@@ -140,7 +142,10 @@ def imu_extrinsic(tree: FrameTree, cfg: FuseConfig, base: str, frame: str, topic
             raise
         return cfg.calibration.matrix("T_base_imu"), "--calib (/tf_static contradicts itself on this chain)"
     if T is not None:
-        return T, f"{tree.source(base, f)} ({base} -> {f})"
+        chain = f"{tree.source(base, f)} ({base} -> {f})"
+        if cfg.calibration.T_base_imu is None:
+            return T, chain
+        return prefer_between("T_base_imu", chain, T, cfg.calibration, [] if notes is None else notes)
     if cfg.calibration.T_base_imu is not None:
         return cfg.calibration.matrix("T_base_imu"), "--calib"
     raise InputError(f"{log}: IMU {topic} is in frame '{f or '(none)'}' and neither /tf_static nor --calib gives "
@@ -163,7 +168,7 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
                          imu_cols.frame_id if imu_cols is not None else None, notes)
     inputs, extrinsics, twist = FuseInputs(), {}, None
     if imu_cols is not None and len(imu_cols):
-        T, why = imu_extrinsic(tree, cfg, base, imu_cols.frame_id, imu_cols.topic, reader.path)
+        T, why = imu_extrinsic(tree, cfg, base, imu_cols.frame_id, imu_cols.topic, reader.path, notes)
         extrinsics["T_base_imu"] = why
         if why.startswith("--calib") and cal.unmeasured_rotation():
             notes.append(cal.unmeasured_rotation())

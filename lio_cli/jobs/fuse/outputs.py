@@ -1,4 +1,5 @@
-"""The files of a fuse run: the TUM trajectory with ``.metrics.json`` and ``.config.yaml`` beside it, the
+"""The files of a fuse run: the TUM trajectory with ``NAME.fuse.metrics.json`` and ``NAME.fuse.config.yaml``
+beside it, the
 per-pose covariance (``--cov``) and the plots (``--plot DIR``). Every location is checked before the work
 starts; each file is written atomically."""
 
@@ -18,6 +19,8 @@ from ...plots.fuse import PLOT_FILES, write_plots
 from .job import FuseRun
 from ..outputs import check_outputs, run_outputs, write_run
 
+TAG = "fuse"  # in the name of every file a run writes beside its trajectory
+
 COV_HEADER = ("# lio fuse per-pose covariance: stamp_s, then the 6x6 matrix row-major (36 values) over "
               f"({' '.join(COVARIANCE_LAYOUT)}): position error in world axes (m^2), rotation error about the base "
               "axes (rad^2, right perturbation)\n")
@@ -30,7 +33,7 @@ def check_fuse_outputs(out: Path | None, force: bool, inputs: Iterable[Path], co
     refuse_stdout("--plot", plot, "PNG files into a folder")
     named: list[tuple[str, Path]] = []
     if out is not None:
-        traj, metrics, config = run_outputs(out)
+        traj, metrics, config = run_outputs(out, TAG)
         named += [("the trajectory (-o)", traj), (f"the metrics file written beside -o {out}", metrics),
                   (f"the config file written beside -o {out}", config)]
     if cov is not None:
@@ -38,7 +41,7 @@ def check_fuse_outputs(out: Path | None, force: bool, inputs: Iterable[Path], co
     refuse_shared_outputs(named + plot_outputs(plot, PLOT_FILES, "plot"))
     inputs = list(inputs)
     if out is not None:
-        check_outputs(out, force, inputs)
+        check_outputs(out, TAG, force, inputs)
     if cov is not None:
         check_writable(cov, force, inputs)
     if plot is not None:
@@ -60,7 +63,8 @@ def write_covariances(run: FuseRun, path: Path, force: bool) -> None:
 
 def write_fuse(run: FuseRun, out: Path | None, force: bool, cov: Path | None = None,
                plot: Path | None = None) -> list[Path]:
-    """Write the run's files (``out`` None: no trajectory, metrics or config file, e.g. for ``-o -``)."""
+    """Write the run's files (``out`` None: no trajectory, metrics or config file, e.g. for ``-o -``); return
+    them, the trajectory's first."""
     written: list[Path] = []
     if cov is not None:
         write_covariances(run, cov, force)
@@ -72,9 +76,9 @@ def write_fuse(run: FuseRun, out: Path | None, force: bool, cov: Path | None = N
         run.metrics["plots"] = [str(p) for p in written[-len(PLOT_FILES):]]
     if out is not None:
         run.metrics["output"]["file"] = str(out)
-        write_run(out, format_tum(run.trajectory.stamps_ns, run.trajectory.poses), run.config, run.metrics, force)
-        written.insert(0, out)
+        written[:0] = write_run(out, TAG, format_tum(run.trajectory.stamps_ns, run.trajectory.poses), run.config,
+                                run.metrics, force)
     return written
 
 
-__all__ = ["COV_HEADER", "PLOT_FILES", "check_fuse_outputs", "format_covariances", "write_covariances", "write_fuse"]
+__all__ = ["COV_HEADER", "PLOT_FILES", "TAG", "check_fuse_outputs", "format_covariances", "write_covariances", "write_fuse"]

@@ -6,7 +6,7 @@
 from ...config.odom import OdomConfig
 from ..contract import Command
 from .job import DivergedRun, OdomJob, OdomResult, run_odom, score_odom
-from .outputs import map_outputs, write_odom, write_odom_map, write_odom_plots
+from .outputs import TAG, map_outputs, write_odom, write_odom_map, write_odom_plots
 
 
 def _key_metrics(metrics: dict) -> dict:
@@ -16,9 +16,9 @@ def _key_metrics(metrics: dict) -> dict:
 
 COMMAND = Command(
     name="odom", config=OdomConfig, job=lambda log, config, out: OdomJob(log, config), run=run_odom,
-    write=write_odom, score=score_odom, stem="odom", output=lambda folder, log, config: folder / "odom.tum",
+    write=write_odom, score=score_odom, tag=TAG, output=lambda folder, log, config: folder / f"{TAG}.tum",
     key_metrics=_key_metrics, threads=lambda config: config.registration.threads,
 )
 
-__all__ = ["COMMAND", "DivergedRun", "OdomJob", "OdomResult", "map_outputs", "run_odom", "score_odom", "write_odom",
-           "write_odom_map", "write_odom_plots"]
+__all__ = ["COMMAND", "TAG", "DivergedRun", "OdomJob", "OdomResult", "map_outputs", "run_odom", "score_odom",
+           "write_odom", "write_odom_map", "write_odom_plots"]

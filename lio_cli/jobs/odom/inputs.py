@@ -14,6 +14,7 @@ from ...io.logs.base import LogReader
 from ...io.sensors.tf import FrameTree, TfConflict
 from ...io.sensors.topics import TopicChoice, choose_topic, unpublished
 from ...model.calibration import Calibration
+from ...so3 import so3_log
 
 BASE_FRAME_NAMES = ("base_link", "base", "base_footprint")
 
@@ -88,6 +89,34 @@ def named_base(tree: FrameTree, base_frame: str | None) -> str | None:
     return base_frame or next((b for b in BASE_FRAME_NAMES if b in tree.frames), None)
 
 
+SAME_MOUNTING_M, SAME_MOUNTING_RAD = 1e-6, 1e-6  # closer than this: the same mounting, nothing to say
+
+
+def mounting_apart(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """How far apart two mountings are: (translation in m, rotation angle in rad)."""
+    T_a, T_b = np.asarray(T_a, float), np.asarray(T_b, float)
+    dt = float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
+    dr = float(np.linalg.norm(so3_log(T_a[:3, :3].T @ T_b[:3, :3])))
+    return dt, dr
+
+
+def prefer_between(name: str, chain: str, T_tf: np.ndarray, calibration: Calibration, notes: list[str]
+                   ) -> tuple[np.ndarray, str]:
+    """(mounting, where from) of ``name`` when the log (``T_tf``, by ``chain``: "/tf_static (base -> imu)") and
+    the calibration both give it: the log's, or the calibration's with ``prefer_file``; a note in ``notes``
+    says how far apart they are when they differ."""
+    T_file = calibration.matrix(name)
+    prefer = calibration.prefer_file
+    dt, dr = mounting_apart(T_tf, T_file)
+    if dt > SAME_MOUNTING_M or dr > SAME_MOUNTING_RAD:
+        used = "--calib's (--prefer-calib)" if prefer else "the log's (--prefer-calib uses --calib's)"
+        notes.append(f"{name}: {chain} and --calib are {100 * dt:.2f} cm and {np.degrees(dr):.3f} deg apart; "
+                     f"using {used}")
+    if prefer:
+        return T_file, f"--calib (--prefer-calib; the log has {chain})"
+    return T_tf, chain
+
+
 @dataclass
 class Mounting:
     """Extrinsics as they are resolved (the LiDAR's at the first scan, the IMU's at its first message)."""
@@ -112,7 +141,8 @@ class Mounting:
         return self.base
 
     def resolve(self, name: str, frame: str) -> np.ndarray:
-        """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity.
+        """``name`` (T_base_imu or T_base_lidar) from /tf_static by frame_id, else the calibration, else identity
+        (the calibration's before /tf_static's with ``prefer_file``; a note when both give it and they differ).
 
         A /tf_static that contradicts itself on the chain needed stops the run (exit 2) unless the calibration
         gives this extrinsic."""
@@ -125,7 +155,11 @@ class Mounting:
             self.sources[name] = "--calib (/tf_static contradicts itself on this chain)"
             return self.calibration.matrix(name)
         if T is not None:
-            self.sources[name] = f"{self.tree.source(self.base, frame)} ({self.base} -> {frame})"
+            chain = f"{self.tree.source(self.base, frame)} ({self.base} -> {frame})"
+            if self.calibration.matrix(name) is None:
+                self.sources[name] = chain
+                return T
+            T, self.sources[name] = prefer_between(name, chain, T, self.calibration, self.notes)
             return T
         if self.calibration.matrix(name) is not None:
             self.sources[name] = "--calib"

@@ -1,5 +1,6 @@
-"""The files of an odom run: the TUM trajectory with ``.metrics.json`` and ``.config.yaml`` beside it; on request
-the map (``--map``, with its top view beside it) and the pictures of the trajectory (``--plot``)."""
+"""The files of an odom run: the TUM trajectory with ``NAME.odom.metrics.json`` and ``NAME.odom.config.yaml``
+beside it; on request the map (``--map``, with its top view beside it) and the pictures of the trajectory
+(``--plot``)."""
 
 from __future__ import annotations
 
@@ -13,13 +14,15 @@ from ..outputs import write_run
 from ..plot import align_to_first
 from .job import OdomResult
 
+TAG = "odom"  # in the name of every file a run writes
 GT_MAX_DIFF_NS = 10_000_000  # pose pairs for the picture's alignment: as the score's
 
 
-def write_odom(result: OdomResult, out: Path, force: bool) -> None:
-    """The odom run's TUM trajectory, resolved config and metrics."""
+
+def write_odom(result: OdomResult, out: Path, force: bool) -> list[Path]:
+    """The odom run's TUM trajectory, resolved config and metrics; returns the paths written."""
     result.metrics["output"] = str(out)
-    write_run(out, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
+    return write_run(out, TAG, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
               result.metrics, force)
 
 
@@ -67,4 +70,4 @@ def write_odom_plots(result: OdomResult, reference: Trajectory | None, folder: P
     return paths, notes
 
 
-__all__ = ["map_outputs", "picture_tracks", "write_odom", "write_odom_map", "write_odom_plots"]
+__all__ = ["TAG", "map_outputs", "picture_tracks", "write_odom", "write_odom_map", "write_odom_plots"]

@@ -302,7 +302,7 @@ def test_a_final_clock_offset_rewrites_after_the_odometry_and_the_helper_s_files
     assert (tmp_path / "one.bag").read_bytes() == (tmp_path / "two.bag").read_bytes()
     assert (tmp_path / "one.ply").read_bytes() == (tmp_path / "two.ply").read_bytes()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        f"{a}.{b}" for a in ("one", "two") for b in ("bag", "ply", "metrics.json", "config.yaml"))
+        f"{a}.{b}" for a in ("one", "two") for b in ("bag", "ply", "deskew.metrics.json", "deskew.config.yaml"))
 
 
 @pytest.mark.parametrize("helper", [True, False])

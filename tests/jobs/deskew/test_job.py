@@ -340,7 +340,7 @@ def test_map_lies_in_the_office_and_config_repeats_the_run(sim, tmp_path):
     assert len(pts) == res.metrics["map"]["points"] > 1000
     inside = np.all((pts >= [-0.5, -0.5, -0.5]) & (pts <= [36.5, 16.5, 3.3]), axis=1)  # the office's walls, floor, ceiling
     assert inside.mean() > 0.999
-    cfg_path = tmp_path / "out.config.yaml"
+    cfg_path = tmp_path / "out.deskew.config.yaml"
     assert cfg_path.read_text() == dump_model(res.config)
     again = run_deskew(DeskewJob(s.log_path, tmp_path / "again.bag", load_model(DeskewConfig, cfg_path)))
     with open_log(out) as a, open_log(tmp_path / "again.bag") as b:
@@ -551,12 +551,12 @@ def test_a_folder_of_split_bags_gives_a_bag_file(tmp_path):
     split = tmp_path / "split"
     split.mkdir()
     (split / "a_0.bag").write_bytes(b"#ROSBAG V2.0\n")  # detected by its magic
-    assert output_in(tmp_path, split, DeskewConfig()).name == "deskewed.bag"
+    assert output_in(tmp_path, split, DeskewConfig()).name == "deskew.bag"
 
 
 def test_the_asked_format_names_the_output(tmp_path):
     log = tmp_path / "walk.bag"
     log.write_bytes(b"#ROSBAG V2.0\n")
-    assert output_in(tmp_path, log, DeskewConfig()).name == "deskewed.bag"
-    assert output_in(tmp_path, log, DeskewConfig(output_format="mcap")).name == "deskewed.mcap"
-    assert output_in(tmp_path, log, DeskewConfig(output_format="ros2")).name == "deskewed"
+    assert output_in(tmp_path, log, DeskewConfig()).name == "deskew.bag"
+    assert output_in(tmp_path, log, DeskewConfig(output_format="mcap")).name == "deskew.mcap"
+    assert output_in(tmp_path, log, DeskewConfig(output_format="ros2")).name == "deskew"

@@ -22,7 +22,7 @@ from lio_cli.simulation.run import simulate
 def _odom(log: Path, out: Path, *extra) -> dict:
     rc = main(["odom", str(log), "-o", str(out), "-q", "--force", "--gt", "/ground_truth", *map(str, extra)])
     assert rc == 0
-    return json.loads(out.with_name(out.stem + ".metrics.json").read_text())
+    return json.loads(out.with_name(out.stem + ".odom.metrics.json").read_text())
 
 
 @pytest.fixture(scope="module")

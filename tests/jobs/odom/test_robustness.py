@@ -28,7 +28,7 @@ MOVING = {"handheld": 0.06, "drive": 0.10, "corridor": 0.15}
 
 def _odom(log: Path, out: Path, *extra) -> tuple[int, dict | None]:
     rc = main(["odom", str(log), "-o", str(out), "-q", "--force", *map(str, extra)])
-    metrics = out.with_name(out.stem + ".metrics.json")
+    metrics = out.with_name(out.stem + ".odom.metrics.json")
     return rc, json.loads(metrics.read_text()) if rc == 0 else None
 
 
