@@ -135,4 +135,4 @@ def test_the_readme_manifest_expands(tmp_path):
     assert all(s.log.exists() for s in specs)
     assert specs[3].gt == str(REPO / "sample_logs" / "handheld.gt.tum") and Path(specs[3].gt).exists()
     assert resolve_config(specs[2]).registration.voxel_size_m == 0.5
-    assert (path.parent / m.output).resolve() == REPO / "results"  # covered by .gitignore
+    assert (path.parent / m.output).resolve() == REPO / "results-manifest"  # covered by .gitignore
