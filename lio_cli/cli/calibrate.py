@@ -98,11 +98,11 @@ def calibrate(
     written = write_calibrate(result, job.out, force, job.kalibr, job.plot_dir)
     _report(result, written, quiet)
     if to_stdout:
-        sys.stdout.write(yaml_text(result.calibration))
+        sys.stdout.write(yaml_text(result.calibration, result.metrics["not_estimated"]))
         sys.stdout.flush()
     if as_json:
         print_json({k: result.metrics[k] for k in ("log", "output", "topics", "reference", "calibration", "table",
-                                                    "skipped", "notes", "time_s")})
+                                                    "not_estimated", "notes", "time_s")})
 
 
 def _report(result: CalibrateResult, written: list[Path], quiet: bool) -> None:
