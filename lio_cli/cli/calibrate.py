@@ -24,8 +24,8 @@ from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, OUTPUT_PANEL, BaseFra
 HELP = """Estimate, from one log, the calibration that odom, deskew and fuse read with --calib, and write it
 to OUT.yaml (default: LOG's name + .calib.yaml in the current folder).
 
-[bold]What it estimates[/bold], each only when the log holds what it needs (otherwise a line "skipped: X
-because Y" says why and how to move to get it):
+[bold]What it estimates[/bold], each only when the log holds what it needs (otherwise a line "not estimated:
+X: WHY" says why and how to move to get it, and the YAML names it in a comment and leaves it out):
 the IMU at rest (a still stretch found automatically, or --still START:END): gyro bias, accelerometer bias
 along gravity, white-noise densities; the LiDAR-IMU time offset, rotation and translation (LiDAR odometry of
 the log itself, LiDAR-only first, then IMU-primed with the first estimates, against the gyro and the
@@ -40,7 +40,8 @@ to IMU stamps to put them on the LiDAR's clock; biases in the IMU frame; 1-sigma
 On stderr: a table of each value, its 1-sigma and its difference from --calib (else /tf_static) in degrees,
 cm and ms. Also written: OUT-stem.calib.metrics.json and OUT-stem.calib.config.yaml (with -o - the YAML goes to stdout
 and neither is written; --kalibr and --plot still write theirs). Bad input (no IMU, no still
-stretch where one is needed, too little motion, clocks that disagree): one line, exit 2, nothing written.
+stretch where one is needed, clocks that disagree, nothing at all estimable): one line, exit 2, nothing
+written; anything estimated: exit 0.
 
 [bold]Examples[/bold]
 
@@ -98,11 +99,11 @@ def calibrate(
     written = write_calibrate(result, job.out, force, job.kalibr, job.plot_dir)
     _report(result, written, quiet)
     if to_stdout:
-        sys.stdout.write(yaml_text(result.calibration))
+        sys.stdout.write(yaml_text(result.calibration, result.metrics["not_estimated"]))
         sys.stdout.flush()
     if as_json:
         print_json({k: result.metrics[k] for k in ("log", "output", "topics", "reference", "calibration", "table",
-                                                    "skipped", "notes", "time_s")})
+                                                    "not_estimated", "notes", "time_s")})
 
 
 def _report(result: CalibrateResult, written: list[Path], quiet: bool) -> None:

@@ -9,6 +9,7 @@ import pytest
 
 from lio_cli.cli.app import main
 from lio_cli.config import load_calibration
+from lio_cli.geometry import so3_log
 from lio_cli.io.logs.writer import LogWriter
 from lio_cli.simulation.run import simulate
 
@@ -137,7 +138,7 @@ def test_stderr_table_against_a_given_calib_in_degrees_cm_and_ms(walk, tmp_path,
     yaw = row["T_base_imu rotation yaw (z)"]
     assert yaw[-1] == "deg" and abs(float(yaw[-2]) - 45.0) < 5.0  # against an identity prior
     assert row["T_base_imu translation x"][-1] == "cm"
-    assert "skipped: the wheel odometry scales because the log has no wheel odometry" in lines
+    assert "not estimated: the wheel odometry scales: the log has no wheel odometry" in lines
     assert lines[-1].startswith(f"wrote {out}, {out.with_name('c.calib.metrics.json')}, "
                                 f"{out.with_name('c.calib.config.yaml')};")
 
@@ -148,9 +149,9 @@ def test_the_default_output_is_the_log_stem_in_the_current_folder(walk, tmp_path
     assert rc == 0, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.calib.config.yaml", "walk.calib.metrics.json",
                                                           "walk.calib.yaml"]
-    lines = err.splitlines()  # -q: only the skipped items
-    assert lines[-1] == "skipped: the wheel odometry scales because the log has no wheel odometry"
-    assert all(line.startswith("skipped: ") for line in lines)
+    lines = err.splitlines()  # -q: only what was not estimated
+    assert "not estimated: the wheel odometry scales: the log has no wheel odometry" in lines
+    assert all(line.startswith("not estimated: ") for line in lines)
     err = one_error([walk.log_path, "-q"], capsys, tmp_path)
     assert err == "lio: error: walk.calib.yaml: already exists; pass --force to overwrite it"
 
@@ -177,28 +178,59 @@ def test_no_imu(tmp_path, capsys):
                    "LiDAR and the wheels); name one with --imu-topic")
 
 
-def test_too_little_motion_names_the_motion_that_would_help(tmp_path, capsys):
-    log = static_log(tmp_path / "still.bag")
-    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
-    assert err.startswith(f"lio: error: {log}: too little rotation to time the IMU against the LiDAR: the trajectory "
-                          "turns at most ")
-    assert err.endswith("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; "
-                        "on a vehicle, drive a slalom; or give the clock offset with --imu-time-offset SECONDS (or "
-                        "imu_time_offset_s in --calib)")
+def test_a_still_platform_gives_its_imu_at_rest_and_names_the_rest(tmp_path, capsys):
+    """Standing still: the IMU at rest is measured (exit 0); the clock offset and the mounting are named as not
+    estimated, with the motion that would show them, and left out of the YAML."""
+    log, out = static_log(tmp_path / "still.bag"), tmp_path / "x.yaml"
+    rc, _, err = run([log, "-o", out], capsys)
+    assert rc == 0, err
+    lines = err.splitlines()
+    offset = next(line for line in lines if line.startswith("not estimated: the LiDAR-IMU clock offset: "))
+    assert offset.startswith("not estimated: the LiDAR-IMU clock offset: too little rotation to time the IMU against "
+                             "the LiDAR: the trajectory turns at most ")
+    assert offset.endswith("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; "
+                           "on a vehicle, drive a slalom; the other estimates use +0.000 ms and the YAML holds none "
+                           "(give it with --imu-time-offset SECONDS or imu_time_offset_s in --calib if it is known)")
+    assert any(line.startswith("not estimated: the IMU's mounting rotation (T_base_imu): too little rotation to "
+                               "estimate the LiDAR-IMU rotation") for line in lines), lines
+    text = out.read_text()
+    assert "\nimu_time_offset_s" not in text and "\nT_base_imu:" not in text and "\ngyro_bias_radps:" in text
+    assert "# - imu_time_offset_s: too little rotation to time the IMU" in text
+    m = json.loads(out.with_name("x.calib.metrics.json").read_text())
+    assert set(m["not_estimated"]) == {"imu_time_offset_s", "rotation", "lever_arm", "wheel_scales", "T_base_lidar"}
+    assert "imu_time_offset_s" not in m["calibration"] and "gyro_bias_sigma_radps" in m["calibration"]
 
 
 @pytest.mark.parametrize("how", ["flag", "calib"])
 def test_a_given_clock_offset_is_kept_where_the_motion_cannot_time_the_imu(tmp_path, capsys, how):
-    """What the line above suggests works: the offset given (even 0, which a --calib holding nothing else would
-    otherwise look like no --calib at all) is kept, and the run goes on to what the motion can show."""
-    log = static_log(tmp_path / "still.bag")
+    """The offset given (even 0, which a --calib holding nothing else would otherwise look like no --calib at
+    all) is kept, written without a 1-sigma, and said so."""
+    log, out = static_log(tmp_path / "still.bag"), tmp_path / "x.yaml"
     if how == "flag":
-        extra = ["--imu-time-offset", "0"]
+        extra = ["--imu-time-offset", "0.004"]
     else:
-        (tmp_path / "offset.yaml").write_text("imu_time_offset_s: 0.0\n")
+        (tmp_path / "offset.yaml").write_text("imu_time_offset_s: 0.004\n")
         extra = ["--calib", tmp_path / "offset.yaml"]
-    err = one_error([log, "-o", tmp_path / "x.yaml", *extra], capsys, tmp_path)
-    assert err.startswith(f"lio: error: {log}: too little rotation to estimate the LiDAR-IMU rotation")
+    rc, _, err = run([log, "-o", out, *extra], capsys)
+    assert rc == 0, err
+    assert any(line.startswith("not estimated: the LiDAR-IMU clock offset: too little rotation") and
+               line.endswith("; kept as given (+4.000 ms)") for line in err.splitlines()), err
+    cal = load_calibration(out)
+    assert cal.imu_time_offset_s == 0.004 and cal.imu_time_offset_sigma_s is None
+
+
+def test_nothing_estimable_is_exit_2_naming_each_reason(tmp_path, capsys):
+    """A car already cruising (never at rest) for 5 s, nearly straight, no wheels: nothing to measure."""
+    sim = simulate("drive", tmp_path / "mv.bag", "ros1", duration_s=5.0, beams=16, columns=256, start="moving",
+                   wheel=False)
+    log = sim.log_path
+    err = one_error([log, "-o", tmp_path / "x.yaml"], capsys, tmp_path)
+    assert err.startswith(f"lio: error: {log}: nothing could be estimated: the IMU at rest (accelerometer bias along "
+                          "gravity, noise densities): no still stretch of 1 s in the IMU data")
+    for part in ("; the LiDAR-IMU clock offset: too little rotation to time the IMU against the LiDAR",
+                 "; the IMU's mounting rotation (T_base_imu): too little rotation to estimate the LiDAR-IMU rotation",
+                 "; the wheel odometry scales: the log has no wheel odometry"):
+        assert part in err
 
 
 def test_clock_mismatch(tmp_path, capsys):
@@ -207,8 +239,9 @@ def test_clock_mismatch(tmp_path, capsys):
     assert err == (f"lio: error: {log}: /imu and /points are stamped on different clocks (/imu from "
                    "1699999997.000 s, /points from 1700000000.000 s: 2.901 s apart beyond their recording times); if /imu "
                    "runs on a shifted clock give --imu-time-offset 2.901")
-    err = one_error([log, "-o", tmp_path / "x.yaml", "--imu-time-offset", "2.901"], capsys, tmp_path)
-    assert err.startswith(f"lio: error: {log}: too little rotation to estimate the LiDAR-IMU rotation")  # joined
+    rc, _, err = run([log, "-o", tmp_path / "x.yaml", "--imu-time-offset", "2.901"], capsys)
+    assert rc == 0, err  # joined: the IMU at rest is measured
+    assert "kept as given (+2901.000 ms)" in err
 
 
 def test_a_still_interval_where_the_platform_moves_says_where(walk, tmp_path, capsys):
@@ -255,7 +288,7 @@ def test_a_static_imu_log_gives_allan_kalibr_and_plot(tmp_path, capsys):
     assert noise.accel_noise_mps2 == pytest.approx(t["imu"]["accel_noise_density"], rel=0.1)
     assert "gyroscope_noise_density:" in kal.read_text()
     assert (plots / "allan_deviation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "skipped: the LiDAR-IMU time offset, rotation and translation because the log has no LiDAR topic" in err
+    assert "not estimated: the LiDAR-IMU time offset, rotation and translation: the log has no LiDAR topic" in err
 
 
 def test_a_real_vehicle_that_never_rests_is_told_where_it_moves(real_logs, tmp_path, capsys):
@@ -267,3 +300,72 @@ def test_a_real_vehicle_that_never_rests_is_told_where_it_moves(real_logs, tmp_p
                    "its first stamp, pauses shorter than 1 s included; the longest still stretch lasts 0.67 s); record "
                    "a few seconds standing still or name a still interval (the log has no LiDAR: the IMU at rest is "
                    "all there is to calibrate)")
+
+
+@pytest.fixture(scope="module")
+def car(tmp_path_factory):
+    """8 s of a car in town with gentle turns: its IMU yawed 20 deg, 10 ms late, wheels 3 % large."""
+    root = tmp_path_factory.mktemp("car")
+    sim = simulate("drive", root / "car.bag", "ros1", duration_s=8.0, beams=16, columns=512,
+                   imu_rotation_deg=(0.0, 0.0, 20.0), imu_time_offset_s=0.01, wheel_radius_scale=(1.03, 1.03))
+    out = root / "car.calib.yaml"
+    rc = main(["calibrate", str(sim.log_path), "-o", str(out), "-q"])
+    return sim, rc, out
+
+
+def test_a_car_with_gentle_turns_gets_its_wheels_and_names_its_clock_offset(car):
+    """Exit 0: the wheel scales need no clock offset and are within 3 sigma of the truth; the clock offset the
+    gentle turns cannot time is left out of the YAML and named in it and in metrics."""
+    sim, rc, out = car
+    assert rc == 0
+    t = json.loads(Path(sim.truth_path).read_text())["wheel"]
+    s_v = 0.5 * (t["radius_scale_left"] + t["radius_scale_right"])
+    w = load_calibration(out).wheel
+    assert abs(w.speed_scale - s_v) <= 3 * w.speed_scale_sigma and w.speed_scale_sigma < 0.01
+    assert abs(w.yaw_rate_scale - s_v / t["baseline_scale"]) <= 3 * w.yaw_rate_scale_sigma
+    text = out.read_text()
+    assert "\nimu_time_offset_s" not in text and "\nwheel:" in text and "\nT_base_imu_rotation_sigma_rad:" in text
+    m = json.loads(out.with_name("car.calib.metrics.json").read_text())
+    why = m["not_estimated"]
+    assert why["imu_time_offset_s"].startswith("too little rotation to time the IMU against the LiDAR: the trajectory "
+                                               "turns at most ")
+    assert "on a vehicle, drive a slalom" in why["imu_time_offset_s"]
+    assert why["rotation_z"].startswith("not observable from rotations (1-sigma ")
+    assert "as a ground vehicle turning about the vertical does" in why["rotation_z"]
+    for key in why:
+        assert f"\n# - {key}: " in text
+
+
+def test_odom_reads_a_partial_calibration(car, tmp_path, capsys):
+    sim, _, out = car
+    tum = tmp_path / "car.tum"
+    assert main(["odom", str(sim.log_path), "--calib", str(out), "--prefer-calib", "-o", str(tum), "--json",
+                 "-q"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["extrinsics"]["T_base_imu"].startswith("--calib (--prefer-calib")
+    assert len(tum.read_text().splitlines()) > 50
+
+
+@pytest.fixture(scope="module")
+def corridor(tmp_path_factory):
+    root = tmp_path_factory.mktemp("corridor")
+    return simulate("corridor", root / "corridor.bag", "ros1", duration_s=10.0, beams=16, columns=512,
+                    wheel_radius_scale=(1.03, 1.03))
+
+
+@pytest.mark.parametrize("offset", [None, "0.0"])
+def test_a_corridor_robot_gets_roll_pitch_and_imu_with_or_without_a_clock_offset(corridor, tmp_path, capsys, offset):
+    """Along a featureless corridor the LiDAR cannot see the distance travelled, so the wheels are not measured
+    either; the IMU at rest and the mounting's roll and pitch are (exit 0), the offset given kept."""
+    out = tmp_path / "c.yaml"
+    rc, _, err = run([corridor.log_path, "-o", out, *(["--imu-time-offset", offset] if offset else [])], capsys)
+    assert rc == 0, err
+    cal = load_calibration(out)
+    m = json.loads(out.with_name("c.calib.metrics.json").read_text())
+    assert {"imu_time_offset_s", "rotation_z", "lever_arm", "wheel_scales"} <= set(m["not_estimated"])
+    assert ("imu_time_offset_s" in m["calibration"]) == (offset is not None) and cal.imu_time_offset_sigma_s is None
+    assert m["not_estimated"]["wheel_scales"].startswith("wheel scales: the platform moved ")
+    T, Tt = cal.matrix("T_base_imu"), np.array(json.loads(Path(corridor.truth_path).read_text())["T_base_imu"])
+    err_deg = np.degrees(so3_log(T[:3, :3] @ Tt[:3, :3].T))
+    sig_deg = np.degrees(cal.T_base_imu_rotation_sigma_rad)
+    assert (np.abs(err_deg[:2]) <= 3 * sig_deg[:2] + 0.1).all(), (err_deg, sig_deg)

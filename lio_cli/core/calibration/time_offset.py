@@ -107,11 +107,24 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
     sigma = _offset_sigma(cost, off, R, b, r)
     if sigma > max_sigma_s:
         raise InputError(f"too little change in rotation to time the IMU against the LiDAR (1-sigma "
-                         f"{sigma * 1e3:.1f} ms): {MOVE_HINT}")
+                         f"{sigma * 1e3:.1f} ms; its turn rate never changes faster than "
+                         f"{np.degrees(_rate_change(ta, phi_l)):.0f} deg/s^2 over a second): {MOVE_HINT}")
     if sigma > WEAK_SIGMA_S:
         notes.append(f"the offset is weakly determined (1-sigma {sigma * 1e3:.1f} ms): {MOVE_HINT}")
     return TimeOffset(off, sigma, float(score[k]), R, bias0 + b, int(keep.sum()),
                       float(np.sqrt((r * r).mean())), tuple(notes))
+
+
+def _rate_change(ta: np.ndarray, phi_l: np.ndarray, window_s: float = 1.0) -> float:
+    """The 95th percentile of how fast the LiDAR's turn rate (averaged over ``window_s``) changes, rad/s^2."""
+    k = np.floor((ta - ta[0]) / (window_s * NS_PER_S)).astype(int)
+    counts = np.bincount(k)
+    full = counts > 0
+    turned = np.stack([np.bincount(k, phi_l[:, i], len(counts)) for i in range(3)], axis=1)[full]
+    rate = turned / window_s  # rad/s, each window's mean (intervals of one scan cover it)
+    if len(rate) < 2:
+        return 0.0
+    return float(np.percentile(np.linalg.norm(np.diff(rate, axis=0), axis=1) / window_s, 95))
 
 
 def _alignment(phi_l: np.ndarray, phi_i: np.ndarray) -> float:

@@ -2,13 +2,15 @@
 
 IMU at rest (the still stretch) -> time offset -> rotation (hand-eye on the gyro) -> lever arm (from
 accelerations, refining the rotation) -> wheel scales; Allan on request. What an estimator cannot give is
-either bad input (one line, exit 2: no still stretch where one is needed, too little motion for the clock
-offset or the rotation, clocks that do not overlap) or a skipped item with its reason (an axis the motion
-left unobservable, a lever arm the motion did not excite, a missing sensor).
+either bad input (one line, exit 2: no still stretch where one is needed, clocks that do not overlap, an IMU
+whose rotations match the LiDAR's at no offset) or an item not estimated, with its reason and the motion that
+would show it (a clock offset or rotation the motion cannot pin, an axis it left unobservable, a missing
+sensor): the rest is still estimated, and what later steps need of it is taken from the prior or zero.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -30,6 +32,7 @@ COARSE_MAX_SIGMA_S = 0.03  # the first estimates only start the gyro-primed pass
 # ...and so does their rotation: an unprimed pass over brisk tilting motion scatters too much for the final 1 deg,
 # while a mounting within a few degrees primes the next pass's de-skew well enough to sharpen it
 COARSE_MAX_ROTATION_SIGMA_RAD = np.radians(5.0)
+ROTATION_FROM_ACCEL_MAX_SIGMA_RAD = np.radians(1.0)  # an axis the lever arm's fit pins this well is estimated
 CHECK_WINDOW_SCANS = 20  # about 2 s at 10 Hz
 CHECK_REL_TOL = 0.25
 CHECK_ABS_TOL_DEG = 5.0
@@ -39,11 +42,14 @@ IMU_GAP_MARGIN_S = 0.25  # ...whose scans, this far either side (a clock offset 
 
 @dataclass
 class Skipped:
+    """A quantity not estimated: ``key`` names it in metrics (``not_estimated``), ``item`` in words."""
+
     item: str
     reason: str
+    key: str
 
     def line(self) -> str:
-        return f"skipped: {self.item} because {self.reason}"
+        return f"not estimated: {self.item}: {self.reason}"
 
 
 @dataclass
@@ -56,9 +62,16 @@ class Estimates:
     wheel: WheelCalib | None = None
     skipped: list[Skipped] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    offset_assumed: bool = False  # the clock offset neither estimated nor given: zero was used, none is written
 
-    def skip(self, item: str, reason: str) -> None:
-        self.skipped.append(Skipped(item, reason.rstrip(".")))
+    def skip(self, key: str, item: str, reason: str) -> None:
+        self.skipped.append(Skipped(item, reason.rstrip("."), key))
+
+    def anything(self) -> bool:
+        """Whether any quantity was estimated (else there is nothing to write)."""
+        measured_offset = self.offset is not None and np.isfinite(self.offset.sigma_s)
+        return any(x is not None for x in (self.static, self.allan, self.rotation, self.lever, self.wheel)) or \
+            measured_offset
 
     def trial(self) -> Estimates:
         """A copy to estimate on, which can be dropped without touching this one's notes and skipped items."""
@@ -76,7 +89,7 @@ def imu_at_rest(imu: ImuBatch, still_ns: tuple[int, int] | None, needed: str | N
     except InputError as err:
         if needed is not None or still_ns is not None:
             raise InputError(f"{where}: {err} ({needed or 'asked for with --still'})") from err
-        est.skip("the IMU at rest (accelerometer bias along gravity, noise densities)", str(err))
+        est.skip("imu_at_rest", "the IMU at rest (accelerometer bias along gravity, noise densities)", str(err))
         return
     est.notes.extend(est.static.notes)
 
@@ -124,12 +137,14 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
         if centre_ns:
             off = replace(off, imu_time_offset_s=off.imu_time_offset_s + centre_ns / NS_PER_S)
     except InputError as err:
-        if str(err).startswith("too short"):
-            raise InputError(f"{where}: {err}") from err  # no offset given or not changes that
-        if prior_offset is None or not str(err).startswith("too little"):
-            raise InputError(f"{where}: {err}; or give the clock offset with --imu-time-offset SECONDS (or "
-                             "imu_time_offset_s in --calib)") from err
-        off = _kept_offset(bias0, prior_offset, f"{err}; kept as given ({1e3 * prior_offset:+.3f} ms)")
+        if not str(err).startswith("too little"):
+            raise InputError(f"{where}: {err}") from err  # clocks apart, or an IMU that is not this LiDAR's
+        kept = centre_ns / NS_PER_S if prior_offset is None else prior_offset
+        how = (f"kept as given ({1e3 * kept:+.3f} ms)" if prior_offset is not None else
+               f"the other estimates use {1e3 * kept:+.3f} ms and the YAML holds none (give it with --imu-time-offset "
+               "SECONDS or imu_time_offset_s in --calib if it is known)")
+        off = _kept_offset(bias0, kept, f"{err}; {how}")
+    assumed = not np.isfinite(off.sigma_s) and prior_offset is None
     t_prior_lidar_m = None if T_ref is None else T_ref[:3, 3]
     try:
         rot = estimate_rotation(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps,
@@ -138,8 +153,15 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
                                 sigma_floor_rad=None if floors is None else floors[0],
                                 refuse_sigma_rad=None if final else COARSE_MAX_ROTATION_SIGMA_RAD)
     except InputError as err:
-        raise InputError(f"{where}: {err}") from err
-    est.offset, est.rotation = off, rot
+        if not final:
+            raise InputError(f"{where}: {err}") from err
+        est.offset, est.offset_assumed, est.rotation, est.lever = off, assumed, None, None
+        _offset_skipped(off, est)
+        est.skip("rotation", "the IMU's mounting rotation (T_base_imu)", str(err))
+        est.skip("lever_arm", "the lever arm (T_base_imu translation)", "it is measured through the mounting rotation, "
+                 "which was not estimated")
+        return
+    est.offset, est.offset_assumed, est.rotation = off, assumed, rot
     try:
         est.lever = estimate_lever_arm(
             traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns, imu.gyro_radps, imu.accel_mps2,
@@ -150,16 +172,29 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     except InputError as err:
         est.lever = None
         if final:
-            est.skip("the lever arm (T_base_imu translation)", f"{err}; the translation is kept from the prior")
+            est.skip("lever_arm", "the lever arm (T_base_imu translation)",
+                     f"{err}; the translation is kept from the prior" if T_ref is not None else
+                     f"{err}; the translation is left at zero (no /tf_static or --calib holds one)")
     if not final:
         return
-    if not np.isfinite(off.sigma_s):
-        est.skip("the LiDAR-IMU time offset", off.notes[0])
-    for note in (*(off.notes if np.isfinite(off.sigma_s) else ()), *rot.notes, *(est.lever.notes if est.lever is not None else ())):
-        if "not observable" in note:
-            est.skip(_unobservable_item(note), note)
-        else:
+    _offset_skipped(off, est)
+    lever = est.lever
+    for note in (*(off.notes if np.isfinite(off.sigma_s) else ()), *rot.notes, *(lever.notes if lever is not None else ())):
+        if "not observable" not in note:
             est.notes.append(note)
+            continue
+        key, item = _unobservable_item(note)
+        k = "xyz".find(key[-1]) if key.startswith("rotation_") else -1
+        if k >= 0 and lever is not None and lever.rotation_sigma_rad[k] <= ROTATION_FROM_ACCEL_MAX_SIGMA_RAD:
+            est.notes.append(f"{note.split(' (1-sigma')[0]} alone; the accelerations measure it (1-sigma "
+                             f"{np.degrees(lever.rotation_sigma_rad[k]):.2f} deg)")
+        else:
+            est.skip(key, item, note[len(item):].strip().removeprefix("is ").removeprefix("are "))
+
+
+def _offset_skipped(off: TimeOffset, est: Estimates) -> None:
+    if not np.isfinite(off.sigma_s):
+        est.skip("imu_time_offset_s", "the LiDAR-IMU clock offset", off.notes[0])
 
 
 def floors_of(est: Estimates) -> tuple:
@@ -240,17 +275,22 @@ def consistent_scans(traj: LidarTrajectory, imu: ImuBatch, offset_s: float, bias
     return kept, int(bad_pose.sum())
 
 
-def _unobservable_item(note: str) -> str:
-    """'the lever arm along the LiDAR z axis' / 'the mounting's rotation about ...' from an estimator's note."""
+def _unobservable_item(note: str) -> tuple[str, str]:
+    """(key, item) of an estimator's note: ('lever_arm_z', 'the lever arm along the LiDAR z axis'),
+    ('rotation_x', "the mounting's rotation about the LiDAR x axis"); another direction than an axis keeps its
+    words as the key."""
     head = note.split(" is not observable")[0].split(" are not observable")[0]
-    return head.removeprefix("the ")
+    axis = re.search(r"the LiDAR ([xyz]) axis$", head)
+    kind = "lever_arm" if head.startswith("the lever arm") else "rotation"
+    direction = head.rsplit("direction ", 1)[-1].replace(" ", "")
+    return (f"{kind}_{axis.group(1)}" if axis else f"{kind}_about_{direction}"), head
 
 
 def wheels(arrays: SensorArrays, traj: LidarTrajectory, T_base_lidar: np.ndarray, cfg: CalibrateConfig,
            est: Estimates, where: str, against: str | None = None) -> None:
     """Wheel scales against ``traj``; ``against``: a note on why that trajectory, kept when they are measured."""
     if not arrays.has_wheels:
-        est.skip("the wheel odometry scales", "the log has no wheel odometry")
+        est.skip("wheel_scales", "the wheel odometry scales", "the log has no wheel odometry")
         return
     try:
         est.wheel = estimate_wheel_scales(
@@ -258,7 +298,7 @@ def wheels(arrays: SensorArrays, traj: LidarTrajectory, T_base_lidar: np.ndarray
             traj.T_world_lidar, T_base_traj=T_base_lidar, radius_m=cfg.wheel_radius_m,
             baseline_m=cfg.wheel_baseline_m)
     except InputError as err:
-        est.skip("the wheel odometry scales", str(err))
+        est.skip("wheel_scales", "the wheel odometry scales", str(err))
         return
     if against:
         est.notes.append(against)

@@ -123,7 +123,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             times["read"] = time.perf_counter() - t0
             steps.imu_at_rest(imu, still_ns, None if cfg.allan else "the log has no LiDAR: the IMU at rest is all "
                               "there is to calibrate", est, where)
-            est.skip("the LiDAR-IMU time offset, rotation and translation", "the log has no LiDAR topic")
+            est.skip("lidar_imu", "the LiDAR-IMU time offset, rotation and translation", "the log has no LiDAR topic")
         else:
             check_same_clock(reader, lidar, imu_topic, cfg.start_offset_ns)
             planar = reader.topics[lidar].msgtype == LASERSCAN
@@ -158,8 +158,12 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                     steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=not spans, prior_offset=prior_offset)
                     break
                 except InputError:
-                    if first_ns is None:
-                        raise
+                    if first_ns is None:  # no mounting to prime a pass with: the LiDAR-only poses are final
+                        steps.extrinsics(traj, imu, cfg, est, where, T_ref, final=True, prior_offset=prior_offset)
+                        untils = []
+                        est.notes.append("no gyro-primed pass: the motion did not turn the IMU enough to seed one; the "
+                                         "LiDAR-only pass's poses are used throughout")
+                        break
                 est.notes.append(f"the LiDAR-only pass registered all of the log: its first {first_ns * 1e-9:.0f} s "
                                  "showed too little motion to seed the estimates")
                 counter.plan(counter.total - counter.done + n)
@@ -192,7 +196,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                     est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
                 times[f"estimate_{k}"] = time.perf_counter() - t0
             wheel_traj, against = traj, None
-            if planar and spans and arrays.has_wheels and T_ref is None and not rotation_observable(est).all():
+            if planar and untils and arrays.has_wheels and T_ref is None and est.rotation is not None and \
+                    not rotation_observable(est).all():
                 # a 2D scanner's IMU yaw unknown: its wheels are measured against a gyro-primed pass, which
                 # de-skews through any yaw alike (a fused pass bends by a wrong yaw, a LiDAR-only one skews)
                 t0 = time.perf_counter()
@@ -204,6 +209,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                            "fused one)")
             est.notes.extend(imprecision_notes(est, traj.T_world_lidar))
             steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
+            est.skip("T_base_lidar", "the LiDAR's mounting on the base (T_base_lidar)",
+                     f"the motion shows the IMU against the LiDAR, not the LiDAR against the base: taken from {lidar_source}")
         if cfg.allan:
             t0 = time.perf_counter()
             steps.allan(imu, est, where)
@@ -213,6 +220,9 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             ref, ref_name = _reference(cfg.prior, tree, base, imu_frame, None)
             T_ref = None
         fmt, span_s = reader.format, reader.duration_ns * 1e-9
+    if not est.anything():
+        raise InputError(f"{where}: nothing could be estimated: " + "; ".join(
+            f"{s.item}: {s.reason}" for s in est.skipped if s.key != "T_base_lidar"))
     cal = compose(est, T_base_lidar, T_ref, wheel)
     rows = table(cal, ref, ref_name)
     resolved = with_overrides(cfg, {"input.lidar_topic": lidar, "input.imu_topic": imu_topic,
@@ -229,8 +239,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         "lidar_only_scans_left_out": dropped,
         "conventions": {"T_base_imu": "maps IMU points into the base frame",
                         "imu_time_offset_s": "added to IMU stamps to put them on the LiDAR's clock"},
-        "calibration": cal.model_dump(mode="json", exclude_none=True), "table": rows,
-        "skipped": [{"item": s.item, "reason": s.reason} for s in est.skipped],
+        "calibration": cal.model_dump(mode="json", exclude_none=True, exclude_unset=True), "table": rows,
+        "not_estimated": not_estimated(est.skipped),
         "estimators": {k: v.to_dict() for k, v in (("imu_static", est.static), ("time_offset", est.offset),
                                                    ("rotation", est.rotation), ("lever_arm", est.lever),
                                                    ("wheel", est.wheel)) if v is not None},
@@ -239,6 +249,14 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
         "log_duration_s": round(span_s, 4), "notes": notes,
     }
     return CalibrateResult(cal, rows, ref_name, est.skipped, resolved, metrics, notes, outs, est.allan)
+
+
+def not_estimated(skipped: list[steps.Skipped]) -> dict[str, str]:
+    """{quantity: why} of what a run did not estimate (two reasons for one quantity joined)."""
+    out: dict[str, str] = {}
+    for s in skipped:
+        out[s.key] = f"{out[s.key]}; {s.reason}" if s.key in out and s.reason not in out[s.key] else s.reason
+    return out
 
 
 def _mounting(est: steps.Estimates, T_ref) -> tuple[np.ndarray, float, np.ndarray]:
@@ -313,17 +331,25 @@ def write_calibrate(result: CalibrateResult, out: Path | None, force: bool, kali
     with atomic_output(metrics_path, force) as tmp:
         tmp.write_text(json_text(result.metrics))
     with atomic_output(out, force) as tmp:
-        tmp.write_text(yaml_text(result.calibration))
+        tmp.write_text(yaml_text(result.calibration, result.metrics["not_estimated"]))
     return [Path(out), metrics_path, config_path, *written]
 
 
-def yaml_text(cal: Calibration) -> str:
-    """The calibration YAML as written (with its header comment)."""
+def yaml_text(cal: Calibration, not_estimated: dict[str, str] | None = None) -> str:
+    """The calibration YAML as written: its header comment, what was not estimated (``not_estimated``,
+    {quantity: why}) named in comments, and the values estimated (only those: a field unset is left out)."""
+    import textwrap
+
     import yaml
 
     head = ("# lio calibrate: T_base_imu / T_base_lidar map sensor points into the base frame (4x4, metres);\n"
             "# imu_time_offset_s is added to IMU stamps to put them on the LiDAR's clock; *_sigma_* are 1-sigma\n"
             "# (rotations about, translations along the base axes). Read by --calib of odom, deskew and fuse.\n")
+    if not_estimated:
+        head += "# Not estimated (the value, where one is written, is the prior's or an assumption):\n"
+        for key, why in not_estimated.items():
+            head += "\n".join(textwrap.wrap(f"{key}: {why}", 116, initial_indent="# - ",
+                                             subsequent_indent="#   ")) + "\n"
     # prefer_file is the reader's choice (--prefer-calib), not a measured value
-    fields = cal.model_dump(mode="json", exclude_none=True, exclude={"prefer_file"})
+    fields = cal.model_dump(mode="json", exclude_none=True, exclude_unset=True, exclude={"prefer_file"})
     return head + yaml.safe_dump(fields, sort_keys=False, default_flow_style=None, width=120)

@@ -52,6 +52,8 @@ def map_rounds(traj: LidarTrajectory, sweeps: dict[int, Sweep], voxel_m: float, 
     best, best_est, kept = traj, est.trial(), 0
     steps.extrinsics(best, imu, cfg, best_est, where, T_ref, final=True, prior_offset=prior_offset)
     times["estimate_final"] = time.perf_counter() - t0
+    if best_est.rotation is None:  # nothing to de-skew the rounds' scans with: the pass's poses are final
+        return best, best_est
     # each scan is registered against a map holding it and its neighbours, so the rounds' pose errors are shared
     # and their residuals understate them: the values move, the 1-sigmas (and what is observable) stay the pass's
     floors = steps.floors_of(best_est)
@@ -70,7 +72,8 @@ def map_rounds(traj: LidarTrajectory, sweeps: dict[int, Sweep], voxel_m: float, 
         try:
             steps.extrinsics(trial_traj, imu, cfg, trial, where, T_ref, final=True, prior_offset=prior_offset,
                              floors=floors)
-            better = trial.rotation.rms_residual_rad < KEEP_BELOW * best_est.rotation.rms_residual_rad
+            better = trial.rotation is not None and \
+                trial.rotation.rms_residual_rad < KEEP_BELOW * best_est.rotation.rms_residual_rad
         except InputError:
             better = False
         times[f"estimate_map_{k}"] = time.perf_counter() - t0

@@ -100,7 +100,7 @@ def compose(est: Estimates, T_base_lidar: np.ndarray | None, T_ref: np.ndarray |
         if est.lever is not None:
             cov_t = est.lever.covariance_m2.copy()
             out["T_base_imu_translation_sigma_m"] = _sig(Rbl @ cov_t @ Rbl.T)
-    if est.offset is not None:
+    if est.offset is not None and not est.offset_assumed:  # assumed: zero used, nothing measured or given
         out["imu_time_offset_s"] = round(float(est.offset.imu_time_offset_s), 7)
         if np.isfinite(est.offset.sigma_s):  # NaN: kept from --calib, the motion could not time the IMU
             out["imu_time_offset_sigma_s"] = float(f"{est.offset.sigma_s:.3g}")
@@ -163,7 +163,7 @@ def table(cal: Calibration, ref: Calibration | None, ref_name: str | None) -> li
         for i, a in enumerate(AXES):
             add(f"T_base_imu translation {a}", "cm", 100 * T[i, 3], None if sig_t is None else 100 * sig_t[i],
                 None if Tr is None else 100 * (T[i, 3] - Tr[i, 3]))
-    if cal.imu_time_offset_sigma_s is not None or cal.T_base_imu is not None:
+    if "imu_time_offset_s" in cal.model_fields_set:
         given = ref is not None and ref_name == "--calib"  # /tf_static has no clock offset
         sig = cal.imu_time_offset_sigma_s
         add("imu_time_offset_s", "ms", 1e3 * cal.imu_time_offset_s, None if sig is None else 1e3 * sig,

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from lio_cli.config.calibrate import CalibrateConfig
-from lio_cli.errors import InputError
 from lio_cli.geometry import so3_log
 from lio_cli.jobs.calibrate import estimate as steps
 from lio_cli.jobs.calibrate.passes import LidarTrajectory
+from lio_cli.jobs.calibrate.report import compose
 from lio_cli.model.records import ImuBatch
 from lio_cli.simulation.calibration_inputs import calibration_inputs
 
@@ -27,6 +26,33 @@ def test_a_rotation_known_to_a_few_degrees_seeds_the_passes_but_is_not_a_final_e
     assert (sigma > 1.0).all() and (sigma < 5.0).all(), sigma
     err = np.degrees(so3_log(est.rotation.R_lidar_imu @ ci.T_lidar_imu[:3, :3].T))
     assert (np.abs(err) < 2 * sigma).all(), (err, sigma)  # honest, and good enough to prime the next de-skew
-    with pytest.raises(InputError, match="^walk.bag: too little rotation to estimate the LiDAR-IMU rotation"):
-        # (the clock offset given, which such a pass cannot time to the final 2 ms either)
-        steps.extrinsics(traj, imu, CalibrateConfig(), steps.Estimates(), "walk.bag", None, final=True, prior_offset=0.0)
+    # as a final estimate it is not observable: named with its reason, the offset given kept, nothing raised
+    final = steps.Estimates()
+    steps.extrinsics(traj, imu, CalibrateConfig(), final, "walk.bag", None, final=True, prior_offset=0.0)
+    assert final.rotation is None and final.lever is None
+    why = {s.key: s.reason for s in final.skipped}
+    assert why["rotation"].startswith("too little rotation to estimate the LiDAR-IMU rotation")
+    assert why["lever_arm"] == "it is measured through the mounting rotation, which was not estimated"
+
+
+@pytest.mark.parametrize("prior", [None, 0.01])
+def test_a_car_that_cannot_time_its_imu_still_gets_its_mounting(prior):
+    """20 s of a car turning gently: the clock offset is not observable. Given, it is kept (and written, without a
+    1-sigma); not given, the estimates use zero and the calibration holds none. Nothing is raised either way."""
+    ci = calibration_inputs("drive", 20.0, seed=1, imu_time_offset_s=0.01)
+    n = len(ci.lidar_stamps_ns)
+    traj = LidarTrajectory(ci.lidar_stamps_ns, ci.T_world_lidar, n, n, "")
+    imu = ImuBatch("imu", ci.imu.stamps_ns, ci.imu.gyro_radps, ci.imu.accel_mps2)
+    est = steps.Estimates()
+    steps.extrinsics(traj, imu, CalibrateConfig(), est, "car.bag", None, final=True, prior_offset=prior)
+    why = {s.key: s.reason for s in est.skipped}
+    assert why["imu_time_offset_s"].startswith("too little rotation to time the IMU against the LiDAR: the trajectory "
+                                               "turns at most ")
+    assert why["imu_time_offset_s"].endswith("; kept as given (+10.000 ms)" if prior else
+                                             "; the other estimates use +0.000 ms and the YAML holds none (give it "
+                                             "with --imu-time-offset SECONDS or imu_time_offset_s in --calib if it "
+                                             "is known)")
+    assert est.offset_assumed == (prior is None) and est.rotation is not None
+    cal = compose(est, np.eye(4), None)
+    assert ("imu_time_offset_s" in cal.model_fields_set) == (prior is not None)
+    assert cal.imu_time_offset_sigma_s is None and cal.T_base_imu is not None

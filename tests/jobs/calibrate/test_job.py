@@ -131,9 +131,8 @@ def test_a_lidar_only_pass_over_part_of_the_log_seeds_the_same_calibration(walks
 
 def test_what_the_walk_cannot_show_is_skipped_with_the_reason(bag_run):
     lines = [s.line() for s in bag_run.skipped]
-    assert "skipped: the wheel odometry scales because the log has no wheel odometry" in lines
-    assert bag_run.metrics["skipped"][-1] == {"item": "the wheel odometry scales",
-                                              "reason": "the log has no wheel odometry"}
+    assert "not estimated: the wheel odometry scales: the log has no wheel odometry" in lines
+    assert bag_run.metrics["not_estimated"]["wheel_scales"] == "the log has no wheel odometry"
 
 
 def test_the_written_yaml_is_the_calibration_and_loads_back(walks, bag_run):
@@ -181,9 +180,9 @@ def test_a_ground_robot_gives_wheel_scales_radius_and_baseline_and_says_what_it_
     assert wc.baseline_m == pytest.approx(w["baseline_m_nominal"] * w["baseline_scale"], rel=2 * WHEEL_TOL)
     lines = [s.line() for s in r.skipped]
     # a robot turning on the floor shows neither the mounting's rotation about the vertical nor its lever arm
-    assert any(line.startswith("skipped: mounting's rotation about the LiDAR z axis because") and
+    assert any(line.startswith("not estimated: the mounting's rotation about the LiDAR z axis: not observable") and
                "drive over ramps or bumps" in line for line in lines), lines
-    assert any(line.startswith("skipped: the lever arm (T_base_imu translation) because too little rotation") or
+    assert any(line.startswith("not estimated: the lever arm (T_base_imu translation): too little rotation") or
                "lever arm along the LiDAR z axis" in line for line in lines), lines
     # what it cannot see is kept from /tf_static; what it sees (roll, pitch) is measured
     T, Tt = r.calibration.matrix("T_base_imu"), np.array(t["T_base_imu"])
