@@ -99,26 +99,27 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; map LioError to one stderr line and its exit code (Ctrl-C 130, SIGTERM 143)."""
     args = list(argv if argv is not None else sys.argv[1:])
     previous_term = signal.getsignal(signal.SIGTERM)
-    if previous_term is signal.SIG_DFL:
+    ours = previous_term is signal.SIG_DFL or getattr(previous_term, "lio_start_up", False)
+    if ours:
         signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return _main_guarded(args)
     finally:
-        if previous_term is signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, previous_term)
+        if ours:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _main_guarded(args: list[str]) -> int:
     _state["debug"] = "--debug" in args
-    # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
-    wanted = _command_in(args)
-    if wanted in COMMANDS:
-        register_commands([wanted])
-    elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
-        register_commands()
-    if _state["own_process"]:
-        freeze_start_up()
     try:
+        # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
+        wanted = _command_in(args)
+        if wanted in COMMANDS:
+            register_commands([wanted])
+        elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
+            register_commands()
+        if _state["own_process"]:
+            freeze_start_up()
         rc = app(args=args, standalone_mode=False)
     except typer.Exit as ex:
         return ex.exit_code
