@@ -172,7 +172,10 @@ def _execute(task: RunTask, here: str, t0: float) -> dict[str, Any]:
     partial.mkdir()
     try:
         (partial / ATTEMPT_FILE).write_text(json.dumps({"worker": here, "host": host, "pid": os.getpid()}) + "\n")
-        metrics = run_command(task.command, task.log, task.config, task.gt, partial)
+        try:
+            metrics = run_command(task.command, task.log, task.config, task.gt, partial)
+        except LioError as err:  # its line names the run's folder, not the hidden one it was written in
+            raise type(err)(str(err).replace(str(partial), str(final))) from err
         (partial / ATTEMPT_FILE).unlink()
         (partial / HASH_FILE).write_text(digest + "\n")
         replace_path(partial, final)

@@ -17,6 +17,7 @@ except ImportError:  # pragma: no cover - depends on the installed typer
 
 from .. import __version__
 from ..errors import LioError
+from ..io.files.atomic import is_no_space
 from ..gc_pause import freeze_start_up
 from .common import err_console
 
@@ -140,6 +141,10 @@ def _main_guarded(args: list[str]) -> int:
     except Exception as err:  # anything else is a bug
         if _state["debug"]:
             raise
+        if is_no_space(err):  # a full device where no writer said which output: the path the system names
+            where = getattr(err, "filename", None) or "the output's device"
+            err_console.print(f"lio: error: no space left on device: {where}", markup=False)
+            return 1
         err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
         return 1
     if rc == 130:  # typer turns Ctrl-C inside a command into a return value of 130

@@ -206,7 +206,7 @@ def test_cli_conditions_and_error_model_reach_the_log_and_truth(tmp_path, capsys
 @pytest.mark.parametrize("argv, message", [
     (("--imu-rotation", "1,2"), "--imu-rotation needs 3 comma-separated numbers (got '1,2')"),
     (("--gps-origin", "48,x,5"), "--gps-origin needs 3 comma-separated numbers (got '48,x,5')"),
-    (("--start", "flying"), "--start must be still or moving (got 'flying')"),
+    (("--start", "flying"), "--start must be still, moving or accelerating (got 'flying')"),
     (("--gt-type", "tf"), "--gt-type must be pose, odometry or none (got 'tf')"),
     (("--gt-twist",), "--gt-twist fills the twist of nav_msgs/Odometry ground truth; add --gt-type odometry"),
     (("--gt-topic", "truth"), "--gt-topic must be a topic name starting with / (got 'truth')"),
