@@ -107,8 +107,8 @@ def classify_signalled(run: dict, out: Path, allowed: set[str], code_want: int, 
     left = {str(p.relative_to(out)) for p in out.rglob("*")}
     if any(m in name for name in left for m in TEMP_MARKS):
         cats.append("partial output")
-    elif code not in (0, 1) and left - {"b", "b/summary.json", "b/summary.csv"}:
-        cats.append("partial output")  # an interrupted run leaves nothing (a batch: finished runs and its summary)
+    elif code not in (0, 1) and not (out / "b").exists() and left:
+        cats.append("partial output")  # an interrupted run leaves nothing (a batch: finished runs, checked below)
     elif code in (0, 1) and {n for n in left if "/" not in n} - allowed:
         cats.append("unexpected file")
     if (out / "b" / "summary.json").exists():

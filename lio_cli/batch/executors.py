@@ -130,8 +130,8 @@ def _pool_pass(tasks: list[RunTask], workers: int, done: Done, final: bool) -> l
     futures: dict = {}
     lost: list[RunTask] = []
     try:
-        with signals_blocked():  # workers (and the pool's thread that starts more) begin deaf to Ctrl-C and SIGTERM
-            for t in tasks:
+        with signals_blocked(), signals_deferred():  # workers (and the pool's thread that starts more) begin deaf
+            for t in tasks:                            # to Ctrl-C and SIGTERM; none stops a worker's start half-way
                 futures[pool.submit(execute, t)] = t
         for fut in as_completed(futures):
             try:
@@ -186,6 +186,22 @@ def signals_blocked():
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+@contextmanager
+def signals_deferred():
+    """SIGINT and SIGTERM arriving in the body take effect after it (Python runs its handlers in the main thread
+    whatever the thread masks: one raised while a worker starts leaves it waiting for a setup that never comes)."""
+    caught: list[int] = []
+    held = (signal.SIGINT, signal.SIGTERM)
+    before = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in held}
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+        if caught:
+            signal.raise_signal(caught[0])
 
 
 @contextmanager

@@ -92,7 +92,8 @@ def _on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signatu
 
 
 def _interrupted(what: str, code: int) -> int:
-    err_console.print(f"lio: {what}; nothing half-written was left behind", markup=False)
+    sys.stderr.write(f"lio: {what}; nothing half-written was left behind\n")  # no import on the way out
+    sys.stderr.flush()
     return code
 
 
@@ -105,6 +106,10 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return _main_guarded(args)
+    except KeyboardInterrupt:  # while an error line was being printed
+        return _interrupted("interrupted", 130)
+    except Terminated:
+        return _interrupted("terminated", 143)
     finally:
         if ours:
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
