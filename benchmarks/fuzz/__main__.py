@@ -138,8 +138,10 @@ def signals_main(args: argparse.Namespace, bases: dict, t0: float) -> int:
         k["runs"] += 1
         k["signalled" if r["sent"] else "ended first"] += 1
         k[f"exit {r['exit']}"] += 1
+        k["killed as it exited"] += bool(r.get("note"))
         k.update(set(r["categories"]))
-    keys = ["runs", "signalled", "ended first", "exit 130", "exit 143", "exit 0", "exit 1", "exit 2", "traceback",
+    keys = ["runs", "signalled", "ended first", "exit 130", "exit 143", "exit 0", "exit 1", "exit 2",
+            "killed as it exited", "traceback",
             "internal error", "hang", "wrong exit", "not one line", "partial output", "unexpected file",
             "summary differs from folders", "modified input"]
     lines = ["| outcome | " + " | ".join(COMMANDS) + " | total |", "|" + "---|" * (len(COMMANDS) + 2)]

@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[2]
 MOMENTS_S = (0.1, 0.6, 1.5, 3.0, 5.0)  # after the start: interpreter start-up, imports, reading, running
 SIGNALS = {"SIGINT": (signal.SIGINT, 130, "interrupted"), "SIGTERM": (signal.SIGTERM, 143, "terminated")}
 COMMANDS = ("info", "odom", "deskew", "calibrate", "fuse", "evaluate", "batch", "batch-dask")
+SIGNALS_BY_CODE = {130: signal.SIGINT, 143: signal.SIGTERM}
 TEMP_MARKS = (".tmp", ".partial-", ".probe", ".lio-batch.lock")
 
 
@@ -95,8 +96,12 @@ def classify_signalled(run: dict, out: Path, allowed: set[str], code_want: int, 
         cats.append("traceback")
     if "internal error" in err:
         cats.append("internal error")
+    left0 = {p.name for p in out.iterdir()}
     if code == "timeout":
         cats.append("hang")
+    elif code == -int(SIGNALS_BY_CODE[code_want]) and allowed and left0 == allowed:
+        run["note"] = "killed by the signal as it exited, its outputs complete"  # Python's finalisation: SIG_DFL
+        return cats
     elif run["sent"] and code not in (code_want, 0, 1, 2):
         cats.append("wrong exit")
     # what the run said before the signal (topics chosen, "N runs on ...") may precede; the stop is one line, last
