@@ -1,5 +1,5 @@
 """``python -m lio_cli ...`` runs the ``lio`` command (handy inside a checkout without installing)."""
 
-from .cli.app import entry
+from .cli.launch import entry
 
 entry()

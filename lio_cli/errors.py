@@ -27,3 +27,7 @@ class ProcessingError(LioError):
     """Processing failed on valid input (e.g. registration diverged for good)."""
 
     exit_code = 1
+
+
+class NoSpaceError(ProcessingError):
+    """The output's device is full (ENOSPC, a quota, sqlite's "database or disk is full"); nothing was left."""

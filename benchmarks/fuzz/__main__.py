@@ -15,6 +15,11 @@ time) is counted as ``check missed``. Trials are deterministic per seed (trial i
 
 prints a summary table, writes OUT/report.json (every failing trial: its mutation and the commands to
 reproduce it) and keeps each failing trial's input under OUT/trials/NNNN/ (passing ones are deleted).
+
+    python benchmarks/fuzz --mode signals --trials 150 --jobs 1
+
+instead sends SIGINT or SIGTERM to every command's process group at drawn moments (``signals.py``: tracebacks,
+hangs, partial outputs, modified inputs) and runs the cases of issue 32 once.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from pathlib import Path
 sys.path[:0] = [str(Path(__file__).resolve().parents[2])]  # the checkout this harness lives in
 
 from runner import CATEGORIES, run_trial, simulate_bases  # noqa: E402
+from signals import COMMANDS, run_cases, run_signal_trial  # noqa: E402
 
 
 def summarise(results: list[dict]) -> tuple[str, str]:
@@ -91,11 +97,15 @@ def main() -> int:
     ap.add_argument("--pywarnings", help="PYTHONWARNINGS for the lio runs (e.g. 'default' shows ResourceWarning); "
                     "unset by default, as a user runs lio")
     ap.add_argument("--keep-all", action="store_true", help="keep passing trials' folders too")
+    ap.add_argument("--mode", choices=["mutations", "signals"], default="mutations",
+                    help="mutated logs (default), or signals to every command plus the issue-32 cases")
     args = ap.parse_args()
     args.out = args.out.resolve()
     shutil.rmtree(args.out / "trials", ignore_errors=True)
     t0 = time.perf_counter()
     bases = simulate_bases(args.out / "base", args.timeout)
+    if args.mode == "signals":
+        return signals_main(args, bases, t0)
     trials = args.only if args.only else list(range(args.trials))
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(run_trial, trials, [args] * len(trials), [bases] * len(trials)))
@@ -114,6 +124,43 @@ def main() -> int:
     print(f"{len(trials)} trials (seed {args.seed}, {args.jobs} jobs) in {wall:.0f} s; "
           f"{len(failing)} failing, kept in {args.out / 'trials'}; report {args.out / 'report.json'}\n")
     print(table + "\n\n" + families)
+    return 1 if failing else 0
+
+
+def signals_main(args: argparse.Namespace, bases: dict, t0: float) -> int:
+    trials = args.only if args.only else list(range(args.trials))
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        results = list(pool.map(run_signal_trial, trials, [args] * len(trials), [bases] * len(trials)))
+    cases = run_cases(args, bases)
+    rows = {c: Counter() for c in COMMANDS}
+    for r in results:
+        k = rows[r["command"]]
+        k["runs"] += 1
+        k["signalled" if r["sent"] else "ended first"] += 1
+        k[f"exit {r['exit']}"] += 1
+        k["killed as it exited"] += bool(r.get("note"))
+        k.update(set(r["categories"]))
+    keys = ["runs", "signalled", "ended first", "exit 130", "exit 143", "exit 0", "exit 1", "exit 2",
+            "killed as it exited", "traceback",
+            "internal error", "hang", "wrong exit", "not one line", "partial output", "unexpected file",
+            "summary differs from folders", "modified input"]
+    lines = ["| outcome | " + " | ".join(COMMANDS) + " | total |", "|" + "---|" * (len(COMMANDS) + 2)]
+    for key in keys:
+        vals = [rows[c][key] for c in COMMANDS]
+        lines.append(f"| {key} | " + " | ".join(map(str, vals)) + f" | {sum(vals)} |")
+    stops = [r["stop_s"] for r in results if r["sent"] and r["exit"] != "timeout"]
+    lines.append(f"| longest stop s | {max(stops, default=0):g} (from the signal to the exit) |")
+    case_lines = ["| case | outcome |", "|---|---|"] + [
+        f"| {c['command']} | {', '.join(c['categories']) or 'as expected'} |" for c in cases]
+    failing = [r for r in results + cases if r["categories"]]
+    wall = time.perf_counter() - t0
+    (args.out / "report.json").write_text(json.dumps(
+        {"mode": "signals", "seed": args.seed, "trials": len(trials), "wall_s": round(wall, 1),
+         "failing": len(failing), "summary": "\n".join(lines), "cases": "\n".join(case_lines),
+         "failures": failing}, indent=2) + "\n")
+    print(f"{len(trials)} signal trials (seed {args.seed}, {args.jobs} jobs) and {len(cases)} cases in {wall:.0f} s; "
+          f"{len(failing)} failing; report {args.out / 'report.json'}\n")
+    print("\n".join(lines) + "\n\n" + "\n".join(case_lines))
     return 1 if failing else 0
 
 

@@ -60,8 +60,8 @@ def _env(pywarnings: str | None = None) -> dict:
 def lio_command(max_as_mb: int) -> list[str]:
     """``lio`` from this checkout, capping its own address space (no preexec_fn: the child is not a fork of
     this process's memory, so its peak RSS is its own)."""
-    code = ("import resource, sys; cap = int(sys.argv.pop(1)); resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); "
-            "sys.argv[0] = 'lio'; from lio_cli.cli.app import entry; entry()")
+    code = ("from lio_cli.cli.launch import entry; import resource, sys; cap = int(sys.argv.pop(1)); "
+            "resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); sys.argv[0] = 'lio'; entry()")
     return [sys.executable, "-c", code, str(max_as_mb << 20)]
 
 

@@ -9,10 +9,13 @@ interruption propagates.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import logging
 import multiprocessing
 import os
 import signal
+import threading
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -23,11 +26,12 @@ from dataclasses import dataclass
 from ..cpus import usable_cpus
 from ..errors import ConfigError, InputError
 from .commands import registration_threads
-from .runs import RunTask, execute, pool_initializer, record
+from .runs import RunTask, execute, pool_initializer, record, running_pids
 
 Done = Callable[[dict], None]
 DASK_INSTALL = ("--dask needs the optional Dask dependency: pip install 'lio-cli[dask]' "
                 "(or pip install 'dask[distributed]')")
+STOP_WAIT_S = 10.0  # an interrupted pool's workers get this long to stop before they are killed
 DASK_RETRIES = 1  # a task whose worker was lost (or that raised on the worker) runs once more, then fails
 
 
@@ -123,9 +127,12 @@ def _pool_pass(tasks: list[RunTask], workers: int, done: Done, final: bool) -> l
     stop = ctx.Event()
     pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=pool_initializer,
                                initargs=(stop,), max_tasks_per_child=1 if _mixed_threads(tasks) else None)
-    futures = {pool.submit(execute, t): t for t in tasks}
+    futures: dict = {}
     lost: list[RunTask] = []
     try:
+        with signals_blocked(), signals_deferred():  # workers (and the pool's thread that starts more) begin deaf
+            for t in tasks:                            # to Ctrl-C and SIGTERM; none stops a worker's start half-way
+                futures[pool.submit(execute, t)] = t
         for fut in as_completed(futures):
             try:
                 rec = fut.result()
@@ -137,19 +144,64 @@ def _pool_pass(tasks: list[RunTask], workers: int, done: Done, final: bool) -> l
                              "the pool held this run (killed, or out of memory)", attempts=2)
             done(rec)
     except BaseException:
-        stop.set()  # runs already handed to the pool's queue return at once
-        for fut in futures:
-            fut.cancel()
-        for child in multiprocessing.active_children():  # interrupt the runs under way; idle workers ignore it
-            try:
-                os.kill(child.pid, signal.SIGINT)
-            except OSError:
-                pass
-        pool.shutdown(wait=True, cancel_futures=True)
+        _stop_pool(pool, futures, stop, tasks[0].root)
         raise
     pool.shutdown(wait=True)
     order = {t.name: i for i, t in enumerate(tasks)}
     return sorted(lost, key=lambda t: order[t.name])
+
+
+def _stop_pool(pool: ProcessPoolExecutor, futures: dict, stop, root) -> None:
+    """Stop the pool at once: queued runs cancelled, runs under way interrupted (they remove their partial
+    folders; idle workers ignore signals), and every worker killed if one is still alive after ``STOP_WAIT_S``,
+    so the interpreter's exit never waits. The batch removes what they leave. An idle worker is never killed
+    alone: it may hold the lock of the pool's result queue, which its siblings then wait on for ever."""
+    stop.set()  # runs already handed to the pool's queue return at once
+    for fut in futures:
+        fut.cancel()
+    children = multiprocessing.active_children()
+    running = running_pids(root)
+    for child in children:
+        if child.pid in running:
+            try:
+                os.kill(child.pid, signal.SIGINT)
+            except OSError:
+                pass
+    closed = threading.Event()
+    threading.Thread(target=lambda: (pool.shutdown(wait=True, cancel_futures=True), closed.set()),
+                     daemon=True).start()
+    if not closed.wait(STOP_WAIT_S):
+        for child in children:
+            child.kill()
+        closed.wait(STOP_WAIT_S)
+
+
+@contextmanager
+def signals_blocked():
+    """SIGINT and SIGTERM held pending in this thread (and in the threads and processes it starts meanwhile,
+    which inherit its signal mask): a pool worker unblocks them once it has chosen what they do."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+@contextmanager
+def signals_deferred():
+    """SIGINT and SIGTERM arriving in the body take effect after it (Python runs its handlers in the main thread
+    whatever the thread masks: one raised while a worker starts leaves it waiting for a setup that never comes)."""
+    caught: list[int] = []
+    held = (signal.SIGINT, signal.SIGTERM)
+    before = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in held}
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+        if caught:
+            signal.raise_signal(caught[0])
 
 
 @contextmanager
@@ -163,8 +215,7 @@ def _dask_client(address: str, workers: int):
                           "distributed.worker.profile.enabled": False,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
         if address == "local":
-            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                              silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+            with _local_cluster(LocalCluster, workers) as cluster, Client(cluster) as client:
                 yield client
             return
         try:
@@ -173,6 +224,48 @@ def _dask_client(address: str, workers: int):
             raise InputError(f"--dask {address}: cannot reach the Dask scheduler ({err})") from err
     with client:
         yield client
+
+
+@contextmanager
+def _local_cluster(LocalCluster, workers: int):
+    """A Dask cluster of ``workers`` processes on this machine, started with their stderr on /dev/null: a Ctrl-C
+    to the process group would have each print a traceback from wherever it was (its errors come back to this
+    process with its tasks' results). A cluster interrupted while it starts cannot close cleanly (Dask asserts on
+    its state): that is not reported over the interruption."""
+    cluster = None
+    try:
+        with _stderr_to_devnull():  # the worker processes inherit it
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+        yield cluster
+    except BaseException:
+        _silence_dask()
+        from distributed.deploy.spec import close_clusters
+
+        atexit.unregister(close_clusters)  # it would meet the half-started cluster again at exit, and assert
+        with _stderr_to_devnull(), contextlib.suppress(Exception):
+            close_clusters()  # this one, or one interrupted while it started and never handed back
+        raise
+    cluster.close(timeout=STOP_WAIT_S)
+
+
+@contextmanager
+def _stderr_to_devnull():
+    devnull, saved = os.open(os.devnull, os.O_WRONLY), os.dup(2)
+    os.dup2(devnull, 2)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
+def _silence_dask() -> None:
+    """Dask's own log lines (a nanny's CancelledError while its worker is stopped, a start-up task's error never
+    retrieved) say nothing the interrupted batch does not."""
+    for name in ("distributed", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 def _run_dask(client, tasks: list[RunTask], done: Done) -> None:
@@ -195,6 +288,7 @@ def _run_dask(client, tasks: list[RunTask], done: Done) -> None:
                              attempts=DASK_RETRIES + 1)
             done(rec)
     except BaseException:
+        _silence_dask()
         client.cancel(list(futures))
         raise
 

@@ -157,6 +157,22 @@ def gt_for(gt: str | None, log: Path, base: Path) -> str | None:
 _NAME_KEYS = ("{stem}", "{parent}")
 
 
+MAX_NAME_BYTES = 200  # a folder name holds 255 bytes; the partial folder adds '.' and '.partial-' and 12 hex digits
+
+
+def _check_name(name: str, at: str) -> None:
+    """A run name that can name its folder (and its partial folder) on any file system lio writes to."""
+    shown = name.encode("unicode_escape").decode("ascii")  # a newline or NUL shown as \n, \x00
+    if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
+        raise ConfigError(f"{at}: name: '{shown}' cannot name a run folder")
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise ConfigError(f"{at}: name: '{shown}' holds a control character (a newline, tab or NUL); "
+                          "run names are folder names")
+    if len(name.encode("utf-8", "surrogateescape")) > MAX_NAME_BYTES:
+        raise ConfigError(f"{at}: name: '{shown[:40]}...' is {len(name.encode('utf-8', 'surrogateescape'))} bytes "
+                          f"long; a run name takes at most {MAX_NAME_BYTES}")
+
+
 def _run_name(pattern: str | None, log: Path) -> str:
     """A run's folder name: the log's stem, or ``pattern`` with {stem} and {parent} (the log's folder) filled in
     (logs of one name in several folders: 'seqs/*/data.bag' with '{parent}_{stem}')."""
@@ -192,8 +208,7 @@ def expand(manifest: Manifest, base: Path, where: str) -> list[RunSpec]:
 
         for log in logs:
             name = _run_name(pattern, log)
-            if not name or name.startswith(".") or "/" in name or name in ("summary.csv", "summary.json"):
-                raise ConfigError(f"{at}: name: '{name}' cannot name a run folder")
+            _check_name(name, at)
             if name in seen:
                 raise ConfigError(f"{at}: two runs are named '{name}' ({seen[name]} and {log}); "
                                   "set name: on one of them, or name every run by its folder too: name: "

@@ -14,6 +14,7 @@ from ..io.logs.detect import input_paths
 from ..io.files.atomic import check_writable
 from .commands import resolve_config
 from .executors import Executor
+from .lock import batch_lock
 from .manifest import RunSpec
 from .runs import HASH_FILE, RunTask, finished_since, partial_folders, record
 from .summary import Summary, write_summary
@@ -49,11 +50,20 @@ def run_batch(tasks: list[RunTask], executor: Executor, done: Callable[[dict], N
     root = tasks[0].root if tasks else None
     if root is None:
         raise ConfigError("the batch has no runs")
+    created = not root.exists()
+    root.mkdir(exist_ok=True)
+    try:
+        with batch_lock(root):  # one batch per root: a second one would take our partial folders for leftovers
+            return _run_locked(tasks, executor, done, root)
+    except BaseException:
+        if created and not any(root.iterdir()):  # refused, or an unreachable scheduler: nothing left behind
+            root.rmdir()
+        raise
+
+
+def _run_locked(tasks: list[RunTask], executor: Executor, done: Callable[[dict], None] | None, root: Path) -> Summary:
+    _remove_partial_folders(root)  # from a batch killed before it could clean up
     with executor.open() as run:  # connected first: an unreachable scheduler leaves nothing behind
-        root.mkdir(exist_ok=True)
-        for leftovers in partial_folders(root).values():  # from a batch killed before it could clean up
-            for p in leftovers:
-                shutil.rmtree(p, ignore_errors=True)
         t0, started = time.perf_counter(), time.time()
         records: dict[str, dict] = {}
 
@@ -62,22 +72,32 @@ def run_batch(tasks: list[RunTask], executor: Executor, done: Callable[[dict], N
             if done is not None:
                 done(rec)
 
+        stopped: BaseException | None = None
         try:
             run(tasks, finished)
         except Exception:
             raise
-        except BaseException:  # Ctrl-C, SIGTERM: say what finished and what did not, then stop
-            for task in tasks:
-                if records.get(task.name, {}).get("status") in (None, "not-run"):
-                    late = finished_since(task, started)
-                    if late is not None:
-                        records[task.name] = late
-            write_summary(_summary(tasks, records, executor, time.perf_counter() - t0, interrupted=True))
-            raise
+        except BaseException as err:  # Ctrl-C, SIGTERM: the executor stops its workers first
+            stopped = err
+    if stopped is not None:  # then what they left half-written goes; the summary says what finished and what not
+        _remove_partial_folders(root)
+        for task in tasks:
+            if records.get(task.name, {}).get("status") in (None, "not-run"):
+                late = finished_since(task, started)
+                if late is not None:
+                    records[task.name] = late
+        write_summary(_summary(tasks, records, executor, time.perf_counter() - t0, interrupted=True))
+        raise stopped
     _count_lost_attempts(root, records)
     summary = _summary(tasks, records, executor, time.perf_counter() - t0)
     write_summary(summary)
     return summary
+
+
+def _remove_partial_folders(root: Path) -> None:
+    for leftovers in partial_folders(root).values():
+        for p in leftovers:
+            shutil.rmtree(p, ignore_errors=True)
 
 
 def _count_lost_attempts(root: Path, records: dict[str, dict]) -> None:

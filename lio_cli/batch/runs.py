@@ -98,11 +98,25 @@ def _one_line(err: BaseException) -> str:
 
 
 def pool_initializer(stop=None) -> None:
-    """In a local pool process: Ctrl-C does nothing while idle; ``execute`` lets it interrupt a run; once
-    ``stop`` is set no queued run starts."""
+    """In a local pool process: Ctrl-C and SIGTERM do nothing while idle (the batch decides: it interrupts the
+    runs under way itself); ``execute`` lets them interrupt a run; once ``stop`` is set no queued run starts. The
+    process starts with both blocked (``executors.signals_blocked``): one sent meanwhile is dropped here."""
     global _in_pool, _stop
     _in_pool, _stop = True, stop
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
+def _ignore(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    """Ignore a signal in Python (SIG_IGN set while one is already caught makes Python raise OSError)."""
+
+
+def _raise_interrupt(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    """Interrupt the run once: a second signal (the group's, then the batch's own) would break its clean-up."""
+    signal.signal(signal.SIGINT, _ignore)
+    signal.signal(signal.SIGTERM, _ignore)
+    raise KeyboardInterrupt
 
 
 @contextmanager
@@ -110,11 +124,13 @@ def _interruptible():
     if not (_in_pool and threading.current_thread() is threading.main_thread()):
         yield
         return
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGINT, _raise_interrupt)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, _ignore)
+        signal.signal(signal.SIGTERM, _ignore)
 
 
 def execute(task: RunTask) -> dict[str, Any]:
@@ -156,7 +172,10 @@ def _execute(task: RunTask, here: str, t0: float) -> dict[str, Any]:
     partial.mkdir()
     try:
         (partial / ATTEMPT_FILE).write_text(json.dumps({"worker": here, "host": host, "pid": os.getpid()}) + "\n")
-        metrics = run_command(task.command, task.log, task.config, task.gt, partial)
+        try:
+            metrics = run_command(task.command, task.log, task.config, task.gt, partial)
+        except LioError as err:  # its line names the run's folder, not the hidden one it was written in
+            raise type(err)(str(err).replace(str(partial), str(final))) from err
         (partial / ATTEMPT_FILE).unlink()
         (partial / HASH_FILE).write_text(digest + "\n")
         replace_path(partial, final)
@@ -196,6 +215,20 @@ def _finished(folder: Path) -> str | None:
         return None
 
 
+def running_pids(root: Path) -> set[int]:
+    """Process ids of this host's workers writing a partial folder in ``root`` now (their attempt files)."""
+    pids, host = set(), socket.gethostname()
+    for leftovers in partial_folders(root).values():
+        for p in leftovers:
+            try:
+                attempt = json.loads((p / ATTEMPT_FILE).read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(attempt, dict) and attempt.get("host") == host and isinstance(attempt.get("pid"), int):
+                pids.add(attempt["pid"])
+    return pids
+
+
 def partial_folders(root: Path) -> dict[str, list[Path]]:
     """Partial run folders in ``root`` by run name (left by a worker that died, or by a killed batch)."""
     out: dict[str, list[Path]] = {}
@@ -206,5 +239,4 @@ def partial_folders(root: Path) -> dict[str, list[Path]]:
 
 
 __all__ = ["ATTEMPT_FILE", "HASH_FILE", "RunTask", "execute", "finished_since", "job_description", "job_hash",
-           "partial_folders",
-           "pool_initializer", "record"]
+           "partial_folders", "pool_initializer", "record", "running_pids"]

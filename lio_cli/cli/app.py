@@ -17,6 +17,7 @@ except ImportError:  # pragma: no cover - depends on the installed typer
 
 from .. import __version__
 from ..errors import LioError
+from ..io.files.atomic import is_no_space
 from ..gc_pause import freeze_start_up
 from .common import FLAG, RUN_PANEL, LioGroup, err_console
 
@@ -99,7 +100,8 @@ def _on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signatu
 
 
 def _interrupted(what: str, code: int) -> int:
-    err_console.print(f"lio: {what}; nothing half-written was left behind", markup=False)
+    sys.stderr.write(f"lio: {what}; nothing half-written was left behind\n")  # no import on the way out
+    sys.stderr.flush()
     return code
 
 
@@ -107,26 +109,31 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; map LioError to one stderr line and its exit code (Ctrl-C 130, SIGTERM 143)."""
     args = list(argv if argv is not None else sys.argv[1:])
     previous_term = signal.getsignal(signal.SIGTERM)
-    if previous_term is signal.SIG_DFL:
+    ours = previous_term is signal.SIG_DFL or getattr(previous_term, "lio_start_up", False)
+    if ours:
         signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return _main_guarded(args)
+    except KeyboardInterrupt:  # while an error line was being printed
+        return _interrupted("interrupted", 130)
+    except Terminated:
+        return _interrupted("terminated", 143)
     finally:
-        if previous_term is signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, previous_term)
+        if ours:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _main_guarded(args: list[str]) -> int:
     _state["debug"] = "--debug" in args
-    # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
-    wanted = _command_in(args)
-    if wanted in COMMANDS:
-        register_commands([wanted])
-    elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
-        register_commands()
-    if _state["own_process"]:
-        freeze_start_up()
     try:
+        # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
+        wanted = _command_in(args)
+        if wanted in COMMANDS:
+            register_commands([wanted])
+        elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
+            register_commands()
+        if _state["own_process"]:
+            freeze_start_up()
         rc = app(args=args, prog_name="lio", standalone_mode=False)
     except typer.Exit as ex:
         return ex.exit_code
@@ -147,6 +154,10 @@ def _main_guarded(args: list[str]) -> int:
     except Exception as err:  # anything else is a bug
         if _state["debug"]:
             raise
+        if is_no_space(err):  # a full device where no writer said which output: the path the system names
+            where = getattr(err, "filename", None) or "the output's device"
+            err_console.print(f"lio: error: no space left on device: {where}", markup=False)
+            return 1
         err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
         return 1
     if rc == 130:  # typer turns Ctrl-C inside a command into a return value of 130

@@ -60,7 +60,7 @@ GtType = Literal[GT_TYPES]
 def simulate_cmd(
     scenario: Annotated[Scenario, typer.Argument(metavar="SCENARIO", show_choices=False, help=f"One of: {', '.join(ALL_SCENARIOS)}.", show_default=False)],
     out: Annotated[Path, typer.Argument(metavar="OUT", help="Output log: x.bag, x.mcap or a ROS 2 folder.", show_default=False)],
-    start: Annotated[Start, typer.Option("--start", metavar=one_of(Start), help="still: at rest for 1.5 s; moving: in motion at every sensor's first sample.", rich_help_panel=MOTION_PANEL)] = "still",
+    start: Annotated[Start, typer.Option("--start", metavar=one_of(Start), help="still: at rest for 1.5 s; moving: in motion at every sensor's first sample; accelerating: half-way up its speed ramp (drive).", rich_help_panel=MOTION_PANEL)] = "still",
     tilt_scale: Annotated[float, typer.Option("--tilt-scale", help="Scale of the roll and pitch sway (0..5; 0: level).", rich_help_panel=MOTION_PANEL)] = 1.0,
     beams: Annotated[Optional[int], typer.Option("--beams", help=shown("LiDAR beams: 16, 32, 64 or 128.", "16; drive 32"), show_default=False, rich_help_panel=SENSORS_PANEL)] = None,
     columns: Annotated[Optional[int], typer.Option("--columns", help=shown("LiDAR columns per turn (planar: LaserScan beams).", "1024; planar 720"), show_default=False, rich_help_panel=SENSORS_PANEL)] = None,

@@ -21,6 +21,13 @@ from ..model.calibration import Calibration
 M = TypeVar("M", bound=BaseModel)
 
 MAX_MAGNITUDE = 1e9  # larger than any physical setting lio has (s, m, Hz, noise densities), far below overflow
+# upper bounds of integer fields (every int field has one: a huge count overflows kiss-icp's C++ ints)
+MAX_ITERATIONS = 10_000  # ICP iterations per scan
+MAX_THREADS = 1024
+MAX_POINTS = 10_000_000  # points of one scan
+MAX_EVERY = 1000  # "every n-th scan" schedules
+MAX_COUNT = 1_000_000  # counts of scans or messages
+_RANGE_ERRORS = ("greater_than", "greater_than_equal", "less_than", "less_than_equal")
 
 
 def _numbers(value: Any):
@@ -76,7 +83,37 @@ def validate(model: type[M], data: dict, where: str) -> M:
         first = err.errors()[0]
         loc = ".".join(str(x) for x in first["loc"])
         msg = first["msg"].removeprefix("Value error, ")
+        if first["type"] in _RANGE_ERRORS:
+            msg = f"must be {field_range(model, first['loc'])}, got {first['input']}"
         raise ConfigError(f"{where}: {loc}: {msg}" if loc else f"{where}: {msg}") from err
+
+
+def field_range(model: type[BaseModel], loc: tuple) -> str:
+    """The allowed range of the field at ``loc`` (nested models followed, list indices skipped) in words:
+    "within [1, 1000]", "> 0", "<= 4"."""
+    info, current = None, model
+    for part in loc:
+        if isinstance(part, int) or current is None:
+            continue
+        info = current.model_fields.get(part)
+        if info is None:
+            break
+        ann = info.annotation
+        args = [a for a in getattr(ann, "__args__", ()) if isinstance(a, type) and issubclass(a, BaseModel)]
+        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else (args[0] if args else None)
+    low = high = None
+    for m in [] if info is None else info.metadata:
+        for attr, sign in (("gt", ">"), ("ge", ">=")):
+            if getattr(m, attr, None) is not None:
+                low = (sign, getattr(m, attr))
+        for attr, sign in (("lt", "<"), ("le", "<=")):
+            if getattr(m, attr, None) is not None:
+                high = (sign, getattr(m, attr))
+    if low and high:
+        return f"{'[' if low[0] == '>=' else '('}{low[1]:g}, {high[1]:g}{']' if high[0] == '<=' else ')'}".join(
+            ("within ", ""))
+    bound = low or high
+    return "in range" if bound is None else f"{bound[0]} {bound[1]:g}"
 
 
 def load_model(model: type[M], path: Path | None, what: str = "config") -> M:
@@ -108,7 +145,7 @@ def load_calibration(path: Path) -> Calibration:
     return validate(Calibration, read_mapping(path, "calibration"), str(path))
 
 
-__all__ = ["Strict", "dump_model", "load_calibration", "load_model", "read_mapping", "validate", "with_overrides"]
+__all__ = ["MAX_COUNT", "MAX_EVERY", "MAX_ITERATIONS", "MAX_POINTS", "MAX_THREADS", "Strict", "field_range", "dump_model", "load_calibration", "load_model", "read_mapping", "validate", "with_overrides"]
 
 
 def load_config(model: type[M], config: Path | None, calib: Path | None = None, calib_field: str = "calibration") -> M:

@@ -19,8 +19,8 @@ from typing import Optional
 
 from pydantic import Field, field_validator
 
-from ..model.calibration import MAX_CLOCK_OFFSET_S, Calibration
-from . import Strict
+from ..model.calibration import MAX_CLOCK_OFFSET_S, MAX_WHEEL_SIZE_M, Calibration
+from . import MAX_THREADS, Strict
 from .odom import InputConfig, RegistrationConfig
 
 _STILL = re.compile(r"^\s*([0-9.eE+-]+)\s*:\s*([0-9.eE+-]+)\s*$")
@@ -43,7 +43,7 @@ class CalibrationRegistration(RegistrationConfig):
     """odom's registration settings on one thread by default: kiss-icp's parallel sums change order from run to
     run, and a calibration's passes would carry that on."""
 
-    threads: int = Field(1, ge=0, description="1: the same log gives the same calibration; 0: all cores")
+    threads: int = Field(1, ge=0, le=MAX_THREADS, description="1: the same log gives the same calibration; 0: all cores")
 
 
 class CalibrateConfig(Strict):
@@ -62,8 +62,8 @@ class CalibrateConfig(Strict):
     still: Optional[str] = Field(None, description="START:END, seconds after the first IMU sample, where the IMU rests; "
                                  "default: found automatically")
     allan: bool = Field(False, description="Allan variance of the whole log (a static IMU recording, hours)")
-    wheel_radius_m: Optional[float] = Field(None, gt=0, description="nominal wheel radius: estimate the true one")
-    wheel_baseline_m: Optional[float] = Field(None, gt=0, description="nominal wheel baseline: estimate the true one")
+    wheel_radius_m: Optional[float] = Field(None, gt=0, le=MAX_WHEEL_SIZE_M, description="nominal wheel radius: estimate the true one")
+    wheel_baseline_m: Optional[float] = Field(None, gt=0, le=MAX_WHEEL_SIZE_M, description="nominal wheel baseline: estimate the true one")
     max_offset_s: float = Field(0.5, gt=0, le=5.0, description="largest IMU-LiDAR time offset searched (either sign)")
     refine_passes: int = Field(
         3, ge=0, le=4,

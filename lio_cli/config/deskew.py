@@ -13,7 +13,7 @@ from typing import Literal, Optional
 from pydantic import Field, create_model, field_validator
 
 from ..model.calibration import Calibration
-from . import Strict
+from . import MAX_EVERY, MAX_ITERATIONS, Strict
 from .odom import FusionConfig, InputConfig, OdomConfig, RegistrationConfig
 
 MOTIONS = ("auto", "trajectory", "imu", "constant-velocity")
@@ -42,13 +42,13 @@ class DeskewRegistration(RegistrationConfig):
     10 deg/s: the online clock estimate cannot time a slower stretch, so full iterations there buy it nothing.
     Defaults of this class, so a YAML naming other registration fields keeps them."""
 
-    steady_iterations: Optional[int] = Field(5, gt=0, description=RegistrationConfig.model_fields[
+    steady_iterations: Optional[int] = Field(5, gt=0, le=MAX_ITERATIONS, description=RegistrationConfig.model_fields[
         "steady_iterations"].description)
-    slow_iterations: Optional[int] = Field(2, gt=0, description=RegistrationConfig.model_fields[
+    slow_iterations: Optional[int] = Field(2, gt=0, le=MAX_ITERATIONS, description=RegistrationConfig.model_fields[
         "slow_iterations"].description)
     slow_rate_degps: float = Field(10.0, ge=0, description=RegistrationConfig.model_fields[
         "slow_rate_degps"].description)
-    slow_register_every: int = Field(2, ge=1, description=RegistrationConfig.model_fields[
+    slow_register_every: int = Field(2, ge=1, le=4, description=RegistrationConfig.model_fields[
         "slow_register_every"].description)
 
 
@@ -56,7 +56,7 @@ class DeskewFusion(FusionConfig):
     """lio odom's fusion settings, but the geometry of a scene far from degenerate (an open road) is analysed
     every 8th scan instead of every 2nd. A default of this class, so a YAML naming other fusion fields keeps it."""
 
-    degeneracy_every_clear: int = Field(8, ge=1, description=FusionConfig.model_fields[
+    degeneracy_every_clear: int = Field(8, ge=1, le=MAX_EVERY, description=FusionConfig.model_fields[
         "degeneracy_every_clear"].description)
 
 

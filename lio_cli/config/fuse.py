@@ -16,7 +16,7 @@ from pydantic import Field, field_validator, model_validator
 
 from ..errors import ConfigError
 from ..model.calibration import Calibration
-from . import Strict
+from . import MAX_COUNT, Strict
 
 # measurement names per source, as the core names them (core.fuse.MEASUREMENTS)
 MEASUREMENTS: dict[str, tuple[str, ...]] = {
@@ -101,7 +101,7 @@ class FuseConfig(Strict):
     rate_hz: Optional[float] = Field(None, description="output rate; default: every IMU sample (exact stamps)")
     noise: FuseNoise = FuseNoise()
     gate_probability: float = Field(1e-4, ge=0, lt=1, description="chi-square gate; 0: none")
-    gate_max_rejects: int = Field(5, ge=1, description="after this many rejections in a row of one measurement "
+    gate_max_rejects: int = Field(5, ge=1, le=MAX_COUNT, description="after this many rejections in a row of one measurement "
                                   "kind the next is accepted, the states it touches made more uncertain")
     gap_periods: float = Field(5.0, gt=1, description="a pause of this many median periods is a gap")
     min_gap_s: float = Field(0.02, gt=0, description="a gap is at least this long")

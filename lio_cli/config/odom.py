@@ -11,7 +11,7 @@ from typing import Literal, Optional
 from pydantic import Field
 
 from ..model.calibration import Calibration
-from . import Strict
+from . import MAX_COUNT, MAX_EVERY, MAX_ITERATIONS, MAX_POINTS, MAX_THREADS, Strict
 
 
 class InputConfig(Strict):
@@ -43,15 +43,15 @@ class RegistrationConfig(Strict):
     min_range_m: float = Field(0.5, ge=0, description="points closer to the LiDAR (the platform itself) are dropped")
     source_voxel_factor: Optional[float] = Field(
         None, gt=0, description="registration keeps one point per voxel_size x this; default 2.5 in 3D, 1.5 (kiss-icp's) for 2D scans")
-    max_points_per_voxel: int = Field(5, gt=0, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
+    max_points_per_voxel: int = Field(5, gt=0, le=1000, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
-        None, gt=0, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
+        None, gt=0, le=MAX_ITERATIONS, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
     convergence: float = Field(1e-4, gt=0, description="ICP stops once an iteration's pose update is smaller")
     steady_iterations: Optional[int] = Field(
-        None, gt=0, description="ICP iterations of IMU-primed scans once the online IMU clock estimate is done (None: "
+        None, gt=0, le=MAX_ITERATIONS, description="ICP iterations of IMU-primed scans once the online IMU clock estimate is done (None: "
         "max_iterations); lio deskew uses 5")
     slow_iterations: Optional[int] = Field(
-        None, gt=0, description="ICP iterations of IMU-primed scans whose IMU turns slower than slow_rate_degps (None: "
+        None, gt=0, le=MAX_ITERATIONS, description="ICP iterations of IMU-primed scans whose IMU turns slower than slow_rate_degps (None: "
         "as steady_iterations); lio deskew uses 2")
     slow_rate_degps: float = Field(5.0, ge=0, description="see slow_iterations")
     slow_register_every: int = Field(
@@ -63,8 +63,8 @@ class RegistrationConfig(Strict):
     max_correspondence_m: Optional[float] = Field(
         None, gt=0, description="fixed correspondence distance; default: 0.5 m with an IMU prior, adaptive without")
     min_motion_m: float = Field(0.1, ge=0, description="adaptive threshold: only scans that moved this far update it")
-    threads: int = Field(0, ge=0, description="0: all cores")
-    min_points: int = Field(50, gt=0, description="scans with fewer valid points are skipped")
+    threads: int = Field(0, ge=0, le=MAX_THREADS, description="0: all cores")
+    min_points: int = Field(50, gt=0, le=MAX_POINTS, description="scans with fewer valid points are skipped")
 
 
 class FusionConfig(Strict):
@@ -76,8 +76,8 @@ class FusionConfig(Strict):
     rotation_sigma_rad: float = Field(0.005, gt=0, description="registration rotation noise per scan")
     degenerate_sigma_m: float = Field(2.0, gt=0, description="position noise along a degenerate direction")
     degeneracy_ratio: float = Field(0.025, gt=0, description="horizontal eigenvalue ratio below which a direction is degenerate")
-    degeneracy_every: int = Field(2, ge=1, description="analyse the geometry every n-th scan, reuse it between")
-    degeneracy_every_clear: int = Field(2, ge=1, description=(
+    degeneracy_every: int = Field(2, ge=1, le=MAX_EVERY, description="analyse the geometry every n-th scan, reuse it between")
+    degeneracy_every_clear: int = Field(2, ge=1, le=MAX_EVERY, description=(
         "analyse it every n-th scan (rounded up to a multiple of degeneracy_every) while the last analysis found "
         "the weakest direction 4x above degeneracy_ratio"))
     wheel_beta: float = Field(0.5, ge=0, le=1, description="complementary filter: weight of the wheel speed")
@@ -107,7 +107,7 @@ class OdomConfig(Strict):
     max_bridge_s: float = Field(
         3.0, ge=0, description="a time gap up to this long that the IMU covers is bridged: the state is propagated across "
                                "it (with wheel speed) and the next scan registered from that prediction; 0: never")
-    max_lost_scans: int = Field(20, ge=1, description="LiDAR-only registration failing this many scans in a row ends the run (exit 1)")
+    max_lost_scans: int = Field(20, ge=1, le=MAX_COUNT, description="LiDAR-only registration failing this many scans in a row ends the run (exit 1)")
     estimate_time_offset: bool = Field(
         True, description="estimate a small IMU-LiDAR clock offset while running (on top of the calibration's) and apply it")
     max_speed_mps: float = Field(70.0, gt=0, description="a faster IMU state is implausible and is started again from the LiDAR")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.files.atomic import atomic_output, check_writable
+from ..io.files.atomic import atomic_outputs, check_writable
 from ..io.files.output_paths import side_file
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")
@@ -71,10 +71,8 @@ def write_run(out: Path, tag: str, text: str, config, metrics: dict, force: bool
     from ..config import dump_model  # pydantic: loaded only by the commands that write a config
 
     traj, metrics_path, config_path = run_outputs(out, tag)
-    with atomic_output(traj, force) as tmp:
+    with atomic_outputs([traj, config_path, metrics_path], force) as (tmp, config_tmp, metrics_tmp):
         tmp.write_text(text)
-    with atomic_output(config_path, force) as tmp:
-        tmp.write_text(dump_model(config))
-    with atomic_output(metrics_path, force) as tmp:
-        tmp.write_text(json_text(metrics))
+        config_tmp.write_text(dump_model(config))
+        metrics_tmp.write_text(json_text(metrics))
     return [traj, metrics_path, config_path]

@@ -7,6 +7,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+# an IMU sample beyond these is damage, not motion (IMUs saturate near 16-200 g, 35-70 rad/s): dropped, counted
+MAX_IMU_ACCEL_MPS2 = 1e4
+MAX_IMU_GYRO_RADPS = 1e3
+# Likewise an odometry twist beyond these is damage: no wheel, car or drone moves at 1 km/s.
+MAX_TWIST_MPS = 1e3
+MAX_TWIST_RADPS = 1e3
+
+
 def on_lidar_clock(imu_stamps_ns: np.ndarray, imu_time_offset_ns: int) -> np.ndarray:
     """IMU stamps moved onto the LiDAR's clock: the offset is added (``imu_time_offset_s``'s convention)."""
     return imu_stamps_ns + np.int64(imu_time_offset_ns)

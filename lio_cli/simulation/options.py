@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, fields
 from ..errors import ConfigError
 
 TIME_CONVENTIONS = ("velodyne", "ouster", "livox", "hesai")
-STARTS = ("still", "moving")
+STARTS = ("still", "moving", "accelerating")
 GT_TYPES = ("pose", "odometry", "none")
 MAX_TILT_SCALE = 5.0  # the handheld's sway then reaches +-26 deg of pitch
 MAX_DURATION_S = 3600.0  # ray-cast scenarios: simulate longer runs in pieces
@@ -155,7 +155,7 @@ def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
 
 def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
     if opts.start not in STARTS:
-        raise ConfigError(f"--start must be still or moving (got '{opts.start}')")
+        raise ConfigError(f"--start must be {', '.join(STARTS[:-1])} or {STARTS[-1]} (got '{opts.start}')")
     if not 0.0 <= opts.tilt_scale <= MAX_TILT_SCALE:
         raise ConfigError(f"--tilt-scale must be within 0..{MAX_TILT_SCALE:g} (got {opts.tilt_scale})")
     if opts.gt_type is not None and opts.gt_type not in GT_TYPES:

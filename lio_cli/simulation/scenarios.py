@@ -6,6 +6,8 @@ same scenario always happens in the same place; ``--seed`` only drives sensor no
 ``start="still"``: the platform stands still for 1.5 s, then ramps up. ``start="moving"``: every ramp and
 fade-in is over before t = 0, so each sensor's first sample already sees the full motion; the drive instead
 starts cruising straight at 7.5 m/s with its sway fading in over 3 s, so its IMU first looks still.
+``start="accelerating"``: every speed ramp is half done at t = 0, so the first samples see its largest
+acceleration (the drive: 3.75 m/s and 3.75 m/s^2 on that straight, what reads as a 21 deg tilt to an IMU).
 ``static`` is an IMU at rest on a table for hours (no LiDAR, no wheels): the noise model alone.
 """
 
@@ -236,13 +238,15 @@ def _start_times(start: str, ramp_s: float = 1.5, fade_s: float = 1.5) -> tuple[
         return 1.5, 1.5, 1.5
     if start == "moving":
         return -3.0 * ramp_s, -fade_s, 0.0
+    if start == "accelerating":  # mid-ramp at t = 0: half the speed, the ramp's largest acceleration
+        return -0.5 * ramp_s, -fade_s, 0.0
     raise KeyError(start)
 
 
 def build_scenario(name: str, beams: int | None = None, columns: int | None = None, start: str = "still",
                    tilt_scale: float = 1.0) -> Scenario:
     """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``, starting ``start``
-    (still or moving), its roll and pitch sway scaled by ``tilt_scale``."""
+    (still, moving or accelerating), its roll and pitch sway scaled by ``tilt_scale``."""
     sc = _scenario(name, beams, columns, start)
     if tilt_scale != 1.0 and sc.trajectory is not None:
         traj = sc.trajectory
@@ -299,6 +303,8 @@ def _scenario(name: str, beams: int | None, columns: int | None, start: str) -> 
         p_rest, fade, s0 = 1.5, 1.5, 0.0
         if start == "moving":
             wobble, p_rest, fade, s0 = Sines((4.2,), (0.05,), (-0.94,)), -3.0, 3.0, 56.0 - 7.5 * 1.5
+        elif start == "accelerating":  # driving off on the same straight: 3.75 m/s and 3.75 m/s^2 at t = 0
+            wobble, p_rest, fade, s0 = Sines(), -1.5, 3.0, 56.0 - 7.5 * 0.28125
         traj = Trajectory(
             path, Progress(7.5, t_rest_s=p_rest, ramp_s=3.0, wobble=wobble, s0_m=s0), z0_m=0.0,
             z_wobble=Sines((0.015,), (1.3,), (0.0,)), pitch=Sines((0.012, 0.004), (0.2, 1.1), (0.0, 0.5)),

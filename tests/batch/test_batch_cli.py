@@ -315,7 +315,7 @@ runs:
     ("runs:\n  - log: a.bag\n    options: {{priorr: imu}}\n",
      "{m}: runs[0]: options: priorr: Extra inputs are not permitted"),
     ("runs:\n  - log: a.bag\n    options: {{fusion: {{alpha: 2}}}}\n",
-     "{m}: runs[0]: options: fusion.alpha: Input should be less than or equal to 1"),
+     "{m}: runs[0]: options: fusion.alpha: must be within [0, 1], got 2"),
     ("runs:\n  - log: a.bag\n  - log: sub/a.bag\n",
      "{m}: runs[1]: two runs are named 'a' ({d}/a.bag and {d}/sub/a.bag); set name: on one of them, or name every "
      "run by its folder too: name: '{{parent}}_{{stem}}' (the shorthand: --name '{{parent}}_{{stem}}')"),

@@ -99,6 +99,20 @@ def test_an_unknown_placeholder_in_a_run_name_is_refused(tmp_path):
                               "take {stem} and {parent}, the log's folder name)")
 
 
+@pytest.mark.parametrize("name, why", [
+    ('"a\\0b"', "'a\\x00b' holds a control character (a newline, tab or NUL); run names are folder names"),
+    ('"a\\nb"', "'a\\nb' holds a control character (a newline, tab or NUL); run names are folder names"),
+    ("x" * 300, "'" + "x" * 40 + "...' is 300 bytes long; a run name takes at most 200"),
+    ("'.hidden'", "'.hidden' cannot name a run folder"),
+])
+def test_a_run_name_that_cannot_name_a_folder_is_refused_before_any_run(tmp_path, name, why):
+    """Issue 32: a NUL, a newline or 300 characters failed the run as 'internal' after the batch started."""
+    (tmp_path / "x.bag").write_bytes(b"")
+    with pytest.raises(ConfigError) as err:
+        _manifest(tmp_path, f"runs:\n  - log: x.bag\n    name: {name}\n")
+    assert str(err.value) == f"{tmp_path / 'm.yaml'}: runs[0]: name: {why}"
+
+
 @pytest.mark.parametrize("field, what", [("calib", "calibration"), ("config", "config")])
 def test_a_missing_file_names_the_manifest_and_run(tmp_path, field, what):
     """It said only "/.../nope.yaml: no such calibration file", without the manifest or the run naming it."""

@@ -42,7 +42,7 @@ def test_auto_deskew_follows_the_prior(prior, deskew):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("fusion:\n  alpha: 1.5\n", "fusion.alpha: Input should be less than or equal to 1"),
+    ("fusion:\n  alpha: 1.5\n", "fusion.alpha: must be within [0, 1], got 1.5"),
     ("deskew: sometimes\n", "deskew: Input should be 'auto', 'imu', 'constant-velocity' or 'none'"),
     ("unknown_option: 1\n", "unknown_option: Extra inputs are not permitted"),
     ("input:\n  lidar: /points\n", "input.lidar: Extra inputs are not permitted"),
@@ -72,6 +72,19 @@ def test_missing_files(tmp_path):
     ("imu_time_offset_s: 1.0e12\n", "imu_time_offset_s: must be a finite number of seconds within +-4e+09"),
     ("imu_time_offset_s: .inf\n", "imu_time_offset_s: must be a finite number of seconds within +-4e+09"),
     ("gyro_bias_radps: [0.1, 0.2]\n", "gyro_bias_radps: must be 3 finite numbers (x, y, z in the IMU frame)"),
+    # each value within physical bounds, the range named (issue 32)
+    ("wheel: {speed_scale: .inf, speed_scale_sigma: 0, yaw_rate_scale: 1, yaw_rate_scale_sigma: 0}\n",
+     "wheel.speed_scale: must be within (0, 10], got inf"),
+    ("imu_time_offset_sigma_s: .inf\n", "imu_time_offset_sigma_s: must be within [0, 10], got inf"),
+    ("imu_time_offset_sigma_s: -0.1\n", "imu_time_offset_sigma_s: must be within [0, 10], got -0.1"),
+    ("gyro_bias_sigma_radps: [0.01, -0.01, 0]\n", "gyro_bias_sigma_radps: each value must be within [0, 1] rad/s, got -0.01"),
+    ("T_base_imu_rotation_sigma_rad: [-0.1, 0, 0]\n",
+     "T_base_imu_rotation_sigma_rad: each value must be within [0, 6.283] rad, got -0.1"),
+    ("imu_noise: {gyro_noise_radps: 1.0e+300}\n", "imu_noise.gyro_noise_radps: must be within [0, 1], got 1e+300"),
+    ("imu_noise: {accel_bias_walk: 1.0e+300}\n", "imu_noise.accel_bias_walk: must be within [0, 10], got 1e+300"),
+    ("T_base_imu: [[1, 0, 0, 1.0e+300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n",
+     "T_base_imu: translation must be within [-100, 100] m on each axis, got 1e+300 m"),
+    ("accel_bias_mps2: [1.0e+6, 0, 0]\n", "accel_bias_mps2: each value must be within [-5, 5] m/s^2, got 1e+06"),
 ])
 def test_calibration_fields_are_checked(tmp_path, text, message):
     path = tmp_path / "cal.yaml"
@@ -101,7 +114,7 @@ def test_calibrate_takes_the_clock_offset_its_clock_check_suggests_even_between_
     with pytest.raises(ValueError, match=r"max_offset_s\n.*less than or equal to 5"):
         CalibrateConfig(max_offset_s=2e9)
     with pytest.raises(ValueError, match=r"1e\+10 is out of range \(\|value\| <= 1e\+09\)"):
-        CalibrateConfig(wheel_radius_m=1e10)
+        CalibrateConfig(registration={"max_range_m": 1e10})
 
 
 @pytest.mark.parametrize("text, caps", [
@@ -131,3 +144,59 @@ def _dumped(tmp_path, cfg):
     path = tmp_path / "again.yaml"
     path.write_text(dump_model(cfg))
     return path
+
+
+@pytest.mark.parametrize("model, text, message", [
+    ("odom", "registration:\n  max_points_per_voxel: 1000000000000000\n",
+     "registration.max_points_per_voxel: must be within (0, 1000], got 1000000000000000"),
+    ("odom", "registration:\n  threads: 1000000000000000\n", "registration.threads: must be within [0, 1024], got 1000000000000000"),
+    ("deskew", "odometry:\n  registration:\n    slow_register_every: 1000000000000000\n",
+     "odometry.registration.slow_register_every: must be within [1, 4], got 1000000000000000"),
+    ("calibrate", "registration:\n  threads: 1000000000000000\n",
+     "registration.threads: must be within [0, 1024], got 1000000000000000"),
+    ("fuse", "gate_max_rejects: 0\n", "gate_max_rejects: must be within [1, 1e+06], got 0"),
+])
+def test_integer_fields_out_of_range_are_one_line_naming_field_and_range(tmp_path, model, text, message):
+    from lio_cli.config.calibrate import CalibrateConfig
+    from lio_cli.config.deskew import DeskewConfig
+    from lio_cli.config.fuse import FuseConfig
+
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    cls = {"odom": OdomConfig, "deskew": DeskewConfig, "calibrate": CalibrateConfig, "fuse": FuseConfig}[model]
+    with pytest.raises(ConfigError) as err:
+        load_model(cls, path)
+    assert str(err.value) == f"{path}: {message}"
+
+
+def test_every_integer_field_of_every_config_model_has_an_upper_bound():
+    """A count of 10^15 overflows kiss-icp's C++ ints or allocates for ever: every int field is bounded."""
+    import typing
+
+    from pydantic import BaseModel
+
+    import lio_cli.batch.manifest as manifest
+    from lio_cli.config import Strict
+    from lio_cli.config.calibrate import CalibrateConfig
+    from lio_cli.config.deskew import DeskewConfig
+    from lio_cli.config.fuse import FuseConfig
+    from lio_cli.model.calibration import Calibration
+
+    seen, unbounded = set(), []
+
+    def walk(model):
+        if model in seen:
+            return
+        seen.add(model)
+        for name, info in model.model_fields.items():
+            args = typing.get_args(info.annotation) or (info.annotation,)
+            if int in args and not any(getattr(m, a, None) is not None for m in info.metadata for a in ("le", "lt")):
+                unbounded.append(f"{model.__name__}.{name}")
+            for a in args:
+                if isinstance(a, type) and issubclass(a, BaseModel):
+                    walk(a)
+
+    for m in (OdomConfig, DeskewConfig, CalibrateConfig, FuseConfig, Calibration, manifest.Manifest):
+        walk(m)
+    assert len(seen) > 15 and any(issubclass(m, Strict) for m in seen)
+    assert unbounded == []

@@ -38,7 +38,7 @@ def test_use_syntax():
     ("use:\n  lidar: [points]\n", "use.lidar.[key]: Input should be 'imu', 'wheel', 'odom' or 'gps'"),
     ("estimator: ukf\n", "estimator: Input should be 'ekf', 'planar' or 'complementary'"),
     ("input:\n  odom_topic: /a\n  odom_file: b.tum\n", "input: give the odometry as odom_topic or odom_file, not both"),
-    ("noise:\n  gyro_noise_density: 0\n", "noise.gyro_noise_density: Input should be greater than 0"),
+    ("noise:\n  gyro_noise_density: 0\n", "noise.gyro_noise_density: must be > 0, got 0"),
 ])
 def test_bad_config_is_one_line_naming_the_field(tmp_path, text, message):
     path = tmp_path / "c.yaml"

@@ -206,7 +206,7 @@ def test_cli_conditions_and_error_model_reach_the_log_and_truth(tmp_path, capsys
 @pytest.mark.parametrize("argv, message", [
     (("--imu-rotation", "1,2"), "--imu-rotation needs 3 comma-separated numbers (got '1,2')"),
     (("--gps-origin", "48,x,5"), "--gps-origin needs 3 comma-separated numbers (got '48,x,5')"),
-    (("--start", "flying"), "Invalid value for '--start': 'flying' is not one of 'still', 'moving'; see "
+    (("--start", "flying"), "Invalid value for '--start': 'flying' is not one of 'still', 'moving', 'accelerating'; see "
                             "'lio simulate --help'"),
     (("--gt-type", "tf"), "Invalid value for '--gt-type': 'tf' is not one of 'pose', 'odometry', 'none'; see "
                           "'lio simulate --help'"),

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 # Why a sample or measurement did not enter the estimate.
 REJECT_REASONS = {
     "nan": "a value was NaN or infinite",
+    "out_of_range": "a value beyond any sensor's range (IMU: 1e4 m/s^2, 1e3 rad/s; wheel: 1e3 m/s or rad/s)",
     "all_zero": "every IMU value was exactly zero (a placeholder message, not a measurement)",
     "duplicate_stamp": "another sample had the same stamp (the first one was kept)",
     "invalid_pose": "the pose's rotation was not a rotation (e.g. quaternion 0,0,0,0)",

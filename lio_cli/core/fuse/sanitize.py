@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...geometry import quat_xyzw_to_rot
+from ...model.records import MAX_IMU_ACCEL_MPS2, MAX_IMU_GYRO_RADPS, MAX_TWIST_MPS, MAX_TWIST_RADPS
 from .inputs import GpsSeries, ImuSeries, NoiseOptions, PoseSeries, WheelSeries
 from .report import SourceReport
 
@@ -53,10 +54,14 @@ def clean_imu(imu: ImuSeries, noise: NoiseOptions, report: SourceReport) -> ImuS
     gyro = np.asarray(imu.gyro_radps, dtype=np.float64).reshape(n, 3)
     acc = np.asarray(imu.accel_mps2, dtype=np.float64).reshape(n, 3)
     finite = np.all(np.isfinite(gyro), axis=1) & np.all(np.isfinite(acc), axis=1)
-    zero = finite & ~np.any(gyro, axis=1) & ~np.any(acc, axis=1)
+    with np.errstate(invalid="ignore"):
+        sane = finite & np.all(np.abs(gyro) <= MAX_IMU_GYRO_RADPS, axis=1) & \
+            np.all(np.abs(acc) <= MAX_IMU_ACCEL_MPS2, axis=1)
+    zero = sane & ~np.any(gyro, axis=1) & ~np.any(acc, axis=1)
     report.reject("nan", int(np.count_nonzero(~finite)))
+    report.reject("out_of_range", int(np.count_nonzero(finite & ~sane)))
     report.reject("all_zero", int(np.count_nonzero(zero)))
-    keep = order_and_dedupe(imu.stamps_ns, finite & ~zero, report)
+    keep = order_and_dedupe(imu.stamps_ns, sane & ~zero, report)
     q = valid = cov = None
     if imu.orientation_xyzw is not None:
         q = np.asarray(imu.orientation_xyzw, dtype=np.float64).reshape(n, 4)[keep]
@@ -90,8 +95,11 @@ def clean_wheel(wheel: WheelSeries, use: set[str], noise: NoiseOptions, report: 
     report.received += n
     vel = np.asarray(wheel.velocity_mps, dtype=np.float64).reshape(n, 3).copy()
     yaw = np.asarray(wheel.yaw_rate_radps, dtype=np.float64).reshape(n).copy()
-    vel[~np.isfinite(vel)] = np.nan
-    yaw[~np.isfinite(yaw)] = np.nan
+    with np.errstate(invalid="ignore"):
+        wild = np.isfinite(vel) & (np.abs(vel) > MAX_TWIST_MPS), np.isfinite(yaw) & (np.abs(yaw) > MAX_TWIST_RADPS)
+    any_wild = np.any(wild[0], axis=1) | wild[1]
+    vel[~np.isfinite(vel) | wild[0]] = np.nan
+    yaw[~np.isfinite(yaw) | wild[1]] = np.nan
     has = np.zeros(n, bool)
     if "speed" in use:
         has |= np.isfinite(vel[:, 0])
@@ -99,7 +107,8 @@ def clean_wheel(wheel: WheelSeries, use: set[str], noise: NoiseOptions, report: 
         has |= np.any(np.isfinite(vel), axis=1)
     if "yaw_rate" in use:
         has |= np.isfinite(yaw)
-    report.reject("nan", int(np.count_nonzero(~has)))
+    report.reject("out_of_range", int(np.count_nonzero(~has & any_wild)))  # a row left without a usable value
+    report.reject("nan", int(np.count_nonzero(~has & ~any_wild)))
     keep = order_and_dedupe(wheel.stamps_ns, has, report)
     vel, yaw = vel[keep], yaw[keep]
     m = len(keep)

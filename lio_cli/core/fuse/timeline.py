@@ -127,9 +127,9 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
         prep.imu = clean_imu(inputs.imu, noise, reports["imu"])
         if len(prep.imu) == 0:
             if not ({"wheel", "odom"} & set(use)):
-                raise InputError("the IMU has no usable sample (all NaN, all zero or duplicated) and there is no "
-                                 "other motion source")
-            prep.notes.append("IMU ignored: no usable sample (all NaN, all zero or duplicated)")
+                raise InputError("the IMU has no usable sample (all NaN, out of range, all zero or duplicated) and there "
+                                 "is no other motion source")
+            prep.notes.append("IMU ignored: no usable sample (all NaN, out of range, all zero or duplicated)")
             prep.imu = None
             del use["imu"]
             if options.use is None and "wheel" in use:  # the default selection without a gyro

@@ -26,7 +26,7 @@ from .clock_offset import ClockOffsetTracker
 from .gaps import bridge_refused
 from .imu_step import imu_step
 from .lidar_step import lidar_step
-from .startup import replay, try_start
+from .startup import replay, specific_force_levels, try_start
 from .state import OdomState, OdomStats, ScanResult, Settings
 
 
@@ -184,6 +184,15 @@ class LioOdometry:
         g_world, first_f_base = self.run.nav.g_world, self.run.startup.first_f_base
         if g_world is not None:  # gravity as the last healthy IMU state (or the start-up) had it
             T[:3, :3] = gravity_aligned_rotation(-g_world)
-        elif first_f_base is not None:  # never aligned: "up" is the specific force at the first scan
+        elif first_f_base is not None and specific_force_levels(self.run):  # never aligned, but standing still
             T[:3, :3] = gravity_aligned_rotation(first_f_base)
         return T
+
+    def level_source(self) -> str:
+        """What ``output_alignment`` levels by: "gravity" (the IMU state's), "specific force" (never aligned,
+        standing still), "none" (never aligned while moving, or no IMU: the first scan's base frame as it is)."""
+        if self.run.nav.g_world is not None:
+            return "gravity"
+        if self.run.startup.first_f_base is not None and specific_force_levels(self.run):
+            return "specific force"
+        return "none"

@@ -10,7 +10,7 @@ import numpy as np
 from ...model.calibration import Extrinsics
 from ...model.records import ImuBatch, PointCloud
 from ..imu import NavState, propagate
-from .bootstrap import Bootstrap, align
+from .bootstrap import Bootstrap, align, imu_still, lidar_still
 from .state import OdomState, WindowScan
 from .tuning import MOVING_M
 
@@ -65,6 +65,23 @@ def try_start(o: OdomState) -> list[WindowScan] | None:
     o.nav.state = start_state(boot, win[0], imu, o.ext, ba, o.settings.planar)
     o.startup.scans = []
     return win
+
+
+def specific_force_levels(o: OdomState) -> bool:
+    """When the IMU state never started (a log shorter than the start-up window): whether the mean specific
+    force around the first scans may stand for gravity. Only when the LiDAR (over the window's scans) and the IMU
+    agree the platform stood still: moving, the force holds the acceleration too (a car driving off at 4 m/s^2
+    reads as a 22 deg tilt), and the IMU alone cannot tell the two apart."""
+    win = o.startup.scans
+    imu = ImuBatch.concat(o.imu.batches)
+    if not win or len(imu) < 3:
+        return False
+    sel = (imu.stamps_ns >= win[0].t_prev_ns) & (imu.stamps_ns <= win[-1].stamp_ns)
+    imu = ImuBatch(imu.frame_id, imu.stamps_ns[sel], imu.gyro_radps[sel], imu.accel_mps2[sel])
+    ba = o.settings.bias_prior[1]
+    ba = np.zeros(3) if ba is None else np.asarray(ba, dtype=np.float64)
+    poses = np.stack([w.pose for w in win])
+    return lidar_still(poses) and imu_still(imu, o.cfg.gravity_mps2, ba)
 
 
 def replay(o: OdomState, win: list[WindowScan], step: Callable[[PointCloud, int, int], object]) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -9,7 +10,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from ...errors import InputError
+from ...errors import InputError, NoSpaceError
 
 
 def check_writable(path: Path, force: bool, inputs: Iterable[Path] = (),
@@ -90,18 +91,50 @@ def remove_path(path: Path) -> None:
         path.unlink()
 
 
+def is_no_space(err: BaseException) -> bool:
+    """``err`` says the device is full: ENOSPC, EDQUOT, or sqlite's (and so a ROS 2 bag's) own words."""
+    return (isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT)) or \
+        "database or disk is full" in str(err)
+
+
+@contextmanager
+def no_space_as_error(path: Path) -> Iterator[None]:
+    """A full device met in the body becomes ``NoSpaceError`` naming ``path`` (one line, exit 1)."""
+    try:
+        yield
+    except NoSpaceError:
+        raise
+    except Exception as err:
+        if is_no_space(err) or is_no_space(err.__cause__ or err.__context__ or err):
+            raise NoSpaceError(f"no space left on device: {path}") from err
+        raise
+
+
 @contextmanager
 def atomic_output(path: Path, force: bool = False) -> Iterator[Path]:
     """Yield a temporary path to write; on success it replaces ``path``, on error it is removed."""
-    path = Path(path)
-    check_writable(path, force)
-    tmp = temp_sibling(path)
-    try:
+    with atomic_outputs([path], force) as (tmp,):
         yield tmp
+
+
+@contextmanager
+def atomic_outputs(paths: Iterable[Path], force: bool = False) -> Iterator[list[Path]]:
+    """Yield a temporary path for each of ``paths``; once every one is written they replace ``paths`` together,
+    on error (a full device too) every one is removed: a run's files are all there or none is."""
+    paths = [Path(p) for p in paths]
+    for path in paths:
+        check_writable(path, force)
+    tmps: list[Path] = []
+    try:
+        with no_space_as_error(paths[0]):
+            tmps.extend(temp_sibling(path) for path in paths)
+            yield tmps
     except BaseException:
-        remove_path(tmp)
+        for tmp in tmps:
+            remove_path(tmp)
         raise
-    replace_path(tmp, path)
+    for tmp, path in zip(tmps, paths):
+        replace_path(tmp, path)
 
 
 def write_text_atomic(path: Path, text: str, force: bool = False) -> None:

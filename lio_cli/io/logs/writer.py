@@ -10,12 +10,14 @@ holds), whose messages are then written as stored with ``write_record``.
 
 from __future__ import annotations
 
+import contextlib
+
 from functools import cached_property
 from collections.abc import Callable
 from pathlib import Path
 
-from ...errors import InputError
-from ..files.atomic import check_writable, remove_path, replace_path, temp_sibling
+from ...errors import InputError, NoSpaceError
+from ..files.atomic import check_writable, is_no_space, remove_path, replace_path, temp_sibling
 from ..messages.encode import MessageFactory
 from ..messages.msgdefs import output_definition
 from .base import LogConnection
@@ -65,6 +67,8 @@ class LogWriter:
             self._open()
         except Exception as err:
             self._discard()
+            if is_no_space(err):
+                raise NoSpaceError(f"no space left on device: {self.path}") from err
             raise InputError(f"{self.path}: cannot create log ({err})") from err
         except BaseException:  # interrupted while creating it
             self._discard()
@@ -244,6 +248,8 @@ class LogWriter:
                 self._w.close()
         except Exception as err:
             self.abort()
+            if is_no_space(err):
+                raise NoSpaceError(f"no space left on device: {self.path}") from err
             raise InputError(f"{self.path}: cannot finish writing log ({err})") from err
         except BaseException:
             self.abort()
@@ -266,7 +272,12 @@ class LogWriter:
             else:
                 self._w.close()
         except Exception:  # noqa: BLE001 - the temp output is discarded anyway
-            pass
+            # a close that failed (a full device) may leave the file open: its space would stay taken while
+            # the writer lives
+            bio = getattr(self._w, "bio", None)
+            if bio is not None:
+                with contextlib.suppress(Exception):
+                    bio.close()
         finally:  # an interrupt while closing too
             self._discard()
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import InputError
-from ...model.records import ImuBatch, Record, TimeConvention
+from ...model.records import (MAX_IMU_ACCEL_MPS2, MAX_IMU_GYRO_RADPS, MAX_TWIST_MPS, MAX_TWIST_RADPS, ImuBatch, Record,
+                              TimeConvention)
 from ..messages.decode import IMU, LASERSCAN, POINTCLOUD2, decode_navsatfix, decode_odometry, decode_pose, imu_sample
 from .imu_units import accel_scale
 from ..logs.base import LogReader
@@ -55,13 +56,7 @@ class StreamStats:
         }
 
 
-# an IMU sample beyond these is damage, not motion (IMUs saturate near 16-200 g, 35-70 rad/s): dropped, counted
 MAX_STAMP_JUMP_NS = 10_000_000_000  # strict: header stamps may run ahead of record time by at most this much
-MAX_IMU_ACCEL_MPS2 = 1e4
-MAX_IMU_GYRO_RADPS = 1e3
-# Likewise an odometry twist beyond these is damage: no wheel, car or drone moves at 1 km/s.
-MAX_TWIST_MPS = 1e3
-MAX_TWIST_RADPS = 1e3
 
 
 def _vector_problem(checks) -> str | None:

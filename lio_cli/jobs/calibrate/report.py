@@ -11,7 +11,8 @@ import numpy as np
 from ...core.calibration.excitation import dominant_rotation_axis, turned_mostly_about
 from ...core.calibration.handeye import lidar_increments
 from ...geometry import inv_pose, make_pose, so3_exp, so3_log
-from ...model.calibration import ARBITRARY_SIGMA_RAD, Calibration, ImuNoiseCalibration, WheelCalibration
+from ...model.calibration import ARBITRARY_SIGMA_RAD, MAX_LEVER_ARM_M, Calibration, ImuNoiseCalibration, WheelCalibration
+from ...model.calibration import MAX_ROTATION_SIGMA_RAD as ROTATION_SIGMA_CAP_RAD
 from .estimate import Estimates
 
 AXES = ("x", "y", "z")
@@ -96,10 +97,10 @@ def compose(est: Estimates, T_base_lidar: np.ndarray | None, T_ref: np.ndarray |
         Rbl = T_base_lidar[:3, :3]
         out["T_base_lidar"] = _rows(T_base_lidar)
         out["T_base_imu"] = _rows(T_base_lidar @ T_li)
-        out["T_base_imu_rotation_sigma_rad"] = _sig(Rbl @ rotation_cov_lidar(est) @ Rbl.T)
+        out["T_base_imu_rotation_sigma_rad"] = _sig(Rbl @ rotation_cov_lidar(est) @ Rbl.T, ROTATION_SIGMA_CAP_RAD)
         if est.lever is not None:
             cov_t = est.lever.covariance_m2.copy()
-            out["T_base_imu_translation_sigma_m"] = _sig(Rbl @ cov_t @ Rbl.T)
+            out["T_base_imu_translation_sigma_m"] = _sig(Rbl @ cov_t @ Rbl.T, MAX_LEVER_ARM_M)
     if est.offset is not None and not est.offset_assumed:  # assumed: zero used, nothing measured or given
         out["imu_time_offset_s"] = round(float(est.offset.imu_time_offset_s), 7)
         if np.isfinite(est.offset.sigma_s):  # NaN: kept from --calib, the motion could not time the IMU
@@ -232,8 +233,9 @@ def _rows(T: np.ndarray) -> list[list[float]]:
     return [[round(float(x), 9) for x in r] for r in T]
 
 
-def _sig(cov: np.ndarray) -> list[float]:
-    return [float(f"{x:.3g}") for x in np.sqrt(np.clip(np.diag(cov), 0, None))]
+def _sig(cov: np.ndarray, cap: float) -> list[float]:
+    """1-sigmas of ``cov``, at most ``cap`` (the calibration file's bound: a wider one says nothing more)."""
+    return [float(f"{x:.3g}") for x in np.minimum(np.sqrt(np.clip(np.diag(cov), 0, None)), cap)]
 
 
 def _list(v, digits: int | None = None) -> list[float]:

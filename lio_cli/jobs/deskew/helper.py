@@ -34,6 +34,7 @@ from ...io.files.atomic import remove_path
 _HEADER = struct.Struct("<Q")
 _PROGRESS_S = 0.1  # the helper reports scans written at most this often
 _WAIT_S = 60.0  # an aborted helper gets this long to discard its files
+_PARENT_POLL_S = 0.5  # how often the helper checks that its parent lives
 
 
 def _send(stream, obj) -> None:
@@ -79,7 +80,10 @@ class Helper:
         root = str(Path(__file__).resolve().parents[3])  # this lio_cli, whatever the working directory holds
         code = f"import sys; sys.path.insert(0, {root!r}); from lio_cli.jobs.deskew.helper import main; main()"
         try:
-            proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            # its own session: a Ctrl-C to the terminal's process group is the parent's to handle (it aborts the
+            # helper), never a traceback from the helper's start-up
+            proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    start_new_session=True)
         except OSError:
             return None
         return cls(proc)
@@ -160,17 +164,35 @@ class Helper:
             remove_path(tmp)
 
 
-class _Aborted(Exception):
+class _Aborted(BaseException):
     """The parent's pipe closed without the end (or the commit) message, or it ended the helper (SIGTERM)."""
 
 
-def _terminated(signum, frame):
+def _ignore(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    """A later signal while the helper discards its files: they are discarded all the same."""
+
+
+def _terminated(signum, frame):  # noqa: ARG001 - signal handler signature
+    signal.signal(signal.SIGTERM, _ignore)
+    signal.signal(signal.SIGINT, _ignore)
     raise _Aborted
+
+
+def _watch_parent(parent: int) -> None:
+    """End the helper (as the parent's SIGTERM would) when its parent has died (killed: it cannot abort it)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_PARENT_POLL_S)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def main() -> None:
     """The helper process: read the setup and poses on stdin, write, answer on stdout."""
     signal.signal(signal.SIGTERM, _terminated)
+    signal.signal(signal.SIGINT, _terminated)
+    _watch_parent(os.getppid())
     inp = sys.stdin.buffer
     out = os.fdopen(os.dup(1), "wb")  # the answers' channel; anything else written to fd 1 goes to stderr
     os.dup2(2, 1)
@@ -229,12 +251,12 @@ def main() -> None:
         answer(("committed", None))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
     except _Aborted:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # its files are discarded: a second SIGTERM ends it quietly
-        sys.exit(1)
+        sys.exit(1)  # its files are discarded
     except BaseException as err:  # noqa: BLE001 - every failure goes back to the parent, which reports it
         # its files are discarded; the parent ends it (SIGTERM) once it has the error, maybe while it still
-        # answers: end quietly then (the handler's _Aborted raised here printed a traceback under the error line)
+        # answers: end quietly then (an _Aborted raised here printed a traceback under the error line)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, _ignore)
         if not isinstance(err, (LioError, KeyboardInterrupt)):
             traceback.print_exc()  # a bug: its traceback, as the parent would have printed it
         try:

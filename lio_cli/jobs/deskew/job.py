@@ -22,7 +22,7 @@ from ...config import dump_model, with_overrides
 from ...config.deskew import DeskewConfig
 from ...errors import InputError
 from ...io.logs.detect import detect_format, input_paths
-from ...io.files.atomic import atomic_output, check_writable
+from ...io.files.atomic import atomic_outputs, check_writable, remove_path
 from ...io.files.point_clouds import check_map_suffix
 from ...io.logs.base import LogReader
 from ...io.logs.reader import open_log
@@ -177,10 +177,13 @@ def write_deskew(result: DeskewResult, out: Path, force: bool) -> list[Path]:
     """Finish a run: its resolved config and metrics beside the output log ``out`` (the job's, already written);
     returns every file of the run (the log, the map, the metrics, the config)."""
     metrics_path, config_path = sidecars(out)
-    with atomic_output(config_path, force) as tmp:
-        tmp.write_text(dump_model(result.config))
-    with atomic_output(metrics_path, force) as tmp:
-        tmp.write_text(json_text(result.metrics))
+    try:
+        with atomic_outputs([config_path, metrics_path], force) as (config_tmp, metrics_tmp):
+            config_tmp.write_text(dump_model(result.config))
+            metrics_tmp.write_text(json_text(result.metrics))
+    except BaseException:  # a run's files are all there or none is: the log written without them goes too
+        remove_path(out)
+        raise
     written_map = [Path(result.metrics["map"]["path"])] if "map" in result.metrics else []
     return [Path(out), *written_map, metrics_path, config_path]
 

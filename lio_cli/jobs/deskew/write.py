@@ -15,7 +15,7 @@ import numpy as np
 
 from ...core.deskew.voxel_map import VoxelMap
 from ...io.logs.copy import LogCopy
-from ...io.files.atomic import check_writable, remove_path, replace_path, temp_sibling
+from ...io.files.atomic import check_writable, no_space_as_error, remove_path, replace_path, temp_sibling
 from ...io.files.point_clouds import point_map_bytes
 from ...io.logs.base import LogReader
 from ...io.logs.writer import LogWriter
@@ -57,7 +57,8 @@ def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion,
     map_tmp = None
     w = LogWriter(job.out, fmt, force=job.force, on_temp=on_temp)
     try:
-        scans = _write_records(reader, w, plan, motion, cfg, voxels, progress, done0, total)
+        with no_space_as_error(job.out):  # a full device mid-log: one line, the temporary removed below
+            scans = _write_records(reader, w, plan, motion, cfg, voxels, progress, done0, total)
         t_map = time.perf_counter()
         if voxels is not None:
             points = voxels.points()
@@ -68,7 +69,8 @@ def write_pass(job, reader: LogReader, fmt: str, plan: ScanPlan, motion: Motion,
             map_tmp = temp_sibling(job.map)
             if on_temp is not None:
                 on_temp(map_tmp)
-            map_tmp.write_bytes(point_map_bytes(points, job.map.suffix))
+            with no_space_as_error(job.map):
+                map_tmp.write_bytes(point_map_bytes(points, job.map.suffix))
         t_map = time.perf_counter() - t_map
         w.finish()
         stats = scans.summary()

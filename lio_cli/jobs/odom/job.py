@@ -265,6 +265,9 @@ class _OdomRun:
         }, "resolved configuration")
         st = odo.stats
         start = _start_summary(odo, inputs.use_imu)
+        if start.get("levelled_by") == "none" and inputs.use_imu:
+            self.notes.append(f"the IMU state never started (the log is shorter than the start-up window): "
+                              f"{NOT_LEVELLED}")
         self._late_imu_note(stamps)
         self._doubt_note(st)
         span_s = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
@@ -311,14 +314,22 @@ def _clock_summary(odo: LioOdometry, cfg: OdomConfig) -> dict | None:
             "estimates": odo.clock.estimates}
 
 
+NOT_LEVELLED = ("not levelled: the platform moved, and without the start-up window the IMU cannot tell its "
+                "acceleration from gravity; the trajectory is in the first scan's base frame")
+
+
 def _start_summary(odo: LioOdometry, with_imu: bool) -> dict:
     """Which start happened, after how many LiDAR-only scans, and the initial velocity (output world frame)."""
     b = odo.start
     if b is None:
+        level = odo.level_source()
         reason = ("LiDAR only (no IMU in this run): level start at the origin" if not with_imu else
                   "the IMU state never started (the log is shorter than the start-up window or the IMU never "
-                  "covered it): LiDAR-only scans, levelled by the mean specific force")
-        return {"kind": "lidar-only", "static": None, "scans": 0, "initial_velocity_mps": None, "reason": reason}
+                  "covered it): LiDAR-only scans, " + (
+                      "levelled by the mean specific force (LiDAR and IMU agree the platform stood still)"
+                      if level == "specific force" else NOT_LEVELLED))
+        return {"kind": "lidar-only", "static": None, "scans": 0, "initial_velocity_mps": None, "reason": reason,
+                "levelled_by": level}
     v = odo.output_alignment()[:3, :3] @ b.v_world
     return {"kind": "standing" if b.static else "moving", "static": b.static, "scans": b.scans,
             "initial_velocity_mps": [round(float(x), 4) for x in v], "speed_mps": round(float(np.linalg.norm(v)), 4),

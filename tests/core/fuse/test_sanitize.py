@@ -99,3 +99,23 @@ def test_the_default_wheel_speed_sigma_grows_with_the_speed():
     s0 = NOISE.wheel_speed_sigma_mps
     r1 = np.hypot(s0, 0.02 * np.hypot(1.0, 0.2))  # each component: a share of the speed (scale or angle errors)
     np.testing.assert_allclose(np.sqrt(out.velocity_var), [[s0] * 3, [r1] * 3, [np.hypot(s0, 0.2)] * 3])
+
+
+def test_imu_and_wheel_values_beyond_any_sensor_are_rejected_as_out_of_range():
+    n = 5
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000
+    gyro = np.tile([0.01, 0.02, 0.03], (n, 1))
+    acc = np.tile([0.0, 0.0, 9.81], (n, 1))
+    acc[1, 0] = 1e300  # what `lio info --check` calls bad: dropped, not squared into an overflow
+    gyro[3, 2] = -2e3
+    rep = SourceReport()
+    with np.errstate(all="raise"):  # no RuntimeWarning on the way
+        out = clean_imu(ImuSeries(stamps, gyro, acc, np.eye(4)), NOISE, rep)
+    np.testing.assert_array_equal(out.stamps_ns, stamps[[0, 2, 4]])
+    assert rep.rejected == {"out_of_range": 2}
+    vel = np.array([[1.0, 0, 0], [1e300, 0, 0], [1.0, 0, 0]])
+    rep = SourceReport()
+    with np.errstate(all="raise"):
+        out = clean_wheel(WheelSeries(stamps[:3], vel, np.array([0.1, 0.1, 5e3])), {"speed"}, NOISE, rep)
+    np.testing.assert_array_equal(out.stamps_ns, stamps[[0, 2]])  # the yaw rate is not used: row 2 stays
+    assert rep.rejected == {"out_of_range": 1}

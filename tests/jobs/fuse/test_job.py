@@ -278,3 +278,31 @@ def test_a_start_in_a_turn_is_level_with_odometry_poses_or_wheels(fuse_logs):
         up = run.trajectory.poses[0, :3, :3].T @ [0.0, 0.0, 1.0]
         assert up[2] > np.cos(np.radians(0.1))
         assert f"roll, pitch and velocity aligned with the {source} over 41 poses" in run.metrics["start"]
+
+
+def test_imu_samples_beyond_any_imu_are_dropped_and_counted_or_refused_when_none_is_left(fuse_logs):
+    """accel x = 1e300 (what `lio info --check` calls bad): dropped and counted like NaN, without overflow
+    warnings; every sample so: the IMU alone cannot run (exit 2)."""
+    def some(topic, msgs):
+        if topic == "/imu":
+            for k in range(10, 60, 5):
+                msgs[k][1].linear_acceleration.x = 1e300
+        return msgs
+
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=2.0, edit=some)))
+    assert {k: v["count"] for k, v in run.metrics["sources"]["imu"]["rejected"].items()} == {"out_of_range": 10}
+    assert _errors(fuse_logs, run, 1.0, 0.5).max() < 2 * POS_TOL_M
+
+    def every(topic, msgs):
+        if topic == "/imu":
+            for m in msgs:
+                m[1].linear_acceleration.x = 1e300
+        return msgs
+
+    with pytest.raises(InputError) as err:
+        run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=2.0, wheel=None, edit=every)))
+    assert str(err.value) == ("the IMU has no usable sample (all NaN, out of range, all zero or duplicated) and "
+                              "there is no other motion source")
