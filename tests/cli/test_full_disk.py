@@ -53,7 +53,7 @@ def test_a_full_device_is_one_line_and_leaves_nothing(log, full, capsys, argv, o
 def test_a_batch_records_the_full_device_as_a_failed_run_and_writes_its_summary(log, full, capsys):
     assert main(["batch", "deskew", str(log), "-O", str(full / "b"), "--jobs", "1", "-q"]) == 1
     assert capsys.readouterr().err == (f"lio: warning: walk: processing: no space left on device: "
-                                       f"{full / 'b' / 'walk' / 'deskewed.bag'}\n")
+                                       f"{full / 'b' / 'walk' / 'deskew.bag'}\n")
     summary = json.loads((full / "b" / "summary.json").read_text())
     run = summary["runs"][0]
     assert (run["status"], run["exit_class"], run["exit_code"]) == ("failed", "processing", 1)

@@ -90,7 +90,7 @@ def test_an_all_zero_imu_is_ignored_beside_another_motion_source_and_refused_alo
     wheel = WheelSeries(st.copy(), np.tile([1.0, np.nan, np.nan], (11, 1)), np.full(11, 0.1))
     prep = prepare(FuseInputs(imu=zero, wheel=wheel), FuseOptions())
     assert prep.use == {"wheel": {"speed", "yaw_rate"}}
-    assert prep.notes == ["IMU ignored: no usable sample (all NaN, all zero or duplicated)"]
+    assert prep.notes == ["IMU ignored: no usable sample (all NaN, out of range, all zero or duplicated)"]
     assert prep.reports["imu"].rejected == {"all_zero": 11}
     with pytest.raises(InputError) as err:
         prepare(FuseInputs(imu=zero), FuseOptions())
