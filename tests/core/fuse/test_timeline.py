@@ -94,8 +94,8 @@ def test_an_all_zero_imu_is_ignored_beside_another_motion_source_and_refused_alo
     assert prep.reports["imu"].rejected == {"all_zero": 11}
     with pytest.raises(InputError) as err:
         prepare(FuseInputs(imu=zero), FuseOptions())
-    assert str(err.value) == ("the IMU has no usable sample (all NaN, all zero or duplicated) and there is no "
-                              "other motion source")
+    assert str(err.value) == ("the IMU has no usable sample (all NaN, out of range, all zero or duplicated) and "
+                              "there is no other motion source")
 
 
 def test_snap_moves_stamps_onto_the_nearest_grid_stamp_within_tolerance():
