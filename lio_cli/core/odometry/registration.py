@@ -6,6 +6,8 @@ threshold estimator, voxelisation).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from kiss_icp.config import KISSConfig
 from kiss_icp.mapping import VoxelHashMap
@@ -19,6 +21,7 @@ _IMU_PRIOR_ITERATIONS = 20
 _KISS_ITERATIONS = 500
 _SOURCE_FACTOR = 2.5  # sparser registered points than kiss-icp's 1.5: faster for a little accuracy
 _PLANAR_SOURCE_FACTOR = 1.5  # kiss-icp's own default, for 2D scans
+_MAX_SOURCE_POINTS = 600  # ICP costs points x iterations: a dense scan's registered points are thinned to about this
 
 
 class ScanRegistration:
@@ -62,9 +65,14 @@ class ScanRegistration:
         return self.map.empty()
 
     def downsample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(points kept for the map, sparser points registered), as kiss-icp's double voxelisation."""
+        """(points kept for the map, sparser points registered), as kiss-icp's double voxelisation; a scan whose
+        registered points pass ``_MAX_SOURCE_POINTS`` is thinned again with voxels grown by the square root of the
+        excess (the points lie on surfaces: their count falls with the voxel's area)."""
         frame = voxel_down_sample(points, self.voxel_size_m * 0.5)
-        source = voxel_down_sample(frame, self.voxel_size_m * self.source_factor)
+        voxel = self.voxel_size_m * self.source_factor
+        source = voxel_down_sample(frame, voxel)
+        if len(source) > _MAX_SOURCE_POINTS:
+            source = voxel_down_sample(frame, voxel * math.sqrt(len(source) / _MAX_SOURCE_POINTS))
         return frame, source
 
     def register(self, source: np.ndarray, guess: np.ndarray, adaptive: bool = False,
