@@ -68,7 +68,7 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
     st.capped_icp_scans += int(cap is not None)
     measured = o.reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m,
                               iterations=cap)
-    st.times_s["register"] += time.perf_counter() - tick
+    st.registered(time.perf_counter() - tick)
     # geometry and guards
     dirs_b = degeneracy(o, points, nav.state.R)
     if planar:

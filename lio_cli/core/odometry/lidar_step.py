@@ -55,7 +55,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
         tick = time.perf_counter()
         frame, source = o.reg.downsample(points)
         measured = o.reg.register(source, guess, adaptive=True, gate_m=GYRO_PRIOR_GATE_M if gyro_primed else None)
-    st.times_s["register"] += time.perf_counter() - tick
+    st.registered(time.perf_counter() - tick)
     if planar:
         measured = project_to_se2(measured)
     failed = not o.reg.empty and (not np.isfinite(measured).all()

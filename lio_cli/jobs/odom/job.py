@@ -279,6 +279,7 @@ class _OdomRun:
             "final_accel_bias_mps2": odo.state.ba.tolist() if odo.state is not None else None,
             "time_s": {"read_decode": round(self.t_read, 4), **{k: round(v, 4) for k, v in st.times_s.items()},
                        "total": round(wall, 4)},
+            "time_per_scan_ms": st.register_ms(),
             "trajectory_span_s": span_s,
             "real_time_factor": (span_s / wall) if wall > 0 else None,
             "notes": self.notes,
