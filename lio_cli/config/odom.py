@@ -77,7 +77,7 @@ class FusionConfig(Strict):
     degenerate_sigma_m: float = Field(2.0, gt=0, description="position noise along a degenerate direction")
     degeneracy_ratio: float = Field(0.025, gt=0, description="horizontal eigenvalue ratio below which a direction is degenerate")
     degeneracy_every: int = Field(2, ge=1, description="analyse the geometry every n-th scan, reuse it between")
-    degeneracy_every_clear: int = Field(2, ge=1, description=(
+    degeneracy_every_clear: int = Field(4, ge=1, description=(
         "analyse it every n-th scan (rounded up to a multiple of degeneracy_every) while the last analysis found "
         "the weakest direction 4x above degeneracy_ratio"))
     wheel_beta: float = Field(0.5, ge=0, le=1, description="complementary filter: weight of the wheel speed")
