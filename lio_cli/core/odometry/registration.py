@@ -21,7 +21,6 @@ _IMU_PRIOR_ITERATIONS = 20
 _KISS_ITERATIONS = 500
 _SOURCE_FACTOR = 2.5  # sparser registered points than kiss-icp's 1.5: faster for a little accuracy
 _PLANAR_SOURCE_FACTOR = 1.5  # kiss-icp's own default, for 2D scans
-_MAX_SOURCE_POINTS = 600  # ICP costs points x iterations: a dense scan's registered points are thinned to about this
 
 
 class ScanRegistration:
@@ -36,6 +35,7 @@ class ScanRegistration:
         self.voxel_size_m = voxel_size_m
         # a dense 3D scan keeps enough structure at 2.5 voxels; a 2D scan's few hundred beams do not
         self.source_factor = rc.source_voxel_factor or (_PLANAR_SOURCE_FACTOR if planar else _SOURCE_FACTOR)
+        self.max_source_points = rc.max_source_points
         kiss = KISSConfig()
         kiss.data.max_range = rc.max_range_m
         kiss.mapping.voxel_size = voxel_size_m
@@ -65,14 +65,15 @@ class ScanRegistration:
         return self.map.empty()
 
     def downsample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(points kept for the map, sparser points registered), as kiss-icp's double voxelisation; a scan whose
-        registered points pass ``_MAX_SOURCE_POINTS`` is thinned again with voxels grown by the square root of the
-        excess (the points lie on surfaces: their count falls with the voxel's area)."""
+        """(points kept for the map, sparser points registered), as kiss-icp's double voxelisation; with
+        ``max_source_points``, registered points past it are thinned again with voxels grown by the square root of
+        the excess (the points lie on surfaces: their count falls with the voxel's area)."""
         frame = voxel_down_sample(points, self.voxel_size_m * 0.5)
         voxel = self.voxel_size_m * self.source_factor
         source = voxel_down_sample(frame, voxel)
-        if len(source) > _MAX_SOURCE_POINTS:
-            source = voxel_down_sample(frame, voxel * math.sqrt(len(source) / _MAX_SOURCE_POINTS))
+        cap = self.max_source_points
+        if cap is not None and len(source) > cap:
+            source = voxel_down_sample(frame, voxel * math.sqrt(len(source) / cap))
         return frame, source
 
     def register(self, source: np.ndarray, guess: np.ndarray, adaptive: bool = False,
