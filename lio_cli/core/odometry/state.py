@@ -49,9 +49,10 @@ class OdomStats:
     doubted_scans: int = 0  # IMU-primed scans whose registration the IMU state could not explain: placed LiDAR-only
     recoveries: int = 0
     time_gaps: int = 0
+    # CPU seconds of the process per stage (all threads: kiss-icp's too), so that a loaded machine does not inflate them
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
                                                                "degeneracy": 0.0, "fuse": 0.0})
-    register_s: array = field(default_factory=lambda: array("d"))  # each registration's time (8 bytes a scan)
+    register_s: array = field(default_factory=lambda: array("d"))  # each registration's CPU time (8 bytes a scan)
 
     def counts(self) -> dict[str, int]:
         """Every counter (not the times), for metrics."""
