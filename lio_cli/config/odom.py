@@ -43,6 +43,9 @@ class RegistrationConfig(Strict):
     min_range_m: float = Field(0.5, ge=0, description="points closer to the LiDAR (the platform itself) are dropped")
     source_voxel_factor: Optional[float] = Field(
         None, gt=0, description="registration keeps one point per voxel_size x this; default 2.5 in 3D, 1.5 (kiss-icp's) for 2D scans")
+    max_source_points: Optional[int] = Field(
+        None, gt=0, le=MAX_POINTS, description="registered points of a scan, about: a denser scan is voxelised again (ICP costs "
+        "points x iterations; 600 halves a 32-128 beam car scan's ICP, at some accuracy); None: no limit")
     max_points_per_voxel: int = Field(5, gt=0, le=1000, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
         None, gt=0, le=MAX_ITERATIONS, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
@@ -77,7 +80,7 @@ class FusionConfig(Strict):
     degenerate_sigma_m: float = Field(2.0, gt=0, description="position noise along a degenerate direction")
     degeneracy_ratio: float = Field(0.025, gt=0, description="horizontal eigenvalue ratio below which a direction is degenerate")
     degeneracy_every: int = Field(2, ge=1, le=MAX_EVERY, description="analyse the geometry every n-th scan, reuse it between")
-    degeneracy_every_clear: int = Field(2, ge=1, le=MAX_EVERY, description=(
+    degeneracy_every_clear: int = Field(4, ge=1, le=MAX_EVERY, description=(
         "analyse it every n-th scan (rounded up to a multiple of degeneracy_every) while the last analysis found "
         "the weakest direction 4x above degeneracy_ratio"))
     wheel_beta: float = Field(0.5, ge=0, le=1, description="complementary filter: weight of the wheel speed")

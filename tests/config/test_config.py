@@ -136,7 +136,7 @@ def test_deskew_keeps_its_icp_caps_unless_told(tmp_path, text, caps):
     assert (rc.slow_rate_degps, OdomConfig().registration.slow_rate_degps) == (10.0, 5.0)
     assert (OdomConfig().registration.steady_iterations, OdomConfig().registration.slow_iterations) == (None, None)
     # and its sparser degeneracy analysis of clear scenes, also when the YAML names other fusion fields
-    assert (cfg.odom_config("imu").fusion.degeneracy_every_clear, OdomConfig().fusion.degeneracy_every_clear) == (8, 2)
+    assert (cfg.odom_config("imu").fusion.degeneracy_every_clear, OdomConfig().fusion.degeneracy_every_clear) == (8, 4)
     assert load_model(DeskewConfig, _dumped(tmp_path, cfg)).odometry == cfg.odometry  # the written config repeats it
 
 

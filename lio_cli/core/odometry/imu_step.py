@@ -26,7 +26,7 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
     and full iterations."""
     st, cfg, nav, track, planar = o.stats, o.cfg, o.nav, o.track, o.settings.planar
     rc = cfg.registration
-    tick = time.perf_counter()
+    tick = time.process_time()
     imu = o.imu_window(t_prev)
     cost_ns, hole_ns = imu_gap_ns(imu.stamps_ns, t_prev, t_ref)
     if cost_ns > MAX_IMU_GAP_NS:  # rates interpolated or held across it would prime the scan wrongly
@@ -39,7 +39,7 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
     nav.state = prop.state
     if cfg.use_wheel:
         wheel_update(nav.state, o.wheel, t_prev, t_ref, cfg.fusion, st)
-    st.times_s["propagate"] += time.perf_counter() - tick
+    st.times_s["propagate"] += time.process_time() - tick
     # a slowly turning scan may take its prediction unregistered (a bridge: full iterations)
     slow = bridge_gate_m is None and turning_slowly(imu, t_prev, t_ref, nav.state.bg, rc)
     if predicted_only(slow, rc.slow_register_every, track, o.health.doubt, o.degeneracy.clear_scene,
@@ -61,24 +61,24 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
         nav.state = saved  # the scan is skipped: keep the state where the last used scan left it
         return None
     # register from the prediction
-    tick = time.perf_counter()
+    tick = time.process_time()
     guess = prior_guess(o, t_prev, t_ref)
     frame, source = o.reg.downsample(points)
     cap = None if bridge_gate_m is not None else icp_cap(slow, rc, o.clock)
     st.capped_icp_scans += int(cap is not None)
     measured = o.reg.register(source, guess, adaptive=bridge_gate_m is not None, gate_m=bridge_gate_m,
                               iterations=cap)
-    st.times_s["register"] += time.perf_counter() - tick
+    st.registered(time.process_time() - tick)
     # geometry and guards
     dirs_b = degeneracy(o, points, nav.state.R)
     if planar:
         measured = project_to_se2(measured)
     if registration_failed(measured, guess, o.reg.empty, bridge_gate_m):
         return failed_registration(o, cloud, t_prev, t_ref, measured, guess, dirs_b)
-    tick = time.perf_counter()
+    tick = time.process_time()
     o.health.doubt, reason = implausible(nav.state, measured, dirs_b, cfg.fusion, o.health.doubt)
     if o.health.doubt:  # the innovation is not believable: follow the LiDAR, keep velocity, biases and gravity
-        st.times_s["fuse"] += time.perf_counter() - tick
+        st.times_s["fuse"] += time.process_time() - tick
         return doubted_scan(o, cloud, t_prev, t_ref, measured, guess, frame, dirs_b, reason, points)
     # correct the state
     pose = correct(nav.state, measured, dirs_b, dt_scan, cfg.fusion, o.ext.R_base_imu, planar)
@@ -87,7 +87,7 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
         nav.g_world = nav.state.g.copy()  # the latest gravity of a healthy state
         if cap is None:  # a capped registration leans on the IMU's timing: it cannot time it
             track_clock(o, t_ref, measured)
-    st.times_s["fuse"] += time.perf_counter() - tick
+    st.times_s["fuse"] += time.process_time() - tick
     o.health.lost = 0
     result = finish(o, t_ref, pose, frame, inv_pose(guess) @ measured, dirs_b, False, points)
     if reason is not None:

@@ -6,6 +6,8 @@ threshold estimator, voxelisation).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from kiss_icp.config import KISSConfig
 from kiss_icp.mapping import VoxelHashMap
@@ -33,6 +35,7 @@ class ScanRegistration:
         self.voxel_size_m = voxel_size_m
         # a dense 3D scan keeps enough structure at 2.5 voxels; a 2D scan's few hundred beams do not
         self.source_factor = rc.source_voxel_factor or (_PLANAR_SOURCE_FACTOR if planar else _SOURCE_FACTOR)
+        self.max_source_points = rc.max_source_points
         kiss = KISSConfig()
         kiss.data.max_range = rc.max_range_m
         kiss.mapping.voxel_size = voxel_size_m
@@ -62,9 +65,15 @@ class ScanRegistration:
         return self.map.empty()
 
     def downsample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(points kept for the map, sparser points registered), as kiss-icp's double voxelisation."""
+        """(points kept for the map, sparser points registered), as kiss-icp's double voxelisation; with
+        ``max_source_points``, registered points past it are thinned again with voxels grown by the square root of
+        the excess (the points lie on surfaces: their count falls with the voxel's area)."""
         frame = voxel_down_sample(points, self.voxel_size_m * 0.5)
-        source = voxel_down_sample(frame, self.voxel_size_m * self.source_factor)
+        voxel = self.voxel_size_m * self.source_factor
+        source = voxel_down_sample(frame, voxel)
+        cap = self.max_source_points
+        if cap is not None and len(source) > cap:
+            source = voxel_down_sample(frame, voxel * math.sqrt(len(source) / cap))
         return frame, source
 
     def register(self, source: np.ndarray, guess: np.ndarray, adaptive: bool = False,

@@ -42,9 +42,9 @@ def new_map(rc: RegistrationConfig, ranges_m: np.ndarray, *, imu_prior: bool, pl
 def prepare(o: OdomState, cloud: PointCloud, knots_ns, knot_poses, t_ref: int) -> np.ndarray | None:
     """De-skewed points in the base frame at ``t_ref`` within the range limits, or None if too few (counted)."""
     rc = o.cfg.registration
-    tick = time.perf_counter()
+    tick = time.process_time()
     points, rng, keep = points_in_range(cloud, knots_ns, knot_poses, t_ref, o.ext.T_base_lidar, rc)
-    o.stats.times_s["deskew"] += time.perf_counter() - tick
+    o.stats.times_s["deskew"] += time.process_time() - tick
     kept = int(np.count_nonzero(keep))
     if kept < rc.min_points:
         o.stats.skipped_few_points += 1
@@ -72,10 +72,10 @@ def scheduled_directions(schedule: DegeneracySchedule, points: np.ndarray, R_now
 
 def degeneracy(o: OdomState, points: np.ndarray, R_now: np.ndarray) -> list[np.ndarray]:
     """``scheduled_directions`` of the scan, timed."""
-    tick = time.perf_counter()
+    tick = time.process_time()
     dirs_b = scheduled_directions(o.degeneracy, points, R_now, o.track.last_pose, o.stats.used, o.reg.empty,
                                   o.settings.planar, o.cfg.fusion)
-    o.stats.times_s["degeneracy"] += time.perf_counter() - tick
+    o.stats.times_s["degeneracy"] += time.process_time() - tick
     return dirs_b
 
 

@@ -3,6 +3,7 @@ gaps, guards, the degeneracy schedule; and what a step returns (``ScanResult``) 
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -49,13 +50,27 @@ class OdomStats:
     doubted_scans: int = 0  # IMU-primed scans whose registration the IMU state could not explain: placed LiDAR-only
     recoveries: int = 0
     time_gaps: int = 0
+    # CPU seconds of the process per stage (all threads: kiss-icp's too), so that a loaded machine does not inflate them
     times_s: dict[str, float] = field(default_factory=lambda: {"propagate": 0.0, "deskew": 0.0, "register": 0.0,
                                                                "degeneracy": 0.0, "fuse": 0.0})
+    register_s: array = field(default_factory=lambda: array("d"))  # each registration's CPU time (8 bytes a scan)
 
     def counts(self) -> dict[str, int]:
         """Every counter (not the times), for metrics."""
-        counts = {k: v for k, v in vars(self).items() if k not in ("scans", "times_s")}
+        counts = {k: v for k, v in vars(self).items() if k not in ("scans", "times_s", "register_s")}
         return {"total": self.scans, **counts}
+
+    def registered(self, seconds: float) -> None:
+        """Count one registration's time (the register stage of one scan, a retry being another)."""
+        self.times_s["register"] += seconds
+        self.register_s.append(seconds)
+
+    def register_ms(self) -> dict[str, float | None]:
+        """Median and 90th percentile of the registrations' times, in ms (None before any)."""
+        if not self.register_s:
+            return {"register_median": None, "register_p90": None}
+        ms = np.frombuffer(self.register_s, dtype=np.float64) * 1000.0
+        return {"register_median": round(float(np.median(ms)), 3), "register_p90": round(float(np.percentile(ms, 90)), 3)}
 
 
 @dataclass(frozen=True)

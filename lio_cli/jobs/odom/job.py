@@ -166,9 +166,9 @@ class _OdomRun:
             applies, said = wheel_cal.verdict(self.inputs.wheel)
             self.notes.append(f"wheel odometry {self.inputs.wheel} {said}" if applies else said)
             wheel_cal = wheel_cal if applies else None
-        tick = time.perf_counter()
+        tick = time.process_time()
         for rec in self.stream:
-            self.t_read += time.perf_counter() - tick
+            self.t_read += time.process_time() - tick
             if self.odo is None and rec.kind == "lidar":
                 self._start(rec.data)
             if rec.kind == "imu":
@@ -185,7 +185,7 @@ class _OdomRun:
                 self.pending.append(rec.data)
             if self.odo is not None:
                 self._process_ready(rec.stamp_ns)
-            tick = time.perf_counter()
+            tick = time.process_time()
         if self.odo is None:
             raise InputError(f"{self.reader.path}: {self.inputs.lidar}: no scan with valid points in the log")
         self._process_ready(None)
@@ -295,6 +295,7 @@ class _OdomRun:
             "final_accel_bias_mps2": odo.state.ba.tolist() if odo.state is not None else None,
             "time_s": {"read_decode": round(self.t_read, 4), **{k: round(v, 4) for k, v in st.times_s.items()},
                        "total": round(wall, 4)},
+            "time_per_scan_ms": st.register_ms(),
             "trajectory_span_s": span_s,
             "real_time_factor": (span_s / wall) if wall > 0 else None,
             "notes": self.notes,

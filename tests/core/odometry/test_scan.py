@@ -48,9 +48,9 @@ def test_a_scan_is_recorded_on_the_track_and_old_wheel_records_dropped(make_stat
 
 
 def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(monkeypatch):
-    """lio odom (degeneracy_every_clear = degeneracy_every = 2) analyses every 2nd scan, and a scan registered
-    again (a failed registration retried LiDAR-only, or a doubted one) again, as before the sparser schedule;
-    deskew's clear-scene schedule (8) skips the scans between, but not a retried scan (its reuse would turn the
+    """lio odom analyses a clear scene every 4th scan (degeneracy_every_clear), and a scan registered again (a
+    failed registration retried LiDAR-only, or a doubted one) again; deskew's clear-scene schedule (8) skips
+    the scans between too, but not a retried scan (its reuse would turn the
     directions by the motion between scans)."""
     import lio_cli.core.odometry.scan as scan
     from lio_cli.config.deskew import DeskewConfig
@@ -65,7 +65,7 @@ def test_the_analysis_schedule_repeats_lio_odoms_and_reanalyses_a_retried_scan(m
         return Degeneracy([np.array([1.0, 0.0, 0.0])], 10 * CLEAR_MARGIN)  # clear by far
 
     monkeypatch.setattr(scan, "analyse_degeneracy", fake)
-    for cfg, expected in ((OdomConfig(), [0, 0, 2, 4, 6, 8, 10]),
+    for cfg, expected in ((OdomConfig(), [0, 0, 4, 8]),
                           (DeskewConfig().odom_config("imu"), [0, 0, 8])):
         analysed.clear()
         schedule = DegeneracySchedule()

@@ -93,3 +93,14 @@ def test_an_event_names_the_scan_and_the_stamp_before_it(make_state):
     event = o.event("time gap", "why")
     assert o.events == [{"kind": "time gap", "scan": 7, "after_stamp_ns": 3 * NS, "reason": "why"}]
     assert event is o.events[0]
+
+
+def test_registration_times_give_their_median_and_90th_percentile_in_ms():
+    from lio_cli.core.odometry.state import OdomStats
+    stats = OdomStats()
+    assert stats.register_ms() == {"register_median": None, "register_p90": None}
+    for s in (0.004, 0.002, 0.003, 0.010, 0.001):
+        stats.registered(s)
+    assert stats.register_ms() == {"register_median": 3.0, "register_p90": 7.6}
+    assert abs(stats.times_s["register"] - 0.020) < EXACT
+    assert "register_s" not in stats.counts()  # the counters only
