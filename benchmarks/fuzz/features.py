@@ -166,7 +166,7 @@ def plan_for(target: str, rng: np.random.Generator, bases: dict, tin: Path, out:
     # map: odom --map --plot (--viz-save) or deskew --map, on a mutated log, hostile voxel sizes and paths
     name = pick([b for b in bases if b != "drive_gps"])
     log, desc = _mutated_log(name, bases, tin, rng, cache)
-    ext = pick([".ply", ".pcd", ".ply", ".pcd", ".xyz", ""])
+    ext = pick([".ply", ".pcd"] * 4 + [".xyz", ""])
     voxel = ["--map-voxel", pick(["0", "-1", "nan", "1e-6", "1e300", "0.05"])] if rng.random() < 0.3 else []
     mp = str(out / f"m{ext}") if rng.random() > 0.05 else str(log)
     desc += f"; --map m{ext} {' '.join(voxel)}".rstrip()

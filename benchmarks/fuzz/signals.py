@@ -291,7 +291,7 @@ def run_cases(args, bases: dict[str, Path]) -> list[dict]:
         z = np.array([float(ln.split()[3]) for ln in (work / "short_odom.tum").read_text().splitlines()])
         if np.abs(z - z[0]).max() >= 0.03:
             cats.append(f"climbs {np.abs(z - z[0]).max():.3f} m")
-        if json.loads((work / "short_odom.metrics.json").read_text())["start"].get("levelled_by") != "none":
+        if json.loads((work / "short_odom.odom.metrics.json").read_text())["start"].get("levelled_by") != "none":
             cats.append("levelled by the specific force")
     case("odom of a 0.45 s drive off", cats, res.stderr)
     return results
