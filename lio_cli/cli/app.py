@@ -161,6 +161,7 @@ def _main_guarded(args: list[str]) -> int:
             where = getattr(err, "filename", None) or "the output's device"
             err_console.print(f"lio: error: no space left on device: {where}", markup=False)
             return 1
+        take_back()  # a bug's run leaves nothing half-done behind either
         err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
         return 1
     if rc == 130:  # typer turns Ctrl-C inside a command into a return value of 130

@@ -136,3 +136,17 @@ def test_a_sigterm_after_every_picture_is_written_takes_them_back(files, tmp_pat
     assert main(["plot", str(files[0]), "-o", str(out)]) == 143
     assert capsys.readouterr().err.splitlines() == ["lio: terminated; nothing half-written was left behind"]
     assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]  # a folder lio did not make stays, with its files
+
+
+def test_an_internal_error_after_the_pictures_takes_them_back(files, tmp_path, capsys, monkeypatch):
+    from lio_cli.cli import plot
+
+    def bug(line, quiet=False):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(plot, "note", bug)
+    out = tmp_path / "plots"
+    assert main(["plot", str(files[0]), "-o", str(out)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        "lio: internal error: RuntimeError: a bug (run with --debug for the traceback)"]
+    assert not out.exists()
