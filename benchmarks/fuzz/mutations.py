@@ -348,9 +348,9 @@ def m_navsatfix(c: Case) -> str:
     i = c.pick("NavSatFix")
     msg = c.edit(i)
     key, _, val = what.partition(" ")
-    v = {"NaN": float("nan"), "1e300": 1e300, "-1e300": -1e300, "91": 91.0, "negative": -4.0, "7": 7}[val]
+    v = {"NaN": float("nan"), "1e300": 1e300, "-1e300": -1e300, "91": 91.0, "negative": -4.0, "type 7": 7}[val]
     if key == "covariance":
-        if val == "7":
+        if val == "type 7":
             msg.position_covariance_type = 7
         else:
             cov = np.asarray(msg.position_covariance, dtype=np.float64).copy()
