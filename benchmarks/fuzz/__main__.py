@@ -10,6 +10,9 @@ input, more than one line on stderr with exit 2 (warnings aside), NaN in a writt
 than --slow-s seconds or --max-rss-mb of memory; ``info --check`` passing a log with a value it must report
 (a hostile sensor stamp, a non-finite or absurd IMU sample or wheel speed, a finite but absurd point
 time) is counted as ``check missed``. Trials are deterministic per seed (trial i only depends on --seed and i).
+Part of the trials aim at this round's features instead (``features.py``, --targets): ``lio plot`` on hostile
+trajectory files, ``odom --map --plot --viz-save`` and ``deskew --map``, ``calibrate`` on a 6 s drive with GPS,
+``fuse`` (``--smooth``, every estimator) on mutated NavSatFix messages, and ``lio config``.
 
     python benchmarks/fuzz --trials 300 --seed 0 --jobs 2 --out /tmp/lio-fuzz
 

@@ -1,7 +1,8 @@
 """Signals and the issue-32 cases for the fuzz harness (``--mode signals``).
 
 A signal trial runs one command (info --check, odom, deskew, calibrate, fuse, evaluate, batch on local
-processes or on a local Dask cluster) on an unmutated base log in its own process group and sends SIGINT or
+processes or on a local Dask cluster; odom --map --plot --viz-save, deskew --map, plot of four sources aligned
+by sim3, fuse --smooth --plot --cov of the GPS drive, calibrate of that drive, config) on an unmutated base log in its own process group and sends SIGINT or
 SIGTERM to the group at a drawn moment (start-up included). The run must end within --timeout of the signal
 with 130/143 and one line, or (finished first) as it would have; it fails on a traceback, an internal error, a
 hang, more than one stderr line when interrupted, a partial output (a temporary file or partial folder, or an
