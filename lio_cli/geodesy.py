@@ -57,6 +57,9 @@ def rotation_enu_ecef(lat_deg: float, lon_deg: float) -> np.ndarray:
     return np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])
 
 
+ALTITUDE_RANGE_M = (-20_000.0, 1_000_000.0)  # below any ocean floor, above any receiver short of an orbit
+
+
 def check_geodetic(lat_deg: float, lon_deg: float, alt_m: float) -> str | None:
     """Why (lat, lon, alt) is not a usable geodetic position, or None when it is."""
     values = (lat_deg, lon_deg, alt_m)
@@ -66,6 +69,8 @@ def check_geodetic(lat_deg: float, lon_deg: float, alt_m: float) -> str | None:
         return f"latitude {lat_deg:g} outside -90..90 deg"
     if abs(lon_deg) > 180.0:
         return f"longitude {lon_deg:g} outside -180..180 deg"
+    if not ALTITUDE_RANGE_M[0] <= alt_m <= ALTITUDE_RANGE_M[1]:
+        return f"altitude {alt_m:g} m outside {ALTITUDE_RANGE_M[0]:g}..{ALTITUDE_RANGE_M[1]:g} m"
     return None
 
 

@@ -88,3 +88,6 @@ def test_check_geodetic_says_what_is_wrong():
     assert check_geodetic(48.0, 11.0, float("inf")) == "NaN or infinite coordinate"
     assert check_geodetic(91.0, 11.0, 0.0) == "latitude 91 outside -90..90 deg"
     assert check_geodetic(48.0, -181.5, 0.0) == "longitude -181.5 outside -180..180 deg"
+    assert check_geodetic(48.0, 11.0, -1e300) == "altitude -1e+300 m outside -20000..1e+06 m"
+    assert check_geodetic(48.0, 11.0, 35_786_000.0) == "altitude 3.5786e+07 m outside -20000..1e+06 m"
+    assert check_geodetic(31.5, 35.4, -430.0) is None and check_geodetic(27.99, 86.93, 8849.0) is None

@@ -10,6 +10,9 @@ input, more than one line on stderr with exit 2 (warnings aside), NaN in a writt
 than --slow-s seconds or --max-rss-mb of memory; ``info --check`` passing a log with a value it must report
 (a hostile sensor stamp, a non-finite or absurd IMU sample or wheel speed, a finite but absurd point
 time) is counted as ``check missed``. Trials are deterministic per seed (trial i only depends on --seed and i).
+Part of the trials aim at this round's features instead (``features.py``, --targets): ``lio plot`` on hostile
+trajectory files, ``odom --map --plot --viz-save`` and ``deskew --map``, ``calibrate`` on a 6 s drive with GPS,
+``fuse`` (``--smooth``, every estimator) on mutated NavSatFix messages, and ``lio config``.
 
     python benchmarks/fuzz --trials 300 --seed 0 --jobs 2 --out /tmp/lio-fuzz
 
@@ -36,12 +39,15 @@ from pathlib import Path
 
 sys.path[:0] = [str(Path(__file__).resolve().parents[2])]  # the checkout this harness lives in
 
-from runner import CATEGORIES, run_trial, simulate_bases  # noqa: E402
+from features import TARGETS, run_any_trial  # noqa: E402
+from runner import CATEGORIES, simulate_bases  # noqa: E402
 from signals import COMMANDS, run_cases, run_signal_trial  # noqa: E402
 
 
 def summarise(results: list[dict]) -> tuple[str, str]:
-    cmds = ["info --check", "odom", "evaluate"]
+    order = ["info --check", "odom", "evaluate", "odom --map", "deskew --map", "plot", "calibrate", "fuse", "config"]
+    seen = {run["command"] for r in results for run in r["runs"]}
+    cmds = [c for c in order if c in seen] + sorted(seen - set(order))
     rows = {c: Counter() for c in cmds}
     for r in results:
         for run in r["runs"]:
@@ -76,7 +82,7 @@ def summarise(results: list[dict]) -> tuple[str, str]:
 def _family(desc: str) -> str:
     for key in ("bytes flipped", "truncated", "header stamp", "record time", "samples dropped", "PointField",
                 "per-point", "xyz", "/tf_static", "scan message", "frame_id", "wheel odometry", "ground truth",
-                "IMU", "dropped", "twice", "swapped", "cloud message"):
+                "IMU", "GPS", "trajectory", "config", "unmutated", "dropped", "twice", "swapped", "cloud message"):
         if key in desc:
             return {"cloud message": "cloud layout", "twice": "structure", "swapped": "structure",
                     "dropped": "structure"}.get(key, key)
@@ -96,6 +102,9 @@ def main() -> int:
     ap.add_argument("--max-as-mb", type=int, default=3072, help="address-space cap of each lio run (RLIMIT_AS)")
     ap.add_argument("--pywarnings", help="PYTHONWARNINGS for the lio runs (e.g. 'default' shows ResourceWarning); "
                     "unset by default, as a user runs lio")
+    ap.add_argument("--targets", nargs="+", choices=list(TARGETS), default=list(TARGETS),
+                    help="what trials aim at: log (info/odom/evaluate), plot, map (odom/deskew --map), calibrate, "
+                    "gps (fuse on mutated NavSatFix), config")
     ap.add_argument("--keep-all", action="store_true", help="keep passing trials' folders too")
     ap.add_argument("--mode", choices=["mutations", "signals"], default="mutations",
                     help="mutated logs (default), or signals to every command plus the issue-32 cases")
@@ -108,7 +117,7 @@ def main() -> int:
         return signals_main(args, bases, t0)
     trials = args.only if args.only else list(range(args.trials))
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        results = list(pool.map(run_trial, trials, [args] * len(trials), [bases] * len(trials)))
+        results = list(pool.map(run_any_trial, trials, [args] * len(trials), [bases] * len(trials)))
     failing = [r for r in results if r.get("error") or any(run["categories"] for run in r["runs"])]
     for r in results:
         if r not in failing and not args.keep_all:

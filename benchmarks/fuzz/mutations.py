@@ -329,6 +329,38 @@ def m_tf_static(c: Case) -> str:
     return f"/tf_static: {what} ({new.header.frame_id}->{new.child_frame_id})"
 
 
+# ---------------------------------------------------------------- GPS
+
+def m_navsatfix(c: Case) -> str:
+    what = c.choice(["latitude NaN", "longitude 1e300", "altitude -1e300", "latitude 91", "status -1 everywhere",
+                     "covariance negative", "covariance NaN", "covariance 1e300", "covariance type 7",
+                     "every fix the same stamp", "fixes reversed"])
+    idx = c.indices("NavSatFix")
+    if what in ("status -1 everywhere", "every fix the same stamp", "fixes reversed"):
+        stamps = [stamp_ns(c.msgs[i][3]) for i in idx]
+        for k, i in enumerate(idx):
+            msg = c.edit(i)
+            if what.startswith("status"):
+                msg.status.status = -1
+            else:
+                set_stamp(msg, stamps[0] if what.startswith("every") else stamps[-1 - k])
+        return f"GPS: {what}"
+    i = c.pick("NavSatFix")
+    msg = c.edit(i)
+    key, _, val = what.partition(" ")
+    v = {"NaN": float("nan"), "1e300": 1e300, "-1e300": -1e300, "91": 91.0, "negative": -4.0, "type 7": 7}[val]
+    if key == "covariance":
+        if val == "type 7":
+            msg.position_covariance_type = 7
+        else:
+            cov = np.asarray(msg.position_covariance, dtype=np.float64).copy()
+            cov[[0, 4, 8]] = v
+            msg.position_covariance = cov
+    else:
+        setattr(msg, key, v)
+    return f"GPS message {i}: {what}"
+
+
 # ---------------------------------------------------------------- structure
 
 def m_structure(c: Case) -> str:
@@ -360,6 +392,7 @@ FIELD_MUTATIONS = {  # name -> (function, message kinds it needs)
     "laserscan": (m_laserscan, ("LaserScan",)),
     "frame_id": (m_frame_id, ("Imu",)),
     "tf_static": (m_tf_static, ("TFMessage",)),
+    "navsatfix": (m_navsatfix, ("NavSatFix",)),
     "structure": (m_structure, ()),
 }
 

@@ -28,6 +28,7 @@ BASES = [
     ("corridor_ros1", "corridor", "ros1", "corridor.bag", ["--columns", "180", "--time-convention", "hesai"]),
     ("corridor_ros2", "corridor", "ros2", "corridor_ros2", ["--columns", "180", "--header-stamp", "end"]),
     ("planar_mcap", "planar", "mcap", "planar.mcap", []),
+    ("drive_gps", "drive", "ros1", "drive_gps.bag", ["--columns", "180", "--gps", "--duration", "6"]),
 ]
 DURATION_S = "2.5"
 CATEGORIES = ["traceback", "internal error", "timeout", "signal", "warning text", "leftover file",

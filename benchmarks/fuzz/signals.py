@@ -1,7 +1,8 @@
 """Signals and the issue-32 cases for the fuzz harness (``--mode signals``).
 
 A signal trial runs one command (info --check, odom, deskew, calibrate, fuse, evaluate, batch on local
-processes or on a local Dask cluster) on an unmutated base log in its own process group and sends SIGINT or
+processes or on a local Dask cluster; odom --map --plot --viz-save, deskew --map, plot of four sources aligned
+by sim3, fuse --smooth --plot --cov of the GPS drive, calibrate of that drive, config) on an unmutated base log in its own process group and sends SIGINT or
 SIGTERM to the group at a drawn moment (start-up included). The run must end within --timeout of the signal
 with 130/143 and one line, or (finished first) as it would have; it fails on a traceback, an internal error, a
 hang, more than one stderr line when interrupted, a partial output (a temporary file or partial folder, or an
@@ -30,24 +31,42 @@ from runner import _env, lio_command, tree_hash
 ROOT = Path(__file__).resolve().parents[2]
 MOMENTS_S = (0.1, 0.6, 1.5, 3.0, 5.0)  # after the start: interpreter start-up, imports, reading, running
 SIGNALS = {"SIGINT": (signal.SIGINT, 130, "interrupted"), "SIGTERM": (signal.SIGTERM, 143, "terminated")}
-COMMANDS = ("info", "odom", "deskew", "calibrate", "fuse", "evaluate", "batch", "batch-dask")
+COMMANDS = ("info", "odom", "deskew", "calibrate", "fuse", "evaluate", "batch", "batch-dask", "odom --map",
+            "deskew --map", "plot", "fuse --smooth gps", "calibrate drive", "config")
 SIGNALS_BY_CODE = {130: signal.SIGINT, 143: signal.SIGTERM}
 TEMP_MARKS = (".tmp", ".partial-", ".probe", ".lio-batch.lock")
 
 
-def command_argv(name: str, log: Path, log2: Path, out: Path) -> tuple[list[str], set[str]]:
+def command_argv(name: str, log: Path, log2: Path, out: Path, gps: Path) -> tuple[list[str], set[str]]:
     """(lio arguments, the files a finished run may leave in ``out``)."""
     gt = log.with_name(log.name.split(".")[0] + ".gt.tum")
     if name == "info":
         return ["info", "--check", str(log)], set()
     if name == "odom":
-        return ["odom", str(log), "-o", str(out / "o.tum")], {"o.tum", "o.metrics.json", "o.config.yaml"}
+        return ["odom", str(log), "-o", str(out / "o.tum")], {"o.tum", "o.odom.metrics.json", "o.odom.config.yaml"}
+    if name == "odom --map":
+        return (["odom", str(log), "-o", str(out / "o.tum"), "--map", str(out / "m.ply"), "--plot", str(out / "p"),
+                 "--viz-save", str(out / "v.rrd")],
+                {"o.tum", "o.odom.metrics.json", "o.odom.config.yaml", "m.ply", "m.png", "p", "v.rrd"})
     if name == "deskew":
-        return ["deskew", str(log), str(out / "d.bag")], {"d.bag", "d.metrics.json", "d.config.yaml"}
-    if name == "calibrate":
-        return ["calibrate", str(log), "-o", str(out / "c.yaml")], {"c.yaml", "c.metrics.json", "c.config.yaml"}
+        return ["deskew", str(log), str(out / "d.bag")], {"d.bag", "d.deskew.metrics.json", "d.deskew.config.yaml"}
+    if name == "deskew --map":
+        return (["deskew", str(log), str(out / "d.bag"), "--map", str(out / "m.pcd")],
+                {"d.bag", "d.deskew.metrics.json", "d.deskew.config.yaml", "m.pcd", "m.png"})
+    if name in ("calibrate", "calibrate drive"):
+        return (["calibrate", str(gps if name == "calibrate drive" else log), "-o", str(out / "c.yaml")],
+                {"c.yaml", "c.calib.metrics.json", "c.calib.config.yaml"})
     if name == "fuse":
-        return ["fuse", str(log), "-o", str(out / "f.tum")], {"f.tum", "f.metrics.json", "f.config.yaml"}
+        return ["fuse", str(log), "-o", str(out / "f.tum")], {"f.tum", "f.fuse.metrics.json", "f.fuse.config.yaml"}
+    if name == "fuse --smooth gps":
+        return (["fuse", str(gps), "-o", str(out / "f.tum"), "--smooth", "--plot", str(out / "p"), "--cov",
+                 str(out / "f.cov")], {"f.tum", "f.fuse.metrics.json", "f.fuse.config.yaml", "p", "f.cov"})
+    if name == "plot":
+        gps_gt = gps.with_name(gps.name.split(".")[0] + ".gt.tum")
+        return (["plot", str(gt), f"{log}:/ground_truth", str(gps_gt), f"{gps}:/gps/fix", "--align", "sim3", "-o",
+                 str(out / "p")], {"p"})
+    if name == "config":
+        return ["config", "fuse", "-o", str(out / "c.yaml")], {"c.yaml"}
     if name == "evaluate":
         return ["evaluate", f"{log}:/ground_truth", str(gt), "--csv", str(out / "e.csv")], {"e.csv"}
     where = ["--dask", "local", "--workers", "2"] if name == "batch-dask" else ["--jobs", "2"]
@@ -137,8 +156,8 @@ def run_signal_trial(trial: int, args, bases: dict[str, Path]) -> dict:
     tdir = args.out / "trials" / f"s{trial:04d}"
     subprocess.run(["rm", "-rf", str(tdir)], check=False)
     (tdir / "out").mkdir(parents=True)
-    argv, allowed = command_argv(name, log, log2, tdir / "out")
-    before = {p: tree_hash(p) for p in (log, log2)}
+    argv, allowed = command_argv(name, log, log2, tdir / "out", bases["drive_gps"])
+    before = {p: tree_hash(p) for p in (log, log2, bases["drive_gps"])}
     sig, code_want, word = SIGNALS[sig_name]
     run = run_signalled(argv, tdir / "out", delay, sig, args.timeout)
     cats = classify_signalled(run, tdir / "out", allowed, code_want, word)
@@ -273,7 +292,7 @@ def run_cases(args, bases: dict[str, Path]) -> list[dict]:
         z = np.array([float(ln.split()[3]) for ln in (work / "short_odom.tum").read_text().splitlines()])
         if np.abs(z - z[0]).max() >= 0.03:
             cats.append(f"climbs {np.abs(z - z[0]).max():.3f} m")
-        if json.loads((work / "short_odom.metrics.json").read_text())["start"].get("levelled_by") != "none":
+        if json.loads((work / "short_odom.odom.metrics.json").read_text())["start"].get("levelled_by") != "none":
             cats.append("levelled by the specific force")
     case("odom of a 0.45 s drive off", cats, res.stderr)
     return results

@@ -17,7 +17,7 @@ except ImportError:  # pragma: no cover - depends on the installed typer
 
 from .. import __version__
 from ..errors import LioError
-from ..io.files.atomic import is_no_space
+from ..io.files.atomic import is_no_space, keep_count, take_back
 from ..gc_pause import freeze_start_up
 from .common import FLAG, RUN_PANEL, LioGroup, err_console
 
@@ -100,6 +100,7 @@ def _on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signatu
 
 
 def _interrupted(what: str, code: int) -> int:
+    take_back()  # the outputs this run had already put in place: an interrupted run leaves none
     sys.stderr.write(f"lio: {what}; nothing half-written was left behind\n")  # no import on the way out
     sys.stderr.flush()
     return code
@@ -128,6 +129,8 @@ def _main_guarded(args: list[str]) -> int:
     try:
         # import only the command asked for: its dependencies (kiss-icp, scipy, matplotlib) are slow to load
         wanted = _command_in(args)
+        if wanted != "batch":  # a stopped batch keeps its finished runs
+            keep_count()
         if wanted in COMMANDS:
             register_commands([wanted])
         elif not (args and all(a in ("--version", "--debug") for a in args) and "--version" in args):
@@ -158,6 +161,7 @@ def _main_guarded(args: list[str]) -> int:
             where = getattr(err, "filename", None) or "the output's device"
             err_console.print(f"lio: error: no space left on device: {where}", markup=False)
             return 1
+        take_back()  # a bug's run leaves nothing half-done behind either
         err_console.print(f"lio: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", markup=False)
         return 1
     if rc == 130:  # typer turns Ctrl-C inside a command into a return value of 130

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import roll_pitch_yaw
+from ..io.files.atomic import make_folder
 from ..model.trajectory import Trajectory
 from .style import color, figure, save_png, short_label, stride
 
@@ -137,7 +138,7 @@ def write_trajectory_plots(tracks: Sequence[Trajectory], folder: Path, force: bo
     if not tracks:
         raise ValueError("no trajectory to draw")
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    make_folder(folder)
     return [save_png(FIGURES[name](tracks), folder / name, force) for name in PLOT_FILES]
 
 

@@ -107,3 +107,46 @@ def test_existing_pictures_need_force(files, tmp_path, capsys):
     assert main(["plot", str(a), "-o", str(tmp_path), "--force", "-q"]) == 0
     assert (tmp_path / "xyz.png").read_bytes()[:4] == b"\x89PNG"
     assert capsys.readouterr().err == ""
+
+
+def test_an_interrupt_between_pictures_leaves_neither_pictures_nor_the_folder(files, tmp_path, capsys, monkeypatch):
+    # the fuzz round of issue 32: Ctrl-C while drawing left the first PNGs in a folder lio had made
+    from lio_cli.plots import trajectories
+
+    def interrupted(tracks):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(trajectories.FIGURES, PLOT_FILES[-1], interrupted)
+    out = tmp_path / "plots"
+    assert main(["plot", str(files[0]), "-o", str(out)]) == 130
+    assert capsys.readouterr().err.splitlines() == ["lio: interrupted; nothing half-written was left behind"]
+    assert not out.exists()
+
+
+def test_a_sigterm_after_every_picture_is_written_takes_them_back(files, tmp_path, capsys, monkeypatch):
+    from lio_cli.cli import app, plot
+
+    def terminated(line, quiet=False):
+        raise app.Terminated
+
+    monkeypatch.setattr(plot, "note", terminated)
+    out = tmp_path / "plots"
+    out.mkdir()
+    (out / "mine.txt").write_text("not lio's\n")
+    assert main(["plot", str(files[0]), "-o", str(out)]) == 143
+    assert capsys.readouterr().err.splitlines() == ["lio: terminated; nothing half-written was left behind"]
+    assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]  # a folder lio did not make stays, with its files
+
+
+def test_an_internal_error_after_the_pictures_takes_them_back(files, tmp_path, capsys, monkeypatch):
+    from lio_cli.cli import plot
+
+    def bug(line, quiet=False):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(plot, "note", bug)
+    out = tmp_path / "plots"
+    assert main(["plot", str(files[0]), "-o", str(out)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        "lio: internal error: RuntimeError: a bug (run with --debug for the traceback)"]
+    assert not out.exists()

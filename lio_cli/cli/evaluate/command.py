@@ -15,7 +15,7 @@ from rich.table import Table
 
 from ...errors import ConfigError, ProcessingError
 from ...evaluation import ALIGN_MODES, RELATIONS, EvalOptions, EvalResult
-from ...io.files.atomic import write_text_atomic
+from ...io.files.atomic import make_folder, write_text_atomic
 from ...io.sensors.sources import split_source
 from ...jobs.evaluate import EvaluateJob, run_evaluate
 from ...io.files.trajectory import STAMP_UNITS_NS, parse_stamp_ns
@@ -233,7 +233,7 @@ def evaluate_cmd(
         from ...plots.evaluate import write_plots
         import json
 
-        plot.mkdir(exist_ok=True)
+        make_folder(plot)
         paths = write_plots(res.reference.positions, results, plot, force, ref_as_points=res.reference.position_only,
                             groups=group_stats)
         write_text_atomic(plot / "metrics.json", json.dumps(_jsonable(report), indent=2) + "\n", force)

@@ -65,6 +65,41 @@ def _refuse_input(out: Path, inp: Path) -> None:
                          "whatever the options: choose another output")
 
 
+_placed: list[tuple[Path, bool]] | None = None  # (output or folder made, is a made folder), while a run keeps count
+
+
+def keep_count() -> None:
+    """From now on remember every output put in place and every folder made, so ``take_back`` can remove them
+    (one CLI command; not a batch, whose finished runs stay when it is stopped)."""
+    global _placed
+    _placed = []
+
+
+def take_back() -> None:
+    """Remove what this run has put in place, newest first (a folder it made only once empty): an interrupted
+    run leaves nothing, not the first of its files."""
+    global _placed
+    placed, _placed = _placed or [], None
+    for path, made in reversed(placed):
+        try:
+            if made:
+                path.rmdir()
+            else:
+                remove_path(path)
+        except OSError:
+            pass
+
+
+def make_folder(path: Path) -> Path:
+    """``path`` as a folder (parents too); the ones made here count as outputs (``take_back``)."""
+    path = Path(path)
+    missing = [p for p in (path, *path.parents) if not p.exists()]
+    path.mkdir(parents=True, exist_ok=True)
+    if _placed is not None:
+        _placed.extend((p, True) for p in reversed(missing))
+    return path
+
+
 def temp_sibling(path: Path) -> Path:
     """A fresh unused path beside ``path`` (same filesystem, so the final rename is atomic)."""
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -75,6 +110,8 @@ def temp_sibling(path: Path) -> Path:
 
 def replace_path(tmp: Path, path: Path) -> None:
     """Move the finished ``tmp`` onto ``path`` (a folder replaces a folder)."""
+    if _placed is not None:
+        _placed.append((Path(path), False))
     if path.is_dir() and not path.is_symlink():
         old = temp_sibling(path)
         path.rename(old)

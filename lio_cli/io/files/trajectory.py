@@ -226,7 +226,8 @@ def read_tum(path: str | Path, stamp_unit: str = "s", text: str | None = None) -
         stamps = _stamps_ns(path, numbers, texts, stamp_unit)
         vals = _floats(path, numbers, [p[1:] for p in tokens])
     _check_finite(path, numbers, vals)
-    qn = np.linalg.norm(vals[:, 3:], axis=1)
+    with np.errstate(over="ignore"):  # a component of 1e300: its norm is inf, and refused below
+        qn = np.linalg.norm(vals[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(qn - 1.0) > QUAT_NORM_TOL)
     if len(bad):
         k = int(bad[0])

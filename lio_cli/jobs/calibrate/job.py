@@ -25,7 +25,7 @@ from ...errors import ConfigError, InputError
 from ...io.sensors.clocks import check_same_clock
 from ...io.messages.decode import IMU, LASERSCAN
 from ...io.logs.detect import input_paths
-from ...io.files.atomic import atomic_output, check_writable
+from ...io.files.atomic import atomic_output, check_writable, make_folder
 from ...io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs
 from ...io.logs.reader import open_log
 from ...io.sensors.tf import read_static_frames
@@ -319,7 +319,7 @@ def write_calibrate(result: CalibrateResult, out: Path | None, force: bool, kali
             tmp.write_text(kalibr_imu_yaml(result.allan, result.metrics["topics"]["imu"], result.allan.rate_hz))
         written.append(Path(kalibr))
     if plot_dir is not None:
-        Path(plot_dir).mkdir(parents=True, exist_ok=True)
+        make_folder(Path(plot_dir))
         with atomic_output(Path(plot_dir) / PLOT_NAME, force) as tmp:
             tmp.write_bytes(allan_plot_png(result.allan, f"Allan deviation: {Path(result.metrics['log']).name}"))
         written.append(Path(plot_dir) / PLOT_NAME)

@@ -17,7 +17,7 @@ from ...io.messages.decode import ODOMETRY
 from ...io.sensors.series import ImuColumns, MotionColumns
 from ...model.calibration import WheelCalibration
 from ...model.gps import GpsTrack
-from ...model.records import on_lidar_clock
+from ...model.records import MAX_TWIST_MPS, on_lidar_clock
 
 UNMEASURED_VAR = 1e3  # a variance this large says "not measured"
 UNIT_QUAT_TOL = 1e-2  # |q| - 1 of a quaternion that counts as a rotation
@@ -67,8 +67,8 @@ def twist_frame(cols: MotionColumns) -> tuple[str, str]:
     with np.errstate(invalid="ignore", divide="ignore"):
         v_fd = (p[2:] - p[:-2]) / dt[:, None]
     mid = slice(1, -1)
-    ok = unit_quaternions(q[mid]) & np.all(np.isfinite(v_fd), axis=1) & np.all(np.isfinite(v[mid]), axis=1) \
-        & (dt > 0) & (np.linalg.norm(np.nan_to_num(v_fd), axis=1) > FRAME_TEST_MIN_SPEED_MPS)
+    ok = unit_quaternions(q[mid]) & np.all(np.isfinite(v_fd), axis=1) & np.all(np.abs(v[mid]) <= MAX_TWIST_MPS, axis=1) \
+        & (np.abs(v_fd) <= MAX_TWIST_MPS).all(axis=1) & (dt > 0) & (np.linalg.norm(np.nan_to_num(v_fd), axis=1) > FRAME_TEST_MIN_SPEED_MPS)
     if np.count_nonzero(ok) < FRAME_TEST_MIN_SAMPLES:
         return "child", "REP 105 (the poses cannot tell: no valid orientation or too little motion)"
     qn = q[mid][ok] / np.linalg.norm(q[mid][ok], axis=1)[:, None]

@@ -12,7 +12,7 @@ import numpy as np
 
 from ...core.fuse import COVARIANCE_LAYOUT
 from ...errors import InputError
-from ...io.files.atomic import atomic_output, check_writable
+from ...io.files.atomic import atomic_output, check_writable, make_folder
 from ...io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 from ...io.files.trajectory import format_stamp, format_tum
 from ...plots.fuse import PLOT_FILES, write_plots
@@ -71,7 +71,7 @@ def write_fuse(run: FuseRun, out: Path | None, force: bool, cov: Path | None = N
         written.append(cov)
         run.metrics["covariance_file"] = str(cov)
     if plot is not None:
-        plot.mkdir(exist_ok=True)
+        make_folder(plot)
         written += write_plots(run, plot, force)
         run.metrics["plots"] = [str(p) for p in written[-len(PLOT_FILES):]]
     if out is not None:

@@ -140,3 +140,13 @@ def test_track_from_fixes_counts_bad_coordinates(make):
     assert len(track) == 2 and track.bad_coordinates == 2 and track.no_fix == 0
     assert track.summary()["dropped_bad_coordinates"] == 2
     np.testing.assert_allclose(track.enu_m[1], EnuFrame(48.0, 11.0, 500.0).to_enu(48.00001, 11.0, 500.0), atol=1e-9)
+
+
+def test_an_absurd_altitude_is_a_bad_coordinate_not_the_origin(make):
+    # the first fix at -1e300 m used to become the ENU origin, overflowing fuse and evaluate (fuzz, issue 32)
+    fixes = [decode_navsatfix(make.navsatfix(STAMP_NS + k, "gps", 48.0, 11.0, alt))
+             for k, alt in enumerate((-1e300, 500.0, 1e7, 501.0))]
+    assert fixes[0].invalid_reason == "altitude -1e+300 m outside -20000..1e+06 m"
+    track = track_from_fixes("/fix", fixes)
+    assert len(track) == 2 and track.bad_coordinates == 2 and track.origin == EnuFrame(48.0, 11.0, 500.0)
+    np.testing.assert_allclose(track.enu_m[1], [0.0, 0.0, 1.0], atol=1e-6)

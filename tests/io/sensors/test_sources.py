@@ -96,6 +96,18 @@ def test_tum_bad_lines_name_the_line(tmp_path: Path, text: str, message: str):
     assert str(err.value) == f"{tmp_path}/{message}"
 
 
+def test_a_quaternion_of_1e300_is_refused_without_a_warning(tmp_path: Path):
+    # fuzz, issue 32: numpy's overflow warning came before the one error line
+    import warnings
+
+    p = tmp_path / "t.tum"
+    p.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 1e300 0 0 1\n")
+    with warnings.catch_warnings(), pytest.raises(InputError) as err:
+        warnings.simplefilter("error")
+        read_tum(p)
+    assert str(err.value) == f"{p}:2: quaternion is not unit length (norm inf)"
+
+
 def test_kitti_poses_and_times(tmp_path: Path):
     poses = _poses(3, seed=2)
     p = tmp_path / "poses.txt"

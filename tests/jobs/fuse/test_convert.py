@@ -41,6 +41,18 @@ def test_twist_frame_from_the_poses():
     np.testing.assert_allclose(body, np.tile([1.0, 0.0, 0.0], (50, 1)), atol=1e-12)
 
 
+def test_a_twist_of_1e300_does_not_sway_the_frame_test_nor_overflow():
+    # fuzz, issue 32: one wheel twist of 1e300 overflowed the misfit's norm (a numpy RuntimeWarning on stderr)
+    import warnings
+
+    c = _odometry(parent=True)
+    c.linear_mps[10, 0] = 1e300
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frame, why = twist_frame(c)
+    assert frame == "parent" and "rotated into the base" in why
+
+
 def test_unmeasured_and_unfilled_components_are_nan():
     cov = np.zeros((50, 36))
     cov[:, 7] = 1e6  # lateral speed not measured (robot_localization's convention)
