@@ -41,10 +41,7 @@ def plot_top_view(ref_positions: np.ndarray, results: list[EvalResult], path: Pa
     mode = results[0].alignment.mode if results else "none"
     ax.set_title(f"Top view (estimates aligned: {mode})")
     ax.legend(loc="best")
-    try:
-        return save_tight(fig, path, force)
-    finally:
-        plt.close(fig)
+    return save_tight(fig, path, force)
 
 
 def plot_ape(results: list[EvalResult], path: Path, force: bool = False) -> Path:
@@ -68,10 +65,7 @@ def plot_ape(results: list[EvalResult], path: Path, force: bool = False) -> Path
         ax.legend(loc="upper left")
     ax_t.set_title(f"Absolute position error (alignment: {results[0].alignment.mode})")
     fig.tight_layout()
-    try:
-        return save_tight(fig, path, force)
-    finally:
-        plt.close(fig)
+    return save_tight(fig, path, force)
 
 
 def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = False) -> Path:
@@ -98,10 +92,7 @@ def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = Fals
     unit = "frame" + ("s" if o.delta != 1 else "") if o.delta_unit == "frames" else o.delta_unit
     fig.suptitle(f"Relative pose error over {o.delta:g} {unit}{' (all pairs)' if o.all_pairs else ''}", fontsize=14)
     fig.tight_layout()
-    try:
-        return save_tight(fig, path, force)
-    finally:
-        plt.close(fig)
+    return save_tight(fig, path, force)
 
 
 def plot_offsets(results: list[EvalResult], path: Path, force: bool = False) -> Path:
@@ -128,10 +119,7 @@ def plot_offsets(results: list[EvalResult], path: Path, force: bool = False) -> 
     ax_z.set_ylabel("aligned error / its minimum")
     ax_z.legend(loc="upper center")
     fig.tight_layout()
-    try:
-        return save_tight(fig, path, force)
-    finally:
-        plt.close(fig)
+    return save_tight(fig, path, force)
 
 
 _GROUP_PANELS = (("ape_trans_rmse", "APE translation rmse [m]"), ("rpe_trans_rmse", "RPE translation rmse [m]"),
@@ -158,10 +146,7 @@ def plot_groups(groups, results: list[EvalResult], path: Path, force: bool = Fal
         ax.set_ylim(bottom=0.0)
     fig.suptitle("Statistics over runs: runs (dots), mean +- std (squares)", fontsize=14)
     fig.tight_layout()
-    try:
-        return save_tight(fig, path, force)
-    finally:
-        plt.close(fig)
+    return save_tight(fig, path, force)
 
 
 PLOT_FILES = ("top_view.png", "ape.png", "rpe_histogram.png")

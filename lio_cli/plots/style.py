@@ -67,7 +67,13 @@ def pyplot():
 
 
 def save_tight(fig, path: Path, force: bool = False) -> Path:
-    """``fig`` as a PNG cropped to its content at ``path`` (atomically; an existing file only with ``force``)."""
-    with atomic_output(Path(path), force) as tmp:
-        fig.savefig(tmp, format="png", dpi=TIGHT_DPI, bbox_inches="tight")
+    """``fig`` (a pyplot figure, closed here) as a PNG cropped to its content at ``path`` (atomically; an existing
+    file only with ``force``)."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_output(Path(path), force) as tmp:
+            fig.savefig(tmp, format="png", dpi=TIGHT_DPI, bbox_inches="tight")
+    finally:
+        plt.close(fig)
     return path
