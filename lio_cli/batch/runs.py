@@ -16,6 +16,7 @@ import os
 import shutil
 import signal
 import socket
+import sys
 import threading
 import time
 import uuid
@@ -105,6 +106,7 @@ def pool_initializer(stop=None) -> None:
     _in_pool, _stop = True, stop
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.unraisablehook = _unraisable
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
@@ -117,6 +119,19 @@ def _raise_interrupt(signum, frame) -> None:  # noqa: ARG001 - signal handler si
     signal.signal(signal.SIGINT, _ignore)
     signal.signal(signal.SIGTERM, _ignore)
     raise KeyboardInterrupt
+
+
+INTERRUPT_AGAIN_S = 0.01  # a swallowed interrupt comes again this much later, outside the callback
+
+
+def _unraisable(hook_args) -> None:
+    """An interrupt raised where Python can only print it (an import's lock callback, a finaliser) interrupts the
+    run at its next step instead of printing 'Exception ignored in: ...' on the batch's terminal."""
+    if isinstance(hook_args.exc_value, KeyboardInterrupt):
+        signal.signal(signal.SIGALRM, _raise_interrupt)  # raised from the hook it would be swallowed again
+        signal.setitimer(signal.ITIMER_REAL, INTERRUPT_AGAIN_S)
+        return
+    sys.__unraisablehook__(hook_args)
 
 
 @contextmanager

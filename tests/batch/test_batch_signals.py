@@ -133,3 +133,37 @@ def test_a_signal_to_the_group_while_runs_are_under_way(sim, tmp_path, sig, code
     assert (rc, err) == (code, f"lio: {word}; nothing half-written was left behind\n")
     summary = _assert_summary_equals_folders(tmp_path / "out")
     assert {r["status"] for r in summary["runs"]} <= {"ok", "not-run"}
+
+
+def test_an_interrupt_a_callback_swallowed_interrupts_the_run_at_its_next_step(monkeypatch, capsys):
+    """A worker's interrupt raised inside an import's lock callback was printed as 'Exception ignored in: ...'
+    under the batch's one line, and the run went on."""
+    import weakref
+
+    from lio_cli.batch import runs
+
+    monkeypatch.setattr(runs, "_in_pool", True)
+    monkeypatch.setattr(sys, "unraisablehook", runs._unraisable)
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGALRM)
+
+    class Held:
+        pass
+
+    def swallowed(_ref):
+        raise KeyboardInterrupt  # where Python can only hand it to the unraisable hook
+
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with runs._interruptible():
+                held = Held()
+                ref = weakref.ref(held, swallowed)  # noqa: F841 - its callback runs when held goes
+                del held
+                while time.perf_counter() - t0 < 5:  # the run's next steps: the interrupt comes among them
+                    pass
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGINT, handlers[0])
+        signal.signal(signal.SIGTERM, handlers[1])
+        signal.signal(signal.SIGALRM, handlers[2])
+    assert capsys.readouterr().err == ""
