@@ -250,8 +250,9 @@ def main() -> None:
                 motion.close()
         answer(("committed", None))
         os._exit(0)  # every file is closed: skip the interpreter's teardown, which the parent would wait for
-    except _Aborted:
-        sys.exit(1)  # its files are discarded
+    except _Aborted:  # its files are discarded: leave at once (a SIGTERM meeting the teardown would kill it)
+        sys.stderr.flush()
+        os._exit(1)
     except BaseException as err:  # noqa: BLE001 - every failure goes back to the parent, which reports it
         # its files are discarded; the parent ends it (SIGTERM) once it has the error, maybe while it still
         # answers: end quietly then (an _Aborted raised here printed a traceback under the error line)
