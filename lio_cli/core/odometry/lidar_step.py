@@ -37,7 +37,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
     """Register one scan LiDAR-only. ``retry``: a scan the IMU prediction could not explain; return None (and change
     nothing) if it fails here too, since then the scan is bad, not the IMU state. ``window``: the scan may start the
     IMU state (it joins the start-up window, ``startup.due``). ``mapped``: the scan joins the map (unless it failed)."""
-    st, reg_cfg, planar = o.stats, o.cfg.registration, o.settings.planar
+    st, planar = o.stats, o.settings.planar
     tick = time.process_time()
     imu_gap = imu_hole(o, t_prev, t_ref)  # held rates would prime it wrongly: constant velocity instead
     guess, knots, knot_poses, gyro_primed = lidar_prior(o, t_prev, t_ref, imu_gap)
