@@ -24,7 +24,7 @@ from ...core.calibration.imu_static import StillOptions, still_mask
 from ...core.calibration.handeye import imu_increments, lidar_increments
 from ...core.calibration.signals import GyroOrientation
 from ...errors import InputError
-from ...model.records import ImuBatch
+from ...model.records import ImuBatch, on_lidar_clock
 from .passes import LidarTrajectory, SensorArrays
 
 FINAL_MAX_SIGMA_S = 0.002  # a clock offset known worse than this is refused (too little motion)
@@ -131,8 +131,8 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     if gap_note is not None and gap_note not in est.notes:
         est.notes.append(gap_note)
     try:
-        off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, imu.stamps_ns + centre_ns, imu.gyro_radps,
-                                   gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,
+        off = estimate_time_offset(traj.stamps_ns, traj.T_world_lidar, on_lidar_clock(imu.stamps_ns, centre_ns),
+                                   imu.gyro_radps, gyro_bias_radps=bias0, max_offset_s=cfg.max_offset_s,
                                    max_sigma_s=FINAL_MAX_SIGMA_S if final else COARSE_MAX_SIGMA_S)
         if centre_ns:
             off = replace(off, imu_time_offset_s=off.imu_time_offset_s + centre_ns / NS_PER_S)

@@ -34,7 +34,7 @@ from ...io.sensors.sources import load_trajectory
 from ...io.sensors.stream import SensorStream
 from ...io.sensors.topics import choose_topic, unpublished
 from ...model.calibration import Extrinsics
-from ...model.records import ImuBatch
+from ...model.records import ImuBatch, on_lidar_clock
 from .poses import OFFSET_AGREE_NS, PoseFeed
 from ..odom.job import OdomJob, SettledPose, run_odom
 from ..odom.inputs import Mounting
@@ -154,7 +154,8 @@ class ImuWindow:
             if fresh and not imu.frame_id:
                 imu.frame_id = fresh[0].frame_id
         hi = int(np.searchsorted(imu.stamps_ns, t1_ns + _IMU_MARGIN_NS, side="right"))
-        return ImuBatch(imu.frame_id, imu.stamps_ns[:hi] + offset_ns, imu.gyro_radps[:hi], imu.accel_mps2[:hi])
+        return ImuBatch(imu.frame_id, on_lidar_clock(imu.stamps_ns[:hi], offset_ns), imu.gyro_radps[:hi],
+                        imu.accel_mps2[:hi])
 
     def close(self) -> None:
         if self.reader is not None:
