@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import dump_model, with_overrides
+from ...config import with_overrides
 from ...config.calibrate import CalibrateConfig, parse_still
 from ...io.files.kalibr import kalibr_imu_yaml
 from ...plots.allan import allan_plot_png
@@ -39,7 +39,7 @@ from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, fi
 from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
                                rotation_observable, table)
 from ..odom.inputs import named_base, prefer_between, root_base
-from ..outputs import json_text, sidecars as tagged_sidecars
+from ..outputs import sidecars, write_run
 
 PLOT_NAME = "allan_deviation.png"
 TAG = "calib"  # in the name of every file a run writes beside its YAML
@@ -72,17 +72,13 @@ class CalibrateResult:
     allan: AllanResult | None = None  # with ``config.allan``: for the Kalibr file and the plot
 
 
-def sidecars(out: Path) -> tuple[Path, Path]:
-    return tagged_sidecars(Path(out), TAG)
-
-
 def check_calibrate_outputs(job: CalibrateJob) -> list[Path]:
     """Every output may be written and is none of the inputs (before any work); returns them."""
     if (job.plot_dir is not None or job.kalibr is not None) and not job.config.allan:
         raise ConfigError("--plot and --kalibr write the Allan variance results: give --allan too")
     inputs = [*input_paths(job.log), *job.extra_inputs]
     named = [] if job.out is None else [("the calibration (-o)", Path(job.out)),
-                                        *zip(("its metrics", "its config"), sidecars(job.out))]
+                                        *zip(("its metrics", "its config"), sidecars(Path(job.out), TAG))]
     if job.kalibr is not None:
         named.append(("the Kalibr imu.yaml (--kalibr)", Path(job.kalibr)))
     refuse_shared_outputs([*named, *plot_outputs(job.plot_dir, (PLOT_NAME,))])  # -o x.yaml --kalibr x.yaml
@@ -325,14 +321,8 @@ def write_calibrate(result: CalibrateResult, out: Path | None, force: bool, kali
         written.append(Path(plot_dir) / PLOT_NAME)
     if out is None:
         return written
-    metrics_path, config_path = sidecars(out)
-    with atomic_output(config_path, force) as tmp:
-        tmp.write_text(dump_model(result.config))
-    with atomic_output(metrics_path, force) as tmp:
-        tmp.write_text(json_text(result.metrics))
-    with atomic_output(out, force) as tmp:
-        tmp.write_text(yaml_text(result.calibration, result.metrics["not_estimated"]))
-    return [Path(out), metrics_path, config_path, *written]
+    yaml = yaml_text(result.calibration, result.metrics["not_estimated"])
+    return [*write_run(Path(out), TAG, yaml, result.config, result.metrics, force), *written]
 
 
 def yaml_text(cal: Calibration, not_estimated: dict[str, str] | None = None) -> str:

@@ -34,7 +34,7 @@ from .motion import Progress, check_covered, resolve_motion, run_odometry, traje
 from .scan import plan_scans
 from .write import WriteSetup, write_pass
 from ..odom.inputs import Mounting
-from ..outputs import json_text, sidecars as tagged_sidecars
+from ..outputs import json_text, sidecars
 
 TAG = "deskew"  # in the name of every file a run writes beside its log
 
@@ -87,10 +87,6 @@ def _output_format(out: Path, asked: str | None, reader: LogReader) -> str:
     return reader.format
 
 
-def sidecars(out: Path) -> tuple[Path, Path]:
-    """(metrics, resolved config) written beside the output log."""
-    return tagged_sidecars(Path(out), TAG)
-
 
 def output_in(folder: Path, log: Path, cfg: DeskewConfig) -> Path:
     """The output log of a run into ``folder`` (``lio batch``): ``deskew`` with the suffix of its format (the
@@ -110,7 +106,7 @@ def check_deskew_outputs(job: DeskewJob, extra_inputs: tuple[Path, ...] = ()) ->
     path = job.config.trajectory.path
     if path is not None and Path(path).exists():
         inputs.append(Path(path))
-    outs = [job.out, *sidecars(job.out)]
+    outs = [job.out, *sidecars(Path(job.out), TAG)]
     if job.map is not None:
         check_map_suffix(job.map)
         outs.append(job.map)
@@ -176,7 +172,7 @@ def run_deskew(job: DeskewJob, progress: Progress | None = None) -> DeskewResult
 def write_deskew(result: DeskewResult, out: Path, force: bool) -> list[Path]:
     """Finish a run: its resolved config and metrics beside the output log ``out`` (the job's, already written);
     returns every file of the run (the log, the map, the metrics, the config)."""
-    metrics_path, config_path = sidecars(out)
+    metrics_path, config_path = sidecars(Path(out), TAG)
     try:
         with atomic_outputs([config_path, metrics_path], force) as (config_tmp, metrics_tmp):
             config_tmp.write_text(dump_model(result.config))
@@ -229,5 +225,5 @@ def _from_odometry(helper: Helper | None, reader: LogReader, setup: WriteSetup, 
     return stats, odo, t_motion, setup.mounting, writing
 
 
-__all__ = ["DeskewJob", "DeskewResult", "check_deskew_outputs", "output_format", "output_in", "run_deskew", "sidecars",
+__all__ = ["DeskewJob", "DeskewResult", "check_deskew_outputs", "output_format", "output_in", "run_deskew",
            "write_deskew"]
