@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..evaluation import EvalResult
-from .style import pyplot, save_tight, short_label
+from .style import color as color_of, pyplot, save_tight, short_label
 
-_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 
 
 
@@ -32,7 +31,7 @@ def plot_top_view(ref_positions: np.ndarray, results: list[EvalResult], path: Pa
         ax.plot(ref_positions[:, 0], ref_positions[:, 1], color="black", lw=2.2, ls="--", label="ground truth")
     for k, r in enumerate(results):
         p = r.est_aligned[:, :3, 3]
-        ax.plot(p[:, 0], p[:, 1], color=_COLORS[k % len(_COLORS)], lw=1.6,
+        ax.plot(p[:, 0], p[:, 1], color=color_of(k), lw=1.6,
                 label=f"{short_label(r.name)} (APE rmse {r.stats['ape']['trans']['rmse']:.3g} m)")
     ax.plot(ref_positions[0, 0], ref_positions[0, 1], "o", color="black", ms=8, label="start")
     ax.set_aspect("equal", adjustable="datalim")
@@ -50,7 +49,7 @@ def plot_ape(results: list[EvalResult], path: Path, force: bool = False) -> Path
     fig, (ax_t, ax_d) = plt.subplots(2, 1, figsize=(10, 7.5))
     t0 = min(int(r.association.ref.stamps_ns[0]) for r in results)
     for k, r in enumerate(results):
-        color = _COLORS[k % len(_COLORS)]
+        color = color_of(k)
         t = (r.association.ref.stamps_ns - t0) / 1e9
         ref_p = r.association.ref.positions
         dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref_p, axis=0), axis=1))])
@@ -79,7 +78,7 @@ def plot_rpe_histogram(results: list[EvalResult], path: Path, force: bool = Fals
     bins_t = np.histogram_bin_edges(np.concatenate([r.rpe["trans"] for r in results]), bins=40)
     bins_r = np.histogram_bin_edges(np.concatenate([r.rpe["rot"] for r in with_rot]), bins=40) if with_rot else None
     for k, r in enumerate(results):
-        color = _COLORS[k % len(_COLORS)]
+        color = color_of(k)
         ax_t.hist(r.rpe["trans"], bins=bins_t, color=color, alpha=0.5, label=short_label(r.name))
         if ax_r is not None and "rot" in r.rpe:
             ax_r.hist(r.rpe["rot"], bins=bins_r, color=color, alpha=0.5, label=short_label(r.name))
@@ -103,7 +102,7 @@ def plot_offsets(results: list[EvalResult], path: Path, force: bool = False) -> 
     fig, (ax_m, ax_z) = plt.subplots(2, 1, figsize=(10, 8))
     ax_e = ax_m.twinx()
     for k, r in enumerate(runs):
-        f, color = r.offset, _COLORS[k % len(_COLORS)]
+        f, color = r.offset, color_of(k)
         ax_m.plot(f.grid_ns / 1e9, f.grid_matches / max(f.sampled, 1) * 100.0, color=color, lw=1.0, alpha=0.45)
         ax_e.semilogy(f.curve_ns / 1e9, f.curve_cost, ".", color=color, ms=4, label=short_label(r.name))
         rel_ms = (f.zoom_ns - f.offset_ns) / 1e6
@@ -134,7 +133,7 @@ def plot_groups(groups, results: list[EvalResult], path: Path, force: bool = Fal
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels) + 1, 5), squeeze=False)
     for ax, (key, title) in zip(axes[0], panels):
         for k, g in enumerate(groups):
-            color = _COLORS[k % len(_COLORS)]
+            color = color_of(k)
             vals = [metrics[m][key] for m in g.runs if metrics[m][key] is not None]
             ax.plot(np.full(len(vals), k) + np.linspace(-0.12, 0.12, len(vals)), vals, "o", color=color, alpha=0.6)
             s = g.metrics[key]

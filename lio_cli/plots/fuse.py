@@ -16,11 +16,9 @@ import numpy as np
 
 from ..geometry import interpolate_poses, inv_pose, yaw_of
 from ..model.trajectory import Trajectory
-from .style import pyplot, save_tight
+from .style import COLORS, pyplot, save_tight, stride
 
 PLOT_FILES = ("fuse_top_view.png", "fuse_speed_yaw_rate.png")  # what ``write_plots`` writes, in order
-MAX_POINTS = 20_000  # per line: plenty for a PNG, bounded for hour-long runs
-_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e"]
 
 
 class FusedRun(Protocol):
@@ -33,9 +31,6 @@ class FusedRun(Protocol):
 
 
 
-
-def _thin(n: int) -> slice:
-    return slice(None, None, max(1, n // MAX_POINTS))
 
 
 def _interp(stamps_ns: np.ndarray, values: np.ndarray, query_ns: np.ndarray) -> np.ndarray:
@@ -111,16 +106,16 @@ def plot_top_view(run: FusedRun, path: Path, force: bool = False) -> Path:
         wheels = wheel_dead_reckoning(run)
         if wheels is not None:
             dr, label = wheels
-            s = _thin(len(dr))
-            ax.plot(dr[s, 0], dr[s, 1], color=_COLORS[2], lw=1.2, ls="--", label=label)
+            s = slice(None, None, stride(len(dr)))
+            ax.plot(dr[s, 0], dr[s, 1], color=COLORS[2], lw=1.2, ls="--", label=label)
         od = _odom_in_world(run)
         if od is not None:
-            s = _thin(len(od))
-            ax.plot(od[s, 0], od[s, 1], color=_COLORS[3], lw=1.2, ls="-.", label="odometry input")
+            s = slice(None, None, stride(len(od)))
+            ax.plot(od[s, 0], od[s, 1], color=COLORS[3], lw=1.2, ls="-.", label="odometry input")
         p = run.trajectory.positions
-        s = _thin(len(p))
+        s = slice(None, None, stride(len(p)))
         c = run.config
-        ax.plot(p[s, 0], p[s, 1], color=_COLORS[0], lw=1.8,
+        ax.plot(p[s, 0], p[s, 1], color=COLORS[0], lw=1.8,
                 label=f"fused ({c.estimator}{' + smoother' if c.smooth else ''})")
         if len(p):
             ax.plot(p[0, 0], p[0, 1], "o", color="black", ms=8, label="start")
@@ -156,20 +151,20 @@ def plot_speed_yaw_rate(run: FusedRun, path: Path, force: bool = False) -> Path:
         w, imu = run.sources.inputs.wheel, run.sources.inputs.imu
         if w is not None and len(w):
             st, v, yr = _sorted(w.stamps_ns, w.velocity_mps, w.yaw_rate_radps)
-            s = _thin(len(st))
+            s = slice(None, None, stride(len(st)))
             ts = (st[s] - t0) * 1e-9
-            a1.plot(ts, np.hypot(v[s, 0], np.nan_to_num(v[s, 1])), color=_COLORS[2], lw=1.0, label="wheels")
+            a1.plot(ts, np.hypot(v[s, 0], np.nan_to_num(v[s, 1])), color=COLORS[2], lw=1.0, label="wheels")
             if np.any(np.isfinite(yr)):
-                a2.plot(ts, yr[s], color=_COLORS[2], lw=1.0, label="wheels")
+                a2.plot(ts, yr[s], color=COLORS[2], lw=1.0, label="wheels")
         if imu is not None and len(imu):
             st, g = _sorted(imu.stamps_ns, imu.gyro_radps @ imu.T_base_imu[:3, :3].T)
-            s = _thin(len(st))
-            a2.plot((st[s] - t0) * 1e-9, g[s, 2], color=_COLORS[1], lw=0.8, alpha=0.7, label="gyro z (base)")
+            s = slice(None, None, stride(len(st)))
+            a2.plot((st[s] - t0) * 1e-9, g[s, 2], color=COLORS[1], lw=0.8, alpha=0.7, label="gyro z (base)")
         if len(tr):
             t, speed, rate = _fused_rates(run)
-            s = _thin(len(t))
-            a1.plot(t[s], speed[s], color=_COLORS[0], lw=1.5, label="fused")
-            a2.plot(t[s], rate[s], color=_COLORS[0], lw=1.5, label="fused")
+            s = slice(None, None, stride(len(t)))
+            a1.plot(t[s], speed[s], color=COLORS[0], lw=1.5, label="fused")
+            a2.plot(t[s], rate[s], color=COLORS[0], lw=1.5, label="fused")
         a1.set_ylabel("speed [m/s]")
         a2.set_ylabel("yaw rate [rad/s]")
         a2.set_xlabel("time since the first pose [s]")
