@@ -11,7 +11,7 @@ import typer
 from ..errors import ConfigError
 from ..io.files.output_paths import check_plot_dir, refuse_stdout
 from ..io.sensors.sources import split_source
-from ..jobs.plot import PLOT_ALIGN_MODES, PlotJob, plot_files, run_plot, write_plot
+from ..jobs.plot import PlotJob, plot_files, run_plot, write_plot
 from .common import (INPUT_PANEL, OUTPUT_PANEL, ForceOpt, LioCommand, QuietOpt, note, one_of)
 
 HELP = """Draw trajectories: top view, x/y/z and roll/pitch/yaw over time, speed.
@@ -50,8 +50,6 @@ def plot(
     force: ForceOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
-    if align_mode not in PLOT_ALIGN_MODES:
-        raise ConfigError(f"--align must be one of {', '.join(PLOT_ALIGN_MODES)}, got '{align_mode}'")
     if not (0 <= t_max_diff and math.isfinite(t_max_diff)):
         raise ConfigError(f"--t-max-diff must be a finite number of seconds >= 0, got {t_max_diff}")
     if times is not None and rate is not None:
