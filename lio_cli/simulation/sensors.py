@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.records import on_lidar_clock
 from .motion import Trajectory
 from .world import World, raycast
 
@@ -181,7 +182,7 @@ def synthesize_imu(traj: Trajectory, T_base_imu: np.ndarray, spec: ImuSpec, star
     made in pieces) one random-walk step after it."""
     period_ns = int(round(NS / spec.rate_hz))
     stamps = np.arange(start_ns, end_ns + 1, period_ns, dtype=np.int64)
-    t_true = (stamps + spec.imu_time_offset_ns - traj_start_ns) * 1e-9
+    t_true = (on_lidar_clock(stamps, spec.imu_time_offset_ns) - traj_start_ns) * 1e-9
     gyro, accel = imu_truth(traj, T_base_imu, t_true)
     n, dt = len(stamps), period_ns * 1e-9
     ba = np.broadcast_to(np.asarray(spec.accel_bias0_mps2, float), (n, 3)).copy()
