@@ -134,6 +134,13 @@ def is_no_space(err: BaseException) -> bool:
         "database or disk is full" in str(err)
 
 
+def no_space_error(err: BaseException, path: Path) -> NoSpaceError | None:
+    """``NoSpaceError`` naming ``path`` when ``err`` (or the error it wraps) says the device is full, else None."""
+    if is_no_space(err) or is_no_space(err.__cause__ or err.__context__ or err):
+        return NoSpaceError(f"no space left on device: {path}")
+    return None
+
+
 @contextmanager
 def no_space_as_error(path: Path) -> Iterator[None]:
     """A full device met in the body becomes ``NoSpaceError`` naming ``path`` (one line, exit 1)."""
@@ -142,8 +149,9 @@ def no_space_as_error(path: Path) -> Iterator[None]:
     except NoSpaceError:
         raise
     except Exception as err:
-        if is_no_space(err) or is_no_space(err.__cause__ or err.__context__ or err):
-            raise NoSpaceError(f"no space left on device: {path}") from err
+        full = no_space_error(err, path)
+        if full is not None:
+            raise full from err
         raise
 
 

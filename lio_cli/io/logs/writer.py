@@ -16,8 +16,8 @@ from functools import cached_property
 from collections.abc import Callable
 from pathlib import Path
 
-from ...errors import InputError, NoSpaceError
-from ..files.atomic import check_writable, is_no_space, remove_path, replace_path, temp_sibling
+from ...errors import InputError
+from ..files.atomic import check_writable, no_space_error, remove_path, replace_path, temp_sibling
 from ..messages.encode import MessageFactory
 from ..messages.msgdefs import output_definition
 from .base import LogConnection
@@ -67,8 +67,8 @@ class LogWriter:
             self._open()
         except Exception as err:
             self._discard()
-            if is_no_space(err):
-                raise NoSpaceError(f"no space left on device: {self.path}") from err
+            if (full := no_space_error(err, self.path)) is not None:
+                raise full from err
             raise InputError(f"{self.path}: cannot create log ({err})") from err
         except BaseException:  # interrupted while creating it
             self._discard()
@@ -248,8 +248,8 @@ class LogWriter:
                 self._w.close()
         except Exception as err:
             self.abort()
-            if is_no_space(err):
-                raise NoSpaceError(f"no space left on device: {self.path}") from err
+            if (full := no_space_error(err, self.path)) is not None:
+                raise full from err
             raise InputError(f"{self.path}: cannot finish writing log ({err})") from err
         except BaseException:
             self.abort()
