@@ -181,11 +181,11 @@ class LioOdometry:
     def output_alignment(self) -> np.ndarray:
         """T_out_world: levels the internal world frame (the first scan's base) by the gravity found."""
         T = np.eye(4)
-        g_world, first_f_base = self.run.nav.g_world, self.run.startup.first_f_base
-        if g_world is not None:  # gravity as the last healthy IMU state (or the start-up) had it
-            T[:3, :3] = gravity_aligned_rotation(-g_world)
-        elif first_f_base is not None and specific_force_levels(self.run):  # never aligned, but standing still
-            T[:3, :3] = gravity_aligned_rotation(first_f_base)
+        source = self.level_source()
+        if source == "gravity":  # gravity as the last healthy IMU state (or the start-up) had it
+            T[:3, :3] = gravity_aligned_rotation(-self.run.nav.g_world)
+        elif source == "specific force":  # never aligned, but standing still
+            T[:3, :3] = gravity_aligned_rotation(self.run.startup.first_f_base)
         return T
 
     def level_source(self) -> str:
