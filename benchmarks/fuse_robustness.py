@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """`lio fuse` on logs it was not tuned for (issue 27): the robustness matrix, with its baselines per cell.
 
-Cells: platform {rover: a ground robot on uneven ground, car: `drive`, handheld} x start {still, moving} x IMU
-{aligned (identity rotation, the scenario's lever arm), rotated 180 deg roll + 90 deg yaw with a 0.44 m lever
-arm, given by /tf_static} x wheels {exact, 3 % radius scale + 3 slip bursts} (rover and car) x GPS {none,
-consumer: `--gps-model consumer`} x odometry input {none, `lio odom` of the same log}. Seed fixed.
+Cells: platform {rover: a ground robot on uneven ground, car: `drive`, drone: 3D flight; `--platforms` adds
+handheld} x start {still, moving} x IMU {aligned (identity rotation, the scenario's lever arm), rotated 180 deg
+roll + 90 deg yaw with a 0.44 m lever arm, given by /tf_static} x wheels {exact, 3 % radius scale + 3 slip
+bursts} (rover and car) x GPS {none, consumer: `--gps-model consumer`} x odometry input {none, `lio odom` of the
+same log}. Seed fixed: 80 cells.
 
 Per cell: `lio fuse` default and `--smooth` (output at every IMU sample, 200 Hz) and the baselines of the same
 log: wheel dead reckoning (the /wheel/odom poses), wheel speed + gyro yaw dead reckoning (a robot_localization 2D
@@ -18,8 +19,9 @@ Targets (issue 27): T1 fused default ATE <= 0.8x the best applicable baseline; T
 the odometry's and RPE 0.05 s <= 0.5x the interpolated odometry's.
 
 Logs are cached in --work: one log without LiDAR (`--no-lidar`) per platform, start, IMU, wheels and GPS, and
-one with LiDAR per platform, start and IMU for `lio odom` (same seed: the IMU, wheel and GPS messages are the
-same bytes in both, so its odometry fuses with each cheap log). A re-run only re-runs fuse.
+one with LiDAR and without wheels per platform, start and IMU for `lio odom` (LiDAR + IMU odometry, so fuse
+counts the wheels once; same seed: the IMU messages are the same bytes in both, so its odometry fuses with each
+cheap log). A re-run only re-runs fuse.
 
     python benchmarks/fuse_robustness.py --work /tmp/fuse-rob --jobs 2          # the whole matrix, 45 s logs
     python benchmarks/fuse_robustness.py --work /tmp/fuse-rob --quick            # 12 cells
@@ -53,7 +55,8 @@ from lio_cli.io.files.trajectory import format_tum, read_tum  # noqa: E402
 from lio_cli.io.logs.reader import open_log  # noqa: E402
 
 NS = 1_000_000_000
-PLATFORMS = {"rover": "rover", "car": "drive", "handheld": "handheld"}
+PLATFORMS = {"rover": "rover", "car": "drive", "drone": "drone", "handheld": "handheld"}  # name -> scenario
+DEFAULT_PLATFORMS = ("rover", "car", "drone")
 STARTS = ("still", "moving")
 IMUS = {"imu-aligned": ["--imu-rotation", "0,0,0"],
         "imu-rotated": ["--imu-rotation", "180,0,90", "--imu-lever-arm", "0.3,-0.2,0.25"]}
@@ -89,11 +92,11 @@ class Cell:
         return f"{self.platform}-{self.start}-{self.imu}-lidar"
 
 
-def all_cells(quick: bool) -> list[Cell]:
+def all_cells(quick: bool, platforms: tuple[str, ...] = DEFAULT_PLATFORMS) -> list[Cell]:
     cells = []
     starts, imus = (("moving",), ("imu-rotated",)) if quick else (STARTS, tuple(IMUS))
-    for platform, start, imu, gps, odom in itertools.product(PLATFORMS, starts, imus, GPS, ODOMS):
-        wheels = ("-",) if platform == "handheld" else (("wheels-bad",) if quick else tuple(WHEELS))
+    for platform, start, imu, gps, odom in itertools.product(platforms, starts, imus, GPS, ODOMS):
+        wheels = ("-",) if platform in ("drone", "handheld") else (("wheels-bad",) if quick else tuple(WHEELS))
         cells += [Cell(platform, start, imu, w, gps, odom) for w in wheels]
     return cells
 
@@ -107,8 +110,8 @@ def lio(*args: str) -> tuple[int, str]:
 def simulate_args(cell: Cell, lidar: bool, duration: float) -> list[str]:
     args = ["--duration", str(duration), "--seed", str(SEED), "--start", cell.start, *IMUS[cell.imu], "--quiet"]
     if not lidar:
-        args += ["--no-lidar", *WHEELS.get(cell.wheels, []), *GPS[cell.gps]]
-    return args
+        return args + ["--no-lidar", *WHEELS.get(cell.wheels, []), *GPS[cell.gps]]
+    return args + ["--no-wheel"]  # lio odom from LiDAR and IMU: fuse adds the wheels once, not twice
 
 
 def ensure_log(work: Path, cell: Cell, lidar: bool, duration: float) -> Path:
@@ -301,6 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio-fuse-robustness"), help="cache of logs, odometry, fuse outputs")
     ap.add_argument("--quick", action="store_true", help="moving starts, rotated IMU, bad wheels only (12 cells)")
+    ap.add_argument("--platforms", default=",".join(DEFAULT_PLATFORMS), help=f"comma-separated, of {', '.join(PLATFORMS)}")
     ap.add_argument("--cells", action="append", default=[], help="keep cells whose name holds this (repeat: all of them)")
     ap.add_argument("--duration", type=float, default=45.0, help="seconds per log (cached logs of another length are remade)")
     ap.add_argument("--jobs", type=int, default=1)
@@ -309,7 +313,11 @@ def main(argv: list[str] | None = None) -> int:
     work = a.work / f"{a.duration:g}s"
     for sub in ("logs", "odom", "fuse"):
         (work / sub).mkdir(parents=True, exist_ok=True)
-    cells = [c for c in all_cells(a.quick) if all(s in c.name for s in a.cells)]
+    platforms = tuple(a.platforms.split(","))
+    if not set(platforms) <= set(PLATFORMS):
+        print(f"--platforms: choose from {', '.join(PLATFORMS)}", file=sys.stderr)
+        return 2
+    cells = [c for c in all_cells(a.quick, platforms) if all(s in c.name for s in a.cells)]
     if not cells:
         print("no cell matches", file=sys.stderr)
         return 2

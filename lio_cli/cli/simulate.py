@@ -21,13 +21,15 @@ SCENARIO is one of:
   [bold]drive[/bold]     a car looping through a town at 5-10 m/s, 32-beam LiDAR
   [bold]corridor[/bold]  a long featureless corridor, wheel odometry
   [bold]planar[/bold]    a differential-drive robot: 2D LaserScan, wheels, IMU
+  [bold]rover[/bold]     a ground robot on uneven roads outdoors: 16-beam LiDAR, wheels
+  [bold]drone[/bold]     a multicopter over a town, climbing and sinking: 16-beam LiDAR
   [bold]static[/bold]    an IMU at rest for up to 48 h, for Allan variance
 
 OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go
 x.gt.tum (pose of base in world), x.truth.json (true extrinsics, IMU biases and noise, clock offset, wheel
 errors, GPS georeference) and x.sim.metrics.json (resolved options, topics, wall time).
 
-Topics: /points or /scan (frame lidar), /imu, /wheel/odom (not handheld), /ground_truth, /tf_static
+Topics: /points or /scan (frame lidar), /imu, /wheel/odom (not handheld, drone), /ground_truth, /tf_static
 (base -> imu, lidar, gps), /gps/fix with --gps. The platform stands still for the first 1.5 s unless
 --start moving. The same arguments and --seed give the same bytes. The conditions of real recordings
 (moving start, any IMU mounting, clock offsets, no /tf_static...) are described in docs/commands/simulate.md.

@@ -215,7 +215,7 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
         used = [flag for flag, v in lidar_only.items() if v is not None]
         if used:
             raise ConfigError(f"{used[0]} does not apply to the static scenario (an IMU at rest, no LiDAR, wheels or GPS)")
-    elif scenario == "handheld" and opts.wheel:
-        raise ConfigError("--wheel: the handheld scenario has no wheels")
-    if opts.wheel_slip_bursts and (scenario in ("handheld", "static") or opts.wheel is False):
+    elif scenario in ("handheld", "drone") and opts.wheel:
+        raise ConfigError(f"--wheel: the {scenario} scenario has no wheels")
+    if opts.wheel_slip_bursts and (scenario in ("handheld", "drone", "static") or opts.wheel is False):
         raise ConfigError("--wheel-slip-bursts needs wheels (drive, corridor, planar or rover, without --no-wheel)")

@@ -8,7 +8,8 @@ fade-in is over before t = 0, so each sensor's first sample already sees the ful
 starts cruising straight at 7.5 m/s with its sway fading in over 3 s, so its IMU first looks still.
 ``start="accelerating"``: every speed ramp is half done at t = 0, so the first samples see its largest
 acceleration (the drive: 3.75 m/s and 3.75 m/s^2 on that straight, what reads as a 21 deg tilt to an IMU).
-``rover`` is a wheeled robot outdoors on uneven ground (2D motion, small roll and pitch).
+``rover`` is a wheeled robot outdoors on uneven ground (2D motion, small roll and pitch), ``drone`` a
+multicopter over the same town (3D motion: it climbs and sinks by metres).
 ``static`` is an IMU at rest on a table for hours (no LiDAR, no wheels): the noise model alone.
 """
 
@@ -23,7 +24,7 @@ from .motion import Path2D, Progress, Sines, Trajectory, ypr_to_matrix
 from .sensors import LaserSpec, LidarSpec, WheelSpec
 from .world import World, footprint_clearance
 
-SCENARIOS = ("handheld", "drive", "corridor", "planar", "rover")  # the LiDAR scenarios
+SCENARIOS = ("handheld", "drive", "corridor", "planar", "rover", "drone")  # the LiDAR scenarios
 ALL_SCENARIOS = SCENARIOS + ("static",)
 
 _WALL_M = 0.2
@@ -344,6 +345,23 @@ def _scenario(name: str, beams: int | None, columns: int | None, start: str) -> 
             LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0),
             WheelSpec(radius_m=0.15, baseline_m=0.55), clearance_m=0.35, body_z_m=(0.0, 0.8), rest_s=rest,
             gps_antenna_m=(-0.2, 0.0, 0.8),
+        )
+    if name == "drone":
+        # a multicopter over the town's roads: climbing and sinking between 1.5 and 10.5 m, banking +-6-8 deg,
+        # its yaw swinging +-35 deg off the direction of travel (it flies sideways too)
+        road = Path2D(DRIVE_WAYPOINTS)
+        world = town_world(_dense(road, 0.5))
+        traj = Trajectory(
+            road, Progress(4.0, t_rest_s=p_rest, ramp_s=2.0, s0_m=100.0, wobble=Sines((1.5,), (0.06,), (0.0,))),
+            z0_m=6.0, z_wobble=Sines((3.0, 1.5), (0.025, 0.08), (0.0, 1.0)),
+            yaw_offset=Sines((0.6,), (0.04,), (0.0,)), pitch=Sines((0.1, 0.02), (0.1, 0.9), (0.4, 0.0)),
+            roll=Sines((0.12, 0.02), (0.13, 1.1), (1.2, 0.3)), fade_in_s=2.0, t_rest_s=t_rest,
+        )
+        return Scenario(
+            name, "multicopter flying over a town's roads, climbing and sinking between 1.5 and 10.5 m: 16-beam LiDAR, IMU",
+            world, traj, _pose((0.0, 0.0, 0.0), (0.02, 0.0, 0.05)), _pose((0, 0, 0), (0.0, 0.0, 0.15)),
+            LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0), None, clearance_m=1.0,
+            body_z_m=(0.0, 12.0), rest_s=rest, gps_antenna_m=(0.0, 0.0, 0.2),
         )
     if name == "static":
         world = World("table")

@@ -131,6 +131,17 @@ def test_rover_is_a_ground_robot_on_uneven_ground():
     assert sc.wheels is not None and sc.lidar.beams == 16
 
 
+def test_drone_flies_in_3d():
+    sc = build_scenario("drone", start="moving")
+    st = sc.trajectory.state(np.arange(0.0, 60.0, 0.05))
+    z = st.position_m[:, 2]
+    assert 1.4 < z.min() and z.max() < 10.6 and np.ptp(z) > 5.0  # climbs and sinks by metres in a minute
+    assert np.abs(st.velocity_mps[:, 2]).max() > 0.5
+    v_base = np.einsum("nji,nj->ni", st.R_world_base, st.velocity_mps)
+    assert np.abs(v_base[:, 1]).max() > 1.0  # flies sideways: no wheel could measure that
+    assert sc.wheels is None and sc.lidar.beams == 16
+
+
 def test_no_lidar_leaves_every_other_message_byte_identical(tmp_path):
     args = dict(duration_s=2.0, seed=9, columns=64, gps=True, gps_model="consumer", start="moving",
                 imu_rotation_deg=(180.0, 0.0, 90.0), imu_lever_arm_m=(0.3, -0.2, 0.25), wheel_slip_bursts=1)
@@ -167,6 +178,7 @@ def test_same_arguments_same_bytes(tmp_path):
     ("rover", ("--gps-alt-wander", "500"), "--gps-alt-wander must be within 0..200 m (got 500.0)"),
     ("handheld", ("--wheel-slip-bursts", "2"),
      "--wheel-slip-bursts needs wheels (drive, corridor, planar or rover, without --no-wheel)"),
+    ("drone", ("--wheel",), "--wheel: the drone scenario has no wheels"),
     ("static", ("--no-lidar",), "--no-lidar does not apply to the static scenario (an IMU at rest, no LiDAR, wheels "
                                 "or GPS)"),
 ])
