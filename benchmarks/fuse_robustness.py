@@ -51,7 +51,7 @@ from lio_cli.evaluation import EvalOptions, evaluate  # noqa: E402
 from lio_cli.model.trajectory import Trajectory  # noqa: E402
 from lio_cli.geodesy import EnuFrame  # noqa: E402
 from lio_cli.geometry import interpolate_poses  # noqa: E402
-from lio_cli.io.files.trajectory import format_tum, read_tum  # noqa: E402
+from lio_cli.io.files.trajectory import read_tum  # noqa: E402
 from lio_cli.io.logs.reader import open_log  # noqa: E402
 
 NS = 1_000_000_000
@@ -208,7 +208,7 @@ def gps_alone(d: dict, truth: dict) -> tuple[Trajectory, Trajectory] | None:
 
 # --- one cell ------------------------------------------------------------------------------------------------
 
-def run_cell(work: Path, cell: Cell, duration: float) -> dict:
+def run_cell(work: Path, cell: Cell) -> dict:
     log = work / "logs" / f"{cell.log_key}.mcap"
     truth = json.loads(log.with_name(f"{cell.log_key}.truth.json").read_text())
     gt = _traj(*read_tum(log.with_name(f"{cell.log_key}.gt.tum")), "gt")
@@ -330,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         for j in jobs:
             j.result()
         t_prep = time.perf_counter() - t0
-        rows = list(pool.map(lambda c: run_cell(work, c, a.duration), cells))
+        rows = list(pool.map(lambda c: run_cell(work, c), cells))
     wall = time.perf_counter() - t0
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     print(f"lio fuse robustness matrix, {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
