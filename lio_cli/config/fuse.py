@@ -95,8 +95,9 @@ class FuseConfig(Strict):
     use: Optional[dict[Literal["imu", "wheel", "odom", "gps"], list[str]]] = Field(
         None, description="source -> measurements (imu: gyro, accel, orientation; wheel: speed, velocity, yaw_rate; "
                           "odom: pose or delta; gps: position); default: every source found, the core's selection")
-    estimator: Literal["ekf", "planar", "complementary"] = Field(
-        "ekf", description="ekf (3D error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")
+    estimator: Literal["auto", "ekf", "planar", "complementary"] = Field(
+        "auto", description="auto (planar for a wheeled robot whose motion stays near a plane, else ekf), ekf (3D "
+                            "error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")
     smooth: bool = Field(False, description="RTS smoother over the EKF: every measurement before and after each instant")
     rate_hz: Optional[float] = Field(None, description="output rate; default: every IMU sample (exact stamps)")
     noise: FuseNoise = FuseNoise()

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...errors import ConfigError
 
-ESTIMATORS = ("ekf", "planar", "complementary")
+ESTIMATORS = ("auto", "ekf", "planar", "complementary")  # auto: chosen from the data (choose.py)
 
 # measurement names per source (FuseOptions.use)
 MEASUREMENTS: dict[str, tuple[str, ...]] = {
@@ -164,7 +164,7 @@ class FuseOptions:
     applies every one at its own stamp.
     """
 
-    estimator: str = "ekf"
+    estimator: str = "auto"
     smooth: bool = False
     use: dict[str, set[str]] | None = None
     noise: NoiseOptions = field(default_factory=NoiseOptions)

@@ -231,16 +231,18 @@ class PlanarEkf:
 
 def predict(x: np.ndarray, dt: float, n: int) -> np.ndarray:
     """The lecture's step ``x += v cos(theta) dt``, ``y += v sin(theta) dt``, ``theta += omega dt`` in
-    place; returns its Jacobian F (n x n)."""
-    c, s = math.cos(x[TH]), math.sin(x[TH])
-    v = x[V]
+    place, the heading taken at the step's middle (``theta + omega dt / 2``: exact to second order on an
+    arc); returns its Jacobian F (n x n)."""
+    v, w = x[V], x[W]
+    th_mid = x[TH] + 0.5 * w * dt
+    c, s = math.cos(th_mid), math.sin(th_mid)
     F = np.eye(n)
-    F[X, TH], F[X, V] = -v * s * dt, c * dt
-    F[Y, TH], F[Y, V] = v * c * dt, s * dt
+    F[X, TH], F[X, V], F[X, W] = -v * s * dt, c * dt, -0.5 * v * s * dt * dt
+    F[Y, TH], F[Y, V], F[Y, W] = v * c * dt, s * dt, 0.5 * v * c * dt * dt
     F[TH, W] = dt
     x[X] += v * c * dt
     x[Y] += v * s * dt
-    x[TH] = wrap(x[TH] + x[W] * dt)
+    x[TH] = wrap(x[TH] + w * dt)
     return F
 
 

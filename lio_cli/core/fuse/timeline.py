@@ -108,14 +108,20 @@ def _rate_stamps(coverage: list[tuple[int, int]], rate_hz: float) -> np.ndarray:
     return np.unique(np.concatenate(out)) if out else np.zeros(0, np.int64)
 
 
+def planar_use(use: dict[str, set[str]]) -> None:
+    """The selection narrowed to what the planar EKF models (no accelerometer)."""
+    if "imu" in use:
+        use["imu"].discard("accel")
+        if not use["imu"]:
+            del use["imu"]
+
+
 def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     """Validate, clean and order the inputs; raise InputError/ConfigError with one line when no run can."""
     options.validate()
     use = resolve_use(inputs, options)
-    if options.estimator == "planar" and "imu" in use:
-        use["imu"].discard("accel")  # the planar EKF has no accelerometer model
-        if not use["imu"]:
-            del use["imu"]
+    if options.estimator == "planar":
+        planar_use(use)
     motion = [s for s in MOTION_SOURCES if s in use and (s != "imu" or "gyro" in use["imu"])]
     if not motion:
         raise InputError("no motion source: fuse needs an odometry trajectory, an IMU (gyro) or wheel odometry")

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ...config import with_overrides
 from ...config.fuse import FuseConfig
-from ...core.fuse import COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult, NoiseOptions
+from ...core.fuse import (COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult,
+                          NoiseOptions, pick_estimator)
 from ...evaluation.scoring import Score
 from ...gc_pause import cyclic_gc_paused
 from ...io.logs.reader import open_log
@@ -88,6 +89,8 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
         fmt = reader.format
     t_read = time.perf_counter() - t_wall
     options = core_options(cfg, sources.use, job.covariance)
+    choice = pick_estimator(sources.inputs, options)  # once for the whole log, so every chunk runs the same one
+    options = replace(options, estimator=choice.name)
     memory = plan(sources.inputs, options, sources.use, cfg.max_memory_mb)
 
     def fuse_step(k: int, n: int) -> None:
@@ -98,11 +101,12 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     result, chunks = fuse_chunked(sources.inputs, options, memory, fuse_step)
     t_fuse = time.perf_counter() - t_fuse
     _add_gps_drops(result, sources)
+    result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     resolved = with_overrides(cfg, {
         "input.imu_topic": _topic(sources, "imu"), "input.wheel_topic": _topic(sources, "wheel"),
         "input.gps_topic": _topic(sources, "gps"), "input.base_frame": sources.base_frame,
         "input.wheel_twist_frame": sources.wheel_twist_frame,
-        "input.gps_origin": _gps_origin(sources), "use": sources.use,
+        "input.gps_origin": _gps_origin(sources), "use": sources.use, "estimator": choice.name,
     }, "resolved configuration")
     traj = Trajectory(result.stamps_ns, result.poses, f"{job.log}:fuse", "fuse")
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
@@ -174,6 +178,7 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
         "base_frame": sources.base_frame,
         "extrinsics": sources.extrinsics,
         "estimator": result.estimator,
+        "estimator_reason": result.info.get("estimator_reason"),
         "smoothed": result.smoothed,
         "output": {"frame": "base", "poses": len(stamps),
                    "stamps": f"{cfg.rate_hz:g} Hz" if cfg.rate_hz else "every IMU sample (exact stamps)"
