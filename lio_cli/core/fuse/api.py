@@ -83,7 +83,8 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
         return start
     knots = filter_cls(prefix_without_gps(prep, t_end), replace(o, smooth=False), start).run()
     k = np.searchsorted(prep.gps.stamps_ns, knots["t_ns"])
-    yaw = yaw_onto(knots["x_filt"][:, xy], prep.gps.position_enu_m[k, :2])
+    ok = prep.gps.accepted[k]
+    yaw = yaw_onto(knots["x_filt"][ok][:, xy], prep.gps.position_enu_m[k[ok], :2])
     Rz = so3_exp_one(np.array([0.0, 0.0, yaw]))
     start.R, start.v, start.yaw_from = Rz @ start.R, Rz @ start.v, "gps"
     start.reason += f"; heading {np.degrees(yaw):.1f} deg from GPS over the first {len(k)} fixes"

@@ -20,6 +20,7 @@ from ...geometry import inv_pose
 from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
+from .gps_quality import GpsNoise, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
@@ -83,6 +84,7 @@ class Ekf3d:
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
+        self.gps_h, self.gps_v = GpsNoise(2), GpsNoise(1)
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
@@ -207,12 +209,20 @@ class Ekf3d:
         self.pending_clone = True
 
     def _gps(self, t: int, i: int, x, P) -> None:
-        z = self.prep.gps.position_enu_m[i]
+        """Horizontal, then vertical: each with its own noise (claimed or measured) and gate."""
+        g = self.prep.gps
+        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+            return
+        z = g.position_enu_m[i]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-        r, H, Rn = m3.position(np.array(x), z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
-        self._update(t, x, P, r, H, Rn, "gps", "gps")
+        for rows, sigma, noise, kind in ((slice(0, 2), g.sigma_h_m, self.gps_h, "gps"),
+                                         (slice(2, 3), g.sigma_v_m, self.gps_v, "gps_vertical")):
+            r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L)
+            r, H = r[rows], H[rows]
+            var = noise_variance(noise, r, H, P, float(sigma[i]) ** 2, self.prep.reports["gps"])
+            self._update(t, x, P, r, H, np.eye(len(r)) * var, "gps", kind)
 
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""

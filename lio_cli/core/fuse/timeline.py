@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import InputError
+from .gps_quality import assess_gps
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .lever import imu_in_base
 from .report import SourceReport
@@ -159,6 +160,8 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
             thr = gap_threshold_ns(cleaned.stamps_ns, options.gap_periods, options.min_gap_ns)
             count_gaps(cleaned.stamps_ns, thr, reports[name])
             runs += _runs(cleaned.stamps_ns, thr)
+    if prep.gps is not None:
+        assess_gps(prep.gps, reports["gps"])
     prep.coverage = _merge(runs)
     if not prep.coverage:
         raise InputError("no usable sample in any motion source")

@@ -180,7 +180,9 @@ def test_gps_gives_the_heading_and_bounds_the_drift():
     assert np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1))) < 0.25
     dyaw = np.angle(np.exp(1j * (yaw_of(res.poses[0, :3, :3]) - yaw_of(truth[0, :3, :3]))))
     assert abs(dyaw) < np.radians(3.0)
-    assert res.reports["gps"].updates == len(case.inputs.gps) and res.reports["gps"].notes == {"anchor": 1}
+    by_kind = res.reports["gps"].by_kind  # each fix: a horizontal and a vertical update
+    assert by_kind["gps"]["updates"] == by_kind["gps_vertical"]["updates"] == len(case.inputs.gps)
+    assert res.reports["gps"].notes == {"anchor": 1}
 
 
 def test_wheel_twist_without_imu_uses_the_constant_velocity_model():
