@@ -125,13 +125,7 @@ def fuse_cmd(
 
 def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     m = run.metrics
-    parts = []
-    for src, s in m["sources"].items():
-        if "updates" not in s:
-            continue
-        rej = sum(r["count"] for r in s["rejected"].values())
-        why = ", ".join(f"{r['count']} {k}" for k, r in s["rejected"].items())
-        parts.append(f"{src} {plural(s['updates'], 'update')}" + (f", {rej} rejected ({why})" if rej else ""))
+    parts = [s["summary"] for s in m["sources"].values() if "summary" in s]
     note(f"estimator: {m['estimator']} ({m['estimator_reason']})", quiet)
     est = m["estimator"] + (" + smoother" if m["smoothed"] else "")
     chunks = m["memory"]["chunks"]

@@ -32,6 +32,8 @@ DROPOUT_PERIODS = 5.0  # a pause this many median periods long is a dropout
 VELOCITY_STEPS = 5  # the track's velocity: the median of this many previous steps
 WINDOW = 50  # innovations the measured noise is taken over
 MIN_WINDOW = 10  # innovations needed before it counts
+RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above this many times it (an honest
+# claim's 50-fix estimate scatters by about 20 %)
 MEDIAN_CHI2 = {1: 0.4549, 2: 1.3863}  # median of a chi-square variable with 1 and 2 degrees of freedom
 
 
@@ -120,8 +122,8 @@ class GpsNoise:
     def variance(self, claimed: float) -> float:
         if len(self.r2) < MIN_WINDOW:
             return claimed
-        measured = float(np.median(self.r2)) / MEDIAN_CHI2[self.dof] / self.dof - float(np.mean(self.hph))
-        return max(claimed, measured)
+        measured = float(np.median(self.r2)) / MEDIAN_CHI2[self.dof] - float(np.mean(self.hph))
+        return measured if measured > RAISE_RATIO * claimed else claimed
 
     def record(self, r: np.ndarray, hph_mean_var: float) -> None:
         """An innovation ``r`` (gated or not: the median shrugs off outliers) and the filter's own variance
@@ -135,7 +137,7 @@ def noise_variance(noise: GpsNoise, r: np.ndarray, H: np.ndarray, P: np.ndarray,
     """The variance per axis a fix's residual ``r`` (rows ``H``) enters with, given the window so far; the
     innovation is then added to the window."""
     var = noise.variance(claimed)
-    if var > claimed * 1.0001 and noise.dof == 2:
+    if var > claimed and noise.dof == 2:
         report.note("noise_raised")
     hph = H.dot(P).dot(H.T)
     noise.record(np.asarray(r, float), float(np.trace(hph)) / len(r))

@@ -28,6 +28,7 @@ from ...model.trajectory import Trajectory
 from ..contract import score_into
 from .chunks import MemoryPlan, fuse_chunked, plan
 from .inputs import FuseSources, gather_sources
+from .summary import source_summary
 
 Progress = Callable[[int, int | None], None]  # (work done, total work) in message-sized units
 
@@ -163,7 +164,8 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
             entry.update(received=rep.received, updates=rep.updates, predictions=rep.predictions,
                          updates_by_kind=rep.by_kind,
                          rejected={k: {"count": v, "why": REJECT_REASONS.get(k, k)} for k, v in rep.rejected.items()},
-                         handled={k: {"count": v, "what": NOTE_REASONS.get(k, k)} for k, v in rep.notes.items()})
+                         handled={k: {"count": v, "what": NOTE_REASONS.get(k, k)} for k, v in rep.notes.items()},
+                         summary=source_summary(src, rep.updates, rep.predictions, rep.by_kind, rep.rejected))
         else:
             entry["unused"] = "no measurement of this source selected"
         per_source[src] = entry
