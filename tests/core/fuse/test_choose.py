@@ -7,7 +7,7 @@ import numpy as np
 
 from lio_cli.core.fuse import FuseInputs, FuseOptions, ImuSeries, WheelSeries, fuse
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
-from lio_cli.geometry import so3_exp
+from lio_cli.geometry import interpolate_poses, so3_exp
 from lio_cli.simulation.fusion_case import START_NS, OdomNoise, simulate_case
 
 NS = 1_000_000_000
@@ -88,3 +88,23 @@ def test_a_robot_that_climbs_gets_the_3d_filter_and_a_flat_one_the_planar():
     flat = fuse(_ramp_robot(0.0), FuseOptions(rate_hz=10.0))
     assert flat.estimator == "planar"
     assert fuse(_ramp_robot(0.0), FuseOptions(rate_hz=10.0, estimator="ekf")).estimator == "ekf"
+
+
+def test_odometry_poses_beside_an_accelerometer_get_the_3d_filter_and_a_smooth_high_rate_output():
+    """A car with LiDAR-like odometry and wheels: the planar filter's 200 Hz output was noisier over 0.05 s
+    (0.044 m) than the odometry interpolated (0.025 m); the 3D one's is 0.007 m."""
+    case = simulate_case("drive", 20.0, seed=2, odom=OdomNoise())
+    inputs = _moving(case, 3.0)
+    res = fuse(inputs, FuseOptions(rate_hz=200.0))
+    assert res.estimator == "ekf" and res.info["estimator_reason"].startswith("odometry poses and an accelerometer")
+    od = inputs.odom
+    st = np.arange(od.stamps_ns[0], od.stamps_ns[-1], 5_000_000)
+    interpolated = _rpe_005(case, st, interpolate_poses(od.stamps_ns, od.poses, st))
+    assert _rpe_005(case, res.stamps_ns, res.poses) < 0.5 * interpolated
+    assert _ate(case, res.stamps_ns, res.poses) <= _ate(case, od.stamps_ns, od.poses)
+
+
+def _rpe_005(case, stamps, poses) -> float:
+    ref = Trajectory(case.truth_stamps_ns, case.truth_poses, "gt")
+    opts = EvalOptions(align="se3", delta=0.05, delta_unit="s", max_diff_ns=1_000_000)
+    return evaluate(ref, Trajectory(stamps, poses, "est"), opts).stats["rpe"]["trans"]["rmse"]
