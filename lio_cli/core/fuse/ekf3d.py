@@ -26,7 +26,7 @@ from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
+    CP_, CR_, DB, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
     initial_estimate, on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
@@ -70,6 +70,10 @@ class Ekf3d:
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
         self.inject = step3d.injector(self.L)  # on the state list
         self.update = Updater(self.gate, self.inject)
+        # with nothing measuring the heading, the wheels' body velocity must not turn it: the gyro knows it far
+        # better than a slipping wheel's speed against an uncertain velocity (a slip turned it by 29 deg)
+        absolute = {"gps", "odom"} & set(prep.use) or "orientation" in prep.use.get("imu", ())
+        self.hold_heading = None if absolute or self.L.model == "cv" else [2, DB.start + 2]
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
         self._H_orientation = np.zeros((3, self.L.n))
@@ -180,8 +184,10 @@ class Ekf3d:
         # columns ([v_b]x) are the linearisation's lever, not evidence that the attitude is off, and with them
         # inflated a speed disagreement (a wheel slip) turned the heading by tens of degrees. No reset at all while
         # odometry poses or GPS are being accepted (kalman.Anchor): the filter is anchored, the wheels disagree
+        self.update.hold = self.hold_heading
         status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity", allow_reset=self.anchor.allows_reset(t),
                              reset_states=DV)
+        self.update.hold = None
         self.wheel_rep.outcome("wheel_velocity", status)
 
     def _odom(self, t: int, i: int, x, P) -> None:
