@@ -49,7 +49,7 @@ With -o - the trajectory goes to stdout and no metrics or config file is written
   lio fuse drive.bag --use imu --use wheel --use gps --json > metrics.json
 """
 
-Estimator = Literal["ekf", "planar", "complementary"]
+Estimator = Literal["auto", "ekf", "planar", "complementary"]
 
 
 def _default(field: str):
@@ -71,7 +71,7 @@ def fuse_cmd(
     odom_topic: Annotated[Optional[str], typer.Option("--odom-topic", help="A pose topic of LOG to fuse as odometry (Odometry, PoseStamped, TransformStamped).", show_default=False, rich_help_panel=INPUT_PANEL)] = None,
     base_frame: BaseFrameOpt = None,
     use: Annotated[Optional[list[str]], typer.Option("--use", metavar="SOURCE[:M,...]", help=shown("Only these sources and measurements enter (repeat), e.g. imu:gyro, wheel:speed,yaw_rate.", "every source found"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
-    estimator: Annotated[Optional[Estimator], typer.Option("--estimator", metavar=one_of(Estimator), help=shown("ekf: 3D error-state; planar: SE(2); complementary.", _default("estimator")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    estimator: Annotated[Optional[Estimator], typer.Option("--estimator", metavar=one_of(Estimator), help=shown("auto: planar for a wheeled robot near a plane, else ekf; ekf: 3D error-state; planar: SE(2); complementary.", _default("estimator")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     smooth: Annotated[Optional[bool], typer.Option("--smooth/--no-smooth", metavar=FLAG, help=shown("RTS smoother over the EKF (the future as well as the past).", _default("smooth")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     accel_noise: Annotated[Optional[float], typer.Option("--accel-noise", help=shown("Accelerometer noise density, m/s^2/sqrt(Hz) (vibration: larger).", _default("noise.accel_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help=shown("Gyro noise density, rad/s/sqrt(Hz).", _default("noise.gyro_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
@@ -125,13 +125,8 @@ def fuse_cmd(
 
 def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     m = run.metrics
-    parts = []
-    for src, s in m["sources"].items():
-        if "updates" not in s:
-            continue
-        rej = sum(r["count"] for r in s["rejected"].values())
-        why = ", ".join(f"{r['count']} {k}" for k, r in s["rejected"].items())
-        parts.append(f"{src} {plural(s['updates'], 'update')}" + (f", {rej} rejected ({why})" if rej else ""))
+    parts = [s["summary"] for s in m["sources"].values() if "summary" in s]
+    note(f"estimator: {m['estimator']} ({m['estimator_reason']})", quiet)
     est = m["estimator"] + (" + smoother" if m["smoothed"] else "")
     chunks = m["memory"]["chunks"]
     note(f"{plural(m['output']['poses'], 'pose')} ({m['output']['stamps']}), {est}: {'; '.join(parts)}"

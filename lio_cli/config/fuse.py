@@ -78,7 +78,8 @@ class FuseNoise(Strict):
     # above the core's 0.02 m / 0.005 rad: LiDAR odometry's pose errors drift (correlated), they are not white
     odom_position_sigma_m: float = Field(0.1, gt=0, description="per odometry pose without a covariance")
     odom_rotation_sigma_rad: float = Field(0.02, gt=0, description="per odometry pose without a covariance")
-    gps_position_sigma_m: float = Field(2.0, gt=0, description="GPS position noise without a usable covariance, m")
+    gps_position_sigma_m: float = Field(2.0, gt=0, description="GPS horizontal noise without a usable covariance, m")
+    gps_vertical_sigma_m: float = Field(5.0, gt=0, description="GPS altitude noise without a usable covariance, m")
     orientation_sigma_rad: float = Field(0.02, gt=0, description="IMU's own orientation")
     use_message_covariance: bool = Field(True, description="false: the sigmas above for every message")
     init_velocity_sigma_mps: float = Field(1.0, gt=0, description="initial velocity uncertainty")
@@ -95,8 +96,9 @@ class FuseConfig(Strict):
     use: Optional[dict[Literal["imu", "wheel", "odom", "gps"], list[str]]] = Field(
         None, description="source -> measurements (imu: gyro, accel, orientation; wheel: speed, velocity, yaw_rate; "
                           "odom: pose or delta; gps: position); default: every source found, the core's selection")
-    estimator: Literal["ekf", "planar", "complementary"] = Field(
-        "ekf", description="ekf (3D error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")
+    estimator: Literal["auto", "ekf", "planar", "complementary"] = Field(
+        "auto", description="auto (planar for a wheeled robot whose motion stays near a plane, else ekf), ekf (3D "
+                            "error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")
     smooth: bool = Field(False, description="RTS smoother over the EKF: every measurement before and after each instant")
     rate_hz: Optional[float] = Field(None, description="output rate; default: every IMU sample (exact stamps)")
     noise: FuseNoise = FuseNoise()

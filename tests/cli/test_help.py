@@ -101,7 +101,7 @@ def test_examples_are_one_short_command_per_line(command, capsys, monkeypatch):
     ("odom", "--prior", ["imu", "constant-velocity", "wheel", "none"], "imu"),
     ("odom", "--fusion", ["ekf", "complementary"], "ekf"),
     ("deskew", "--motion", ["auto", "trajectory", "imu", "constant-velocity"], "auto"),
-    ("fuse", "--estimator", ["ekf", "planar", "complementary"], "ekf"),
+    ("fuse", "--estimator", ["auto", "ekf", "planar", "complementary"], "auto"),
     ("evaluate", "--align", ["none", "se3", "sim3", "scale", "origin", "posyaw"], "se3"),
     ("simulate", "--time-convention", ["velodyne", "ouster", "livox", "hesai"], "velodyne"),
 ])
@@ -121,7 +121,7 @@ def test_choices_and_defaults_are_shown(command, option, choices, default, capsy
      "Invalid value for '--deskew': 'always' is not one of 'auto', 'imu', 'constant-velocity', 'none'; "
      "see 'lio odom --help'"),
     (["fuse", "missing.bag", "--estimator", "ukf"],
-     "Invalid value for '--estimator': 'ukf' is not one of 'ekf', 'planar', 'complementary'; see 'lio fuse --help'"),
+     "Invalid value for '--estimator': 'ukf' is not one of 'auto', 'ekf', 'planar', 'complementary'; see 'lio fuse --help'"),
     (["evaluate", "a.tum", "b.tum", "--gt-stamp-unit", "min"],
      "Invalid value for '--gt-stamp-unit': 'min' is not one of 's', 'ms', 'us', 'ns'; see 'lio evaluate --help'"),
     (["odom", "missing.bag", "--alpha", "2"],

@@ -36,7 +36,7 @@ def test_use_syntax():
     ("rate_hz: -5\n", "rate_hz: must be a positive number of Hz, got -5.0"),
     ("use:\n  wheel: [odometer]\n", "use: unknown wheel measurement 'odometer' (choose from speed, velocity, yaw_rate)"),
     ("use:\n  lidar: [points]\n", "use.lidar.[key]: Input should be 'imu', 'wheel', 'odom' or 'gps'"),
-    ("estimator: ukf\n", "estimator: Input should be 'ekf', 'planar' or 'complementary'"),
+    ("estimator: ukf\n", "estimator: Input should be 'auto', 'ekf', 'planar' or 'complementary'"),
     ("input:\n  odom_topic: /a\n  odom_file: b.tum\n", "input: give the odometry as odom_topic or odom_file, not both"),
     ("noise:\n  gyro_noise_density: 0\n", "noise.gyro_noise_density: must be > 0, got 0"),
 ])

@@ -1,12 +1,13 @@
 """Estimation core of ``lio fuse``: fuse LiDAR odometry, IMU, wheel odometry and GPS into one trajectory.
 
-Entry point: ``fuse(FuseInputs(...), FuseOptions(...)) -> FuseResult``. Estimators: the 3D error-state
+Entry point: ``fuse(FuseInputs(...), FuseOptions(...)) -> FuseResult``. Estimators (chosen from the data by default: ``choose``): the 3D error-state
 EKF (``ekf``), the lecture's planar EKF (``planar``) and complementary filter (``complementary``); an RTS
 smoother over either EKF (``FuseOptions(smooth=True)``). Inputs are plain numpy arrays with int64 ns
 stamps (``inputs``); nothing here reads files (``lio_cli.io`` is never imported).
 """
 
-from .api import fuse
+from .api import fuse, pick_estimator
+from .choose import EstimatorChoice
 from .inputs import (
     ESTIMATORS, MEASUREMENTS, FuseInputs, FuseOptions, GpsSeries, ImuSeries, NoiseOptions, PoseSeries, WheelSeries,
 )
@@ -14,7 +15,7 @@ from .report import NOTE_REASONS, REJECT_REASONS, SourceReport
 from .result import COVARIANCE_LAYOUT, FuseResult
 
 __all__ = [
-    "COVARIANCE_LAYOUT", "ESTIMATORS", "MEASUREMENTS", "NOTE_REASONS", "REJECT_REASONS", "FuseInputs",
+    "COVARIANCE_LAYOUT", "ESTIMATORS", "EstimatorChoice", "MEASUREMENTS", "NOTE_REASONS", "REJECT_REASONS", "FuseInputs",
     "FuseOptions", "FuseResult", "GpsSeries", "ImuSeries", "NoiseOptions", "PoseSeries", "SourceReport",
-    "WheelSeries", "fuse",
+    "WheelSeries", "fuse", "pick_estimator",
 ]

@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from ...geometry import so3_exp_one
+from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
@@ -17,7 +18,7 @@ from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
 from .state3d import P_, R_, V_
-from .timeline import Prepared, prepare
+from .timeline import Prepared, planar_use, prepare
 
 _EKF_XY = slice(P_.start, P_.start + 2)  # x, y of the 3D filter's nominal state
 
@@ -30,7 +31,8 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     """
     o = options or FuseOptions()
     t_start = time.perf_counter()
-    prep = prepare(inputs, o)
+    prep, choice = _prepare_and_choose(inputs, o)
+    o = replace(o, estimator=choice.name)
     if o.estimator == "planar":
         result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
     elif o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
@@ -38,8 +40,25 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     else:
         result = _run_ekf3d(prep, o)
     result.info.update(_common_info(prep, o))
+    result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     result.info["run_time_s"] = time.perf_counter() - t_start
     return result
+
+
+def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions) -> tuple[Prepared, EstimatorChoice]:
+    """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for."""
+    if o.estimator != "auto":
+        return prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
+    prep = prepare(inputs, replace(o, estimator="ekf"))
+    choice = choose_estimator(prep)
+    if choice.name == "planar":
+        planar_use(prep.use)
+    return prep, choice
+
+
+def pick_estimator(inputs: FuseInputs, options: FuseOptions) -> EstimatorChoice:
+    """The estimator ``fuse`` would run on these inputs and why (for a caller that fuses in pieces)."""
+    return _prepare_and_choose(inputs, options)[1]
 
 
 def _common_info(prep: Prepared, o: FuseOptions) -> dict:
@@ -64,7 +83,8 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
         return start
     knots = filter_cls(prefix_without_gps(prep, t_end), replace(o, smooth=False), start).run()
     k = np.searchsorted(prep.gps.stamps_ns, knots["t_ns"])
-    yaw = yaw_onto(knots["x_filt"][:, xy], prep.gps.position_enu_m[k, :2])
+    ok = prep.gps.accepted[k]
+    yaw = yaw_onto(knots["x_filt"][ok][:, xy], prep.gps.position_enu_m[k[ok], :2])
     Rz = so3_exp_one(np.array([0.0, 0.0, yaw]))
     start.R, start.v, start.yaw_from = Rz @ start.R, Rz @ start.v, "gps"
     start.reason += f"; heading {np.degrees(yaw):.1f} deg from GPS over the first {len(k)} fixes"

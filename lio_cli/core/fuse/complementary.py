@@ -152,6 +152,8 @@ class Complementary:
             elif kind == ODOM:
                 self._odom(t, i)
             elif kind == GPS:
+                if not prep.gps.accepted[i]:  # a multipath jump (gps_quality), counted there
+                    continue
                 z = prep.gps.position_enu_m[i]
                 if self.gps_offset is None:  # ENU about the first fix, where the state is then
                     self.gps_offset = self.p - z

@@ -20,12 +20,13 @@ from ...geometry import inv_pose
 from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
+from .gps_quality import GpsNoise, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
+    CP_, CR_, DB, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
     initial_estimate, on_list, pose,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
@@ -69,6 +70,10 @@ class Ekf3d:
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
         self.inject = step3d.injector(self.L)  # on the state list
         self.update = Updater(self.gate, self.inject)
+        # with nothing measuring the heading, the wheels' body velocity must not turn it: the gyro knows it far
+        # better than a slipping wheel's speed against an uncertain velocity (a slip turned it by 29 deg)
+        absolute = {"gps", "odom"} & set(prep.use) or "orientation" in prep.use.get("imu", ())
+        self.hold_heading = None if absolute or self.L.model == "cv" else [2, DB.start + 2]
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
         self._T = np.empty((self.L.n, self.L.n))  # scratch for the covariance products
         self._H_orientation = np.zeros((3, self.L.n))
@@ -83,6 +88,7 @@ class Ekf3d:
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
+        self.gps_h, self.gps_v = GpsNoise(2), GpsNoise(1)
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
@@ -178,8 +184,10 @@ class Ekf3d:
         # columns ([v_b]x) are the linearisation's lever, not evidence that the attitude is off, and with them
         # inflated a speed disagreement (a wheel slip) turned the heading by tens of degrees. No reset at all while
         # odometry poses or GPS are being accepted (kalman.Anchor): the filter is anchored, the wheels disagree
+        self.update.hold = self.hold_heading
         status = self.update(x, P, r, PHt, S, H, var, "wheel_velocity", allow_reset=self.anchor.allows_reset(t),
                              reset_states=DV)
+        self.update.hold = None
         self.wheel_rep.outcome("wheel_velocity", status)
 
     def _odom(self, t: int, i: int, x, P) -> None:
@@ -207,12 +215,20 @@ class Ekf3d:
         self.pending_clone = True
 
     def _gps(self, t: int, i: int, x, P) -> None:
-        z = self.prep.gps.position_enu_m[i]
+        """Horizontal, then vertical: each with its own noise (claimed or measured) and gate."""
+        g = self.prep.gps
+        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+            return
+        z = g.position_enu_m[i]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-        r, H, Rn = m3.position(np.array(x), z + self.gps_offset, self.prep.gps.cov_m2[i], self.L)
-        self._update(t, x, P, r, H, Rn, "gps", "gps")
+        for rows, sigma, noise, kind in ((slice(0, 2), g.sigma_h_m, self.gps_h, "gps"),
+                                         (slice(2, 3), g.sigma_v_m, self.gps_v, "gps_vertical")):
+            r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L)
+            r, H = r[rows], H[rows]
+            var = noise_variance(noise, r, H, P, float(sigma[i]) ** 2, self.prep.reports["gps"])
+            self._update(t, x, P, r, H, np.eye(len(r)) * var, "gps", kind)
 
     def _orientation(self, t: int, i: int, x, P) -> None:
         """``measure3d.orientation`` with its H = [I 0] used as a selection: P H^T is P's first columns."""

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...errors import ConfigError
 
-ESTIMATORS = ("ekf", "planar", "complementary")
+ESTIMATORS = ("auto", "ekf", "planar", "complementary")  # auto: chosen from the data (choose.py)
 
 # measurement names per source (FuseOptions.use)
 MEASUREMENTS: dict[str, tuple[str, ...]] = {
@@ -84,12 +84,17 @@ class PoseSeries:
 @dataclass
 class GpsSeries:
     """GPS fixes already converted to a local ENU frame (metres): ``position_enu_m`` (N,3), ``cov_m2``
-    (N,3,3), ``valid`` (N,) (fix status)."""
+    (N,3,3), ``valid`` (N,) (fix status). Filled in on ``Prepared.gps`` (``gps_quality.assess_gps``), for
+    every estimator alike: ``sigma_h_m``, ``sigma_v_m`` (N,) the horizontal and vertical sigma each fix is
+    trusted with, ``accepted`` (N,) False for a fix left out (a multipath jump)."""
 
     stamps_ns: np.ndarray
     position_enu_m: np.ndarray
     cov_m2: np.ndarray | None = None
     valid: np.ndarray | None = None
+    sigma_h_m: np.ndarray | None = None
+    sigma_v_m: np.ndarray | None = None
+    accepted: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
@@ -129,7 +134,8 @@ class NoiseOptions:
     nonholonomic_rel_sigma: float = 0.03  # plus this share of the forward speed (body pitch, slip angle)
     odom_position_sigma_m: float = 0.02
     odom_rotation_sigma_rad: float = 0.005
-    gps_position_sigma_m: float = 2.0
+    gps_position_sigma_m: float = 2.0  # horizontal
+    gps_vertical_sigma_m: float = 5.0  # a receiver's altitude is several times worse than its position
     orientation_sigma_rad: float = 0.02
     use_message_covariance: bool = True
     # initial uncertainty
@@ -164,7 +170,7 @@ class FuseOptions:
     applies every one at its own stamp.
     """
 
-    estimator: str = "ekf"
+    estimator: str = "auto"
     smooth: bool = False
     use: dict[str, set[str]] | None = None
     noise: NoiseOptions = field(default_factory=NoiseOptions)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ...geometry import inv_pose, yaw_of
 from .initial import Start, initial_state
+from .gps_quality import GpsNoise, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog, kalman_update
 from .result import FuseResult, anchor_to_origin
@@ -52,6 +53,7 @@ class PlanarEkf:
         self.T_world_odom: np.ndarray | None = None
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
+        self.gps_h = GpsNoise(2)
         self.pending_clone = False
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
 
@@ -181,13 +183,18 @@ class PlanarEkf:
         return P
 
     def _gps(self, t, i, x, P):
-        z = self.prep.gps.position_enu_m[i, :2]
+        g = self.prep.gps
+        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+            return P
+        z = g.position_enu_m[i, :2]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
         H = np.zeros((2, self.n))
         H[0, X] = H[1, Y] = 1.0
-        return self._update(t, x, P, z + self.gps_offset - x[0:2], H, self.prep.gps.cov_m2[i][:2, :2], "gps", "gps")
+        r = z + self.gps_offset - x[0:2]
+        var = noise_variance(self.gps_h, r, H, P, float(g.sigma_h_m[i]) ** 2, self.prep.reports["gps"])
+        return self._update(t, x, P, r, H, np.eye(2) * var, "gps", "gps")
 
     def _apply_clone(self, x, P):
         J = np.eye(self.n)
@@ -231,16 +238,18 @@ class PlanarEkf:
 
 def predict(x: np.ndarray, dt: float, n: int) -> np.ndarray:
     """The lecture's step ``x += v cos(theta) dt``, ``y += v sin(theta) dt``, ``theta += omega dt`` in
-    place; returns its Jacobian F (n x n)."""
-    c, s = math.cos(x[TH]), math.sin(x[TH])
-    v = x[V]
+    place, the heading taken at the step's middle (``theta + omega dt / 2``: exact to second order on an
+    arc); returns its Jacobian F (n x n)."""
+    v, w = x[V], x[W]
+    th_mid = x[TH] + 0.5 * w * dt
+    c, s = math.cos(th_mid), math.sin(th_mid)
     F = np.eye(n)
-    F[X, TH], F[X, V] = -v * s * dt, c * dt
-    F[Y, TH], F[Y, V] = v * c * dt, s * dt
+    F[X, TH], F[X, V], F[X, W] = -v * s * dt, c * dt, -0.5 * v * s * dt * dt
+    F[Y, TH], F[Y, V], F[Y, W] = v * c * dt, s * dt, 0.5 * v * c * dt * dt
     F[TH, W] = dt
     x[X] += v * c * dt
     x[Y] += v * s * dt
-    x[TH] = wrap(x[TH] + x[W] * dt)
+    x[TH] = wrap(x[TH] + w * dt)
     return F
 
 

@@ -13,7 +13,9 @@ REJECT_REASONS = {
     "invalid_pose": "the pose's rotation was not a rotation (e.g. quaternion 0,0,0,0)",
     "no_fix": "the GPS fix status said invalid",
     "outside_span": "stamped outside the time span of the motion sources",
-    "outlier": "failed the chi-square gate against the prediction",
+    "outlier": "innovation beyond the chi-square gate (gate_probability) against the prediction",
+    "multipath_jump": "a GPS fix inside a jump of the track its own motion cannot explain (multipath), until the "
+                      "track comes back",
     "in_gap": "stamped inside a gap of every motion source",
 }
 # Things noticed and handled without dropping the value.
@@ -24,6 +26,10 @@ NOTE_REASONS = {
     "gate_reset": "accepted after too many rejections in a row (the filter was assumed off)",
     "anchor": "used to tie the source's frame to the fused world frame",
     "orientation_absent": "the message carried no valid orientation (quaternion 0 or covariance -1)",
+    "jumps": "GPS jumps found (multipath; their fixes are rejected as multipath_jump)",
+    "jump_kept": "GPS jumps that lasted so long they were taken as the receiver's new level",
+    "dropouts": "GPS pauses of over 5 periods, bridged by the motion sources",
+    "noise_raised": "GPS fixes whose claimed sigma the innovations showed optimistic: the measured one was used",
     "snapped": "applied at an IMU sample at most FuseOptions.snap_ns away instead of at its own stamp",
 }
 

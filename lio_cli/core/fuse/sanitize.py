@@ -157,7 +157,8 @@ def clean_gps(gps: GpsSeries, noise: NoiseOptions, report: SourceReport) -> GpsS
     report.reject("nan", int(np.count_nonzero(valid & ~finite)))
     keep = order_and_dedupe(gps.stamps_ns, valid & finite, report)
     m = len(keep)
-    cov = np.broadcast_to(np.eye(3) * noise.gps_position_sigma_m**2, (m, 3, 3)).copy()
+    cov = np.broadcast_to(np.diag([noise.gps_position_sigma_m**2] * 2 + [noise.gps_vertical_sigma_m**2]),
+                          (m, 3, 3)).copy()
     if gps.cov_m2 is not None and noise.use_message_covariance:
         raw = np.asarray(gps.cov_m2, np.float64).reshape(n, 3, 3)[keep]
         with np.errstate(invalid="ignore"):

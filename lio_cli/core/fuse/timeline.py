@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import InputError
+from .gps_quality import assess_gps
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .lever import imu_in_base
 from .report import SourceReport
@@ -108,14 +109,20 @@ def _rate_stamps(coverage: list[tuple[int, int]], rate_hz: float) -> np.ndarray:
     return np.unique(np.concatenate(out)) if out else np.zeros(0, np.int64)
 
 
+def planar_use(use: dict[str, set[str]]) -> None:
+    """The selection narrowed to what the planar EKF models (no accelerometer)."""
+    if "imu" in use:
+        use["imu"].discard("accel")
+        if not use["imu"]:
+            del use["imu"]
+
+
 def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     """Validate, clean and order the inputs; raise InputError/ConfigError with one line when no run can."""
     options.validate()
     use = resolve_use(inputs, options)
-    if options.estimator == "planar" and "imu" in use:
-        use["imu"].discard("accel")  # the planar EKF has no accelerometer model
-        if not use["imu"]:
-            del use["imu"]
+    if options.estimator == "planar":
+        planar_use(use)
     motion = [s for s in MOTION_SOURCES if s in use and (s != "imu" or "gyro" in use["imu"])]
     if not motion:
         raise InputError("no motion source: fuse needs an odometry trajectory, an IMU (gyro) or wheel odometry")
@@ -153,6 +160,8 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
             thr = gap_threshold_ns(cleaned.stamps_ns, options.gap_periods, options.min_gap_ns)
             count_gaps(cleaned.stamps_ns, thr, reports[name])
             runs += _runs(cleaned.stamps_ns, thr)
+    if prep.gps is not None:
+        assess_gps(prep.gps, reports["gps"])
     prep.coverage = _merge(runs)
     if not prep.coverage:
         raise InputError("no usable sample in any motion source")

@@ -41,6 +41,7 @@ class Updater:
 
     def __init__(self, gate: Gate | None, inject):
         self.gate, self.inject = gate, inject
+        self.hold: list[int] | None = None  # error states a "consider" update leaves alone (set per call)
         self._Si = [np.empty((m, m)) for m in range(4)]  # S^-1 of 1-3 rows written here, not a new array
         self._Si3 = self._Si[3].reshape(-1)  # the 3x3 one's flat view (a flat list goes in faster)
 
@@ -108,6 +109,12 @@ class Updater:
         else:
             Sa = np.asarray(Si)
         K = PHt.dot(Sa)
+        if self.hold:  # Schmidt ("consider") update: these states keep their value, P stays consistent
+            K[self.hold] = 0.0
+            A = K.dot(PHt.T)
+            P += K.dot(np.linalg.inv(Sa)).dot(K.T) - A - A.T
+            self.inject(x, K.dot(r))
+            return status
         self.inject(x, K.dot(r))
         P -= K.dot(PHt.T)
         return status

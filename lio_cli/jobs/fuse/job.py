@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ...config import with_overrides
 from ...config.fuse import FuseConfig
-from ...core.fuse import COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult, NoiseOptions
+from ...core.fuse import (COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult,
+                          NoiseOptions, pick_estimator)
 from ...evaluation.scoring import Score
 from ...gc_pause import cyclic_gc_paused
 from ...io.logs.reader import open_log
@@ -27,6 +28,7 @@ from ...model.trajectory import Trajectory
 from ..contract import score_into
 from .chunks import MemoryPlan, fuse_chunked, plan
 from .inputs import FuseSources, gather_sources
+from .summary import source_summary
 
 Progress = Callable[[int, int | None], None]  # (work done, total work) in message-sized units
 
@@ -88,6 +90,8 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
         fmt = reader.format
     t_read = time.perf_counter() - t_wall
     options = core_options(cfg, sources.use, job.covariance)
+    choice = pick_estimator(sources.inputs, options)  # once for the whole log, so every chunk runs the same one
+    options = replace(options, estimator=choice.name)
     memory = plan(sources.inputs, options, sources.use, cfg.max_memory_mb)
 
     def fuse_step(k: int, n: int) -> None:
@@ -98,11 +102,12 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     result, chunks = fuse_chunked(sources.inputs, options, memory, fuse_step)
     t_fuse = time.perf_counter() - t_fuse
     _add_gps_drops(result, sources)
+    result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     resolved = with_overrides(cfg, {
         "input.imu_topic": _topic(sources, "imu"), "input.wheel_topic": _topic(sources, "wheel"),
         "input.gps_topic": _topic(sources, "gps"), "input.base_frame": sources.base_frame,
         "input.wheel_twist_frame": sources.wheel_twist_frame,
-        "input.gps_origin": _gps_origin(sources), "use": sources.use,
+        "input.gps_origin": _gps_origin(sources), "use": sources.use, "estimator": choice.name,
     }, "resolved configuration")
     traj = Trajectory(result.stamps_ns, result.poses, f"{job.log}:fuse", "fuse")
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
@@ -159,7 +164,8 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
             entry.update(received=rep.received, updates=rep.updates, predictions=rep.predictions,
                          updates_by_kind=rep.by_kind,
                          rejected={k: {"count": v, "why": REJECT_REASONS.get(k, k)} for k, v in rep.rejected.items()},
-                         handled={k: {"count": v, "what": NOTE_REASONS.get(k, k)} for k, v in rep.notes.items()})
+                         handled={k: {"count": v, "what": NOTE_REASONS.get(k, k)} for k, v in rep.notes.items()},
+                         summary=source_summary(src, rep.updates, rep.predictions, rep.by_kind, rep.rejected))
         else:
             entry["unused"] = "no measurement of this source selected"
         per_source[src] = entry
@@ -174,6 +180,7 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
         "base_frame": sources.base_frame,
         "extrinsics": sources.extrinsics,
         "estimator": result.estimator,
+        "estimator_reason": result.info.get("estimator_reason"),
         "smoothed": result.smoothed,
         "output": {"frame": "base", "poses": len(stamps),
                    "stamps": f"{cfg.rate_hz:g} Hz" if cfg.rate_hz else "every IMU sample (exact stamps)"

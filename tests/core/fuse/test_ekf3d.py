@@ -34,7 +34,7 @@ def test_constant_velocity_odometry_update_gain_by_hand():
     dt, nz = 0.1, NoiseOptions()
     T1 = make_pose(t=np.array([0.1, 0.0, 0.0]))
     odom = PoseSeries(np.array([START_NS, START_NS + 100 * MS]), np.stack([np.eye(4), T1]))
-    res = fuse(FuseInputs(odom=odom), FuseOptions(use={"odom": {"pose"}}))
+    res = fuse(FuseInputs(odom=odom), FuseOptions(estimator="ekf", use={"odom": {"pose"}}))
     # first pose anchors the odometry frame; predict: P_xx = sv^2 dt^2 + q dt^3 / 3, P_xv = sv^2 dt
     sv2, q, r2 = nz.init_velocity_sigma_mps**2, nz.cv_accel_density**2, nz.odom_position_sigma_m**2
     p_xx, p_xv = sv2 * dt**2 + q * dt**3 / 3.0, sv2 * dt
@@ -50,7 +50,7 @@ def test_pure_rotation_integrates_the_gyro_exactly():
     n, w = 401, 0.5
     st = START_NS + np.arange(n, dtype=np.int64) * 5 * MS
     imu = ImuSeries(st, np.tile([0.0, 0.0, w], (n, 1)), np.tile([0.0, 0.0, 9.81], (n, 1)), np.eye(4))
-    res = fuse(FuseInputs(imu=imu), FuseOptions())
+    res = fuse(FuseInputs(imu=imu), FuseOptions(estimator="ekf"))
     t_s = (res.stamps_ns - st[0]) * 1e-9
     np.testing.assert_allclose(np.unwrap(yaw_of(res.poses[:, :3, :3])), w * t_s, atol=EXACT)
     np.testing.assert_allclose(res.poses[:, :3, 3], 0.0, atol=EXACT)
@@ -60,7 +60,7 @@ def test_pure_rotation_integrates_the_gyro_exactly():
 def test_odometry_plus_imu_beats_odometry_absolute_and_between_scans():
     case = simulate_case("handheld", 12.0, seed=5, wheels=False, odom=OdomNoise())
     od = case.inputs.odom
-    res = fuse(case.inputs, FuseOptions())  # filter at every IMU sample (200 Hz)
+    res = fuse(case.inputs, FuseOptions(estimator="ekf"))  # filter at every IMU sample (200 Hz)
     assert len(res) == len(case.inputs.imu)
     q = case.truth_stamps_ns[(case.truth_stamps_ns >= od.stamps_ns[0]) & (case.truth_stamps_ns <= od.stamps_ns[-1])]
     interp = interpolate_poses(od.stamps_ns, od.poses, q)
@@ -71,7 +71,7 @@ def test_odometry_plus_imu_beats_odometry_absolute_and_between_scans():
 
 def test_imu_and_wheels_beat_wheel_dead_reckoning():
     case = simulate_case("planar", 40.0, seed=1)
-    res = fuse(case.inputs, FuseOptions(rate_hz=50.0))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
     dr = ate(case, case.inputs.wheel.stamps_ns, case.wheel_dead_reckoning)
     assert ate(case, res.stamps_ns, res.poses) < WHEEL_ATE_RATIO * dr
     assert res.info["use"] == {"imu": ["accel", "gyro"], "wheel": ["speed"]}
@@ -84,20 +84,20 @@ def test_covariance_symmetrised_now_and_then_gives_the_same_trajectory(monkeypat
 
     assert ekf3d.SYMMETRIZE_EVERY > 1
     case = simulate_case("planar", 20.0, seed=2)
-    sparse = fuse(case.inputs, FuseOptions(rate_hz=50.0))
+    sparse = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
     monkeypatch.setattr(ekf3d, "SYMMETRIZE_EVERY", 1)
-    every = fuse(case.inputs, FuseOptions(rate_hz=50.0))
+    every = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
     assert len(sparse.poses) == len(every.poses) > 900
     np.testing.assert_allclose(sparse.poses, every.poses, rtol=0, atol=1e-9)
     monkeypatch.undo()
-    cov = fuse(case.inputs, FuseOptions(rate_hz=50.0, want_covariance=True)).covariances
+    cov = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0, want_covariance=True)).covariances
     assert np.array_equal(cov, np.transpose(cov, (0, 2, 1)))  # a recorded P is symmetrised at every step
 
 
 def test_relative_odometry_with_clean_data_tracks_truth():
     clean = OdomNoise(position_sigma_m=1e-4, rotation_sigma_rad=1e-5, drift_yaw_rw=0.0, drift_position_rw=0.0)
     case = simulate_case("handheld", 8.0, seed=2, wheels=False, odom=clean, imu_noise_scale=0.1)
-    res = fuse(case.inputs, FuseOptions(use={"imu": {"gyro", "accel"}, "odom": {"delta"}}))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", use={"imu": {"gyro", "accel"}, "odom": {"delta"}}))
     assert ate(case, res.stamps_ns, res.poses) < 0.005
     assert res.reports["odom"].updates == len(case.inputs.odom) - 1
 
@@ -105,7 +105,7 @@ def test_relative_odometry_with_clean_data_tracks_truth():
 def test_bad_messages_are_counted_and_do_not_change_the_result():
     case = simulate_case("planar", 6.0, seed=4)
     imu, wheel = case.inputs.imu, case.inputs.wheel
-    clean = fuse(case.inputs, FuseOptions(rate_hz=20.0))
+    clean = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0))
     n = len(wheel)
     # wheel: 5 duplicated messages arriving late, 4 rows of NaN, variance 0 and -1 (ROS "unknown")
     dup = np.arange(10, 15)
@@ -120,7 +120,7 @@ def test_bad_messages_are_counted_and_do_not_change_the_result():
         order[[k, k + 1]] = order[[k + 1, k]]
     bad = FuseInputs(imu=ImuSeries(imu.stamps_ns[order], imu.gyro_radps[order], imu.accel_mps2[order], imu.T_base_imu),
                      wheel=WheelSeries(st, vel, yaw, var, None))
-    res = fuse(bad, FuseOptions(rate_hz=20.0))
+    res = fuse(bad, FuseOptions(estimator="ekf", rate_hz=20.0))
     np.testing.assert_allclose(res.poses, clean.poses, atol=EXACT)
     assert res.reports["imu"].notes == {"reordered": 20}
     assert res.reports["wheel"].rejected == {"nan": 4, "duplicate_stamp": 5}
@@ -133,7 +133,7 @@ def test_long_gap_costs_one_step():
     n = len(st)
     imu = ImuSeries(st, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), np.eye(4))
     t0 = time.perf_counter()
-    res = fuse(FuseInputs(imu=imu), FuseOptions(rate_hz=100.0))
+    res = fuse(FuseInputs(imu=imu), FuseOptions(estimator="ekf", rate_hz=100.0))
     assert time.perf_counter() - t0 < 1.0  # (would be an hour of 200 Hz steps if integrated)
     assert len(res) == 2 * 201
     assert res.reports["imu"].notes == {"gaps": 1}
@@ -144,11 +144,11 @@ def test_long_gap_costs_one_step():
 
 def test_odometry_glitch_is_rejected_as_outlier():
     case = simulate_case("handheld", 8.0, seed=3, wheels=False, odom=OdomNoise())
-    ref = fuse(case.inputs, FuseOptions(rate_hz=50.0))
+    ref = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
     poses = case.inputs.odom.poses.copy()
     poses[40, :3, 3] += [3.0, 0.0, 0.0]  # a registration failure
     case.inputs.odom = PoseSeries(case.inputs.odom.stamps_ns, poses)
-    res = fuse(case.inputs, FuseOptions(rate_hz=50.0))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
     assert res.reports["odom"].rejected == {"outlier": 1}
     assert np.abs(res.poses[:, :3, 3] - ref.poses[:, :3, 3]).max() < 0.01
 
@@ -162,7 +162,7 @@ def test_imu_orientation_defines_the_world_heading():
     gyro = imu.gyro_radps.copy()
     gyro[400:] += imu.T_base_imu[:3, :3].T @ [0.0, 0.0, 0.02]  # a bias change after the standing start
     case.inputs.imu = ImuSeries(imu.stamps_ns, gyro, imu.accel_mps2, imu.T_base_imu, q, None, cov)
-    res = fuse(case.inputs, FuseOptions(rate_hz=10.0))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=10.0))
     assert res.info["world_yaw_from"] == "imu_orientation"
     truth = interpolate_poses(case.truth_stamps_ns, case.truth_poses, res.stamps_ns)
     dyaw = np.angle(np.exp(1j * (yaw_of(res.poses[:, :3, :3]) - yaw_of(truth[:, :3, :3]))))
@@ -172,7 +172,7 @@ def test_imu_orientation_defines_the_world_heading():
 
 def test_gps_gives_the_heading_and_bounds_the_drift():
     case = simulate_case("planar", 60.0, seed=1, gps_sigma_m=0.5)
-    res = fuse(case.inputs, FuseOptions(rate_hz=10.0, smooth=True))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=10.0, smooth=True))
     assert res.info["world_yaw_from"] == "gps"
     truth = interpolate_poses(case.truth_stamps_ns, case.truth_poses, res.stamps_ns)
     err = res.poses[:, :3, 3] - (truth[:, :3, 3] - truth[0, :3, 3])  # world = ENU shifted to the start
@@ -180,12 +180,14 @@ def test_gps_gives_the_heading_and_bounds_the_drift():
     assert np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1))) < 0.25
     dyaw = np.angle(np.exp(1j * (yaw_of(res.poses[0, :3, :3]) - yaw_of(truth[0, :3, :3]))))
     assert abs(dyaw) < np.radians(3.0)
-    assert res.reports["gps"].updates == len(case.inputs.gps) and res.reports["gps"].notes == {"anchor": 1}
+    by_kind = res.reports["gps"].by_kind  # each fix: a horizontal and a vertical update
+    assert by_kind["gps"]["updates"] == by_kind["gps_vertical"]["updates"] == len(case.inputs.gps)
+    assert res.reports["gps"].notes == {"anchor": 1}
 
 
 def test_wheel_twist_without_imu_uses_the_constant_velocity_model():
     case = simulate_case("planar", 20.0, seed=1, wheel_errors=False)
-    res = fuse(FuseInputs(wheel=case.inputs.wheel), FuseOptions())
+    res = fuse(FuseInputs(wheel=case.inputs.wheel), FuseOptions(estimator="ekf"))
     assert res.info["model"] == "cv" and res.info["use"] == {"wheel": ["speed", "yaw_rate"]}
     assert ate(case, res.stamps_ns, res.poses) < 0.05  # error-free wheels: close to the truth
 
@@ -201,7 +203,7 @@ def test_lever_arm_of_a_spinning_imu_is_removed():
     n = 401
     st = START_NS + np.arange(n, dtype=np.int64) * 5 * MS
     imu = ImuSeries(st, np.tile(R_bi.T @ w_b, (n, 1)), np.tile(R_bi.T @ f_b, (n, 1)), T_bi)
-    res = fuse(FuseInputs(imu=imu), FuseOptions())
+    res = fuse(FuseInputs(imu=imu), FuseOptions(estimator="ekf"))
     np.testing.assert_allclose(res.poses[:, :3, 3], 0.0, atol=1e-6)
     np.testing.assert_allclose(np.unwrap(yaw_of(res.poses[:, :3, :3])), w * (res.stamps_ns - st[0]) * 1e-9, atol=EXACT)
 
@@ -210,7 +212,7 @@ def test_imu_mounting_rotation_is_applied_on_a_real_path():
     case = simulate_case("corridor", 10.0, seed=0, wheels=True, wheel_errors=False, imu_noise_scale=0.0)
     T = case.inputs.imu.T_base_imu
     assert not np.allclose(T[:3, :3], np.eye(3)) and np.any(T[:3, 3])
-    res = fuse(case.inputs, FuseOptions(rate_hz=50.0))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
     assert ate(case, res.stamps_ns, res.poses) < 0.02
 
 
@@ -241,7 +243,7 @@ def test_gap_search_runs_once_per_covered_stretch_not_once_per_step(monkeypatch)
     calls, gaps = [], []
     search = ekf3d.in_coverage_gap
     monkeypatch.setattr(ekf3d, "in_coverage_gap", lambda *a: calls.append(a[2]) or gaps.append(search(*a)) or gaps[-1])
-    res = fuse(FuseInputs(imu=imu), FuseOptions())
+    res = fuse(FuseInputs(imu=imu), FuseOptions(estimator="ekf"))
     assert res.info["motion_gaps"] == 9 and sum(gaps) == 9
     assert len(calls) <= 2 * 10  # at each stretch's start and end, not at each of the ~2000 steps
 
@@ -260,5 +262,5 @@ def test_outputs_at_imu_stamps_cost_no_loop_round_of_their_own(monkeypatch):
     marks = []
     mark = kalman.KnotLog.mark_output
     monkeypatch.setattr(kalman.KnotLog, "mark_output", lambda self: marks.append(1) or mark(self))
-    res = fuse(FuseInputs(imu=imu), FuseOptions())
+    res = fuse(FuseInputs(imu=imu), FuseOptions(estimator="ekf"))
     assert rounds == [n] and len(marks) == n and len(res) == n

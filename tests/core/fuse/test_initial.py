@@ -56,7 +56,7 @@ def test_constant_velocity_start_is_not_taken_for_standing_when_wheels_or_odomet
     from lio_cli.core.fuse.initial import initial_state
     from lio_cli.core.fuse.timeline import prepare
 
-    o = FuseOptions()
+    o = FuseOptions(estimator="ekf")
     for wheels, odom, what in ((True, False, "the wheels report 2.00 m/s"), (False, True, "the odometry moves 2.00 m/s")):
         prep = prepare(_cruising_inputs(2.0, wheels, odom), o)
         s = initial_state(prep, o.standing_window_ns, o.gravity_mps2, o.noise)
@@ -99,7 +99,7 @@ def test_moving_start_takes_gravity_from_the_odometry_or_the_wheels_not_the_turn
     from lio_cli.core.fuse.initial import initial_state
     from lio_cli.core.fuse.timeline import prepare
 
-    o = FuseOptions()
+    o = FuseOptions(estimator="ekf")
     for odom, wheels, source in ((True, False, "odometry"), (False, True, "wheels"), (True, True, "odometry")):
         s = initial_state(prepare(_turning_inputs(odom, wheels), o), o.standing_window_ns, o.gravity_mps2, o.noise)
         assert not s.standing
@@ -115,7 +115,7 @@ def test_moving_start_without_odometry_or_wheels_says_its_tilt_is_the_motions():
     from lio_cli.core.fuse.initial import initial_state
     from lio_cli.core.fuse.timeline import prepare
 
-    o = FuseOptions()
+    o = FuseOptions(estimator="ekf")
     s = initial_state(prepare(_turning_inputs(False, False), o), o.standing_window_ns, o.gravity_mps2, o.noise)
     np.testing.assert_allclose(_tilt_rad(s.R), np.arctan2(2.0, 9.81), atol=1e-6)
     assert ("roll and pitch from the mean specific force over 0.20 s, tilted by whatever the motion accelerated "

@@ -63,7 +63,7 @@ def test_lever_arm_transfer_adds_less_noise_at_rest_than_the_accelerometer_has()
 
 
 def test_an_imu_at_rest_far_from_the_base_origin_gives_a_standing_start():
-    o = FuseOptions()
+    o = FuseOptions(estimator="ekf")
     prep = prepare(FuseInputs(imu=_still_imu(400, seed=2)), o)
     start = initial_state(prep, o.standing_window_ns, o.gravity_mps2, o.noise)
     assert start.standing, start.reason
@@ -78,7 +78,7 @@ def test_drive_with_its_lever_arm_starts_standing_and_is_as_accurate_as_with_the
     for name, lever in (("lever", None), ("origin", (0.0, 0.0, 0.0))):
         case = simulate_case("drive", 10.0, seed=3, imu_lever_arm_m=lever, wheel_errors=False)
         assert np.linalg.norm(case.inputs.imu.T_base_imu[:3, 3]) > (0.9 if lever is None else -1.0)
-        res = fuse(case.inputs, FuseOptions(rate_hz=100.0))
+        res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=100.0))
         assert res.info["start"].startswith("standing start"), res.info["start"]
         runs[name] = ate(case, res.stamps_ns, res.poses)
     assert runs["lever"] <= LEVER_ATE_RATIO * runs["origin"], runs

@@ -33,7 +33,7 @@ def test_covariance_layout_is_position_then_rotation():
 
 def test_summary_is_json_and_says_what_was_used():
     case = simulate_case("handheld", 3.0, seed=1, wheels=False, odom=OdomNoise())
-    res = fuse(case.inputs, FuseOptions(rate_hz=20.0))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0))
     s = json.loads(json.dumps(res.summary()))
     assert s["estimator"] == "ekf" and s["poses"] == len(res) == 61
     assert s["use"] == {"imu": ["accel", "gyro"], "odom": ["pose"]}

@@ -80,7 +80,7 @@ def test_gps_without_fix_is_rejected_and_bad_covariance_defaulted():
     out = clean_gps(GpsSeries(np.array([0, 1, 2], np.int64), p, cov, np.array([True, True, False])), NOISE, rep)
     assert len(out) == 2
     assert rep.rejected == {"no_fix": 1}
-    np.testing.assert_allclose(out.cov_m2[1], np.eye(3) * NOISE.gps_position_sigma_m**2)
+    np.testing.assert_allclose(out.cov_m2[1], np.diag([NOISE.gps_position_sigma_m**2] * 2 + [NOISE.gps_vertical_sigma_m**2]))
     assert rep.notes == {"default_noise": 1}
 
 

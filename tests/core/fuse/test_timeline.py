@@ -21,7 +21,7 @@ def imu_series(stamps: np.ndarray) -> ImuSeries:
 def test_rate_output_meets_ground_truth_stamps_and_skips_gaps():
     # IMU at 200 Hz for 1 s, a 10 s gap, then 1 s more
     st = np.concatenate([T0 + np.arange(201) * 5 * MS, T0 + 11_000 * MS + np.arange(201) * 5 * MS])
-    prep = prepare(FuseInputs(imu=imu_series(st)), FuseOptions(rate_hz=100.0))
+    prep = prepare(FuseInputs(imu=imu_series(st)), FuseOptions(estimator="ekf", rate_hz=100.0))
     assert prep.coverage == [(T0, T0 + 1000 * MS), (T0 + 11_000 * MS, T0 + 12_000 * MS)]
     assert len(prep.out_stamps) == 202  # 101 per covered second, none in the gap
     assert np.all(prep.out_stamps % (10 * MS) == 0)
@@ -31,7 +31,7 @@ def test_rate_output_meets_ground_truth_stamps_and_skips_gaps():
 def test_events_sorted_imu_before_measurement_before_output_at_one_stamp():
     st = T0 + np.arange(11) * 10 * MS
     odom = PoseSeries(st[::5].copy(), np.tile(np.eye(4), (3, 1, 1)))
-    prep = prepare(FuseInputs(imu=imu_series(st), odom=odom), FuseOptions())
+    prep = prepare(FuseInputs(imu=imu_series(st), odom=odom), FuseOptions(estimator="ekf"))
     at = prep.times == st[5]
     np.testing.assert_array_equal(prep.kinds[at], [IMU, ODOM, OUT])
     assert np.all(np.diff(prep.times) >= 0)
@@ -40,7 +40,7 @@ def test_events_sorted_imu_before_measurement_before_output_at_one_stamp():
 def test_explicit_stamps_outside_the_data_are_dropped_and_counted():
     st = T0 + np.arange(11) * 10 * MS
     ask = np.array([T0 - 5 * MS, T0 + 33 * MS, T0 + 200 * MS])
-    prep = prepare(FuseInputs(imu=imu_series(st)), FuseOptions(stamps_ns=ask))
+    prep = prepare(FuseInputs(imu=imu_series(st)), FuseOptions(estimator="ekf", stamps_ns=ask))
     np.testing.assert_array_equal(prep.out_stamps, [T0 + 33 * MS])
     assert prep.out_dropped == 2
 
@@ -48,14 +48,14 @@ def test_explicit_stamps_outside_the_data_are_dropped_and_counted():
 def test_no_motion_source_is_refused():
     gps = GpsSeries(T0 + np.arange(3), np.zeros((3, 3)))
     with pytest.raises(InputError, match=r"^no motion source: fuse needs an odometry trajectory, an IMU \(gyro\) or wheel odometry$"):
-        prepare(FuseInputs(gps=gps), FuseOptions())
+        prepare(FuseInputs(gps=gps), FuseOptions(estimator="ekf"))
 
 
 def test_sources_on_different_clocks_are_refused():
     st = T0 + np.arange(11) * 10 * MS
     wheel = WheelSeries(np.arange(5, dtype=np.int64) * 20 * MS + 47 * 10**9, np.ones((5, 3)), np.zeros(5))
     with pytest.raises(InputError) as err:
-        prepare(FuseInputs(imu=imu_series(st), wheel=wheel), FuseOptions(use={"imu": {"gyro"}, "wheel": {"speed"}}))
+        prepare(FuseInputs(imu=imu_series(st), wheel=wheel), FuseOptions(estimator="ekf", use={"imu": {"gyro"}, "wheel": {"speed"}}))
     assert str(err.value) == ("imu stamps 1700000000.000..1700000000.100 s do not overlap the other sources' "
                               "47.000..47.080 s: the sources are on different clocks")
 
@@ -64,17 +64,17 @@ def test_sources_on_different_clocks_are_refused():
 def test_rate_not_positive_is_a_config_error(rate):
     st = T0 + np.arange(11) * 10 * MS
     with pytest.raises(ConfigError, match=r"^--rate must be a positive number of Hz, got"):
-        prepare(FuseInputs(imu=imu_series(st)), FuseOptions(rate_hz=rate))
+        prepare(FuseInputs(imu=imu_series(st)), FuseOptions(estimator="ekf", rate_hz=rate))
 
 
 def test_unknown_measurement_and_bad_combinations_are_config_errors():
     st = T0 + np.arange(11) * 10 * MS
     inputs = FuseInputs(imu=imu_series(st))
     cases = [
-        (FuseOptions(use={"imu": {"gyro", "magnet"}}), "unknown imu measurement 'magnet' in use (choose from gyro, accel, orientation)"),
-        (FuseOptions(use={"imu": {"accel"}}), "the IMU accelerometer needs the gyro too (use imu gyro,accel)"),
-        (FuseOptions(use={"odom": {"pose", "delta"}}), "use odom pose or odom delta, not both"),
-        (FuseOptions(estimator="ukf"), "unknown estimator 'ukf' (choose from ekf, planar, complementary)"),
+        (FuseOptions(estimator="ekf", use={"imu": {"gyro", "magnet"}}), "unknown imu measurement 'magnet' in use (choose from gyro, accel, orientation)"),
+        (FuseOptions(estimator="ekf", use={"imu": {"accel"}}), "the IMU accelerometer needs the gyro too (use imu gyro,accel)"),
+        (FuseOptions(estimator="ekf", use={"odom": {"pose", "delta"}}), "use odom pose or odom delta, not both"),
+        (FuseOptions(estimator="ukf"), "unknown estimator 'ukf' (choose from auto, ekf, planar, complementary)"),
         (FuseOptions(estimator="complementary", smooth=True),
          "--smooth needs an EKF estimator (ekf or planar), not the complementary filter"),
     ]
@@ -88,12 +88,12 @@ def test_an_all_zero_imu_is_ignored_beside_another_motion_source_and_refused_alo
     st = T0 + np.arange(11) * 10 * MS
     zero = ImuSeries(st, np.zeros((11, 3)), np.zeros((11, 3)), np.eye(4))
     wheel = WheelSeries(st.copy(), np.tile([1.0, np.nan, np.nan], (11, 1)), np.full(11, 0.1))
-    prep = prepare(FuseInputs(imu=zero, wheel=wheel), FuseOptions())
+    prep = prepare(FuseInputs(imu=zero, wheel=wheel), FuseOptions(estimator="ekf"))
     assert prep.use == {"wheel": {"speed", "yaw_rate"}}
     assert prep.notes == ["IMU ignored: no usable sample (all NaN, out of range, all zero or duplicated)"]
     assert prep.reports["imu"].rejected == {"all_zero": 11}
     with pytest.raises(InputError) as err:
-        prepare(FuseInputs(imu=zero), FuseOptions())
+        prepare(FuseInputs(imu=zero), FuseOptions(estimator="ekf"))
     assert str(err.value) == ("the IMU has no usable sample (all NaN, out of range, all zero or duplicated) and "
                               "there is no other motion source")
 
@@ -126,7 +126,7 @@ def test_outputs_at_another_events_stamp_fold_into_it():
 
     st = T0 + np.arange(11) * 10 * MS
     odom = PoseSeries(st[::5].copy(), np.tile(np.eye(4), (3, 1, 1)))
-    prep = prepare(FuseInputs(imu=imu_series(st), odom=odom), FuseOptions(stamps_ns=[st[5], st[5] + 3 * MS]))
+    prep = prepare(FuseInputs(imu=imu_series(st), odom=odom), FuseOptions(estimator="ekf", stamps_ns=[st[5], st[5] + 3 * MS]))
     times, kinds, index, out = folded_outputs(prep)
     assert len(times) == len(prep.times) - 1  # the output at st[5] folds into the odometry there
     at = [j for j, t in enumerate(times) if t == st[5]]

@@ -23,17 +23,17 @@ def test_knots_and_bytes():
     use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
     assert knot_count(inp, use, None) == 10001 + 1001
     assert knot_count(inp, use, 20.0) == 10001 + 1001  # the IMU samples are held anyway
-    assert bytes_per_knot(FuseOptions(smooth=True), use) == 65 * 15 * 15
-    assert bytes_per_knot(FuseOptions(smooth=True), {**use, "odom": ["delta"]}) == 65 * 21 * 21
-    assert bytes_per_knot(FuseOptions(), use) == 1600
+    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), use) == 65 * 15 * 15
+    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), {**use, "odom": ["delta"]}) == 65 * 21 * 21
+    assert bytes_per_knot(FuseOptions(estimator="ekf"), use) == 1600
 
 
 def test_plan_keeps_one_chunk_within_budget_and_splits_beyond():
     inp = _inputs()
     use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
-    one = plan(inp, FuseOptions(smooth=True), use, 1024.0)
+    one = plan(inp, FuseOptions(estimator="ekf", smooth=True), use, 1024.0)
     assert len(one.chunks) == 1 and one.chunks[0] == (T0, T0 + 100 * 10**9)
-    many = plan(inp, FuseOptions(smooth=True), use, 100.0)  # ~161 MB needed
+    many = plan(inp, FuseOptions(estimator="ekf", smooth=True), use, 100.0)  # ~161 MB needed
     assert len(many.chunks) > 1 and many.chunks[0][0] == T0 and many.chunks[-1][1] == T0 + 100 * 10**9
     assert all(b == c for (_, b), (c, _) in zip(many.chunks[:-1], many.chunks[1:]))
     per_chunk_mb = (many.chunks[0][1] - many.chunks[0][0] + 2 * many.overlap_ns) * 1e-9 * 110.1 * many.bytes_per_knot / 1e6
@@ -83,13 +83,13 @@ def test_plan_refuses_a_short_log_over_budget_naming_the_rate_far_above_the_imu(
     inp = _inputs(seconds=20)
     use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
     with pytest.raises(ConfigError) as err:  # it returned one chunk of 3.2 GB: 24 GB RSS at 1e6 Hz, OOM-killed
-        plan(inp, FuseOptions(rate_hz=1e5), use, 1024.0)
+        plan(inp, FuseOptions(estimator="ekf", rate_hz=1e5), use, 1024.0)
     assert str(err.value) == (
         "fusing needs about 3200 MB, over the memory budget of 1024 MB (--max-memory), and a 20 s log is too short "
         "to fuse in chunks (that needs over 60 s): --rate 100000 Hz is 1000 times the IMU rate of 100 Hz, and poses "
         "between IMU samples carry no measurement of their own: lower --rate to 100 Hz or less, or raise "
         "--max-memory to 3201 (MB) or more")
-    assert len(plan(inp, FuseOptions(rate_hz=100.0), use, 1024.0).chunks) == 1  # the IMU's own rate: 3.5 MB
+    assert len(plan(inp, FuseOptions(estimator="ekf", rate_hz=100.0), use, 1024.0).chunks) == 1  # the IMU's own rate: 3.5 MB
 
 
 def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
@@ -99,9 +99,9 @@ def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
 
     use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
     with pytest.raises(ConfigError) as err:  # it split into 30 s chunks of 72 MB each
-        plan(_inputs(), FuseOptions(smooth=True), use, 20.0)
+        plan(_inputs(), FuseOptions(estimator="ekf", smooth=True), use, 20.0)
     assert str(err.value) == (
         "fusing needs about 161 MB, over the memory budget of 20 MB (--max-memory), and even the shortest chunk "
         "(30 s plus 10 s of overlap each side) needs 81 MB: fuse --no-smooth or raise --max-memory to 81 (MB) or more")
-    fits = plan(_inputs(), FuseOptions(smooth=True), use, 81.0)
+    fits = plan(_inputs(), FuseOptions(estimator="ekf", smooth=True), use, 81.0)
     assert len(fits.chunks) == 4

@@ -15,6 +15,7 @@ from lio_cli.errors import InputError
 from lio_cli.jobs.fuse.job import FuseJob, run_fuse
 
 POS_TOL_M = 0.01  # a noise-free unicycle: discretisation only (a broken filter is metres off)
+EKF = FuseConfig(estimator="ekf")  # a flat unicycle would get the planar filter; these check the 3D one
 
 
 def _errors(fuse_logs, run, v: float, w: float) -> np.ndarray:
@@ -34,7 +35,7 @@ def test_straight_line_ends_where_speed_times_time_says(fuse_logs):
 
 def test_circle_follows_the_unicycle_and_closes(fuse_logs):
     """v = 1 m/s, w = 0.5 rad/s for one full turn: radius 2 m, back at the start after 4 pi s."""
-    run = run_fuse(FuseJob(fuse_logs.write(v=1.0, w=0.5, duration_s=4 * np.pi)))
+    run = run_fuse(FuseJob(fuse_logs.write(v=1.0, w=0.5, duration_s=4 * np.pi), EKF))
     assert _errors(fuse_logs, run, 1.0, 0.5).max() < POS_TOL_M
     k = np.argmin(np.abs(run.trajectory.stamps_ns - (fuse_logs.T0_NS + int(2 * np.pi * 1e9))))  # half a turn
     np.testing.assert_allclose(run.trajectory.positions[k], [0.0, 4.0, 0.0], atol=POS_TOL_M)
@@ -45,12 +46,12 @@ def test_circle_follows_the_unicycle_and_closes(fuse_logs):
 
 
 def test_imu_orientation_enters_only_where_the_message_carries_one(fuse_logs):
-    with_or = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=3.0, imu_orientation=True)))
+    with_or = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=3.0, imu_orientation=True), EKF))
     assert with_or.config.use["imu"] == ["accel", "gyro", "orientation"]
     assert with_or.metrics["sources"]["imu"]["updates_by_kind"]["orientation"]["updates"] == 301
     assert with_or.metrics["core"]["world_yaw_from"] == "imu_orientation"
     assert _errors(fuse_logs, with_or, 1.0, 0.5).max() < POS_TOL_M
-    without = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=3.0)))  # orientation_covariance[0] = -1
+    without = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=3.0), EKF))  # orientation_covariance[0] = -1
     assert without.config.use["imu"] == ["accel", "gyro"] and without.metrics["updates"]["imu"] == 0
 
 
@@ -203,8 +204,8 @@ def test_covariance_per_pose(fuse_logs):
 
 def test_memory_budget_splits_the_run_into_chunks_that_agree_with_the_whole(fuse_logs):
     log = fuse_logs.write(w=0.2, duration_s=90.0, imu_hz=50, wheel_hz=10)
-    whole = run_fuse(FuseJob(log, FuseConfig(smooth=True)))
-    budget = with_overrides(FuseConfig(smooth=True), {"max_memory_mb": 45.0})  # whole ~79 MB
+    whole = run_fuse(FuseJob(log, FuseConfig(smooth=True, estimator="ekf")))
+    budget = with_overrides(FuseConfig(smooth=True, estimator="ekf"), {"max_memory_mb": 45.0})  # whole ~79 MB
     parts = run_fuse(FuseJob(log, budget))
     assert whole.metrics["memory"]["chunks"] == 1 and parts.metrics["memory"]["chunks"] == 3
     np.testing.assert_array_equal(parts.trajectory.stamps_ns, whole.trajectory.stamps_ns)
@@ -272,7 +273,7 @@ def test_a_start_in_a_turn_is_level_with_odometry_poses_or_wheels(fuse_logs):
                                                             "use": {"imu": ["gyro", "accel"], "odom": ["pose"]}})))
     assert odom.metrics["sources"]["odom"]["rejected"] == {}
     assert _errors(fuse_logs, odom, 1.0, 2.0).max() < POS_TOL_M
-    wheels = run_fuse(FuseJob(log, FuseConfig(rate_hz=100.0)))
+    wheels = run_fuse(FuseJob(log, FuseConfig(rate_hz=100.0, estimator="ekf")))
     assert _errors(fuse_logs, wheels, 1.0, 2.0).max() < POS_TOL_M
     for run, source in ((odom, "odometry"), (wheels, "wheels")):
         up = run.trajectory.poses[0, :3, :3].T @ [0.0, 0.0, 1.0]

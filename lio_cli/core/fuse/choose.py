@@ -1,0 +1,111 @@
+"""The default estimator, chosen from the data: ``planar`` when the motion stays near a plane, ``ekf`` otherwise.
+
+A wheeled ground robot (wheel speed with the non-holonomic constraint) whose motion the sources show to stay
+near a plane gets the planar EKF: on such a log the 3D EKF has nothing to gain from the vertical and much to
+lose (wheel scale errors and slip leak through the accelerometer biases into roll, pitch and yaw). Evidence,
+all from the motion sources (never the GPS altitude, which wanders by tens of metres on a consumer receiver):
+
+- the gravity direction in the base frame, averaged over ``WINDOW_S`` with the wheels' own acceleration
+  (forward ``dv/dt``, centripetal ``v * yaw rate``) removed: its wander (95th percentile of the angle to its
+  median) is the body's roll and pitch on the ground;
+- the climb: the wheel speed times the sine of that pitch (less its median, a mounting offset), integrated:
+  its extent is how far the motion leaves a plane;
+- odometry poses: their vertical extent.
+
+Everything else is ``ekf``: no wheels (handheld, drone), a wheel twist with lateral speed (drone, holonomic
+base), odometry poses beside an accelerometer (the 3D filter follows their attitude; on a car with LiDAR-like
+odometry the planar one's 200 Hz output was noisier over 0.05 s than the odometry interpolated), or a ground
+robot whose tilt or climb exceeds the thresholds below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .timeline import Prepared
+
+WINDOW_S = 1.0  # gravity is averaged over this long a window (vibration and short accelerations average out)
+MAX_TILT_DEG = 8.0  # 95th percentile of the gravity direction's wander a planar platform may show
+MIN_CLIMB_M = 0.5  # vertical extent always taken as planar (bumps, the estimate's own noise) ...
+CLIMB_SHARE = 0.01  # ... or this share of the distance travelled, whichever is larger
+
+
+@dataclass(frozen=True)
+class EstimatorChoice:
+    name: str
+    reason: str
+    evidence: dict
+
+
+def _gravity_evidence(prep: Prepared) -> dict | None:
+    """Tilt wander (deg), climb extent and path length (m) from the IMU and the wheels; None without both."""
+    imu, w = prep.imu, prep.wheel
+    if imu is None or prep.imu_f_b is None or "accel" not in prep.use.get("imu", ()) or w is None or len(w) < 2:
+        return None
+    t = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    n = int(round(WINDOW_S / period)) if period > 0 else 0
+    m = len(t) // n if n else 0
+    if m < 2:
+        return None
+    speed = np.nan_to_num(w.velocity_mps[:, 0])
+    v = np.interp(imu.stamps_ns, w.stamps_ns, speed)
+    f = prep.imu_f_b.copy()
+    f[:, 0] -= np.gradient(v, t) if len(t) > 1 else 0.0  # forward acceleration of the base
+    f[:, 1] -= v * prep.imu_w_b[:, 2]  # centripetal
+    f_win = f[:m * n].reshape(m, n, 3).mean(axis=1)
+    up = f_win / np.maximum(np.linalg.norm(f_win, axis=1, keepdims=True), 1e-9)
+    med = np.median(up, axis=0)
+    med /= max(float(np.linalg.norm(med)), 1e-9)
+    tilt = np.degrees(np.arccos(np.clip(up @ med, -1.0, 1.0)))
+    v_win = v[:m * n].reshape(m, n).mean(axis=1)
+    climb = np.cumsum(v_win * (up[:, 0] - med[0]) * n * period)  # forward axis's share of "up" is sin(pitch)
+    return {"tilt_p95_deg": round(float(np.percentile(tilt, 95)), 2), "climb_m": round(float(np.ptp(climb)), 2),
+            "path_m": round(float(np.sum(np.abs(v_win)) * n * period), 1)}
+
+
+def _odom_evidence(prep: Prepared) -> dict | None:
+    od = prep.odom
+    if od is None or len(od) < 2:
+        return None
+    p = od.poses[:, :3, 3]
+    return {"odom_vertical_m": round(float(np.ptp(p[:, 2])), 2),
+            "odom_path_m": round(float(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum()), 1)}
+
+
+def choose_estimator(prep: Prepared) -> EstimatorChoice:
+    """``planar`` or ``ekf`` for the prepared sources, with a one-line reason (module docstring)."""
+    wheel_use = prep.use.get("wheel", set())
+    if "wheel" not in prep.use or prep.wheel is None:
+        return EstimatorChoice("ekf", "no wheel odometry: the motion is taken as 3D (handheld, drone)", {})
+    if "velocity" in wheel_use or "speed" not in wheel_use:
+        return EstimatorChoice("ekf", "the wheel twist carries lateral speed (a drone or holonomic base): 3D", {})
+    if "odom" in prep.use and "accel" in prep.use.get("imu", ()):
+        return EstimatorChoice("ekf", "odometry poses and an accelerometer: the 3D filter follows the odometry's "
+                                      "attitude (the planar one cannot, and is noisier between its poses)", {})
+    ev: dict = {}
+    g, od = _gravity_evidence(prep), _odom_evidence(prep)
+    ev.update(g or {})
+    ev.update(od or {})
+    if od is not None:
+        limit = max(MIN_CLIMB_M, CLIMB_SHARE * od["odom_path_m"])
+        if od["odom_vertical_m"] > limit:
+            return EstimatorChoice("ekf", f"the odometry climbs {od['odom_vertical_m']:.2f} m over "
+                                          f"{od['odom_path_m']:.0f} m (more than {limit:.2f} m): 3D", ev)
+    if g is not None:
+        limit = max(MIN_CLIMB_M, CLIMB_SHARE * g["path_m"])
+        if g["tilt_p95_deg"] > MAX_TILT_DEG:
+            return EstimatorChoice("ekf", f"the ground tilts the robot by {g['tilt_p95_deg']:.1f} deg (95th "
+                                          f"percentile, more than {MAX_TILT_DEG:g}): 3D", ev)
+        if g["climb_m"] > limit:
+            return EstimatorChoice("ekf", f"wheels and IMU climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m "
+                                          f"(more than {limit:.2f} m): 3D", ev)
+        return EstimatorChoice("planar", f"a wheeled robot near a plane: tilt {g['tilt_p95_deg']:.1f} deg (95th "
+                                         f"percentile), climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m", ev)
+    if od is not None:
+        return EstimatorChoice("planar", f"a wheeled robot near a plane: the odometry climbs "
+                                         f"{od['odom_vertical_m']:.2f} m over {od['odom_path_m']:.0f} m", ev)
+    return EstimatorChoice("planar", "a wheeled robot without an accelerometer or odometry: nothing measures 3D "
+                                     "motion", ev)

@@ -1,0 +1,144 @@
+"""GPS as receivers behave: horizontal and vertical trusted apart, multipath jumps rejected, the noise a
+message claims checked against the innovations.
+
+Before any filter runs (``assess_gps``, on ``Prepared.gps``): each fix's horizontal and vertical sigma (its
+covariance, else ``NoiseOptions.gps_position_sigma_m`` and ``gps_vertical_sigma_m``), and an ``accepted`` mask
+that leaves out multipath jumps: a fix-to-fix step that the track's own recent velocity cannot explain (more
+than ``JUMP_SIGMAS`` times the steps' robust spread, and at least ``JUMP_MIN_M``) opens a jump; the fixes after
+it stay out until a step brings the track back within that bound of where it was (consistency returns), or
+``JUMP_MAX_S`` has passed (the new level is then kept: a receiver that changed satellites for good). Pauses
+longer than ``DROPOUT_PERIODS`` periods are counted as dropouts: the motion sources bridge them.
+
+While a filter runs (``GpsNoise``): a receiver's covariance is often optimistic (a third of the truth, or the
+slow wander left out). The innovations over the last ``WINDOW`` fixes tell: their robust second moment less
+the filter's own share ``H P H^T`` is the measurement's variance, and the larger of it and the claimed one is
+used, horizontally and vertically apart (the altitude wanders by tens of metres on consumer receivers and
+must not pull, or gate out, the horizontal).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from .inputs import GpsSeries
+from .report import SourceReport
+
+JUMP_SIGMAS = 5.0  # a step this many robust sigmas beyond the track's own motion is a jump
+JUMP_MIN_M = 3.0  # ... and at least this long
+JUMP_MAX_S = 30.0  # a jump lasting longer is the receiver's new level
+DROPOUT_PERIODS = 5.0  # a pause this many median periods long is a dropout
+VELOCITY_STEPS = 5  # the track's velocity: the median of this many previous steps
+WINDOW = 50  # innovations the measured noise is taken over
+MIN_WINDOW = 10  # innovations needed before it counts
+RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above this many times it (an honest
+# claim's 50-fix estimate scatters by about 20 %)
+MEDIAN_CHI2 = {1: 0.4549, 2: 1.3863}  # median of a chi-square variable with 1 and 2 degrees of freedom
+
+
+def sigmas(gps: GpsSeries) -> tuple[np.ndarray, np.ndarray]:
+    """Per-fix horizontal and vertical sigma (m) of the cleaned covariance (the defaults where it had none)."""
+    cov = gps.cov_m2
+    return np.sqrt(np.maximum(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]), 0.0)), np.sqrt(np.maximum(cov[:, 2, 2], 0.0))
+
+
+def _robust_step_sigma(p: np.ndarray, dt: np.ndarray) -> float:
+    """Per-axis sigma of a step's white part: the second differences' median absolute deviation (a jump is
+    two of them; the motion's accelerations over a few periods are far below the noise)."""
+    if len(p) < 4:
+        return 0.0
+    v = np.diff(p, axis=0) / dt[:, None]
+    s = np.diff(v, axis=0) * dt[1:, None]
+    mad = np.median(np.abs(s - np.median(s, axis=0)), axis=0)
+    return float(1.4826 * np.sqrt(np.mean(mad**2)) / np.sqrt(3.0))  # a step's error is a third of a 2nd diff's
+
+
+def find_jumps(stamps_ns: np.ndarray, p_h: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """(in_jump mask, jumps opened, jumps kept as the new level) for horizontal positions (N,2)."""
+    n = len(stamps_ns)
+    out = np.zeros(n, bool)
+    if n < VELOCITY_STEPS + 2:
+        return out, 0, 0
+    dt = np.maximum(np.diff(stamps_ns) * 1e-9, 1e-6)
+    period = float(np.median(dt))
+    thr = max(JUMP_MIN_M, JUMP_SIGMAS * _robust_step_sigma(p_h, dt))  # on the norm: exp(-25/2) by chance
+    vel: deque = deque(maxlen=VELOCITY_STEPS)
+    offset, t_open, opened, kept = None, 0, 0, 0
+    for k in range(1, n):
+        if dt[k - 1] > DROPOUT_PERIODS * period:  # nothing to compare across a dropout
+            vel.clear()
+            if offset is not None:
+                out[k] = True
+            continue
+        step = p_h[k] - p_h[k - 1]
+        v = np.median(np.array(vel), axis=0) if vel else np.zeros(2)
+        e = step - v * dt[k - 1]
+        big = float(np.hypot(*e)) > thr
+        if offset is None:
+            if big and len(vel) >= 2:
+                offset, t_open, opened = e.copy(), int(stamps_ns[k]), opened + 1
+                out[k] = True
+                continue
+        else:
+            if big:
+                offset = offset + e
+            if float(np.hypot(*offset)) <= thr:  # back where the track was: consistency returns
+                offset = None
+            elif (stamps_ns[k] - t_open) * 1e-9 > JUMP_MAX_S:
+                offset, kept = None, kept + 1
+            else:
+                out[k] = True
+            if big:
+                continue
+        vel.append(step / dt[k - 1])
+    return out, opened, kept
+
+
+def assess_gps(gps: GpsSeries, report: SourceReport) -> GpsSeries:
+    """``gps`` (cleaned) with ``sigma_h_m``, ``sigma_v_m`` and ``accepted`` filled in; jumps and dropouts
+    counted."""
+    gps.sigma_h_m, gps.sigma_v_m = sigmas(gps)
+    jump, opened, kept = find_jumps(gps.stamps_ns, gps.position_enu_m[:, :2])
+    gps.accepted = ~jump
+    report.reject("multipath_jump", int(np.count_nonzero(jump)))
+    report.note("jumps", opened)
+    report.note("jump_kept", kept)
+    if len(gps) > 2:
+        dt = np.diff(gps.stamps_ns)
+        report.note("dropouts", int(np.count_nonzero(dt > DROPOUT_PERIODS * np.median(dt))))
+    return gps
+
+
+class GpsNoise:
+    """The variance a GPS fix's residual is given: the claimed one, or more where the innovations say so
+    (module docstring); one per axis group (``dof`` 2: horizontal, 1: vertical)."""
+
+    def __init__(self, dof: int):
+        self.dof = dof
+        self.r2: deque = deque(maxlen=WINDOW)
+        self.hph: deque = deque(maxlen=WINDOW)
+
+    def variance(self, claimed: float) -> float:
+        if len(self.r2) < MIN_WINDOW:
+            return claimed
+        measured = float(np.median(self.r2)) / MEDIAN_CHI2[self.dof] - float(np.mean(self.hph))
+        return measured if measured > RAISE_RATIO * claimed else claimed
+
+    def record(self, r: np.ndarray, hph_mean_var: float) -> None:
+        """An innovation ``r`` (gated or not: the median shrugs off outliers) and the filter's own variance
+        share (mean of the diagonal of ``H P H^T``)."""
+        self.r2.append(float(r @ r))
+        self.hph.append(hph_mean_var)
+
+
+def noise_variance(noise: GpsNoise, r: np.ndarray, H: np.ndarray, P: np.ndarray, claimed: float,
+                   report: SourceReport) -> float:
+    """The variance per axis a fix's residual ``r`` (rows ``H``) enters with, given the window so far; the
+    innovation is then added to the window."""
+    var = noise.variance(claimed)
+    if var > claimed and noise.dof == 2:
+        report.note("noise_raised")
+    hph = H.dot(P).dot(H.T)
+    noise.record(np.asarray(r, float), float(np.trace(hph)) / len(r))
+    return var
