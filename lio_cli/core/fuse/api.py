@@ -10,6 +10,7 @@ import numpy as np
 from ...geometry import so3_exp_one
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
+from . import graph
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
@@ -72,7 +73,10 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
 
 
 def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
-    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
+    start = _start(prep, o, Ekf3d, _EKF_XY)
+    if o.smooth and graph.applies(prep):  # the factor graph; RTS below for a filter without an accelerometer
+        return graph.smooth_graph(prep, o, start)
+    ekf = Ekf3d(prep, o, start)
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
     if o.smooth and len(x):

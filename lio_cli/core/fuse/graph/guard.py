@@ -1,0 +1,52 @@
+"""Never worse than the filter: the smoothed keyframes against the filter's, by what the measurements say.
+
+Per source, the RMS of its residuals at the keyframes: GPS horizontal (each clipped at ``CLIP`` sigmas, so an
+outlier weighs the same for both), odometry increments (translation), wheel base velocity. The smoothed
+solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .factors import Measurements
+
+RATIO = 1.25
+CLIP = 3.0
+FLOORS = {"gps_horizontal_m": 0.05, "odom_increment_m": 0.005, "wheel_velocity_mps": 0.01}
+
+
+def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:
+    """RMS residual per source of the keyframe states ``s`` (R, p, v)."""
+    out: dict[str, float] = {}
+    if len(m.gps_k):
+        e = np.linalg.norm(s["p"][m.gps_k, :2] - m.gps_z[:, :2], axis=1)
+        e = np.minimum(e, CLIP * m.gps_h)
+        out["gps_horizontal_m"] = float(np.sqrt(np.mean(e**2)))
+    if len(m.odom_k) > 1:
+        od = m.prep.odom
+        ka, kb = m.odom_k[:-1], m.odom_k[1:]
+        Pa, Pb = od.poses[m.odom_idx[:-1]], od.poses[m.odom_idx[1:]]
+        meas = np.einsum("nji,nj->ni", Pa[:, :3, :3], Pb[:, :3, 3] - Pa[:, :3, 3])
+        est = np.einsum("nji,nj->ni", s["R"][ka], s["p"][kb] - s["p"][ka])
+        ok = kb != ka
+        if ok.any():
+            out["odom_increment_m"] = float(np.sqrt(np.mean(np.sum((est - meas)[ok] ** 2, axis=1))))
+    wk = [k for k, w in enumerate(m.wheel) if w is not None]
+    if wk:
+        sq = []
+        for k in wk:
+            comps, z, _ = m.wheel[k]
+            vb = s["R"][k].T @ s["v"][k]
+            sq.append(np.sum((vb[comps] - z) ** 2) / len(comps))
+        out["wheel_velocity_mps"] = float(np.sqrt(np.mean(sq)))
+    return out
+
+
+def verdict(filtered: dict[str, float], smoothed: dict[str, float]) -> str | None:
+    """Why the smoothed solution is worse than the filter's, or None."""
+    for name, f in filtered.items():
+        sm = smoothed.get(name, f)
+        if sm > RATIO * f + FLOORS[name]:
+            return f"{name.rsplit('_', 1)[0].replace('_', ' ')} residual {sm:.3g} vs the filter's {f:.3g}"
+    return None

@@ -1,0 +1,67 @@
+"""The graph smoother's run: filter pass, chunked solve, guard, output (see the package docstring)."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ..ekf3d import Ekf3d
+from ..initial import Start
+from ..inputs import FuseOptions
+from ..result import FuseResult, anchor_to_origin
+from ..state3d import BA_, B_, P_, R_, V_, Layout, initial_estimate
+from ..timeline import Prepared
+from . import guard
+from .factors import ChunkGraph, Measurements, nav
+from .imu import Segments, imu_params
+from .keyframes import filter_options, keyframe_stamps, with_outputs
+from .output import at_outputs
+from .solve import Prior, solve
+
+MIN_VARIANCE = 1e-10  # the start's "known exactly" variances (1e-12) kept solvable
+
+
+def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
+    """The smoothed trajectory at ``prep.out_stamps`` (the filter's where the guard refuses the graph's)."""
+    kt = keyframe_stamps(prep)
+    out = prep.out_stamps
+    stamps = np.union1d(kt, out)
+    ekf = Ekf3d(with_outputs(prep, stamps), filter_options(o), start)
+    knots = ekf.run()
+    sel = knots["output"]
+    t, x = knots["t_ns"][sel], knots["x_filt"]
+    at_k, at_o = np.searchsorted(t, kt), np.searchsorted(t, out)
+    states = {"R": x[at_k, R_].reshape(-1, 3, 3), "p": x[at_k, P_], "v": x[at_k, V_], "bg": x[at_k, B_],
+              "ba": x[at_k, BA_]}
+    meas = Measurements(prep, kt, o.noise)
+    params = imu_params(o.noise, o.gravity_mps2)
+    cg = ChunkGraph(meas, Segments(prep, kt), params, states)
+    smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L))
+    before, after = guard.residuals(meas, states), guard.residuals(meas, smoothed)
+    why = guard.verdict(before, after)
+    info = {"kind": "factor_graph", "solver": "levenberg_marquardt", "keyframes": len(kt), "chunks": stats.chunks,
+            "iterations": stats.iterations, "initial_error": stats.initial_error, "final_error": stats.final_error,
+            "imu_bridged": cg.bridged, "residuals_filter": before, "residuals_smoothed": after, "fallback": why}
+    cov = knots["P_filt"][at_o] if o.want_covariance and len(knots["P_filt"]) else None
+    if why is not None:
+        prep.notes.append(f"smoother: the filter's trajectory kept, the factor graph's was worse ({why})")
+        poses = np.zeros((len(out), 4, 4))
+        poses[:, :3, :3] = x[at_o, R_].reshape(-1, 3, 3)
+        poses[:, :3, 3] = x[at_o, P_]
+        poses[:, 3, 3] = 1.0
+        vel = x[at_o, V_]
+    else:
+        poses, vel = at_outputs(Segments(prep, np.union1d(kt, out)), kt, smoothed, params, out)
+    s = ekf.start
+    result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
+                   "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
+    return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
+
+
+def _start_prior(prep: Prepared, o: FuseOptions, start: Start, L: Layout) -> Prior:
+    """The filter's first state and covariance as the graph's prior on its first keyframe."""
+    x, P = initial_estimate(start, L, o.noise, prep)
+    d = np.maximum(np.diag(P), MIN_VARIANCE)
+    x = np.asarray(x)
+    return Prior(nav(x[R_].reshape(3, 3), x[P_]), x[V_], gtsam.imuBias.ConstantBias(x[BA_], x[B_]),
+                 np.diag(d[0:6]), np.diag(d[6:9]), np.diag(np.r_[d[12:15], d[9:12]]))
