@@ -3,8 +3,9 @@
 
 - IMU: ``CombinedImuFactor`` between consecutive keyframes (biases' random walk included); an interval with
   an IMU gap gets the filter's own increment instead, loosely (``bridge``).
-- Wheels: each message's base-velocity components (forward speed and the non-holonomic zeros, as the filter's
-  ``wheel_velocity_rows``) on the nearest keyframe, averaged there by inverse variance: ``(R^T v)[c] = z``.
+- Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
+  base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
+  the gyro as preintegrated; a ``BetweenFactorPose3`` (Huber) whose rotation is left loose (the gyro's).
 - Odometry: ``BetweenFactorPose3`` of consecutive poses (pose or delta: the increment either way), the two
   poses' variances summed as the filter does.
 - GPS: the fix (ENU about the first fix, the filter's world) on its own keyframe, horizontal (Huber) and
@@ -13,8 +14,6 @@
 """
 
 from __future__ import annotations
-
-from functools import partial
 
 import gtsam
 import numpy as np
@@ -30,21 +29,8 @@ FREE_SIGMA = 1e4  # an axis a factor leaves out (metres)
 BRIDGE_ACCEL_DENSITY = 1.0  # m/s^2/sqrt(Hz): how far the filter's increment across an IMU gap is trusted
 BRIDGE_ROTATION_DENSITY = 0.1  # rad/sqrt(s)
 ORIENTATION_MAX_DT_NS = 10_000_000
-
-
-def _skew(a):
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
-def _wheel_error(comps: list[int], z: np.ndarray, this, values, H):
-    k = this.keys()
-    pose, v = values.atPose3(k[0]), values.atVector(k[1])
-    R = pose.rotation().matrix()
-    vb = R.T @ v
-    if H is not None:
-        H[0] = np.hstack([_skew(vb)[comps], np.zeros((len(comps), 3))])  # R exp(w): vb + [vb]x w
-        H[1] = R.T[comps]
-    return vb[comps] - z
+WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (already in the IMU factor)
+FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
 
 
 def nav(R: np.ndarray, p: np.ndarray) -> gtsam.Pose3:
@@ -57,25 +43,7 @@ class Measurements:
     def __init__(self, prep: Prepared, kt: np.ndarray, noise):
         self.prep, self.kt, self.noise = prep, kt, noise
         K = len(kt)
-        self.wheel = [None] * K
-        w = prep.wheel
-        if w is not None and len(w) and "wheel" in prep.use:
-            inside = (w.stamps_ns >= kt[0]) & (w.stamps_ns <= kt[-1])
-            idx = np.flatnonzero(inside)
-            rows = wheel_velocity_rows(w.velocity_mps[idx], w.velocity_var[idx], prep.use["wheel"],
-                                       noise.nonholonomic_sigma_mps, noise.nonholonomic_rel_sigma)
-            near = _nearest(kt, w.stamps_ns[idx])
-            acc: dict[int, list[np.ndarray]] = {}
-            for k, row in zip(near.tolist(), rows):
-                if row is None:
-                    continue
-                comps, z, var = row
-                a = acc.setdefault(k, [np.zeros(3), np.zeros(3)])  # sum z / var, sum 1 / var
-                a[0][list(comps)] += np.asarray(z) / np.asarray(var)
-                a[1][list(comps)] += 1.0 / np.asarray(var)
-            for k, (zs, ws) in acc.items():
-                c = np.flatnonzero(ws > 0)
-                self.wheel[k] = (c.tolist(), zs[c] / ws[c], 1.0 / np.sqrt(ws[c]))
+        self.wheel_dp: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe k -> increment to k+1, sigma
         self.gps_k = np.zeros(0, np.int64)
         g = prep.gps
         if g is not None and len(g) and "gps" in prep.use:
@@ -131,11 +99,39 @@ def gps_sigmas(g, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(0.5 * (c[:, 0, 0] + c[:, 1, 1])), np.sqrt(c[:, 2, 2])
 
 
+class WheelTrack:
+    """The wheel base velocity (components and variances as the filter's ``wheel_velocity_rows``) held over each
+    IMU segment from the message nearest its middle; ``ok`` where one lies within a wheel gap of it."""
+
+    def __init__(self, z: np.ndarray, var: np.ndarray, ok: np.ndarray, period_s: float):
+        self.z, self.var, self.ok, self.period_s = z, var, ok, period_s
+
+    @classmethod
+    def of(cls, prep: Prepared, seg: Segments, noise) -> WheelTrack | None:
+        w = prep.wheel
+        if w is None or len(w) < 2 or "wheel" not in prep.use:
+            return None
+        rows = wheel_velocity_rows(w.velocity_mps, w.velocity_var, prep.use["wheel"], noise.nonholonomic_sigma_mps,
+                                   noise.nonholonomic_rel_sigma)
+        z, var = np.zeros((len(w), 3)), np.full((len(w), 3), FREE_VAR)
+        has = np.zeros(len(w), bool)
+        for i, row in enumerate(rows):
+            if row is not None:
+                c = list(row[0])
+                z[i, c], var[i, c], has[i] = row[1], row[2], True
+        period = float(np.median(np.diff(w.stamps_ns))) * 1e-9
+        mid = seg.t + (0.5e9 * seg.dt).astype(np.int64)
+        j = _nearest(w.stamps_ns, mid)
+        ok = has[j] & (np.abs(w.stamps_ns[j] - mid) <= max(1.5 * period * 1e9, 2.5e7))
+        return cls(z[j], var[j], ok, period)
+
+
 class ChunkGraph:
     """Builds the factor graph and the starting values of keyframes [k0, k1)."""
 
     def __init__(self, meas: Measurements, seg: Segments, params, states: dict[str, np.ndarray]):
         self.m, self.seg, self.params, self.s = meas, seg, params, states
+        self.wheel = WheelTrack.of(meas.prep, seg, meas.noise)
         self.bridged = 0
 
     def bias(self, k: int) -> gtsam.imuBias.ConstantBias:
@@ -153,18 +149,22 @@ class ChunkGraph:
     def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
         g = gtsam.NonlinearFactorGraph()
         m, seg = self.m, self.seg
+        huber = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K)
         for k in range(k0, k1 - 1):
             pim = gtsam.PreintegratedCombinedMeasurements(self.params, self.bias(k))
-            if seg.integrate(pim, seg.at_cut[k], seg.at_cut[k + 1]):
-                g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
-            else:
+            s0, s1 = seg.at_cut[k], seg.at_cut[k + 1]
+            if seg.gap[s0:s1].any():
                 self._bridge(g, k)
+                continue
+            wheel = self.wheel is not None and bool(self.wheel.ok[s0:s1].all())
+            dp, var = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
+            g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
+            if wheel:
+                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), np.sqrt(var * self.wheel.period_s)]
+                m.wheel_dp[k] = (dp, sig[3:])
+                g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp),
+                                               gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(sig))))
         for k in range(k0, k1):
-            w = m.wheel[k]
-            if w is not None:
-                comps, z, sig = w
-                g.add(gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(sig), [X(k), V(k)],
-                                         partial(_wheel_error, comps, z)))
             o = m.orient[k]
             if o is not None:
                 sig = np.r_[np.full(3, o[1]), np.full(3, FREE_SIGMA)]

@@ -1,7 +1,7 @@
 """Never worse than the filter: the smoothed keyframes against the filter's, by what the measurements say.
 
 Per source, the RMS of its residuals at the keyframes: GPS horizontal (each clipped at ``CLIP`` sigmas, so an
-outlier weighs the same for both), odometry increments (translation), wheel base velocity. The smoothed
+outlier weighs the same for both), odometry and wheel increments (translation). The smoothed
 solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor.
 """
 
@@ -13,7 +13,7 @@ from .factors import Measurements
 
 RATIO = 1.25
 CLIP = 3.0
-FLOORS = {"gps_horizontal_m": 0.05, "odom_increment_m": 0.005, "wheel_velocity_mps": 0.01}
+FLOORS = {"gps_horizontal_m": 0.05, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
 
 
 def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:
@@ -32,14 +32,11 @@ def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:
         ok = kb != ka
         if ok.any():
             out["odom_increment_m"] = float(np.sqrt(np.mean(np.sum((est - meas)[ok] ** 2, axis=1))))
-    wk = [k for k, w in enumerate(m.wheel) if w is not None]
-    if wk:
-        sq = []
-        for k in wk:
-            comps, z, _ = m.wheel[k]
-            vb = s["R"][k].T @ s["v"][k]
-            sq.append(np.sum((vb[comps] - z) ** 2) / len(comps))
-        out["wheel_velocity_mps"] = float(np.sqrt(np.mean(sq)))
+    if m.wheel_dp:
+        k = np.fromiter(m.wheel_dp, np.int64)
+        dp = np.array([m.wheel_dp[i][0] for i in k.tolist()])
+        est = np.einsum("nji,nj->ni", s["R"][k], s["p"][k + 1] - s["p"][k])
+        out["wheel_increment_m"] = float(np.sqrt(np.mean(np.sum((est - dp) ** 2, axis=1))))
     return out
 
 

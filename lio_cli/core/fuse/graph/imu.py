@@ -65,3 +65,19 @@ class Segments:
         for f, w, dt in zip(self.f[s0:s1], self.w[s0:s1], self.dt[s0:s1].tolist()):
             pim.integrateMeasurement(f, w, dt)
         return True
+
+    def integrate_with(self, pim, s0: int, s1: int, wheel=None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``integrate`` (no gap inside) and, with a ``factors.WheelTrack``, the wheel increment over the same
+        segments in the first one's base axes, rotated by the gyro as integrated: ``sum dR v dt`` and its
+        variance per axis, ``sum var dt`` (times the wheel period: each message's error is held over its period)."""
+        if wheel is None:
+            self.integrate(pim, s0, s1)
+            return None, None
+        dp, var = np.zeros(3), np.zeros(3)
+        for s in range(s0, s1):
+            dt = float(self.dt[s])
+            R = pim.deltaRij().matrix() if s > s0 else np.eye(3)
+            dp += R @ wheel.z[s] * dt
+            var += wheel.var[s] * dt
+            pim.integrateMeasurement(self.f[s], self.w[s], dt)
+        return dp, var
