@@ -44,5 +44,6 @@ def with_outputs(prep: Prepared, stamps: np.ndarray) -> Prepared:
 
 
 def filter_options(o: FuseOptions) -> FuseOptions:
-    """The filter pass under the graph: no RTS record (its memory grows with the log), covariance as asked."""
-    return replace(o, smooth=False)
+    """The filter pass under the graph: no RTS record (its memory grows with the log); its pose covariance kept
+    (the chunks' priors at their seams)."""
+    return replace(o, smooth=False, want_covariance=True)

@@ -16,9 +16,10 @@ from .factors import ChunkGraph, Measurements, nav
 from .imu import Segments, imu_params
 from .keyframes import filter_options, keyframe_stamps, with_outputs
 from .output import at_outputs
-from .solve import Prior, solve
+from .solve import Prior, seam_prior, solve
 
 MIN_VARIANCE = 1e-10  # the start's "known exactly" variances (1e-12) kept solvable
+SEAM_VELOCITY_SIGMA = 0.2  # m/s: a chunk's prior on its first velocity (its IMU and wheels find it again)
 
 
 def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
@@ -36,7 +37,11 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
     meas = Measurements(prep, kt, o.noise)
     params = imu_params(o.noise, o.gravity_mps2)
     cg = ChunkGraph(meas, Segments(prep, kt), params, states)
-    smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L))
+    P_k = knots["P_filt"][at_k]
+    bias_sigmas = np.r_[np.full(3, o.noise.init_accel_bias_sigma_mps2), np.full(3, o.noise.init_gyro_bias_sigma_radps)]
+    seam = lambda sol, j, k: seam_prior(sol, j, _pose_cov(P_k[k], states["R"][k]), SEAM_VELOCITY_SIGMA,  # noqa: E731
+                                        bias_sigmas)
+    smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L), seam)
     before, after = guard.residuals(meas, states), guard.residuals(meas, smoothed)
     why = guard.verdict(before, after)
     info = {"kind": "factor_graph", "solver": "levenberg_marquardt", "keyframes": len(kt), "chunks": stats.chunks,
@@ -56,6 +61,16 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
     result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
                    "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
     return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
+
+
+def _pose_cov(P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The filter's pose covariance (COVARIANCE_LAYOUT: world position, base rotation) in Pose3's tangent
+    (base rotation, base translation)."""
+    J = np.zeros((6, 6))
+    J[0:3, 3:6] = np.eye(3)
+    J[3:6, 0:3] = R.T
+    C = J @ P @ J.T
+    return 0.5 * (C + C.T) + np.eye(6) * MIN_VARIANCE
 
 
 def _start_prior(prep: Prepared, o: FuseOptions, start: Start, L: Layout) -> Prior:

@@ -1,14 +1,15 @@
 """Levenberg-Marquardt over the keyframes in overlapping chunks, so memory stays flat in the log's length.
 
 Chunk c keeps keyframes [c C, (c+1) C) and is solved over ``OVERLAP`` more on each side. Its first keyframe gets
-a prior: the filter's start for the first chunk, else the previous chunk's solution there with its marginal
-covariance doubled (the overlap's measurements enter both chunks: counted twice, half the variance). Keyframes
+a prior: the filter's start for the first chunk, else the previous chunk's solution there (``seam_prior``; GTSAM's
+marginals of a chunk anchored by its prior alone fail as indeterminate on long runs without GPS). Keyframes
 within half the overlap of a seam are blended linearly from the two chunks' solutions. Every chunk starts from
 the filter's states, so LM only ever lowers the cost from the filter's answer.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -21,7 +22,6 @@ CHUNK_KEYFRAMES = 600  # 60 s at the 0.1 s grid
 OVERLAP_KEYFRAMES = 100
 MAX_ITERATIONS = 15
 RELATIVE_TOLERANCE = 1e-4  # robust losses reweight slowly: past this the trajectory moves by micrometres
-MARGINAL_INFLATION = 2.0
 
 
 @dataclass
@@ -57,14 +57,16 @@ def _add_prior(g: gtsam.NonlinearFactorGraph, k: int, pr: Prior) -> None:
     g.add(gtsam.PriorFactorConstantBias(B(k), pr.bias, gtsam.noiseModel.Gaussian.Covariance(pr.bias_cov)))
 
 
-def _marginal_prior(g, result: gtsam.Values, k: int) -> Prior:
-    m = gtsam.Marginals(g, result)
-    sym = lambda c: 0.5 * (c + c.T) * MARGINAL_INFLATION  # noqa: E731
-    return Prior(result.atPose3(X(k)), result.atVector(V(k)), result.atConstantBias(B(k)),
-                 sym(m.marginalCovariance(X(k))), sym(m.marginalCovariance(V(k))), sym(m.marginalCovariance(B(k))))
+def seam_prior(sol: dict[str, np.ndarray], j: int, pose_cov: np.ndarray, v_sigma: float, bias_sigmas: np.ndarray
+               ) -> Prior:
+    """The previous chunk's solution at its row j as the next chunk's prior, with the filter's pose covariance
+    there (information from the past only: the overlap's measurements are not counted twice) and loose velocity
+    and bias sigmas (the chunk's own IMU, wheels and GPS find them again within the overlap)."""
+    return Prior(nav(sol["R"][j], sol["p"][j]), sol["v"][j], gtsam.imuBias.ConstantBias(sol["ba"][j], sol["bg"][j]),
+                 pose_cov, np.eye(3) * v_sigma**2, np.diag(bias_sigmas**2))
 
 
-def solve(cg: ChunkGraph, K: int, first: Prior, spans=None) -> tuple[dict[str, np.ndarray], SolveStats]:
+def solve(cg: ChunkGraph, K: int, first: Prior, seam: Callable[[dict, int, int], Prior], spans=None) -> tuple[dict[str, np.ndarray], SolveStats]:
     """Smoothed R, p, v, bg, ba at every keyframe (arrays like ``cg.s``) and the solver's counters."""
     spans = spans or chunk_spans(K)
     out = {k: v.copy() for k, v in cg.s.items()}
@@ -85,7 +87,8 @@ def solve(cg: ChunkGraph, K: int, first: Prior, spans=None) -> tuple[dict[str, n
         stats.spans.append((s0, s1))
         sol = _arrays(res, s0, s1)
         if c + 1 < len(spans):
-            prior = _marginal_prior(g, res, spans[c + 1][0])
+            nxt = spans[c + 1][0]
+            prior = seam(sol, nxt - s0, nxt)
         _keep(out, sol, s0, a, b, prev)
         prev = (sol, s0, s1)
     return out, stats
