@@ -5,9 +5,10 @@
   an IMU gap gets the filter's own increment instead, loosely (``bridge``).
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
-  the gyro as preintegrated; a ``BetweenFactorPose3`` (Huber) whose rotation is left loose (the gyro's).
-- Odometry: ``BetweenFactorPose3`` of consecutive poses (pose or delta: the increment either way), the two
-  poses' variances summed as the filter does.
+  the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), with a Cauchy
+  loss (a slip burst is a run of outliers that Huber still followed).
+- Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
+  ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed (``delta``), as the filter.
 - GPS: the fix (ENU about the first fix, the filter's world) on its own keyframe, horizontal (Huber) and
   vertical (Cauchy) as two factors, so a wandering altitude never down-weights a good horizontal fix.
 - IMU orientation: a rotation prior at keyframes where the filter used one.
@@ -23,8 +24,8 @@ from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
 from .imu import Segments
 
-HUBER_K = 1.345  # whitened units: 95 % efficiency on Gaussian noise
-CAUCHY_K = 1.0
+HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile (k = 1.345 down-weighted 40 % of good fixes)
+CAUCHY_K = 1.0  # vertical GPS and wheel increments: a slip or an altitude wander is a run of outliers
 FREE_SIGMA = 1e4  # an axis a factor leaves out (metres)
 BRIDGE_ACCEL_DENSITY = 1.0  # m/s^2/sqrt(Hz): how far the filter's increment across an IMU gap is trusted
 BRIDGE_ROTATION_DENSITY = 0.1  # rad/sqrt(s)
@@ -103,8 +104,8 @@ class WheelTrack:
     """The wheel base velocity (components and variances as the filter's ``wheel_velocity_rows``) held over each
     IMU segment from the message nearest its middle; ``ok`` where one lies within a wheel gap of it."""
 
-    def __init__(self, z: np.ndarray, var: np.ndarray, ok: np.ndarray, period_s: float):
-        self.z, self.var, self.ok, self.period_s = z, var, ok, period_s
+    def __init__(self, z: np.ndarray, var: np.ndarray, ok: np.ndarray):
+        self.z, self.sigma, self.ok = z, np.sqrt(var), ok
 
     @classmethod
     def of(cls, prep: Prepared, seg: Segments, noise) -> WheelTrack | None:
@@ -123,7 +124,7 @@ class WheelTrack:
         mid = seg.t + (0.5e9 * seg.dt).astype(np.int64)
         j = _nearest(w.stamps_ns, mid)
         ok = has[j] & (np.abs(w.stamps_ns[j] - mid) <= max(1.5 * period * 1e9, 2.5e7))
-        return cls(z[j], var[j], ok, period)
+        return cls(z[j], var[j], ok)
 
 
 class ChunkGraph:
@@ -149,7 +150,7 @@ class ChunkGraph:
     def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
         g = gtsam.NonlinearFactorGraph()
         m, seg = self.m, self.seg
-        huber = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K)
+        wheel_loss = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
         for k in range(k0, k1 - 1):
             pim = gtsam.PreintegratedCombinedMeasurements(self.params, self.bias(k))
             s0, s1 = seg.at_cut[k], seg.at_cut[k + 1]
@@ -157,13 +158,13 @@ class ChunkGraph:
                 self._bridge(g, k)
                 continue
             wheel = self.wheel is not None and bool(self.wheel.ok[s0:s1].all())
-            dp, var = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
+            dp, sd = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
             g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
             if wheel:
-                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), np.sqrt(var * self.wheel.period_s)]
+                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 m.wheel_dp[k] = (dp, sig[3:])
                 g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp),
-                                               gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(sig))))
+                                               gtsam.noiseModel.Robust.Create(wheel_loss, gtsam.noiseModel.Diagonal.Sigmas(sig))))
         for k in range(k0, k1):
             o = m.orient[k]
             if o is not None:
@@ -186,7 +187,18 @@ class ChunkGraph:
             g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
 
     def _odom(self, g, k0: int, k1: int) -> None:
+        """Absolute poses (``pose``: tied to the world at the first one by the filter's pose there, as the filter
+        ties them) or increments (``delta``) of the odometry."""
         m, od = self.m, self.m.prep.odom
+        if len(m.odom_k) and "pose" in m.prep.use["odom"]:
+            k_first = int(m.odom_k[0])
+            T_world_odom = nav(self.s["R"][k_first], self.s["p"][k_first]).matrix() @ np.linalg.inv(od.poses[m.odom_idx[0]])
+            for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
+                i, k = int(m.odom_idx[a]), int(m.odom_k[a])
+                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, od.position_sigma_m[i])]
+                g.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_odom @ od.poses[i]),
+                                             gtsam.noiseModel.Diagonal.Sigmas(sig)))
+            return
         for a in range(len(m.odom_k) - 1):
             ka, kb = int(m.odom_k[a]), int(m.odom_k[a + 1])
             if ka < k0 or kb >= k1 or ka == kb:

@@ -68,16 +68,16 @@ class Segments:
 
     def integrate_with(self, pim, s0: int, s1: int, wheel=None) -> tuple[np.ndarray | None, np.ndarray | None]:
         """``integrate`` (no gap inside) and, with a ``factors.WheelTrack``, the wheel increment over the same
-        segments in the first one's base axes, rotated by the gyro as integrated: ``sum dR v dt`` and its
-        variance per axis, ``sum var dt`` (times the wheel period: each message's error is held over its period)."""
+        segments in the first one's base axes, rotated by the gyro as integrated: ``sum dR v dt`` and its sigma
+        per axis, ``sum sigma dt``: the wheels' errors (scale, slip) hold over an interval, they do not average out."""
         if wheel is None:
             self.integrate(pim, s0, s1)
             return None, None
-        dp, var = np.zeros(3), np.zeros(3)
+        dp, sd = np.zeros(3), np.zeros(3)
         for s in range(s0, s1):
             dt = float(self.dt[s])
             R = pim.deltaRij().matrix() if s > s0 else np.eye(3)
             dp += R @ wheel.z[s] * dt
-            var += wheel.var[s] * dt
+            sd += wheel.sigma[s] * dt
             pim.integrateMeasurement(self.f[s], self.w[s], dt)
-        return dp, var
+        return dp, sd
