@@ -97,5 +97,7 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
     s = ekf.start
     info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
+    if o.smooth:
+        info["smoother"] = {"kind": "rts", "why": "no accelerometer in use: the factor graph's IMU factors need it"}
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
                       o.smooth, prep.reports, info)

@@ -11,9 +11,9 @@ import numpy as np
 
 from .factors import Measurements
 
-RATIO = 1.25
+RATIO = 1.05  # good smoothers measured within 3 % of the filter on GPS; a graph fitting 30 % long wheels 8-23 %
 CLIP = 3.0
-FLOORS = {"gps_horizontal_m": 0.05, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
+FLOORS = {"gps_horizontal_m": 0.02, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
 
 
 def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:

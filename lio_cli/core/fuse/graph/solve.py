@@ -68,7 +68,7 @@ def seam_prior(sol: dict[str, np.ndarray], j: int, pose_cov: np.ndarray, v_sigma
 
 def solve(cg: ChunkGraph, K: int, first: Prior, seam: Callable[[dict, int, int], Prior], spans=None) -> tuple[dict[str, np.ndarray], SolveStats]:
     """Smoothed R, p, v, bg, ba at every keyframe (arrays like ``cg.s``) and the solver's counters."""
-    spans = spans or chunk_spans(K)
+    spans = spans or chunk_spans(K, CHUNK_KEYFRAMES, OVERLAP_KEYFRAMES)
     out = {k: v.copy() for k, v in cg.s.items()}
     stats = SolveStats(chunks=len(spans))
     prior, prev = first, None
