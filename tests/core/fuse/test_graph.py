@@ -142,6 +142,10 @@ def test_guard_refuses_a_solution_that_explains_the_measurements_worse():
     assert guard.verdict({"odom_increment_m": 0.01}, {"odom_increment_m": 0.02}) == \
         "odom increment residual 0.02 vs the filter's 0.01"
     assert guard.verdict({"wheel_increment_m": 0.1}, {"wheel_increment_m": 0.005, "gps_horizontal_m": 9.0}) is None
+    # at the noise its sigmas predict, a residual above the filter's is no fault (a filter follows every fix)
+    assert guard.verdict({"odom_increment_m": 0.040}, {"odom_increment_m": 0.049}, {"odom_increment_m": 0.049}) is None
+    assert guard.verdict({"odom_increment_m": 0.040}, {"odom_increment_m": 0.052}, {"odom_increment_m": 0.049}) == \
+        "odom increment residual 0.052 vs the filter's 0.04"
 
 
 def test_a_graph_with_wrong_wheels_falls_back_to_the_filter(gps_case, monkeypatch):

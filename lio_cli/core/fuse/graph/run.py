@@ -51,7 +51,7 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
         smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L), seam)
         iterations += stats.iterations
         before, after = guard.residuals(meas, states), guard.residuals(meas, smoothed)
-        why = guard.verdict(before, after)
+        why = guard.verdict(before, after, guard.noise_levels(meas))
         tries.append(why)
         if why is None:
             break
