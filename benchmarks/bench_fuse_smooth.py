@@ -9,7 +9,8 @@
     centred) against GPS alone.
 (4) jackal.bag: end point against robot_localization's (1.0206, 3.4292, 0.7419) +-0.138 m.
 (5) Speed and memory: a planar IMU + wheel log of 100 s and of 400 s through the job, each in its own process:
-    log span over CPU seconds, and peak RSS.
+    log span over CPU seconds, and peak RSS (the log's reading dominates it); then the core alone on simulated
+    inputs: how far the peak RSS grows above the inputs' while fusing.
 
 RTS rows: the graph switched off (``lio_cli.core.fuse.graph.applies`` patched), which is what `--smooth` was.
 
@@ -197,6 +198,24 @@ print(json.dumps({{"cpu": cpu, "span": run.metrics["log_span_s"], "rss_mb": reso
 """
 
 
+CORE_CHILD = """
+import json, resource, sys, time
+sys.path.insert(0, {root!r})
+import lio_cli.core.fuse.graph as graph
+from lio_cli.core.fuse import FuseOptions, fuse
+from lio_cli.simulation.fusion_case import simulate_case
+if {kind!r} == "rts":
+    graph.applies = lambda prep: False
+case = simulate_case("planar", {dur!r}, seed=3)
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+c0 = time.process_time()
+res = fuse(case.inputs, FuseOptions(smooth={kind!r} != "filter", rate_hz=50.0))
+cpu = time.process_time() - c0
+print(json.dumps({{"cpu": cpu, "grew_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024,
+                  "chunks": (res.info.get("smoother") or {{}}).get("chunks")}}))
+"""
+
+
 def section_speed(work: Path, seed: int) -> None:
     print("\n(5) speed and memory: planar IMU + wheels through the job, 50 Hz output, one process per run")
     print(f"{'log':<6} {'run':<8} {'cpu s':>7} {'x real time':>12} {'peak RSS MB':>12} {'chunks':>7}")
@@ -208,6 +227,16 @@ def section_speed(work: Path, seed: int) -> None:
             out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
             r = json.loads(out.stdout.strip().splitlines()[-1])
             print(f"{dur:>4.0f} s {kind:<8} {r['cpu']:>7.2f} {r['span'] / r['cpu']:>12.0f} {r['rss_mb']:>12.0f} "
+                  f"{r['chunks'] if r['chunks'] else '':>7}")
+    print("the core alone (simulated inputs in memory, 50 Hz output): CPU, and how far the peak RSS grew above the "
+          "inputs' while fusing")
+    print(f"{'log':<6} {'run':<8} {'cpu s':>7} {'x real time':>12} {'RSS growth MB':>14} {'chunks':>7}")
+    for dur in (100.0, 400.0):
+        for kind in KINDS:
+            code = CORE_CHILD.format(root=str(ROOT), kind=kind, dur=dur)
+            out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            print(f"{dur:>4.0f} s {kind:<8} {r['cpu']:>7.2f} {dur / r['cpu']:>12.0f} {r['grew_mb']:>14.0f} "
                   f"{r['chunks'] if r['chunks'] else '':>7}")
 
 
