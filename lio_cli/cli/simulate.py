@@ -9,7 +9,7 @@ from typing import Annotated, Literal, Optional
 import typer
 
 from ..simulation import ALL_SCENARIOS, FORMATS, STARTS, TIME_CONVENTIONS, simulate
-from ..simulation.options import GT_TYPES, parse_floats
+from ..simulation.options import GPS_COVARIANCES, GPS_MODELS, GT_TYPES, parse_floats
 from .common import (CALIBRATION_PANEL, FLAG, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, ForceOpt, JsonOpt, LioCommand,
                      QuietOpt, note, one_of, print_json, progress_bar, shown)
 
@@ -21,21 +21,24 @@ SCENARIO is one of:
   [bold]drive[/bold]     a car looping through a town at 5-10 m/s, 32-beam LiDAR
   [bold]corridor[/bold]  a long featureless corridor, wheel odometry
   [bold]planar[/bold]    a differential-drive robot: 2D LaserScan, wheels, IMU
+  [bold]rover[/bold]     a ground robot on uneven roads outdoors: 16-beam LiDAR, wheels
+  [bold]drone[/bold]     a multicopter over a town, climbing and sinking: 16-beam LiDAR
   [bold]static[/bold]    an IMU at rest for up to 48 h, for Allan variance
 
 OUT is x.bag (ROS 1), x.mcap (MCAP) or a folder x (ROS 2, sqlite3); --format overrides the guess. Beside it go
 x.gt.tum (pose of base in world), x.truth.json (true extrinsics, IMU biases and noise, clock offset, wheel
 errors, GPS georeference) and x.sim.metrics.json (resolved options, topics, wall time).
 
-Topics: /points or /scan (frame lidar), /imu, /wheel/odom (not handheld), /ground_truth, /tf_static
+Topics: /points or /scan (frame lidar), /imu, /wheel/odom (not handheld, drone), /ground_truth, /tf_static
 (base -> imu, lidar, gps), /gps/fix with --gps. The platform stands still for the first 1.5 s unless
 --start moving. The same arguments and --seed give the same bytes. The conditions of real recordings
 (moving start, any IMU mounting, clock offsets, no /tf_static...) are described in docs/commands/simulate.md.
 
 The error model has options of its own, left out below and described there: --range-noise, --dropout,
 --max-range, --accel-noise, --gyro-noise, --accel-walk, --gyro-walk, --accel-bias, --gyro-bias,
---no-wheel-errors, --wheel-radius-scale, --wheel-baseline-scale, --gps-rate, --gps-origin, --gps-noise,
---gps-outage and --gps-invalid.
+--no-wheel-errors, --wheel-radius-scale, --wheel-baseline-scale, --wheel-slip-bursts, --gps-rate,
+--gps-origin, --gps-noise, --gps-outage, --gps-invalid, --gps-model (consumer: metres of slow error, altitude
+wander, a multipath jump, optimistic covariance), --gps-alt-wander, --gps-jump and --gps-covariance.
 
 [bold]Examples[/bold]
 
@@ -44,6 +47,7 @@ The error model has options of its own, left out below and described there: --ra
   lio simulate drive moving.bag --start moving --imu-rotation 0,0,30
   lio simulate handheld upside.mcap --imu-rotation 180,0,90 --no-tf-static
   lio simulate corridor corridor_ros2 --format ros2 --gps
+  lio simulate rover field.mcap --start moving --gps-model consumer
   lio simulate static allan.mcap --duration 7200
   lio simulate planar office.mcap --noise-scale 0 --json   # ideal sensors
 """
@@ -55,6 +59,8 @@ TimeConvention = Literal[TIME_CONVENTIONS]
 HeaderStamp = Literal["start", "end"]
 Start = Literal[STARTS]
 GtType = Literal[GT_TYPES]
+GpsModel = Literal[GPS_MODELS]
+GpsCovariance = Literal[GPS_COVARIANCES]
 
 
 def simulate_cmd(
@@ -84,12 +90,18 @@ def simulate_cmd(
     imu_start_delay: Annotated[float, typer.Option("--imu-start-delay", help="The IMU starts this many seconds after the first scan.", rich_help_panel=CALIBRATION_PANEL)] = 0.0,
     wheel_radius_scale: Annotated[Optional[str], typer.Option("--wheel-radius-scale", hidden=True, metavar="L,R", help=shown("True wheel radius / nominal, each wheel.", "drawn"), show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
     wheel_baseline_scale: Annotated[Optional[float], typer.Option("--wheel-baseline-scale", hidden=True, help=shown("True baseline / nominal.", "drawn"), show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    wheel_slip_bursts: Annotated[int, typer.Option("--wheel-slip-bursts", hidden=True, help="Slip bursts of 1-2.5 s (each wheel 10-40 %) spread over the run.")] = 0,
     gps: Annotated[bool, typer.Option("--gps", metavar=FLAG, help="A GPS receiver on /gps/fix (NavSatFix), with invalid fixes and an outage.", rich_help_panel=SENSORS_PANEL)] = False,
     gps_rate: Annotated[Optional[float], typer.Option("--gps-rate", hidden=True, help=shown("GPS rate in Hz; implies --gps.", 5), show_default=False)] = None,
     gps_origin: Annotated[Optional[str], typer.Option("--gps-origin", hidden=True, metavar="LAT,LON,ALT", help=shown("World origin: deg, deg, m above the WGS84 ellipsoid.", "48.137154,11.576124,519"), show_default=False)] = None,
     gps_noise: Annotated[Optional[str], typer.Option("--gps-noise", hidden=True, metavar="H,V", help=shown("GPS 1-sigma, m: east and north each, up.", "1,2"), show_default=False)] = None,
     gps_outage: Annotated[Optional[float], typer.Option("--gps-outage", hidden=True, help=shown("Seconds without GPS from 55% of the run; 0: none.", "min(10, 10% of the run)"), show_default=False)] = None,
     gps_invalid: Annotated[Optional[float], typer.Option("--gps-invalid", hidden=True, help=shown("Share of fixes without a solution.", 0.02), show_default=False)] = None,
+    gps_model: Annotated[Optional[GpsModel], typer.Option("--gps-model", hidden=True, metavar=one_of(GpsModel), help=shown("Receiver error model; implies --gps.", "standard"), show_default=False)] = None,
+    gps_alt_wander: Annotated[Optional[float], typer.Option("--gps-alt-wander", hidden=True, help=shown("Slow altitude wander, m peak to peak; implies --gps.", "standard 0, consumer 25"), show_default=False)] = None,
+    gps_jump: Annotated[Optional[float], typer.Option("--gps-jump", hidden=True, help=shown("Multipath jump, m, for min(5 s, 10% of the run) from 30% of it; implies --gps.", "standard 0, consumer 8"), show_default=False)] = None,
+    gps_covariance: Annotated[Optional[GpsCovariance], typer.Option("--gps-covariance", hidden=True, metavar=one_of(GpsCovariance), help=shown("What the fixes report; implies --gps.", "standard true, consumer optimistic"), show_default=False)] = None,
+    lidar: Annotated[bool, typer.Option("--lidar/--no-lidar", metavar=FLAG, help="The LiDAR topic (without: a log for IMU, wheel and GPS work, written in seconds).", rich_help_panel=OUTPUT_PANEL)] = True,
     fmt: Annotated[Optional[OutFormat], typer.Option("--format", metavar=one_of(OutFormat), help=shown("Output format (ros2: sqlite3 folder).", "from OUT's suffix"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     gt_type: Annotated[Optional[GtType], typer.Option("--gt-type", metavar=one_of(GtType), help=shown("Ground truth topic: PoseStamped, nav_msgs/Odometry (zero twist unless --gt-twist) or none.", "pose; static none"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     gt_topic: Annotated[str, typer.Option("--gt-topic", help="Ground truth topic name.", rich_help_panel=OUTPUT_PANEL)] = "/ground_truth",
@@ -113,6 +125,10 @@ def simulate_cmd(
         gps_opts["gps_outage_s"] = gps_outage
     if gps_invalid is not None:
         gps_opts["gps_invalid_fraction"] = gps_invalid
+    for key, value in (("gps_model", gps_model), ("gps_alt_wander_m", gps_alt_wander), ("gps_jump_m", gps_jump),
+                       ("gps_covariance", gps_covariance)):
+        if value is not None:
+            gps_opts[key] = value
     t0 = time.perf_counter()
     with progress_bar(f"simulating {scenario}", duration, quiet) as advance:
         res = simulate(
@@ -129,7 +145,7 @@ def simulate_cmd(
             imu_rotation_deg=parse_floats(imu_rotation, 3, "--imu-rotation"),
             imu_lever_arm_m=parse_floats(imu_lever_arm, 3, "--imu-lever-arm"), imu_start_delay_s=imu_start_delay,
             gt_type=gt_type, gt_topic=gt_topic, gt_twist=gt_twist, tf_static=tf_static, wheel=wheel,
-            gps=gps or bool(gps_opts), **gps_opts,
+            gps=gps or bool(gps_opts), wheel_slip_bursts=wheel_slip_bursts, lidar=lidar, **gps_opts,
         )
     wall = time.perf_counter() - t0
     summary = res.to_dict()

@@ -19,6 +19,8 @@ MAX_TILT_SCALE = 5.0  # the handheld's sway then reaches +-26 deg of pitch
 MAX_DURATION_S = 3600.0  # ray-cast scenarios: simulate longer runs in pieces
 MAX_STATIC_DURATION_S = 48 * 3600.0  # the IMU-only static scenario streams; hours are its purpose
 DEFAULT_GPS_ORIGIN = (48.137154, 11.576124, 519.0)  # lat deg, lon deg, ellipsoidal height m
+GPS_MODELS = ("standard", "consumer")
+GPS_COVARIANCES = ("true", "optimistic", "absent")
 
 
 @dataclass
@@ -67,9 +69,16 @@ class SimulationOptions:
     gps: bool = False
     gps_rate_hz: float = 5.0
     gps_origin: tuple[float, float, float] = DEFAULT_GPS_ORIGIN
-    gps_noise_m: tuple[float, float] = (1.0, 2.0)
+    gps_noise_m: tuple[float, float] | None = None  # None: the model's (standard 1, 2; consumer 2.5, 1.5)
     gps_outage_s: float | None = None  # None: min(10 s, 10% of the run)
     gps_invalid_fraction: float = 0.02
+    # a consumer receiver's errors (None: the model's; standard: none, consumer: 25 m, 8 m, optimistic)
+    gps_model: str = "standard"
+    gps_alt_wander_m: float | None = None
+    gps_jump_m: float | None = None
+    gps_covariance: str | None = None
+    wheel_slip_bursts: int = 0  # slip bursts on top of the error model's one episode (drawn from the seed)
+    lidar: bool = True  # False: no LiDAR topic (a cheap log for IMU, wheel and GPS work)
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -78,6 +87,7 @@ class SimulationOptions:
 CONDITION_DEFAULTS = {
     "start": "still", "tilt_scale": 1.0, "imu_rotation_deg": None, "imu_lever_arm_m": None, "imu_start_delay_s": 0.0,
     "gt_type": None, "gt_topic": "/ground_truth", "gt_twist": False, "tf_static": True, "wheel": None, "gps": False,
+    "lidar": True,
 }
 
 
@@ -105,7 +115,8 @@ _FLAGS = {"imu_rate_hz": "--imu-rate", "imu_time_offset_s": "--imu-time-offset",
           "accel_bias_walk": "--accel-walk", "gyro_bias_walk": "--gyro-walk", "accel_bias_mps2": "--accel-bias",
           "gyro_bias_radps": "--gyro-bias", "imu_rotation_deg": "--imu-rotation", "imu_lever_arm_m": "--imu-lever-arm",
           "imu_start_delay_s": "--imu-start-delay", "gps_rate_hz": "--gps-rate", "gps_noise_m": "--gps-noise",
-          "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid", "tilt_scale": "--tilt-scale"}
+          "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid", "tilt_scale": "--tilt-scale",
+          "gps_alt_wander_m": "--gps-alt-wander", "gps_jump_m": "--gps-jump", "wheel_slip_bursts": "--wheel-slip-bursts"}
 
 
 def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
@@ -177,21 +188,34 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
                               f"(got {','.join(map(str, opts.gps_origin))})")
         if not 0.1 <= opts.gps_rate_hz <= 100.0:
             raise ConfigError(f"--gps-rate must be between 0.1 and 100 Hz (got {opts.gps_rate_hz})")
-        if not all(0.0 <= s <= 100.0 for s in opts.gps_noise_m):
+        if opts.gps_noise_m is not None and not all(0.0 <= s <= 100.0 for s in opts.gps_noise_m):
             raise ConfigError(f"--gps-noise must be within 0..100 m (got {','.join(map(str, opts.gps_noise_m))})")
         if opts.gps_outage_s is not None and not 0.0 <= opts.gps_outage_s < duration_s:
             raise ConfigError(f"--gps-outage must be >= 0 and shorter than the run (got {opts.gps_outage_s})")
         if not 0.0 <= opts.gps_invalid_fraction < 1.0:
             raise ConfigError(f"--gps-invalid must be in [0, 1) (got {opts.gps_invalid_fraction})")
+        if opts.gps_model not in GPS_MODELS:
+            raise ConfigError(f"--gps-model must be standard or consumer (got '{opts.gps_model}')")
+        if opts.gps_covariance is not None and opts.gps_covariance not in GPS_COVARIANCES:
+            raise ConfigError(f"--gps-covariance must be true, optimistic or absent (got '{opts.gps_covariance}')")
+        if opts.gps_alt_wander_m is not None and not 0.0 <= opts.gps_alt_wander_m <= 200.0:
+            raise ConfigError(f"--gps-alt-wander must be within 0..200 m (got {opts.gps_alt_wander_m})")
+        if opts.gps_jump_m is not None and not 0.0 <= opts.gps_jump_m <= 200.0:
+            raise ConfigError(f"--gps-jump must be within 0..200 m (got {opts.gps_jump_m})")
+    if not 0 <= opts.wheel_slip_bursts <= 100:
+        raise ConfigError(f"--wheel-slip-bursts must be within 0..100 (got {opts.wheel_slip_bursts})")
     if scenario == "static":
         lidar_only = {"--beams": opts.beams, "--columns": opts.columns, "--range-noise": opts.range_noise_m,
                       "--dropout": opts.dropout, "--max-range": opts.max_range_m,
                       "--header-stamp": None if opts.header_stamp == "start" else opts.header_stamp,
                       "--imu-start-delay": opts.imu_start_delay_s or None, "--start": None if opts.start == "still" else opts.start,
                       "--tilt-scale": None if opts.tilt_scale == 1.0 else opts.tilt_scale,
-                      "--wheel": opts.wheel or None, "--gps": opts.gps or None}
+                      "--wheel": opts.wheel or None, "--gps": opts.gps or None,
+                      "--no-lidar": None if opts.lidar else True}
         used = [flag for flag, v in lidar_only.items() if v is not None]
         if used:
             raise ConfigError(f"{used[0]} does not apply to the static scenario (an IMU at rest, no LiDAR, wheels or GPS)")
-    elif scenario == "handheld" and opts.wheel:
-        raise ConfigError("--wheel: the handheld scenario has no wheels")
+    elif scenario in ("handheld", "drone") and opts.wheel:
+        raise ConfigError(f"--wheel: the {scenario} scenario has no wheels")
+    if opts.wheel_slip_bursts and (scenario in ("handheld", "drone", "static") or opts.wheel is False):
+        raise ConfigError("--wheel-slip-bursts needs wheels (drive, corridor, planar or rover, without --no-wheel)")

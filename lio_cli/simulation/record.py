@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.logs.writer import LogWriter
-from .gps import COVARIANCE_TYPE_DIAGONAL_KNOWN, COVARIANCE_TYPE_UNKNOWN, STATUS_FIX, GpsFixes
+from .gps import COVARIANCE_TYPE_UNKNOWN, STATUS_FIX, GpsFixes
 from .motion import MotionState
 from .options import SimulationOptions
 from .scenarios import Scenario
@@ -71,7 +71,7 @@ def gps_message(mk, gps: GpsFixes, i: int):
     t = int(gps.stamps_ns[i])
     if gps.status[i] == STATUS_FIX:
         return mk.navsatfix(t, "gps", gps.lat_deg[i], gps.lon_deg[i], gps.alt_m[i], status=STATUS_FIX,
-                            covariance_m2=np.diag(gps.covariance_enu_m2), covariance_type=COVARIANCE_TYPE_DIAGONAL_KNOWN)
+                            covariance_m2=np.diag(gps.covariance_enu_m2), covariance_type=gps.covariance_type)
     return mk.navsatfix(t, "gps", np.nan, np.nan, np.nan, status=int(gps.status[i]), covariance_m2=np.zeros(9),
                         covariance_type=COVARIANCE_TYPE_UNKNOWN)
 
@@ -125,7 +125,8 @@ def write_sensor_log(out: Path, fmt: str, force: bool, sc: Scenario, opts: Simul
         types[TOPIC_IMU] = "sensor_msgs/msg/Imu"
         if gt_type != "none":
             types[opts.gt_topic] = GT_MSGTYPES[gt_type]
-        types[lidar_topic] = "sensor_msgs/msg/PointCloud2" if spinning else "sensor_msgs/msg/LaserScan"
+        if opts.lidar:
+            types[lidar_topic] = "sensor_msgs/msg/PointCloud2" if spinning else "sensor_msgs/msg/LaserScan"
         if wheel is not None:
             types[TOPIC_WHEEL] = "nav_msgs/msg/Odometry"
         if gps is not None:
@@ -173,7 +174,9 @@ def write_sensor_log(out: Path, fmt: str, force: bool, sc: Scenario, opts: Simul
             scan_start = start_ns + k * period
             scan_end = scan_start + period
             flush(scan_end)
-            if spinning:
+            if not opts.lidar:
+                pass
+            elif spinning:
                 scan = spin_scan(sc.world, sc.trajectory, sc.T_base_lidar, sc.lidar, scan_start, start_ns, rng_lidar)
                 header_ns = scan_start if opts.header_stamp == "start" else scan_end
                 put(lidar_topic, scan_end,

@@ -24,12 +24,12 @@ from ..geometry import make_pose
 from ..io.files.atomic import check_writable, write_text_atomic
 from ..io.logs.writer import SUFFIX_FORMATS
 from ..io.files.trajectory import format_tum
-from .gps import GpsSpec, gps_fixes
+from .gps import MODEL_DEFAULTS, GpsSpec, gps_fixes
 from .motion import ypr_to_matrix
 from .options import TIME_CONVENTIONS, SimulationOptions, validate
 from .record import TOPIC_GPS, TOPIC_IMU, TOPIC_TF_STATIC, TOPIC_WHEEL, Streams, gt_type_of, write_sensor_log
 from .scenarios import ALL_SCENARIOS, Scenario, build_scenario
-from .sensors import NS, ImuSpec, LidarSpec, synthesize_imu, wheel_odometry
+from .sensors import NS, ImuSpec, LidarSpec, slip_bursts, synthesize_imu, wheel_odometry
 from .static import STATIC_GT_RATE_HZ, write_static_log
 from .truth import RunFacts, bias_stats, truth_dict
 
@@ -141,10 +141,16 @@ def _mount_imu(sc: Scenario, opts: SimulationOptions) -> None:
 
 def _gps_spec(sc: Scenario, opts: SimulationOptions, duration_s: float) -> GpsSpec:
     outage = min(10.0, 0.1 * duration_s) if opts.gps_outage_s is None else opts.gps_outage_s
-    return GpsSpec(rate_hz=opts.gps_rate_hz, origin=tuple(opts.gps_origin),
-                   noise_m=tuple(v * opts.noise_scale for v in opts.gps_noise_m),
-                   invalid_fraction=opts.gps_invalid_fraction, outage_start_s=0.55 * duration_s, outage_s=outage,
-                   antenna_m=sc.gps_antenna_m)
+    noise, share, tau, wander, jump, cov = MODEL_DEFAULTS[opts.gps_model]
+    noise = noise if opts.gps_noise_m is None else opts.gps_noise_m
+    wander = wander if opts.gps_alt_wander_m is None else opts.gps_alt_wander_m
+    jump = jump if opts.gps_jump_m is None else opts.gps_jump_m
+    k = opts.noise_scale
+    return GpsSpec(rate_hz=opts.gps_rate_hz, origin=tuple(opts.gps_origin), noise_m=tuple(v * k for v in noise),
+                   correlated_share=share, tau_s=tau, invalid_fraction=opts.gps_invalid_fraction,
+                   outage_start_s=0.55 * duration_s, outage_s=outage, antenna_m=sc.gps_antenna_m,
+                   model=opts.gps_model, alt_wander_m=wander * k, jump_m=jump * k, jump_start_s=0.3 * duration_s,
+                   jump_s=min(5.0, 0.1 * duration_s), covariance=opts.gps_covariance or cov)
 
 
 def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s: float = 20.0, seed: int = 0,
@@ -180,6 +186,9 @@ def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s:
     if sc.wheels is not None:
         sc.wheels.slip_start_s = sc.rest_s + 0.45 * max(duration_s - sc.rest_s, 0.0)
         sc.wheels.slip_duration_s = min(1.0, 0.2 * duration_s) if opts.wheel_errors and opts.noise_scale > 0 else 0.0
+        if opts.wheel_slip_bursts:  # their own stream: every other draw stays as without them
+            rng_slip = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(101,)))
+            sc.wheels.bursts = slip_bursts(opts.wheel_slip_bursts, sc.rest_s, duration_s, rng_slip)
     imu_spec = _imu_spec(sc, opts, rng_imu)
     noisy = opts.noise_scale > 0
     start_ns = START_NS
@@ -212,7 +221,7 @@ def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s:
         header_ns = start_ns + (sc.lidar.period_ns if spinning and opts.header_stamp == "end" else 0)
         facts = RunFacts(gt_type, gt_rate, int(imu.stamps_ns[0]), header_ns, initial, gps)
         bias = bias_stats(imu)
-        lidar_topic = "/points" if spinning else "/scan"
+        lidar_topic = None if not opts.lidar else "/points" if spinning else "/scan"
 
     write_text_atomic(gt_path, format_tum(gt_ns, gt_state.poses), force=force)
     truth = truth_dict(sc, opts, imu_spec, bias, seed, fmt, start_ns, end_ns, facts)

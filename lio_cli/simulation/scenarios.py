@@ -1,4 +1,4 @@
-"""The four scenarios: a world, a trajectory through it that never enters an obstacle, the sensor rig.
+"""The scenarios: a world, a trajectory through it that never enters an obstacle, the sensor rig.
 
 Worlds are fixed (their clutter comes from a fixed internal seed, placed away from the paths), so the
 same scenario always happens in the same place; ``--seed`` only drives sensor noise and biases.
@@ -8,6 +8,8 @@ fade-in is over before t = 0, so each sensor's first sample already sees the ful
 starts cruising straight at 7.5 m/s with its sway fading in over 3 s, so its IMU first looks still.
 ``start="accelerating"``: every speed ramp is half done at t = 0, so the first samples see its largest
 acceleration (the drive: 3.75 m/s and 3.75 m/s^2 on that straight, what reads as a 21 deg tilt to an IMU).
+``rover`` is a wheeled robot outdoors on uneven ground (2D motion, small roll and pitch), ``drone`` a
+multicopter over the same town (3D motion: it climbs and sinks by metres).
 ``static`` is an IMU at rest on a table for hours (no LiDAR, no wheels): the noise model alone.
 """
 
@@ -22,7 +24,7 @@ from .motion import Path2D, Progress, Sines, Trajectory, ypr_to_matrix
 from .sensors import LaserSpec, LidarSpec, WheelSpec
 from .world import World, footprint_clearance
 
-SCENARIOS = ("handheld", "drive", "corridor", "planar")  # the LiDAR scenarios
+SCENARIOS = ("handheld", "drive", "corridor", "planar", "rover", "drone")  # the LiDAR scenarios
 ALL_SCENARIOS = SCENARIOS + ("static",)
 
 _WALL_M = 0.2
@@ -182,6 +184,15 @@ def _rounded_rectangle(x0: float, y0: float, x1: float, y1: float, r: float, ste
 DRIVE_WAYPOINTS = _rounded_rectangle(0.0, 0.0, 160.0, 100.0, 14.0)
 
 
+def slalom(path: Path2D, amplitude_m: float, wavelength_m: float, step_m: float = 2.5) -> np.ndarray:
+    """Waypoints weaving +-``amplitude_m`` across a closed ``path`` (a whole number of waves per lap)."""
+    waves = max(1, int(round(path.length_m / wavelength_m)))
+    s = np.arange(0.0, path.length_m, step_m)
+    p, t = path.derivs(s, 0), path.derivs(s, 1)
+    n = np.column_stack([-t[:, 1], t[:, 0]]) / np.linalg.norm(t, axis=1)[:, None]
+    return p + n * (amplitude_m * np.sin(2.0 * np.pi * waves * s / path.length_m))[:, None]
+
+
 def town_world(path_xy: np.ndarray, seed: int = 11) -> World:
     """Ground, blocks of buildings on both sides of a road loop, poles and parked cars by the kerb."""
     w = World("town")
@@ -316,6 +327,41 @@ def _scenario(name: str, beams: int | None, columns: int | None, start: str) -> 
             LidarSpec(beams=beams or 32, columns=columns or 1024, max_range_m=120.0),
             WheelSpec(radius_m=0.32, baseline_m=1.6), clearance_m=1.1, body_z_m=(0.0, 1.6), rest_s=rest,
             gps_antenna_m=(-0.5, 0.0, 1.55),
+        )
+    if name == "rover":
+        # a wheeled robot on the town's roads, weaving +-1.5 m (parked cars keep 2.2 m from the road's
+        # centre), over uneven ground: +-2-3 deg of roll and pitch and 5 cm of heave at terrain frequencies
+        road = Path2D(DRIVE_WAYPOINTS)
+        world = town_world(_dense(road, 0.5))
+        traj = Trajectory(
+            Path2D(slalom(road, 1.5, 30.0)), Progress(1.5, t_rest_s=p_rest, s0_m=100.0, wobble=Sines((0.4,), (0.07,), (0.0,))),
+            z0_m=0.0, z_wobble=Sines((0.05, 0.01), (0.19, 0.9), (0.0, 0.4)),
+            pitch=Sines((0.03, 0.012), (0.21, 0.83), (0.0, 1.3)), roll=Sines((0.035, 0.01), (0.17, 0.71), (0.6, 0.0)),
+            t_rest_s=t_rest,
+        )
+        return Scenario(
+            name, "wheeled ground robot weaving along a town's roads over uneven ground: 16-beam LiDAR, wheels, IMU",
+            world, traj, _pose((0.0, 0.0, 0.0), (0.1, 0.0, 0.3)), _pose((0, 0, 0), (0.2, 0.0, 0.7)),
+            LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0),
+            WheelSpec(radius_m=0.15, baseline_m=0.55), clearance_m=0.35, body_z_m=(0.0, 0.8), rest_s=rest,
+            gps_antenna_m=(-0.2, 0.0, 0.8),
+        )
+    if name == "drone":
+        # a multicopter over the town's roads: climbing and sinking between 1.5 and 10.5 m, banking +-6-8 deg,
+        # its yaw swinging +-35 deg off the direction of travel (it flies sideways too)
+        road = Path2D(DRIVE_WAYPOINTS)
+        world = town_world(_dense(road, 0.5))
+        traj = Trajectory(
+            road, Progress(4.0, t_rest_s=p_rest, ramp_s=2.0, s0_m=100.0, wobble=Sines((1.5,), (0.06,), (0.0,))),
+            z0_m=6.0, z_wobble=Sines((3.0, 1.5), (0.025, 0.08), (0.0, 1.0)),
+            yaw_offset=Sines((0.6,), (0.04,), (0.0,)), pitch=Sines((0.1, 0.02), (0.1, 0.9), (0.4, 0.0)),
+            roll=Sines((0.12, 0.02), (0.13, 1.1), (1.2, 0.3)), fade_in_s=2.0, t_rest_s=t_rest,
+        )
+        return Scenario(
+            name, "multicopter flying over a town's roads, climbing and sinking between 1.5 and 10.5 m: 16-beam LiDAR, IMU",
+            world, traj, _pose((0.0, 0.0, 0.0), (0.02, 0.0, 0.05)), _pose((0, 0, 0), (0.0, 0.0, 0.15)),
+            LidarSpec(beams=beams or 16, columns=columns or 1024, max_range_m=100.0), None, clearance_m=1.0,
+            body_z_m=(0.0, 12.0), rest_s=rest, gps_antenna_m=(0.0, 0.0, 0.2),
         )
     if name == "static":
         world = World("table")

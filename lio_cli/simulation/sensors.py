@@ -205,7 +205,8 @@ def synthesize_imu(traj: Trajectory, T_base_imu: np.ndarray, spec: ImuSpec, star
 class WheelSpec:
     """Differential drive. Odometry uses the nominal radius and baseline; the true ones differ by the
     scale factors (true = nominal * scale). During the slip window both wheels turn faster than the ground
-    moves under them (measured speed * (1 + slip))."""
+    moves under them (measured speed * (1 + slip)); ``bursts`` adds more such windows, each
+    (start_s, duration_s, slip_left, slip_right)."""
 
     rate_hz: float = 50.0
     radius_m: float = 0.1
@@ -217,6 +218,7 @@ class WheelSpec:
     slip_duration_s: float = 0.0
     slip_left: float = 0.0
     slip_right: float = 0.0
+    bursts: tuple[tuple[float, float, float, float], ...] = ()
     substeps: int = 20
 
 
@@ -246,6 +248,9 @@ def wheel_odometry(traj: Trajectory, spec: WheelSpec, start_ns: int, end_ns: int
     if spec.slip_start_s is not None and spec.slip_duration_s > 0:
         win = smooth_window(t, spec.slip_start_s, spec.slip_duration_s)
         slip_R, slip_L = spec.slip_right * win, spec.slip_left * win
+    for b_start, b_dur, b_left, b_right in spec.bursts:
+        win = smooth_window(t, b_start, b_dur)
+        slip_R, slip_L = slip_R + b_right * win, slip_L + b_left * win
     # encoder wheel rates -> speeds with the nominal radius
     vR_est = vR * (1.0 + slip_R) / spec.radius_scale_right
     vL_est = vL * (1.0 + slip_L) / spec.radius_scale_left
@@ -270,6 +275,19 @@ def wheel_odometry(traj: Trajectory, spec: WheelSpec, start_ns: int, end_ns: int
 
 def _sinc(x: np.ndarray) -> np.ndarray:
     return np.sinc(x / np.pi)
+
+
+def slip_bursts(count: int, rest_s: float, duration_s: float, rng: np.random.Generator) -> tuple:
+    """``count`` slip bursts spread over the moving part of a run: 1-2.5 s each, one per equal share of the
+    time (placed at random inside it), each wheel slipping 0.1-0.4 (wet grass, gravel)."""
+    span = max(duration_s - rest_s, 0.0) / max(count, 1)
+    bursts = []
+    for k in range(count):
+        dur = min(float(rng.uniform(1.0, 2.5)), 0.8 * span)
+        start = rest_s + k * span + float(rng.uniform(0.1 * span, max(0.9 * span - dur, 0.1 * span)))
+        left, right = (float(v) for v in rng.uniform(0.1, 0.4, 2))
+        bursts.append((round(start, 6), round(dur, 6), round(left, 6), round(right, 6)))
+    return tuple(bursts)
 
 
 def smooth_window(t: np.ndarray, start_s: float, duration_s: float) -> np.ndarray:

@@ -46,7 +46,7 @@ def _matrix(T: np.ndarray | None) -> list | None:
 
 def _lidar(sc: Scenario, opts: SimulationOptions) -> dict | None:
     lid = sc.lidar
-    if lid is None:
+    if lid is None or not opts.lidar:
         return None
     lidar = {"topic": TOPIC_POINTS if isinstance(lid, LidarSpec) else TOPIC_SCAN, "frame_id": "lidar",
              "period_s": lid.period_ns * 1e-9, "range_noise_m": lid.range_noise_m, "dropout": lid.dropout,
@@ -73,10 +73,15 @@ def _wheel(sc: Scenario, start_ns: int) -> dict | None:
                 "end_ns": start_ns + int(round((w.slip_start_s + w.slip_duration_s) * NS)),
                 "left": w.slip_left, "right": w.slip_right,
                 "meaning": "measured wheel speed = ground speed * (1 + slip) inside the window (raised-cosine edges)"}
+    bursts = None
+    if w.bursts:
+        bursts = [{"start_s": b[0], "duration_s": b[1], "start_ns": start_ns + int(round(b[0] * NS)),
+                   "end_ns": start_ns + int(round((b[0] + b[1]) * NS)), "left": b[2], "right": b[3]} for b in w.bursts]
     return {"topic": TOPIC_WHEEL, "rate_hz": w.rate_hz, "radius_m_nominal": w.radius_m,
             "baseline_m_nominal": w.baseline_m, "radius_scale_left": w.radius_scale_left,
             "radius_scale_right": w.radius_scale_right, "baseline_scale": w.baseline_scale,
-            "scale_meaning": "true = nominal * scale; odometry uses the nominal values", "slip": slip}
+            "scale_meaning": "true = nominal * scale; odometry uses the nominal values", "slip": slip,
+            **({"slip_bursts": bursts, "slip_bursts_meaning": "as slip, added to it where they overlap"} if bursts else {})}
 
 
 def _conditions(sc: Scenario, opts: SimulationOptions, facts: RunFacts) -> dict:
@@ -131,9 +136,31 @@ def _gps(sc: Scenario, spec: GpsSpec, fixes: GpsFixes, start_ns: int) -> dict:
         "invalid_stamps_ns": fixes.stamps_ns[~valid].tolist(),
         "invalid_meaning": "status -1 (no fix), latitude/longitude/altitude NaN, covariance type 0",
         "invalid_fraction": spec.invalid_fraction, "outage": outage,
+        **_consumer(spec, fixes, start_ns),
         "error_rms_m": {"horizontal": float(np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1)))) if len(err) else None,
                         "up": float(np.sqrt(np.mean(err[:, 2] ** 2))) if len(err) else None},
     }
+
+
+def _consumer(spec: GpsSpec, fixes: GpsFixes, start_ns: int) -> dict:
+    """The receiver model's keys, only when it departs from the standard one (older truth files keep their bytes)."""
+    if spec.model == "standard" and not spec.alt_wander_m and not spec.jump_m and spec.covariance == "true":
+        return {}
+    valid = fixes.status == 0
+    wander = jump = None
+    if fixes.wander_m is not None:
+        w = fixes.wander_m[valid]
+        wander = {"peak_to_peak_m": spec.alt_wander_m, "measured_peak_to_peak_m": float(w.max() - w.min()) if len(w) else None,
+                  "meaning": "a slow smooth wander added to the up error, zero mean, this peak to peak over the run"}
+    if fixes.jump_enu_m is not None:
+        t0 = start_ns
+        jump = {"size_m": spec.jump_m, "offset_enu_m": fixes.jump_enu_m.tolist(), "start_s": spec.jump_start_s,
+                "duration_s": spec.jump_s, "start_ns": t0 + int(round(spec.jump_start_s * NS)),
+                "end_ns": t0 + int(round((spec.jump_start_s + spec.jump_s) * NS)),
+                "meaning": "multipath: every fix in [start_ns, end_ns) shifted by offset_enu_m"}
+    return {"model": spec.model, "covariance": spec.covariance, "covariance_meaning":
+            {"true": "the true white + Gauss-Markov sigmas", "optimistic": "a third of the true sigmas, no wander or jump",
+             "absent": "type 0, all zeros"}[spec.covariance], "altitude_wander": wander, "multipath_jump": jump}
 
 
 def _allan(spec: ImuSpec) -> dict:

@@ -24,7 +24,8 @@ START_NS = 1_700_000_000 * NS
 FD_H_S = 2e-4  # central differences of the exact trajectory: truncation ~1e-6
 RATE_TOL = 1e-5
 ACCEL_TOL = 1e-3
-CRUISE_MPS = {"handheld": (0.7, 1.8), "drive": (6.0, 9.0), "corridor": (0.85, 1.15), "planar": (0.3, 1.1)}  # speeds at cruise
+CRUISE_MPS = {"handheld": (0.7, 1.8), "drive": (6.0, 9.0), "corridor": (0.85, 1.15), "planar": (0.3, 1.1),
+              "rover": (1.0, 2.0), "drone": (3.0, 5.0)}  # speeds at cruise
 
 
 def _stamp(msg) -> int:

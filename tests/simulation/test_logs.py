@@ -40,7 +40,7 @@ RATES_HZ = {"/imu": 200.0, "/ground_truth": 100.0, "/wheel/odom": 50.0, "/points
 
 def expected_topics(scenario: str) -> set[str]:
     topics = {"/tf_static", "/imu", "/ground_truth", "/scan" if scenario == "planar" else "/points"}
-    if scenario != "handheld":
+    if scenario not in ("handheld", "drone"):
         topics.add("/wheel/odom")
     return topics
 
@@ -215,7 +215,7 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (("simulate", "flying", "x.bag"), "lio: error: Invalid value for 'SCENARIO': 'flying' is not one of 'handheld', "
-     "'drive', 'corridor', 'planar', 'static'; see 'lio simulate --help'\n"),
+     "'drive', 'corridor', 'planar', 'rover', 'drone', 'static'; see 'lio simulate --help'\n"),
     (("simulate", "handheld", "x.bag", "--time-convention", "sick"),
      "lio: error: Invalid value for '--time-convention': 'sick' is not one of 'velodyne', 'ouster', 'livox', "
      "'hesai'; see 'lio simulate --help'\n"),
