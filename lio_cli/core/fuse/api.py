@@ -11,6 +11,7 @@ from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
+from . import graph
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
@@ -92,7 +93,10 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
 
 
 def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
-    ekf = Ekf3d(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
+    start = _start(prep, o, Ekf3d, _EKF_XY)
+    if o.smooth and graph.applies(prep):  # the factor graph; RTS below for a filter without an accelerometer
+        return graph.smooth_graph(prep, o, start)
+    ekf = Ekf3d(prep, o, start)
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
     if o.smooth and len(x):
@@ -113,5 +117,7 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
     s = ekf.start
     info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
+    if o.smooth:
+        info["smoother"] = {"kind": "rts", "why": "no accelerometer in use: the factor graph's IMU factors need it"}
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
                       o.smooth, prep.reports, info)

@@ -1,0 +1,227 @@
+"""The factors of one chunk of keyframes [k0, k1): what each measurement says about the nav states X (Pose3
+``T_world_base``), V (world velocity) and B (IMU biases, base frame) at keyframe k.
+
+- IMU: ``CombinedImuFactor`` between consecutive keyframes (biases' random walk included); an interval with
+  an IMU gap gets the filter's own increment instead, loosely (``bridge``).
+- Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
+  base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
+  the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), with a Cauchy
+  loss (a slip burst is a run of outliers that Huber still followed).
+- Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
+  ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed (``delta``), as the filter.
+- GPS: the fix (ENU about the first fix, the filter's world) on its own keyframe, horizontal (Huber) and
+  vertical (Cauchy) as two factors, so a wandering altitude never down-weights a good horizontal fix.
+- IMU orientation: a rotation prior at keyframes where the filter used one.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, V, X
+
+from ..step3d import wheel_velocity_rows
+from ..timeline import Prepared
+from .imu import Segments
+
+HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile (k = 1.345 down-weighted 40 % of good fixes)
+CAUCHY_K = 1.0  # vertical GPS and wheel increments: a slip or an altitude wander is a run of outliers
+FREE_SIGMA = 1e4  # an axis a factor leaves out (metres)
+BRIDGE_ACCEL_DENSITY = 1.0  # m/s^2/sqrt(Hz): how far the filter's increment across an IMU gap is trusted
+BRIDGE_ROTATION_DENSITY = 0.1  # rad/sqrt(s)
+ORIENTATION_MAX_DT_NS = 10_000_000
+WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (already in the IMU factor)
+FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
+
+
+def nav(R: np.ndarray, p: np.ndarray) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3(R), p)
+
+
+class Measurements:
+    """Every measurement attached to its keyframe once for the whole log (numpy), so a chunk's graph is a slice."""
+
+    def __init__(self, prep: Prepared, kt: np.ndarray, noise):
+        self.prep, self.kt, self.noise = prep, kt, noise
+        K = len(kt)
+        self.wheel_dp: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe k -> increment to k+1, sigma
+        self.gps_k = np.zeros(0, np.int64)
+        g = prep.gps
+        if g is not None and len(g) and "gps" in prep.use:
+            ok = (g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]) & _accepted(g)
+            idx = np.flatnonzero(ok)
+            first = np.flatnonzero((g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]))
+            if len(idx):
+                self.gps_idx = idx
+                self.gps_k = np.searchsorted(kt, g.stamps_ns[idx])
+                self.gps_z = g.position_enu_m[idx] - g.position_enu_m[first[0]]  # the filter's anchor
+                self.gps_h, self.gps_v = gps_sigmas(g, idx)
+        self.odom_pairs = np.zeros((0, 2), np.int64)
+        od = prep.odom
+        if od is not None and len(od) > 1 and "odom" in prep.use:
+            idx = np.flatnonzero((od.stamps_ns >= kt[0]) & (od.stamps_ns <= kt[-1]))
+            self.odom_idx = idx
+            self.odom_k = np.searchsorted(kt, od.stamps_ns[idx])
+        else:
+            self.odom_idx = np.zeros(0, np.int64)
+            self.odom_k = np.zeros(0, np.int64)
+        self.orient = [None] * K
+        imu = prep.imu
+        if prep.imu_R_wb is not None:
+            valid = np.flatnonzero(imu.orientation_valid)
+            if len(valid):
+                j = valid[_nearest(imu.stamps_ns[valid], kt)]
+                close = np.abs(imu.stamps_ns[j] - kt) <= ORIENTATION_MAX_DT_NS
+                for k in np.flatnonzero(close).tolist():
+                    i = j[k]
+                    sig = float(np.sqrt(max(np.trace(imu.orientation_cov[i]) / 3.0, 1e-12)))
+                    self.orient[k] = (prep.imu_R_wb[i], sig)
+
+
+def _nearest(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
+    j = np.clip(np.searchsorted(grid, t), 1, max(len(grid) - 1, 1))
+    lo = grid[j - 1]
+    hi = grid[np.minimum(j, len(grid) - 1)]
+    return np.where(t - lo <= hi - t, j - 1, np.minimum(j, len(grid) - 1))
+
+
+def _accepted(g) -> np.ndarray:
+    """The filter's GPS gating when the prepared timeline carries it (``accepted``), else every fix."""
+    acc = getattr(g, "accepted", None)
+    return np.ones(len(g), bool) if acc is None else np.asarray(acc, bool)
+
+
+def gps_sigmas(g, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal and vertical sigma per fix: the timeline's own where it has them, else the fix covariance."""
+    h, v = getattr(g, "sigma_h_m", None), getattr(g, "sigma_v_m", None)
+    if h is not None and v is not None:
+        return np.asarray(h, float)[idx], np.asarray(v, float)[idx]
+    c = g.cov_m2[idx]
+    return np.sqrt(0.5 * (c[:, 0, 0] + c[:, 1, 1])), np.sqrt(c[:, 2, 2])
+
+
+class WheelTrack:
+    """The wheel base velocity (components and variances as the filter's ``wheel_velocity_rows``) held over each
+    IMU segment from the message nearest its middle; ``ok`` where one lies within a wheel gap of it."""
+
+    def __init__(self, z: np.ndarray, var: np.ndarray, ok: np.ndarray):
+        self.z, self.sigma, self.ok = z, np.sqrt(var), ok
+
+    @classmethod
+    def of(cls, prep: Prepared, seg: Segments, noise) -> WheelTrack | None:
+        w = prep.wheel
+        if w is None or len(w) < 2 or "wheel" not in prep.use:
+            return None
+        rows = wheel_velocity_rows(w.velocity_mps, w.velocity_var, prep.use["wheel"], noise.nonholonomic_sigma_mps,
+                                   noise.nonholonomic_rel_sigma)
+        z, var = np.zeros((len(w), 3)), np.full((len(w), 3), FREE_VAR)
+        has = np.zeros(len(w), bool)
+        for i, row in enumerate(rows):
+            if row is not None:
+                c = list(row[0])
+                z[i, c], var[i, c], has[i] = row[1], row[2], True
+        period = float(np.median(np.diff(w.stamps_ns))) * 1e-9
+        mid = seg.t + (0.5e9 * seg.dt).astype(np.int64)
+        j = _nearest(w.stamps_ns, mid)
+        ok = has[j] & (np.abs(w.stamps_ns[j] - mid) <= max(1.5 * period * 1e9, 2.5e7))
+        return cls(z[j], var[j], ok)
+
+
+class ChunkGraph:
+    """Builds the factor graph and the starting values of keyframes [k0, k1)."""
+
+    def __init__(self, meas: Measurements, seg: Segments, params, states: dict[str, np.ndarray]):
+        self.m, self.seg, self.params, self.s = meas, seg, params, states
+        self.wheel = WheelTrack.of(meas.prep, seg, meas.noise)
+        self.bridged = 0
+
+    def bias(self, k: int) -> gtsam.imuBias.ConstantBias:
+        return gtsam.imuBias.ConstantBias(self.s["ba"][k], self.s["bg"][k])
+
+    def values(self, k0: int, k1: int) -> gtsam.Values:
+        vals = gtsam.Values()
+        s = self.s
+        for k in range(k0, k1):
+            vals.insert(X(k), nav(s["R"][k], s["p"][k]))
+            vals.insert(V(k), s["v"][k])
+            vals.insert(B(k), self.bias(k))
+        return vals
+
+    def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
+        g = gtsam.NonlinearFactorGraph()
+        m, seg = self.m, self.seg
+        wheel_loss = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
+        for k in range(k0, k1 - 1):
+            pim = gtsam.PreintegratedCombinedMeasurements(self.params, self.bias(k))
+            s0, s1 = seg.at_cut[k], seg.at_cut[k + 1]
+            if seg.gap[s0:s1].any():
+                self._bridge(g, k)
+                continue
+            wheel = self.wheel is not None and bool(self.wheel.ok[s0:s1].all())
+            dp, sd = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
+            g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
+            if wheel:
+                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
+                m.wheel_dp[k] = (dp, sig[3:])
+                g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp),
+                                               gtsam.noiseModel.Robust.Create(wheel_loss, gtsam.noiseModel.Diagonal.Sigmas(sig))))
+        for k in range(k0, k1):
+            o = m.orient[k]
+            if o is not None:
+                sig = np.r_[np.full(3, o[1]), np.full(3, FREE_SIGMA)]
+                g.add(gtsam.PriorFactorPose3(X(k), nav(o[0], self.s["p"][k]), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        self._gps(g, k0, k1)
+        self._odom(g, k0, k1)
+        return g
+
+    def _gps(self, g, k0: int, k1: int) -> None:
+        m = self.m
+        huber = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K)
+        cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
+        sel = np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
+        for j in sel.tolist():
+            k, z, h, v = int(m.gps_k[j]), m.gps_z[j], float(m.gps_h[j]), float(m.gps_v[j])
+            nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
+            nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
+            g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
+            g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
+
+    def _odom(self, g, k0: int, k1: int) -> None:
+        """Absolute poses (``pose``: tied to the world at the first one by the filter's pose there, as the filter
+        ties them) or increments (``delta``) of the odometry."""
+        m, od = self.m, self.m.prep.odom
+        if len(m.odom_k) and "pose" in m.prep.use["odom"]:
+            k_first = int(m.odom_k[0])
+            T_world_odom = nav(self.s["R"][k_first], self.s["p"][k_first]).matrix() @ np.linalg.inv(od.poses[m.odom_idx[0]])
+            for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
+                i, k = int(m.odom_idx[a]), int(m.odom_k[a])
+                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, od.position_sigma_m[i])]
+                g.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_odom @ od.poses[i]),
+                                             gtsam.noiseModel.Diagonal.Sigmas(sig)))
+            return
+        for a in range(len(m.odom_k) - 1):
+            ka, kb = int(m.odom_k[a]), int(m.odom_k[a + 1])
+            if ka < k0 or kb >= k1 or ka == kb:
+                continue
+            i, j = int(m.odom_idx[a]), int(m.odom_idx[a + 1])
+            T = np.linalg.inv(od.poses[i]) @ od.poses[j]
+            rs = float(np.hypot(od.rotation_sigma_rad[i], od.rotation_sigma_rad[j]))
+            ps = float(np.hypot(od.position_sigma_m[i], od.position_sigma_m[j]))
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, rs), np.full(3, ps)])
+            g.add(gtsam.BetweenFactorPose3(X(ka), X(kb), gtsam.Pose3(T), noise))
+
+    def _bridge(self, g, k: int) -> None:
+        """No IMU across [k, k+1]: the filter's increment of pose and velocity, trusted like a motion model."""
+        s = self.s
+        dt = max((self.m.kt[k + 1] - self.m.kt[k]) * 1e-9, 1e-3)
+        a, b = nav(s["R"][k], s["p"][k]), nav(s["R"][k + 1], s["p"][k + 1])
+        ps, rs = BRIDGE_ACCEL_DENSITY * dt**1.5, BRIDGE_ROTATION_DENSITY * dt**0.5
+        g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), a.between(b),
+                                       gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, rs), np.full(3, ps)])))
+        g.add(gtsam.BetweenFactorVector(V(k), V(k + 1), s["v"][k + 1] - s["v"][k],
+                                        gtsam.noiseModel.Isotropic.Sigma(3, BRIDGE_ACCEL_DENSITY * dt**0.5)))
+        nz = self.m.noise
+        bs = np.r_[np.full(3, nz.accel_bias_walk), np.full(3, nz.gyro_bias_walk)] * dt**0.5
+        g.add(gtsam.BetweenFactorConstantBias(B(k), B(k + 1), gtsam.imuBias.ConstantBias(),
+                                              gtsam.noiseModel.Diagonal.Sigmas(bs)))
+        self.bridged += 1

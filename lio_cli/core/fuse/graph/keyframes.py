@@ -1,0 +1,49 @@
+"""Where the factor graph puts its nav states, and the filter's states there (the graph's starting values).
+
+Keyframes: every odometry and GPS stamp (their factors then act on a state at their own instant), plus a grid
+of ``KEYFRAME_PERIOD_NS`` where those leave longer stretches; grid stamps closer than ``MIN_SPACING_NS`` to a
+measurement stamp are dropped. The span's first and last instants are keyframes, so every output lies between two.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..inputs import FuseOptions
+from ..timeline import OUT, Prepared
+
+KEYFRAME_PERIOD_NS = 100_000_000  # 0.1 s: the IMU factor's span, short enough for its first-order bias update
+MIN_SPACING_NS = 20_000_000
+
+
+def keyframe_stamps(prep: Prepared, period_ns: int = KEYFRAME_PERIOD_NS) -> np.ndarray:
+    """Sorted int64 keyframe stamps inside the span (module docstring)."""
+    t0, t1 = prep.t0_ns, prep.t1_ns
+    meas = [np.array([t0, t1], np.int64)]
+    for name in ("odom", "gps"):
+        s = getattr(prep, name)
+        if s is not None and len(s):
+            meas.append(s.stamps_ns[(s.stamps_ns >= t0) & (s.stamps_ns <= t1)])
+    m = np.unique(np.concatenate(meas))
+    grid = np.arange(t0, t1, period_ns, dtype=np.int64)
+    j = np.clip(np.searchsorted(m, grid), 1, len(m) - 1)
+    near = np.minimum(np.abs(grid - m[j - 1]), np.abs(m[j] - grid))
+    return np.unique(np.concatenate([m, grid[near >= MIN_SPACING_NS]]))
+
+
+def with_outputs(prep: Prepared, stamps: np.ndarray) -> Prepared:
+    """``prep`` with its output events at ``stamps`` instead (same order rule: outputs last at a stamp)."""
+    keep = prep.kinds != OUT
+    t = np.concatenate([prep.times[keep], stamps])
+    k = np.concatenate([prep.kinds[keep], np.full(len(stamps), OUT, np.int8)])
+    i = np.concatenate([prep.index[keep], np.arange(len(stamps))])
+    order = np.lexsort((k, t))
+    return replace(prep, out_stamps=stamps, times=t[order], kinds=k[order], index=i[order])
+
+
+def filter_options(o: FuseOptions) -> FuseOptions:
+    """The filter pass under the graph: no RTS record (its memory grows with the log); its pose covariance kept
+    (the chunks' priors at their seams)."""
+    return replace(o, smooth=False, want_covariance=True)

@@ -1,0 +1,94 @@
+"""The graph smoother's run: filter pass, chunked solve, guard, output (see the package docstring)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+
+from ..ekf3d import Ekf3d
+from ..initial import Start
+from ..inputs import FuseOptions
+from ..result import FuseResult, anchor_to_origin
+from ..state3d import BA_, B_, P_, R_, V_, Layout, initial_estimate
+from ..timeline import Prepared
+from . import guard
+from .factors import ChunkGraph, Measurements, nav
+from .imu import Segments, imu_params
+from .keyframes import filter_options, keyframe_stamps, with_outputs
+from .output import at_outputs
+from .solve import Prior, seam_prior, solve
+
+MIN_VARIANCE = 1e-10  # the start's "known exactly" variances (1e-12) kept solvable
+# accelerometer noise density multipliers tried in turn until the guard accepts: jackal.bag's accelerometer at the
+# default density drew the graph 4.7 m off robot_localization's end point, at 10x it ends 0.02 m from it
+ACCEL_NOISE_SCALES = (1.0, 10.0)
+SEAM_VELOCITY_SIGMA = 0.2  # m/s: a chunk's prior on its first velocity (its IMU and wheels find it again)
+
+
+def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
+    """The smoothed trajectory at ``prep.out_stamps`` (the filter's where the guard refuses the graph's)."""
+    kt = keyframe_stamps(prep)
+    out = prep.out_stamps
+    stamps = np.union1d(kt, out)
+    ekf = Ekf3d(with_outputs(prep, stamps), filter_options(o), start)
+    knots = ekf.run()
+    sel = knots["output"]
+    t, x = knots["t_ns"][sel], knots["x_filt"]
+    at_k, at_o = np.searchsorted(t, kt), np.searchsorted(t, out)
+    states = {"R": x[at_k, R_].reshape(-1, 3, 3), "p": x[at_k, P_], "v": x[at_k, V_], "bg": x[at_k, B_],
+              "ba": x[at_k, BA_]}
+    meas = Measurements(prep, kt, o.noise)
+    P_k = knots["P_filt"][at_k]
+    bias_sigmas = np.r_[np.full(3, o.noise.init_accel_bias_sigma_mps2), np.full(3, o.noise.init_gyro_bias_sigma_radps)]
+    seam = lambda sol, j, k: seam_prior(sol, j, _pose_cov(P_k[k], states["R"][k]), SEAM_VELOCITY_SIGMA,  # noqa: E731
+                                        bias_sigmas)
+    iterations, tries, seg = 0, [], Segments(prep, kt)
+    for scale in ACCEL_NOISE_SCALES:  # the accelerometer trusted less when the graph explained the rest worse
+        params = imu_params(replace(o.noise, accel_noise_density=scale * o.noise.accel_noise_density), o.gravity_mps2)
+        cg = ChunkGraph(meas, seg, params, states)
+        smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L), seam)
+        iterations += stats.iterations
+        before, after = guard.residuals(meas, states), guard.residuals(meas, smoothed)
+        why = guard.verdict(before, after, guard.noise_levels(meas))
+        tries.append(why)
+        if why is None:
+            break
+    info = {"kind": "factor_graph", "solver": "levenberg_marquardt", "keyframes": len(kt), "chunks": stats.chunks,
+            "iterations": iterations, "initial_error": stats.initial_error, "final_error": stats.final_error,
+            "imu_bridged": cg.bridged, "accel_noise_scale": scale, "residuals_filter": before,
+            "residuals_smoothed": after, "fallback": why, "refused": [t for t in tries if t]}
+    cov = knots["P_filt"][at_o] if o.want_covariance and len(knots["P_filt"]) else None
+    if why is not None:
+        prep.notes.append(f"smoother: the filter's trajectory kept, the factor graph's was worse ({why})")
+        poses = np.zeros((len(out), 4, 4))
+        poses[:, :3, :3] = x[at_o, R_].reshape(-1, 3, 3)
+        poses[:, :3, 3] = x[at_o, P_]
+        poses[:, 3, 3] = 1.0
+        vel = x[at_o, V_]
+    else:
+        poses, vel = at_outputs(Segments(prep, np.union1d(kt, out)), kt, smoothed, params, out)
+    s = ekf.start
+    result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
+                   "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
+    return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
+
+
+def _pose_cov(P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The filter's pose covariance (COVARIANCE_LAYOUT: world position, base rotation) in Pose3's tangent
+    (base rotation, base translation)."""
+    J = np.zeros((6, 6))
+    J[0:3, 3:6] = np.eye(3)
+    J[3:6, 0:3] = R.T
+    C = J @ P @ J.T
+    return 0.5 * (C + C.T) + np.eye(6) * MIN_VARIANCE
+
+
+def _start_prior(prep: Prepared, o: FuseOptions, start: Start, L: Layout) -> Prior:
+    """The filter's first state and covariance as the graph's prior on its first keyframe."""
+    x, P = initial_estimate(start, L, o.noise, prep)
+    d = np.maximum(np.diag(P), MIN_VARIANCE)
+    x = np.asarray(x)
+    return Prior(nav(x[R_].reshape(3, 3), x[P_]), x[V_], gtsam.imuBias.ConstantBias(x[BA_], x[B_]),
+                 np.diag(d[0:6]), np.diag(d[6:9]), np.diag(np.r_[d[12:15], d[9:12]]))
