@@ -211,7 +211,8 @@ base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 c0 = time.process_time()
 run = run_fuse(FuseJob({log!r}, FuseConfig(smooth={kind!r} != "filter", rate_hz=50.0)))
 cpu = time.process_time() - c0
-print(json.dumps({{"cpu": cpu, "span": run.metrics["log_span_s"], "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({{"cpu": cpu, "span": run.metrics["log_span_s"], "rss_mb": rss / 1024,
                   "base_mb": base / 1024, "chunks": (run.metrics["core"].get("smoother") or {{}}).get("chunks")}}))
 """
 

@@ -87,8 +87,8 @@ def test_smoother_beats_filter_between_scans_and_shrinks_covariance(kind, monkey
         monkeypatch.setattr(graph, "applies", lambda prep: False)
     case = simulate_case("handheld", 12.0, seed=5, wheels=False, odom=OdomNoise())
     ref = Trajectory(case.truth_stamps_ns, case.truth_poses, "gt")
-    filt = fuse(case.inputs, FuseOptions())
-    smooth = fuse(case.inputs, FuseOptions(smooth=True))
+    filt = fuse(case.inputs, FuseOptions(estimator="ekf"))
+    smooth = fuse(case.inputs, FuseOptions(estimator="ekf", smooth=True))
     assert smooth.info["smoother"]["kind"] == kind
     opts = EvalOptions(align="se3", delta=0.05, delta_unit="s", max_diff_ns=1_000_000)
     rpe_f = evaluate(ref, Trajectory(filt.stamps_ns, filt.poses, "f"), opts).stats["rpe"]["trans"]["rmse"]
