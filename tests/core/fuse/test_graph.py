@@ -46,8 +46,8 @@ def gps_case():
 
 
 def test_graph_beats_the_filter_it_smooths_with_imu_wheels_and_gps(gps_case):
-    filt = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0))
-    smooth = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0, smooth=True))
+    filt = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0))
+    smooth = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
     sm = smooth.info["smoother"]
     assert sm["kind"] == "factor_graph" and sm["fallback"] is None and sm["chunks"] == 1
     assert sm["final_error"] < 1e-3 * sm["initial_error"]  # LM started from the filter's states
@@ -75,8 +75,8 @@ def test_consumer_gps_altitude_wander_and_multipath_jump():
     case = simulate_case("planar", 60.0, seed=3, gps_sigma_m=0.1)
     gps, alone = consumer_gps(case)
     inputs = replace(case.inputs, gps=gps)
-    filt = fuse(inputs, FuseOptions(rate_hz=10.0))
-    smooth = fuse(inputs, FuseOptions(rate_hz=10.0, smooth=True))
+    filt = fuse(inputs, FuseOptions(estimator="ekf", rate_hz=10.0))
+    smooth = fuse(inputs, FuseOptions(estimator="ekf", rate_hz=10.0, smooth=True))
     assert smooth.info["smoother"]["fallback"] is None
     h_filter = horizontal_rms(case, filt.stamps_ns, filt.poses[:, :3, 3])
     h_graph = horizontal_rms(case, smooth.stamps_ns, smooth.poses[:, :3, 3])
@@ -87,12 +87,13 @@ def test_consumer_gps_altitude_wander_and_multipath_jump():
 def test_odometry_at_200_hz_is_smoother_than_the_odometry_interpolated():
     case = simulate_case("corridor", 20.0, seed=1, odom=OdomNoise())
     od = case.inputs.odom
-    res = fuse(case.inputs, FuseOptions(rate_hz=200.0, smooth=True))
+    res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=200.0, smooth=True))
     assert res.info["smoother"]["kind"] == "factor_graph" and res.info["smoother"]["fallback"] is None
     q = case.truth_stamps_ns[(case.truth_stamps_ns >= od.stamps_ns[0]) & (case.truth_stamps_ns <= od.stamps_ns[-1])]
     interp_rpe = rpe_005(case, q, interpolate_poses(od.stamps_ns, od.poses, q))
-    odom_ate = evaluate(Trajectory(case.truth_stamps_ns, case.truth_poses, "gt"),
-                        Trajectory(od.stamps_ns, od.poses, "odom"), EvalOptions(align="se3")).stats["ape"]["trans"]["rmse"]
+    truth = Trajectory(case.truth_stamps_ns, case.truth_poses, "gt")
+    odom = Trajectory(od.stamps_ns, od.poses, "odom")
+    odom_ate = evaluate(truth, odom, EvalOptions(align="se3")).stats["ape"]["trans"]["rmse"]
     # measured: RPE 0.0008 vs 0.024 interpolated; ATE 0.014 vs the odometry's 0.037
     assert rpe_005(case, res.stamps_ns, res.poses) <= 0.5 * interp_rpe
     assert ate(case, res) <= odom_ate
@@ -115,7 +116,7 @@ def test_memory_does_not_grow_with_the_log_and_chunks_match_one_solve(gps_case, 
         return build(self, k0, k1)
 
     monkeypatch.setattr(factors.ChunkGraph, "build", spy)
-    whole = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0, smooth=True))
+    whole = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
     assert whole.info["smoother"]["chunks"] == 1 and max(built) == 301  # 30 s at the 0.1 s grid
     monkeypatch.setattr(solve, "CHUNK_KEYFRAMES", 100)
     monkeypatch.setattr(solve, "OVERLAP_KEYFRAMES", 30)
@@ -123,14 +124,14 @@ def test_memory_does_not_grow_with_the_log_and_chunks_match_one_solve(gps_case, 
     for dur in (15.0, 30.0):
         built.clear()
         case = simulate_case("planar", dur, seed=1, gps_sigma_m=1.0) if dur != 30.0 else gps_case
-        res = fuse(case.inputs, FuseOptions(rate_hz=20.0, smooth=True))
+        res = fuse(case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
         held[dur] = (max(built), res.info["smoother"]["chunks"])
     # the largest graph held is one chunk (at most 1.5 chunk lengths plus both overlaps), whatever the length
     assert held[15.0][1] == 2 and held[30.0][1] == 3
     assert held[15.0][0] <= 210 and held[30.0][0] <= 210
     monkeypatch.setattr(solve, "CHUNK_KEYFRAMES", 150)
     monkeypatch.setattr(solve, "OVERLAP_KEYFRAMES", 50)
-    chunked = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0, smooth=True))
+    chunked = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
     assert chunked.info["smoother"]["chunks"] == 2
     assert ate(gps_case, chunked) <= 1.2 * ate(gps_case, whole) + 0.01  # measured 0.100 vs 0.093
 
@@ -158,8 +159,8 @@ def test_a_graph_with_wrong_wheels_falls_back_to_the_filter(gps_case, monkeypatc
         return w
 
     monkeypatch.setattr(factors.WheelTrack, "of", classmethod(long_wheels))
-    filt = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0))
-    res = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0, smooth=True))
+    filt = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0))
+    res = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
     sm = res.info["smoother"]
     assert sm["fallback"].startswith("gps horizontal residual") and len(sm["refused"]) == 2  # 1x, 10x accel noise
     assert np.allclose(res.poses, filt.poses, atol=1e-9)
@@ -167,7 +168,7 @@ def test_a_graph_with_wrong_wheels_falls_back_to_the_filter(gps_case, monkeypatc
 
 
 def test_without_an_accelerometer_the_rts_smoother_stays(gps_case):
-    res = fuse(gps_case.inputs, FuseOptions(rate_hz=20.0, smooth=True, use={"imu": {"gyro"}, "wheel": {"speed"},
-                                                                             "gps": {"position"}}))
+    use = {"imu": {"gyro"}, "wheel": {"speed"}, "gps": {"position"}}
+    res = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True, use=use))
     assert res.info["smoother"]["kind"] == "rts"
     assert ate(gps_case, res) < 0.3

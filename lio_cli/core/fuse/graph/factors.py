@@ -34,6 +34,10 @@ WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (a
 FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
 
 
+def _sigmas(sig: np.ndarray):
+    return gtsam.noiseModel.Diagonal.Sigmas(sig)
+
+
 def nav(R: np.ndarray, p: np.ndarray) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(R), p)
 
@@ -164,7 +168,7 @@ class ChunkGraph:
                 sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 m.wheel_dp[k] = (dp, sig[3:])
                 g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp),
-                                               gtsam.noiseModel.Robust.Create(wheel_loss, gtsam.noiseModel.Diagonal.Sigmas(sig))))
+                                               gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))))
         for k in range(k0, k1):
             o = m.orient[k]
             if o is not None:
@@ -192,7 +196,8 @@ class ChunkGraph:
         m, od = self.m, self.m.prep.odom
         if len(m.odom_k) and "pose" in m.prep.use["odom"]:
             k_first = int(m.odom_k[0])
-            T_world_odom = nav(self.s["R"][k_first], self.s["p"][k_first]).matrix() @ np.linalg.inv(od.poses[m.odom_idx[0]])
+            T_first = nav(self.s["R"][k_first], self.s["p"][k_first]).matrix()
+            T_world_odom = T_first @ np.linalg.inv(od.poses[m.odom_idx[0]])
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
                 sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, od.position_sigma_m[i])]
