@@ -29,13 +29,15 @@ from scipy.optimize import minimize
 
 from ...errors import InputError
 from ...geometry import skew, so3_exp
-from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d
+from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
+                     sandwich_covariance)
 from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, turned_mostly_about, weak_directions
 from .handeye import interval_pairs, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
 NOISE_ROUNDS = 3
 OUTLIER_FLOOR_MPS2 = 1e-3  # residual sigma below which nothing is an outlier
+CORRELATION_S = 1.0  # windows this far apart may share slow registration errors (the sandwich covariance's lag)
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,7 +63,7 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
                        gyro_bias_radps: np.ndarray | None = None,
                        t_prior_m: np.ndarray | None = None, prior_sigma_m: float = 1.0,
                        max_sigma_m: float = 0.05, frame: str = "LiDAR", sigma_floor_m: np.ndarray | None = None,
-                       rotation_sigma_floor_rad: np.ndarray | None = None) -> LeverArmCalib:
+                       rotation_sigma_floor_rad: np.ndarray | None = None, span: int = 1) -> LeverArmCalib:
     """Lever arm (and, with ``rotation_covariance_rad2``, a refined rotation) from a LiDAR odometry trajectory
     and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock; ``gyro_bias_radps`` as estimate_rotation found
     it). ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not
@@ -74,11 +76,11 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
     check_overlap(istamps, ls, imu_time_offset_s)
     R0 = np.asarray(R_lidar_imu, np.float64)
     refine = rotation_covariance_rad2 is not None
-    ia, ic = interval_pairs(ls, 2)
+    ia, ic = interval_pairs(ls, 2 * span)
     off_ns = int(round(imu_time_offset_s * NS_PER_S))
     inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ic] <= istamps[-1] + off_ns)
     ia, ic = ia[inside], ic[inside]
-    ib = ia + 1
+    ib = ia + span
     if len(ia) < 20:
         raise InputError(f"{frame}-IMU lever arm: only {len(ia)} scan triples overlap the IMU data (need 20)")
     notes: list[str] = []
@@ -87,7 +89,7 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
     prior_t = np.zeros(3) if t_prior_m is None else np.asarray(t_prior_m, np.float64)
     keep = np.ones(len(ia), bool)
     for attempt in range(2):
-        x, R, H = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
+        x, R, H, info, scores = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
         raw, _ = _rows(w, keep, x, R, refine)  # outliers judged unwhitened: whitening spreads one bad pose
         bad = outliers_3d(np.linalg.norm(raw, axis=1), OUTLIER_FLOOR_MPS2)
         if attempt == 1 or not bad.any():
@@ -96,13 +98,13 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
         n = int(bad.sum())
         verb = "their accelerations disagree" if n != 1 else "its acceleration disagrees"
         notes.append(f"{n} window{'s' * (n != 1)} left out: {verb} with the IMU's (bad registrations?)")
-    cov = np.linalg.inv(H)
+    cov = _honest_covariance(H, info, scores, ls[ic[keep]] - ls[ia[keep]])
     cov[:3, :3] = floored(cov[:3, :3], sigma_floor_m)
     if refine:
         cov[9:12, 9:12] = floored(cov[9:12, 9:12], rotation_sigma_floor_rad)
     sigma, observable = per_axis(cov[:3, :3], max_sigma_m)
     cov_t = cov[:3, :3]
-    _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes)
+    _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes, refuse=not refine)
     rcov = cov[9:12, 9:12] if refine else np.full((3, 3), np.nan)
     return LeverArmCalib(
         t_lidar_imu_m=x[:3], sigma_m=sigma, covariance_m2=cov_t, observable=observable, R_lidar_imu=R,
@@ -213,7 +215,7 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
         r, J = whiten(r), whiten(J)
         H = np.einsum("nji,njk->ik", J, J) + info
         if it == iterations:
-            return x, R, H
+            return x, R, H, info, np.einsum("nji,nj->ni", J, r)
         g = np.einsum("nji,nj->i", J, r)
         g[:3] += info[:3, :3] @ (x[:3] - prior_t)
         if refine:
@@ -225,12 +227,28 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
     raise AssertionError("unreachable")
 
 
-def _explain(cov: np.ndarray, phi: np.ndarray, max_sigma_m: float, frame: str, notes: list[str]) -> None:
+def _honest_covariance(H: np.ndarray, info: np.ndarray, scores: np.ndarray, spans_ns: np.ndarray) -> np.ndarray:
+    """The fit's covariance, never below what its whitened scores show: the noise model (white per-pose and
+    IMU noise) misses slow registration errors (drift, a map following sways), which leave neighbouring windows'
+    residuals correlated. The sandwich estimate over ``CORRELATION_S`` of neighbours takes that correlation (and
+    the residuals' real size) into account; each variance is the larger of the two."""
+    model = np.linalg.inv(H)
+    lag = max(1, int(round(CORRELATION_S * NS_PER_S / max(float(np.median(spans_ns)) / 2.0, 1.0))))
+    sandwich = sandwich_covariance(H, scores, lag=min(lag, len(scores) // 4), prior_info=info)
+    return floored(sandwich, np.sqrt(np.maximum(np.diag(model), 0.0)))
+
+
+def _explain(cov: np.ndarray, phi: np.ndarray, max_sigma_m: float, frame: str, notes: list[str],
+             refuse: bool = True) -> None:
     weak = weak_directions(cov, max_sigma_m)
-    if len(weak) == 3:
+    advice = "rotate the sensor briskly about all three axes (sweeps of +-30 deg at about 1 Hz) while recording"
+    if len(weak) == 3 and refuse:
         raise InputError(f"too little rotation to estimate the {frame}-IMU lever arm (1-sigma {100 * weak[-1][1]:.0f} cm "
-                         f"or worse along every axis): rotate the sensor briskly about all three axes (sweeps of +-30 "
-                         f"deg at about 1 Hz) while recording")
+                         f"or worse along every axis): {advice}")
+    if len(weak) == 3:  # the accelerations' fit still refines the rotation; the lever arm is named as a whole
+        notes.append(f"the lever arm (T_base_imu translation) is not observable: too little rotation (1-sigma "
+                     f"{100 * weak[-1][1]:.0f} cm or worse along every axis): {advice}")
+        return
     axis, share = dominant_rotation_axis(phi)
     for v, s in weak:
         why = ("the platform turned only about that axis, as a ground vehicle turning about the vertical does"
