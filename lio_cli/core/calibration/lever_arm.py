@@ -28,7 +28,7 @@ from scipy.linalg import cholesky_banded, solve_banded
 from scipy.optimize import minimize
 
 from ...errors import InputError
-from ...geometry import skew, so3_exp
+from ...geometry import skew, so3_exp, so3_log
 from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
                      sandwich_covariance)
 from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, turned_mostly_about, weak_directions
@@ -37,6 +37,8 @@ from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
 NOISE_ROUNDS = 3
 OUTLIER_FLOOR_MPS2 = 1e-3  # residual sigma below which nothing is an outlier
+SEARCH_SIGMA_RAD = np.radians(1.0)  # a prior this vague about an axis (not observable): the angle about it is searched...
+SEARCH_STEP_DEG = 5.0  # ...on this grid (the Gauss-Newton iterations take it from there)
 CORRELATION_S = 1.0  # windows this far apart may share slow registration errors (the sandwich covariance's lag)
 
 
@@ -193,6 +195,9 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
     x = np.zeros(p)
     x[:3] = prior_t
     R = R0.copy()
+    if refine:  # an angle the prior hardly knows may be far off: start the iterations from the best one about it
+        x[9:] = _best_turn(w, keep, R0, rot_cov, x)
+        R = so3_exp(x[9:]) @ R0
     # linear in lever arm, bias and gravity: solve, take the noise levels from the residuals, solve under them,
     # and again (the unweighted fit's residuals overstate the white part)
     r, J = _rows(w, keep, x, R, False)
@@ -225,6 +230,23 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
         if refine:  # fold the rotation correction into R; x[9:] keeps the total departure from the prior
             R = so3_exp(step[9:]) @ R
     raise AssertionError("unreachable")
+
+
+def _best_turn(w: _Windows, keep: np.ndarray, R0: np.ndarray, rot_cov: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The rotation vector (about the prior's weakest direction, zero when its 1-sigma is below ``SEARCH_SIGMA_RAD``)
+    whose mounting best explains the accelerations, lever arm, bias and gravity solved for each angle of a grid."""
+    val, vec = np.linalg.eigh(0.5 * (rot_cov + rot_cov.T))
+    if np.sqrt(max(val[-1], 0.0)) < SEARCH_SIGMA_RAD:
+        return np.zeros(3)
+    best, cost = np.zeros(3), np.inf
+    for a in np.radians(np.arange(0.0, 360.0, SEARCH_STEP_DEG)):
+        d = a * vec[:, -1]
+        r, J = _rows(w, keep, x, so3_exp(d) @ R0, False)
+        step = np.linalg.lstsq(J.reshape(-1, 9), r.reshape(-1), rcond=None)[0]
+        c = float(np.sum((r.reshape(-1) - J.reshape(-1, 9) @ step) ** 2))
+        if c < cost:
+            best, cost = d, c
+    return so3_log(so3_exp(best))  # within (-pi, pi]
 
 
 def _honest_covariance(H: np.ndarray, info: np.ndarray, scores: np.ndarray, spans_ns: np.ndarray) -> np.ndarray:
