@@ -28,14 +28,18 @@ from scipy.linalg import cholesky_banded, solve_banded
 from scipy.optimize import minimize
 
 from ...errors import InputError
-from ...geometry import skew, so3_exp
-from .common import NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d
+from ...geometry import skew, so3_exp, so3_log
+from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
+                     sandwich_covariance)
 from .excitation import axis_name, dominant_rotation_axis, floored, per_axis, turned_mostly_about, weak_directions
 from .handeye import interval_pairs, lidar_increments
 from .signals import GyroOrientation, PiecewiseLinear, second_divided_difference
 
 NOISE_ROUNDS = 3
 OUTLIER_FLOOR_MPS2 = 1e-3  # residual sigma below which nothing is an outlier
+SEARCH_SIGMA_RAD = np.radians(1.0)  # a prior this vague about an axis (not observable): the angle about it is searched...
+SEARCH_STEP_DEG = 5.0  # ...on this grid (the Gauss-Newton iterations take it from there)
+CORRELATION_S = 1.0  # windows this far apart may share slow registration errors (the sandwich covariance's lag)
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,7 +65,7 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
                        gyro_bias_radps: np.ndarray | None = None,
                        t_prior_m: np.ndarray | None = None, prior_sigma_m: float = 1.0,
                        max_sigma_m: float = 0.05, frame: str = "LiDAR", sigma_floor_m: np.ndarray | None = None,
-                       rotation_sigma_floor_rad: np.ndarray | None = None) -> LeverArmCalib:
+                       rotation_sigma_floor_rad: np.ndarray | None = None, span: int = 1) -> LeverArmCalib:
     """Lever arm (and, with ``rotation_covariance_rad2``, a refined rotation) from a LiDAR odometry trajectory
     and the IMU (stamps + ``imu_time_offset_s`` = LiDAR clock; ``gyro_bias_radps`` as estimate_rotation found
     it). ``t_prior_m`` (default zero, 1-sigma ``prior_sigma_m``) weakly holds directions the motion does not
@@ -74,11 +78,11 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
     check_overlap(istamps, ls, imu_time_offset_s)
     R0 = np.asarray(R_lidar_imu, np.float64)
     refine = rotation_covariance_rad2 is not None
-    ia, ic = interval_pairs(ls, 2)
+    ia, ic = interval_pairs(ls, 2 * span)
     off_ns = int(round(imu_time_offset_s * NS_PER_S))
     inside = (ls[ia] >= istamps[0] + off_ns) & (ls[ic] <= istamps[-1] + off_ns)
     ia, ic = ia[inside], ic[inside]
-    ib = ia + 1
+    ib = ia + span
     if len(ia) < 20:
         raise InputError(f"{frame}-IMU lever arm: only {len(ia)} scan triples overlap the IMU data (need 20)")
     notes: list[str] = []
@@ -87,7 +91,7 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
     prior_t = np.zeros(3) if t_prior_m is None else np.asarray(t_prior_m, np.float64)
     keep = np.ones(len(ia), bool)
     for attempt in range(2):
-        x, R, H = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
+        x, R, H, info, scores = _solve(w, keep, R0, refine, rotation_covariance_rad2, prior_t, prior_sigma_m)
         raw, _ = _rows(w, keep, x, R, refine)  # outliers judged unwhitened: whitening spreads one bad pose
         bad = outliers_3d(np.linalg.norm(raw, axis=1), OUTLIER_FLOOR_MPS2)
         if attempt == 1 or not bad.any():
@@ -96,13 +100,13 @@ def estimate_lever_arm(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray, i
         n = int(bad.sum())
         verb = "their accelerations disagree" if n != 1 else "its acceleration disagrees"
         notes.append(f"{n} window{'s' * (n != 1)} left out: {verb} with the IMU's (bad registrations?)")
-    cov = np.linalg.inv(H)
+    cov = _honest_covariance(H, info, scores, ls[ic[keep]] - ls[ia[keep]])
     cov[:3, :3] = floored(cov[:3, :3], sigma_floor_m)
     if refine:
         cov[9:12, 9:12] = floored(cov[9:12, 9:12], rotation_sigma_floor_rad)
     sigma, observable = per_axis(cov[:3, :3], max_sigma_m)
     cov_t = cov[:3, :3]
-    _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes)
+    _explain(cov_t, lidar_increments(poses, ia[keep], ic[keep]), max_sigma_m, frame, notes, refuse=not refine)
     rcov = cov[9:12, 9:12] if refine else np.full((3, 3), np.nan)
     return LeverArmCalib(
         t_lidar_imu_m=x[:3], sigma_m=sigma, covariance_m2=cov_t, observable=observable, R_lidar_imu=R,
@@ -191,6 +195,9 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
     x = np.zeros(p)
     x[:3] = prior_t
     R = R0.copy()
+    if refine:  # an angle the prior hardly knows may be far off: start the iterations from the best one about it
+        x[9:] = _best_turn(w, keep, R0, rot_cov, x)
+        R = so3_exp(x[9:]) @ R0
     # linear in lever arm, bias and gravity: solve, take the noise levels from the residuals, solve under them,
     # and again (the unweighted fit's residuals overstate the white part)
     r, J = _rows(w, keep, x, R, False)
@@ -213,7 +220,7 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
         r, J = whiten(r), whiten(J)
         H = np.einsum("nji,njk->ik", J, J) + info
         if it == iterations:
-            return x, R, H
+            return x, R, H, info, np.einsum("nji,nj->ni", J, r)
         g = np.einsum("nji,nj->i", J, r)
         g[:3] += info[:3, :3] @ (x[:3] - prior_t)
         if refine:
@@ -225,12 +232,45 @@ def _solve(w: _Windows, keep: np.ndarray, R0: np.ndarray, refine: bool, rot_cov:
     raise AssertionError("unreachable")
 
 
-def _explain(cov: np.ndarray, phi: np.ndarray, max_sigma_m: float, frame: str, notes: list[str]) -> None:
+def _best_turn(w: _Windows, keep: np.ndarray, R0: np.ndarray, rot_cov: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The rotation vector (about the prior's weakest direction, zero when its 1-sigma is below ``SEARCH_SIGMA_RAD``)
+    whose mounting best explains the accelerations, lever arm, bias and gravity solved for each angle of a grid."""
+    val, vec = np.linalg.eigh(0.5 * (rot_cov + rot_cov.T))
+    if np.sqrt(max(val[-1], 0.0)) < SEARCH_SIGMA_RAD:
+        return np.zeros(3)
+    best, cost = np.zeros(3), np.inf
+    for a in np.radians(np.arange(0.0, 360.0, SEARCH_STEP_DEG)):
+        d = a * vec[:, -1]
+        r, J = _rows(w, keep, x, so3_exp(d) @ R0, False)
+        step = np.linalg.lstsq(J.reshape(-1, 9), r.reshape(-1), rcond=None)[0]
+        c = float(np.sum((r.reshape(-1) - J.reshape(-1, 9) @ step) ** 2))
+        if c < cost:
+            best, cost = d, c
+    return so3_log(so3_exp(best))  # within (-pi, pi]
+
+
+def _honest_covariance(H: np.ndarray, info: np.ndarray, scores: np.ndarray, spans_ns: np.ndarray) -> np.ndarray:
+    """The fit's covariance, never below what its whitened scores show: the noise model (white per-pose and
+    IMU noise) misses slow registration errors (drift, a map following sways), which leave neighbouring windows'
+    residuals correlated. The sandwich estimate over ``CORRELATION_S`` of neighbours takes that correlation (and
+    the residuals' real size) into account; each variance is the larger of the two."""
+    model = np.linalg.inv(H)
+    lag = max(1, int(round(CORRELATION_S * NS_PER_S / max(float(np.median(spans_ns)) / 2.0, 1.0))))
+    sandwich = sandwich_covariance(H, scores, lag=min(lag, len(scores) // 4), prior_info=info)
+    return floored(sandwich, np.sqrt(np.maximum(np.diag(model), 0.0)))
+
+
+def _explain(cov: np.ndarray, phi: np.ndarray, max_sigma_m: float, frame: str, notes: list[str],
+             refuse: bool = True) -> None:
     weak = weak_directions(cov, max_sigma_m)
-    if len(weak) == 3:
+    advice = "rotate the sensor briskly about all three axes (sweeps of +-30 deg at about 1 Hz) while recording"
+    if len(weak) == 3 and refuse:
         raise InputError(f"too little rotation to estimate the {frame}-IMU lever arm (1-sigma {100 * weak[-1][1]:.0f} cm "
-                         f"or worse along every axis): rotate the sensor briskly about all three axes (sweeps of +-30 "
-                         f"deg at about 1 Hz) while recording")
+                         f"or worse along every axis): {advice}")
+    if len(weak) == 3:  # the accelerations' fit still refines the rotation; the lever arm is named as a whole
+        notes.append(f"the lever arm (T_base_imu translation) is not observable: too little rotation (1-sigma "
+                     f"{100 * weak[-1][1]:.0f} cm or worse along every axis): {advice}")
+        return
     axis, share = dominant_rotation_axis(phi)
     for v, s in weak:
         why = ("the platform turned only about that axis, as a ground vehicle turning about the vertical does"

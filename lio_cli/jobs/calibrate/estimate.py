@@ -36,6 +36,7 @@ ROTATION_FROM_ACCEL_MAX_SIGMA_RAD = np.radians(1.0)  # an axis the lever arm's f
 CHECK_WINDOW_SCANS = 20  # about 2 s at 10 Hz
 CHECK_REL_TOL = 0.25
 CHECK_ABS_TOL_DEG = 5.0
+LEVER_ARM = "the lever arm (T_base_imu translation)"
 IMU_GAP_S = 0.05  # the IMU silent this long (and 5 sample intervals) is a gap...
 IMU_GAP_MARGIN_S = 0.25  # ...whose scans, this far either side (a clock offset moves it), are left out
 
@@ -172,9 +173,7 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
     except InputError as err:
         est.lever = None
         if final:
-            est.skip("lever_arm", "the lever arm (T_base_imu translation)",
-                     f"{err}; the translation is kept from the prior" if T_ref is not None else
-                     f"{err}; the translation is left at zero (no /tf_static or --calib holds one)")
+            est.skip("lever_arm", LEVER_ARM, f"{err}; {_lever_kept(T_ref)}")
     if not final:
         return
     _offset_skipped(off, est)
@@ -189,7 +188,13 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
             est.notes.append(f"{note.split(' (1-sigma')[0]} alone; the accelerations measure it (1-sigma "
                              f"{np.degrees(lever.rotation_sigma_rad[k]):.2f} deg)")
         else:
-            est.skip(key, item, note[len(item):].strip().removeprefix("is ").removeprefix("are "))
+            why = note[len(item):].strip().removeprefix("is ").removeprefix("are ")
+            est.skip(key, item, f"{why}; {_lever_kept(T_ref)}" if key == "lever_arm" else why)
+
+
+def _lever_kept(T_ref: np.ndarray | None) -> str:
+    return ("the translation is kept from the prior" if T_ref is not None else
+            "the translation is left at zero (no /tf_static or --calib holds one)")
 
 
 def _offset_skipped(off: TimeOffset, est: Estimates) -> None:
@@ -280,6 +285,8 @@ def _unobservable_item(note: str) -> tuple[str, str]:
     ('rotation_x', "the mounting's rotation about the LiDAR x axis"); another direction than an axis keeps its
     words as the key."""
     head = note.split(" is not observable")[0].split(" are not observable")[0]
+    if head == LEVER_ARM:
+        return "lever_arm", head
     axis = re.search(r"the LiDAR ([xyz]) axis$", head)
     kind = "lever_arm" if head.startswith("the lever arm") else "rotation"
     direction = head.rsplit("direction ", 1)[-1].replace(" ", "")

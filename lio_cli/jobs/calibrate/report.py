@@ -39,7 +39,11 @@ def T_lidar_imu_of(est: Estimates, T_ref: np.ndarray | None) -> np.ndarray | Non
     within 3 sigma or the estimate's 1-sigma exceeds 2.5 deg), else the estimate's rotation and a zero translation."""
     if est.rotation is None:
         return None
-    R = est.lever.R_lidar_imu if est.lever is not None else est.rotation.R_lidar_imu
+    R = est.rotation.R_lidar_imu
+    if est.lever is not None:  # the accelerations' refinement, on the axes it pins (elsewhere it is a guess)
+        d = so3_log(est.lever.R_lidar_imu @ R.T)
+        d[~(np.isfinite(est.lever.rotation_sigma_rad) & (est.lever.rotation_sigma_rad <= MAX_ROTATION_SIGMA_RAD))] = 0.0
+        R = so3_exp(d) @ R
     t = np.zeros(3) if T_ref is None else np.asarray(T_ref[:3, 3], float).copy()
     if est.lever is not None:
         t[est.lever.observable] = est.lever.t_lidar_imu_m[est.lever.observable]

@@ -3,10 +3,12 @@ to a looser standard than the final ones."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from lio_cli.config.calibrate import CalibrateConfig
-from lio_cli.geometry import so3_log
+from lio_cli.geometry import so3_exp, so3_log
 from lio_cli.jobs.calibrate import estimate as steps
 from lio_cli.jobs.calibrate.passes import LidarTrajectory
 from lio_cli.jobs.calibrate.report import compose
@@ -56,3 +58,27 @@ def test_a_car_that_cannot_time_its_imu_still_gets_its_mounting(prior):
     cal = compose(est, np.eye(4), None)
     assert ("imu_time_offset_s" in cal.model_fields_set) == (prior is not None)
     assert cal.imu_time_offset_sigma_s is None and cal.T_base_imu is not None
+
+
+def test_a_car_s_hidden_lever_arm_is_named_and_its_mounting_yaw_comes_from_accelerations():
+    """A car's gentle turns show no lever arm: it is one item not estimated, with its reason; the mounting's yaw,
+    hidden from the gyro, is measured by the accelerations with the rotation the lever-arm fit refines."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = so3_exp(np.radians([0.0, 0.0, 30.0])), [0.3, -0.2, 0.1]
+    ci = calibration_inputs("drive", 20.0, seed=3, T_base_imu=T)
+    n = len(ci.lidar_stamps_ns)
+    traj = LidarTrajectory(ci.lidar_stamps_ns, ci.T_world_lidar, n, n, "")
+    imu = ImuBatch("imu", ci.imu.stamps_ns, ci.imu.gyro_radps, ci.imu.accel_mps2)
+    est = steps.Estimates()
+    steps.extrinsics(traj, imu, CalibrateConfig(), est, "car.bag", None, final=True, prior_offset=0.0)
+    why = {s.key: s.reason for s in est.skipped}
+    assert not {"rotation", "rotation_x", "rotation_y", "rotation_z"} & set(why)
+    assert re.fullmatch(r"not observable: too little rotation \(1-sigma \d+ cm or worse along every axis\): rotate the "
+                        r"sensor briskly "
+                        r"about all three axes \(sweeps of \+-30 deg at about 1 Hz\) while recording; the translation "
+                        r"is left at zero \(no /tf_static or --calib holds one\)", why["lever_arm"])
+    cal = compose(est, np.eye(4), None)
+    err = np.degrees(so3_log(cal.matrix("T_base_imu")[:3, :3] @ ci.T_lidar_imu[:3, :3].T))
+    sigma = np.degrees(cal.T_base_imu_rotation_sigma_rad)
+    assert abs(err[2]) < 0.3 and (np.abs(err) <= 3 * sigma).all(), (err, sigma)
+    np.testing.assert_array_equal(cal.matrix("T_base_imu")[:3, 3], 0.0)  # nothing guessed
