@@ -32,18 +32,6 @@ def imu_hole(o: OdomState, t_prev: int, t_ref: int) -> bool:
     return hole
 
 
-def register_primed(o: OdomState, source: np.ndarray, guess: np.ndarray, gyro_primed: bool) -> np.ndarray:
-    """LiDAR-only registration from ``guess``: gated at ``GYRO_PRIOR_GATE_M`` around a gyro-primed guess, else by
-    kiss-icp's adaptive threshold. Before the track has measured any motion, the guess's translation is a standstill
-    that a platform already moving misses by a sweep's travel (0.75 m at 7.5 m/s and 10 Hz), which the narrow gate
-    cannot pull in: the adaptive gate finds the motion first, and the narrow one refines it."""
-    if not gyro_primed:
-        return o.reg.register(source, guess, adaptive=True)
-    if o.track.last_dt_s <= 0.0:
-        guess = o.reg.register(source, guess, adaptive=True)
-    return o.reg.register(source, guess, adaptive=True, gate_m=GYRO_PRIOR_GATE_M)
-
-
 def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: bool = False,
                window: bool = True, mapped: bool = True) -> ScanResult | None:
     """Register one scan LiDAR-only. ``retry``: a scan the IMU prediction could not explain; return None (and change
@@ -66,7 +54,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
             return None
         tick = time.process_time()
         frame, source = o.reg.downsample(points)
-        measured = register_primed(o, source, guess, gyro_primed)
+        measured = o.reg.register(source, guess, adaptive=True, gate_m=GYRO_PRIOR_GATE_M if gyro_primed else None)
     st.registered(time.process_time() - tick)
     if planar:
         measured = project_to_se2(measured)
