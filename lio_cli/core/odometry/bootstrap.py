@@ -53,6 +53,7 @@ class Bootstrap:
     scans: int
     reason: str
     gravity_aligned: bool = True  # False: too little excitation, gravity is the window's mean specific force
+    residual_m: float = 0.0  # RMS misfit of the LiDAR-only position increments to the IMU over the window
 
 
 def lidar_still(poses: np.ndarray) -> bool:
@@ -172,6 +173,8 @@ def align(stamps_ns: np.ndarray, poses: np.ndarray, imu: ImuBatch, ext: Extrinsi
         v0[2] = 0.0
     v_end = v0 + g * tau[-1] + B[-1]
     speed = float(np.linalg.norm(v_end))
+    misfit = (A[:3 * (n - 1)] @ np.concatenate([v0, g]) - b[:3 * (n - 1)]).reshape(-1, 3) * POSITION_SIGMA_M
+    residual = float(np.sqrt(np.mean(np.sum(misfit**2, axis=1))))
     return Bootstrap(False, int(stamps_ns[-1]), v_end, v0, g, bg, n,
                      f"moving start: velocity {speed:.2f} m/s, gravity and gyro bias aligned from {n} LiDAR-only "
-                     f"scans over {tau[-1]:.2f} s", aligned)
+                     f"scans over {tau[-1]:.2f} s", aligned, residual)

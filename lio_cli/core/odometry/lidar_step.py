@@ -76,7 +76,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
         if o.reg.scans == 1 and health.lost >= MAP_RESTART_SCANS and health.map_restarts < MAX_MAP_RESTARTS:
             # the map's only scan matched none of the scans after it: that scan is the bad one (damaged, or
             # another world), so the map starts again from the next scan, the pose carried by the prior
-            o.reg, health.map_restarts, o.startup.scans = None, health.map_restarts + 1, []
+            o.reg, health.map_restarts, o.startup.scans, o.startup.held = None, health.map_restarts + 1, [], []
             o.degeneracy.reset()  # a new scene: analysed at once
             o.event("map restarted", f"the map's first scan matched none of the {health.lost} after it")
     else:
@@ -85,7 +85,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
     result = finish(o, t_ref, pose, frame if keep else None, inv_pose(guess) @ measured if keep else None,
                     dirs_b, failed, points)
     if imu_gap:
-        o.startup.scans = []  # the IMU state starts from scans after the gap
+        o.startup.scans, o.startup.held = [], []  # the IMU state starts from scans after the gap
     elif o.imu_ready() and not failed and window and not o.settings.gyro_only:
         if o.startup.first_f_base is None:
             imu = ImuBatch.concat(o.imu.batches)

@@ -127,7 +127,7 @@ class LioOdometry:
     def settled(self) -> int:
         """How many leading poses can no longer change: all but the start-up window's, which are replaced
         when the IMU state starts from them."""
-        scans = self.run.startup.scans
+        scans = self.run.startup.held or self.run.startup.scans  # held scans are replayed with the window
         return scans[0].out_index if scans else len(self.poses)
 
     @property

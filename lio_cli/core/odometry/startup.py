@@ -4,6 +4,7 @@ with the IMU (``bootstrap.align``: standing or moving start), and its scans repl
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -12,7 +13,7 @@ from ...model.records import ImuBatch, PointCloud
 from ..imu import NavState, propagate
 from .bootstrap import Bootstrap, align, imu_still, lidar_still
 from .state import OdomState, WindowScan
-from .tuning import MOVING_M
+from .tuning import MAX_START_SLIDE_S, MOVING_M, START_MISFIT_M
 
 
 def start_state(boot: Bootstrap, first: WindowScan, imu: ImuBatch, ext: Extrinsics, ba: np.ndarray,
@@ -37,6 +38,15 @@ def start_state(boot: Bootstrap, first: WindowScan, imu: ImuBatch, ext: Extrinsi
                     boot.g_world.copy())
 
 
+def velocity_before(boot: Bootstrap, first: WindowScan, later: WindowScan, imu: ImuBatch, ext: Extrinsics,
+                    ba: np.ndarray) -> np.ndarray:
+    """The world velocity at ``first``'s stamp from the aligned velocity at ``later``'s (the window's first scan):
+    gravity and the specific force integrated back from ``first``'s LiDAR-only orientation."""
+    s0 = NavState(first.stamp_ns, first.pose[:3, :3].copy(), np.zeros(3), np.zeros(3), boot.gyro_bias, ba)
+    beta = propagate(s0, imu, later.stamp_ns, ext, g_world=np.zeros(3)).state.v
+    return boot.v_start - boot.g_world * (later.stamp_ns - first.stamp_ns) * 1e-9 - beta
+
+
 def try_start(o: OdomState) -> list[WindowScan] | None:
     """Start the IMU state from the window if it spans ``init_window_s`` and the IMU covers it (else slide it);
     return the window's scans to replay, or None."""
@@ -57,6 +67,18 @@ def try_start(o: OdomState) -> list[WindowScan] | None:
     boot = align(stamps, poses, imu, o.ext, gravity_mps2=o.cfg.gravity_mps2, accel_bias=ba, gyro_bias=bg,
                  g_world=o.nav.g_world, wheel_speeds=wheel if np.isfinite(wheel).any() else None,
                  planar=o.settings.planar)
+    held = o.startup.held
+    if o.startup.bootstrap is None and not boot.static and not np.isfinite(wheel).any() and \
+            boot.residual_m > START_MISFIT_M and (stamps[0] - (held or win)[0].stamp_ns) * 1e-9 < MAX_START_SLIDE_S:
+        # LiDAR-only registrations stuck near their standstill guess while the car moves (the IMU felt no
+        # such stop): the window slides until its poses fit the IMU; the scans it leaves are replayed too
+        held.append(win[0])
+        o.startup.scans = win[1:]
+        return None
+    if held and o.startup.bootstrap is None:
+        boot = replace(boot, v_start=velocity_before(boot, held[0], win[0], imu, o.ext, ba))
+        win = held + win
+        o.startup.held = []
     if o.startup.bootstrap is None:
         o.startup.bootstrap = boot
     else:

@@ -183,6 +183,7 @@ class StartUp:
     """The LiDAR-only scans that will start the IMU state, and the first start's result."""
 
     scans: list[WindowScan] = field(default_factory=list)
+    held: list[WindowScan] = field(default_factory=list)  # slid out of a first window the IMU could not explain
     due: bool = False  # a scan joined the window: try to start
     first_f_base: np.ndarray | None = None  # mean specific force (base axes) around the first scan
     bootstrap: Bootstrap | None = None  # how the IMU state first started
@@ -190,7 +191,8 @@ class StartUp:
     @property
     def hold_ns(self) -> int | None:
         """The window's first scan start: IMU samples from there on are kept until it is aligned."""
-        return self.scans[0].t_prev_ns if self.scans else None
+        first = self.held or self.scans
+        return first[0].t_prev_ns if first else None
 
 
 @dataclass
@@ -268,6 +270,6 @@ class OdomState:
         self.nav.state = None  # gravity survives in nav.g_world
         if self.clock is not None and not keep_clock:
             self.clock.reset()
-        self.startup.scans = []
+        self.startup.scans, self.startup.held = [], []
         self.health.doubt = 0
         self.gaps.imu_gap_from = None  # a restart ends any IMU gap the scans were in

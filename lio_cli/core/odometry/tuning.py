@@ -18,6 +18,10 @@ MAX_BIAS_GYRO_RADPS = 0.5  # a state whose biases pass these is no longer plausi
 MAX_BIAS_ACCEL_MPS2 = 3.0
 PREDICT_MIN_MAP_SCANS = 20  # a map this young registers every scan (no scan takes its IMU prediction)
 
+# the first start-up window without wheels: LiDAR-only increments that misfit the IMU by more than this (RMS)...
+START_MISFIT_M = 0.15
+MAX_START_SLIDE_S = 3.0  # ...slide the window, for at most this long, and its scans are replayed from the first
+
 # wheels
 MOVING_MPS = 0.3  # faster than this, an exactly-zero wheel twist is not a wheel at rest
 MOVING_M = 0.3  # wheels that read exactly zero while the start-up window moved this far are no wheels

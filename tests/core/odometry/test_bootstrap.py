@@ -91,6 +91,23 @@ def test_smooth_constant_velocity_is_not_taken_for_standing_still():
     np.testing.assert_allclose(b.g_world, [0, 0, -G], atol=1e-6)
 
 
+def test_registrations_stuck_at_a_standstill_misfit_the_imu():
+    """A car cruising at 7.5 m/s whose first LiDAR-only registrations stayed at their standstill guess, then caught
+    up: the IMU felt no such stop, and the misfit says so; the true poses fit to registration noise."""
+    stamps = np.arange(11, dtype=np.int64) * (NS // 10)
+    v = np.array([7.5, 0.0, 0.0])
+    t_imu = np.arange(-20, 221, dtype=np.int64) * 5_000_000
+    imu = ImuBatch("imu", t_imu, np.zeros((len(t_imu), 3)), np.tile([0.0, 0.0, G], (len(t_imu), 1)))
+    ext = Extrinsics(np.eye(4), np.eye(4))
+    x_true = v[0] * stamps * 1e-9
+    x_stuck = np.concatenate([np.full(8, 0.0) + np.arange(8) * 0.01, x_true[8:] - 4.5])
+    fits = {}
+    for name, x in (("true", x_true), ("stuck", x_stuck)):
+        poses = np.stack([make_pose(np.eye(3), [xi, 0.0, 0.0]) for xi in x])
+        fits[name] = align(stamps, poses, imu, ext, gravity_mps2=G, accel_bias=np.zeros(3)).residual_m
+    assert fits["true"] < 1e-6 and fits["stuck"] > 0.3, fits
+
+
 def test_known_gravity_and_bias_are_kept():
     stamps, poses, imu, v_true, g_true = _window("handheld", 6.0, np.eye(4))
     ext = Extrinsics(np.eye(4), np.eye(4))

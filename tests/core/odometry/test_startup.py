@@ -86,3 +86,22 @@ def test_the_replay_registers_the_window_again_on_a_fresh_map_counted_once(make_
     assert o.track.stamps_ns == [NS, NS + NS // 10, NS + 2 * NS // 10]  # replaced, not appended
     assert (o.stats.used, o.stats.lidar_only_scans, o.stats.degenerate) == (3, 0, 1)
     assert o.degeneracy.due == (0, -1)
+
+
+def test_a_first_window_stuck_at_a_standstill_slides_and_is_replayed_from_its_first_scan(make_state, still_imu):
+    """Without wheels, LiDAR-only poses that stand still for 0.7 s and then move at 7.5 m/s misfit an IMU that felt
+    no acceleration: the window slides, keeping its scans; a window that fits starts the state, and every scan is
+    replayed from the first, at the velocity carried back to it."""
+    o = make_state(use_imu=True)
+    o.imu.add(still_imu(0, 4 * NS))
+    stuck = _window(12)
+    for k, w in enumerate(stuck[8:], start=1):
+        w.pose[0, 3] = 0.75 * k
+    o.startup.scans = stuck
+    assert try_start(o) is None and o.nav.state is None
+    assert [w.out_index for w in o.startup.held] == [0] and len(o.startup.scans) == 11
+    o.startup.scans = _window(12, v_mps=7.5, t0_ns=NS + NS // 10)[:11]
+    win = try_start(o)
+    assert win is not None and win[0] is stuck[0] and len(win) == 12 and o.startup.held == []
+    np.testing.assert_allclose(o.startup.bootstrap.v_start, [7.5, 0.0, 0.0], atol=1e-6)
+    assert o.startup.bootstrap.residual_m < 1e-6
