@@ -36,6 +36,9 @@ class ScanRegistration:
         # a dense 3D scan keeps enough structure at 2.5 voxels; a 2D scan's few hundred beams do not
         self.source_factor = rc.source_voxel_factor or (_PLANAR_SOURCE_FACTOR if planar else _SOURCE_FACTOR)
         self.max_source_points = rc.max_source_points
+        # a coarse-to-fine ICP where an IMU prediction starts it (never with kiss-icp's own iterations)
+        self.coarse_points = rc.coarse_points if imu_prior else None
+        self.refine_iterations = rc.refine_iterations
         kiss = KISSConfig()
         kiss.data.max_range = rc.max_range_m
         kiss.mapping.voxel_size = voxel_size_m
@@ -91,6 +94,12 @@ class ScanRegistration:
             return self._wide_registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
         sigma = self._threshold.get_threshold()
         reg = self._registration if iterations is None else self._capped_registration(iterations)
+        coarse = self.coarse_points
+        if coarse is not None and len(source) > 2 * coarse:
+            # ICP costs points x iterations: most iterations on a sparser copy, the last few on every point
+            sparse = voxel_down_sample(source, self.voxel_size_m * self.source_factor * math.sqrt(len(source) / coarse))
+            guess = reg.align_points_to_map(sparse, self.map, guess, 3.0 * sigma, sigma)
+            reg = self._capped_registration(min(iterations or self.refine_iterations, self.refine_iterations))
         return reg.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
     def _capped_registration(self, iterations: int):
