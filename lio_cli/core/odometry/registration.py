@@ -94,12 +94,13 @@ class ScanRegistration:
             return self._wide_registration.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
         sigma = self._threshold.get_threshold()
         reg = self._registration if iterations is None else self._capped_registration(iterations)
-        coarse = self.coarse_points
-        if coarse is not None and len(source) > 2 * coarse:
-            # ICP costs points x iterations: most iterations on a sparser copy, the last few on every point
+        coarse, refine = self.coarse_points, self.refine_iterations
+        if coarse is not None and len(source) > 2 * coarse and (iterations is None or iterations > refine):
+            # ICP costs points x iterations: most iterations on a sparser copy, the last few on every point (a cap
+            # of at most refine_iterations, as lio deskew's, already is that few)
             sparse = voxel_down_sample(source, self.voxel_size_m * self.source_factor * math.sqrt(len(source) / coarse))
             guess = reg.align_points_to_map(sparse, self.map, guess, 3.0 * sigma, sigma)
-            reg = self._capped_registration(min(iterations or self.refine_iterations, self.refine_iterations))
+            reg = self._capped_registration(refine)
         return reg.align_points_to_map(source, self.map, guess, 3.0 * sigma, sigma)
 
     def _capped_registration(self, iterations: int):

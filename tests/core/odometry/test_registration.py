@@ -104,3 +104,19 @@ def test_a_sparse_scan_registers_all_its_points_at_once():
     # may sum in another order: 1e-17); a budget it exceeds takes the other path
     np.testing.assert_allclose(register(5000), register(None), rtol=0, atol=1e-12)
     assert np.abs(register(100) - register(None)).max() > 1e-6
+
+
+def test_a_cap_of_few_iterations_registers_every_point_at_once():
+    rng = np.random.default_rng(2)
+    scene = _scene(rng)
+    scan = _moved(scene, np.array([[1, 0, 0, -0.1], [0, 1, 0, 0.05], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+
+    def register(coarse: int | None, iterations: int) -> np.ndarray:
+        reg = ScanRegistration(RegistrationConfig(coarse_points=coarse, refine_iterations=5), 1.0, imu_prior=True,
+                               planar=False, fixed_correspondence_m=0.5)
+        reg.accept(None, reg.downsample(scene)[0], np.eye(4))
+        return reg.register(reg.downsample(scan)[1], np.eye(4), iterations=iterations)
+
+    # lio deskew's cap of 5: no coarse stage to add to it; a cap of 10 takes one
+    np.testing.assert_allclose(register(200, 5), register(None, 5), rtol=0, atol=1e-12)
+    assert np.abs(register(200, 10) - register(None, 10)).max() > 1e-6
