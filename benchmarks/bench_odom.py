@@ -175,7 +175,7 @@ def scenario_rows(name: str, sc: Scenario, work: Path, args, rko: Path | None) -
             shutil.rmtree(d / "rko", ignore_errors=True)
             rko_runs.append(run(rko_cmd, d))
     lio_run = median_run(lio_runs)
-    stages = stage_ms(d / "lio.metrics.json") if lio_run[2] == 0 else {}
+    stages = stage_ms(d / "lio.odom.metrics.json") if lio_run[2] == 0 else {}
     add("lio", lio_out, *lio_run, stages=stages)
     if rko_runs:
         found = sorted((d / "rko").glob("*/*_tum.txt"))
@@ -201,7 +201,7 @@ def long_rows(work: Path, args) -> list[dict]:
                        force=True, start="moving")
         print(f"long: simulated {duration:.0f} s in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
         wall, mem, code, cpu = run(lio_cmd(res.log_path, d / "lio.tum"), d)
-        scans = stage_ms(d / "lio.metrics.json")["scans"] if code == 0 else None
+        scans = stage_ms(d / "lio.odom.metrics.json")["scans"] if code == 0 else None
         ate = metrics(res.gt_path, d / "lio.tum")[0] if code == 0 else None
         rows.append({"log_s": duration, "wall_s": wall, "cpu_s": cpu, "peak_mb": mem, "scans": scans, "ate_m": ate})
         res.log_path.unlink()  # a 10-minute log is gigabytes

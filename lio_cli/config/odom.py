@@ -46,6 +46,11 @@ class RegistrationConfig(Strict):
     max_source_points: Optional[int] = Field(
         None, gt=0, le=MAX_POINTS, description="registered points of a scan, about: a denser scan is voxelised again (ICP costs "
         "points x iterations; 600 halves a 32-128 beam car scan's ICP, at some accuracy); None: no limit")
+    coarse_points: Optional[int] = Field(
+        300, gt=0, le=MAX_POINTS, description="an IMU-primed scan registering more than twice this many points is first "
+        "aligned with about this many (voxelised again), then refined with all of them in at most refine_iterations; "
+        "None: always all points")
+    refine_iterations: int = Field(5, gt=0, le=MAX_ITERATIONS, description="see coarse_points")
     max_points_per_voxel: int = Field(5, gt=0, le=1000, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
         None, gt=0, le=MAX_ITERATIONS, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
