@@ -74,7 +74,11 @@ def _graph_smooths(prep: Prepared, estimator: str) -> bool:
 def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
     """The chosen filter (with the RTS pass under ``smooth`` for the two EKFs)."""
     if o.estimator == "planar":
-        return run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
+        result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
+        if o.smooth:
+            result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
+                                                             "an accelerometer): its RTS pass"}
+        return result
     if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
         result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))
         if o.smooth:
