@@ -131,7 +131,8 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     parts = [s["summary"] for s in m["sources"].values() if "summary" in s]
     note(f"estimator: {m['estimator']} ({m['estimator_reason']})", quiet)
     sm = m["smoother"]
-    note(f"smoother: {(sm['kind'] or 'none').replace('_', ' ')} ({sm['why']})", quiet)
+    if sm["kind"] != "factor_graph":  # the default's own case goes without saying; a fallback or none says why
+        note(f"smoother: {(sm['kind'] or 'none').replace('_', ' ')} ({sm['why']})", quiet)
     est = m["estimator"] + {"factor_graph": " + factor graph", "rts": " + RTS"}.get(sm["kind"] or "", "")
     chunks = m["memory"]["chunks"]
     note(f"{plural(m['output']['poses'], 'pose')} ({m['output']['stamps']}), {est}: {'; '.join(parts)}"
