@@ -7,16 +7,16 @@ roll + 90 deg yaw with a 0.44 m lever arm, given by /tf_static} x wheels {exact,
 bursts} (rover and car) x GPS {none, consumer: `--gps-model consumer`} x odometry input {none, `lio odom` of the
 same log}. Seed fixed: 80 cells.
 
-Per cell: `lio fuse` default (smoothed) and `--no-smooth` (the filter; output at every IMU sample, 200 Hz) and the baselines of the same
-log: wheel dead reckoning (the /wheel/odom poses), wheel speed + gyro yaw dead reckoning (a robot_localization 2D
-user's: x, y, yaw from the wheel speed and the gyro's z about base, its bias taken from the first second when the
-log starts at rest), the odometry input alone, the odometry interpolated to the IMU stamps, GPS alone. ATE =
+Per cell: `lio fuse` default (smoothed) and `--no-smooth` (the filter; output at every IMU sample, 200 Hz) and
+the baselines of the same log: wheel dead reckoning (the /wheel/odom poses), wheel speed + gyro yaw dead
+reckoning (a robot_localization 2D user's: x, y, yaw from the wheel speed and the gyro's z about base, its bias
+taken from the first second when the log starts at rest), the odometry input alone, the odometry interpolated to the IMU stamps, GPS alone. ATE =
 APE translation RMSE after SE(3) alignment against the exact ground truth (lio_cli.evaluation); horizontal ATE
 the same fit's east/north error; RPE over 0.05 s.
 
 Targets (issue 27): T1 fused default ATE <= 0.8x the best applicable baseline; T2 with GPS fused horizontal ATE
-<= 0.5x GPS alone's; T3 the smoothed default's ATE never worse than the filter's (1 mm slack); T4 with odometry fused ATE <=
-the odometry's and RPE 0.05 s <= 0.5x the interpolated odometry's.
+<= 0.5x GPS alone's; T3 the smoothed default's ATE never worse than the filter's (1 mm slack); T4 with odometry
+fused ATE <= the odometry's and RPE 0.05 s <= 0.5x the interpolated odometry's.
 
 Logs are cached in --work: one log without LiDAR (`--no-lidar`) per platform, start, IMU, wheels and GPS, and
 one with LiDAR and without wheels per platform, start and IMU for `lio odom` (LiDAR + IMU odometry, so fuse
