@@ -26,8 +26,9 @@ HELP = """Fuse a log's IMU, wheel odometry, GPS and an odometry trajectory into 
 Reads the log directly and uses the whole recording: a filter (chosen from the data: the 3D error-state EKF,
 or the lecture's planar x, y, theta, v, omega, gyro-bias EKF for ground robots near a plane; or the
 complementary filter), then by default a smoother that uses every measurement before and after each instant:
-a factor graph (preintegrated IMU, wheel, odometry and GPS factors) whenever the accelerometer is used, else
-the RTS pass over the EKF; --no-smooth keeps the filter alone (faster). The trajectory starts at the origin of
+a factor graph (preintegrated IMU, wheel, odometry and GPS factors) whenever the accelerometer is used but for
+the planar filter on IMU + wheels alone, else the RTS pass over the EKF; --no-smooth keeps the filter alone
+(faster). The trajectory starts at the origin of
 a z-up world; poses come at --rate HZ or at every IMU sample (exact stamps).
 
 Sources (each optional, at least one of IMU, wheels, odometry): the IMU (gyro, accelerometer, and its own
