@@ -23,10 +23,13 @@ from .common import (CALIBRATION_PANEL, FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_
 
 HELP = """Fuse a log's IMU, wheel odometry, GPS and an odometry trajectory into one smooth trajectory of the base.
 
-Reads the log directly and uses the whole recording: the error-state EKF (3D; or --estimator planar, the
-lecture's x, y, theta, v, omega, gyro-bias filter for ground robots; or the complementary filter), and with
---smooth an RTS smoother over the EKF that uses every measurement before and after each instant. The
-trajectory starts at the origin of a z-up world; poses come at --rate HZ or at every IMU sample (exact stamps).
+Reads the log directly and uses the whole recording: a filter (chosen from the data: the 3D error-state EKF,
+or the lecture's planar x, y, theta, v, omega, gyro-bias EKF for ground robots near a plane; or the
+complementary filter), then by default a smoother that uses every measurement before and after each instant:
+a factor graph (preintegrated IMU, wheel, odometry and GPS factors) whenever the accelerometer is used but for
+the planar filter on IMU + wheels alone, else the RTS pass over the EKF; --no-smooth keeps the filter alone
+(faster). The trajectory starts at the origin of
+a z-up world; poses come at --rate HZ or at every IMU sample (exact stamps).
 
 Sources (each optional, at least one of IMU, wheels, odometry): the IMU (gyro, accelerometer, and its own
 orientation where the message carries a valid one), wheel odometry (nav_msgs/Odometry or TwistStamped; twist-only
@@ -44,7 +47,8 @@ With -o - the trajectory goes to stdout and no metrics or config file is written
 [bold]Examples[/bold]
 
   lio fuse jackal.bag --plot plots/   # writes jackal.fuse.tum
-  lio fuse run.mcap --odom run.odom.tum --rate 200 --smooth -o fused.tum
+  lio fuse run.mcap --odom run.odom.tum --rate 200 -o fused.tum
+  lio fuse long.bag --no-smooth -o filtered.tum     # the filter alone
   lio fuse office.bag --estimator planar --use imu:gyro --use wheel -o -
   lio fuse drive.bag --use imu --use wheel --use gps --json > metrics.json
 """
@@ -72,7 +76,7 @@ def fuse_cmd(
     base_frame: BaseFrameOpt = None,
     use: Annotated[Optional[list[str]], typer.Option("--use", metavar="SOURCE[:M,...]", help=shown("Only these sources and measurements enter (repeat), e.g. imu:gyro, wheel:speed,yaw_rate.", "every source found"), show_default=False, rich_help_panel=INPUT_PANEL)] = None,
     estimator: Annotated[Optional[Estimator], typer.Option("--estimator", metavar=one_of(Estimator), help=shown("auto: planar for a wheeled robot near a plane, else ekf; ekf: 3D error-state; planar: SE(2); complementary.", _default("estimator")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
-    smooth: Annotated[Optional[bool], typer.Option("--smooth/--no-smooth", metavar=FLAG, help=shown("RTS smoother over the EKF (the future as well as the past).", _default("smooth")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
+    smooth: Annotated[Optional[bool], typer.Option("--smooth/--no-smooth", metavar=FLAG, help=shown("Smooth over the whole log (the future as well as the past): factor graph with an accelerometer, else RTS; --no-smooth: the filter alone.", _default("smooth")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     accel_noise: Annotated[Optional[float], typer.Option("--accel-noise", help=shown("Accelerometer noise density, m/s^2/sqrt(Hz) (vibration: larger).", _default("noise.accel_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     gyro_noise: Annotated[Optional[float], typer.Option("--gyro-noise", help=shown("Gyro noise density, rad/s/sqrt(Hz).", _default("noise.gyro_noise_density")), show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
@@ -127,7 +131,10 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     m = run.metrics
     parts = [s["summary"] for s in m["sources"].values() if "summary" in s]
     note(f"estimator: {m['estimator']} ({m['estimator_reason']})", quiet)
-    est = m["estimator"] + (" + smoother" if m["smoothed"] else "")
+    sm = m["smoother"]
+    if sm["kind"] != "factor_graph":  # the default's own case goes without saying; a fallback or none says why
+        note(f"smoother: {(sm['kind'] or 'none').replace('_', ' ')} ({sm['why']})", quiet)
+    est = m["estimator"] + {"factor_graph": " + factor graph", "rts": " + RTS"}.get(sm["kind"] or "", "")
     chunks = m["memory"]["chunks"]
     note(f"{plural(m['output']['poses'], 'pose')} ({m['output']['stamps']}), {est}: {'; '.join(parts)}"
          + (f"; fused in {chunks} chunks (memory budget {m['memory']['budget_mb']:g} MB)" if chunks > 1 else ""), quiet)

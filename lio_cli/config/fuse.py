@@ -99,7 +99,8 @@ class FuseConfig(Strict):
     estimator: Literal["auto", "ekf", "planar", "complementary"] = Field(
         "auto", description="auto (planar for a wheeled robot whose motion stays near a plane, else ekf), ekf (3D "
                             "error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")
-    smooth: bool = Field(False, description="RTS smoother over the EKF: every measurement before and after each instant")
+    smooth: bool = Field(True, description="smooth over the whole log (every measurement before and after each instant): "
+                                           "the factor graph with an accelerometer, else the RTS pass; false: the filter alone")
     rate_hz: Optional[float] = Field(None, description="output rate; default: every IMU sample (exact stamps)")
     noise: FuseNoise = FuseNoise()
     gate_probability: float = Field(1e-4, ge=0, lt=1, description="chi-square gate; 0: none")

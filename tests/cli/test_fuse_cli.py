@@ -36,14 +36,16 @@ def _run(capsys, *args) -> tuple[int, str, str]:
 
 
 def test_files_and_config_round_trip(capsys, planar, tmp_path):
-    out = tmp_path / "fused.tum"
-    code, _, err = _run(capsys, planar, "-o", out, "--rate", 50, "--smooth", "--cov", tmp_path / "fused.cov",
+    out = tmp_path / "fused.tum"  # smoothed by default: the factor graph (the log has an accelerometer)
+    code, _, err = _run(capsys, planar, "-o", out, "--rate", 50, "--cov", tmp_path / "fused.cov",
                         "--plot", tmp_path / "plots")
     assert code == 0, err
     stamps, poses = read_tum(out)
     assert np.all(np.diff(stamps) == 20_000_000) and np.allclose(poses[0, :3, 3], 0.0)
     m = json.loads((tmp_path / "fused.fuse.metrics.json").read_text())
     assert m["sources_used"] == ["gps", "imu", "wheel"] and m["smoothed"] is True
+    assert m["smoother"] == {"kind": "factor_graph", "why": "over the whole log, with the accelerometer"}
+    assert "\nsmooth: true\n" in (tmp_path / "fused.fuse.config.yaml").read_text()
     assert m["sources"]["gps"]["rejected"]["no_fix"]["why"] == "the GPS fix status said invalid"
     assert set(m["time_s"]) == {"read", "fuse", "total", "cpu"} and m["output"]["poses"] == len(stamps)
     cov_lines = (tmp_path / "fused.cov").read_text().splitlines()
@@ -52,7 +54,8 @@ def test_files_and_config_round_trip(capsys, planar, tmp_path):
     assert len(row) == 37 and row[0] == stamps[0] * 1e-9
     for name in ("fuse_top_view.png", "fuse_speed_yaw_rate.png"):
         assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "poses (50 Hz), planar + smoother: imu" in err and "estimator: planar (a wheeled robot near a plane" in err
+    assert "smoother:" not in err  # said only when it is not the factor graph
+    assert "poses (50 Hz), planar + factor graph: imu" in err and "estimator: planar (a wheeled robot near a plane" in err
     again = tmp_path / "again.tum"
     code, _, err = _run(capsys, planar, "--config", tmp_path / "fused.fuse.config.yaml", "-o", again)
     assert code == 0, err
@@ -95,13 +98,27 @@ def test_no_motion_source_is_one_line_and_writes_nothing(capsys, tmp_path, monke
 
 def test_evaluate_takes_the_fused_output_against_the_gps_topic(capsys, planar, tmp_path):
     out = tmp_path / "f.tum"
-    assert _run(capsys, planar, "-o", out, "--smooth", "-q")[0] == 0
+    assert _run(capsys, planar, "-o", out, "-q")[0] == 0
     code = main(["evaluate", f"{planar}:/gps/fix", str(out), "--align", "posyaw", "--json"])
     text, err = capsys.readouterr()
     assert code == 0, err
     r = json.loads(text)["estimates"][0]
     assert r["translation_only"] is True and r["poses"]["matched"] > 40
     assert r["ape"]["trans"]["rmse"] < 2.5 * GPS_SIGMA_M  # the GPS noise, not a broken trajectory
+
+
+def test_no_smooth_is_the_filter_alone(capsys, planar, tmp_path):
+    out = tmp_path / "filtered.tum"
+    code, _, err = _run(capsys, planar, "-o", out, "--rate", 50, "--no-smooth")
+    assert code == 0, err
+    m = json.loads((tmp_path / "filtered.fuse.metrics.json").read_text())
+    assert m["smoothed"] is False and m["smoother"] == {"kind": None, "why": "--no-smooth: the filter alone"}
+    assert m["core"]["smoothed"] is False and m["estimator"] == "planar"
+    assert "\nsmooth: false\n" in (tmp_path / "filtered.fuse.config.yaml").read_text()
+    assert "smoother: none (--no-smooth: the filter alone)" in err and "poses (50 Hz), planar: imu" in err
+    smoothed = tmp_path / "smoothed.tum"
+    assert _run(capsys, planar, "-o", smoothed, "--rate", 50, "-q")[0] == 0
+    assert not np.allclose(read_tum(smoothed)[1], read_tum(out)[1], atol=1e-3)  # a different trajectory
 
 
 def test_json_summary(capsys, planar, tmp_path):

@@ -18,7 +18,7 @@ def test_defaults_are_the_cores():
     """config sits below core, so the numbers are repeated there: they must stay the core's."""
     assert MEASUREMENTS == CORE_MEASUREMENTS
     lidar_odometry = {"odom_position_sigma_m": 0.1, "odom_rotation_sigma_rad": 0.02}  # the one deliberate change
-    core = FuseOptions(noise=NoiseOptions(**lidar_odometry))
+    core = FuseOptions(smooth=True, noise=NoiseOptions(**lidar_odometry))  # lio fuse smooths, the core's default filters
     assert core_options(FuseConfig(), None, covariance=True) == core
     assert {**dataclasses.asdict(NoiseOptions()), **lidar_odometry} == FuseConfig().noise.model_dump()
 

@@ -49,5 +49,5 @@ def test_the_header_is_comment_lines_and_values_keep_their_types():
     text = commented_yaml(FuseConfig(), "first line\nsecond line")
     assert text.startswith("# first line\n# second line\n")
     data = yaml.safe_load(text)
-    assert data["estimator"] == "auto" and data["smooth"] is False and data["rate_hz"] is None
+    assert data["estimator"] == "auto" and data["smooth"] is True and data["rate_hz"] is None
     assert data["noise"]["gyro_noise_density"] == pytest.approx(1e-3)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import replace
 
@@ -12,6 +13,7 @@ from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
 from . import graph
+from .graph.keyframes import with_outputs
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
@@ -34,12 +36,10 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     t_start = time.perf_counter()
     prep, choice = _prepare_and_choose(inputs, o)
     o = replace(o, estimator=choice.name)
-    if o.estimator == "planar":
-        result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
-    elif o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
-        result = run_complementary(prep, o, _start(prep, o, Ekf3d, _EKF_XY))
+    if o.smooth and _graph_smooths(prep, o.estimator):
+        result, prep = _run_graph(prep, o)
     else:
-        result = _run_ekf3d(prep, o)
+        result = _run_filter(prep, o)
     result.info.update(_common_info(prep, o))
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     result.info["run_time_s"] = time.perf_counter() - t_start
@@ -47,19 +47,92 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
 
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions) -> tuple[Prepared, EstimatorChoice]:
-    """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for."""
-    if o.estimator != "auto":
+    """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
+    smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it)."""
+    if o.estimator != "auto" and not o.smooth:
         return prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = prepare(inputs, replace(o, estimator="ekf"))
-    choice = choose_estimator(prep)
-    if choice.name == "planar":
+    given = o.estimator != "auto"
+    choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
+    if choice.name == "planar" and not (o.smooth and _graph_smooths(prep, choice.name)):
         planar_use(prep.use)
     return prep, choice
+
+
+def graph_smooths(use: dict, estimator: str) -> bool:
+    """Whether smoothing runs the factor graph for this selection: with the accelerometer, whatever the filter,
+    except the planar filter on IMU + wheels alone, where the graph measured no better than the planar filter
+    itself and its RTS pass (docs/benchmarks.md); the planar RTS pass smooths those."""
+    imu_ok = {"gyro", "accel"} <= set(use.get("imu", ()))
+    return imu_ok and (estimator != "planar" or bool({"gps", "odom"} & set(use)))
+
+
+def _graph_smooths(prep: Prepared, estimator: str) -> bool:
+    return graph.applies(prep) and graph_smooths(prep.use, estimator)
+
+
+def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
+    """The chosen filter (with the RTS pass under ``smooth`` for the two EKFs)."""
+    if o.estimator == "planar":
+        result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
+        if o.smooth:
+            result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
+                                                             "an accelerometer): its RTS pass"}
+        return result
+    if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
+        result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))
+        if o.smooth:
+            result.info["smoother"] = {"kind": None, "why": "the complementary filter has no smoother and the "
+                                                            "factor graph needs the accelerometer"}
+        return result
+    return _run_ekf3d(prep, o)
+
+
+def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
+    """The factor graph over the whole log, whatever the filter; where its guard refuses it (its fallback is the
+    3D filter) and another filter was chosen, that filter's trajectory instead (planar: with its RTS pass)."""
+    reports, notes = copy.deepcopy(prep.reports), list(prep.notes)
+    seed = _planar_seed(prep, o) if o.estimator == "planar" else None
+    result = graph.smooth_graph(prep, o, _start(prep, o, Ekf3d, _EKF_XY), seed)
+    info = result.info["smoother"]
+    info["initial_filter"] = "ekf"
+    refused = info.get("fallback")
+    if o.estimator == "ekf" or refused is None:
+        result.estimator = o.estimator
+        return result, prep
+    use = {k: set(v) for k, v in prep.use.items()}
+    if o.estimator == "planar":
+        planar_use(use)
+    kept = replace(prep, use=use, reports=reports,
+                   notes=notes + [f"smoother: the {o.estimator} filter's trajectory kept, the factor graph's "
+                                  f"explained the measurements worse than the 3D filter ({refused})"])
+    fallback = _run_filter(kept, o)
+    fallback.info["smoother"] = {**info, "kept": fallback.info.get("smoother", {}).get("kind") or "filter"}
+    return fallback, kept
 
 
 def pick_estimator(inputs: FuseInputs, options: FuseOptions) -> EstimatorChoice:
     """The estimator ``fuse`` would run on these inputs and why (for a caller that fuses in pieces)."""
     return _prepare_and_choose(inputs, options)[1]
+
+
+def _planar_seed(prep: Prepared, o: FuseOptions):
+    """Keyframe stamps -> the planar filter's x, y, yaw and speed there (the graph's start where planar was
+    chosen: the 3D filter can be far off on such logs, e.g. a moving start with a rotated IMU, 6.7 m vs 0.18 m)."""
+    use = {k: set(v) for k, v in prep.use.items()}
+    planar_use(use)
+    alone = replace(prep, use=use, reports=copy.deepcopy(prep.reports), notes=[])
+    po = replace(o, smooth=False, want_covariance=False)
+    start = _start(alone, po, PlanarEkf, slice(0, 2))
+
+    def at(stamps: np.ndarray) -> np.ndarray:
+        knots = PlanarEkf(with_outputs(alone, stamps), po, start).run()
+        sel = knots["output"]
+        x = knots["x_filt"][sel]
+        k = np.minimum(np.searchsorted(knots["t_ns"][sel], stamps), len(x) - 1)
+        return x[k][:, [0, 1, 2, 3]]
+
+    return at
 
 
 def _common_info(prep: Prepared, o: FuseOptions) -> dict:

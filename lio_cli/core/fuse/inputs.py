@@ -153,6 +153,9 @@ class FuseOptions:
     gyro and accel, plus orientation where the messages carry one; wheel speed, plus the wheel yaw rate
     only without an IMU (a gyro is far better; skid and baseline errors bias wheel yaw rates); odometry
     poses, or increments (delta) when GPS is used too; GPS position.
+    ``smooth``: the whole log before and after each instant: the factor graph (``graph``) whenever the
+    accelerometer is used, whatever the filter (its guard falls back on the chosen filter), else the RTS pass
+    over the EKF (the complementary filter has none); ``False``: the filter alone.
     ``rate_hz``: output rate; ``None`` outputs at every IMU sample (every motion measurement without an IMU).
     ``stamps_ns``: explicit output stamps (overrides ``rate_hz``). Stamps in gaps of every motion source or
     outside the data are not output (counted in ``FuseResult.info``).
@@ -171,7 +174,7 @@ class FuseOptions:
     """
 
     estimator: str = "auto"
-    smooth: bool = False
+    smooth: bool = False  # the core's default is the filter alone; lio fuse and its config default to smoothing
     use: dict[str, set[str]] | None = None
     noise: NoiseOptions = field(default_factory=NoiseOptions)
     rate_hz: float | None = None
@@ -195,8 +198,6 @@ class FuseOptions:
             raise ConfigError(f"unknown estimator '{self.estimator}' (choose from {', '.join(ESTIMATORS)})")
         if self.rate_hz is not None and not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ConfigError(f"--rate must be a positive number of Hz, got {self.rate_hz}")
-        if self.smooth and self.estimator == "complementary":
-            raise ConfigError("--smooth needs an EKF estimator (ekf or planar), not the complementary filter")
         for src, names in (self.use or {}).items():
             if src not in MEASUREMENTS:
                 raise ConfigError(f"unknown source '{src}' in use (choose from {', '.join(MEASUREMENTS)})")

@@ -1,10 +1,11 @@
 """Bounded memory for ``lio fuse``: estimate what the estimation core will hold, and when it exceeds the budget
 fuse the log in overlapping time chunks and stitch them.
 
-The core keeps per filter instant ("knot": an output or an update) about ``65 n^2`` bytes when smoothing (the
-RTS smoother needs predicted and filtered state and covariance and the transition of every knot; n = 15 for
-the IMU-driven EKF, 21 with odometry increments), a few kB for the planar smoother, and
-about 1.6 kB per IMU sample, output and update when only filtering. An hour at 200 Hz with smoothing would be
+The core keeps per filter instant ("knot": an output or an update) about ``65 n^2`` bytes when smoothing with
+the RTS pass (it needs predicted and filtered state and covariance and the transition of every knot; n = 15 for
+the IMU-driven EKF, 21 with odometry increments), a few kB for the planar RTS pass, and about 1.6 kB per IMU
+sample, output and update when only filtering or when the factor graph smooths (its filter pass keeps no RTS
+record and the graph solves one chunk of keyframes at a time, ``core.fuse.graph.solve``). An hour at 200 Hz with smoothing would be
 ~10 GB; chunked, it is the budget. When chunks cannot bring it under the budget (a span of at most two
 chunks, or the shortest chunk alone over it: e.g. ``--rate`` far above the IMU's rate, where every output is
 a knot) the run is refused before fusing, naming the estimate, the budget and what to change.
@@ -24,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...core.fuse import FuseInputs, FuseOptions, FuseResult, SourceReport, fuse
+from ...core.fuse import FuseInputs, FuseOptions, FuseResult, SourceReport, fuse, graph_smooths
 from ...errors import ConfigError, InputError
 from ...geometry import so3_exp_one, yaw_of
 
@@ -70,7 +71,7 @@ def knot_count(inputs: FuseInputs, use: dict[str, list[str]], rate_hz: float | N
 
 
 def bytes_per_knot(options: FuseOptions, use: dict[str, list[str]]) -> int:
-    if not options.smooth:
+    if not options.smooth or graph_smooths(use, options.estimator):  # the filter, or the graph's filter pass
         return FILTER_BYTES
     if options.estimator == "planar":
         return PLANAR_SMOOTH_BYTES
@@ -127,7 +128,8 @@ def _over_budget(est_mb: float, budget_mb: float, need_mb: float, why: str, inpu
         advice = (f"--rate {rate:g} Hz is {rate / hz:.0f} times the {src} rate of {hz:.0f} Hz, and poses between "
                   f"{src} samples carry no measurement of their own: lower --rate to {hz:.0f} Hz or less, or {raise_to}")
     else:
-        advice = ("fuse --no-smooth or " if options.smooth else "") + raise_to  # every IMU sample is a knot anyway
+        rts = bytes_per_knot(options, use) > FILTER_BYTES  # the RTS pass's record is what --no-smooth saves
+        advice = ("fuse --no-smooth or " if rts else "") + raise_to  # every IMU sample is a knot anyway
     return ConfigError(f"fusing needs about {est_mb:.0f} MB, over the memory budget of {budget_mb:g} MB "
                        f"(--max-memory), and {why}: {advice}")
 

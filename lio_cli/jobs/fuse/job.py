@@ -146,6 +146,23 @@ def _add_gps_drops(result: FuseResult, sources: FuseSources) -> None:
     rep.reject("duplicate_stamp", g.bad_stamps)
 
 
+def _smoother(asked: bool, info: dict | None) -> dict:
+    """Which smoother ran (``factor_graph``, ``rts`` or none) and why, for metrics and the printed summary."""
+    if not asked:
+        return {"kind": None, "why": "--no-smooth: the filter alone"}
+    if not info:
+        return {"kind": None, "why": "no smoother for this run"}
+    kind, refused = info.get("kind"), info.get("fallback")
+    if kind != "factor_graph":
+        return {"kind": kind, "why": info.get("why", "")}
+    if refused is None:
+        return {"kind": kind, "why": "over the whole log, with the accelerometer"}
+    kept = info.get("kept", "filter")  # the chosen filter's own result: its RTS pass, or the filter alone
+    return {"kind": kept if kept == "rts" else None,
+            "why": f"the factor graph refused by its guard ({refused}); the filter's trajectory"
+                   + (" smoothed by RTS" if kept == "rts" else "")}
+
+
 def _span_s(sources: FuseSources) -> float:
     st = [s.stamps_ns for s in sources.inputs.present().values()]
     return (max(int(s.max()) for s in st) - min(int(s.min()) for s in st)) * 1e-9
@@ -182,6 +199,7 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
         "estimator": result.estimator,
         "estimator_reason": result.info.get("estimator_reason"),
         "smoothed": result.smoothed,
+        "smoother": _smoother(cfg.smooth, result.info.get("smoother")),
         "output": {"frame": "base", "poses": len(stamps),
                    "stamps": f"{cfg.rate_hz:g} Hz" if cfg.rate_hz else "every IMU sample (exact stamps)"
                    if "imu" in sources.use else "every wheel/odometry message",

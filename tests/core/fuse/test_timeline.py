@@ -75,8 +75,6 @@ def test_unknown_measurement_and_bad_combinations_are_config_errors():
         (FuseOptions(estimator="ekf", use={"imu": {"accel"}}), "the IMU accelerometer needs the gyro too (use imu gyro,accel)"),
         (FuseOptions(estimator="ekf", use={"odom": {"pose", "delta"}}), "use odom pose or odom delta, not both"),
         (FuseOptions(estimator="ukf"), "unknown estimator 'ukf' (choose from auto, ekf, planar, complementary)"),
-        (FuseOptions(estimator="complementary", smooth=True),
-         "--smooth needs an EKF estimator (ekf or planar), not the complementary filter"),
     ]
     for options, message in cases:
         with pytest.raises(ConfigError) as err:

@@ -23,17 +23,22 @@ def test_knots_and_bytes():
     use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
     assert knot_count(inp, use, None) == 10001 + 1001
     assert knot_count(inp, use, 20.0) == 10001 + 1001  # the IMU samples are held anyway
-    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), use) == 65 * 15 * 15
-    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), {**use, "odom": ["delta"]}) == 65 * 21 * 21
+    gyro = {**use, "imu": ["gyro"]}  # no accelerometer: the RTS pass smooths, holding every knot
+    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), gyro) == 65 * 12 * 12
+    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), {**gyro, "odom": ["delta"]}) == 65 * 18 * 18
     assert bytes_per_knot(FuseOptions(estimator="ekf"), use) == 1600
+    # with the accelerometer the factor graph smooths: its filter pass keeps no RTS record, the graph one chunk
+    assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), use) == 1600
+    assert bytes_per_knot(FuseOptions(estimator="planar", smooth=True), {**use, "gps": ["position"]}) == 1600
+    assert bytes_per_knot(FuseOptions(estimator="planar", smooth=True), use) == 3000  # IMU + wheels: planar RTS
 
 
 def test_plan_keeps_one_chunk_within_budget_and_splits_beyond():
     inp = _inputs()
-    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    use = {"imu": ["gyro"], "wheel": ["speed"]}  # smoothed by the RTS pass (no accelerometer)
     one = plan(inp, FuseOptions(estimator="ekf", smooth=True), use, 1024.0)
     assert len(one.chunks) == 1 and one.chunks[0] == (T0, T0 + 100 * 10**9)
-    many = plan(inp, FuseOptions(estimator="ekf", smooth=True), use, 100.0)  # ~161 MB needed
+    many = plan(inp, FuseOptions(estimator="ekf", smooth=True), use, 100.0)  # ~103 MB needed
     assert len(many.chunks) > 1 and many.chunks[0][0] == T0 and many.chunks[-1][1] == T0 + 100 * 10**9
     assert all(b == c for (_, b), (c, _) in zip(many.chunks[:-1], many.chunks[1:]))
     per_chunk_mb = (many.chunks[0][1] - many.chunks[0][0] + 2 * many.overlap_ns) * 1e-9 * 110.1 * many.bytes_per_knot / 1e6
@@ -97,11 +102,11 @@ def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
 
     from lio_cli.errors import ConfigError
 
-    use = {"imu": ["accel", "gyro"], "wheel": ["speed"]}
-    with pytest.raises(ConfigError) as err:  # it split into 30 s chunks of 72 MB each
+    use = {"imu": ["gyro"], "wheel": ["speed"]}  # smoothed by the RTS pass (no accelerometer)
+    with pytest.raises(ConfigError) as err:  # it split into 30 s chunks of 52 MB each
         plan(_inputs(), FuseOptions(estimator="ekf", smooth=True), use, 20.0)
     assert str(err.value) == (
-        "fusing needs about 161 MB, over the memory budget of 20 MB (--max-memory), and even the shortest chunk "
-        "(30 s plus 10 s of overlap each side) needs 81 MB: fuse --no-smooth or raise --max-memory to 81 (MB) or more")
-    fits = plan(_inputs(), FuseOptions(estimator="ekf", smooth=True), use, 81.0)
+        "fusing needs about 103 MB, over the memory budget of 20 MB (--max-memory), and even the shortest chunk "
+        "(30 s plus 10 s of overlap each side) needs 52 MB: fuse --no-smooth or raise --max-memory to 52 (MB) or more")
+    fits = plan(_inputs(), FuseOptions(estimator="ekf", smooth=True), use, 52.0)
     assert len(fits.chunks) == 4

@@ -15,7 +15,7 @@ from lio_cli.errors import InputError
 from lio_cli.jobs.fuse.job import FuseJob, run_fuse
 
 POS_TOL_M = 0.01  # a noise-free unicycle: discretisation only (a broken filter is metres off)
-EKF = FuseConfig(estimator="ekf")  # a flat unicycle would get the planar filter; these check the 3D one
+EKF = FuseConfig(estimator="ekf", smooth=False)  # a flat unicycle would get the planar filter; these check the 3D one
 
 
 def _errors(fuse_logs, run, v: float, w: float) -> np.ndarray:
@@ -113,8 +113,8 @@ def test_gps_fixes_enter_and_invalid_ones_are_counted(fuse_logs):
                 msgs[k][1].status.status = -1
         return msgs
 
-    run = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=6.0, gps_hz=5.0, edit=edit)))
-    gps = run.metrics["sources"]["gps"]
+    run = run_fuse(FuseJob(fuse_logs.write(w=0.5, duration_s=6.0, gps_hz=5.0, edit=edit), FuseConfig(smooth=False)))
+    gps = run.metrics["sources"]["gps"]  # the planar filter: one update per fix
     assert gps["received"] == 31 and gps["updates"] == 28
     assert gps["rejected"]["no_fix"]["count"] == 3
     assert run.config.input.gps_origin == pytest.approx([47.37, 8.54, 408.0], abs=1e-9)
@@ -204,8 +204,8 @@ def test_covariance_per_pose(fuse_logs):
 
 def test_memory_budget_splits_the_run_into_chunks_that_agree_with_the_whole(fuse_logs):
     log = fuse_logs.write(w=0.2, duration_s=90.0, imu_hz=50, wheel_hz=10)
-    whole = run_fuse(FuseJob(log, FuseConfig(smooth=True, estimator="ekf")))
-    budget = with_overrides(FuseConfig(smooth=True, estimator="ekf"), {"max_memory_mb": 45.0})  # whole ~79 MB
+    whole = run_fuse(FuseJob(log, EKF))  # the filter: the factor graph holds one chunk of its own anyway
+    budget = with_overrides(EKF, {"max_memory_mb": 5.0})  # whole ~8.7 MB
     parts = run_fuse(FuseJob(log, budget))
     assert whole.metrics["memory"]["chunks"] == 1 and parts.metrics["memory"]["chunks"] == 3
     np.testing.assert_array_equal(parts.trajectory.stamps_ns, whole.trajectory.stamps_ns)
@@ -270,10 +270,11 @@ def test_a_start_in_a_turn_is_level_with_odometry_poses_or_wheels(fuse_logs):
     0.018 m off. The start is now aligned with them: 0.002 m and 0.001 m."""
     log = fuse_logs.write(v=1.0, w=2.0, duration_s=5.0)
     odom = run_fuse(FuseJob(log, FuseConfig.model_validate({"input": {"odom_topic": "/wheel/odom"}, "rate_hz": 100.0,
-                                                            "use": {"imu": ["gyro", "accel"], "odom": ["pose"]}})))
+                                                            "use": {"imu": ["gyro", "accel"], "odom": ["pose"]},
+                                                            "smooth": False})))
     assert odom.metrics["sources"]["odom"]["rejected"] == {}
     assert _errors(fuse_logs, odom, 1.0, 2.0).max() < POS_TOL_M
-    wheels = run_fuse(FuseJob(log, FuseConfig(rate_hz=100.0, estimator="ekf")))
+    wheels = run_fuse(FuseJob(log, FuseConfig(rate_hz=100.0, estimator="ekf", smooth=False)))
     assert _errors(fuse_logs, wheels, 1.0, 2.0).max() < POS_TOL_M
     for run, source in ((odom, "odometry"), (wheels, "wheels")):
         up = run.trajectory.poses[0, :3, :3].T @ [0.0, 0.0, 1.0]

@@ -1,7 +1,8 @@
 """Never worse than the filter: the smoothed keyframes against the filter's, by what the measurements say.
 
 Per source, the RMS of its residuals at the keyframes: GPS horizontal (each clipped at ``CLIP`` sigmas, so an
-outlier weighs the same for both), odometry and wheel increments (translation). The smoothed
+outlier weighs the same for both; the mean residual of each receiver-error node apart, ``gps_slow_m``, judged
+against that error's own sigma), odometry and wheel increments (translation). The smoothed
 solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor
 *and* the RMS its own sigmas predict (``noise_levels``, times ``NOISE_MARGIN``): a filter that jumps to every
 odometry pose or GPS fix sits closer to them than their noise, a smoother need not.
@@ -16,15 +17,21 @@ from .factors import Measurements
 RATIO = 1.05  # good smoothers measured within 3 % of the filter on GPS; a graph fitting 30 % long wheels 8-23 %
 CLIP = 3.0
 NOISE_MARGIN = 1.05  # handheld odometry poses at 2 cm: filter 0.040 m, graph 0.049 m, their sigmas 0.049 m
-FLOORS = {"gps_horizontal_m": 0.02, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
+FLOORS = {"gps_horizontal_m": 0.02, "gps_slow_m": 0.05, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
 
 
 def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:
     """RMS residual per source of the keyframe states ``s`` (R, p, v)."""
     out: dict[str, float] = {}
     if len(m.gps_k):
-        e = np.linalg.norm(s["p"][m.gps_k, :2] - m.gps_z[:, :2], axis=1)
-        e = np.minimum(e, CLIP * m.gps_h)
+        d = s["p"][m.gps_k, :2] - m.gps_z[:, :2]
+        if m.gps_bias_sigma > 0:  # the slow receiver error apart: each bias node's mean residual, and the rest
+            j, inv = np.unique(m.gps_j, return_inverse=True)
+            mean = np.stack([np.bincount(inv, d[:, c]) for c in range(2)], 1) / np.bincount(inv)[:, None]
+            slow = np.minimum(np.linalg.norm(mean, axis=1), CLIP * m.gps_bias_sigma)
+            out["gps_slow_m"] = float(np.sqrt(np.mean(slow**2)))
+            d = d - mean[inv]
+        e = np.minimum(np.linalg.norm(d, axis=1), CLIP * m.gps_h)
         out["gps_horizontal_m"] = float(np.sqrt(np.mean(e**2)))
     if len(m.odom_k) > 1:
         od = m.prep.odom
@@ -48,6 +55,8 @@ def noise_levels(m: Measurements) -> dict[str, float]:
     out: dict[str, float] = {}
     if len(m.gps_k):
         out["gps_horizontal_m"] = float(np.sqrt(np.mean(2.0 * m.gps_h**2)))
+        if m.gps_bias_sigma > 0:
+            out["gps_slow_m"] = float(np.sqrt(2.0) * m.gps_bias_sigma)
     if len(m.odom_k) > 1:
         ps = m.prep.odom.position_sigma_m[m.odom_idx]
         out["odom_increment_m"] = float(np.sqrt(np.mean(3.0 * (ps[:-1] ** 2 + ps[1:] ** 2))))

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import gtsam
 import numpy as np
 
+from ....geometry import yaw_of
 from ..ekf3d import Ekf3d
 from ..initial import Start
 from ..inputs import FuseOptions
@@ -27,8 +29,13 @@ ACCEL_NOISE_SCALES = (1.0, 10.0)
 SEAM_VELOCITY_SIGMA = 0.2  # m/s: a chunk's prior on its first velocity (its IMU and wheels find it again)
 
 
-def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
-    """The smoothed trajectory at ``prep.out_stamps`` (the filter's where the guard refuses the graph's)."""
+Seed = Callable[[np.ndarray], np.ndarray]  # keyframe stamps -> (K, 4) x, y, yaw, forward speed of a planar filter
+
+
+def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None = None) -> FuseResult:
+    """The smoothed trajectory at ``prep.out_stamps`` (the filter's where the guard refuses the graph's).
+    ``seed``: the chosen planar filter's states, which replace the 3D filter's horizontal position, heading and
+    horizontal velocity as the graph's starting values and as what its guard compares with."""
     kt = keyframe_stamps(prep)
     out = prep.out_stamps
     stamps = np.union1d(kt, out)
@@ -39,6 +46,8 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
     at_k, at_o = np.searchsorted(t, kt), np.searchsorted(t, out)
     states = {"R": x[at_k, R_].reshape(-1, 3, 3), "p": x[at_k, P_], "v": x[at_k, V_], "bg": x[at_k, B_],
               "ba": x[at_k, BA_]}
+    if seed is not None:
+        _reseed(states, seed(kt))
     meas = Measurements(prep, kt, o.noise)
     P_k = knots["P_filt"][at_k]
     bias_sigmas = np.r_[np.full(3, o.noise.init_accel_bias_sigma_mps2), np.full(3, o.noise.init_gyro_bias_sigma_radps)]
@@ -73,6 +82,19 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start) -> FuseResult:
     result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
                    "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
     return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
+
+
+def _reseed(states: dict[str, np.ndarray], planar: np.ndarray) -> None:
+    """The 3D filter's keyframe states with a planar filter's x, y, heading and horizontal velocity (its tilt,
+    height, vertical velocity and biases kept), in place."""
+    d = planar[:, 2] - yaw_of(states["R"])
+    c, s = np.cos(d), np.sin(d)
+    Rz = np.zeros((len(d), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
+    states["R"] = Rz @ states["R"]
+    states["p"] = np.column_stack([planar[:, 0], planar[:, 1], states["p"][:, 2]])
+    states["v"] = np.column_stack([planar[:, 3] * np.cos(planar[:, 2]), planar[:, 3] * np.sin(planar[:, 2]),
+                                   states["v"][:, 2]])
 
 
 def _pose_cov(P: np.ndarray, R: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, V, X
+from gtsam.symbol_shorthand import B, G, V, X
 
 from .factors import ChunkGraph, nav
 
@@ -96,6 +96,8 @@ def solve(cg: ChunkGraph, K: int, first: Prior, seam: Callable[[dict, int, int],
         if c + 1 < len(spans):
             nxt = spans[c + 1][0]
             prior = seam(sol, nxt - s0, nxt)
+            shared = set(cg.gps_bias_nodes(s0, s1).tolist()) & set(cg.gps_bias_nodes(nxt, spans[c + 1][1]).tolist())
+            cg.bias_seam = {j: res.atPoint2(G(j)) for j in shared}
         _keep(out, sol, s0, a, b, prev)
         prev = (sol, s0, s1)
     return out, stats

@@ -1,0 +1,59 @@
+"""A consumer receiver's slow error beside odometry: the factor graph models it as a Gauss-Markov node per few
+seconds, so the fused local shape stays the odometry's and GPS only anchors it; as white noise (the model before)
+every fix bends the path."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from lio_cli.core.fuse import FuseOptions, GpsSeries, fuse
+from lio_cli.core.fuse.graph import factors
+from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
+from lio_cli.geometry import interpolate_poses
+from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
+
+
+def ate(case, stamps, poses) -> float:
+    ref = Trajectory(case.truth_stamps_ns, case.truth_poses, "gt")
+    return evaluate(ref, Trajectory(stamps, poses, "est"), EvalOptions(align="se3")).stats["ape"]["trans"]["rmse"]
+
+
+def slow_gps(case, seed: int = 4) -> GpsSeries:
+    """Horizontal error 90 % Gauss-Markov (2.4 m, 60 s) plus 0.8 m white, as `lio simulate --gps-model consumer`;
+    the covariance says 0.83 m (a third of the truth)."""
+    rng = np.random.default_rng(seed)
+    g = case.inputs.gps
+    t = (g.stamps_ns - g.stamps_ns[0]) * 1e-9
+    phi = np.exp(-np.diff(t, prepend=t[0]) / 60.0)
+    b = np.zeros((len(t), 2))
+    b[0] = rng.normal(0.0, 2.4, 2)
+    for i in range(1, len(t)):
+        b[i] = phi[i] * b[i - 1] + rng.normal(0.0, 2.4 * np.sqrt(1.0 - phi[i] ** 2), 2)
+    z = interpolate_poses(case.truth_stamps_ns, case.truth_poses, g.stamps_ns)[:, :3, 3]
+    z[:, :2] += b + rng.normal(0.0, 0.8, (len(t), 2))
+    z[:, 2] += rng.normal(0.0, 1.5, len(t))
+    cov = np.broadcast_to(np.diag([0.83**2, 0.83**2, 1.5**2]), (len(t), 3, 3)).copy()
+    return GpsSeries(g.stamps_ns, z, cov, np.ones(len(t), bool))
+
+
+@pytest.fixture(scope="module")
+def case():
+    odom = OdomNoise(position_sigma_m=0.003, rotation_sigma_rad=np.radians(0.05))  # a scan matcher's increments
+    c = simulate_case("planar", 40.0, seed=2, wheels=False, odom=odom, gps_sigma_m=1.0)
+    return replace(c, inputs=replace(c.inputs, gps=slow_gps(c)))
+
+
+def test_a_slow_receiver_error_leaves_the_odometry_shape(case, monkeypatch):
+    o = FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
+    odom = ate(case, case.inputs.odom.stamps_ns, case.inputs.odom.poses)
+    res = fuse(case.inputs, o)
+    assert res.info["smoother"]["fallback"] is None
+    fused = ate(case, res.stamps_ns, res.poses)
+    monkeypatch.setattr(factors, "GPS_BIAS_RATIO", 0.0)  # the fixes as white noise
+    w = fuse(case.inputs, o)
+    white = ate(case, w.stamps_ns, w.poses)
+    # measured: odometry 0.033 m, fused 0.033 m, white GPS 0.60 m
+    assert fused <= 1.2 * odom and white > 5.0 * odom

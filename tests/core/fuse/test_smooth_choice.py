@@ -1,0 +1,58 @@
+"""Which smoother ``fuse(..., smooth=True)`` runs: the factor graph with the accelerometer whatever the filter
+(planar with GPS or odometry, complementary), the planar RTS pass on IMU + wheels alone, none for the
+complementary filter without an accelerometer; ``smooth=False`` the filter alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lio_cli.core.fuse import FuseOptions, fuse, graph_smooths
+from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
+from lio_cli.simulation.fusion_case import simulate_case
+
+
+def ate(case, res) -> float:
+    ref = Trajectory(case.truth_stamps_ns, case.truth_poses, "gt")
+    est = Trajectory(res.stamps_ns, res.poses, "est")
+    return evaluate(ref, est, EvalOptions(align="se3")).stats["ape"]["trans"]["rmse"]
+
+
+@pytest.fixture(scope="module")
+def gps_case():
+    return simulate_case("planar", 20.0, seed=1, gps_sigma_m=1.0)
+
+
+def test_the_planar_filter_with_gps_is_smoothed_by_the_graph(gps_case):
+    filt = fuse(gps_case.inputs, FuseOptions(estimator="planar", rate_hz=20.0))
+    smooth = fuse(gps_case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, smooth=True))
+    sm = smooth.info["smoother"]
+    assert smooth.estimator == "planar" and smooth.smoothed and not filt.smoothed
+    assert sm["kind"] == "factor_graph" and sm["fallback"] is None and sm["initial_filter"] == "ekf"
+    assert "accel" in smooth.info["use"]["imu"] and "accel" not in filt.info["use"]["imu"]
+    assert np.array_equal(smooth.stamps_ns, filt.stamps_ns)
+    assert ate(gps_case, smooth) < 0.8 * ate(gps_case, filt)
+
+
+def test_imu_and_wheels_alone_keep_the_planar_rts_pass(gps_case):
+    inputs = gps_case.inputs
+    no_gps = type(inputs)(imu=inputs.imu, wheel=inputs.wheel)
+    smooth = fuse(no_gps, FuseOptions(estimator="planar", rate_hz=20.0, smooth=True))
+    assert smooth.smoothed and smooth.estimator == "planar" and smooth.info["smoother"]["kind"] == "rts"
+    assert "accel" not in smooth.info["use"]["imu"]
+
+
+def test_the_complementary_filter_is_smoothed_by_the_graph_or_not_at_all(gps_case):
+    graph = fuse(gps_case.inputs, FuseOptions(estimator="complementary", rate_hz=20.0, smooth=True))
+    assert graph.smoothed and graph.estimator == "complementary" and graph.info["smoother"]["kind"] == "factor_graph"
+    gyro = {"imu": {"gyro"}, "wheel": {"speed"}}
+    alone = fuse(gps_case.inputs, FuseOptions(estimator="complementary", rate_hz=20.0, smooth=True, use=gyro))
+    assert not alone.smoothed and alone.info["smoother"]["kind"] is None
+
+
+def test_graph_smooths_by_selection_and_filter():
+    iw = {"imu": ["gyro", "accel"], "wheel": ["speed"]}
+    assert graph_smooths(iw, "ekf") and graph_smooths(iw, "complementary")
+    assert not graph_smooths(iw, "planar")
+    assert graph_smooths({**iw, "gps": ["position"]}, "planar") and graph_smooths({**iw, "odom": ["delta"]}, "planar")
+    assert not graph_smooths({"imu": ["gyro"], "wheel": ["speed"], "gps": ["position"]}, "ekf")
