@@ -20,7 +20,7 @@ from ...geometry import inv_pose
 from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
-from .gps_quality import GpsNoise, noise_variance
+from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
@@ -89,6 +89,7 @@ class Ekf3d:
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
         self.gps_h, self.gps_v = GpsNoise(2), GpsNoise(1)
+        self.jumps = JumpReadmit(prep.gps, prep.reports["gps"]) if prep.gps is not None else None
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
@@ -217,12 +218,17 @@ class Ekf3d:
     def _gps(self, t: int, i: int, x, P) -> None:
         """Horizontal, then vertical: each with its own noise (claimed or measured) and gate."""
         g = self.prep.gps
-        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
-            return
         z = g.position_enu_m[i]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+                return
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
+        if not g.accepted[i]:  # a multipath jump: used only once the filter says it, not the fix, is off
+            r = (z + self.gps_offset - np.array(x[P_]))[:2]
+            hph = P[DP, DP][:2, :2]
+            if not self.jumps(i, r, hph, self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
+                return
         for rows, sigma, noise, kind in ((slice(0, 2), g.sigma_h_m, self.gps_h, "gps"),
                                          (slice(2, 3), g.sigma_v_m, self.gps_v, "gps_vertical")):
             r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L)

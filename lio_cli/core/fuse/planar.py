@@ -16,7 +16,7 @@ import numpy as np
 
 from ...geometry import inv_pose, yaw_of
 from .initial import Start, initial_state
-from .gps_quality import GpsNoise, noise_variance
+from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog, kalman_update
 from .result import FuseResult, anchor_to_origin
@@ -54,6 +54,7 @@ class PlanarEkf:
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
         self.gps_h = GpsNoise(2)
+        self.jumps = JumpReadmit(prep.gps, prep.reports["gps"]) if prep.gps is not None else None
         self.pending_clone = False
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
 
@@ -184,15 +185,19 @@ class PlanarEkf:
 
     def _gps(self, t, i, x, P):
         g = self.prep.gps
-        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
-            return P
         z = g.position_enu_m[i, :2]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+                return P
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
         H = np.zeros((2, self.n))
         H[0, X] = H[1, Y] = 1.0
         r = z + self.gps_offset - x[0:2]
+        # a multipath jump: used only once the filter says it, not the fix, is off
+        if not g.accepted[i] and not self.jumps(i, r, P[np.ix_([X, Y], [X, Y])],
+                                                  self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
+            return P
         var = noise_variance(self.gps_h, r, H, P, float(g.sigma_h_m[i]) ** 2, self.prep.reports["gps"])
         return self._update(t, x, P, r, H, np.eye(2) * var, "gps", "gps")
 
