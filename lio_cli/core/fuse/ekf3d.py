@@ -93,6 +93,9 @@ class Ekf3d:
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
+        # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
+        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged (5e5 m)
+        self.gps_anchor = Anchor.of_gps(prep)
         self.ii = -1  # index of the last IMU sample at or before the current time
 
     def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
@@ -153,6 +156,7 @@ class Ekf3d:
         status = self.update(x, P, r.tolist(), PHt, (H.dot(PHt) + Rn).tolist(), H, Rn, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
         self.anchor.accepted(source, t, status)
+        self.gps_anchor.accepted(source, t, status)
 
     def _open(self, t: int, x, P) -> None:
         if self.log.open(t, x, P, self.Phi if self.smooth else None) and self.smooth:
@@ -201,7 +205,7 @@ class Ekf3d:
                 rep.note("anchor")
                 return
             r, H, Rn = m3.pose_absolute(np.array(x), self.T_world_odom @ T, pv, rv, self.L)
-            self._update(t, x, P, r, H, Rn, "odom", "odom")
+            self._update(t, x, P, r, H, Rn, "odom", "odom", allow_reset=self.gps_anchor.allows_reset(t))
             return
         self._open(t, x, P)
         if self.odom_prev is None:
@@ -211,7 +215,7 @@ class Ekf3d:
             T_rel = inv_pose(od.poses[j]) @ T
             r, H, Rn = m3.pose_delta(np.array(x), T_rel, pv + od.position_sigma_m[j] ** 2,
                                      rv + od.rotation_sigma_rad[j] ** 2, self.L)
-            self._update(t, x, P, r, H, Rn, "odom", "odom")
+            self._update(t, x, P, r, H, Rn, "odom", "odom", allow_reset=self.gps_anchor.allows_reset(t))
         self.odom_prev = i
         self.pending_clone = True
 

@@ -57,6 +57,9 @@ class PlanarEkf:
         self.jumps = JumpReadmit(prep.gps, prep.reports["gps"]) if prep.gps is not None else None
         self.pending_clone = False
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
+        # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
+        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged (5e5 m)
+        self.gps_anchor = Anchor.of_gps(prep)
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -125,6 +128,7 @@ class PlanarEkf:
         P, status = kalman_update(x, P, r, H, Rn, self.boxplus, self.gate, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
         self.anchor.accepted(source, t, status)
+        self.gps_anchor.accepted(source, t, status)
         return P
 
     def _row(self, cols: dict[int, float]) -> np.ndarray:
@@ -170,7 +174,8 @@ class PlanarEkf:
             r = np.array([Z[0, 3] - x[X], Z[1, 3] - x[Y], wrap(float(yaw_of(Z[:3, :3])) - x[TH])])
             H = np.zeros((3, self.n))
             H[0, X] = H[1, Y] = H[2, TH] = 1.0
-            return self._update(t, x, P, r, H, np.diag([pv, pv, rv]), "odom", "odom")
+            return self._update(t, x, P, r, H, np.diag([pv, pv, rv]), "odom", "odom",
+                                allow_reset=self.gps_anchor.allows_reset(t))
         self._open(t, x, P)
         if self.odom_prev is None:
             rep.note("anchor")
@@ -178,7 +183,8 @@ class PlanarEkf:
             j = self.odom_prev
             r, H = delta_residual(x, inv_pose(_flat(od.poses[j])) @ _flat(T))
             var_p, var_r = pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2
-            P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom")
+            P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom",
+                             allow_reset=self.gps_anchor.allows_reset(t))
         self.odom_prev = i
         self.pending_clone = True
         return P
