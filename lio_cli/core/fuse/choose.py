@@ -7,8 +7,8 @@ all from the motion sources (never the GPS altitude, which wanders by tens of me
 
 - the gravity direction in the base frame, averaged over ``WINDOW_S`` with the wheels' own acceleration
   (forward ``dv/dt``, centripetal ``v * yaw rate``) removed: its wander (95th percentile of the angle to its
-  median) is the body's roll and pitch on the ground;  windows where the wheels accelerate by more than ``SLIP_MPS2`` beyond what the IMU
-  feels (a slip) are left out;
+  median) is the body's roll and pitch on the ground; windows where the wheels accelerate by more than
+  ``SLIP_MPS2`` beyond what the IMU feels (a slip) are left out;
 - the climb: the wheel speed times the sine of that pitch (less its median, a mounting offset), integrated:
   its extent is how far the motion leaves a plane;
 - odometry poses: their vertical extent.

@@ -228,11 +228,10 @@ class Ekf3d:
                 return
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
-        if not g.accepted[i]:  # a multipath jump: used only once the filter says it, not the fix, is off
-            r = (z + self.gps_offset - np.array(x[P_]))[:2]
-            hph = P[DP, DP][:2, :2]
-            if not self.jumps(i, r, hph, self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
-                return
+        # a multipath jump's fix: used only once the filter says it, not the fix, is off
+        r = (z + self.gps_offset - np.array(x[P_]))[:2]
+        if not self.jumps(i, r, P[DP, DP][:2, :2], self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
+            return
         for rows, sigma, noise, kind in ((slice(0, 2), g.sigma_h_m, self.gps_h, "gps"),
                                          (slice(2, 3), g.sigma_v_m, self.gps_v, "gps_vertical")):
             r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L)

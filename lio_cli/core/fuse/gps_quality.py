@@ -18,8 +18,9 @@ must not pull, or gate out, the horizontal).
 The jump test sees only the GPS track, whose velocity is noisy on a turning platform: it can miss a jump's end
 and keep a good track out for ``JUMP_MAX_S``, while the motion sources drift. The filter re-admits a flagged
 fix (``JumpReadmit``) when its own horizontal uncertainty exceeds the jump threshold (it cannot tell a jump
-from its own drift), or after ``READMIT_RUN`` flagged fixes in a row inside the tight ``READMIT_CHI2`` gate
-(the track agrees with the filter: the jump is over); the rest of that flagged stretch is then admitted too.
+from its own drift), or after ``READMIT_RUN`` flagged fixes in a row each inside the tight ``READMIT_CHI2`` gate
+or with its residual back within ``BACK_SHARE`` of the threshold of the last accepted fix's (the track agrees with the
+filter again: the jump is over); the rest of that flagged stretch is then admitted too.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above t
 # claim's 50-fix estimate scatters by about 20 %)
 READMIT_RUN = 5  # flagged fixes in a row agreeing with the filter end a jump the track test missed
 READMIT_CHI2 = 4.605  # 90 % quantile of a chi-square variable with 2 degrees of freedom
+BACK_SHARE = 0.75  # a residual this share of the jump threshold from the one before the jump: the track is back
 MEDIAN_CHI2 = {1: 0.4549, 2: 1.3863}  # median of a chi-square variable with 1 and 2 degrees of freedom
 
 
@@ -134,18 +136,21 @@ class JumpReadmit:
         self.accepted, self.report = gps.accepted, report
         self.thr2 = jump_threshold_m(gps.stamps_ns, gps.position_enu_m[:, :2]) ** 2 if len(gps) else 0.0
         self.run, self.open = 0, False
+        self.r_before: np.ndarray | None = None  # the residual of the last accepted fix
 
     def __call__(self, i: int, r_h: np.ndarray, hph: np.ndarray, var: float) -> bool:
         """Fix ``i``, its horizontal residual ``r_h`` against the filter, ``hph`` = H P H^T (2x2) and the
         fix's variance per axis ``var``."""
         if self.accepted[i]:
-            self.run, self.open = 0, False
+            self.run, self.open, self.r_before = 0, False, r_h
             return True
         if not self.open:
             if 0.5 * float(np.trace(hph)) > self.thr2:  # the filter knows less than a jump's size
                 return self._readmit()
             d2 = float(r_h @ np.linalg.solve(hph + var * np.eye(2), r_h))
-            self.run = self.run + 1 if d2 <= READMIT_CHI2 else 0
+            # the residual back near its level before the jump (a jump is at least the threshold): the track returned
+            back = self.r_before is not None and float(np.sum((r_h - self.r_before) ** 2)) <= BACK_SHARE**2 * self.thr2
+            self.run = self.run + 1 if d2 <= READMIT_CHI2 or back else 0
             if self.run < READMIT_RUN:
                 return False
             self.open = True

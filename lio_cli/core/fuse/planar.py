@@ -201,8 +201,7 @@ class PlanarEkf:
         H[0, X] = H[1, Y] = 1.0
         r = z + self.gps_offset - x[0:2]
         # a multipath jump: used only once the filter says it, not the fix, is off
-        if not g.accepted[i] and not self.jumps(i, r, P[np.ix_([X, Y], [X, Y])],
-                                                  self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
+        if not self.jumps(i, r, P[np.ix_([X, Y], [X, Y])], self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
             return P
         var = noise_variance(self.gps_h, r, H, P, float(g.sigma_h_m[i]) ** 2, self.prep.reports["gps"])
         return self._update(t, x, P, r, H, np.eye(2) * var, "gps", "gps")
