@@ -14,7 +14,7 @@ from .complementary import run_complementary
 from .ekf3d import Ekf3d
 from . import graph
 from .graph.keyframes import with_outputs
-from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto
+from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto, yaw_velocity_onto
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
 from .planar import PlanarEkf, run_planar
@@ -155,13 +155,22 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
     if t_end is None:
         start.reason += "; GPS never spread enough to give the heading: yaw zero at the start"
         return start
+    # a moving start nothing but the IMU measures: the pass started at rest, the fit gives the velocity
+    unmeasured = not start.standing and prep.wheel is None and prep.odom is None
     knots = filter_cls(prefix_without_gps(prep, t_end), replace(o, smooth=False), start).run()
     k = np.searchsorted(prep.gps.stamps_ns, knots["t_ns"])
     ok = prep.gps.accepted[k]
-    yaw = yaw_onto(knots["x_filt"][ok][:, xy], prep.gps.position_enu_m[k[ok], :2])
+    path, fixes = knots["x_filt"][ok][:, xy], prep.gps.position_enu_m[k[ok], :2]
+    if unmeasured:
+        yaw, w = yaw_velocity_onto(path, fixes, (knots["t_ns"][ok] - prep.t0_ns) * 1e-9)
+    else:
+        yaw = yaw_onto(path, fixes)
     Rz = so3_exp_one(np.array([0.0, 0.0, yaw]))
     start.R, start.v, start.yaw_from = Rz @ start.R, Rz @ start.v, "gps"
     start.reason += f"; heading {np.degrees(yaw):.1f} deg from GPS over the first {len(k)} fixes"
+    if unmeasured:
+        start.v[:2] += w
+        start.reason += f", with the start velocity ({np.hypot(*w):.2f} m/s horizontal)"
     return start
 
 

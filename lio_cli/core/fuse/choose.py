@@ -7,7 +7,8 @@ all from the motion sources (never the GPS altitude, which wanders by tens of me
 
 - the gravity direction in the base frame, averaged over ``WINDOW_S`` with the wheels' own acceleration
   (forward ``dv/dt``, centripetal ``v * yaw rate``) removed: its wander (95th percentile of the angle to its
-  median) is the body's roll and pitch on the ground;
+  median) is the body's roll and pitch on the ground; windows where the wheels accelerate by more than
+  ``SLIP_MPS2`` beyond what the IMU feels (a slip) are left out;
 - the climb: the wheel speed times the sine of that pitch (less its median, a mounting offset), integrated:
   its extent is how far the motion leaves a plane;
 - odometry poses: their vertical extent.
@@ -27,6 +28,7 @@ import numpy as np
 from .timeline import Prepared
 
 WINDOW_S = 1.0  # gravity is averaged over this long a window (vibration and short accelerations average out)
+SLIP_MPS2 = 3.0  # wheel acceleration the IMU did not feel, beyond which a window is a slip
 MAX_TILT_DEG = 8.0  # 95th percentile of the gravity direction's wander a planar platform may show
 MIN_CLIMB_M = 0.5  # vertical extent always taken as planar (bumps, the estimate's own noise) ...
 CLIMB_SHARE = 0.01  # ... or this share of the distance travelled, whichever is larger
@@ -53,17 +55,25 @@ def _gravity_evidence(prep: Prepared) -> dict | None:
     speed = np.nan_to_num(w.velocity_mps[:, 0])
     v = np.interp(imu.stamps_ns, w.stamps_ns, speed)
     f = prep.imu_f_b.copy()
-    f[:, 0] -= np.gradient(v, t) if len(t) > 1 else 0.0  # forward acceleration of the base
+    a_wheel = np.gradient(v, t)
+    f[:, 0] -= a_wheel  # forward acceleration of the base
     f[:, 1] -= v * prep.imu_w_b[:, 2]  # centripetal
     f_win = f[:m * n].reshape(m, n, 3).mean(axis=1)
     up = f_win / np.maximum(np.linalg.norm(f_win, axis=1, keepdims=True), 1e-9)
-    med = np.median(up, axis=0)
+    # a wheel slip: the wheels' speed jumps by metres per second in a fraction of one while the IMU feels no
+    # such acceleration; those windows say nothing about the ground (3 slips had made a flat road 10 deg)
+    unfelt = np.abs(a_wheel) - np.abs(prep.imu_f_b[:, 0] - np.median(prep.imu_f_b[:, 0]))
+    slip = (unfelt[:m * n].reshape(m, n) > SLIP_MPS2).any(axis=1)
+    if slip.all():
+        slip[:] = False
+    med = np.median(up[~slip], axis=0)
     med /= max(float(np.linalg.norm(med)), 1e-9)
-    tilt = np.degrees(np.arccos(np.clip(up @ med, -1.0, 1.0)))
+    up[slip] = med
+    tilt = np.degrees(np.arccos(np.clip(up[~slip] @ med, -1.0, 1.0)))
     v_win = v[:m * n].reshape(m, n).mean(axis=1)
     climb = np.cumsum(v_win * (up[:, 0] - med[0]) * n * period)  # forward axis's share of "up" is sin(pitch)
     return {"tilt_p95_deg": round(float(np.percentile(tilt, 95)), 2), "climb_m": round(float(np.ptp(climb)), 2),
-            "path_m": round(float(np.sum(np.abs(v_win)) * n * period), 1)}
+            "path_m": round(float(np.sum(np.abs(v_win)) * n * period), 1), "slip_windows": int(slip.sum())}
 
 
 def _odom_evidence(prep: Prepared) -> dict | None:

@@ -20,7 +20,7 @@ from ...geometry import inv_pose
 from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
-from .gps_quality import GpsNoise, noise_variance
+from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
@@ -89,9 +89,13 @@ class Ekf3d:
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
         self.gps_h, self.gps_v = GpsNoise(2), GpsNoise(1)
+        self.jumps = JumpReadmit(prep.gps, prep.reports["gps"]) if prep.gps is not None else None
         self.pending_clone = False
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
+        # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
+        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged (5e5 m)
+        self.gps_anchor = Anchor.of_gps(prep)
         self.ii = -1  # index of the last IMU sample at or before the current time
 
     def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
@@ -152,6 +156,7 @@ class Ekf3d:
         status = self.update(x, P, r.tolist(), PHt, (H.dot(PHt) + Rn).tolist(), H, Rn, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
         self.anchor.accepted(source, t, status)
+        self.gps_anchor.accepted(source, t, status)
 
     def _open(self, t: int, x, P) -> None:
         if self.log.open(t, x, P, self.Phi if self.smooth else None) and self.smooth:
@@ -200,7 +205,7 @@ class Ekf3d:
                 rep.note("anchor")
                 return
             r, H, Rn = m3.pose_absolute(np.array(x), self.T_world_odom @ T, pv, rv, self.L)
-            self._update(t, x, P, r, H, Rn, "odom", "odom")
+            self._update(t, x, P, r, H, Rn, "odom", "odom", allow_reset=self.gps_anchor.allows_reset(t))
             return
         self._open(t, x, P)
         if self.odom_prev is None:
@@ -210,19 +215,23 @@ class Ekf3d:
             T_rel = inv_pose(od.poses[j]) @ T
             r, H, Rn = m3.pose_delta(np.array(x), T_rel, pv + od.position_sigma_m[j] ** 2,
                                      rv + od.rotation_sigma_rad[j] ** 2, self.L)
-            self._update(t, x, P, r, H, Rn, "odom", "odom")
+            self._update(t, x, P, r, H, Rn, "odom", "odom", allow_reset=self.gps_anchor.allows_reset(t))
         self.odom_prev = i
         self.pending_clone = True
 
     def _gps(self, t: int, i: int, x, P) -> None:
         """Horizontal, then vertical: each with its own noise (claimed or measured) and gate."""
         g = self.prep.gps
-        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
-            return
         z = g.position_enu_m[i]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+                return
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
+        # a multipath jump's fix: used only once the filter says it, not the fix, is off
+        r = (z + self.gps_offset - np.array(x[P_]))[:2]
+        if not self.jumps(i, r, P[DP, DP][:2, :2], self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
+            return
         for rows, sigma, noise, kind in ((slice(0, 2), g.sigma_h_m, self.gps_h, "gps"),
                                          (slice(2, 3), g.sigma_v_m, self.gps_v, "gps_vertical")):
             r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L)

@@ -4,6 +4,10 @@ A first, GPS-free pass of the filter over the start of the run gives the path in
 (yaw zero at the start); the rotation about z that best maps that path onto the GPS fixes (2D Kabsch) is
 the start heading in ENU. Offline this look-ahead is free, and it spares the EKF a linearisation from a
 heading that may be wrong by up to pi.
+
+A moving start that no wheel or odometry measures starts the pass at zero velocity: its path is then off by
+the unknown start velocity times t (and a tilt's acceleration times t^2 / 2), which the fit then takes as
+unknowns too (``yaw_velocity_onto``): the start velocity in ENU comes from the same fit.
 """
 
 from __future__ import annotations
@@ -51,3 +55,22 @@ def yaw_onto(path_xy: np.ndarray, fixes_xy: np.ndarray) -> float:
     s = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
     c = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
     return math.atan2(s, c)
+
+
+def yaw_velocity_onto(path_xy: np.ndarray, fixes_xy: np.ndarray, t_s: np.ndarray) -> tuple[float, np.ndarray]:
+    """(yaw, w): the rotation about z and the ENU velocity w of the best fit ``fixes = Rz path + w t + a t^2/2
+    + c``: for each yaw on a 1 deg grid, w, a and c by linear least squares; the yaw of the least residual."""
+    n = len(t_s)
+    A = np.zeros((2 * n, 6))
+    for row, axis in ((slice(0, None, 2), 0), (slice(1, None, 2), 1)):
+        A[row, axis], A[row, 2 + axis], A[row, 4 + axis] = t_s, 0.5 * t_s**2, 1.0
+    pinv = np.linalg.pinv(A)
+    best = (math.inf, 0.0, np.zeros(2))
+    for yaw in np.radians(np.arange(-180.0, 180.0, 1.0)):
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        b = (fixes_xy - path_xy @ np.array([[c, s_], [-s_, c]])).reshape(-1)
+        sol = pinv @ b
+        cost = float(np.sum((A @ sol - b) ** 2))
+        if cost < best[0]:
+            best = (cost, float(yaw), sol[0:2])
+    return best[1], best[2]

@@ -14,6 +14,13 @@ slow wander left out). The innovations over the last ``WINDOW`` fixes tell: thei
 the filter's own share ``H P H^T`` is the measurement's variance, and the larger of it and the claimed one is
 used, horizontally and vertically apart (the altitude wanders by tens of metres on consumer receivers and
 must not pull, or gate out, the horizontal).
+
+The jump test sees only the GPS track, whose velocity is noisy on a turning platform: it can miss a jump's end
+and keep a good track out for ``JUMP_MAX_S``, while the motion sources drift. The filter re-admits a flagged
+fix (``JumpReadmit``) when its own horizontal uncertainty exceeds the jump threshold (it cannot tell a jump
+from its own drift), or after ``READMIT_RUN`` flagged fixes in a row each inside the tight ``READMIT_CHI2`` gate
+or with its residual back within ``BACK_SHARE`` of the threshold of the last accepted fix's (the track agrees with the
+filter again: the jump is over); the rest of that flagged stretch is then admitted too.
 """
 
 from __future__ import annotations
@@ -34,6 +41,9 @@ WINDOW = 50  # innovations the measured noise is taken over
 MIN_WINDOW = 10  # innovations needed before it counts
 RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above this many times it (an honest
 # claim's 50-fix estimate scatters by about 20 %)
+READMIT_RUN = 5  # flagged fixes in a row agreeing with the filter end a jump the track test missed
+READMIT_CHI2 = 4.605  # 90 % quantile of a chi-square variable with 2 degrees of freedom
+BACK_SHARE = 0.75  # a residual this share of the jump threshold from the one before the jump: the track is back
 MEDIAN_CHI2 = {1: 0.4549, 2: 1.3863}  # median of a chi-square variable with 1 and 2 degrees of freedom
 
 
@@ -54,6 +64,14 @@ def _robust_step_sigma(p: np.ndarray, dt: np.ndarray) -> float:
     return float(1.4826 * np.sqrt(np.mean(mad**2)) / np.sqrt(3.0))  # a step's error is a third of a 2nd diff's
 
 
+def jump_threshold_m(stamps_ns: np.ndarray, p_h: np.ndarray) -> float:
+    """The step error (m) beyond which ``find_jumps`` opens a jump."""
+    if len(stamps_ns) < 4:
+        return JUMP_MIN_M
+    dt = np.maximum(np.diff(stamps_ns) * 1e-9, 1e-6)
+    return max(JUMP_MIN_M, JUMP_SIGMAS * _robust_step_sigma(p_h, dt))  # on the norm: exp(-25/2) by chance
+
+
 def find_jumps(stamps_ns: np.ndarray, p_h: np.ndarray) -> tuple[np.ndarray, int, int]:
     """(in_jump mask, jumps opened, jumps kept as the new level) for horizontal positions (N,2)."""
     n = len(stamps_ns)
@@ -62,7 +80,7 @@ def find_jumps(stamps_ns: np.ndarray, p_h: np.ndarray) -> tuple[np.ndarray, int,
         return out, 0, 0
     dt = np.maximum(np.diff(stamps_ns) * 1e-9, 1e-6)
     period = float(np.median(dt))
-    thr = max(JUMP_MIN_M, JUMP_SIGMAS * _robust_step_sigma(p_h, dt))  # on the norm: exp(-25/2) by chance
+    thr = jump_threshold_m(stamps_ns, p_h)
     vel: deque = deque(maxlen=VELOCITY_STEPS)
     offset, t_open, opened, kept = None, 0, 0, 0
     for k in range(1, n):
@@ -108,6 +126,42 @@ def assess_gps(gps: GpsSeries, report: SourceReport) -> GpsSeries:
         dt = np.diff(gps.stamps_ns)
         report.note("dropouts", int(np.count_nonzero(dt > DROPOUT_PERIODS * np.median(dt))))
     return gps
+
+
+class JumpReadmit:
+    """Whether a fix is used: every accepted one, and a flagged one (a jump) once the filter says the filter,
+    not the fix, is off (module docstring). One per filter pass."""
+
+    def __init__(self, gps: GpsSeries, report: SourceReport):
+        self.accepted, self.report = gps.accepted, report
+        self.thr2 = jump_threshold_m(gps.stamps_ns, gps.position_enu_m[:, :2]) ** 2 if len(gps) else 0.0
+        self.run, self.open = 0, False
+        self.r_before: np.ndarray | None = None  # the residual of the last accepted fix
+
+    def __call__(self, i: int, r_h: np.ndarray, hph: np.ndarray, var: float) -> bool:
+        """Fix ``i``, its horizontal residual ``r_h`` against the filter, ``hph`` = H P H^T (2x2) and the
+        fix's variance per axis ``var``."""
+        if self.accepted[i]:
+            self.run, self.open, self.r_before = 0, False, r_h
+            return True
+        if not self.open:
+            if 0.5 * float(np.trace(hph)) > self.thr2:  # the filter knows less than a jump's size
+                return self._readmit()
+            d2 = float(r_h @ np.linalg.solve(hph + var * np.eye(2), r_h))
+            # the residual back near its level before the jump (a jump is at least the threshold): the track returned
+            back = self.r_before is not None and float(np.sum((r_h - self.r_before) ** 2)) <= BACK_SHARE**2 * self.thr2
+            self.run = self.run + 1 if d2 <= READMIT_CHI2 or back else 0
+            if self.run < READMIT_RUN:
+                return False
+            self.open = True
+        return self._readmit()
+
+    def _readmit(self) -> bool:
+        self.report.rejected["multipath_jump"] -= 1
+        if not self.report.rejected["multipath_jump"]:
+            del self.report.rejected["multipath_jump"]
+        self.report.note("jump_readmitted")
+        return True
 
 
 class GpsNoise:

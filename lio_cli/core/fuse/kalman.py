@@ -54,6 +54,9 @@ class Gate:
         return False, False
 
 
+GPS_HOLD_S = 10.0  # GPS anchors the filter this long after an accepted fix against odometry resets
+
+
 class Anchor:
     """Whether a pose source (odometry poses or increments, GPS) is being accepted: an update of one that
     passed the gate at t anchors the filter until t + twice that source's median period. While anchored, a
@@ -70,6 +73,16 @@ class Anchor:
         periods = {src: median_period_ns(s.stamps_ns) for src, s in (("odom", prep.odom), ("gps", prep.gps))
                    if s is not None}  # 0 for a single message: no window
         return cls(periods, prep.t0_ns)
+
+    @classmethod
+    def of_gps(cls, prep) -> Anchor:
+        """GPS alone, for ``GPS_HOLD_S`` after each accepted fix (an odometry streak is not reset then: a GPS
+        dropout of a few seconds is bridged, not taken as the filter being off)."""
+        g = prep.gps
+        a = cls({}, prep.t0_ns)
+        if g is not None:
+            a.window = {"gps": max(2 * median_period_ns(g.stamps_ns), int(GPS_HOLD_S * 1e9))}
+        return a
 
     def accepted(self, source: str, t_ns: int, status: str) -> None:
         if status == "ok" and source in self.window:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...geometry import inv_pose, yaw_of
 from .initial import Start, initial_state
-from .gps_quality import GpsNoise, noise_variance
+from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog, kalman_update
 from .result import FuseResult, anchor_to_origin
@@ -54,8 +54,12 @@ class PlanarEkf:
         self.odom_prev: int | None = None
         self.gps_offset: np.ndarray | None = None
         self.gps_h = GpsNoise(2)
+        self.jumps = JumpReadmit(prep.gps, prep.reports["gps"]) if prep.gps is not None else None
         self.pending_clone = False
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
+        # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
+        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged (5e5 m)
+        self.gps_anchor = Anchor.of_gps(prep)
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -124,6 +128,7 @@ class PlanarEkf:
         P, status = kalman_update(x, P, r, H, Rn, self.boxplus, self.gate, kind, allow_reset)
         self.prep.reports[source].outcome(kind, status)
         self.anchor.accepted(source, t, status)
+        self.gps_anchor.accepted(source, t, status)
         return P
 
     def _row(self, cols: dict[int, float]) -> np.ndarray:
@@ -169,7 +174,8 @@ class PlanarEkf:
             r = np.array([Z[0, 3] - x[X], Z[1, 3] - x[Y], wrap(float(yaw_of(Z[:3, :3])) - x[TH])])
             H = np.zeros((3, self.n))
             H[0, X] = H[1, Y] = H[2, TH] = 1.0
-            return self._update(t, x, P, r, H, np.diag([pv, pv, rv]), "odom", "odom")
+            return self._update(t, x, P, r, H, np.diag([pv, pv, rv]), "odom", "odom",
+                                allow_reset=self.gps_anchor.allows_reset(t))
         self._open(t, x, P)
         if self.odom_prev is None:
             rep.note("anchor")
@@ -177,22 +183,26 @@ class PlanarEkf:
             j = self.odom_prev
             r, H = delta_residual(x, inv_pose(_flat(od.poses[j])) @ _flat(T))
             var_p, var_r = pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2
-            P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom")
+            P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom",
+                             allow_reset=self.gps_anchor.allows_reset(t))
         self.odom_prev = i
         self.pending_clone = True
         return P
 
     def _gps(self, t, i, x, P):
         g = self.prep.gps
-        if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
-            return P
         z = g.position_enu_m[i, :2]
         if self.gps_offset is None:  # the world's origin: the first fix (the start position is estimated)
+            if not g.accepted[i]:  # a multipath jump (gps_quality), counted there
+                return P
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
         H = np.zeros((2, self.n))
         H[0, X] = H[1, Y] = 1.0
         r = z + self.gps_offset - x[0:2]
+        # a multipath jump: used only once the filter says it, not the fix, is off
+        if not self.jumps(i, r, P[np.ix_([X, Y], [X, Y])], self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
+            return P
         var = noise_variance(self.gps_h, r, H, P, float(g.sigma_h_m[i]) ** 2, self.prep.reports["gps"])
         return self._update(t, x, P, r, H, np.eye(2) * var, "gps", "gps")
 

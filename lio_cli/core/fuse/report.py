@@ -26,6 +26,8 @@ NOTE_REASONS = {
     "gate_reset": "accepted after too many rejections in a row (the filter was assumed off)",
     "anchor": "used to tie the source's frame to the fused world frame",
     "orientation_absent": "the message carried no valid orientation (quaternion 0 or covariance -1)",
+    "jump_readmitted": "GPS fixes flagged as a jump but used: the filter's own uncertainty or a run of fixes "
+                       "agreeing with it showed the filter, not the fix, was off",
     "jumps": "GPS jumps found (multipath; their fixes are rejected as multipath_jump)",
     "jump_kept": "GPS jumps that lasted so long they were taken as the receiver's new level",
     "dropouts": "GPS pauses of over 5 periods, bridged by the motion sources",

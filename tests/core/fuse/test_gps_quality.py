@@ -45,3 +45,28 @@ def test_an_optimistic_sigma_is_raised_to_what_the_innovations_show():
         noise.record(rng.normal(0.0, 2.5, 2), 0.1)
     assert abs(np.sqrt(noise.variance(claimed)) - 2.5) < 0.5
     assert noise.variance(9.0) == 9.0  # an honest (or pessimistic) one is kept
+
+
+def test_a_flagged_stretch_is_readmitted_when_the_residual_is_back_and_a_jump_stays_out():
+    """Fixes 10-39 flagged (the jump test missed the end at 20): the 10 of the jump (residual 8 m) stay out;
+    from 20 the residual is back near the last accepted fix's, so after 5 such fixes the rest are used."""
+    from lio_cli.core.fuse.gps_quality import READMIT_RUN, JumpReadmit
+    from lio_cli.core.fuse.inputs import GpsSeries
+    from lio_cli.core.fuse.report import SourceReport
+
+    st, p = _track(60, sigma=0.3)
+    gps = GpsSeries(st, np.column_stack([p, np.zeros(60)]))
+    gps.accepted = np.ones(60, bool)
+    gps.accepted[10:40] = False
+    rep = SourceReport()
+    rep.reject("multipath_jump", 30)
+    readmit = JumpReadmit(gps, rep)
+    hph, var = np.eye(2) * 0.04, 0.3  # a confident filter: the 90 % gate alone would re-admit nothing off by 2 m
+    used = []
+    for i in range(60):
+        r = np.array([8.0, 0.0]) if 10 <= i < 20 else np.array([0.5, 2.0]) if i >= 20 else np.array([0.3, 0.1])
+        used.append(readmit(i, r, hph, var))
+    used = np.array(used)
+    assert not used[10:20 + READMIT_RUN - 1].any() and used[20 + READMIT_RUN - 1:].all() and used[:10].all()
+    assert rep.notes["jump_readmitted"] == 40 - (20 + READMIT_RUN - 1)
+    assert rep.rejected["multipath_jump"] == 30 - rep.notes["jump_readmitted"]
