@@ -46,6 +46,8 @@ class RegistrationConfig(Strict):
     max_source_points: Optional[int] = Field(
         None, gt=0, le=MAX_POINTS, description="registered points of a scan, about: a denser scan is voxelised again (ICP costs "
         "points x iterations; 600 halves a 32-128 beam car scan's ICP, at some accuracy); None: no limit")
+    gyro_prior_gate_m: Optional[float] = Field(
+        None, gt=0, le=100.0, description="correspondence gate of a LiDAR-only scan primed by the gyro (None: 1 m)")
     max_points_per_voxel: int = Field(5, gt=0, le=1000, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
         None, gt=0, le=MAX_ITERATIONS, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")
