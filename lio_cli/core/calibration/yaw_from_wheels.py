@@ -15,7 +15,7 @@ neighbouring windows: a body's sway leaks gravity slowly), never from an assumed
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -23,9 +23,10 @@ from ...errors import InputError
 from .common import NS_PER_S, CalibrationResult, sandwich_covariance
 
 WINDOW_S = 0.5
+GRAVITY_MPS2 = 9.81
 MIN_WINDOWS = 12
 MIN_ACCEL_MPS2 = 0.1  # rms horizontal acceleration below which no angle shows
-LAG_WINDOWS = 2  # neighbouring windows whose errors may be shared (sway, slip)
+LAG_WINDOWS = 8  # neighbouring windows whose errors may be shared (sway, slip)
 SCALE_TOLERANCE = 0.2  # |c + i s| this far from 1: the two sides do not measure the same acceleration
 
 
@@ -42,38 +43,78 @@ class WheelYaw(CalibrationResult):
 
 def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: np.ndarray,
                        imu_stamps_ns: np.ndarray, accel_mps2: np.ndarray, *, R_base_imu: np.ndarray,
-                       imu_time_offset_s: float = 0.0) -> WheelYaw:
+                       imu_time_offset_s: float = 0.0, exclude_ns: tuple = (),
+                       gyro_radps: np.ndarray | None = None, gyro_bias_radps: np.ndarray | None = None) -> WheelYaw:
+    """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too
+    and the two estimates' difference joins the 1-sigma: the residuals of the richer model alone understated its
+    error about fivefold on a simulated car (0.69 deg off at 1-sigma 0.09)."""
+    args = (wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
+            exclude_ns)
+    res = _fit(*args, gyro_radps, gyro_bias_radps)
+    if gyro_radps is None:
+        return res
+    plain = _fit(*args, None, None)
+    spread = float(np.angle(np.exp(1j * (res.yaw_rad - plain.yaw_rad))))
+    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)))
+
+
+def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
+         exclude_ns, gyro_radps, gyro_bias_radps) -> WheelYaw:
     """Yaw correction of ``R_base_imu`` from wheel speed and yaw rate (already scaled, base frame, LiDAR clock)
-    and the accelerometer (IMU clock + ``imu_time_offset_s`` = LiDAR clock). InputError when the motion shows
-    too little acceleration or the two sides disagree."""
+    and the accelerometer (IMU clock + ``imu_time_offset_s`` = LiDAR clock); ``exclude_ns``: (start, end)
+    stretches to leave out (wheel slip). ``gyro_radps`` (and its bias): the body's
+    roll and pitch sway, integrated, is taken out of the horizontal specific force (the gravity it leaks; a
+    constant tilt and a linear drift are fitted). InputError when the motion shows too little acceleration or
+    the two sides disagree."""
     ws = np.asarray(wheel_stamps_ns, np.int64)
     v, w = np.asarray(speed_mps, float), np.asarray(yaw_rate_radps, float)
     it = np.asarray(imu_stamps_ns, np.int64) + int(round(imu_time_offset_s * NS_PER_S))
     t0, t1 = max(ws[0], it[0]), min(ws[-1], it[-1])
-    edges = np.arange(t0, t1, int(WINDOW_S * NS_PER_S))
-    if len(edges) - 1 < MIN_WINDOWS:
-        raise InputError(f"yaw from the wheels' accelerations: the wheels and the IMU overlap {len(edges) - 1} "
-                         f"windows of {WINDOW_S:g} s (need {MIN_WINDOWS})")
+    if t1 <= t0:
+        raise InputError("yaw from the wheels' accelerations: the wheels and the IMU do not overlap")
     h = accel_mps2 @ np.asarray(R_base_imu, float).T  # specific force in the base frame (so far)
     tw, ti = (ws - t0) / NS_PER_S, (it - t0) / NS_PER_S
-    e = (edges - t0) / NS_PER_S
-    v_e, w_e = np.interp(e, tw, v), np.interp(e, tw, w)
-    a_fwd = np.diff(v_e) / WINDOW_S  # exact window average of dv/dt
-    dw = np.diff(w_e) / WINDOW_S
-    a_lat, w2 = _window_means(v * w, tw, e), _window_means(w * w, tw, e)
-    hx, hy = _window_means(h[:, 0], ti, e), _window_means(h[:, 1], ti, e)
+    if gyro_radps is not None:  # tilt phi (roll, pitch) leaks (-g phi_y, g phi_x): taken out
+        om = (np.asarray(gyro_radps, float) - (0.0 if gyro_bias_radps is None else gyro_bias_radps)) @ \
+            np.asarray(R_base_imu, float).T
+        dt = np.diff(ti, prepend=ti[0])
+        phi = np.cumsum(om[:, :2] * dt[:, None], axis=0)
+        h = h.copy()
+        h[:, 0] += GRAVITY_MPS2 * phi[:, 1]
+        h[:, 1] -= GRAVITY_MPS2 * phi[:, 0]
+        psi = np.cumsum(om[:, 2] * dt)  # heading: a tilt error eps of R_base_imu leaks eps x yaw rate into phi
+    bins = np.arange(0.0, (t1 - t0) / NS_PER_S + 1e-9, WINDOW_S / 2)  # half-window bins of means
+    m = {k: _window_means(x, ts, bins) for k, (x, ts) in
+         {"v": (v, tw), "w": (w, tw), "vw": (v * w, tw), "w2": (w * w, tw), "hx": (h[:, 0], ti),
+          "hy": (h[:, 1], ti), "psi": (psi if gyro_radps is not None else 0.0 * ti, ti)}.items()}
+    # window k: bins j..j+3 (j = 2k); the speed change between the means of width WINDOW_S around its two ends
+    # is the exact (1, 3, 3, 1)/8 triangle average of dv/dt, so the other sides are averaged by that kernel
+    j = np.arange(0, len(bins) - 4, 2)
+    mid = bins[j + 2] * NS_PER_S + t0
+    if exclude_ns:
+        j = j[~np.any([(mid > a - WINDOW_S * NS_PER_S) & (mid < b + WINDOW_S * NS_PER_S) for a, b in exclude_ns],
+                      axis=0)]
+    if len(j) < MIN_WINDOWS:
+        raise InputError(f"yaw from the wheels' accelerations: {len(j)} windows of {WINDOW_S:g} s (need {MIN_WINDOWS})")
+    diff = lambda x: (x[j + 2] + x[j + 3] - x[j] - x[j + 1]) / (2 * WINDOW_S)  # noqa: E731
+    hat = lambda x: (x[j] + 3 * x[j + 1] + 3 * x[j + 2] + x[j + 3]) / 8  # noqa: E731
+    a_fwd, dw = diff(m["v"]), diff(m["w"])
+    a_lat, w2, hx, hy = hat(m["vw"]), hat(m["w2"]), hat(m["hx"]), hat(m["hy"])
     n = len(a_fwd)
     zero, one = np.zeros(n), np.ones(n)
     # unknowns: c, s, b_x, b_y, r_x, r_y; rows: the x (forward) and y (left) accelerations
     Jx = np.column_stack([hx, -hy, -one, zero, -w2, -dw])
     Jy = np.column_stack([hy, hx, zero, -one, dw, -w2])
-    J = np.stack([Jx, Jy], axis=1)  # (n, 2, 6)
+    if gyro_radps is not None:  # the integrated tilt's drift (a gyro bias error): linear in time
+        tc, gp = bins[j + 2] - bins[j + 2].mean(), GRAVITY_MPS2 * hat(m["psi"])
+        Jx, Jy = np.column_stack([Jx, tc, zero, gp, zero]), np.column_stack([Jy, zero, tc, zero, gp])
+    J = np.stack([Jx, Jy], axis=1)  # (n, 2, p)
     y = np.stack([a_fwd, a_lat], axis=1)
     rms_a = float(np.sqrt((y * y).sum(axis=1).mean()))
     if rms_a < MIN_ACCEL_MPS2:
         raise InputError(f"yaw from the wheels' accelerations: too little acceleration (rms {rms_a:.2f} m/s^2, need "
                          f"{MIN_ACCEL_MPS2:g}): speed up, brake and turn")
-    A = J.reshape(-1, 6)
+    A = J.reshape(-1, J.shape[2])
     x = np.linalg.lstsq(A, y.reshape(-1), rcond=None)[0]
     r = y - J @ x
     H = A.T @ A

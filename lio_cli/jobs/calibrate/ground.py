@@ -33,19 +33,22 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
         return
     before = rotation_observable(est)
     w = est.wheel
-    R_base_imu = Rbl @ T_lidar_imu_of(est, T_ref)[:3, :3]
+    R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
+    R_base_imu = Rbl @ R_lidar_imu
     try:
         res = estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
                                  w.yaw_rate_scale * arrays.wheel_angular_radps +
                                  w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
                                  imu.stamps_ns, imu.accel_mps2, R_base_imu=R_base_imu,
-                                 imu_time_offset_s=est.offset.imu_time_offset_s)
+                                 imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns,
+                                 gyro_radps=imu.gyro_radps, gyro_bias_radps=est.rotation.gyro_bias_radps)
     except InputError as err:
         est.notes.append(f"the mounting's rotation about the base z axis: {err}")
         return
     if res.sigma_rad > MAX_ROTATION_SIGMA_RAD:
         est.notes.append(f"the wheels' accelerations leave the mounting's rotation about the base z axis at 1-sigma "
-                         f"{np.degrees(res.sigma_rad):.2f} deg: not estimated (speed up, brake and turn harder)")
+                         f"{np.degrees(res.sigma_rad):.2f} deg: not estimated ({res.windows} windows, rms {res.rms_accel_mps2:.2f} "
+                         f"m/s^2, residual {res.rms_residual_mps2:.3f}, scale {res.scale:.3f}; speed up, brake and turn harder)")
         return
     Q = Rbl.T @ so3_exp(np.array([0.0, 0.0, res.yaw_rad])) @ Rbl  # the correction, in the LiDAR frame
     P = np.eye(3) - np.outer(u, u)
@@ -56,13 +59,14 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
     rot = est.rotation
     rc = fixed(rot.covariance_rad2)
     sig = np.sqrt(np.clip(np.diag(rc), 0, None))
-    est.rotation = replace(rot, R_lidar_imu=Q @ rot.R_lidar_imu, covariance_rad2=rc, sigma_rad=sig,
+    R_new = Q @ R_lidar_imu  # both fits now hold the composed mounting, turned: nothing left to apply
+    est.rotation = replace(rot, R_lidar_imu=R_new, covariance_rad2=rc, sigma_rad=sig,
                            observable=sig <= MAX_ROTATION_SIGMA_RAD)
     if est.lever is not None:
         lev = est.lever
         refined = np.isfinite(lev.rotation_covariance_rad2).all()
         lc = fixed(lev.rotation_covariance_rad2) if refined else lev.rotation_covariance_rad2
-        est.lever = replace(lev, R_lidar_imu=Q @ lev.R_lidar_imu, rotation_covariance_rad2=lc,
+        est.lever = replace(lev, R_lidar_imu=R_new, rotation_covariance_rad2=lc,
                             rotation_sigma_rad=np.sqrt(np.clip(np.diag(lc), 0, None)) if refined
                             else lev.rotation_sigma_rad)
     now = rotation_observable(est)
