@@ -20,6 +20,9 @@ from .passes import SensorArrays
 from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
 
 
+UNMEASURED_OFFSET_S = 0.04  # how far off a clock offset the motion could not measure is taken to be
+
+
 def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
               est: Estimates) -> None:
     """Turn ``est``'s mounting about the base z by what the wheels' accelerations show, when its 1-sigma there
@@ -35,13 +38,23 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
     w = est.wheel
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
     R_base_imu = Rbl @ R_lidar_imu
+    def fit(offset_s: float):
+        return estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
+                                  w.yaw_rate_scale * arrays.wheel_angular_radps +
+                                  w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
+                                  imu.stamps_ns, imu.accel_mps2, R_base_imu=R_base_imu, imu_time_offset_s=offset_s,
+                                  exclude_ns=w.slip_ns, gyro_radps=imu.gyro_radps,
+                                  gyro_bias_radps=est.rotation.gyro_bias_radps)
+
+    off = est.offset.imu_time_offset_s
+    # the wheels and the IMU are aligned through the clock offset: its uncertainty (one the motion could not
+    # measure, given or assumed: UNMEASURED_OFFSET_S) moves the yaw, by the slope measured either side
+    doff = est.offset.sigma_s if np.isfinite(est.offset.sigma_s) else UNMEASURED_OFFSET_S
     try:
-        res = estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
-                                 w.yaw_rate_scale * arrays.wheel_angular_radps +
-                                 w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
-                                 imu.stamps_ns, imu.accel_mps2, R_base_imu=R_base_imu,
-                                 imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns,
-                                 gyro_radps=imu.gyro_radps, gyro_bias_radps=est.rotation.gyro_bias_radps)
+        res = fit(off)
+        if doff > 0:
+            slope = abs(np.angle(np.exp(1j * (fit(off + doff).yaw_rad - fit(off - doff).yaw_rad)))) / 2
+            res = replace(res, sigma_rad=float(np.hypot(res.sigma_rad, slope)))
     except InputError as err:
         est.notes.append(f"the mounting's rotation about the base z axis: {err}")
         return
