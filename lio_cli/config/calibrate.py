@@ -44,9 +44,6 @@ class CalibrationRegistration(RegistrationConfig):
     run, and a calibration's passes would carry that on."""
 
     threads: int = Field(1, ge=0, le=MAX_THREADS, description="1: the same log gives the same calibration; 0: all cores")
-    gyro_prior_gate_m: Optional[float] = Field(
-        5.0, gt=0, le=100.0, description="correspondence gate of the gyro-primed passes (odom's 1 m loses a car's "
-        "speed along its travel)")
 
 
 class CalibrateConfig(Strict):
