@@ -51,6 +51,8 @@ class RegistrationConfig(Strict):
         "aligned with about this many (voxelised again), then refined with all of them in at most refine_iterations; "
         "None: always all points")
     refine_iterations: int = Field(5, gt=0, le=MAX_ITERATIONS, description="see coarse_points")
+    gyro_prior_gate_m: Optional[float] = Field(
+        None, gt=0, le=100.0, description="correspondence gate of a LiDAR-only scan primed by the gyro (None: 1 m)")
     max_points_per_voxel: int = Field(5, gt=0, le=1000, description="kiss-icp uses 20; 5 is faster and as accurate with an IMU prior")
     max_iterations: Optional[int] = Field(
         None, gt=0, le=MAX_ITERATIONS, description="ICP iterations per scan; default 20 with an IMU prior (it converges in a few), else 500")

@@ -54,7 +54,8 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
             return None
         tick = time.process_time()
         frame, source = o.reg.downsample(points)
-        measured = o.reg.register(source, guess, adaptive=True, gate_m=GYRO_PRIOR_GATE_M if gyro_primed else None)
+        gate = (o.cfg.registration.gyro_prior_gate_m or GYRO_PRIOR_GATE_M) if gyro_primed else None
+        measured = o.reg.register(source, guess, adaptive=True, gate_m=gate)
     st.registered(time.process_time() - tick)
     if planar:
         measured = project_to_se2(measured)

@@ -119,3 +119,14 @@ def test_map_rounds_shrink_the_roll_and_pitch_scatter_and_the_mounting_error(wal
 
     # here 0.25 deg from the pass alone, 0.04 deg after the rounds (primed with the true mounting either way)
     assert mounting_error(poses) < 0.12
+
+
+def test_the_gyro_primed_passes_gate_is_odom_s_unless_configured():
+    from lio_cli.config.odom import OdomConfig
+    from lio_cli.core.odometry.tuning import GYRO_PRIOR_GATE_M
+    from lio_cli.jobs.calibrate.passes import pass_config
+
+    assert pass_config(CalibrateConfig(), primed=True).registration.gyro_prior_gate_m is None
+    assert OdomConfig().registration.gyro_prior_gate_m is None and GYRO_PRIOR_GATE_M == 1.0  # odom's own: 1 m
+    cfg = CalibrateConfig.model_validate({"registration": {"gyro_prior_gate_m": 2.5}})
+    assert pass_config(cfg, primed=True).registration.gyro_prior_gate_m == 2.5

@@ -1,0 +1,51 @@
+"""The IMU's mounting yaw from the wheels' accelerations: a vehicle turning about its vertical hides it from the gyro."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lio_cli.core.calibration.yaw_from_wheels import estimate_wheel_yaw
+from lio_cli.errors import InputError
+from lio_cli.geometry import so3_exp
+
+S = 1_000_000_000
+
+
+def drive(seed: int, yaw_deg: float, duration_s: float = 20.0, moving: bool = True, robot: bool = False):
+    """Wheel speed / yaw rate of a car (speeding up, braking, turning) and its IMU's specific force, mounted
+    rolled, pitched and yawed with a lever arm, a bias, noise and the body's sway leaking gravity."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration_s, 0.005)
+    v = (6.0 + 2.0 * np.sin(0.4 * t + seed)) if moving else 0.0 * t
+    w = 0.25 * np.sin(0.3 * t) + 0.1 * np.sin(0.9 * t + 1.0)
+    if robot:  # a ground robot: 1 m/s, turning harder
+        v, w = v / 6.0, 2.0 * w
+    dv, dw = np.gradient(v, t), np.gradient(w, t)
+    r = np.array([0.3, -0.2, 0.1])
+    a = np.column_stack([dv - w * w * r[0] - dw * r[1], v * w - w * w * r[1] + dw * r[0], np.zeros_like(t)])
+    sway = np.radians(0.25) * np.sin(0.7 * t + seed)  # the body's roll, in phase with nothing in particular
+    f_base = a + 9.81 * np.column_stack([np.zeros_like(t), np.sin(sway), np.cos(sway)])
+    R_base_imu = so3_exp(np.radians([2.0, -3.0, yaw_deg]))
+    f_imu = f_base @ R_base_imu + rng.normal(0, 0.05, 3) + rng.normal(0, 0.1, (len(t), 3))
+    stamps = (t * S).astype(np.int64) + 10 * S
+    ws = stamps[::4]  # 50 Hz wheels
+    return ws, v[::4] + rng.normal(0, 0.02, len(ws)), w[::4] + rng.normal(0, 0.005, len(ws)), stamps, f_imu, R_base_imu
+
+
+@pytest.mark.parametrize("seed,robot", [(0, False), (1, False), (2, False), (1, True)])
+def test_the_mounting_yaw_comes_from_the_wheels_accelerations_within_a_third_of_a_degree(seed, robot):
+    ws, v, w, stamps, f, R_true = drive(seed, 30.0, robot=robot)
+    R_guess = so3_exp(np.radians([0.0, 0.0, -30.0])) @ R_true  # roll, pitch right; yaw 30 deg off
+    res = estimate_wheel_yaw(ws, v, w, stamps, f, R_base_imu=R_guess)
+    R_est = so3_exp(np.array([0.0, 0.0, res.yaw_rad])) @ R_guess
+    err = np.degrees(np.arctan2((R_est @ R_true.T)[1, 0], (R_est @ R_true.T)[0, 0]))
+    assert abs(err) < 0.3
+    assert abs(err) <= 3 * np.degrees(res.sigma_rad) and np.degrees(res.sigma_rad) < 0.6
+    assert abs(res.scale - 1.0) < 0.02
+
+
+def test_a_vehicle_standing_still_shows_no_yaw():
+    ws, v, w, stamps, f, R_true = drive(0, 30.0, moving=False)
+    with pytest.raises(InputError, match=r"^yaw from the wheels' accelerations: too little acceleration"):
+        estimate_wheel_yaw(ws, v * 0, w * 0, stamps, f, R_base_imu=R_true)
