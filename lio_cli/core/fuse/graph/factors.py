@@ -6,7 +6,7 @@
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
-  robust loss there took a wheel scale error for outliers and let the IMU drift).
+  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry poses.
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
@@ -46,6 +46,9 @@ GPS_BIAS_RATIO = 3.0  # its sigma over the fixes' own (the timeline's, noise-onl
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
+# wheel increments' sigmas times this beside odometry poses (a 3 % wheel scale error pulled them off; beside
+# odometry increments and GPS the wheels hold the shape against the fixes)
+ODOM_WHEEL_SIGMA_SCALE = 10.0
 
 
 def _sigmas(sig: np.ndarray):
@@ -198,6 +201,8 @@ class ChunkGraph:
             dp, sd = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
             g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
             if wheel:
+                if len(m.odom_k) and "pose" in m.prep.use["odom"]:
+                    sd = sd * ODOM_WHEEL_SIGMA_SCALE
                 sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 m.wheel_dp[k] = (dp, sig[3:])
                 model = _sigmas(sig) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))
