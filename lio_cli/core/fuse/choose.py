@@ -61,7 +61,7 @@ def _gravity_evidence(prep: Prepared) -> dict | None:
     f_win = f[:m * n].reshape(m, n, 3).mean(axis=1)
     up = f_win / np.maximum(np.linalg.norm(f_win, axis=1, keepdims=True), 1e-9)
     # a wheel slip: the wheels' speed jumps by metres per second in a fraction of one while the IMU feels no
-    # such acceleration; those windows say nothing about the ground (3 slips had made a flat road 10 deg)
+    # such acceleration; those windows say nothing about the ground
     unfelt = np.abs(a_wheel) - np.abs(prep.imu_f_b[:, 0] - np.median(prep.imu_f_b[:, 0]))
     slip = (unfelt[:m * n].reshape(m, n) > SLIP_MPS2).any(axis=1)
     if slip.all():

@@ -71,7 +71,7 @@ class Ekf3d:
         self.inject = step3d.injector(self.L)  # on the state list
         self.update = Updater(self.gate, self.inject)
         # with nothing measuring the heading, the wheels' body velocity must not turn it: the gyro knows it far
-        # better than a slipping wheel's speed against an uncertain velocity (a slip turned it by 29 deg)
+        # better than a slipping wheel's speed against an uncertain velocity
         absolute = {"gps", "odom"} & set(prep.use) or "orientation" in prep.use.get("imu", ())
         self.hold_heading = None if absolute or self.L.model == "cv" else [2, DB.start + 2]
         self.ins = step3d.InsPredictor(self.L, self.g) if self.L.model == "ins" else None
@@ -94,7 +94,7 @@ class Ekf3d:
         self.J = self.L.clone_matrix() if self.L.clone else None
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
         # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
-        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged (5e5 m)
+        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged
         self.gps_anchor = Anchor.of_gps(prep)
         self.ii = -1  # index of the last IMU sample at or before the current time
 

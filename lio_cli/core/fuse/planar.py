@@ -58,7 +58,7 @@ class PlanarEkf:
         self.pending_clone = False
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
         # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
-        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged (5e5 m)
+        # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged
         self.gps_anchor = Anchor.of_gps(prep)
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------

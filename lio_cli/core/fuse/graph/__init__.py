@@ -23,6 +23,6 @@ def applies(prep: Prepared) -> bool:
 def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed=None) -> FuseResult:
     """The smoothed trajectory at ``prep.out_stamps`` (the filter's where the guard refuses the graph's);
     ``seed`` (keyframe stamps -> x, y, yaw, speed): a planar filter's states to start from (``run``)."""
-    from .run import smooth_graph as run  # gtsam's import (0.4 s) only when smoothing
+    from .run import smooth_graph as run  # gtsam's slow import only when smoothing
 
     return run(prep, o, start, seed)

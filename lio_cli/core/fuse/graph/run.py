@@ -23,8 +23,8 @@ from .output import at_outputs
 from .solve import Prior, seam_prior, solve
 
 MIN_VARIANCE = 1e-10  # the start's "known exactly" variances (1e-12) kept solvable
-# accelerometer noise density multipliers tried in turn until the guard accepts: jackal.bag's accelerometer at the
-# default density drew the graph 4.7 m off robot_localization's end point, at 10x it ends 0.02 m from it
+# accelerometer noise density multipliers tried in turn until the guard accepts: a real accelerometer noisier
+# than its density (jackal.bag's) would otherwise draw the graph off
 ACCEL_NOISE_SCALES = (1.0, 10.0)
 SEAM_VELOCITY_SIGMA = 0.2  # m/s: a chunk's prior on its first velocity (its IMU and wheels find it again)
 

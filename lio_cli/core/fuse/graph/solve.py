@@ -21,9 +21,8 @@ from .factors import ChunkGraph, nav
 CHUNK_KEYFRAMES = 600  # 60 s at the 0.1 s grid
 OVERLAP_KEYFRAMES = 100
 MAX_ITERATIONS = 40
-# damping scaled by the Hessian's diagonal (Marquardt): with lambda I, a chunk mixing a 1e-5 m start prior with
-# 0.1 m odometry poses took steps to an infinite cost and stalled at 15 iterations (handheld with lio odom: ATE
-# 0.038 m where the optimum, reached in 5 iterations with it, is 0.021 m)
+# damping scaled by the Hessian's diagonal (Marquardt): plain lambda I stalls on chunks mixing very tight and
+# loose priors (docs/benchmarks.md, the factor graph against RTS)
 DIAGONAL_DAMPING = True
 RELATIVE_TOLERANCE = 1e-3  # robust losses reweight slowly: past this the trajectory moves by micrometres
 
