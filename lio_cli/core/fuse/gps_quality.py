@@ -39,8 +39,8 @@ DROPOUT_PERIODS = 5.0  # a pause this many median periods long is a dropout
 VELOCITY_STEPS = 5  # the track's velocity: the median of this many previous steps
 WINDOW = 50  # innovations the measured noise is taken over
 MIN_WINDOW = 10  # innovations needed before it counts
-RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above this many times it (an honest
-# claim's 50-fix estimate scatters by about 20 %)
+RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above this many times it, well
+# beyond a window's own scatter about an honest claim
 READMIT_RUN = 5  # flagged fixes in a row agreeing with the filter end a jump the track test missed
 READMIT_CHI2 = 4.605  # 90 % quantile of a chi-square variable with 2 degrees of freedom
 BACK_SHARE = 0.75  # a residual this share of the jump threshold from the one before the jump: the track is back

@@ -29,7 +29,7 @@ from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
 from .imu import Segments
 
-HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile (k = 1.345 down-weighted 40 % of good fixes)
+HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
 CAUCHY_K = 1.0  # vertical GPS: an altitude wander is a run of outliers
 # wheel increments without a robust loss: a robust one takes a wheel scale error for outliers and lets the graph
 # drift on the IMU
@@ -46,8 +46,8 @@ GPS_BIAS_RATIO = 3.0  # its sigma over the fixes' own (the timeline's, noise-onl
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
-# wheel increments' sigmas times this beside odometry poses (a 3 % wheel scale error pulled them off; beside
-# odometry increments and GPS the wheels hold the shape against the fixes)
+# wheel increments' sigmas times this beside odometry poses, so a wheel scale error cannot pull them off (beside
+# odometry increments and GPS the wheels keep their weight: they hold the shape against the fixes)
 ODOM_WHEEL_SIGMA_SCALE = 10.0
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from .factors import Measurements
 
-RATIO = 1.05  # good smoothers measured within 3 % of the filter on GPS; a graph fitting 30 % long wheels 8-23 %
+RATIO = 1.05  # worse than the filter only beyond this: a good smoother's residual sits near the filter's
 CLIP = 3.0
 NOISE_MARGIN = 1.05  # worse only beyond both the filter's residual and the sigmas' own prediction, by this
 FLOORS = {"gps_horizontal_m": 0.02, "gps_slow_m": 0.05, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
