@@ -9,6 +9,7 @@ import numpy as np
 from ..model.trajectory import Trajectory
 from . import EvalOptions, evaluate
 from .alignment import DegenerateAlignment, line_spread
+from .metrics import path_length_m
 
 RPE_METRES_FROM_M = 20.0  # paths at least this long get RPE over 10 m, shorter ones over 1 s
 LINE_SPREAD_PER_ERROR = 10.0  # see score(): the alignment's rotation about a line to ~0.1 rad
@@ -34,7 +35,7 @@ class Score:
 
 
 def score(ref: Trajectory, est: Trajectory, options: EvalOptions | None = None) -> Score:
-    """ATE and RPE of ``est`` against ``ref``; RPE over 10 m on paths of 20 m or more, else over 1 s."""
+    """ATE and RPE of ``est`` against ``ref``; RPE over 10 m when both paths are 20 m or more, else over 1 s."""
     o = options or EvalOptions()
     try:
         ate = evaluate(ref, est, o)
@@ -55,7 +56,8 @@ def score(ref: Trajectory, est: Trajectory, options: EvalOptions | None = None) 
             note = (f"the reference's positions lie near a line (they stray {spread:.3g} m from it): the alignment "
                     "cannot fix the rotation about it, so the rotation error says little (lio evaluate --align origin "
                     "measures from the first pose)")
-    length = ate.drift["path_length_m"] or 0.0
+    # RPE pairs come from the estimate (as in evo): one that stopped short of 20 m (a track lost) gets 1 s
+    length = min(ate.drift["path_length_m"] or 0.0, path_length_m(ate.association.est.poses))
     delta, unit = (10.0, "m") if length >= RPE_METRES_FROM_M else (1.0, "s")
     rpe = evaluate(ref, est, replace(o, delta=delta, delta_unit=unit))
     return Score(
