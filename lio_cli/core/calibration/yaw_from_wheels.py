@@ -27,7 +27,8 @@ GRAVITY_MPS2 = 9.81
 MIN_WINDOWS = 12
 MIN_ACCEL_MPS2 = 0.1  # rms horizontal acceleration below which no angle shows
 LAG_WINDOWS = 8  # neighbouring windows whose errors may be shared (sway, slip)
-SCALE_TOLERANCE = 0.2  # |c + i s| this far from 1: the two sides do not measure the same acceleration
+SCALE_TOLERANCE = 0.2
+SWAY_KEEP = 0.8  # the sway model is used when it leaves less than this share of the plain fit's rms residual  # |c + i s| this far from 1: the two sides do not measure the same acceleration
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,15 +46,20 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
                        imu_stamps_ns: np.ndarray, accel_mps2: np.ndarray, *, R_base_imu: np.ndarray,
                        imu_time_offset_s: float = 0.0, exclude_ns: tuple = (),
                        gyro_radps: np.ndarray | None = None, gyro_bias_radps: np.ndarray | None = None) -> WheelYaw:
-    """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too
-    and the two estimates' difference joins the 1-sigma: the residuals of the richer model alone understated its
-    error about fivefold on a simulated car (0.69 deg off at 1-sigma 0.09)."""
+    """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too:
+    when the sway model does not lower the residual clearly (``SWAY_KEEP``: a level robot, whose integrated gyro
+    is noise), the plain fit is the estimate; else the two estimates' difference joins the 1-sigma: the residuals
+    of the richer model alone understated its error about fivefold on a simulated car (0.69 deg off at 1-sigma
+    0.09)."""
     args = (wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
             exclude_ns)
     res = _fit(*args, gyro_radps, gyro_bias_radps)
     if gyro_radps is None:
         return res
     plain = _fit(*args, None, None)
+    if res.rms_residual_mps2 >= SWAY_KEEP * plain.rms_residual_mps2:  # no sway the accelerations show: the gyro's
+        return replace(plain, notes=(*plain.notes, "no body sway modelled: the gyro's tilt did not explain the "
+                                     "accelerations better"))  # integrated noise would only add its own
     spread = float(np.angle(np.exp(1j * (res.yaw_rad - plain.yaw_rad))))
     return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)))
 

@@ -34,6 +34,7 @@ from ...core.calibration import AllanResult
 from ...model.calibration import Calibration
 from . import estimate as steps
 from . import map as calibrate_map
+from .clock import wheel_clock
 from .ground import wheel_yaw
 from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
                                read_imu, refine_spans)
@@ -145,6 +146,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
+            wheel_clock(arrays, imu, cfg, est)
             # the refining passes' stretches are shares of the whole log, also when the first pass covered part
             s0, s1 = int(traj.stamps_ns[0]), max(int(traj.stamps_ns[-1]), arrays.last_scan_end_ns or 0)
             untils = [pass_until(span, s0, s1) for span in spans]
