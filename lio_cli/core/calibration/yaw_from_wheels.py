@@ -15,7 +15,7 @@ neighbouring windows: a body's sway leaks gravity slowly), never from an assumed
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -40,6 +40,8 @@ class WheelYaw(CalibrationResult):
     rms_accel_mps2: float  # of the wheels' horizontal accelerations
     rms_residual_mps2: float
     notes: tuple[str, ...]
+    lever_xy_m: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the IMU origin in the base x-y plane (r)
+    lever_cov_m2: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.inf))
 
 
 def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: np.ndarray,
@@ -61,7 +63,8 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
         return replace(plain, notes=(*plain.notes, "no body sway modelled: the gyro's tilt did not explain the "
                                      "accelerations better"))  # integrated noise would only add its own
     spread = float(np.angle(np.exp(1j * (res.yaw_rad - plain.yaw_rad))))
-    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)))
+    d = res.lever_xy_m - plain.lever_xy_m
+    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)), lever_cov_m2=res.lever_cov_m2 + np.outer(d, d))
 
 
 def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
@@ -134,7 +137,8 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
     g = np.array([-s, c]) / scale**2  # gradient of atan2(s, c)
     sigma = float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0)))
     return WheelYaw(yaw_rad=float(np.arctan2(s, c)), sigma_rad=sigma, scale=scale, windows=n, rms_accel_mps2=rms_a,
-                    rms_residual_mps2=float(np.sqrt((r * r).mean())), notes=())
+                    rms_residual_mps2=float(np.sqrt((r * r).mean())), notes=(), lever_xy_m=-x[4:6],
+                    lever_cov_m2=cov[4:6, 4:6].copy())
 
 
 def _window_means(x: np.ndarray, ts: np.ndarray, edges: np.ndarray) -> np.ndarray:
