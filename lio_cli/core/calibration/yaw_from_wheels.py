@@ -47,14 +47,15 @@ class WheelYaw(CalibrationResult):
 def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: np.ndarray,
                        imu_stamps_ns: np.ndarray, accel_mps2: np.ndarray, *, R_base_imu: np.ndarray,
                        imu_time_offset_s: float = 0.0, exclude_ns: tuple = (),
-                       gyro_radps: np.ndarray | None = None, gyro_bias_radps: np.ndarray | None = None) -> WheelYaw:
+                       gyro_radps: np.ndarray | None = None, gyro_bias_radps: np.ndarray | None = None,
+                       min_accel_mps2: float = MIN_ACCEL_MPS2) -> WheelYaw:
     """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too:
     when the sway model does not lower the residual clearly (``SWAY_KEEP``: a level robot, whose integrated gyro
     is noise), the plain fit is the estimate; else the two estimates' difference joins the 1-sigma: the residuals
     of the richer model alone understated its error about fivefold on a simulated car (0.69 deg off at 1-sigma
     0.09)."""
     args = (wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
-            exclude_ns)
+            exclude_ns, min_accel_mps2)
     res = _fit(*args, gyro_radps, gyro_bias_radps)
     if gyro_radps is None:
         return res
@@ -68,7 +69,7 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
 
 
 def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
-         exclude_ns, gyro_radps, gyro_bias_radps) -> WheelYaw:
+         exclude_ns, min_accel_mps2, gyro_radps, gyro_bias_radps) -> WheelYaw:
     """Yaw correction of ``R_base_imu`` from wheel speed and yaw rate (already scaled, base frame, LiDAR clock)
     and the accelerometer (IMU clock + ``imu_time_offset_s`` = LiDAR clock); ``exclude_ns``: (start, end)
     stretches to leave out (wheel slip). ``gyro_radps`` (and its bias): the body's
@@ -120,9 +121,9 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
     J = np.stack([Jx, Jy], axis=1)  # (n, 2, p)
     y = np.stack([a_fwd, a_lat], axis=1)
     rms_a = float(np.sqrt((y * y).sum(axis=1).mean()))
-    if rms_a < MIN_ACCEL_MPS2:
+    if rms_a < min_accel_mps2:
         raise InputError(f"yaw from the wheels' accelerations: too little acceleration (rms {rms_a:.2f} m/s^2, need "
-                         f"{MIN_ACCEL_MPS2:g}): speed up, brake and turn")
+                         f"{min_accel_mps2:g}): speed up, brake and turn")
     A = J.reshape(-1, J.shape[2])
     x = np.linalg.lstsq(A, y.reshape(-1), rcond=None)[0]
     r = y - J @ x

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...core.calibration.yaw_from_wheels import estimate_wheel_yaw
+from ...core.calibration.yaw_from_wheels import MIN_ACCEL_MPS2, estimate_wheel_yaw
 from ...errors import InputError
 from ...model.records import ImuBatch
 from .estimate import Estimates
@@ -21,6 +21,7 @@ from .passes import SensorArrays
 from .report import T_lidar_imu_of
 
 MAX_SIGMA_M = 0.05  # the lever arm estimator's threshold of an observable axis
+HALF_MIN_ACCEL_MPS2 = 0.03  # a half of a log that starts or pauses standing still holds less acceleration
 
 
 def lever_from_wheels(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
@@ -35,22 +36,25 @@ def lever_from_wheels(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
     w = est.wheel
     ws = arrays.wheel_stamps_ns
 
-    def fit(sel: np.ndarray, isel: np.ndarray):
+    def fit(sel: np.ndarray, isel: np.ndarray, min_accel: float = MIN_ACCEL_MPS2):
         return estimate_wheel_yaw(ws[sel], w.speed_scale * arrays.wheel_linear_mps[sel],
                                   w.yaw_rate_scale * arrays.wheel_angular_radps[sel] +
                                   w.yaw_per_distance_radpm * arrays.wheel_linear_mps[sel],
                                   imu.stamps_ns[isel], imu.accel_mps2[isel], R_base_imu=Rbl @ T_li[:3, :3],
                                   imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns,
-                                  gyro_radps=imu.gyro_radps[isel], gyro_bias_radps=est.rotation.gyro_bias_radps)
+                                  gyro_radps=imu.gyro_radps[isel], gyro_bias_radps=est.rotation.gyro_bias_radps,
+                                  min_accel_mps2=min_accel)
 
     everything = np.ones(len(ws), bool), np.ones(len(imu.stamps_ns), bool)
     try:
         res = fit(*everything)
-        # each half of the log alone: their disagreement joins the 1-sigma (the residuals' own understated it
+        # each half of the log alone (one may hold less acceleration: what it gives is only compared): their
+        # disagreement joins the 1-sigma (the residuals' own understated it
         # sixfold on a simulated robot: 0.9 cm off at 1-sigma 0.13)
         mid = int(np.median(ws))
         shift = int(round(est.offset.imu_time_offset_s * 1e9))
-        halves = [fit(ws < mid, imu.stamps_ns + shift < mid), fit(ws >= mid, imu.stamps_ns + shift >= mid)]
+        halves = [fit(ws < mid, imu.stamps_ns + shift < mid, HALF_MIN_ACCEL_MPS2),
+                  fit(ws >= mid, imu.stamps_ns + shift >= mid, HALF_MIN_ACCEL_MPS2)]
     except InputError as err:
         est.notes.append(f"the lever arm in the base plane: {err}")
         return
@@ -84,3 +88,4 @@ def lever_from_wheels(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
             est.skip(key, f"the lever arm along the LiDAR {'xyz'[k]} axis", whole[0].reason)
     est.notes.append(f"the lever arm in the base plane from the wheels' accelerations: x {res.lever_xy_m[0]:+.3f} m, "
                      f"y {res.lever_xy_m[1]:+.3f} m, 1-sigma {100 * sig_xy[0]:.1f} / {100 * sig_xy[1]:.1f} cm")
+
