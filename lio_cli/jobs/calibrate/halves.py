@@ -19,13 +19,15 @@ from ...geometry import so3_log
 from ...model.records import ImuBatch
 from .estimate import Estimates
 from .passes import LidarTrajectory
+from .report import MAX_ROTATION_SIGMA_RAD, rotation_cov_lidar, rotation_observable
 
 MIN_SCANS = 60  # per half
 
 
 def halves_spread(traj: LidarTrajectory, imu: ImuBatch, est: Estimates) -> None:
     """Add half the difference between the two halves' mountings (per LiDAR axis, squared) to the rotation's
-    covariance, and to the lever arm's refined one; nothing when a half is too short to fit on its own."""
+    covariance, and to the lever arm's refined one; an axis this puts beyond ``MAX_ROTATION_SIGMA_RAD`` is no
+    longer estimated (a skipped item says why). Nothing when a half is too short to fit on its own."""
     if est.rotation is None or est.offset is None or len(traj.stamps_ns) < 2 * MIN_SCANS:
         return
     s, P, n = traj.stamps_ns, traj.T_world_lidar, len(traj.stamps_ns)
@@ -37,12 +39,19 @@ def halves_spread(traj: LidarTrajectory, imu: ImuBatch, est: Estimates) -> None:
                                        gyro_bias_radps=est.rotation.gyro_bias_radps).R_lidar_imu)
         except InputError:
             return
-    extra = np.diag((so3_log(R[1] @ R[0].T) / 2) ** 2)
+    apart = so3_log(R[1] @ R[0].T)
+    extra = np.diag((apart / 2) ** 2)
+    before = rotation_observable(est)
     rot = est.rotation
     cov = rot.covariance_rad2 + extra
     sig = np.sqrt(np.clip(np.diag(cov), 0, None))
-    est.rotation = replace(rot, covariance_rad2=cov, sigma_rad=sig)  # what counts as observable stays the fit's
+    est.rotation = replace(rot, covariance_rad2=cov, sigma_rad=sig, observable=rot.observable & (sig <= MAX_ROTATION_SIGMA_RAD))
     lev = est.lever
     if lev is not None and np.isfinite(lev.rotation_covariance_rad2).all():
         lc = lev.rotation_covariance_rad2 + extra
         est.lever = replace(lev, rotation_covariance_rad2=lc, rotation_sigma_rad=np.sqrt(np.clip(np.diag(lc), 0, None)))
+    for k in np.flatnonzero(before & ~rotation_observable(est)):  # now known worse than an estimated axis may be
+        sk = np.degrees(np.sqrt(rotation_cov_lidar(est)[k, k]))
+        est.skip(f"rotation_{'xyz'[k]}", f"the mounting's rotation about the LiDAR {'xyz'[k]} axis",
+                 f"the two halves of the log put it {abs(np.degrees(apart[k])):.2f} deg apart (1-sigma {sk:.2f} deg "
+                 "with that): record longer, or turn the platform about the other axes too")

@@ -38,7 +38,15 @@ def test_a_mounting_that_moved_half_way_is_reported_with_the_difference_in_its_s
     print(f"1-sigma {before.round(3)} -> {after.round(3)} deg")
     assert before[0] < 0.1 and after[0] >= 0.17  # about half the 0.4 deg the halves disagree by
     assert (after[1:] < 2 * before[1:] + 0.02).all()
-    assert (est.rotation.observable == (before <= 1.0)).all()  # what counts as observable stays the fit's
+    assert (est.rotation.observable == (before <= 1.0)).all() and not est.skipped  # all still within 1 deg
+
+
+def test_an_axis_the_halves_disagree_on_by_degrees_is_no_longer_estimated(walk):
+    before, after, est = run(walk, 3.0)
+    assert before[0] < 1.0 < after[0] and not est.rotation.observable[0]
+    assert [s.key for s in est.skipped] == ["rotation_x"]
+    assert est.skipped[0].line().startswith("not estimated: the mounting's rotation about the LiDAR x axis: the two "
+                                            "halves of the log put it 2.")
 
 
 def test_a_consistent_trajectory_keeps_its_sigma_nearly(walk):
