@@ -19,6 +19,7 @@ calibrate on a 60 s hand-held log (target <= 30 s wall).
 
   python benchmarks/calibrate_robustness.py --quick            # 3 cells + their odom runs (~5 min on 2 cores)
   python benchmarks/calibrate_robustness.py --jobs 2           # 18 cells + 3 odom pairs + the 60 s timing
+  python benchmarks/calibrate_robustness.py --platform "ground robot"   # one platform's 6 cells
   python benchmarks/calibrate_robustness.py --work DIR         # cache: a cell whose inputs and code are unchanged is read back
 """
 
@@ -50,9 +51,9 @@ TARGETS = {"rotation": 0.3, "lever": 2.0, "offset": 1.0, "wheel": 0.3, "sigmas":
 OBSERVED_ROT_DEG, OBSERVED_LEVER_CM = 1.0, 5.0  # the estimators' thresholds of an estimated axis
 
 
-def cells(quick: bool) -> list[dict]:
+def cells(quick: bool, platforms: list[str] | None = None) -> list[dict]:
     out = []
-    for platform in PLATFORMS:
+    for platform in platforms or PLATFORMS:
         for i in ([QUICK_INDEX] if quick else range(6)):
             mounting, lever = list(MOUNTINGS)[i % 3], list(LEVERS)[i // 3]
             out.append({"platform": platform, "mounting": mounting, "lever": lever,
@@ -99,7 +100,8 @@ def run_cell(args: tuple[dict, Path, str]) -> dict:
     except LioError as err:
         out = {"cell": c, "error": str(err), "wall_s": time.perf_counter() - t0}
     else:
-        out = {"cell": c, "wall_s": time.perf_counter() - t0, "rows": compare(r.calibration, r.metrics, t)}
+        out = {"cell": c, "wall_s": time.perf_counter() - t0, "rows": compare(r.calibration, r.metrics, t),
+               "notes": r.metrics["notes"]}
         if c["odom"]:
             out["ate"] = odom_ates(log, sim.gt_path, r.calibration, t)
     log.unlink(missing_ok=True)
@@ -233,12 +235,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="one cell per platform (with its odom runs)")
     ap.add_argument("--jobs", type=int, default=1, help="cells run in parallel (processes)")
+    ap.add_argument("--platform", action="append", choices=list(PLATFORMS),
+                    help="only this platform's cells, no 60 s timing (repeatable)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio_calibrate_robustness"), help="cache and scratch folder")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     code = code_hash()
-    todo = cells(a.quick)
-    if not a.quick:
+    todo = cells(a.quick, a.platform)
+    if not a.quick and not a.platform:
         todo.append({"platform": "hand-held", "mounting": "yaw 30", "lever": "0.37 m", "offset_s": 0.015,
                      "start": "still", "seed": 799, "duration_s": 60.0, "odom": False})
     t0 = time.perf_counter()

@@ -15,7 +15,7 @@ neighbouring windows: a body's sway leaks gravity slowly), never from an assumed
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -27,7 +27,8 @@ GRAVITY_MPS2 = 9.81
 MIN_WINDOWS = 12
 MIN_ACCEL_MPS2 = 0.1  # rms horizontal acceleration below which no angle shows
 LAG_WINDOWS = 8  # neighbouring windows whose errors may be shared (sway, slip)
-SCALE_TOLERANCE = 0.2  # |c + i s| this far from 1: the two sides do not measure the same acceleration
+SCALE_TOLERANCE = 0.2
+SWAY_KEEP = 0.8  # the sway model is used when it leaves less than this share of the plain fit's rms residual  # |c + i s| this far from 1: the two sides do not measure the same acceleration
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,27 +40,36 @@ class WheelYaw(CalibrationResult):
     rms_accel_mps2: float  # of the wheels' horizontal accelerations
     rms_residual_mps2: float
     notes: tuple[str, ...]
+    lever_xy_m: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the IMU origin in the base x-y plane (r)
+    lever_cov_m2: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.inf))
 
 
 def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: np.ndarray,
                        imu_stamps_ns: np.ndarray, accel_mps2: np.ndarray, *, R_base_imu: np.ndarray,
                        imu_time_offset_s: float = 0.0, exclude_ns: tuple = (),
-                       gyro_radps: np.ndarray | None = None, gyro_bias_radps: np.ndarray | None = None) -> WheelYaw:
-    """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too
-    and the two estimates' difference joins the 1-sigma: the residuals of the richer model alone understated its
-    error about fivefold on a simulated car (0.69 deg off at 1-sigma 0.09)."""
+                       gyro_radps: np.ndarray | None = None, gyro_bias_radps: np.ndarray | None = None,
+                       min_accel_mps2: float = MIN_ACCEL_MPS2) -> WheelYaw:
+    """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too:
+    when the sway model does not lower the residual clearly (``SWAY_KEEP``: a level robot, whose integrated gyro
+    is noise), the plain fit is the estimate; else the two estimates' difference joins the 1-sigma: the residuals
+    of the richer model alone understated its error about fivefold on a simulated car (0.69 deg off at 1-sigma
+    0.09)."""
     args = (wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
-            exclude_ns)
+            exclude_ns, min_accel_mps2)
     res = _fit(*args, gyro_radps, gyro_bias_radps)
     if gyro_radps is None:
         return res
     plain = _fit(*args, None, None)
+    if res.rms_residual_mps2 >= SWAY_KEEP * plain.rms_residual_mps2:  # no sway the accelerations show: the gyro's
+        return replace(plain, notes=(*plain.notes, "no body sway modelled: the gyro's tilt did not explain the "
+                                     "accelerations better"))  # integrated noise would only add its own
     spread = float(np.angle(np.exp(1j * (res.yaw_rad - plain.yaw_rad))))
-    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)))
+    d = res.lever_xy_m - plain.lever_xy_m
+    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)), lever_cov_m2=res.lever_cov_m2 + np.outer(d, d))
 
 
 def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
-         exclude_ns, gyro_radps, gyro_bias_radps) -> WheelYaw:
+         exclude_ns, min_accel_mps2, gyro_radps, gyro_bias_radps) -> WheelYaw:
     """Yaw correction of ``R_base_imu`` from wheel speed and yaw rate (already scaled, base frame, LiDAR clock)
     and the accelerometer (IMU clock + ``imu_time_offset_s`` = LiDAR clock); ``exclude_ns``: (start, end)
     stretches to leave out (wheel slip). ``gyro_radps`` (and its bias): the body's
@@ -111,9 +121,9 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
     J = np.stack([Jx, Jy], axis=1)  # (n, 2, p)
     y = np.stack([a_fwd, a_lat], axis=1)
     rms_a = float(np.sqrt((y * y).sum(axis=1).mean()))
-    if rms_a < MIN_ACCEL_MPS2:
+    if rms_a < min_accel_mps2:
         raise InputError(f"yaw from the wheels' accelerations: too little acceleration (rms {rms_a:.2f} m/s^2, need "
-                         f"{MIN_ACCEL_MPS2:g}): speed up, brake and turn")
+                         f"{min_accel_mps2:g}): speed up, brake and turn")
     A = J.reshape(-1, J.shape[2])
     x = np.linalg.lstsq(A, y.reshape(-1), rcond=None)[0]
     r = y - J @ x
@@ -128,7 +138,8 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
     g = np.array([-s, c]) / scale**2  # gradient of atan2(s, c)
     sigma = float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0)))
     return WheelYaw(yaw_rad=float(np.arctan2(s, c)), sigma_rad=sigma, scale=scale, windows=n, rms_accel_mps2=rms_a,
-                    rms_residual_mps2=float(np.sqrt((r * r).mean())), notes=())
+                    rms_residual_mps2=float(np.sqrt((r * r).mean())), notes=(), lever_xy_m=-x[4:6],
+                    lever_cov_m2=cov[4:6, 4:6].copy())
 
 
 def _window_means(x: np.ndarray, ts: np.ndarray, edges: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from ...config.calibrate import CalibrateConfig
 from ...core.calibration import (AllanResult, ImuStatic, LeverArmCalib, RotationCalib, TimeOffset, WheelCalib,
                                 estimate_allan, estimate_imu_static, estimate_lever_arm, estimate_rotation,
                                 estimate_time_offset, estimate_wheel_scales)
+from ...core.calibration.clock_from_wheels import WheelClock, with_wheel_clock
 from ...core.calibration.common import NS_PER_S, time_ranges_text
 from ...core.calibration.imu_static import StillOptions, still_mask
 from ...core.calibration.handeye import imu_increments, lidar_increments
@@ -64,6 +65,7 @@ class Estimates:
     skipped: list[Skipped] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     offset_assumed: bool = False  # the clock offset neither estimated nor given: zero was used, none is written
+    wheel_clock: WheelClock | None = None  # the clock offset from the wheels' turns (``clock.wheel_clock``)
 
     def skip(self, key: str, item: str, reason: str) -> None:
         self.skipped.append(Skipped(item, reason.rstrip("."), key))
@@ -145,6 +147,8 @@ def extrinsics(traj: LidarTrajectory, imu: ImuBatch, cfg: CalibrateConfig, est: 
                f"the other estimates use {1e3 * kept:+.3f} ms and the YAML holds none (give it with --imu-time-offset "
                "SECONDS or imu_time_offset_s in --calib if it is known)")
         off = _kept_offset(bias0, kept, f"{err}; {how}")
+    if est.wheel_clock is not None:
+        off = with_wheel_clock(off, est.wheel_clock)
     assumed = not np.isfinite(off.sigma_s) and prior_offset is None
     t_prior_lidar_m = None if T_ref is None else T_ref[:3, 3]
     try:

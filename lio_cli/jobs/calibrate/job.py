@@ -34,7 +34,10 @@ from ...core.calibration import AllanResult
 from ...model.calibration import Calibration
 from . import estimate as steps
 from . import map as calibrate_map
+from .clock import wheel_clock
 from .ground import wheel_yaw
+from .halves import halves_spread
+from .plane_lever import lever_from_wheels
 from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
                                read_imu, refine_spans)
 from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
@@ -145,6 +148,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             t0 = time.perf_counter()
             steps.imu_at_rest(imu, still_ns, None, est, where)
             bias0 = None if est.static is None else est.static.gyro_bias_radps
+            wheel_clock(arrays, imu, cfg, est)
             # the refining passes' stretches are shares of the whole log, also when the first pass covered part
             s0, s1 = int(traj.stamps_ns[0]), max(int(traj.stamps_ns[-1]), arrays.last_scan_end_ns or 0)
             untils = [pass_until(span, s0, s1) for span in spans]
@@ -192,6 +196,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                     # a partial pass whose stretch cannot time or turn the IMU leaves the estimates as they were
                     est.notes.append(f"refining pass {k} left the estimates as they were: {err}")
                 times[f"estimate_{k}"] = time.perf_counter() - t0
+            halves_spread(traj, imu, est)
             wheel_traj, against = traj, None
             if planar and untils and arrays.has_wheels and T_ref is None and est.rotation is not None and \
                     not rotation_observable(est).all():
@@ -207,6 +212,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
             est.notes.extend(imprecision_notes(est, traj.T_world_lidar))
             steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
             wheel_yaw(arrays, imu, T_base_lidar, T_ref, est)
+            lever_from_wheels(arrays, imu, T_base_lidar, T_ref, est)
             est.skip("T_base_lidar", "the LiDAR's mounting on the base (T_base_lidar)",
                      f"the motion shows the IMU against the LiDAR, not the LiDAR against the base: taken from {lidar_source}")
         if cfg.allan:

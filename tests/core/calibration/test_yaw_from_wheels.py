@@ -12,7 +12,8 @@ from lio_cli.geometry import so3_exp
 S = 1_000_000_000
 
 
-def drive(seed: int, yaw_deg: float, duration_s: float = 20.0, moving: bool = True, robot: bool = False):
+def drive(seed: int, yaw_deg: float, duration_s: float = 20.0, moving: bool = True, robot: bool = False,
+          sway_deg: float = 0.25):
     """Wheel speed / yaw rate of a car (speeding up, braking, turning) and its IMU's specific force, mounted
     rolled, pitched and yawed with a lever arm, a bias, noise and the body's sway leaking gravity."""
     rng = np.random.default_rng(seed)
@@ -24,7 +25,7 @@ def drive(seed: int, yaw_deg: float, duration_s: float = 20.0, moving: bool = Tr
     dv, dw = np.gradient(v, t), np.gradient(w, t)
     r = np.array([0.3, -0.2, 0.1])
     a = np.column_stack([dv - w * w * r[0] - dw * r[1], v * w - w * w * r[1] + dw * r[0], np.zeros_like(t)])
-    sway = np.radians(0.25) * np.sin(0.7 * t + seed)  # the body's roll, in phase with nothing in particular
+    sway = np.radians(sway_deg) * np.sin(0.7 * t + seed)  # the body's roll, in phase with nothing in particular
     f_base = a + 9.81 * np.column_stack([np.zeros_like(t), np.sin(sway), np.cos(sway)])
     R_base_imu = so3_exp(np.radians([2.0, -3.0, yaw_deg]))
     f_imu = f_base @ R_base_imu + rng.normal(0, 0.05, 3) + rng.normal(0, 0.1, (len(t), 3))
@@ -49,3 +50,37 @@ def test_a_vehicle_standing_still_shows_no_yaw():
     ws, v, w, stamps, f, R_true = drive(0, 30.0, moving=False)
     with pytest.raises(InputError, match=r"^yaw from the wheels' accelerations: too little acceleration"):
         estimate_wheel_yaw(ws, v * 0, w * 0, stamps, f, R_base_imu=R_true)
+
+
+def gyro_of(seed: int, stamps: np.ndarray, ws: np.ndarray, w: np.ndarray, R_base_imu: np.ndarray,
+            sway_deg: float) -> np.ndarray:
+    """The gyro of ``drive``'s IMU: the sway's roll rate and the turn rate, with noise."""
+    t = (stamps - stamps[0]) / S
+    roll_rate = np.radians(sway_deg) * 0.7 * np.cos(0.7 * t + seed)
+    om = np.column_stack([roll_rate, np.zeros_like(t), np.interp(stamps, ws, w)])
+    return om @ R_base_imu + np.random.default_rng(seed).normal(0, 0.002, (len(t), 3))
+
+
+@pytest.mark.parametrize("sway_deg", [0.0, 0.25])
+def test_the_sway_model_is_used_only_where_the_gyro_shows_a_sway(sway_deg):
+    """A level robot's integrated gyro is noise, which the sway model would only add; a swaying body's gravity
+    leak is taken out."""
+    ws, v, w, stamps, f, R_true = drive(1, 30.0, robot=True, sway_deg=sway_deg)
+    R_guess = so3_exp(np.radians([0.0, 0.0, -30.0])) @ R_true
+    res = estimate_wheel_yaw(ws, v, w, stamps, f, R_base_imu=R_guess,
+                             gyro_radps=gyro_of(1, stamps, ws, w, R_true, sway_deg))
+    dropped = any(n.startswith("no body sway modelled") for n in res.notes)
+    assert dropped == (sway_deg == 0.0)
+    err = np.degrees(res.yaw_rad) - 30.0
+    assert abs(err) < 0.6 and abs(err) <= 3 * np.degrees(res.sigma_rad)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_lever_arm_in_the_plane_comes_with_the_yaw(seed):
+    """The IMU 0.3 m ahead and 0.2 m right of the base: the turns' centripetal and tangential accelerations place
+    it (a sign flipped would be 0.6 m off in x)."""
+    ws, v, w, stamps, f, R_true = drive(seed, 30.0, robot=True)
+    res = estimate_wheel_yaw(ws, v, w, stamps, f, R_base_imu=R_true, gyro_radps=gyro_of(seed, stamps, ws, w, R_true, 0.25))
+    sigma = np.sqrt(np.diag(res.lever_cov_m2))
+    err = res.lever_xy_m - np.array([0.3, -0.2])
+    assert (np.abs(err) <= 3 * sigma).all() and (sigma < 0.08).all() and (np.abs(err) < 0.05).all()
