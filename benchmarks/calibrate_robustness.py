@@ -19,6 +19,7 @@ calibrate on a 60 s hand-held log (target <= 30 s wall).
 
   python benchmarks/calibrate_robustness.py --quick            # 3 cells + their odom runs (~5 min on 2 cores)
   python benchmarks/calibrate_robustness.py --jobs 2           # 18 cells + 3 odom pairs + the 60 s timing
+  python benchmarks/calibrate_robustness.py --platform car    # the car's six cells only
   python benchmarks/calibrate_robustness.py --work DIR         # cache: a cell whose inputs and code are unchanged is read back
 """
 
@@ -234,11 +235,13 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="one cell per platform (with its odom runs)")
     ap.add_argument("--jobs", type=int, default=1, help="cells run in parallel (processes)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio_calibrate_robustness"), help="cache and scratch folder")
+    ap.add_argument("--platform", choices=list(PLATFORMS), action="append",
+                    help="only this platform's cells (repeatable; no 60 s timing)")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     code = code_hash()
-    todo = cells(a.quick)
-    if not a.quick:
+    todo = [c for c in cells(a.quick) if not a.platform or c["platform"] in a.platform]
+    if not a.quick and not a.platform:
         todo.append({"platform": "hand-held", "mounting": "yaw 30", "lever": "0.37 m", "offset_s": 0.015,
                      "start": "still", "seed": 799, "duration_s": 60.0, "odom": False})
     t0 = time.perf_counter()
