@@ -35,7 +35,7 @@ from ...model.calibration import Calibration
 from . import estimate as steps
 from . import map as calibrate_map
 from .ground import wheel_yaw
-from .planar import planar_tilt
+from .planar import ground_rotation
 from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
                                read_imu, refine_spans)
 from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
@@ -207,7 +207,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                            "fused one)")
             est.notes.extend(imprecision_notes(est, traj.T_world_lidar))
             steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
-            planar_tilt(imu, T_base_lidar, T_ref, est, arrays.has_wheels)
+            ground_rotation(arrays, imu, T_base_lidar, T_ref, est)
             wheel_yaw(arrays, imu, T_base_lidar, T_ref, est)
             est.skip("T_base_lidar", "the LiDAR's mounting on the base (T_base_lidar)",
                      f"the motion shows the IMU against the LiDAR, not the LiDAR against the base: taken from {lidar_source}")

@@ -13,14 +13,100 @@ from dataclasses import replace
 import numpy as np
 
 from ...core.calibration.ground_plane import estimate_planar_tilt
+from ...core.calibration.rotation import RotationCalib
+from ...core.calibration.yaw_from_wheels import estimate_wheel_yaw
 from ...errors import InputError
 from ...geometry import so3_exp
 from ...model.records import ImuBatch
 from .estimate import Estimates
+from .passes import SensorArrays
 from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
 
 
-def planar_tilt(imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None, est: Estimates,
+def ground_rotation(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
+                    est: Estimates) -> None:
+    """Roll and pitch on the base from planar motion: joined to hand-eye's, or, where hand-eye gave no rotation
+    (a car turning about one axis), the whole mounting's start (its yaw a first guess from the wheels, which
+    ``ground.wheel_yaw`` then measures)."""
+    if est.rotation is None:
+        _without_hand_eye(arrays, imu, T_base_lidar, est)
+    else:
+        planar_tilt(arrays, imu, T_base_lidar, T_ref, est, arrays.has_wheels)
+
+
+def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, est: Estimates) -> None:
+    """The mounting from gravity (its up, at rest or averaged), the planar-motion tilt and the wheels' yaw, for a
+    ground vehicle whose rotations hand-eye could not use."""
+    if T_base_lidar is None or not arrays.has_wheels or est.wheel is None or est.offset is None:
+        return
+    up = est.static.up_imu if est.static is not None else imu.accel_mps2.mean(axis=0)
+    up = up / np.linalg.norm(up)
+    R = _align(up)  # R_base_imu with the base z on up, its yaw arbitrary
+    bias = est.static.gyro_bias_radps if est.static is not None else None
+    try:
+        tilt = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=R, gyro_bias_radps=bias,
+                                    **_accel_args(arrays, imu, est))
+        R = so3_exp(-np.array([*tilt.tilt_rad, 0.0])) @ R
+        w = est.wheel
+        yaw = estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
+                                 w.yaw_rate_scale * arrays.wheel_angular_radps +
+                                 w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
+                                 imu.stamps_ns, imu.accel_mps2, R_base_imu=R,
+                                 imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns)
+    except InputError as err:
+        est.notes.append(f"the mounting without hand-eye (a ground vehicle's gravity, turns and wheels): {err}")
+        return
+    if (tilt.sigma_rad > MAX_ROTATION_SIGMA_RAD).any():
+        est.notes.append(f"the mounting without hand-eye: roll and pitch from planar motion at 1-sigma "
+                         f"{_deg(tilt.sigma_rad)} deg (the heading changed {np.degrees(tilt.heading_spread_rad):.0f} deg; "
+                         "turn both ways, 90 deg or more)")
+        return
+    R = so3_exp(np.array([0.0, 0.0, yaw.yaw_rad])) @ R
+    Rbl = np.asarray(T_base_lidar, float)[:3, :3]
+    C = np.zeros((3, 3))
+    C[:2, :2] = tilt.covariance_rad2
+    C[2, 2] = np.pi**2  # the yaw is a first guess until ``wheel_yaw`` measures it
+    cov = Rbl.T @ C @ Rbl
+    sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    g0 = np.zeros(3) if bias is None else np.asarray(bias, float)
+    est.rotation = RotationCalib(R_lidar_imu=Rbl.T @ R, sigma_rad=sig, covariance_rad2=cov,
+                                 observable=sig <= MAX_ROTATION_SIGMA_RAD, gyro_bias_radps=g0,
+                                 gyro_bias_sigma_radps=np.full(3, np.nan), windows=0,
+                                 rms_residual_rad=tilt.rms_sway_rad, notes=(), registration_gain=np.zeros((3, 3)),
+                                 fit_covariance_rad2=cov)
+    dropped = [s for s in est.skipped if s.key == "rotation"]
+    est.skipped = [s for s in est.skipped if s.key != "rotation"]
+    for k in np.flatnonzero(~est.rotation.observable):
+        est.skip(f"rotation_{'xyz'[k]}", f"the mounting's rotation about the LiDAR {'xyz'[k]} axis",
+                 "hand-eye could not use the rotations" + (f" ({dropped[0].reason})" if dropped else "") +
+                 "; gravity and the turns give the roll and pitch on the base, not the rotation about its vertical")
+    est.notes.append(f"the mounting without hand-eye: roll and pitch on the base from planar motion, 1-sigma "
+                     f"{_deg(tilt.sigma_rad)} deg (heading changed {np.degrees(tilt.heading_spread_rad):.0f} deg, sway "
+                     f"{np.degrees(tilt.rms_sway_rad):.2f} deg rms); the yaw from the wheels' accelerations")
+
+
+def _accel_args(arrays: SensorArrays, imu: ImuBatch, est: Estimates) -> dict:
+    """The accelerometer and the scaled wheels, to take the body's sway out (none without wheel scales)."""
+    w = est.wheel
+    if w is None or est.offset is None:
+        return {}
+    wheels = (arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
+              w.yaw_rate_scale * arrays.wheel_angular_radps + w.yaw_per_distance_radpm * arrays.wheel_linear_mps)
+    return {"accel_mps2": imu.accel_mps2, "wheels": wheels, "imu_time_offset_s": est.offset.imu_time_offset_s,
+            "exclude_ns": w.slip_ns}
+
+
+def _align(up: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking ``up`` onto the z axis."""
+    ez = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, ez)
+    n = np.linalg.norm(axis)
+    if n < 1e-12:
+        return np.eye(3) if up[2] > 0 else np.diag([1.0, -1.0, -1.0])
+    return so3_exp(axis / n * np.arctan2(n, float(up @ ez)))
+
+
+def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None, est: Estimates,
                 ground_vehicle: bool) -> None:
     """Join the planar-motion roll and pitch to ``est``'s mounting when the motion was planar (the vertical
     stays put in the base frame); ``ground_vehicle`` (it has wheels): say why when it could not."""
@@ -30,7 +116,7 @@ def planar_tilt(imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarra
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
     try:
         res = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=Rbl @ R_lidar_imu,
-                                   gyro_bias_radps=est.rotation.gyro_bias_radps)
+                                   gyro_bias_radps=est.rotation.gyro_bias_radps, **_accel_args(arrays, imu, est))
     except InputError as err:
         if ground_vehicle:
             est.notes.append(f"the mounting's roll and pitch on the base: {err}")

@@ -63,3 +63,34 @@ def test_too_short_a_gyro_record_is_refused():
     stamps, R, dt, rng = car(0, duration_s=2.0)
     with pytest.raises(InputError, match=r"^roll and pitch from planar motion: 2\.0 s of gyro \(need 5\)"):
         estimate_planar_tilt(stamps, gyro_of(R, dt, np.eye(3), rng), R_base_imu=np.eye(3))
+
+
+def car_with_wheels(seed: int, sway_deg: float = 0.75, yaw_deg: float = 2.0):
+    """``car`` with its wheels (speed, yaw rate) and its IMU's specific force (a bias, noise, a lever arm)."""
+    stamps, R, dt, rng = car(seed, sway_deg=sway_deg)
+    t = (stamps - stamps[0]) / S
+    v = 6.0 + 2.0 * np.sin(0.4 * t + seed)
+    psi = np.unwrap(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    vel = v[:, None] * np.column_stack([np.cos(psi), np.sin(psi), 0 * t])
+    r = np.array([0.3, -0.2, 0.1])
+    pos_imu = np.cumsum(vel, axis=0) * dt + R @ r
+    acc = np.gradient(np.gradient(pos_imu, dt, axis=0), dt, axis=0)
+    f_base = np.einsum("nji,nj->ni", R, acc + np.array([0.0, 0.0, 9.81]))
+    R_true = so3_exp(np.radians([1.0, -2.0, 30.0]))
+    f_imu = f_base @ R_true + np.array([0.04, -0.03, 0.02]) + rng.normal(0, 0.1, f_base.shape)
+    gyro = gyro_of(R, dt, R_true, rng)
+    w = np.gradient(psi, dt)
+    wheels = (stamps[::4], v[::4] + rng.normal(0, 0.02, len(t[::4])), w[::4] + rng.normal(0, 0.005, len(t[::4])))
+    return stamps, gyro, f_imu, wheels, R_true, so3_exp(np.radians([0.0, 0.0, yaw_deg]))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_accelerometer_takes_a_strong_sway_out_of_the_tilt(seed):
+    stamps, gyro, f, wheels, R_true, yaw = car_with_wheels(seed)
+    eps = np.radians([0.6, -0.4, 0.0])
+    R_guess = so3_exp(eps) @ yaw @ R_true
+    alone = estimate_planar_tilt(stamps, gyro, R_base_imu=R_guess)
+    res = estimate_planar_tilt(stamps, gyro, R_base_imu=R_guess, accel_mps2=f, wheels=wheels)
+    err = np.degrees(res.tilt_rad - eps[:2])
+    assert np.abs(err).max() < 0.1 and (np.abs(err) <= 3 * np.degrees(res.sigma_rad)).all()
+    assert np.degrees(res.sigma_rad).max() < 0.5 * np.degrees(alone.sigma_rad).min()  # the sway was the limit
