@@ -33,6 +33,7 @@ MAX_SWAY_RAD = np.radians(2.0)  # rms residual above which the motion is not pla
 BIAS_STEP_RADPS = 1e-4  # the bias's linearisation step
 BIAS_PRIOR_RADPS = 0.01  # 1-sigma of the gyro bias given, when not said
 BIAS_FLOOR_RADPS = 1e-4
+MEAN_LAG_S = 5.0  # the body's sway is this slow at most (a car's on its springs): how well its mean is known
 SMOOTH_S = 0.5  # both sides' accelerations are averaged over +-this (a triangle): wheel speeds differentiate noisily
 GRAVITY_MPS2 = 9.81
 
@@ -99,9 +100,12 @@ def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R
         raise InputError(f"roll and pitch from planar motion: {keep.sum()} samples outside the wheels' slips (need "
                          f"{MIN_SAMPLES})")
     t, base, cols, Phi = t[keep], base[keep], [c[keep] for c in cols], Phi[keep]
+    mean_var = np.zeros((2, 2))
     if len(cols) > n_gyro:  # the accelerometer's, less their means over the samples kept (the bias, the tilt)
         acc = [c - c.mean(axis=0) for c in cols[n_gyro:]]
         base, cols = base - acc[0], cols[:n_gyro] + acc[1:]
+        # ...and so the body's mean tilt over the log is taken as level: what its sway leaves of that unknown
+        mean_var = sandwich_covariance(np.eye(2) * len(t), acc[0], lag=max(1, int(round(MEAN_LAG_S / SAMPLE_S))))
     J = np.stack(cols, axis=2)  # (n, 2, p): d_x, d_y, w_x, w_y, bias x3 (and the accelerometer's yaw, lever arm)
     A = J.reshape(-1, J.shape[2])
     y = -base.reshape(-1)
@@ -128,7 +132,7 @@ def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R
     # eps = (-w_y, w_x): w = eps x e_z
     M = np.array([[0.0, -1.0], [1.0, 0.0]])
     tilt = M @ x[2:4]
-    C = M @ cov[2:4, 2:4] @ M.T
+    C = M @ (cov[2:4, 2:4] + mean_var) @ M.T
     return PlanarTilt(tilt_rad=tilt, covariance_rad2=C, sigma_rad=np.sqrt(np.clip(np.diag(C), 0, None)),
                       heading_spread_rad=spread, rms_sway_rad=rms, samples=len(t), notes=())
 

@@ -43,16 +43,17 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
     up = up / np.linalg.norm(up)
     R = _align(up)  # R_base_imu with the base z on up, its yaw arbitrary
     bias = est.static.gyro_bias_radps if est.static is not None else None
-    try:
-        tilt = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=R, gyro_bias_radps=bias,
-                                    **_accel_args(arrays, imu, est))
-        R = so3_exp(-np.array([*tilt.tilt_rad, 0.0])) @ R
-        w = est.wheel
+    w = est.wheel
+    try:  # the yaw first (the accelerometer's sway is read through it), then the roll and pitch
         yaw = estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
                                  w.yaw_rate_scale * arrays.wheel_angular_radps +
                                  w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
                                  imu.stamps_ns, imu.accel_mps2, R_base_imu=R,
                                  imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns)
+        R = so3_exp(np.array([0.0, 0.0, yaw.yaw_rad])) @ R
+        tilt = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=R, gyro_bias_radps=bias,
+                                    **_accel_args(arrays, imu, est))
+        R = so3_exp(-np.array([*tilt.tilt_rad, 0.0])) @ R
     except InputError as err:
         est.notes.append(f"the mounting without hand-eye (a ground vehicle's gravity, turns and wheels): {err}")
         return
@@ -61,7 +62,6 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
                          f"{_deg(tilt.sigma_rad)} deg (the heading changed {np.degrees(tilt.heading_spread_rad):.0f} deg; "
                          "turn both ways, 90 deg or more)")
         return
-    R = so3_exp(np.array([0.0, 0.0, yaw.yaw_rad])) @ R
     Rbl = np.asarray(T_base_lidar, float)[:3, :3]
     C = np.zeros((3, 3))
     C[:2, :2] = tilt.covariance_rad2
