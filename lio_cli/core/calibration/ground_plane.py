@@ -47,6 +47,9 @@ class PlanarTilt(CalibrationResult):
     rms_sway_rad: float  # of the residual
     samples: int
     notes: tuple[str, ...]
+    yaw_rad: float = float("nan")  # with the accelerometer: the yaw to apply on the left of R_base_imu (about base z)
+    yaw_sigma_rad: float = float("nan")
+    covariance3_rad2: np.ndarray | None = None  # (3,3) of (eps_x, eps_y, -yaw) with the accelerometer
 
 
 def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R_base_imu: np.ndarray,
@@ -133,8 +136,16 @@ def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R
     M = np.array([[0.0, -1.0], [1.0, 0.0]])
     tilt = M @ x[2:4]
     C = M @ (cov[2:4, 2:4] + mean_var) @ M.T
+    yaw = (-x[n_gyro], float(np.sqrt(max(cov[n_gyro, n_gyro], 0.0)))) if len(x) > n_gyro else (np.nan, np.nan)
+    C3 = None
+    if len(x) > n_gyro:  # eps and the correction's rotation about z (-yaw: eps's sign) together
+        T = np.zeros((3, len(x)))
+        T[:2, 2:4], T[2, n_gyro] = M, 1.0
+        C3 = T @ cov @ T.T
+        C3[:2, :2] += M @ mean_var @ M.T
     return PlanarTilt(tilt_rad=tilt, covariance_rad2=C, sigma_rad=np.sqrt(np.clip(np.diag(C), 0, None)),
-                      heading_spread_rad=spread, rms_sway_rad=rms, samples=len(t), notes=())
+                      heading_spread_rad=spread, rms_sway_rad=rms, samples=len(t), notes=(), yaw_rad=float(yaw[0]),
+                      yaw_sigma_rad=yaw[1], covariance3_rad2=C3)
 
 
 def _smooth(x: np.ndarray) -> np.ndarray:
@@ -158,7 +169,7 @@ def _box_means(x: np.ndarray, ts: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _accel_sway(t, ti, h, tw, wheels) -> tuple[np.ndarray, list[np.ndarray]]:
     """The horizontal up the accelerometer shows at ``t`` ((specific force - the wheels' acceleration) / g, in
     the base frame so far), and the columns of what it is not sure of: a yaw of the mounting (turning the
-    specific force) and the lever arm's centripetal and tangential terms."""
+    specific force), the lever arm's centripetal and tangential terms and the IMU's clock against the wheels'."""
     v, w = np.asarray(wheels[1], float), np.asarray(wheels[2], float)
     hb = _smooth(_box_means(h[:, :2], ti, t))
     vw = _box_means(np.column_stack([v, w, v * w, w * w]), tw, t)
@@ -170,4 +181,5 @@ def _accel_sway(t, ti, h, tw, wheels) -> tuple[np.ndarray, list[np.ndarray]]:
     yaw = np.column_stack([-hb[:, 1], hb[:, 0]]) / GRAVITY_MPS2  # d up / d yaw of the mounting
     rx = -np.column_stack([-w2, dw]) / GRAVITY_MPS2  # the lever arm adds (-w^2 r_x - dw r_y, dw r_x - w^2 r_y)
     ry = -np.column_stack([-dw, -w2]) / GRAVITY_MPS2
-    return up, [yaw, rx, ry]
+    shift = -np.gradient(hb, SAMPLE_S, axis=0) / GRAVITY_MPS2  # the IMU's clock later by one second (linearised)
+    return up, [yaw, rx, ry, shift]

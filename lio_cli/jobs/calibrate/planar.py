@@ -51,9 +51,8 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
                                  imu.stamps_ns, imu.accel_mps2, R_base_imu=R,
                                  imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns)
         R = so3_exp(np.array([0.0, 0.0, yaw.yaw_rad])) @ R
-        tilt = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=R, gyro_bias_radps=bias,
-                                    **_accel_args(arrays, imu, est))
-        R = so3_exp(-np.array([*tilt.tilt_rad, 0.0])) @ R
+        corr, tilt = _planar_fit(arrays, imu, R, bias, None, est)
+        R = so3_exp(corr) @ R
     except InputError as err:
         est.notes.append(f"the mounting without hand-eye (a ground vehicle's gravity, turns and wheels): {err}")
         return
@@ -63,9 +62,12 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
                          "turn both ways, 90 deg or more)")
         return
     Rbl = np.asarray(T_base_lidar, float)[:3, :3]
-    C = np.zeros((3, 3))
-    C[:2, :2] = tilt.covariance_rad2
-    C[2, 2] = np.pi**2  # the yaw is a first guess until ``wheel_yaw`` measures it
+    if tilt.covariance3_rad2 is not None and tilt.yaw_sigma_rad <= MAX_ROTATION_SIGMA_RAD:
+        C = tilt.covariance3_rad2
+    else:
+        C = np.zeros((3, 3))
+        C[:2, :2] = tilt.covariance_rad2
+        C[2, 2] = np.pi**2  # the yaw is a first guess until ``wheel_yaw`` measures it
     cov = Rbl.T @ C @ Rbl
     sig = np.sqrt(np.clip(np.diag(cov), 0, None))
     g0 = np.zeros(3) if bias is None else np.asarray(bias, float)
@@ -82,7 +84,8 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
                  "; gravity and the turns give the roll and pitch on the base, not the rotation about its vertical")
     est.notes.append(f"the mounting without hand-eye: roll and pitch on the base from planar motion, 1-sigma "
                      f"{_deg(tilt.sigma_rad)} deg (heading changed {np.degrees(tilt.heading_spread_rad):.0f} deg, sway "
-                     f"{np.degrees(tilt.rms_sway_rad):.2f} deg rms); the yaw from the wheels' accelerations")
+                     f"{np.degrees(tilt.rms_sway_rad):.2f} deg rms); the yaw from the accelerations, 1-sigma "
+                     f"{np.degrees(tilt.yaw_sigma_rad):.2f} deg")
 
 
 def _accel_args(arrays: SensorArrays, imu: ImuBatch, est: Estimates) -> dict:
@@ -106,17 +109,18 @@ def _align(up: np.ndarray) -> np.ndarray:
     return so3_exp(axis / n * np.arctan2(n, float(up @ ez)))
 
 
-def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None, est: Estimates,
-                ground_vehicle: bool) -> None:
-    """Join the planar-motion roll and pitch to ``est``'s mounting when the motion was planar (the vertical
-    stays put in the base frame); ``ground_vehicle`` (it has wheels): say why when it could not."""
+def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
+                est: Estimates, ground_vehicle: bool) -> None:
+    """Join the planar-motion roll and pitch (and, with wheels, the yaw the accelerations show) to ``est``'s
+    mounting when the motion was planar (the vertical stays put in the base frame); ``ground_vehicle`` (it has
+    wheels): say why when it could not."""
     if est.rotation is None or T_base_lidar is None:
         return
     Rbl = np.asarray(T_base_lidar, float)[:3, :3]
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
     try:
-        res = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=Rbl @ R_lidar_imu,
-                                   gyro_bias_radps=est.rotation.gyro_bias_radps, **_accel_args(arrays, imu, est))
+        corr, res = _planar_fit(arrays, imu, Rbl @ R_lidar_imu, est.rotation.gyro_bias_radps,
+                                est.rotation.gyro_bias_sigma_radps, est)
     except InputError as err:
         if ground_vehicle:
             est.notes.append(f"the mounting's roll and pitch on the base: {err}")
@@ -127,11 +131,13 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
                              f"changed {np.degrees(res.heading_spread_rad):.0f} deg; turn both ways, 90 deg or more)")
         return
     before = rotation_observable(est)
-    B = Rbl[:2]  # the base x and y axes in the LiDAR frame: B d = -eps for a correction exp(d) in the LiDAR frame
-    Si = np.linalg.inv(res.covariance_rad2)
+    # the measurement: the base-frame correction ``corr`` (about x, y and, when the yaw is sharp enough, z)
+    with_yaw = res.covariance3_rad2 is not None and res.yaw_sigma_rad <= MAX_ROTATION_SIGMA_RAD
+    B = Rbl if with_yaw else Rbl[:2]  # base axes in the LiDAR frame: B d = corr for a correction exp(d) (LiDAR frame)
+    Si = np.linalg.inv(res.covariance3_rad2 if with_yaw else res.covariance_rad2)
     info = np.linalg.inv(rotation_cov_lidar(est)) + B.T @ Si @ B
     cov = np.linalg.inv(info)
-    d = cov @ (B.T @ Si @ -res.tilt_rad)
+    d = cov @ (B.T @ Si @ (corr if with_yaw else corr[:2]))
     R_new = so3_exp(d) @ R_lidar_imu
     sig = np.sqrt(np.clip(np.diag(cov), 0, None))
     rot = est.rotation
@@ -147,10 +153,26 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
     if now.all():
         gained |= {s.key for s in est.skipped if s.key.startswith("rotation_about_")}
     est.skipped = [s for s in est.skipped if s.key not in gained]
+    yaw = (f"; the yaw the accelerations show {np.degrees(corr[2]):+.2f} deg, 1-sigma {np.degrees(res.yaw_sigma_rad):.2f}"
+           if with_yaw else "")
     est.notes.append(f"the mounting's roll and pitch on the base from planar motion (the gyro's turns about the base "
-                     f"z): {_deg(-res.tilt_rad, signed=True)} deg from hand-eye's, 1-sigma {_deg(res.sigma_rad)} deg "
+                     f"z): {_deg(corr[:2], signed=True)} deg from hand-eye's, 1-sigma {_deg(res.sigma_rad)} deg "
                      f"(heading changed {np.degrees(res.heading_spread_rad):.0f} deg, sway {np.degrees(res.rms_sway_rad):.2f} "
-                     "deg rms); joined by their information")
+                     f"deg rms){yaw}; joined by their information")
+
+
+def _planar_fit(arrays: SensorArrays, imu: ImuBatch, R_base_imu: np.ndarray, bias, bias_sigma, est: Estimates):
+    """The planar fit twice, the second from the first's correction (its yaw can be degrees: linearised);
+    returns (the base-frame correction (x, y, z) of both, the second's result)."""
+    corr = np.zeros(3)
+    R = R_base_imu
+    for _ in range(2):
+        res = estimate_planar_tilt(imu.stamps_ns, imu.gyro_radps, R_base_imu=R, gyro_bias_radps=bias,
+                                   gyro_bias_sigma_radps=bias_sigma, **_accel_args(arrays, imu, est))
+        step = np.array([*-res.tilt_rad, res.yaw_rad if np.isfinite(res.yaw_rad) else 0.0])
+        R = so3_exp(step) @ R
+        corr = corr + step
+    return corr, res
 
 
 def _deg(v: np.ndarray, signed: bool = False) -> str:

@@ -93,4 +93,5 @@ def test_the_accelerometer_takes_a_strong_sway_out_of_the_tilt(seed):
     res = estimate_planar_tilt(stamps, gyro, R_base_imu=R_guess, accel_mps2=f, wheels=wheels)
     err = np.degrees(res.tilt_rad - eps[:2])
     assert np.abs(err).max() < 0.1 and (np.abs(err) <= 3 * np.degrees(res.sigma_rad)).all()
-    assert np.degrees(res.sigma_rad).max() < 0.5 * np.degrees(alone.sigma_rad).min()  # the sway was the limit
+    assert res.rms_sway_rad < 0.3 * alone.rms_sway_rad  # the sway is out of the residual
+    assert abs(np.degrees(res.yaw_rad) + 2.0) < 0.3 and abs(np.degrees(res.yaw_rad) + 2.0) <= 3 * np.degrees(res.yaw_sigma_rad)

@@ -55,21 +55,21 @@ def test_a_car_s_roll_and_pitch_come_from_its_turns_joined_to_hand_eye_s(car):
     assert any(n.startswith("the mounting's roll and pitch on the base from planar motion") for n in est.notes)
 
 
-def test_a_car_that_has_not_turned_yet_says_so(car):
+def test_a_car_that_has_not_turned_and_has_no_wheel_scales_says_so(car):
+    """The gyro alone parts the tilt from the start only through the heading's change: 9 deg are too few."""
     start, ci, arrays, imu, est = car
     if start == "moving":
-        pytest.skip("the still start's first seconds: standing, then driving off straight")
-    end = imu.stamps_ns[0] + 6_000_000_000
-    first = ImuBatch("imu", imu.stamps_ns[imu.stamps_ns < end], imu.gyro_radps[imu.stamps_ns < end],
-                     imu.accel_mps2[imu.stamps_ns < end])
+        pytest.skip("the still start drives off straight")
     est = est.trial()
-    ground_rotation(arrays, first, ci.T_base_lidar, None, est)
+    est.wheel = None  # no accelerometer sway model without the wheels' scales
+    ground_rotation(arrays, imu, ci.T_base_lidar, None, est)
     assert any(re.fullmatch(r"roll and pitch from planar motion: 1-sigma \d+\.\d\d/\d+\.\d\d deg, not used \(the "
                             r"heading changed \d deg; turn both ways, 90 deg or more\)", n) for n in est.notes), est.notes
 
 
 def test_without_hand_eye_the_car_s_mounting_comes_from_gravity_its_turns_and_wheels(car):
-    """A still start's straight drive gives the roll and pitch (honest, not sharp) and names the yaw not estimated."""
+    """Hand-eye's rotation dropped: gravity, the turns and the accelerations give all three axes (a still start's
+    straight drive less sharply)."""
     start, ci, arrays, imu, est = car
     est = est.trial()
     est.rotation, est.lever = None, None  # as when hand-eye refuses the rotations of a car turning about one axis
@@ -77,12 +77,7 @@ def test_without_hand_eye_the_car_s_mounting_comes_from_gravity_its_turns_and_wh
     ground_rotation(arrays, imu, ci.T_base_lidar, None, est)
     wheel_yaw(arrays, imu, ci.T_base_lidar, None, est)
     err, sig = tilt_error_deg(est, ci)
-    assert (np.abs(err[:2]) <= 3 * sig[:2]).all()
-    why = {s.key: s.reason for s in est.skipped if s.key.startswith("rotation")}
-    if start == "moving":
-        assert np.abs(err[:2]).max() < 0.15 and abs(err[2]) < 1.0 and abs(err[2]) <= 3 * sig[2] and not why
-    else:
-        assert list(why) == ["rotation_z"]
-        assert why["rotation_z"] == ("hand-eye could not use the rotations (too little rotation (as a test)); gravity "
-                                     "and the turns give the roll and pitch on the base, not the rotation about its "
-                                     "vertical")
+    assert (np.abs(err) <= 3 * sig).all() and np.abs(err).max() < (0.15 if start == "moving" else 0.3)
+    assert not [s.key for s in est.skipped if s.key.startswith("rotation")]
+    assert any(n.startswith("the mounting without hand-eye: roll and pitch on the base from planar motion") for n in
+               est.notes)
