@@ -50,6 +50,7 @@ class PlanarTilt(CalibrationResult):
     yaw_rad: float = float("nan")  # with the accelerometer: the yaw to apply on the left of R_base_imu (about base z)
     yaw_sigma_rad: float = float("nan")
     covariance3_rad2: np.ndarray | None = None  # (3,3) of (eps_x, eps_y, -yaw) with the accelerometer
+    rms_accel_mps2: float = 0.0  # of the wheels' horizontal accelerations over the samples kept
 
 
 def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R_base_imu: np.ndarray,
@@ -95,6 +96,7 @@ def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R
     if wheels is not None and accel_mps2 is not None:
         sway, acc_cols = _accel_sway(t, ti, np.asarray(accel_mps2, float) @ Rbi.T, tw, wheels)
         cols += [sway, *acc_cols]
+        wheel_accel = _wheel_accel(t, tw, wheels)
     keep = np.ones(len(t), bool)
     for a, b in exclude_ns:  # computed over the whole grid first: the accelerations differentiate it
         a, b = (np.array([a, b], np.int64) - s[0]) / NS_PER_S - imu_time_offset_s
@@ -104,6 +106,7 @@ def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R
                          f"{MIN_SAMPLES})")
     t, base, cols, Phi = t[keep], base[keep], [c[keep] for c in cols], Phi[keep]
     mean_var = np.zeros((2, 2))
+    rms_a = float(np.sqrt((wheel_accel[keep] ** 2).sum(axis=1).mean())) if len(cols) > n_gyro else 0.0
     if len(cols) > n_gyro:  # the accelerometer's, less their means over the samples kept (the bias, the tilt)
         acc = [c - c.mean(axis=0) for c in cols[n_gyro:]]
         base, cols = base - acc[0], cols[:n_gyro] + acc[1:]
@@ -145,7 +148,7 @@ def estimate_planar_tilt(imu_stamps_ns: np.ndarray, gyro_radps: np.ndarray, *, R
         C3[:2, :2] += M @ mean_var @ M.T
     return PlanarTilt(tilt_rad=tilt, covariance_rad2=C, sigma_rad=np.sqrt(np.clip(np.diag(C), 0, None)),
                       heading_spread_rad=spread, rms_sway_rad=rms, samples=len(t), notes=(), yaw_rad=float(yaw[0]),
-                      yaw_sigma_rad=yaw[1], covariance3_rad2=C3)
+                      yaw_sigma_rad=yaw[1], covariance3_rad2=C3, rms_accel_mps2=rms_a)
 
 
 def _smooth(x: np.ndarray) -> np.ndarray:
@@ -164,6 +167,13 @@ def _box_means(x: np.ndarray, ts: np.ndarray, t: np.ndarray) -> np.ndarray:
     n = (k1 - k0)[:, None]
     interp = np.stack([np.interp(t, ts, x[:, j]) for j in range(x.shape[1])], axis=1)
     return np.where(n > 0, (c[k1] - c[k0]) / np.maximum(n, 1), interp)
+
+
+def _wheel_accel(t, tw, wheels) -> np.ndarray:
+    """The wheels' (forward, centripetal) accelerations at ``t``, as ``_accel_sway`` reads them."""
+    v, w = np.asarray(wheels[1], float), np.asarray(wheels[2], float)
+    vw = _box_means(np.column_stack([v, v * w]), tw, t)
+    return np.column_stack([_smooth(np.gradient(vw[:, :1], SAMPLE_S, axis=0))[:, 0], _smooth(vw[:, 1:])[:, 0]])
 
 
 def _accel_sway(t, ti, h, tw, wheels) -> tuple[np.ndarray, list[np.ndarray]]:

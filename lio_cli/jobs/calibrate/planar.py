@@ -22,6 +22,8 @@ from .estimate import Estimates
 from .passes import SensorArrays
 from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
 
+MIN_YAW_ACCEL_MPS2 = 0.5  # rms horizontal acceleration below which the planar fit's yaw is not used
+
 
 def ground_rotation(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
                     est: Estimates) -> None:
@@ -62,7 +64,7 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
                          "turn both ways, 90 deg or more)")
         return
     Rbl = np.asarray(T_base_lidar, float)[:3, :3]
-    if tilt.covariance3_rad2 is not None and tilt.yaw_sigma_rad <= MAX_ROTATION_SIGMA_RAD:
+    if _yaw_usable(tilt):
         C = tilt.covariance3_rad2
     else:
         C = np.zeros((3, 3))
@@ -132,7 +134,7 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
         return
     before = rotation_observable(est)
     # the measurement: the base-frame correction ``corr`` (about x, y and, when the yaw is sharp enough, z)
-    with_yaw = res.covariance3_rad2 is not None and res.yaw_sigma_rad <= MAX_ROTATION_SIGMA_RAD
+    with_yaw = _yaw_usable(res)
     B = Rbl if with_yaw else Rbl[:2]  # base axes in the LiDAR frame: B d = corr for a correction exp(d) (LiDAR frame)
     Si = np.linalg.inv(res.covariance3_rad2 if with_yaw else res.covariance_rad2)
     info = np.linalg.inv(rotation_cov_lidar(est)) + B.T @ Si @ B
@@ -159,6 +161,13 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
                      f"z): {_deg(corr[:2], signed=True)} deg from hand-eye's, 1-sigma {_deg(res.sigma_rad)} deg "
                      f"(heading changed {np.degrees(res.heading_spread_rad):.0f} deg, sway {np.degrees(res.rms_sway_rad):.2f} "
                      f"deg rms){yaw}; joined by their information")
+
+
+def _yaw_usable(res) -> bool:
+    """Whether the planar fit's yaw is used: its 1-sigma within 1 deg, from accelerations of ``MIN_YAW_ACCEL_MPS2``
+    (a ground robot's 0.2 m/s^2 left it 1.5-2.4 deg off at 1-sigma 0.3-0.7: the wheels' own fit takes it then)."""
+    return res.covariance3_rad2 is not None and res.yaw_sigma_rad <= MAX_ROTATION_SIGMA_RAD and \
+        res.rms_accel_mps2 >= MIN_YAW_ACCEL_MPS2
 
 
 def _planar_fit(arrays: SensorArrays, imu: ImuBatch, R_base_imu: np.ndarray, bias, bias_sigma, est: Estimates):
