@@ -23,6 +23,7 @@ from .passes import SensorArrays
 from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
 
 MIN_YAW_ACCEL_MPS2 = 0.5  # rms horizontal acceleration below which the planar fit's yaw is not used
+SHARPER = 3.0  # hand-eye's roll and pitch this many times sharper than the planar fit's: not joined
 
 
 def ground_rotation(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
@@ -132,9 +133,15 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
             est.notes.append(f"roll and pitch from planar motion: 1-sigma {_deg(res.sigma_rad)} deg, not used (the heading "
                              f"changed {np.degrees(res.heading_spread_rad):.0f} deg; turn both ways, 90 deg or more)")
         return
+    with_yaw = _yaw_usable(res)
+    he = np.sqrt(np.clip(np.diag(Rbl @ rotation_cov_lidar(est) @ Rbl.T), 0, None))[:2]
+    if not with_yaw and (SHARPER * he <= res.sigma_rad).all():
+        # hand-eye's already far sharper (a 2D scanner's fused passes): joining would only carry the fit's bias in
+        est.notes.append(f"roll and pitch from planar motion (1-sigma {_deg(res.sigma_rad)} deg) left out: hand-eye's "
+                         f"are sharper ({_deg(he)} deg)")
+        return
     before = rotation_observable(est)
     # the measurement: the base-frame correction ``corr`` (about x, y and, when the yaw is sharp enough, z)
-    with_yaw = _yaw_usable(res)
     B = Rbl if with_yaw else Rbl[:2]  # base axes in the LiDAR frame: B d = corr for a correction exp(d) (LiDAR frame)
     Si = np.linalg.inv(res.covariance3_rad2 if with_yaw else res.covariance_rad2)
     info = np.linalg.inv(rotation_cov_lidar(est)) + B.T @ Si @ B
