@@ -23,7 +23,7 @@ from .passes import SensorArrays
 from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
 
 MIN_YAW_ACCEL_MPS2 = 0.5  # rms horizontal acceleration below which the planar fit's yaw is not used
-SHARPER = 3.0  # hand-eye's roll and pitch this many times sharper than the planar fit's: not joined
+SHARPER = 3.0  # hand-eye's roll or pitch this many times sharper than the planar fit's: not joined
 
 
 def ground_rotation(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
@@ -135,7 +135,7 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
         return
     with_yaw = _yaw_usable(res)
     he = np.sqrt(np.clip(np.diag(Rbl @ rotation_cov_lidar(est) @ Rbl.T), 0, None))[:2]
-    if not with_yaw and (SHARPER * he <= res.sigma_rad).all():
+    if not with_yaw and (SHARPER * he <= res.sigma_rad).any():
         # hand-eye's already far sharper (a 2D scanner's fused passes): joining would only carry the fit's bias in
         est.notes.append(f"roll and pitch from planar motion (1-sigma {_deg(res.sigma_rad)} deg) left out: hand-eye's "
                          f"are sharper ({_deg(he)} deg)")
