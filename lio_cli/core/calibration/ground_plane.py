@@ -1,4 +1,4 @@
-"""A ground vehicle's IMU roll and pitch on its base from the planar-motion constraint (GRIL-Calib's idea).
+"""A ground vehicle's IMU roll, pitch (and yaw) on its base from the planar-motion constraint (GRIL-Calib's idea).
 
 A car or a ground robot on level ground turns about its base's vertical only, so the vertical stays put in
 the base frame. Carried along by the gyro through the mounting so far (``R_base_imu``), a vector fixed in the
@@ -11,9 +11,13 @@ base frame,
 
 is linear in the start's tilt ``d`` and the constant ``w`` (``eps_x = -w_y``, ``eps_y = w_x``); the sway ``s``
 is the residual, and a gyro bias the motion left (three more unknowns, their effect linearised) drifts it.
-The heading must change for ``d`` and ``w`` to part: a straight drive leaves them together. Nothing here needs
-the LiDAR, the wheels or the accelerometer (whose horizontal bias would read as tilt: 0.04 m/s^2 is 0.23 deg).
-The 1-sigma is residual-scaled (sandwich over neighbouring samples: sway is slow), never assumed.
+The heading must change for ``d`` and ``w`` to part: a straight drive leaves them together. The LiDAR is not
+needed. With the wheels, the sway ``s`` itself is taken out: the accelerometer less the wheels' forward and
+centripetal accelerations shows it, up to a constant holding the accelerometer's bias (0.04 m/s^2 reads as
+0.23 deg of tilt) and the tilt, so only its changes are used; that side also fits the mounting's yaw (the
+specific force turned against the wheels' accelerations), the lever arm's terms and the IMU's clock against the
+wheels'. The 1-sigma is residual-scaled (sandwich over neighbouring samples: sway is slow), never assumed, plus
+the body's unknown mean tilt over the log (what level ground on average leaves open).
 """
 
 from __future__ import annotations
