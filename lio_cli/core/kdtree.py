@@ -31,19 +31,29 @@ def ckdtree_class() -> type:
 
 
 def _stand_ins() -> dict:
-    """Modules to stand in for scipy.sparse and scipy._lib._util while the extension loads (none loaded yet)."""
+    """Modules to stand in for scipy.sparse and scipy._lib._util while the extension loads (those not loaded yet).
+    A name a stand-in lacks is taken from the real module, imported then (a scipy whose extension reads more)."""
+    import importlib
     import types
 
     import numpy as np
 
-    if int(np.__version__.split(".")[0]) < 2:  # scipy's copy_if_needed is None from numpy 2 on
-        return {}
-    stand_ins = {}
-    if _SPARSE not in sys.modules:
-        stand_ins[_SPARSE] = types.ModuleType(_SPARSE)
-    if _UTIL not in sys.modules:
-        util = stand_ins[_UTIL] = types.ModuleType(_UTIL)
-        util.copy_if_needed = None
+    def stand_in(name: str) -> types.ModuleType:
+        module = types.ModuleType(name)
+
+        def real(attr: str):
+            if attr.startswith("__"):  # the import system's own questions (``__path__``): a plain module
+                raise AttributeError(attr)
+            if sys.modules.get(name) is module:
+                del sys.modules[name]
+            return getattr(importlib.import_module(name), attr)
+
+        module.__getattr__ = real
+        return module
+
+    stand_ins = {name: stand_in(name) for name in (_SPARSE, _UTIL) if name not in sys.modules}
+    if _UTIL in stand_ins and int(np.__version__.split(".")[0]) >= 2:
+        stand_ins[_UTIL].copy_if_needed = None  # scipy's value from numpy 2 on
     return stand_ins
 
 

@@ -38,3 +38,23 @@ def test_loads_without_scipy_sparse_and_leaves_it_importable():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[0] == "[]"
     assert out[1] == "True None dok_matrix True"
+
+
+def test_a_name_the_stand_in_lacks_comes_from_the_real_module():
+    # as a scipy whose extension reads more of scipy._lib._util than the stand-in holds
+    code = textwrap.dedent("""
+        import sys
+        import numpy as np
+        from lio_cli.core import kdtree
+        made = kdtree._stand_ins
+        def lacking():
+            stand_ins = made()
+            vars(stand_ins[kdtree._UTIL]).pop("copy_if_needed", None)
+            return stand_ins
+        kdtree._stand_ins = lacking
+        cls = kdtree.ckdtree_class()
+        util = sys.modules["scipy._lib._util"]
+        print(cls.__module__, util.__file__.endswith("_util.py"), cls(np.eye(3)).query([0.9, 0, 0], k=1)[1])
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["scipy.spatial._ckdtree", "True", "0"]
