@@ -17,7 +17,7 @@ from itertools import chain
 import numpy as np
 
 _U32 = struct.Struct("<I")
-_BLOCK = 65_536  # index entries turned into Python values at a time
+_BLOCK = 8_192  # index entries turned into Python values at a time (about 1 MB of Python ints)
 _FIRST_BLOCK = 256  # the first block's: a peek at a topic's first messages converts a few hundred entries
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
