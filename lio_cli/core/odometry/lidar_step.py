@@ -16,7 +16,8 @@ from .priors import lidar_prior
 from .scan import degeneracy, finish, prepare
 from .state import OdomState, ScanResult, WindowScan
 from .tuning import (GYRO_PRIOR_GATE_M, GYRO_PRIOR_JUMP_M, GYRO_PRIOR_JUMP_RAD, MAP_RESTART_SCANS, MAX_MAP_RESTARTS,
-                     UNKNOWN_SPEED_GATE_M, UNKNOWN_SPEED_SCANS, WHEEL_SPEED_HALF_WINDOW_NS)
+                     UNKNOWN_SPEED_GATE_M, UNKNOWN_SPEED_SCANS, UNKNOWN_SPEED_SHIFT_M,
+                     WHEEL_SPEED_HALF_WINDOW_NS)
 from .wheel import wheel_speed
 
 
@@ -35,9 +36,11 @@ def imu_hole(o: OdomState, t_prev: int, t_ref: int) -> bool:
 def beyond_reach(o: OdomState, source: np.ndarray, guess: np.ndarray, gate: float) -> np.ndarray:
     """Where ICP starts before the speed is known (the guess's constant velocity may be a standstill that never
     was): a registration with a gate as wide as that speed is unknown, if it lands beyond ``gate`` of the guess,
-    where a registration gated at ``gate`` cannot reach; else the guess."""
+    where a registration gated at ``gate`` cannot reach (nearer, the start-up window's slide catches a motion),
+    or, in a pass without a start-up window (``gyro_only``), ``UNKNOWN_SPEED_SHIFT_M``; else the guess."""
     wide = o.reg.register(source, guess, adaptive=True, gate_m=max(gate, UNKNOWN_SPEED_GATE_M))
-    if np.isfinite(wide).all() and np.linalg.norm(wide[:3, 3] - guess[:3, 3]) > gate:
+    reach = UNKNOWN_SPEED_SHIFT_M if o.settings.gyro_only else gate
+    if np.isfinite(wide).all() and np.linalg.norm(wide[:3, 3] - guess[:3, 3]) > reach:
         return wide
     return guess
 
