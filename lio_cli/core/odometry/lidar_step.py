@@ -16,6 +16,7 @@ from .priors import lidar_prior
 from .scan import degeneracy, finish, prepare
 from .state import OdomState, ScanResult, WindowScan
 from .tuning import (GYRO_PRIOR_GATE_M, GYRO_PRIOR_JUMP_M, GYRO_PRIOR_JUMP_RAD, MAP_RESTART_SCANS, MAX_MAP_RESTARTS,
+                     UNKNOWN_SPEED_GATE_M, UNKNOWN_SPEED_SCANS, UNKNOWN_SPEED_SHIFT_M,
                      WHEEL_SPEED_HALF_WINDOW_NS)
 from .wheel import wheel_speed
 
@@ -32,6 +33,18 @@ def imu_hole(o: OdomState, t_prev: int, t_ref: int) -> bool:
     return hole
 
 
+def beyond_reach(o: OdomState, source: np.ndarray, guess: np.ndarray, gate: float) -> np.ndarray:
+    """Where ICP starts before the speed is known (the guess's constant velocity may be a standstill that never
+    was): a registration with a gate as wide as that speed is unknown, if it lands beyond ``gate`` of the guess,
+    where a registration gated at ``gate`` cannot reach (nearer, the start-up window's slide catches a motion),
+    or, in a pass without a start-up window (``gyro_only``), ``UNKNOWN_SPEED_SHIFT_M``; else the guess."""
+    wide = o.reg.register(source, guess, adaptive=True, gate_m=max(gate, UNKNOWN_SPEED_GATE_M))
+    reach = UNKNOWN_SPEED_SHIFT_M if o.settings.gyro_only else gate
+    if np.isfinite(wide).all() and np.linalg.norm(wide[:3, 3] - guess[:3, 3]) > reach:
+        return wide
+    return guess
+
+
 def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: bool = False,
                window: bool = True, mapped: bool = True) -> ScanResult | None:
     """Register one scan LiDAR-only. ``retry``: a scan the IMU prediction could not explain; return None (and change
@@ -42,6 +55,7 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
     imu_gap = imu_hole(o, t_prev, t_ref)  # held rates would prime it wrongly: constant velocity instead
     guess, knots, knot_poses, gyro_primed = lidar_prior(o, t_prev, t_ref, imu_gap)
     st.times_s["propagate"] += time.process_time() - tick
+    jump_m = GYRO_PRIOR_JUMP_M
     if imu_gap and o.reg is not None and not o.reg.empty:  # no rotation prior: hypotheses
         tick = time.process_time()
         blind = register_blind(o, cloud, t_prev, t_ref, guess)
@@ -55,14 +69,17 @@ def lidar_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int, retry: 
         tick = time.process_time()
         frame, source = o.reg.downsample(points)
         gate = (o.cfg.registration.gyro_prior_gate_m or GYRO_PRIOR_GATE_M) if gyro_primed else None
-        measured = o.reg.register(source, guess, adaptive=True, gate_m=gate)
+        start = guess
+        if gyro_primed and o.startup.bootstrap is None and st.lidar_only_scans < UNKNOWN_SPEED_SCANS:
+            start = beyond_reach(o, source, guess, gate)
+        measured = o.reg.register(source, start, adaptive=True, gate_m=gate)
+        jump_m = GYRO_PRIOR_JUMP_M if start is guess else max(GYRO_PRIOR_JUMP_M, UNKNOWN_SPEED_GATE_M)
     st.registered(time.process_time() - tick)
     if planar:
         measured = project_to_se2(measured)
     failed = not o.reg.empty and (not np.isfinite(measured).all()
                                   or untouched(measured, guess)
-                                  or (gyro_primed and exceeds_jump(measured, guess, GYRO_PRIOR_JUMP_M,
-                                                                   GYRO_PRIOR_JUMP_RAD)))
+                                  or (gyro_primed and exceeds_jump(measured, guess, jump_m, GYRO_PRIOR_JUMP_RAD)))
     if failed and retry:
         return None
     dirs_b = degeneracy(o, points, guess[:3, :3])
