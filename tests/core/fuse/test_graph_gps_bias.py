@@ -1,6 +1,7 @@
-"""A consumer receiver's slow error beside odometry: the factor graph models it as a Gauss-Markov node per few
-seconds, so the fused local shape stays the odometry's and GPS only anchors it; as white noise (the model before)
-every fix bends the path."""
+"""A consumer receiver's slow error beside odometry: the factor graph models it as a Gauss-Markov chain (a node
+per fix), so the fused local shape stays the odometry's and GPS only anchors it; as white noise (the model before)
+every fix bends the path. Wheels with a scale error beside odometry increments are loosened, so they cannot pull
+the odometry either."""
 
 from __future__ import annotations
 
@@ -57,3 +58,24 @@ def test_a_slow_receiver_error_leaves_the_odometry_shape(case, monkeypatch):
     white = ate(case, w.stamps_ns, w.poses)
     # measured: odometry 0.033 m, fused 0.033 m, white GPS 0.60 m
     assert fused <= 1.2 * odom and white > 5.0 * odom
+
+
+def test_wheels_with_a_scale_error_do_not_pull_odometry_increments(monkeypatch):
+    """Odometry from a file (no covariance: the default 0.02 m per pose) as increments beside a slow GPS, and
+    wheels reading 3 % long: the odometry's shape stands; with the wheels at full weight (as before) it bends."""
+    case = simulate_case("planar", 40.0, seed=2, wheels=True, odom=OdomNoise(position_sigma_m=0.003,
+                                                                            rotation_sigma_rad=np.radians(0.05)))
+    od, w = case.inputs.odom, case.inputs.wheel
+    od = replace(od, position_sigma_m=np.full(len(od), 0.02), rotation_sigma_rad=np.full(len(od), np.radians(0.5)))
+    case = replace(case, inputs=replace(case.inputs, gps=slow_gps(case), odom=od,
+                                        wheel=replace(w, velocity_mps=w.velocity_mps * 1.03)))
+    o = FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
+    odom = ate(case, od.stamps_ns, od.poses)
+    res = fuse(case.inputs, o)
+    assert res.info["odom_mode"] == "delta" and res.info["smoother"]["fallback"] is None
+    fused = ate(case, res.stamps_ns, res.poses)
+    monkeypatch.setattr(factors, "ODOM_WHEEL_LOOSE_MODES", ("pose",))  # wheels at full weight beside increments
+    w = fuse(case.inputs, o)
+    full = ate(case, w.stamps_ns, w.poses)
+    # measured: odometry 0.033 m, fused 0.036 m, full-weight wheels 0.090 m
+    assert fused <= 1.25 * odom and full > 2.0 * odom
