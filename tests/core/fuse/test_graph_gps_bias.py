@@ -1,7 +1,7 @@
 """A consumer receiver's slow error beside odometry: the factor graph models it as a Gauss-Markov chain (a node
 per fix), so the fused local shape stays the odometry's and GPS only anchors it; as white noise (the model before)
-every fix bends the path. Wheels with a scale error beside odometry increments are loosened, so they cannot pull
-the odometry either."""
+every fix bends the path. Wheels with a scale error beside odometry increments are loosened and scaled by a
+state the odometry makes observable, so they cannot pull it either."""
 
 from __future__ import annotations
 
@@ -60,22 +60,35 @@ def test_a_slow_receiver_error_leaves_the_odometry_shape(case, monkeypatch):
     assert fused <= 1.2 * odom and white > 5.0 * odom
 
 
-def test_wheels_with_a_scale_error_do_not_pull_odometry_increments(monkeypatch):
-    """Odometry from a file (no covariance: the default 0.02 m per pose) as increments beside a slow GPS, and
-    wheels reading 3 % long: the odometry's shape stands; with the wheels at full weight (as before) it bends."""
-    case = simulate_case("planar", 40.0, seed=2, wheels=True, odom=OdomNoise(position_sigma_m=0.003,
-                                                                            rotation_sigma_rad=np.radians(0.05)))
+@pytest.fixture(scope="module")
+def long_wheels():
+    """Odometry from a file (no covariance: the default 0.02 m per pose) beside a slow GPS, so the filter takes
+    it as increments, and wheels reading 3 % long."""
+    odom = OdomNoise(position_sigma_m=0.003, rotation_sigma_rad=np.radians(0.05))
+    case = simulate_case("planar", 40.0, seed=2, wheels=True, odom=odom, gps_sigma_m=1.0)
     od, w = case.inputs.odom, case.inputs.wheel
     od = replace(od, position_sigma_m=np.full(len(od), 0.02), rotation_sigma_rad=np.full(len(od), np.radians(0.5)))
-    case = replace(case, inputs=replace(case.inputs, gps=slow_gps(case), odom=od,
+    return replace(case, inputs=replace(case.inputs, gps=slow_gps(case), odom=od,
                                         wheel=replace(w, velocity_mps=w.velocity_mps * 1.03)))
-    o = FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
-    odom = ate(case, od.stamps_ns, od.poses)
+
+
+def test_wheels_with_a_scale_error_do_not_pull_odometry_increments(long_wheels, monkeypatch):
+    """Loosened beside odometry and scaled by a state, long wheels leave the odometry's shape and their scale is
+    found; at full weight without the scale state (as before) they bend it."""
+    case, o = long_wheels, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
+    odom = ate(case, case.inputs.odom.stamps_ns, case.inputs.odom.poses)
     res = fuse(case.inputs, o)
-    assert res.info["odom_mode"] == "delta" and res.info["smoother"]["fallback"] is None
+    sm = res.info["smoother"]
+    assert res.info["odom_mode"] == "delta" and sm["fallback"] is None
     fused = ate(case, res.stamps_ns, res.poses)
-    monkeypatch.setattr(factors, "ODOM_WHEEL_LOOSE_MODES", ("pose",))  # wheels at full weight beside increments
-    w = fuse(case.inputs, o)
-    full = ate(case, w.stamps_ns, w.poses)
-    # measured: odometry 0.033 m, fused 0.036 m, full-weight wheels 0.090 m
-    assert fused <= 1.25 * odom and full > 2.0 * odom
+    monkeypatch.setattr(factors, "ODOM_WHEEL_LOOSE_MODES", ())  # wheels at full weight beside increments
+    scaled = fuse(case.inputs, o)
+    monkeypatch.setattr(factors, "WHEEL_SCALE_SIGMA", None)  # ... and no scale state: the graph before
+    before = fuse(case.inputs, o)
+    assert before.info["smoother"]["wheel_scale"] == []
+    full, old = ate(case, scaled.stamps_ns, scaled.poses), ate(case, before.stamps_ns, before.poses)
+    # measured: odometry 0.033 m, fused 0.036 m (scale 0.976, truth 0.971); full weight with the scale state
+    # 0.047 m (0.964), without it 0.090 m
+    assert fused <= 1.25 * odom and abs(sm["wheel_scale"][0] - 1 / 1.03) < 0.01
+    assert abs(scaled.info["smoother"]["wheel_scale"][0] - 1 / 1.03) < 0.015
+    assert full <= 0.65 * old and old > 2.0 * odom

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, G, V, X
+from gtsam.symbol_shorthand import B, G, S, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
@@ -46,7 +46,11 @@ GPS_BIAS_RATIO = 10.0  # its sigma over the fixes' own (the timeline's, noise-on
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
-GPS_BIAS_WITHOUT_ODOM = True
+# the receiver-error chain also without odometry (IMU + wheels and GPS): measured mixed, left off (docs/benchmarks.md)
+GPS_BIAS_WITHOUT_ODOM = False
+# beside odometry, the wheels' scale is a state: one unknown per chunk (S) multiplying every increment, its prior
+# sigma about 1 this (without odometry it is barely observable and measured worse); None: no scale state
+WHEEL_SCALE_SIGMA: float | None = 0.05
 # wheel increments' sigmas times this beside odometry poses, so a wheel scale error cannot pull them off (beside
 # odometry increments and GPS the wheels keep their weight: they hold the shape against the fixes)
 ODOM_WHEEL_SIGMA_SCALE = 10.0
@@ -116,6 +120,26 @@ def _horizontal_fix(z: np.ndarray):
             H[1] = np.eye(2)
         return T.translation()[:2] + b - z
     return error
+
+
+def _scaled_wheel(dp: np.ndarray):
+    """A CustomFactor's error function: the increment of position from keyframe k to k+1 in k's base axes minus
+    the wheels' increment times their scale (Pose3 tangent [rotation, translation], retract T Exp(xi))."""
+    def error(this, values, H):
+        Ta, Tb = values.atPose3(this.keys()[0]), values.atPose3(this.keys()[1])
+        scale = values.atVector(this.keys()[2])
+        Ra = Ta.rotation().matrix()
+        a = Ra.T @ (Tb.translation() - Ta.translation())
+        if H is not None:
+            H[0] = np.hstack([_skew(a), -np.eye(3)])
+            H[1] = np.hstack([np.zeros((3, 3)), Ra.T @ Tb.rotation().matrix()])
+            H[2] = -dp.reshape(3, 1)
+        return a - scale[0] * dp
+    return error
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 def _markov_step(phi: float):
@@ -199,7 +223,14 @@ class ChunkGraph:
             vals.insert(B(k), self.bias(k))
         for j in self.gps_bias_nodes(k0, k1).tolist():
             vals.insert(G(j), self.bias_seam.get(j, np.zeros(2)))
+        if self.scaled:
+            vals.insert(S(k0), np.ones(1))
         return vals
+
+    @property
+    def scaled(self) -> bool:
+        """Whether the wheels' scale is a state (``S(k0)`` of each chunk)."""
+        return self.wheel is not None and WHEEL_SCALE_SIGMA is not None and len(self.m.odom_k) > 0
 
     def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
         g = gtsam.NonlinearFactorGraph()
@@ -220,7 +251,13 @@ class ChunkGraph:
                 sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 m.wheel_dp[k] = (dp, sig[3:])
                 model = _sigmas(sig) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))
-                g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
+                if self.scaled:
+                    model = _sigmas(sd) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sd))
+                    g.add(gtsam.CustomFactor(model, [X(k), X(k + 1), S(k0)], _scaled_wheel(dp)))
+                else:
+                    g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
+        if self.scaled:
+            g.add(gtsam.PriorFactorVector(S(k0), np.ones(1), gtsam.noiseModel.Isotropic.Sigma(1, WHEEL_SCALE_SIGMA)))
         for k in range(k0, k1):
             o = m.orient[k]
             if o is not None:
