@@ -6,7 +6,8 @@
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
-  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry poses.
+  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry (optionally
+  times a scale state ``S`` per chunk, ``WHEEL_SCALE_SIGMA``).
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
@@ -42,17 +43,20 @@ WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (a
 FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
 GPS_BIAS_PERIOD_NS = 5_000_000_000  # the guard's windows of the receiver error (guard.residuals)
 GPS_BIAS_TAU_S = 60.0  # correlation time of a receiver's slow error (multipath, atmosphere, satellite geometry)
-GPS_BIAS_RATIO = 10.0  # its sigma over the fixes' own (the timeline's, noise-only) horizontal sigma
+# its sigma over the fixes' own (the timeline's) horizontal sigma: consumer receivers claim a third of the truth,
+# and the chain must leave the shape over seconds to the motion sources
+GPS_BIAS_RATIO = 10.0
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
 # the receiver-error chain also without odometry (IMU + wheels and GPS): measured mixed, left off (docs/benchmarks.md)
 GPS_BIAS_WITHOUT_ODOM = False
-# beside odometry, the wheels' scale is a state: one unknown per chunk (S) multiplying every increment, its prior
-# sigma about 1 this (without odometry it is barely observable and measured worse); None: no scale state
-WHEEL_SCALE_SIGMA: float | None = 0.05
-# wheel increments' sigmas times this beside odometry poses, so a wheel scale error cannot pull them off (beside
-# odometry increments and GPS the wheels keep their weight: they hold the shape against the fixes)
+# beside odometry, the wheels' scale as a state: one unknown per chunk (S) multiplying every increment, prior
+# sigma about 1 this (0.05 tried); None, the default: its Python factor per keyframe costs far more CPU than it
+# gains on the matrix, and without odometry the scale is barely observable (docs/benchmarks.md)
+WHEEL_SCALE_SIGMA: float | None = None
+# wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES), so a wheel
+# scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 10.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
 
@@ -248,11 +252,10 @@ class ChunkGraph:
             if wheel:
                 if len(m.odom_k) and m.prep.use["odom"] & set(ODOM_WHEEL_LOOSE_MODES):
                     sd = sd * ODOM_WHEEL_SIGMA_SCALE
-                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
-                m.wheel_dp[k] = (dp, sig[3:])
+                m.wheel_dp[k] = (dp, sd)
+                sig = sd if self.scaled else np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 model = _sigmas(sig) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))
                 if self.scaled:
-                    model = _sigmas(sd) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sd))
                     g.add(gtsam.CustomFactor(model, [X(k), X(k + 1), S(k0)], _scaled_wheel(dp)))
                 else:
                     g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
