@@ -1,6 +1,7 @@
-"""A consumer receiver's slow error beside odometry: the factor graph models it as a Gauss-Markov node per few
-seconds, so the fused local shape stays the odometry's and GPS only anchors it; as white noise (the model before)
-every fix bends the path."""
+"""A consumer receiver's slow error beside odometry: the factor graph models it as a Gauss-Markov chain (a node
+per fix), so the fused local shape stays the odometry's and GPS only anchors it; as white noise (the model before)
+every fix bends the path. Wheels with a scale error beside odometry increments are loosened (or, optionally,
+scaled by a state the odometry makes observable), so they cannot pull it either."""
 
 from __future__ import annotations
 
@@ -57,3 +58,35 @@ def test_a_slow_receiver_error_leaves_the_odometry_shape(case, monkeypatch):
     white = ate(case, w.stamps_ns, w.poses)
     # measured: odometry 0.033 m, fused 0.033 m, white GPS 0.60 m
     assert fused <= 1.2 * odom and white > 5.0 * odom
+
+
+@pytest.fixture(scope="module")
+def long_wheels():
+    """Odometry from a file (no covariance: the default 0.02 m per pose) beside a slow GPS, so the filter takes
+    it as increments, and wheels reading 3 % long."""
+    odom = OdomNoise(position_sigma_m=0.003, rotation_sigma_rad=np.radians(0.05))
+    case = simulate_case("planar", 40.0, seed=2, wheels=True, odom=odom, gps_sigma_m=1.0)
+    od, w = case.inputs.odom, case.inputs.wheel
+    od = replace(od, position_sigma_m=np.full(len(od), 0.02), rotation_sigma_rad=np.full(len(od), np.radians(0.5)))
+    return replace(case, inputs=replace(case.inputs, gps=slow_gps(case), odom=od,
+                                        wheel=replace(w, velocity_mps=w.velocity_mps * 1.03)))
+
+
+def test_wheels_with_a_scale_error_do_not_pull_odometry_increments(long_wheels, monkeypatch):
+    """Loosened beside odometry, long wheels leave the odometry's shape; at full weight they bend it, unless
+    their scale is a state (off by default: its cost), which then finds the scale."""
+    case, o = long_wheels, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
+    odom = ate(case, case.inputs.odom.stamps_ns, case.inputs.odom.poses)
+    res = fuse(case.inputs, o)
+    assert res.info["odom_mode"] == "delta" and res.info["smoother"]["fallback"] is None
+    assert res.info["smoother"]["wheel_scale"] == []
+    fused = ate(case, res.stamps_ns, res.poses)
+    monkeypatch.setattr(factors, "ODOM_WHEEL_LOOSE_MODES", ())  # wheels at full weight beside increments
+    full = fuse(case.inputs, o)
+    monkeypatch.setattr(factors, "WHEEL_SCALE_SIGMA", 0.05)  # ... with the scale state
+    scaled = fuse(case.inputs, o)
+    old, new = ate(case, full.stamps_ns, full.poses), ate(case, scaled.stamps_ns, scaled.poses)
+    # measured: odometry 0.033 m, fused 0.036 m; full weight 0.090 m, with the scale state 0.047 m (0.964 found,
+    # truth 0.971)
+    assert fused <= 1.25 * odom and old > 2.0 * odom
+    assert abs(scaled.info["smoother"]["wheel_scale"][0] - 1 / 1.03) < 0.015 and new <= 0.65 * old

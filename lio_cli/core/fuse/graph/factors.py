@@ -6,16 +6,17 @@
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
-  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry poses.
+  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry (optionally
+  times a scale state ``S`` per chunk, ``WHEEL_SCALE_SIGMA``).
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
 - GPS: the fix (ENU about the first fix, the filter's world) on its own keyframe, horizontal (Huber) and
   vertical (Cauchy) as two factors, so a wandering altitude never down-weights a good horizontal fix. The
-  horizontal factor is position + a slowly varying receiver error (``G``: one 2D node per ``GPS_BIAS_PERIOD_NS``,
-  a first-order Gauss-Markov process: a prior of ``GPS_BIAS_RATIO`` times the fixes' sigma on each node and a
-  random walk between neighbours), so the local shape follows the motion sources and GPS anchors it globally;
-  only beside odometry (IMU + wheels with a 3 % wheel scale error measured worse with it: 0.56 vs 0.22 m).
+  horizontal factor is position + a slowly varying receiver error (``G``: one 2D node per fix, a first-order
+  Gauss-Markov chain of correlation time ``GPS_BIAS_TAU_S`` and ``GPS_BIAS_RATIO`` times the fixes' sigma: a
+  prior on a chunk's first node, ``b1 = phi b0 + w`` between neighbours), so the local shape follows the motion
+  sources and GPS only anchors it over longer spans; the fix's own sigma is then its white part.
 - IMU orientation: a rotation prior at keyframes where the filter used one.
 """
 
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, G, V, X
+from gtsam.symbol_shorthand import B, G, S, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
@@ -40,15 +41,24 @@ BRIDGE_ROTATION_DENSITY = 0.1  # rad/sqrt(s)
 ORIENTATION_MAX_DT_NS = 10_000_000
 WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (already in the IMU factor)
 FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
-GPS_BIAS_PERIOD_NS = 5_000_000_000  # one receiver-error node per 5 s of fixes
+GPS_BIAS_PERIOD_NS = 5_000_000_000  # the guard's windows of the receiver error (guard.residuals)
 GPS_BIAS_TAU_S = 60.0  # correlation time of a receiver's slow error (multipath, atmosphere, satellite geometry)
-GPS_BIAS_RATIO = 3.0  # its sigma over the fixes' own (the timeline's, noise-only) horizontal sigma
+# its sigma over the fixes' own (the timeline's) horizontal sigma: consumer receivers claim a third of the truth,
+# and the chain must leave the shape over seconds to the motion sources
+GPS_BIAS_RATIO = 10.0
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
-# wheel increments' sigmas times this beside odometry poses, so a wheel scale error cannot pull them off (beside
-# odometry increments and GPS the wheels keep their weight: they hold the shape against the fixes)
+# the receiver-error chain also without odometry (IMU + wheels and GPS): measured mixed, left off (docs/benchmarks.md)
+GPS_BIAS_WITHOUT_ODOM = False
+# beside odometry, the wheels' scale as a state: one unknown per chunk (S) multiplying every increment, prior
+# sigma about 1 this (0.05 tried); None, the default: its Python factor per keyframe costs far more CPU than it
+# gains on the matrix, and without odometry the scale is barely observable (docs/benchmarks.md)
+WHEEL_SCALE_SIGMA: float | None = None
+# wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES), so a wheel
+# scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 10.0
+ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
 
 
 def _sigmas(sig: np.ndarray):
@@ -78,8 +88,9 @@ class Measurements:
                 self.gps_k = np.searchsorted(kt, g.stamps_ns[idx])
                 self.gps_z = g.position_enu_m[idx] - g.position_enu_m[first[0]]  # the filter's anchor
                 self.gps_h, self.gps_v = gps_sigmas(g, idx)
-                self.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # receiver-error node per fix
-                if prep.odom is not None and "odom" in prep.use:  # a source that holds the local shape
+                self.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
+                self.gps_t_s = (g.stamps_ns[idx] - kt[0]) * 1e-9
+                if GPS_BIAS_WITHOUT_ODOM or (prep.odom is not None and "odom" in prep.use):
                     self.gps_bias_sigma = GPS_BIAS_RATIO * float(np.median(self.gps_h))
         self.odom_pairs = np.zeros((0, 2), np.int64)
         od = prep.odom
@@ -112,6 +123,37 @@ def _horizontal_fix(z: np.ndarray):
             H[0] = np.hstack([np.zeros((2, 3)), T.rotation().matrix()[:2, :]])
             H[1] = np.eye(2)
         return T.translation()[:2] + b - z
+    return error
+
+
+def _scaled_wheel(dp: np.ndarray):
+    """A CustomFactor's error function: the increment of position from keyframe k to k+1 in k's base axes minus
+    the wheels' increment times their scale (Pose3 tangent [rotation, translation], retract T Exp(xi))."""
+    def error(this, values, H):
+        Ta, Tb = values.atPose3(this.keys()[0]), values.atPose3(this.keys()[1])
+        scale = values.atVector(this.keys()[2])
+        Ra = Ta.rotation().matrix()
+        a = Ra.T @ (Tb.translation() - Ta.translation())
+        if H is not None:
+            H[0] = np.hstack([_skew(a), -np.eye(3)])
+            H[1] = np.hstack([np.zeros((3, 3)), Ra.T @ Tb.rotation().matrix()])
+            H[2] = -dp.reshape(3, 1)
+        return a - scale[0] * dp
+    return error
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _markov_step(phi: float):
+    """A CustomFactor's error function: the next receiver error minus ``phi`` times the previous one."""
+    def error(this, values, H):
+        a, b = values.atPoint2(this.keys()[0]), values.atPoint2(this.keys()[1])
+        if H is not None:
+            H[0] = -phi * np.eye(2)
+            H[1] = np.eye(2)
+        return b - phi * a
     return error
 
 
@@ -185,7 +227,14 @@ class ChunkGraph:
             vals.insert(B(k), self.bias(k))
         for j in self.gps_bias_nodes(k0, k1).tolist():
             vals.insert(G(j), self.bias_seam.get(j, np.zeros(2)))
+        if self.scaled:
+            vals.insert(S(k0), np.ones(1))
         return vals
+
+    @property
+    def scaled(self) -> bool:
+        """Whether the wheels' scale is a state (``S(k0)`` of each chunk)."""
+        return self.wheel is not None and WHEEL_SCALE_SIGMA is not None and len(self.m.odom_k) > 0
 
     def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
         g = gtsam.NonlinearFactorGraph()
@@ -201,12 +250,17 @@ class ChunkGraph:
             dp, sd = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
             g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
             if wheel:
-                if len(m.odom_k) and "pose" in m.prep.use["odom"]:
+                if len(m.odom_k) and m.prep.use["odom"] & set(ODOM_WHEEL_LOOSE_MODES):
                     sd = sd * ODOM_WHEEL_SIGMA_SCALE
-                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
-                m.wheel_dp[k] = (dp, sig[3:])
+                m.wheel_dp[k] = (dp, sd)
+                sig = sd if self.scaled else np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 model = _sigmas(sig) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))
-                g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
+                if self.scaled:
+                    g.add(gtsam.CustomFactor(model, [X(k), X(k + 1), S(k0)], _scaled_wheel(dp)))
+                else:
+                    g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
+        if self.scaled:
+            g.add(gtsam.PriorFactorVector(S(k0), np.ones(1), gtsam.noiseModel.Isotropic.Sigma(1, WHEEL_SCALE_SIGMA)))
         for k in range(k0, k1):
             o = m.orient[k]
             if o is not None:
@@ -217,11 +271,11 @@ class ChunkGraph:
         return g
 
     def gps_bias_nodes(self, k0: int, k1: int) -> np.ndarray:
-        """The receiver-error nodes of the fixes on keyframes [k0, k1)."""
+        """The receiver-error nodes (one per fix, its index) of the fixes on keyframes [k0, k1)."""
         m = self.m
         if not (len(m.gps_k) and m.gps_bias_sigma > 0):
             return np.zeros(0, np.int64)
-        return np.unique(m.gps_j[(m.gps_k >= k0) & (m.gps_k < k1)])
+        return np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
 
     def _gps(self, g, k0: int, k1: int) -> None:
         m = self.m
@@ -233,7 +287,7 @@ class ChunkGraph:
             nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
             if m.gps_bias_sigma > 0:
                 nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
-                g.add(gtsam.CustomFactor(nh, [X(k), G(int(m.gps_j[j]))], _horizontal_fix(z[:2])))
+                g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _horizontal_fix(z[:2])))
             else:
                 nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
                 g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
@@ -241,17 +295,17 @@ class ChunkGraph:
         nodes = self.gps_bias_nodes(k0, k1)
         if not len(nodes):
             return
-        sb, dt = m.gps_bias_sigma, GPS_BIAS_PERIOD_NS * 1e-9
-        prior = gtsam.noiseModel.Isotropic.Sigma(2, sb)
-        for a, b in zip(nodes[:-1].tolist(), nodes[1:].tolist()):  # Gauss-Markov steps, a gap as several
-            step = sb * float(np.sqrt(1.0 - np.exp(-2.0 * (b - a) * dt / GPS_BIAS_TAU_S)))
-            g.add(gtsam.BetweenFactorPoint2(G(a), G(b), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, step)))
-        for a in nodes.tolist():
-            g.add(gtsam.PriorFactorPoint2(G(a), np.zeros(2), prior))
-        seam = [a for a in nodes.tolist() if a in self.bias_seam]  # carried over a chunk seam, one step loose
-        step = gtsam.noiseModel.Isotropic.Sigma(2, sb * float(np.sqrt(1.0 - np.exp(-2.0 * dt / GPS_BIAS_TAU_S))))
-        for a in seam:
-            g.add(gtsam.PriorFactorPoint2(G(a), self.bias_seam[a], step))
+        sb, t = m.gps_bias_sigma, m.gps_t_s
+        for a, b in zip(nodes[:-1].tolist(), nodes[1:].tolist()):  # Gauss-Markov steps over the fixes' spacing
+            phi = float(np.exp(-(t[b] - t[a]) / GPS_BIAS_TAU_S))
+            step = gtsam.noiseModel.Isotropic.Sigma(2, sb * float(np.sqrt(max(1.0 - phi * phi, 1e-12))))
+            g.add(gtsam.CustomFactor(step, [G(a), G(b)], _markov_step(phi)))
+        first = int(nodes[0])
+        if first in self.bias_seam:  # the previous chunk's value, as loose as the error moves in a few seconds
+            seam = sb * float(np.sqrt(1.0 - np.exp(-2.0 * GPS_BIAS_PERIOD_NS * 1e-9 / GPS_BIAS_TAU_S)))
+            g.add(gtsam.PriorFactorPoint2(G(first), self.bias_seam[first], gtsam.noiseModel.Isotropic.Sigma(2, seam)))
+        else:
+            g.add(gtsam.PriorFactorPoint2(G(first), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, sb)))
 
     def _odom(self, g, k0: int, k1: int) -> None:
         """Absolute poses (``pose``: tied to the world at the first one by the filter's pose there, as the filter

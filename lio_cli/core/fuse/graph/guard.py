@@ -1,7 +1,7 @@
 """Never worse than the filter: the smoothed keyframes against the filter's, by what the measurements say.
 
 Per source, the RMS of its residuals at the keyframes: GPS horizontal (each clipped at ``CLIP`` sigmas, so an
-outlier weighs the same for both; the mean residual of each receiver-error node apart, ``gps_slow_m``, judged
+outlier weighs the same for both; the mean residual of each 5 s window of fixes apart, ``gps_slow_m``, judged
 against that error's own sigma), odometry and wheel increments (translation). The smoothed
 solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor
 *and* the RMS its own sigmas predict (``noise_levels``, times ``NOISE_MARGIN``): a filter that jumps to every
@@ -25,7 +25,7 @@ def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:
     out: dict[str, float] = {}
     if len(m.gps_k):
         d = s["p"][m.gps_k, :2] - m.gps_z[:, :2]
-        if m.gps_bias_sigma > 0:  # the slow receiver error apart: each bias node's mean residual, and the rest
+        if m.gps_bias_sigma > 0:  # the slow receiver error apart: each 5 s window's mean residual, the rest
             j, inv = np.unique(m.gps_j, return_inverse=True)
             mean = np.stack([np.bincount(inv, d[:, c]) for c in range(2)], 1) / np.bincount(inv)[:, None]
             slow = np.minimum(np.linalg.norm(mean, axis=1), CLIP * m.gps_bias_sigma)
