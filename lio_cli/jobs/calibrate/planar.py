@@ -189,7 +189,7 @@ def _loose_bias_fit(arrays: SensorArrays, imu: ImuBatch, R_base_imu: np.ndarray,
 def _bias_prior_sigma(sigma_radps: np.ndarray, R_base_imu: np.ndarray) -> np.ndarray:
     """The gyro bias's 1-sigma the planar fit takes as its prior: hand-eye's about the base z (the turns time it),
     ``BIAS_PRIOR_RADPS`` added by each IMU axis's share of the base plane (a car's hand-eye put that part of the
-    bias 2.5-5.6 of its 1-sigmas off: the sway it registers leans on it)."""
+    bias up to 5.6 of its 1-sigmas off on simulated moving starts)."""
     horizontal = 1.0 - np.asarray(R_base_imu, float)[2] ** 2  # per IMU axis: its squared share of the base x-y
     s = np.nan_to_num(np.asarray(sigma_radps, float), nan=BIAS_PRIOR_RADPS)
     return np.sqrt(s**2 + BIAS_PRIOR_RADPS**2 * np.clip(horizontal, 0.0, 1.0))
