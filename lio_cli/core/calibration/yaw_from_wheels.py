@@ -27,8 +27,8 @@ GRAVITY_MPS2 = 9.81
 MIN_WINDOWS = 12
 MIN_ACCEL_MPS2 = 0.1  # rms horizontal acceleration below which no angle shows
 LAG_WINDOWS = 8  # neighbouring windows whose errors may be shared (sway, slip)
-SCALE_TOLERANCE = 0.2
-SWAY_KEEP = 0.8  # the sway model is used when it leaves less than this share of the plain fit's rms residual  # |c + i s| this far from 1: the two sides do not measure the same acceleration
+SCALE_TOLERANCE = 0.2  # |c + i s| this far from 1: the two sides do not measure the same acceleration
+SWAY_KEEP = 0.8  # the sway model is used when it leaves less than this share of the plain fit's rms residual
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...core.calibration.ground_plane import estimate_planar_tilt
+from ...core.calibration.ground_plane import BIAS_PRIOR_RADPS, estimate_planar_tilt
 from ...core.calibration.rotation import RotationCalib
 from ...core.calibration.yaw_from_wheels import estimate_wheel_yaw
 from ...errors import InputError
@@ -122,8 +122,7 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
     Rbl = np.asarray(T_base_lidar, float)[:3, :3]
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
     try:
-        corr, res = _planar_fit(arrays, imu, Rbl @ R_lidar_imu, est.rotation.gyro_bias_radps,
-                                est.rotation.gyro_bias_sigma_radps, est)
+        corr, res = _loose_bias_fit(arrays, imu, Rbl @ R_lidar_imu, est)
     except InputError as err:
         if ground_vehicle:
             est.notes.append(f"the mounting's roll and pitch on the base: {err}")
@@ -168,6 +167,32 @@ def planar_tilt(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | 
                      f"z): {_deg(corr[:2], signed=True)} deg from hand-eye's, 1-sigma {_deg(res.sigma_rad)} deg "
                      f"(heading changed {np.degrees(res.heading_spread_rad):.0f} deg, sway {np.degrees(res.rms_sway_rad):.2f} "
                      f"deg rms){yaw}; joined by their information")
+
+
+def _loose_bias_fit(arrays: SensorArrays, imu: ImuBatch, R_base_imu: np.ndarray, est: Estimates):
+    """``_planar_fit`` with the gyro bias's prior loosened in the base plane (``_bias_prior_sigma``); how far
+    that moved the correction from the fit under hand-eye's prior joins its covariance (per base axis, squared)."""
+    rot = est.rotation
+    corr, res = _planar_fit(arrays, imu, R_base_imu, rot.gyro_bias_radps,
+                            _bias_prior_sigma(rot.gyro_bias_sigma_radps, R_base_imu), est)
+    try:
+        tight, _ = _planar_fit(arrays, imu, R_base_imu, rot.gyro_bias_radps, rot.gyro_bias_sigma_radps, est)
+    except InputError:
+        return corr, res
+    extra = (corr - tight) ** 2
+    C = res.covariance_rad2 + np.diag(extra[:2])
+    C3 = None if res.covariance3_rad2 is None else res.covariance3_rad2 + np.diag(extra)
+    return corr, replace(res, covariance_rad2=C, sigma_rad=np.sqrt(np.clip(np.diag(C), 0, None)), covariance3_rad2=C3,
+                         yaw_sigma_rad=float(np.sqrt(res.yaw_sigma_rad**2 + extra[2])))
+
+
+def _bias_prior_sigma(sigma_radps: np.ndarray, R_base_imu: np.ndarray) -> np.ndarray:
+    """The gyro bias's 1-sigma the planar fit takes as its prior: hand-eye's about the base z (the turns time it),
+    ``BIAS_PRIOR_RADPS`` added by each IMU axis's share of the base plane (a car's hand-eye put that part of the
+    bias up to 5.6 of its 1-sigmas off on simulated moving starts)."""
+    horizontal = 1.0 - np.asarray(R_base_imu, float)[2] ** 2  # per IMU axis: its squared share of the base x-y
+    s = np.nan_to_num(np.asarray(sigma_radps, float), nan=BIAS_PRIOR_RADPS)
+    return np.sqrt(s**2 + BIAS_PRIOR_RADPS**2 * np.clip(horizontal, 0.0, 1.0))
 
 
 def _yaw_usable(res) -> bool:
