@@ -24,7 +24,7 @@ from .time_offset import TimeOffset
 
 COARSE_STEP_S = 0.005
 # the gyro is averaged over a hat of this half-width: interpolated raw samples are noisier at the samples than
-# between them, which makes the residual ripple with the IMU's sampling period (2.4 ms off at 200 Hz)
+# between them, which makes the residual ripple with the IMU's sampling period
 SMOOTH_S = 0.04
 LAG_S = 0.5  # neighbouring samples whose errors may be shared
 MIN_SAMPLES = 100

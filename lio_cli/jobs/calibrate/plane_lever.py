@@ -49,8 +49,7 @@ def lever_from_wheels(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
     try:
         res = fit(*everything)
         # each half of the log alone (one may hold less acceleration: what it gives is only compared): their
-        # disagreement joins the 1-sigma (the residuals' own understated it
-        # sixfold on a simulated robot: 0.9 cm off at 1-sigma 0.13)
+        # disagreement joins the 1-sigma (the residuals' own understate it: docs/benchmarks.md)
         mid = int(np.median(ws))
         shift = int(round(est.offset.imu_time_offset_s * 1e9))
         halves = [fit(ws < mid, imu.stamps_ns + shift < mid, HALF_MIN_ACCEL_MPS2),
