@@ -113,6 +113,11 @@ class Measurements:
                     sig = float(np.sqrt(max(np.trace(imu.orientation_cov[i]) / 3.0, 1e-12)))
                     self.orient[k] = (prep.imu_R_wb[i], sig)
 
+    def odom_world(self, s: dict[str, np.ndarray]) -> np.ndarray:
+        """The odometry frame in the world: the states ``s`` at the first odometry pose, as the filter ties it."""
+        k = int(self.odom_k[0])
+        return nav(s["R"][k], s["p"][k]).matrix() @ np.linalg.inv(self.prep.odom.poses[self.odom_idx[0]])
+
 
 def _horizontal_fix(z: np.ndarray):
     """A CustomFactor's error function: the keyframe's horizontal position plus the receiver error minus the fix."""
@@ -312,9 +317,7 @@ class ChunkGraph:
         ties them) or increments (``delta``) of the odometry."""
         m, od = self.m, self.m.prep.odom
         if len(m.odom_k) and "pose" in m.prep.use["odom"]:
-            k_first = int(m.odom_k[0])
-            T_first = nav(self.s["R"][k_first], self.s["p"][k_first]).matrix()
-            T_world_odom = T_first @ np.linalg.inv(od.poses[m.odom_idx[0]])
+            T_world_odom = m.odom_world(self.s)
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
                 sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, od.position_sigma_m[i])]
