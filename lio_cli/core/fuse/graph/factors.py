@@ -59,6 +59,9 @@ WHEEL_SCALE_SIGMA: float | None = None
 # scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 10.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
+# odometry poses' position sigma times this in the graph: a scan matcher's poses share their drift, so one
+# independent prior per pose counts them many times over (and pins each keyframe to the pose's noise)
+ODOM_POSE_SIGMA_SCALE = 2.0
 
 
 def _sigmas(sig: np.ndarray):
@@ -320,7 +323,8 @@ class ChunkGraph:
             T_world_odom = m.odom_world(self.s)
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
-                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, od.position_sigma_m[i])]
+                ps = ODOM_POSE_SIGMA_SCALE * od.position_sigma_m[i]
+                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, ps)]
                 g.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_odom @ od.poses[i]),
                                              gtsam.noiseModel.Diagonal.Sigmas(sig)))
             return
