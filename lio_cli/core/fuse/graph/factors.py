@@ -57,7 +57,9 @@ GPS_BIAS_WITHOUT_ODOM = False
 WHEEL_SCALE_SIGMA: float | None = None
 # wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES), so a wheel
 # scale error or a slip cannot pull it off
-ODOM_WHEEL_SIGMA_SCALE = 10.0
+ODOM_WHEEL_SIGMA_SCALE = 30.0
+# beside odometry (where the receiver-error chain is on), the fixes' vertical sigma times this
+ODOM_GPS_VERTICAL_SCALE = 3.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
 # odometry poses' position sigma times this in the graph: a scan matcher's poses share their drift, so one
 # independent prior per pose counts them many times over (and pins each keyframe to the pose's noise)
@@ -292,6 +294,8 @@ class ChunkGraph:
         sel = np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
         for j in sel.tolist():
             k, z, h, v = int(m.gps_k[j]), m.gps_z[j], float(m.gps_h[j]), float(m.gps_v[j])
+            if m.gps_bias_sigma > 0:  # beside odometry: its increments carry the height, the altitude wanders
+                v *= ODOM_GPS_VERTICAL_SCALE
             nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
             if m.gps_bias_sigma > 0:
                 nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
