@@ -7,11 +7,12 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import gtsam
 import numpy as np
 import pytest
 
 from lio_cli.core.fuse import FuseOptions, GpsSeries, fuse
-from lio_cli.core.fuse.graph import factors
+from lio_cli.core.fuse.graph import factors, run
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.geometry import interpolate_poses
 from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
@@ -54,6 +55,7 @@ def test_a_slow_receiver_error_leaves_the_odometry_shape(case, monkeypatch):
     assert res.info["smoother"]["fallback"] is None
     fused = ate(case, res.stamps_ns, res.poses)
     monkeypatch.setattr(factors, "GPS_BIAS_RATIO", 0.0)  # the fixes as white noise
+    monkeypatch.setattr(run, "ODOM_SEED", False)  # from the filter's states (from the odometry's, Huber keeps them)
     w = fuse(case.inputs, o)
     white = ate(case, w.stamps_ns, w.poses)
     # measured: odometry 0.033 m, fused 0.033 m, white GPS 0.60 m
@@ -90,3 +92,33 @@ def test_wheels_with_a_scale_error_do_not_pull_odometry_increments(long_wheels, 
     # truth 0.971)
     assert fused <= 1.25 * odom and old > 2.0 * odom
     assert abs(scaled.info["smoother"]["wheel_scale"][0] - 1 / 1.03) < 0.015 and new <= 0.65 * old
+
+
+def _gps_vertical_sigmas(inputs, monkeypatch) -> tuple[np.ndarray, np.ndarray]:
+    """(the graph's vertical GPS sigmas, the fixes' own) of one smoothed run, from its first chunk's graph."""
+    seen = {}
+    real = run.solve
+
+    def spy(cg, K, first, seam, spans=None):
+        seen["cg"], seen["K"] = cg, K
+        return real(cg, K, first, seam, spans)
+
+    monkeypatch.setattr(run, "solve", spy)
+    fuse(inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
+    cg = seen["cg"]
+    g = cg.build(0, min(seen["K"], 200))
+    models = [g.at(i).noiseModel() for i in range(g.size()) if isinstance(g.at(i), gtsam.GPSFactor)]
+    sig = [nm.noise().sigmas()[2] for nm in models if nm.noise().sigmas()[0] >= factors.FREE_SIGMA]
+    n = len(sig)
+    return np.array(sig), cg.m.gps_v[:n]
+
+
+def test_beside_odometry_the_gps_vertical_is_trusted_less(case, monkeypatch):
+    """Beside odometry (its increments carry the height) the fixes' vertical sigma is ODOM_GPS_VERTICAL_SCALE
+    times theirs; without odometry their own."""
+    with_odom, own = _gps_vertical_sigmas(case.inputs, monkeypatch)
+    assert len(with_odom) > 10
+    np.testing.assert_allclose(with_odom, factors.ODOM_GPS_VERTICAL_SCALE * own)
+    alone, own = _gps_vertical_sigmas(replace(case.inputs, odom=None), monkeypatch)
+    np.testing.assert_allclose(alone, own)
+    assert factors.ODOM_GPS_VERTICAL_SCALE > 1.0

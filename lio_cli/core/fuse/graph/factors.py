@@ -57,8 +57,13 @@ GPS_BIAS_WITHOUT_ODOM = False
 WHEEL_SCALE_SIGMA: float | None = None
 # wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES), so a wheel
 # scale error or a slip cannot pull it off
-ODOM_WHEEL_SIGMA_SCALE = 10.0
+ODOM_WHEEL_SIGMA_SCALE = 30.0
+# beside odometry (where the receiver-error chain is on), the fixes' vertical sigma times this
+ODOM_GPS_VERTICAL_SCALE = 3.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
+# odometry poses' position sigma times this in the graph: a scan matcher's poses share their drift, so one
+# independent prior per pose counts them many times over (and pins each keyframe to the pose's noise)
+ODOM_POSE_SIGMA_SCALE = 2.0
 
 
 def _sigmas(sig: np.ndarray):
@@ -112,6 +117,11 @@ class Measurements:
                     i = j[k]
                     sig = float(np.sqrt(max(np.trace(imu.orientation_cov[i]) / 3.0, 1e-12)))
                     self.orient[k] = (prep.imu_R_wb[i], sig)
+
+    def odom_world(self, s: dict[str, np.ndarray]) -> np.ndarray:
+        """The odometry frame in the world: the states ``s`` at the first odometry pose, as the filter ties it."""
+        k = int(self.odom_k[0])
+        return nav(s["R"][k], s["p"][k]).matrix() @ np.linalg.inv(self.prep.odom.poses[self.odom_idx[0]])
 
 
 def _horizontal_fix(z: np.ndarray):
@@ -284,6 +294,8 @@ class ChunkGraph:
         sel = np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
         for j in sel.tolist():
             k, z, h, v = int(m.gps_k[j]), m.gps_z[j], float(m.gps_h[j]), float(m.gps_v[j])
+            if m.gps_bias_sigma > 0:  # beside odometry: its increments carry the height, the altitude wanders
+                v *= ODOM_GPS_VERTICAL_SCALE
             nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
             if m.gps_bias_sigma > 0:
                 nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
@@ -312,12 +324,11 @@ class ChunkGraph:
         ties them) or increments (``delta``) of the odometry."""
         m, od = self.m, self.m.prep.odom
         if len(m.odom_k) and "pose" in m.prep.use["odom"]:
-            k_first = int(m.odom_k[0])
-            T_first = nav(self.s["R"][k_first], self.s["p"][k_first]).matrix()
-            T_world_odom = T_first @ np.linalg.inv(od.poses[m.odom_idx[0]])
+            T_world_odom = m.odom_world(self.s)
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
-                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, od.position_sigma_m[i])]
+                ps = ODOM_POSE_SIGMA_SCALE * od.position_sigma_m[i]
+                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, ps)]
                 g.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_odom @ od.poses[i]),
                                              gtsam.noiseModel.Diagonal.Sigmas(sig)))
             return

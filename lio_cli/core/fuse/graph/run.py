@@ -8,7 +8,7 @@ from dataclasses import replace
 import gtsam
 import numpy as np
 
-from ....geometry import yaw_of
+from ....geometry import interpolate_poses, yaw_of
 from ..ekf3d import Ekf3d
 from ..initial import Start
 from ..inputs import FuseOptions
@@ -27,6 +27,9 @@ MIN_VARIANCE = 1e-10  # the start's "known exactly" variances (1e-12) kept solva
 # than its density (jackal.bag's) would otherwise draw the graph off
 ACCEL_NOISE_SCALES = (1.0, 10.0)
 SEAM_VELOCITY_SIGMA = 0.2  # m/s: a chunk's prior on its first velocity (its IMU and wheels find it again)
+# with odometry, the graph starts from its poses (the filter's states moved onto them): from a filter a bad source
+# (wheel scale, slips) drew off, LM stops at its 40 iterations far from the optimum it reaches from there
+ODOM_SEED = True
 
 
 Seed = Callable[[np.ndarray], np.ndarray]  # keyframe stamps -> (K, 4) x, y, yaw, forward speed of a planar filter
@@ -49,6 +52,9 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
     if seed is not None:
         _reseed(states, seed(kt))
     meas = Measurements(prep, kt, o.noise)
+    filtered = {k: v.copy() for k, v in states.items()}  # what the guard compares with
+    if ODOM_SEED and len(meas.odom_k) > 1:  # increments (beside GPS): their shape fitted onto the filter's track
+        _seed_from_odom(states, meas, fit="pose" not in prep.use["odom"])
     P_k = knots["P_filt"][at_k]
     bias_sigmas = np.r_[np.full(3, o.noise.init_accel_bias_sigma_mps2), np.full(3, o.noise.init_gyro_bias_sigma_radps)]
     seam = lambda sol, j, k: seam_prior(sol, j, _pose_cov(P_k[k], states["R"][k]), SEAM_VELOCITY_SIGMA,  # noqa: E731
@@ -59,7 +65,7 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
         cg = ChunkGraph(meas, seg, params, states)
         smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L), seam)
         iterations += stats.iterations
-        before, after = guard.residuals(meas, states), guard.residuals(meas, smoothed)
+        before, after = guard.residuals(meas, filtered), guard.residuals(meas, smoothed)
         why = guard.verdict(before, after, guard.noise_levels(meas))
         tries.append(why)
         if why is None:
@@ -96,6 +102,38 @@ def _reseed(states: dict[str, np.ndarray], planar: np.ndarray) -> None:
     states["p"] = np.column_stack([planar[:, 0], planar[:, 1], states["p"][:, 2]])
     states["v"] = np.column_stack([planar[:, 3] * np.cos(planar[:, 2]), planar[:, 3] * np.sin(planar[:, 2]),
                                    states["v"][:, 2]])
+
+
+def _seed_from_odom(states: dict[str, np.ndarray], meas: Measurements, fit: bool = False) -> None:
+    """The keyframe states moved rigidly onto the odometry's poses (interpolated, in the world the factors tie
+    them to; held at the nearest end outside their span), velocity from the moved positions, in place."""
+    od, kt = meas.prep.odom, meas.kt
+    t_od = od.stamps_ns[meas.odom_idx]
+    T_w = meas.odom_world(states) @ interpolate_poses(t_od, od.poses[meas.odom_idx], kt)
+    T_f = np.tile(np.eye(4), (len(kt), 1, 1))
+    T_f[:, :3, :3], T_f[:, :3, 3] = states["R"], states["p"]
+    if fit:
+        T_w = _yaw_fit(T_w, T_f) @ T_w
+    D = T_w @ np.linalg.inv(T_f)
+    inside = np.flatnonzero((kt >= t_od[0]) & (kt <= t_od[-1]))
+    D[: inside[0]], D[inside[-1] + 1:] = D[inside[0]], D[inside[-1]]
+    T = D @ T_f
+    states["R"], states["p"] = T[:, :3, :3], T[:, :3, 3]
+    states["v"] = np.gradient(states["p"], kt * 1e-9, axis=0) if len(kt) > 1 else states["v"]
+
+
+def _yaw_fit(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The rotation about z and translation moving poses A's positions onto B's in least squares (4x4)."""
+    a, b = A[:, :2, 3], B[:, :2, 3]
+    ma, mb = a.mean(0), b.mean(0)
+    H = (a - ma).T @ (b - mb)
+    th = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
+    c, s = np.cos(th), np.sin(th)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:2, 3] = mb - T[:2, :2] @ ma
+    T[2, 3] = float(np.mean(B[:, 2, 3] - A[:, 2, 3]))
+    return T
 
 
 def _pose_cov(P: np.ndarray, R: np.ndarray) -> np.ndarray:
