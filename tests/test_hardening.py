@@ -374,11 +374,15 @@ def test_unwritable_output_is_refused_before_the_work(sim, long_trajectories, tm
         rc_ok, err_ok, _WORK_S[command] = run(ok)
         assert rc_ok == 0, err_ok
     work_s = _WORK_S[command]
-    rc, err, refused_s = run(bad)
-    assert rc == 2, err
-    line = one_line(err)
-    assert "internal error" not in line
-    assert str(bad) in line or str(bad.parent) in line
+    refused = []
+    for _ in range(3):  # the fastest of three: one pause of a loaded machine is not the refusal's own time
+        rc, err, refused_s = run(bad)
+        assert rc == 2, err
+        line = one_line(err)
+        assert "internal error" not in line
+        assert str(bad) in line or str(bad.parent) in line
+        refused.append(refused_s)
+    refused_s = min(refused)
     assert refused_s < EARLY_FRACTION * work_s, f"refused after {refused_s:.2f} s; the work takes {work_s:.2f} s"
 
 
