@@ -54,6 +54,12 @@ class WheelCalib(CalibrationResult):
     bridged: int  # badly registered LiDAR poses skipped by joining the windows on either side (any chain)
     notes: tuple[str, ...]
 
+    def corrected(self, linear_mps: np.ndarray, angular_radps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The wheels' forward speed and yaw rate with these scales applied (the base's true ones)."""
+        linear = np.asarray(linear_mps, float)
+        return (self.speed_scale * linear,
+                self.yaw_rate_scale * np.asarray(angular_radps, float) + self.yaw_per_distance_radpm * linear)
+
 
 def estimate_wheel_scales(wheel_stamps_ns: np.ndarray, linear_mps: np.ndarray, angular_radps: np.ndarray,
                           traj_stamps_ns: np.ndarray, T_world_traj: np.ndarray, *,

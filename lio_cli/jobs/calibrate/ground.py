@@ -39,9 +39,7 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
     R_base_imu = Rbl @ R_lidar_imu
     def fit(offset_s: float):
-        return estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
-                                  w.yaw_rate_scale * arrays.wheel_angular_radps +
-                                  w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
+        return estimate_wheel_yaw(arrays.wheel_stamps_ns, *w.corrected(arrays.wheel_linear_mps, arrays.wheel_angular_radps),
                                   imu.stamps_ns, imu.accel_mps2, R_base_imu=R_base_imu, imu_time_offset_s=offset_s,
                                   exclude_ns=w.slip_ns, gyro_radps=imu.gyro_radps,
                                   gyro_bias_radps=est.rotation.gyro_bias_radps)

@@ -48,9 +48,7 @@ def _without_hand_eye(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
     bias = est.static.gyro_bias_radps if est.static is not None else None
     w = est.wheel
     try:  # the yaw first (the accelerometer's sway is read through it), then the roll and pitch
-        yaw = estimate_wheel_yaw(arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
-                                 w.yaw_rate_scale * arrays.wheel_angular_radps +
-                                 w.yaw_per_distance_radpm * arrays.wheel_linear_mps,
+        yaw = estimate_wheel_yaw(arrays.wheel_stamps_ns, *w.corrected(arrays.wheel_linear_mps, arrays.wheel_angular_radps),
                                  imu.stamps_ns, imu.accel_mps2, R_base_imu=R,
                                  imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns)
         R = so3_exp(np.array([0.0, 0.0, yaw.yaw_rad])) @ R
@@ -96,8 +94,7 @@ def _accel_args(arrays: SensorArrays, imu: ImuBatch, est: Estimates) -> dict:
     w = est.wheel
     if w is None or est.offset is None:
         return {}
-    wheels = (arrays.wheel_stamps_ns, w.speed_scale * arrays.wheel_linear_mps,
-              w.yaw_rate_scale * arrays.wheel_angular_radps + w.yaw_per_distance_radpm * arrays.wheel_linear_mps)
+    wheels = (arrays.wheel_stamps_ns, *w.corrected(arrays.wheel_linear_mps, arrays.wheel_angular_radps))
     return {"accel_mps2": imu.accel_mps2, "wheels": wheels, "imu_time_offset_s": est.offset.imu_time_offset_s,
             "exclude_ns": w.slip_ns}
 

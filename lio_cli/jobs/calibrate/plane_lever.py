@@ -37,9 +37,7 @@ def lever_from_wheels(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
     ws = arrays.wheel_stamps_ns
 
     def fit(sel: np.ndarray, isel: np.ndarray, min_accel: float = MIN_ACCEL_MPS2):
-        return estimate_wheel_yaw(ws[sel], w.speed_scale * arrays.wheel_linear_mps[sel],
-                                  w.yaw_rate_scale * arrays.wheel_angular_radps[sel] +
-                                  w.yaw_per_distance_radpm * arrays.wheel_linear_mps[sel],
+        return estimate_wheel_yaw(ws[sel], *w.corrected(arrays.wheel_linear_mps[sel], arrays.wheel_angular_radps[sel]),
                                   imu.stamps_ns[isel], imu.accel_mps2[isel], R_base_imu=Rbl @ T_li[:3, :3],
                                   imu_time_offset_s=est.offset.imu_time_offset_s, exclude_ns=w.slip_ns,
                                   gyro_radps=imu.gyro_radps[isel], gyro_bias_radps=est.rotation.gyro_bias_radps,
