@@ -6,8 +6,7 @@
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
-  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry (optionally
-  times a scale state ``S`` per chunk, ``WHEEL_SCALE_SIGMA``).
+  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry.
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
@@ -24,7 +23,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, G, S, V, X
+from gtsam.symbol_shorthand import B, G, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
@@ -49,12 +48,6 @@ GPS_BIAS_RATIO = 10.0
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
-# the receiver-error chain also without odometry (IMU + wheels and GPS): measured mixed, left off (docs/benchmarks.md)
-GPS_BIAS_WITHOUT_ODOM = False
-# beside odometry, the wheels' scale as a state: one unknown per chunk (S) multiplying every increment, prior
-# sigma about 1 this (0.05 tried); None, the default: its Python factor per keyframe costs far more CPU than it
-# gains on the matrix, and without odometry the scale is barely observable (docs/benchmarks.md)
-WHEEL_SCALE_SIGMA: float | None = None
 # wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES), so a wheel
 # scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 30.0
@@ -95,7 +88,8 @@ class Measurements:
                 self.gps_h, self.gps_v = gps_sigmas(g, idx)
                 self.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
                 self.gps_t_s = (g.stamps_ns[idx] - kt[0]) * 1e-9
-                if GPS_BIAS_WITHOUT_ODOM or (prep.odom is not None and "odom" in prep.use):
+                # only beside odometry: without it the chain measured mixed (docs/benchmarks.md)
+                if prep.odom is not None and "odom" in prep.use:
                     self.gps_bias_sigma = GPS_BIAS_RATIO * float(np.median(self.gps_h))
         self.odom_pairs = np.zeros((0, 2), np.int64)
         od = prep.odom
@@ -134,26 +128,6 @@ def _horizontal_fix(z: np.ndarray):
             H[1] = np.eye(2)
         return T.translation()[:2] + b - z
     return error
-
-
-def _scaled_wheel(dp: np.ndarray):
-    """A CustomFactor's error function: the increment of position from keyframe k to k+1 in k's base axes minus
-    the wheels' increment times their scale (Pose3 tangent [rotation, translation], retract T Exp(xi))."""
-    def error(this, values, H):
-        Ta, Tb = values.atPose3(this.keys()[0]), values.atPose3(this.keys()[1])
-        scale = values.atVector(this.keys()[2])
-        Ra = Ta.rotation().matrix()
-        a = Ra.T @ (Tb.translation() - Ta.translation())
-        if H is not None:
-            H[0] = np.hstack([_skew(a), -np.eye(3)])
-            H[1] = np.hstack([np.zeros((3, 3)), Ra.T @ Tb.rotation().matrix()])
-            H[2] = -dp.reshape(3, 1)
-        return a - scale[0] * dp
-    return error
-
-
-def _skew(a: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 def _markov_step(phi: float):
@@ -237,14 +211,7 @@ class ChunkGraph:
             vals.insert(B(k), self.bias(k))
         for j in self.gps_bias_nodes(k0, k1).tolist():
             vals.insert(G(j), self.bias_seam.get(j, np.zeros(2)))
-        if self.scaled:
-            vals.insert(S(k0), np.ones(1))
         return vals
-
-    @property
-    def scaled(self) -> bool:
-        """Whether the wheels' scale is a state (``S(k0)`` of each chunk)."""
-        return self.wheel is not None and WHEEL_SCALE_SIGMA is not None and len(self.m.odom_k) > 0
 
     def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
         g = gtsam.NonlinearFactorGraph()
@@ -263,14 +230,9 @@ class ChunkGraph:
                 if len(m.odom_k) and m.prep.use["odom"] & set(ODOM_WHEEL_LOOSE_MODES):
                     sd = sd * ODOM_WHEEL_SIGMA_SCALE
                 m.wheel_dp[k] = (dp, sd)
-                sig = sd if self.scaled else np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
+                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
                 model = _sigmas(sig) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))
-                if self.scaled:
-                    g.add(gtsam.CustomFactor(model, [X(k), X(k + 1), S(k0)], _scaled_wheel(dp)))
-                else:
-                    g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
-        if self.scaled:
-            g.add(gtsam.PriorFactorVector(S(k0), np.ones(1), gtsam.noiseModel.Isotropic.Sigma(1, WHEEL_SCALE_SIGMA)))
+                g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
         for k in range(k0, k1):
             o = m.orient[k]
             if o is not None:

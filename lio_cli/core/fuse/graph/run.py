@@ -72,8 +72,7 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
             break
     info = {"kind": "factor_graph", "solver": "levenberg_marquardt", "keyframes": len(kt), "chunks": stats.chunks,
             "iterations": iterations, "initial_error": stats.initial_error, "final_error": stats.final_error,
-            "imu_bridged": cg.bridged, "wheel_scale": [round(x, 4) for x in stats.wheel_scales],
-            "accel_noise_scale": scale, "residuals_filter": before, "residuals_smoothed": after, "fallback": why,
+            "imu_bridged": cg.bridged, "accel_noise_scale": scale, "residuals_filter": before, "residuals_smoothed": after, "fallback": why,
             "refused": [t for t in tries if t]}
     cov = knots["P_filt"][at_o] if o.want_covariance and len(knots["P_filt"]) else None
     if why is not None:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, G, S, V, X
+from gtsam.symbol_shorthand import B, G, V, X
 
 from .factors import ChunkGraph, nav
 
@@ -45,7 +45,6 @@ class SolveStats:
     initial_error: float = 0.0
     final_error: float = 0.0
     spans: list[tuple[int, int]] = field(default_factory=list)
-    wheel_scales: list[float] = field(default_factory=list)  # per chunk, where the wheels' scale is a state
 
 
 def chunk_spans(K: int, size: int = CHUNK_KEYFRAMES, overlap: int = OVERLAP_KEYFRAMES
@@ -92,8 +91,6 @@ def solve(cg: ChunkGraph, K: int, first: Prior, seam: Callable[[dict, int, int],
         stats.initial_error += g.error(init)
         stats.final_error += g.error(res)
         stats.spans.append((s0, s1))
-        if cg.scaled:
-            stats.wheel_scales.append(float(res.atVector(S(s0))[0]))
         sol = _arrays(res, s0, s1)
         if c + 1 < len(spans):
             nxt = spans[c + 1][0]
