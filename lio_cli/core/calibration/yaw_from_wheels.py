@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ...errors import InputError
+from ...geometry import so3_exp
 from .common import NS_PER_S, CalibrationResult, sandwich_covariance
 
 WINDOW_S = 0.5
@@ -64,8 +65,18 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
         return replace(plain, notes=(*plain.notes, "no body sway modelled: the gyro's tilt did not explain the "
                                      "accelerations better"))  # integrated noise would only add its own
     spread = float(np.angle(np.exp(1j * (res.yaw_rad - plain.yaw_rad))))
-    d = res.lever_xy_m - plain.lever_xy_m
-    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)), lever_cov_m2=res.lever_cov_m2 + np.outer(d, d))
+    return replace(res, sigma_rad=float(np.hypot(res.sigma_rad, spread)))
+
+
+def halves_scaled(cov_m2: np.ndarray, first: WheelYaw, second: WheelYaw) -> np.ndarray:
+    """The lever arm's covariance ``cov_m2`` (of the whole log) scaled, per axis, by how much further apart the two
+    halves' fits (``first``, ``second``) are than their own 1-sigmas allow (never below 1): the residuals alone
+    miss what follows a drive's phases (a simulated car's first half, cruising, 2-20 cm off in y at 1-sigma
+    3-6 cm), and the plain half difference would gate an axis the other half pins to a centimetre."""
+    d = second.lever_xy_m - first.lever_xy_m
+    spread = np.diag(first.lever_cov_m2) + np.diag(second.lever_cov_m2)
+    k = np.sqrt(np.maximum(1.0, d**2 / np.maximum(spread, 1e-12)))
+    return np.asarray(cov_m2, float) * np.outer(k, k)
 
 
 def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
@@ -84,19 +95,23 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
         raise InputError("yaw from the wheels' accelerations: the wheels and the IMU do not overlap")
     h = accel_mps2 @ np.asarray(R_base_imu, float).T  # specific force in the base frame (so far)
     tw, ti = (ws - t0) / NS_PER_S, (it - t0) / NS_PER_S
-    if gyro_radps is not None:  # tilt phi (roll, pitch) leaks (-g phi_y, g phi_x): taken out
+    if gyro_radps is not None:  # the body's tilt (its up vector, integrated) leaks gravity: taken out
         om = (np.asarray(gyro_radps, float) - (0.0 if gyro_bias_radps is None else gyro_bias_radps)) @ \
             np.asarray(R_base_imu, float).T
         dt = np.diff(ti, prepend=ti[0])
-        phi = np.cumsum(om[:, :2] * dt[:, None], axis=0)
+        up, tilt_cols = _tilt(om, dt)
+        psi = np.cumsum(om[:, 2] * dt)  # heading
+        q = _rate_noise_density2(om[:, :2], float(np.median(np.diff(ti))))
         h = h.copy()
-        h[:, 0] += GRAVITY_MPS2 * phi[:, 1]
-        h[:, 1] -= GRAVITY_MPS2 * phi[:, 0]
-        psi = np.cumsum(om[:, 2] * dt)  # heading: a tilt error eps of R_base_imu leaks eps x yaw rate into phi
+        h[:, :2] -= GRAVITY_MPS2 * up[:, :2]
     bins = np.arange(0.0, (t1 - t0) / NS_PER_S + 1e-9, WINDOW_S / 2)  # half-window bins of means
     m = {k: _window_means(x, ts, bins) for k, (x, ts) in
          {"v": (v, tw), "w": (w, tw), "vw": (v * w, tw), "w2": (w * w, tw), "hx": (h[:, 0], ti),
-          "hy": (h[:, 1], ti), "psi": (psi if gyro_radps is not None else 0.0 * ti, ti)}.items()}
+          "hy": (h[:, 1], ti)}.items()}
+    if gyro_radps is not None:
+        m["psi"] = _window_means(psi, ti, bins)
+        m.update({f"t{a}{k}": _window_means(GRAVITY_MPS2 * tilt_cols[:, a, k], ti, bins)
+                  for a in range(2) for k in range(tilt_cols.shape[2])})
     # window k: bins j..j+3 (j = 2k); the speed change between the means of width WINDOW_S around its two ends
     # is the exact (1, 3, 3, 1)/8 triangle average of dv/dt, so the other sides are averaged by that kernel
     j = np.arange(0, len(bins) - 4, 2)
@@ -115,9 +130,9 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
     # unknowns: c, s, b_x, b_y, r_x, r_y; rows: the x (forward) and y (left) accelerations
     Jx = np.column_stack([hx, -hy, -one, zero, -w2, -dw])
     Jy = np.column_stack([hy, hx, zero, -one, dw, -w2])
-    if gyro_radps is not None:  # the integrated tilt's drift (a gyro bias error): linear in time
-        tc, gp = bins[j + 2] - bins[j + 2].mean(), GRAVITY_MPS2 * hat(m["psi"])
-        Jx, Jy = np.column_stack([Jx, tc, zero, gp, zero]), np.column_stack([Jy, zero, tc, zero, gp])
+    if gyro_radps is not None:  # the start's tilt and the gyro bias's x, y error, as the up vector's error
+        Jx = np.column_stack([Jx, *[hat(m[f"t0{k}"]) for k in range(tilt_cols.shape[2])]])
+        Jy = np.column_stack([Jy, *[hat(m[f"t1{k}"]) for k in range(tilt_cols.shape[2])]])
     J = np.stack([Jx, Jy], axis=1)  # (n, 2, p)
     y = np.stack([a_fwd, a_lat], axis=1)
     rms_a = float(np.sqrt((y * y).sum(axis=1).mean()))
@@ -128,8 +143,13 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
     x = np.linalg.lstsq(A, y.reshape(-1), rcond=None)[0]
     r = y - J @ x
     H = A.T @ A
-    scores = np.einsum("nji,nj->ni", J, r)
+    # each window's residual freed of its own pull on the fit (HC3): with 10 unknowns over 30-40 windows the
+    # residuals alone understate the error (1-sigma 1.8 cm for a spread of 2.3 over 30 noise draws)
+    L = np.einsum("nai,ij,nbj->nab", J, np.linalg.inv(H), J)
+    scores = np.einsum("nji,nj->ni", J, np.linalg.solve(np.eye(2) - L, r[..., None])[..., 0])
     cov = sandwich_covariance(H, scores, lag=min(LAG_WINDOWS, n // 4))
+    if gyro_radps is not None:  # the gyro's noise, integrated into the tilt, wanders: a slow error the residuals
+        cov = cov + _tilt_walk_cov(A, H, bins[j + 2] - ti[0], hat(m["psi"]), q)  # cannot tell from the motion
     c, s = x[0], x[1]
     scale = float(np.hypot(c, s))
     if abs(scale - 1.0) > SCALE_TOLERANCE:
@@ -142,10 +162,59 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
                     lever_cov_m2=cov[4:6, 4:6].copy())
 
 
+def _tilt_walk_cov(A: np.ndarray, H: np.ndarray, t: np.ndarray, psi: np.ndarray, q: float) -> np.ndarray:
+    """Covariance of the fit's unknowns from the integrated tilt's random walk: the up vector's error (start frame)
+    has covariance ``q`` min(t_i, t_j) per axis, turned into the base frame at each window's heading ``psi``; the
+    horizontal specific force's error is g times it."""
+    dpsi = psi[None, :] - psi[:, None]
+    c, s = np.cos(dpsi), np.sin(dpsi)
+    mt = np.minimum(t[:, None], t[None, :])
+    n = len(t)
+    M = np.empty((n, 2, n, 2))
+    M[:, 0, :, 0], M[:, 0, :, 1], M[:, 1, :, 0], M[:, 1, :, 1] = mt * c, -mt * s, mt * s, mt * c
+    P = np.linalg.solve(H, A.T)
+    return GRAVITY_MPS2**2 * q * (P @ M.reshape(2 * n, 2 * n) @ P.T)
+
+
+def _rate_noise_density2(om_xy: np.ndarray, dt_s: float) -> float:
+    """The gyro's white-noise density squared (rad^2/s) about the base x, y axes, read robustly from the
+    sample-to-sample differences (the motion is smooth over one sample: the difference is the noise's)."""
+    d = np.diff(om_xy, axis=0)
+    sd = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
+    return float(np.mean(sd**2) * dt_s)
+
+
+def _tilt(om: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The start's up in the base frame, integrated from the base-frame rates ``om`` (N, 3), and its derivatives
+    (N, 2, 4) by a tilt of the start (x, y, in the start frame) and by a gyro bias error (x, y, base frame). A car
+    turns through 90 deg and more: a tilt fixed in the world turns in the base frame, and a bias error's tilt
+    grows along the heading of the moment, not linearly in the base frame."""
+    n = len(om)
+    R = np.empty((n, 3, 3))  # R_start_base
+    cur = np.eye(3)
+    steps = so3_exp(om * dt[:, None])
+    for k in range(n):
+        cur = cur @ steps[k]
+        R[k] = cur
+    up = R[:, 2, :]  # R^T e_z
+    Rt = np.transpose(R, (0, 2, 1))
+    theta = np.cumsum(R[:, :, :2] * dt[:, None, None], axis=0)  # start-frame angle error per unit bias x, y
+    tz = np.zeros_like(theta)  # theta x e_z
+    tz[:, 0], tz[:, 1] = theta[:, 1], -theta[:, 0]
+    d_bias = -np.einsum("nij,njk->nik", Rt, tz)
+    cols = np.concatenate([Rt[:, :, :2], d_bias], axis=2)  # (n, 3, 4)
+    return up, cols[:, :2, :]
+
+
 def _window_means(x: np.ndarray, ts: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Mean of the samples ``x`` (at ``ts``) in each window [edges[k], edges[k+1]); an empty one interpolated."""
-    k = np.searchsorted(ts, edges)
-    c = np.concatenate([[0.0], np.cumsum(x)])
-    n = np.diff(k)
-    mid = 0.5 * (edges[:-1] + edges[1:])
-    return np.where(n > 0, (c[k[1:]] - c[k[:-1]]) / np.maximum(n, 1), np.interp(mid, ts, x))
+    """Mean over each window [edges[k], edges[k+1]) of ``x`` (samples at ``ts``) interpolated linearly between its
+    samples, so a window's mean is centred on the window whatever the samples' phase (a plain mean of the samples
+    inside is centred on them: half a wheel period, 10 ms, off at 50 Hz, a lever arm 4 cm off at 7.5 m/s)."""
+    x = np.broadcast_to(np.asarray(x, float), np.shape(ts))
+    c = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(ts))])  # integral up to each sample
+    e = np.clip(edges, ts[0], ts[-1])
+    k = np.clip(np.searchsorted(ts, e, side="right") - 1, 0, len(ts) - 2)
+    h = np.maximum(ts[k + 1] - ts[k], 1e-12)
+    u = e - ts[k]
+    ce = c[k] + x[k] * u + 0.5 * (x[k + 1] - x[k]) / h * u * u
+    return np.diff(ce) / np.maximum(np.diff(e), 1e-12)

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...core.calibration.yaw_from_wheels import MIN_ACCEL_MPS2, estimate_wheel_yaw
+from ...core.calibration.yaw_from_wheels import MIN_ACCEL_MPS2, estimate_wheel_yaw, halves_scaled
 from ...errors import InputError
 from ...model.records import ImuBatch
 from .estimate import Estimates
@@ -55,8 +55,7 @@ def lever_from_wheels(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndar
     except InputError as err:
         est.notes.append(f"the lever arm in the base plane: {err}")
         return
-    d = (halves[1].lever_xy_m - halves[0].lever_xy_m) / 2
-    res = replace(res, lever_cov_m2=res.lever_cov_m2 + np.diag(d**2))
+    res = replace(res, lever_cov_m2=halves_scaled(res.lever_cov_m2, *halves))
     sig_xy = np.sqrt(np.clip(np.diag(res.lever_cov_m2), 0, None))
     if not (sig_xy <= MAX_SIGMA_M).all():
         est.notes.append(f"the wheels' accelerations leave the lever arm in the base plane at 1-sigma "

@@ -54,10 +54,13 @@ def test_a_vehicle_standing_still_shows_no_yaw():
 
 def gyro_of(seed: int, stamps: np.ndarray, ws: np.ndarray, w: np.ndarray, R_base_imu: np.ndarray,
             sway_deg: float) -> np.ndarray:
-    """The gyro of ``drive``'s IMU: the sway's roll rate and the turn rate, with noise."""
+    """The gyro of ``drive``'s IMU: the sway's roll rate and the turn rate (the body rolled by ``sway`` on a
+    turning base: R_world_base = Rz(heading) Rx(sway)), with noise."""
     t = (stamps - stamps[0]) / S
+    sway = np.radians(sway_deg) * np.sin(0.7 * t + seed)
     roll_rate = np.radians(sway_deg) * 0.7 * np.cos(0.7 * t + seed)
-    om = np.column_stack([roll_rate, np.zeros_like(t), np.interp(stamps, ws, w)])
+    turn = np.interp(stamps, ws, w)
+    om = np.column_stack([roll_rate, turn * np.sin(sway), turn * np.cos(sway)])
     return om @ R_base_imu + np.random.default_rng(seed).normal(0, 0.002, (len(t), 3))
 
 
