@@ -103,7 +103,9 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
         psi = np.cumsum(om[:, 2] * dt)  # heading
         q = _rate_noise_density2(om[:, :2], float(np.median(np.diff(ti))))
         h = h.copy()
-        h[:, :2] -= GRAVITY_MPS2 * up[:, :2]
+        # f = R^T a_horizontal + (g + a_vertical) up, so f . up is g + a_vertical: a body bouncing on its
+        # springs leaks more than g through its roll and pitch
+        h[:, :2] -= np.einsum("ni,ni->n", h, up)[:, None] * up[:, :2]
     bins = np.arange(0.0, (t1 - t0) / NS_PER_S + 1e-9, WINDOW_S / 2)  # half-window bins of means
     m = {k: _window_means(x, ts, bins) for k, (x, ts) in
          {"v": (v, tw), "w": (w, tw), "vw": (v * w, tw), "w2": (w * w, tw), "hx": (h[:, 0], ti),

@@ -26,7 +26,8 @@ def drive(seed: int, yaw_deg: float, duration_s: float = 20.0, moving: bool = Tr
     r = np.array([0.3, -0.2, 0.1])
     a = np.column_stack([dv - w * w * r[0] - dw * r[1], v * w - w * w * r[1] + dw * r[0], np.zeros_like(t)])
     sway = np.radians(sway_deg) * np.sin(0.7 * t + seed)  # the body's roll, in phase with nothing in particular
-    f_base = a + 9.81 * np.column_stack([np.zeros_like(t), np.sin(sway), np.cos(sway)])
+    c, s = np.cos(sway), np.sin(sway)  # the level frame's acceleration and gravity seen by the rolled body
+    f_base = np.column_stack([a[:, 0], c * a[:, 1], -s * a[:, 1]]) + 9.81 * np.column_stack([np.zeros_like(t), s, c])
     R_base_imu = so3_exp(np.radians([2.0, -3.0, yaw_deg]))
     f_imu = f_base @ R_base_imu + rng.normal(0, 0.05, 3) + rng.normal(0, 0.1, (len(t), 3))
     stamps = (t * S).astype(np.int64) + 10 * S
