@@ -60,7 +60,10 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
     res = _fit(*args, gyro_radps, gyro_bias_radps)
     if gyro_radps is None:
         return res
-    plain = _fit(*args, None, None)
+    try:
+        plain = _fit(*args, None, None)
+    except InputError:  # without the tilt the two sides disagree (a slope, a sway): the tilt explains them
+        return res
     if res.rms_residual_mps2 >= SWAY_KEEP * plain.rms_residual_mps2:  # no sway the accelerations show: the gyro's
         return replace(plain, notes=(*plain.notes, "no body sway modelled: the gyro's tilt did not explain the "
                                      "accelerations better"))  # integrated noise would only add its own
@@ -80,7 +83,7 @@ def halves_scaled(cov_m2: np.ndarray, first: WheelYaw, second: WheelYaw) -> np.n
 
 
 def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
-         exclude_ns, min_accel_mps2, gyro_radps, gyro_bias_radps) -> WheelYaw:
+         exclude_ns, min_accel_mps2, gyro_radps, gyro_bias_radps, up0=(0.0, 0.0, 1.0), refine: int = 1) -> WheelYaw:
     """Yaw correction of ``R_base_imu`` from wheel speed and yaw rate (already scaled, base frame, LiDAR clock)
     and the accelerometer (IMU clock + ``imu_time_offset_s`` = LiDAR clock); ``exclude_ns``: (start, end)
     stretches to leave out (wheel slip). ``gyro_radps`` (and its bias): the body's
@@ -99,7 +102,7 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
         om = (np.asarray(gyro_radps, float) - (0.0 if gyro_bias_radps is None else gyro_bias_radps)) @ \
             np.asarray(R_base_imu, float).T
         dt = np.diff(ti, prepend=ti[0])
-        up, tilt_cols = _tilt(om, dt)
+        up, tilt_cols = _tilt(om, dt, np.asarray(up0, float))
         psi = np.cumsum(om[:, 2] * dt)  # heading
         q = _rate_noise_density2(om[:, :2], float(np.median(np.diff(ti))))
         h = h.copy()
@@ -143,6 +146,13 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
                          f"{min_accel_mps2:g}): speed up, brake and turn")
     A = J.reshape(-1, J.shape[2])
     x = np.linalg.lstsq(A, y.reshape(-1), rcond=None)[0]
+    if gyro_radps is not None and refine > 0:  # the fitted start tilt and bias error, applied: fitted again
+        tilt, db = -x[-4:-2], -x[-2:]  # (their effects are not linear over a drive's few degrees of tilt)
+        bias = (0.0 if gyro_bias_radps is None else np.asarray(gyro_bias_radps, float)) - \
+            np.array([db[0], db[1], 0.0]) @ np.asarray(R_base_imu, float)
+        return _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu,
+                    imu_time_offset_s, exclude_ns, min_accel_mps2, gyro_radps, bias,
+                    np.asarray(up0, float) + np.array([tilt[0], tilt[1], 0.0]), refine - 1)
     r = y - J @ x
     H = A.T @ A
     # each window's residual freed of its own pull on the fit (HC3): with 10 unknowns over 30-40 windows the
@@ -186,7 +196,7 @@ def _rate_noise_density2(om_xy: np.ndarray, dt_s: float) -> float:
     return float(np.mean(sd**2) * dt_s)
 
 
-def _tilt(om: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _tilt(om: np.ndarray, dt: np.ndarray, up0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The start's up in the base frame, integrated from the base-frame rates ``om`` (N, 3), and its derivatives
     (N, 2, 4) by a tilt of the start (x, y, in the start frame) and by a gyro bias error (x, y, base frame). A car
     turns through 90 deg and more: a tilt fixed in the world turns in the base frame, and a bias error's tilt
@@ -198,7 +208,7 @@ def _tilt(om: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for k in range(n):
         cur = cur @ steps[k]
         R[k] = cur
-    up = R[:, 2, :]  # R^T e_z
+    up = R.transpose(0, 2, 1) @ (up0 / np.linalg.norm(up0))  # R^T up0
     Rt = np.transpose(R, (0, 2, 1))
     theta = np.cumsum(R[:, :, :2] * dt[:, None, None], axis=0)  # start-frame angle error per unit bias x, y
     tz = np.zeros_like(theta)  # theta x e_z

@@ -25,15 +25,15 @@ UNMEASURED_OFFSET_S = 0.04  # how far off a clock offset the motion could not me
 
 def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
               est: Estimates) -> None:
-    """Turn ``est``'s mounting about the base z by what the wheels' accelerations show, when its 1-sigma there
-    is above ``MAX_ROTATION_SIGMA_RAD`` and theirs is not; the axes it makes estimated leave the skipped items."""
+    """Turn ``est``'s mounting about the base z by what the wheels' accelerations show, when their 1-sigma is
+    within ``MAX_ROTATION_SIGMA_RAD`` and below the mounting's there (the two are not joined: both read the same
+    accelerations); the axes it makes estimated leave the skipped items."""
     if est.rotation is None or est.wheel is None or T_base_lidar is None or est.offset is None:
         return
     Rbl = np.asarray(T_base_lidar, float)[:3, :3]
     u = Rbl[2]  # the base z in the LiDAR frame
     cov = rotation_cov_lidar(est)
-    if np.sqrt(max(float(u @ cov @ u), 0.0)) <= MAX_ROTATION_SIGMA_RAD:
-        return
+    current = np.sqrt(max(float(u @ cov @ u), 0.0))
     before = rotation_observable(est)
     w = est.wheel
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
@@ -54,7 +54,10 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
             slope = abs(np.angle(np.exp(1j * (fit(off + doff).yaw_rad - fit(off - doff).yaw_rad)))) / 2
             res = replace(res, sigma_rad=float(np.hypot(res.sigma_rad, slope)))
     except InputError as err:
-        est.notes.append(f"the mounting's rotation about the base z axis: {err}")
+        if current > MAX_ROTATION_SIGMA_RAD:
+            est.notes.append(f"the mounting's rotation about the base z axis: {err}")
+        return
+    if current <= MAX_ROTATION_SIGMA_RAD and res.sigma_rad >= current:
         return
     if res.sigma_rad > MAX_ROTATION_SIGMA_RAD:
         est.notes.append(f"the wheels' accelerations leave the mounting's rotation about the base z axis at 1-sigma "
