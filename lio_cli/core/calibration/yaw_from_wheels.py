@@ -9,8 +9,10 @@ exactly the speed change over the window)
 
     a_xy = [[c, -s], [s, c]] h_xy - b_xy + L(w) r_xy
 
-is linear in (c, s, b, r); ``d = atan2(s, c)``. Its 1-sigma comes from the residuals (sandwich over a few
-neighbouring windows: a body's sway leaks gravity slowly), never from an assumed noise level.
+is linear in (c, s, b, r); ``d = atan2(s, c)``. With the gyro, the body's tilt is integrated in 3D and the
+gravity (and vertical acceleration) it leaks taken out of ``h``, its start tilt and the gyro bias's error fitted
+alongside. Its 1-sigma comes from the residuals (sandwich over a few neighbouring windows: a body's sway leaks
+gravity slowly) and the gyro's own noise, integrated; never from an assumed noise level.
 """
 
 from __future__ import annotations
@@ -52,9 +54,10 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
                        min_accel_mps2: float = MIN_ACCEL_MPS2) -> WheelYaw:
     """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too:
     when the sway model does not lower the residual clearly (``SWAY_KEEP``: a level robot, whose integrated gyro
-    is noise), the plain fit is the estimate; else the two estimates' difference joins the 1-sigma: the residuals
-    of the richer model alone understated its error about fivefold on a simulated car (0.69 deg off at 1-sigma
-    0.09)."""
+    is noise), the plain fit is the estimate; else the two estimates' difference joins the yaw's 1-sigma (the
+    sway model's residuals alone once understated it fivefold on a simulated car). Not the lever arm's: the plain
+    fit's is decimetres off wherever the sway matters; the caller checks it on the log's halves
+    (``halves_scaled``)."""
     args = (wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
             exclude_ns, min_accel_mps2)
     res = _fit(*args, gyro_radps, gyro_bias_radps)
