@@ -5,8 +5,9 @@ A vehicle standing on level ground sees the ground below it as a plane whose nor
 accelerometer at rest sees the same up through gravity, so the pair fixes the IMU's roll and pitch in the
 LiDAR frame (``R_lidar_imu up_imu = n_lidar``) without any motion. The plane is found by RANSAC among the
 points below the sensor whose heights (along a guess of up, e.g. from the LiDAR's drawing on the base) are
-near the lowest, refined by least squares on its inliers. Its 1-sigma is a jackknife over azimuth sectors (an
-uneven or not quite flat ground shows as sectors that disagree), never below the least-squares one.
+near the lowest, refined by least squares on its inliers. Its 1-sigma adds to the least-squares one the scatter
+of the normals of azimuth sectors fitted alone: on uneven ground the one plane's tilt is as uncertain as the
+ground's own tilt varies around the vehicle.
 """
 
 from __future__ import annotations
@@ -22,9 +23,9 @@ MAX_TILT_RAD = np.radians(20.0)  # the ground's normal within this of the up gue
 MIN_RANGE_M, MAX_RANGE_M = 2.0, 40.0  # horizontal distance of the points used (the car's body, sparse far rings)
 INLIER_M = 0.08  # RANSAC's distance to the plane of an inlier
 MIN_INLIERS = 200
-SECTORS = 8  # azimuth sectors of the jackknife
+SECTORS = 8  # azimuth sectors whose normals' scatter joins the 1-sigma
 MIN_SECTOR_POINTS = 30
-MAX_POINTS = 20000  # points sampled for RANSAC (the rest only for the refinement)
+MAX_POINTS = 20000  # points sampled for RANSAC (three times as many at most for the refinement)
 RANSAC_TRIALS = 200
 
 
@@ -36,7 +37,7 @@ class LidarGround(CalibrationResult):
     height_m: float  # the LiDAR origin's height above the plane
     inliers: int
     rms_m: float  # of the inliers' distances to the plane
-    sectors: int  # azimuth sectors in the jackknife
+    sectors: int  # azimuth sectors in the scatter
     notes: tuple[str, ...]
 
 
@@ -54,6 +55,8 @@ def fit_lidar_ground(points: np.ndarray, up_guess: np.ndarray, seed: int = 0) ->
         raise InputError(f"ground plane: {len(cand)} points below the LiDAR within {MAX_RANGE_M:g} m (need "
                          f"{MIN_INLIERS}): the scans do not show the ground")
     rng = np.random.default_rng(seed)
+    if len(cand) > 3 * MAX_POINTS:  # a few scans' worth: more only costs time
+        cand = cand[rng.choice(len(cand), 3 * MAX_POINTS, replace=False)]
     sample = cand if len(cand) <= MAX_POINTS else cand[rng.choice(len(cand), MAX_POINTS, replace=False)]
     low = sample[sample @ up <= np.quantile(sample @ up, 0.5)]  # the plane's hypotheses from the lower half
     best, best_n = None, 0
@@ -85,24 +88,14 @@ def fit_lidar_ground(points: np.ndarray, up_guess: np.ndarray, seed: int = 0) ->
     resid = pts @ n - d
     rms = float(np.sqrt(np.mean(resid**2)))
     C = _ls_covariance(pts, n, rms)
-    az_x = np.cross(up, [1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.cross(up, [0.0, 1.0, 0.0])
-    az_x /= np.linalg.norm(az_x)
-    az_y = np.cross(up, az_x)
-    sector = ((np.arctan2(pts @ az_y, pts @ az_x) + np.pi) / (2 * np.pi) * SECTORS).astype(int) % SECTORS
+    E = _across(n)  # two axes across the normal: the tilts' components
+    sector = ((np.arctan2(pts @ E[1], pts @ E[0]) + np.pi) / (2 * np.pi) * SECTORS).astype(int) % SECTORS
     counts = np.bincount(sector, minlength=SECTORS)
     full = np.flatnonzero(counts >= MIN_SECTOR_POINTS)
     notes = []
-    if len(full) >= 3:  # jackknife: the normal without each sector in turn
-        E = np.stack([az_x, az_y])  # tilt components about two axes across the normal
-        tilts = []
-        for k in full:
-            nk, _ = _plane(pts[sector != k], up)
-            tilts.append(E @ np.cross(n, nk))
-        t = np.array(tilts)
-        J = (len(t) - 1) / len(t) * (t - t.mean(axis=0)).T @ (t - t.mean(axis=0))
-        Jl = E.T @ J @ E
-        if np.trace(Jl) > np.trace(C):
-            C = Jl
+    if len(full) >= 3:  # each sector's own normal: how far the ground's tilt varies around the vehicle
+        t = np.array([E @ np.cross(n, _plane(pts[sector == k], up)[0]) for k in full])
+        C = C + E.T @ (t.T @ t / len(t)) @ E
     else:
         notes.append(f"the ground seen in {len(full)} azimuth sectors only: its 1-sigma is the least-squares one")
     sig = float(np.sqrt(max(np.linalg.eigvalsh(C).max(), 0.0)))
@@ -117,6 +110,13 @@ def _plane(pts: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float]:
     if n @ up < 0:
         n = -n
     return n, float(c @ n)
+
+
+def _across(n: np.ndarray) -> np.ndarray:
+    """Two orthonormal axes (rows) across the unit vector ``n``."""
+    a = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(n, a)])
 
 
 def _ls_covariance(pts: np.ndarray, n: np.ndarray, rms: float) -> np.ndarray:

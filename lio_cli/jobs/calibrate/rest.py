@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from ...core.calibration.lidar_ground import fit_lidar_ground
+from ...core.calibration.rotation import RotationCalib
 from ...core.calibration.yaw_from_wheels import fit_wheel_sway_yaw
 from ...errors import InputError
 from ...geometry import so3_exp
@@ -32,7 +33,7 @@ ACCEL_BIAS_PRIOR_MPS2 = 0.04  # 1-sigma of the accelerometer's horizontal bias p
 GRAVITY_MPS2 = 9.81
 REST_MARGIN_NS = 100_000_000  # a scan this far inside the still stretch (IMU clock) is taken as at rest
 MAX_REST_SCANS = 10
-SHARPER = 1.0  # a measurement replaces hand-eye's axes when its 1-sigma is below this times hand-eye's
+SHARPER = 1.0  # a measurement replaces hand-eye's on a direction where its 1-sigma is below this times hand-eye's
 OFFSET_SEARCH_S = 0.1  # an unmeasured clock offset is searched this far either side of the one so far...
 OFFSET_STEP_S = 0.01  # ...on this grid, refined on a finer one (a fifth) about its best point
 OFFSET_SIGMA_S = 0.005  # how far off the offset the wheels' accelerations line up at is taken to be
@@ -41,8 +42,9 @@ OFFSET_SIGMA_S = 0.005  # how far off the offset the wheels' accelerations line 
 def rest_mounting(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | None, T_ref: np.ndarray | None,
                   est: Estimates) -> None:
     """Roll and pitch from gravity and the ground at rest, then the yaw from the wheels, each replacing
-    hand-eye's axes where sharper; a note says what was used or why not."""
-    if est.rotation is None or est.static is None or not arrays.first_scans:
+    hand-eye's axes where sharper (where hand-eye gave no rotation, the mounting starts from these alone);
+    a note says what was used or why not."""
+    if est.static is None or not arrays.first_scans:
         return
     Rbl = np.eye(3) if T_base_lidar is None else np.asarray(T_base_lidar, float)[:3, :3]
     a, b = est.static.start_ns + REST_MARGIN_NS, est.static.end_ns - REST_MARGIN_NS
@@ -55,14 +57,36 @@ def rest_mounting(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray 
     except InputError as err:
         est.notes.append(f"roll and pitch from gravity and the ground at rest: {err}")
         return
-    if not _tilt(ground, T_ref, est, len(scans)):
-        return
+    seeded = est.rotation is None
+    if seeded:
+        _seed(ground.normal, est)
+    _tilt(ground, T_ref, est, len(scans), seeded)
     if arrays.has_wheels and est.wheel is not None:
-        _yaw(arrays, imu, Rbl, T_ref, est)
+        _yaw(arrays, imu, Rbl, ground.normal, T_ref, est)
+    if seeded:
+        for k in np.flatnonzero(~rotation_observable(est)):
+            est.skip(f"rotation_{'xyz'[k]}", f"the mounting's rotation about the LiDAR {'xyz'[k]} axis",
+                     "hand-eye could not use the rotations; gravity and the ground at rest give the roll and pitch, "
+                     "not the rotation about the vertical: speed up and brake (with wheel odometry) to show it")
 
 
-def _tilt(ground, T_ref, est: Estimates, n_scans: int) -> bool:
-    """Gravity's up onto the ground's normal: replaces hand-eye's two axes across it where sharper."""
+def _seed(normal: np.ndarray, est: Estimates) -> None:
+    """A mounting to start from where hand-eye gave none: the IMU's up on the ground's normal, any rotation
+    about it (its covariance there unbounded, the rest replaced by ``_tilt``)."""
+    up = est.static.up_imu
+    ax = np.cross(up, normal)
+    R = so3_exp(ax / max(np.linalg.norm(ax), 1e-15) * np.arctan2(np.linalg.norm(ax), float(up @ normal)))
+    cov = np.eye(3) * np.pi**2
+    est.rotation = RotationCalib(R_lidar_imu=R, sigma_rad=np.full(3, np.pi), covariance_rad2=cov,
+                                 observable=np.zeros(3, bool), gyro_bias_radps=est.static.gyro_bias_radps,
+                                 gyro_bias_sigma_radps=est.static.gyro_bias_sigma_radps, windows=0,
+                                 rms_residual_rad=float("nan"), notes=(), registration_gain=np.zeros((3, 3)),
+                                 fit_covariance_rad2=cov)
+    est.skipped = [s for s in est.skipped if s.key != "rotation"]
+
+
+def _tilt(ground, T_ref, est: Estimates, n_scans: int, seeded: bool) -> None:
+    """Gravity's up onto the ground's normal: replaces hand-eye's tilt in the directions where it is sharper."""
     R = T_lidar_imu_of(est, T_ref)[:3, :3]
     n = ground.normal
     v = R @ est.static.up_imu
@@ -71,23 +95,29 @@ def _tilt(ground, T_ref, est: Estimates, n_scans: int) -> bool:
     B = _across(n)
     # gravity's direction: the accelerometer's noise (negligible at rest) and its horizontal bias
     S = B @ ground.covariance_rad2 @ B.T + np.eye(2) * (ACCEL_BIAS_PRIOR_MPS2 / GRAVITY_MPS2) ** 2
-    he = np.sqrt(np.clip(np.diag(B @ rotation_cov_lidar(est) @ B.T), 0, None))
-    sig = np.sqrt(np.diag(S))
-    if (sig >= SHARPER * he).any():
+    lam, V = np.linalg.eigh(B @ rotation_cov_lidar(est) @ B.T)  # hand-eye's sharpest and vaguest tilt directions
+    sig = np.sqrt(np.diag(V.T @ S @ V))
+    he = np.sqrt(np.clip(lam, 0, None))
+    vaguer = sig < SHARPER * he  # the directions where hand-eye is vaguer: those are replaced
+    if not vaguer.any():
         est.notes.append(f"roll and pitch from gravity and the ground at rest (1-sigma {_deg(sig)} deg) left out: "
                          f"hand-eye's are sharper ({_deg(he)} deg)")
-        return False
-    _replace(est, T_ref, B, B @ c, S)
+        return
+    Vv = V[:, vaguer]
+    _replace(est, T_ref, Vv.T @ B, Vv.T @ B @ c, Vv.T @ S @ Vv)
+    turned = "hand-eye gave no rotation" if seeded else f"{np.degrees(np.linalg.norm(c)):.2f} deg from hand-eye's" + \
+        ("" if vaguer.all() else f" (one direction only: hand-eye's sharper across it, {np.degrees(he.min()):.2f} deg)")
     est.notes.append(f"the mounting's roll and pitch from gravity against the ground the LiDAR saw at rest ({n_scans} "
                      f"scans, {ground.inliers} ground points, {ground.height_m:.2f} m below, ground taken as level): "
-                     f"{np.degrees(np.linalg.norm(c)):.2f} deg from hand-eye's, 1-sigma {_deg(sig)} deg (the "
+                     f"{turned}, 1-sigma {_deg(sig)} deg (the "
                      f"accelerometer's horizontal bias, {ACCEL_BIAS_PRIOR_MPS2:g} m/s^2 assumed, looks like tilt)")
-    return True
 
 
-def _yaw(arrays: SensorArrays, imu: ImuBatch, Rbl: np.ndarray, T_ref, est: Estimates) -> None:
-    """The rotation about the base z from the wheels' accelerations (sway model), where sharper than so far."""
-    u = Rbl[2]
+def _yaw(arrays: SensorArrays, imu: ImuBatch, Rbl: np.ndarray, up: np.ndarray, T_ref, est: Estimates) -> None:
+    """The rotation about the base z from the wheels' accelerations (sway model), where sharper than so far;
+    applied about ``up``, the vertical at rest (the base's z within its drawing's error), which keeps the roll
+    and pitch just set and what was unknown about the vertical out of them."""
+    u = up
     before = float(np.sqrt(max(u @ rotation_cov_lidar(est) @ u, 0.0)))
     w = est.wheel
     v, om = w.corrected(arrays.wheel_linear_mps, arrays.wheel_angular_radps)
@@ -114,7 +144,7 @@ def _yaw(arrays: SensorArrays, imu: ImuBatch, Rbl: np.ndarray, T_ref, est: Estim
         halves = [fit(off, ws < mid, imu.stamps_ns + shift < mid, 0.03).yaw_rad,
                   fit(off, ws >= mid, imu.stamps_ns + shift >= mid, 0.03).yaw_rad]
     except InputError as err:
-        est.notes.append(f"the mounting's rotation about the base z from the wheels at rest's end: {err}")
+        est.notes.append(f"the mounting's rotation about the base z from speeding up and braking: {err}")
         return
     half = abs(np.angle(np.exp(1j * (halves[1] - halves[0])))) / 2
     sigma = float(np.sqrt(res.sigma_rad**2 + slope**2 + half**2))
@@ -173,6 +203,9 @@ def _replace(est: Estimates, T_ref, B: np.ndarray, z: np.ndarray, S: np.ndarray)
     if now.all():
         gained |= {s.key for s in est.skipped if s.key.startswith("rotation_about_") or s.key == "rotation"}
     est.skipped = [s for s in est.skipped if s.key not in gained]
+    # the precision notes said of the mounting before (``report.imprecision_notes``) no longer hold
+    est.notes = [x for x in est.notes if not (x.startswith("the mounting's rotation about the LiDAR") and
+                                              "axis is measured to" in x)]
 
 
 def _across(n: np.ndarray) -> np.ndarray:
