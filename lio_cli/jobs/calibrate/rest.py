@@ -47,6 +47,12 @@ def rest_mounting(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray 
     if est.static is None or not arrays.first_scans:
         return
     Rbl = np.eye(3) if T_base_lidar is None else np.asarray(T_base_lidar, float)[:3, :3]
+    wheels = arrays.has_wheels and est.wheel is not None
+    if est.rotation is not None and not wheels:
+        B = _across(Rbl[2])
+        he = np.sqrt(np.clip(np.linalg.eigvalsh(B @ rotation_cov_lidar(est) @ B.T), 0, None))
+        if (he <= SHARPER * ACCEL_BIAS_PRIOR_MPS2 / GRAVITY_MPS2).all():  # gravity cannot do better: no fit
+            return
     a, b = est.static.start_ns + REST_MARGIN_NS, est.static.end_ns - REST_MARGIN_NS
     shift = 0 if est.offset is None else int(round(est.offset.imu_time_offset_s * 1e9))
     scans = [p for s, e, p in arrays.first_scans if s - shift >= a and e - shift <= b][:MAX_REST_SCANS]
@@ -61,7 +67,7 @@ def rest_mounting(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray 
     if seeded:
         _seed(ground.normal, est)
     _tilt(ground, T_ref, est, len(scans), seeded)
-    if arrays.has_wheels and est.wheel is not None:
+    if wheels:
         _yaw(arrays, imu, Rbl, ground.normal, T_ref, est)
     if seeded:
         for k in np.flatnonzero(~rotation_observable(est)):
