@@ -81,7 +81,9 @@ def _seed(normal: np.ndarray, est: Estimates) -> None:
     about it (its covariance there unbounded, the rest replaced by ``_tilt``)."""
     up = est.static.up_imu
     ax = np.cross(up, normal)
-    R = so3_exp(ax / max(np.linalg.norm(ax), 1e-15) * np.arctan2(np.linalg.norm(ax), float(up @ normal)))
+    if np.linalg.norm(ax) < 1e-12:  # parallel, or upside down: any axis across
+        ax = _across(up)[0] * 1e-12
+    R = so3_exp(ax / np.linalg.norm(ax) * np.arctan2(np.linalg.norm(ax), float(up @ normal)))
     cov = np.eye(3) * np.pi**2
     est.rotation = RotationCalib(R_lidar_imu=R, sigma_rad=np.full(3, np.pi), covariance_rad2=cov,
                                  observable=np.zeros(3, bool), gyro_bias_radps=est.static.gyro_bias_radps,
@@ -202,7 +204,8 @@ def _replace(est: Estimates, T_ref, B: np.ndarray, z: np.ndarray, S: np.ndarray)
     if est.lever is not None:
         lev = est.lever
         refined = np.isfinite(lev.rotation_covariance_rad2).all()
-        est.lever = replace(lev, R_lidar_imu=R, rotation_covariance_rad2=rc if refined else lev.rotation_covariance_rad2,
+        est.lever = replace(lev, R_lidar_imu=R,
+                            rotation_covariance_rad2=rc if refined else lev.rotation_covariance_rad2,
                             rotation_sigma_rad=sig if refined else lev.rotation_sigma_rad)
     now = rotation_observable(est)
     gained = {f"rotation_{'xyz'[k]}" for k in np.flatnonzero(now & ~before)}
