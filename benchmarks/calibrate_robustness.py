@@ -20,6 +20,7 @@ calibrate on a 60 s hand-held log (target <= 30 s wall).
   python benchmarks/calibrate_robustness.py --quick            # 3 cells + their odom runs (~5 min on 2 cores)
   python benchmarks/calibrate_robustness.py --jobs 2           # 18 cells + 3 odom pairs + the 60 s timing
   python benchmarks/calibrate_robustness.py --platform "ground robot"   # one platform's 6 cells
+  python benchmarks/calibrate_robustness.py --platform car --start still  # the car's 3 still starts
   python benchmarks/calibrate_robustness.py --work DIR         # cache: a cell whose inputs and code are unchanged is read back
 """
 
@@ -51,7 +52,7 @@ TARGETS = {"rotation": 0.3, "lever": 2.0, "offset": 1.0, "wheel": 0.3, "sigmas":
 OBSERVED_ROT_DEG, OBSERVED_LEVER_CM = 1.0, 5.0  # the estimators' thresholds of an estimated axis
 
 
-def cells(quick: bool, platforms: list[str] | None = None) -> list[dict]:
+def cells(quick: bool, platforms: list[str] | None = None, starts: list[str] | None = None) -> list[dict]:
     out = []
     for platform in platforms or PLATFORMS:
         for i in ([QUICK_INDEX] if quick else range(6)):
@@ -59,7 +60,7 @@ def cells(quick: bool, platforms: list[str] | None = None) -> list[dict]:
             out.append({"platform": platform, "mounting": mounting, "lever": lever,
                         "offset_s": OFFSETS_S[(i + i // 3) % 3], "start": STARTS[i % 2], "seed": 700 + i,
                         "duration_s": DURATION_S, "odom": i == QUICK_INDEX})
-    return out
+    return [c for c in out if starts is None or c["start"] in starts]
 
 
 def code_hash() -> str:
@@ -237,12 +238,14 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="cells run in parallel (processes)")
     ap.add_argument("--platform", action="append", choices=list(PLATFORMS),
                     help="only this platform's cells, no 60 s timing (repeatable)")
+    ap.add_argument("--start", action="append", choices=list(STARTS),
+                    help="only the cells of this start, no 60 s timing (repeatable)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio_calibrate_robustness"), help="cache and scratch folder")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     code = code_hash()
-    todo = cells(a.quick, a.platform)
-    if not a.quick and not a.platform:
+    todo = cells(a.quick, a.platform, a.start)
+    if not a.quick and not a.platform and not a.start:
         todo.append({"platform": "hand-held", "mounting": "yaw 30", "lever": "0.37 m", "offset_s": 0.015,
                      "start": "still", "seed": 799, "duration_s": 60.0, "odom": False})
     t0 = time.perf_counter()

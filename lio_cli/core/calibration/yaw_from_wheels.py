@@ -233,3 +233,15 @@ def _window_means(x: np.ndarray, ts: np.ndarray, edges: np.ndarray) -> np.ndarra
     u = e - ts[k]
     ce = c[k] + x[k] * u + 0.5 * (x[k + 1] - x[k]) / h * u * u
     return np.diff(ce) / np.maximum(np.diff(e), 1e-12)
+
+
+def fit_wheel_sway_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: np.ndarray,
+                       imu_stamps_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray, *,
+                       R_base_imu: np.ndarray, gyro_bias_radps: np.ndarray | None = None,
+                       imu_time_offset_s: float = 0.0, exclude_ns: tuple = (),
+                       min_accel_mps2: float = MIN_ACCEL_MPS2) -> WheelYaw:
+    """The fit with the body's sway taken out (``_fit`` with the gyro) alone, its 1-sigma the residuals' own:
+    for a caller that judges the yaw's uncertainty itself (a straight drive's plain fit, which
+    ``estimate_wheel_yaw`` compares with, reads the body's pitch under braking as degrees of yaw)."""
+    return _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
+                exclude_ns, min_accel_mps2, gyro_radps, gyro_bias_radps)

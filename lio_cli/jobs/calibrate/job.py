@@ -39,6 +39,7 @@ from .ground import wheel_yaw
 from .halves import halves_spread
 from .plane_lever import lever_from_wheels
 from .planar import ground_rotation
+from .rest import rest_mounting
 from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
                                read_imu, refine_spans)
 from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
@@ -212,6 +213,7 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                            "fused one)")
             est.notes.extend(imprecision_notes(est, traj.T_world_lidar))
             steps.wheels(arrays, wheel_traj, T_base_lidar, cfg, est, where, against)
+            rest_mounting(arrays, imu, T_base_lidar, T_ref, est)
             ground_rotation(arrays, imu, T_base_lidar, T_ref, est)
             wheel_yaw(arrays, imu, T_base_lidar, T_ref, est)
             lever_from_wheels(arrays, imu, T_base_lidar, T_ref, est)

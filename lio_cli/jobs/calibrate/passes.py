@@ -45,6 +45,8 @@ class SensorArrays:
     lidar_frame: str = ""
     scans: int = 0
     last_scan_end_ns: int | None = None  # of every scan read, registered or not
+    # the log's first scans as read, (start, end, points thinned): the ground seen while still (``rest``)
+    first_scans: list[tuple[int, int, np.ndarray]] = field(default_factory=list)
 
     @property
     def has_wheels(self) -> bool:
@@ -83,6 +85,8 @@ PARTIAL_SPAN = 1 / 4  # a refining pass before the last covers this share of the
 PARTIAL_MIN_NS = 10_000_000_000  # ...but at least this much of it
 FIRST_SPAN = 1 / 2  # the LiDAR-only pass, when refining passes follow (3D scans), registers this share...
 FIRST_MIN_NS = 20_000_000_000  # ...but at least this much (all of the log when that is not less)
+FIRST_SCANS_NS = 5_000_000_000  # the scans starting this soon after the first are kept (``first_scans``)...
+FIRST_SCAN_POINTS = 20000  # ...thinned to at most this many points each
 DEGENERACY_EVERY = 5  # scans between analyses of the geometry (odom: 2); a calibration log's scene changes slowly
 
 
@@ -182,6 +186,8 @@ class LidarPass:
                     wheel.append(rec.data)
                 elif rec.kind == "lidar":
                     arrays.last_scan_end_ns = int(rec.data.end_ns)
+                    if gather:
+                        _keep_first(arrays, rec.data)
                     if span_ns is not None and until_ns is None:
                         until_ns = int(rec.data.end_ns) + span_ns
                     if until_ns is not None and rec.data.end_ns > until_ns:
@@ -241,6 +247,14 @@ class LidarPass:
             self.done += 1
             if self.counter is not None:
                 self.counter.step()
+
+
+def _keep_first(arrays: SensorArrays, cloud: PointCloud) -> None:
+    """Keep ``cloud`` (thinned) when it starts within ``FIRST_SCANS_NS`` of the first scan kept."""
+    if arrays.first_scans and cloud.start_ns - arrays.first_scans[0][0] > FIRST_SCANS_NS:
+        return
+    step = max(1, -(-len(cloud.points) // FIRST_SCAN_POINTS))
+    arrays.first_scans.append((int(cloud.start_ns), int(cloud.end_ns), np.asarray(cloud.points[::step], np.float32)))
 
 
 def _wheel_arrays(arrays: SensorArrays, recs: list) -> None:
