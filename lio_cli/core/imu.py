@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import cross_rows, skew, so3_exp, so3_exp_one
+from ..geometry import cross_rows, so3_exp, so3_exp_one
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
 
@@ -167,8 +167,9 @@ def gyro_rotations(R0: np.ndarray, gyro_bias: np.ndarray, imu: ImuBatch, t0_ns: 
     poses' rotations, for a sweep's de-skew). No IMU sample at all is a gap with no rotation."""
     if len(imu) == 0:
         return np.array([t0_ns, t_end_ns], dtype=np.int64), np.stack([R0, R0]), True
-    times, _, Rs, gap, _, _, _ = _rotations(np.asarray(R0, dtype=np.float64), np.asarray(gyro_bias, dtype=np.float64),
-                                         imu, t0_ns, t_end_ns, ext.R_base_imu, max_gap_ns)
+    times, _, Rs, gap, _, _, _ = _rotations(np.asarray(R0, dtype=np.float64),
+                                            np.asarray(gyro_bias, dtype=np.float64), imu, t0_ns, t_end_ns,
+                                            ext.R_base_imu, max_gap_ns)
     return times, Rs, gap
 
 
