@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import cross_rows, skew, so3_exp, so3_exp_one
+from ..geometry import cross_rows, so3_exp, so3_exp_one
 from ..model.calibration import Extrinsics
 from ..model.records import ImuBatch
 
@@ -130,8 +130,8 @@ def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
     s = state.copy()
     if len(imu) == 0:
         return _hold(s, t_end_ns)
-    times, dts, Rs, gap, inside, w_b = _rotations(s.R, s.bg, imu, t0, t_end_ns, R_bi, max_gap_ns)
-    accs = np.vstack([interpolate_imu(imu, t0)[1], imu.accel_mps2[inside], interpolate_imu(imu, t_end_ns)[1]])
+    times, dts, Rs, gap, inside, w_b, ends = _rotations(s.R, s.bg, imu, t0, t_end_ns, R_bi, max_gap_ns)
+    accs = np.vstack([ends[0][1], imu.accel_mps2[inside], ends[1][1]])
     f_b = (accs - s.ba) @ R_bi.T  # specific force at the IMU, base axes
     n = len(times)
     # acceleration of the base origin in world at every sample (lever arm removed), then trapezoids
@@ -167,18 +167,20 @@ def gyro_rotations(R0: np.ndarray, gyro_bias: np.ndarray, imu: ImuBatch, t0_ns: 
     poses' rotations, for a sweep's de-skew). No IMU sample at all is a gap with no rotation."""
     if len(imu) == 0:
         return np.array([t0_ns, t_end_ns], dtype=np.int64), np.stack([R0, R0]), True
-    times, _, Rs, gap, _, _ = _rotations(np.asarray(R0, dtype=np.float64), np.asarray(gyro_bias, dtype=np.float64),
-                                         imu, t0_ns, t_end_ns, ext.R_base_imu, max_gap_ns)
+    times, _, Rs, gap, _, _, _ = _rotations(np.asarray(R0, dtype=np.float64),
+                                            np.asarray(gyro_bias, dtype=np.float64), imu, t0_ns, t_end_ns,
+                                            ext.R_base_imu, max_gap_ns)
     return times, Rs, gap
 
 
 def _rotations(R0: np.ndarray, bg: np.ndarray, imu: ImuBatch, t0: int, t_end_ns: int, R_bi: np.ndarray,
                max_gap_ns: int):
-    """(times, their intervals in s, rotations at them, gap, the IMU samples inside, base angular rates) of a
-    propagation."""
+    """(times, their intervals in s, rotations at them, gap, the IMU samples inside, base angular rates, the
+    interpolated (gyro, accel) at t0 and at the end) of a propagation."""
     inside = (imu.stamps_ns > t0) & (imu.stamps_ns < t_end_ns)
     times = np.concatenate([[t0], imu.stamps_ns[inside], [t_end_ns]])
-    gyros = np.vstack([interpolate_imu(imu, t0)[0], imu.gyro_radps[inside], interpolate_imu(imu, t_end_ns)[0]])
+    ends = interpolate_imu(imu, t0), interpolate_imu(imu, t_end_ns)
+    gyros = np.vstack([ends[0][0], imu.gyro_radps[inside], ends[1][0]])
     gap = bool(np.diff(times).max(initial=0) > max_gap_ns) or imu.stamps_ns[-1] < t_end_ns - max_gap_ns \
         or imu.stamps_ns[0] > t0 + max_gap_ns
     w_b = (gyros - bg) @ R_bi.T  # base angular rate at each time
@@ -191,7 +193,7 @@ def _rotations(R0: np.ndarray, bg: np.ndarray, imu: ImuBatch, t0: int, t_end_ns:
     Rs[0] = R0
     for k in range(n - 1):
         Rs[k + 1] = Rs[k] @ steps[k]
-    return times, dts, Rs, gap, inside, w_b
+    return times, dts, Rs, gap, inside, w_b, ends
 
 
 def _flatten_many(Rs: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -236,25 +238,25 @@ def _propagate_cov_interval(P: np.ndarray, Rs: np.ndarray, R_bi: np.ndarray, w_b
     if total <= 0:
         return P
     m = max(1, int(round(total / substep_s)))
-    edges = np.linspace(0, len(dts), m + 1).astype(int)
-    for a, b in zip(edges[:-1], edges[1:]):
+    edges = np.linspace(0, len(dts), m + 1).astype(int).tolist()
+    # the same products as filling a fresh F and Q per sub-step; the constant parts made once
+    F = np.eye(STATE_DIM)
+    q_rate = np.repeat([q[0], 0.0, q[1], q[2], q[3], 0.0], 3)
+    Q = np.zeros((STATE_DIM, STATE_DIM))  # np.diag(q_rate * dt): its diagonal rewritten per sub-step
+    Q_diag = Q.reshape(-1)[::STATE_DIM + 1]
+    R_R_bi = Rs[edges[:-1]] @ R_bi
+    for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
         if b <= a:
             continue
         dt = float(dts[a:b].sum())
-        w = w_b[a:b + 1].mean(axis=0)
-        f = f_b[a:b + 1].mean(axis=0)
-        R = Rs[a]
-        F = np.eye(STATE_DIM)
+        w = np.add.reduce(w_b[a:b + 1], axis=0) / (b + 1 - a)  # np.mean's sum and division
+        f = np.add.reduce(f_b[a:b + 1], axis=0) / (b + 1 - a)
         F[0:3, 0:3] = so3_exp_one(-w * dt)
         F[0:3, 9:12] = -R_bi * dt
-        F[3:6, 6:9] = np.eye(3) * dt
-        F[6:9, 0:3] = -R @ skew(f) * dt
-        F[6:9, 12:15] = -R @ R_bi * dt
-        F[6:9, 15:18] = np.eye(3) * dt
-        Q = np.zeros(STATE_DIM)
-        Q[0:3] = q[0] * dt
-        Q[6:9] = q[1] * dt
-        Q[9:12] = q[2] * dt
-        Q[12:15] = q[3] * dt
-        P = F @ P @ F.T + np.diag(Q)
+        F[3, 6] = F[4, 7] = F[5, 8] = F[6, 15] = F[7, 16] = F[8, 17] = dt  # identity blocks times dt
+        f0, f1, f2 = f.tolist()
+        F[6:9, 0:3] = -Rs[a] @ np.array([[0.0, -f2, f1], [f2, 0.0, -f0], [-f1, f0, 0.0]]) * dt  # skew(f)
+        F[6:9, 12:15] = -R_R_bi[i] * dt
+        np.multiply(q_rate, dt, out=Q_diag)
+        P = F @ P @ F.T + Q
     return P

@@ -30,37 +30,45 @@ def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.n
     m = len(knot_stamps_ns)
     if m == 1:
         return points_lidar @ rel[0, :3, :3].T + rel[0, :3, 3]
-    idx = np.searchsorted(knot_stamps_ns, stamps_ns, side="right") - 1
-    np.clip(idx, 0, m - 2, out=idx)
+    n = len(points_lidar)
     span = np.maximum(np.diff(knot_stamps_ns), 1).astype(np.float64)
-    a = (stamps_ns - knot_stamps_ns[idx]) / span[idx]
+    order = None
+    if n < 2 or bool(np.all(stamps_ns[1:] >= stamps_ns[:-1])):
+        # points in time order (spinning LiDARs fire in order): each knot interval is a contiguous slice, found by
+        # m searches instead of n; the points before the first knot or after the last blend in the end intervals
+        cuts = np.searchsorted(stamps_ns, knot_stamps_ns[1:-1])
+        counts = np.diff(cuts, prepend=0, append=n)
+        a = (stamps_ns - np.repeat(knot_stamps_ns[:-1], counts)) / np.repeat(span, counts)
+        bounds = [0, *cuts.tolist(), n]
+    else:
+        idx = np.searchsorted(knot_stamps_ns, stamps_ns, side="right") - 1
+        np.clip(idx, 0, m - 2, out=idx)
+        a = (stamps_ns - knot_stamps_ns[idx]) / span[idx]
+        if not np.all(idx[1:] >= idx[:-1]):
+            order = np.argsort(idx, kind="stable")
+            idx, a = idx[order], a[order]
+        bounds = np.searchsorted(idx, np.arange(m)).tolist()
     np.clip(a, 0.0, 1.0, out=a)
-    # spinning LiDARs deliver points in firing order: then every interval is a contiguous slice
-    order = None if np.all(idx[1:] >= idx[:-1]) else np.argsort(idx, kind="stable")
-    if order is not None:
-        idx, a = idx[order], a[order]
-    bounds = np.searchsorted(idx, np.arange(m)).tolist()
     # Per interval k one product gives both the start knot's transform of each point, q0 = A [p 1], and its
-    # change to the next knot's, q1 - q0 = D [p 1] (A = rel[k], D = rel[k+1] - rel[k], 3x4 each); the blend
-    # is q0 + a (q1 - q0). Points are laid out as rows (4, N) so every elementwise step runs along a row.
+    # change to the next knot's, q1 - q0 = D [p 1] (A = rel[k], D = rel[k+1] - rel[k], 3x4 each), into one
+    # buffer; the blend q0 + a (q1 - q0) is then taken over all points at once. Points are laid out as rows
+    # (4, N) so every elementwise step runs along a row.
     T = rel[:, :3, :]
     W = np.concatenate([T[:-1], T[1:] - T[:-1]], axis=1)  # (m-1, 6, 4): [A; D]
-    n = len(points_lidar)
     ph = np.empty((4, n))
     ph[:3] = points_lidar.T if order is None else points_lidar[order].T
     ph[3] = 1.0
-    out = np.empty((3, n))
+    Q = np.empty((6, n))
     for k in range(m - 1):
         lo, hi = bounds[k], bounds[k + 1]
-        if hi <= lo:
-            continue
-        Q = W[k] @ ph[:, lo:hi]
-        Q[3:] *= a[lo:hi]
-        np.add(Q[:3], Q[3:], out=out[:, lo:hi])
-    if order is None:
-        return out.T.copy()
+        if hi > lo:
+            np.matmul(W[k], ph[:, lo:hi], out=Q[:, lo:hi])
+    Q[3:] *= a
     res = np.empty((n, 3))
-    res[order] = out.T
+    if order is None:
+        np.add(Q[:3], Q[3:], out=res.T)
+    else:
+        res[order] = (Q[:3] + Q[3:]).T
     return res
 
 

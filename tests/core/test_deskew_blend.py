@@ -46,3 +46,13 @@ def test_deskew_does_not_depend_on_the_points_order():
     ordered = deskew(points, stamps, KNOTS, poses, int(KNOTS[-1]), T_bl)
     shuffled = deskew(points[perm], stamps[perm], KNOTS, poses, int(KNOTS[-1]), T_bl)
     assert np.abs(shuffled - ordered[perm]).max() < 1e-12
+
+
+def test_points_on_the_knots_and_intervals_without_points_blend_as_each_point_alone():
+    points, _, poses, T_bl = _sweep()
+    # time-ordered stamps: runs of points exactly on knots, and nothing between knots 5 and 12
+    stamps = np.sort(np.concatenate([np.repeat(KNOTS, 100), KNOTS[:5].repeat(50) + 1_000_000,
+                                     KNOTS[12:].repeat(40) - 1]))[:len(points)].astype(np.int64)
+    pts = points[:len(stamps)]
+    got = deskew(pts, stamps, KNOTS, poses, int(KNOTS[-1]), T_bl)
+    assert np.abs(got - _per_point(pts, stamps, poses, KNOTS[-1], T_bl)).max() < 1e-12

@@ -83,6 +83,11 @@ def imu_sample_problem(gyro, accel) -> str | None:
 
 def twist_problem(linear, angular) -> str | None:
     """Why an odometry twist is unusable (NaN, or beyond anything that moves), or None if it is fine."""
+    v, w = MAX_TWIST_MPS, MAX_TWIST_RADPS
+    # a fine twist passes six comparisons, as an IMU sample does; the rest take the path that names the problem
+    if (len(linear) == 3 and len(angular) == 3 and -v <= linear[0] <= v and -v <= linear[1] <= v
+            and -v <= linear[2] <= v and -w <= angular[0] <= w and -w <= angular[1] <= w and -w <= angular[2] <= w):
+        return None
     return _vector_problem(((linear, MAX_TWIST_MPS, "a speed", "m/s"), (angular, MAX_TWIST_RADPS, "a turn rate", "rad/s")))
 
 

@@ -1,4 +1,5 @@
-"""The degeneracy check's building blocks give what their numpy/scipy originals give, to the bit."""
+"""The degeneracy check's building blocks give what their numpy/scipy originals give: to the bit, or (the closed-form
+eigen-decomposition) to rounding."""
 
 import subprocess
 import sys
@@ -6,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from lio_cli.core.odometry.degeneracy import scatter_matrices
+from lio_cli.core.odometry.degeneracy import scatter_matrices, smallest_eigenvectors
 
 
 def _einsum_scatter(nb: np.ndarray) -> np.ndarray:
@@ -50,3 +51,23 @@ def test_ckdtree_class_is_scipys_and_scipy_spatial_stays_unloaded():
             "d, i = C([[0.0, 0.0], [1.0, 1.0], [3.0, 0.0]]).query([[0.9, 1.2]], k=2); "
             "assert i.tolist() == [[1, 0]], i")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("kind", ["random", "planes", "repeated"])
+def test_smallest_eigenvectors_match_lapack_to_rounding(kind):
+    rng = np.random.default_rng(7)
+    pts, idx = _neighbourhoods(rng, 250, 20, 3, kind)
+    S = scatter_matrices(pts[idx.T])
+    if kind == "random":  # and flat neighbourhoods (surfaces) turned every way: U diag(l) U^T
+        U = np.linalg.qr(rng.normal(size=(100, 3, 3)))[0]
+        lam = rng.uniform(0.5, 1.0, (100, 3)) * [1e-4, 1.0, 3.0]
+        S[:100] = np.einsum("nij,nj,nkj->nik", U, lam, U)
+    w_ref, v_ref = np.linalg.eigh(S)
+    w, v = smallest_eigenvectors(S)
+    scale = np.maximum(w_ref[:, -1:], 1e-300)
+    assert np.abs(w - w_ref).max(initial=0.0) <= 1e-12 * scale.max()
+    apart = (w_ref[:, 1] - w_ref[:, 0]) > 1e-3 * w_ref[:, -1]  # where the smallest eigenvector is defined
+    cos = np.abs(np.einsum("ni,ni->n", v[apart], v_ref[apart, :, 0]))
+    assert np.all(np.abs(cos - 1.0) < 1e-9)
+    w0, v0 = smallest_eigenvectors(np.zeros((2, 3, 3)))  # no spread at all: no normal
+    assert np.all(w0 == 0.0) and np.all(v0 == 0.0)

@@ -8,7 +8,7 @@ import pytest
 from lio_cli.errors import InputError
 from lio_cli.io.logs.reader import open_log
 from lio_cli.model.records import ImuBatch, OdometryRecord, PointCloud, PoseRecord
-from lio_cli.io.sensors.stream import SensorStream, read_imu
+from lio_cli.io.sensors.stream import SensorStream, read_imu, twist_problem
 from lio_cli.io.sensors.topics import select_topic
 
 IMU = "sensor_msgs/msg/Imu"
@@ -289,3 +289,15 @@ def test_strict_stream_reports_a_stamp_of_0_that_sorts_first(logs):
         assert str(err.value).startswith(f"{path}: /points: header stamps jump from 0.000000000 s to "
                                          "1700000000.000000000 s between messages recorded -0.100 s apart")
         assert [r.stamp_ns for r in SensorStream(log, {"lidar": "/points"}, strict=False)][0] == 0
+
+
+@pytest.mark.parametrize("linear,angular,problem", [
+    ([1000.0, -1000.0, 0.0], [0.0, 0.0, -1000.0], None),  # at the limits: fine
+    ([np.nan, 0.0, 0.0], [0.0, 0.0, 0.0], "holds NaN or infinity"),
+    ([0.0, 0.0, 0.0], [0.0, np.inf, 0.0], "holds NaN or infinity"),
+    ([0.0, -1500.0, 0.0], [0.0, 0.0, 0.0], "holds a speed of 1.5e+03 m/s (beyond 1000)"),
+    ([0.0, 0.0, 0.0], [0.0, 0.0, 2000.0], "holds a turn rate of 2e+03 rad/s (beyond 1000)"),
+    ([0.5, 0.0], [0.0, 0.0, 0.1], None),  # not three values: the general path
+])
+def test_twist_problem_names_the_first_unusable_value(linear, angular, problem):
+    assert twist_problem(np.array(linear), np.array(angular)) == problem
