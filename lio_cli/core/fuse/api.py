@@ -12,7 +12,7 @@ from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import graph, gps_shape
+from . import graph, shape
 from .graph.keyframes import with_outputs
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto, yaw_velocity_onto
 from .initial import Start, initial_state
@@ -40,7 +40,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
         result, prep = _run_graph(prep, o)
     else:
         result = _run_filter(prep, o)
-    if o.smooth and gps_shape.applies(prep):
+    if o.smooth and shape.applies(prep):
         result = _shape_without_gps(inputs, given, prep, result)
     result.info.update(_common_info(prep, o))
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
@@ -50,11 +50,11 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
 
 def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
     """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
-    (``gps_shape``); else the GPS-fused ``fused``."""
+    (``shape``); else the GPS-fused ``fused``."""
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     free = fuse(replace(inputs, gps=None), replace(o, use=use))
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
-    test = gps_shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
+    test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
     if test is None:
         return fused
     fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}

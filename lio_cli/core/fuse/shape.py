@@ -89,4 +89,4 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     T = np.eye(4)
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[:2, 3] = shift
-    return ShapeTest(chi2 <= dof + QUANTILE_Z * np.sqrt(2.0 * dof), chi2, dof, len(idx), T)
+    return ShapeTest(bool(chi2 <= dof + QUANTILE_Z * np.sqrt(2.0 * dof)), float(chi2), dof, len(idx), T)
