@@ -51,6 +51,9 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
 def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
     """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
     (``shape``); else the GPS-fused ``fused``."""
+    raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
+    if raised < shape.OPTIMISTIC_SHARE * len(prep.gps):  # an honest claim: the fixes' error is what they say
+        return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     free = fuse(replace(inputs, gps=None), replace(o, use=use))
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)

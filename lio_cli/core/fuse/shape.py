@@ -5,9 +5,11 @@ the fixes as much as the wheels and gyro drift in that time, or more, and a fusi
 noise bends a good dead reckoning towards it. So the trajectory fused without GPS is tested against the fixes
 under the receiver's real error (``consistent``): a rigid fit in the plane (heading and shift, which GPS alone
 gives), weighted by the error's covariance (a first-order Gauss-Markov part of ``SLOW_SHARE`` of the variance,
-correlation time ``TAU_S``, plus white noise; the total sigma ``TRUE_OVER_CLAIMED`` times the fixes' claimed
-sigma: consumer receivers claim about a third), and its chi-square against the ``QUANTILE`` of its degrees of
-freedom. Consistent: the motion sources' shape stands, GPS gives the world's heading and position (``onto``).
+correlation time ``TAU_S``, plus white noise; the total sigma ``TRUE_OVER_CLAIMED`` times the larger of the
+fixes' claimed sigma and the white noise their own second differences show: consumer receivers claim about a
+third of their error, most of it slow), and its chi-square against the ``QUANTILE`` of its degrees of
+freedom. Only for a receiver whose claim the filter's innovations showed optimistic (``gps_quality.GpsNoise``
+raised it for ``OPTIMISTIC_SHARE`` of the fixes or more); an honest claim is fused as it is. Consistent: the motion sources' shape stands, GPS gives the world's heading and position (``onto``).
 Not consistent (wheels that slipped, a gyro that drifted over a long log): GPS shapes the trajectory.
 """
 
@@ -17,12 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .gps_quality import white_sigma_m
 from .timeline import Prepared
 
 TAU_S = 60.0
 SLOW_SHARE = 0.9
 TRUE_OVER_CLAIMED = 3.0
 QUANTILE_Z = 2.326  # one-sided 99 %: chi-square(dof) taken as normal, mean dof, sigma sqrt(2 dof)
+OPTIMISTIC_SHARE = 0.1
 MIN_FIXES = 10
 MAX_FIXES = 600  # evenly thinned: the covariance is dense
 
@@ -83,7 +87,8 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), MAX_FIXES)).round().astype(int))]
     t = g.stamps_ns[idx]
     p = np.column_stack([np.interp(t, stamps_ns, poses[:, 0, 3]), np.interp(t, stamps_ns, poses[:, 1, 3])])
-    sigma = TRUE_OVER_CLAIMED * float(np.median(g.sigma_h_m[idx]))
+    white = white_sigma_m(g.stamps_ns[ok], g.position_enu_m[ok, :2])
+    sigma = TRUE_OVER_CLAIMED * max(float(np.median(g.sigma_h_m[idx])), white)
     th, shift, chi2 = rigid_fit(p, g.position_enu_m[idx, :2], error_covariance((t - t[0]) * 1e-9, sigma))
     dof = 2 * len(idx) - 3
     T = np.eye(4)

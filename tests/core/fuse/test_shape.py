@@ -41,7 +41,7 @@ def case():
     z = interpolate_poses(c.truth_stamps_ns, c.truth_poses, g.stamps_ns)[:, :3, 3]
     z[:, :2] += slow_error((g.stamps_ns - g.stamps_ns[0]) * 1e-9, seed=5)
     z[:, 2] += np.random.default_rng(6).normal(0.0, 1.5, len(z))
-    cov = np.broadcast_to(np.diag([0.83**2, 0.83**2, 1.5**2]), (len(z), 3, 3)).copy()
+    cov = np.broadcast_to(np.diag([0.3**2, 0.3**2, 1.5**2]), (len(z), 3, 3)).copy()
     return replace(c, inputs=replace(c.inputs, gps=GpsSeries(g.stamps_ns, z, cov, np.ones(len(z), bool))))
 
 
