@@ -75,7 +75,9 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
         cov[:, 3:, :3] = cov[:, 3:, :3] @ R.T
     prep.notes.append("gps: the motion sources' track kept and placed on the fixes (their slow error explains the rest)")
     info = {**fused.info, "gps_shape": {**test.to_dict(), "kept": "motion sources, placed on GPS"},
-            "smoother": free.info.get("smoother"), "start": free.info.get("start"), "world_yaw_from": "gps"}
+            "smoother": {**(free.info.get("smoother") or {}), "why": "the run without GPS, placed on the fixes (their "
+                         "slow error explains it): " + str((free.info.get("smoother") or {}).get("why"))},
+            "start": free.info.get("start"), "world_yaw_from": "gps"}
     return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
 
 
