@@ -12,7 +12,7 @@ from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import graph
+from . import graph, shape
 from .graph.keyframes import with_outputs
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto, yaw_velocity_onto
 from .initial import Start, initial_state
@@ -32,7 +32,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     Raises ``InputError`` (no motion source, nothing usable, sources on different clocks) or
     ``ConfigError`` (an option no run can use) with one line.
     """
-    o = options or FuseOptions()
+    o = given = options or FuseOptions()
     t_start = time.perf_counter()
     prep, choice = _prepare_and_choose(inputs, o)
     o = replace(o, estimator=choice.name)
@@ -40,10 +40,45 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
         result, prep = _run_graph(prep, o)
     else:
         result = _run_filter(prep, o)
+    if o.smooth and shape.applies(prep):
+        result = _shape_without_gps(inputs, given, prep, result)
     result.info.update(_common_info(prep, o))
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     result.info["run_time_s"] = time.perf_counter() - t_start
     return result
+
+
+def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
+    """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
+    (``shape``); else the GPS-fused ``fused``."""
+    raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
+    if raised < shape.OPTIMISTIC_SHARE * len(prep.gps):  # an honest claim: the fixes' error is what they say
+        return fused
+    use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
+    free = fuse(replace(inputs, gps=None), replace(o, use=use))
+    same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
+    test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
+    if test is None:
+        return fused
+    fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
+    if not test.consistent:
+        prep.notes.append("gps: the fixes disagree with the motion sources beyond their slow error: GPS shapes the track")
+        return fused
+    R = test.T[:3, :3]
+    poses = anchor_to_origin(test.T @ free.poses)
+    vel = None if free.velocities_mps is None else free.velocities_mps @ R.T
+    cov = free.covariances
+    if cov is not None:
+        cov = cov.copy()
+        cov[:, :3, :3] = R @ cov[:, :3, :3] @ R.T
+        cov[:, :3, 3:] = R @ cov[:, :3, 3:]
+        cov[:, 3:, :3] = cov[:, 3:, :3] @ R.T
+    prep.notes.append("gps: the motion sources' track kept and placed on the fixes (their slow error explains the rest)")
+    info = {**fused.info, "gps_shape": {**test.to_dict(), "kept": "motion sources, placed on GPS"},
+            "smoother": {**(free.info.get("smoother") or {}), "why": "the run without GPS, placed on the fixes (their "
+                         "slow error explains it): " + str((free.info.get("smoother") or {}).get("why"))},
+            "start": free.info.get("start"), "world_yaw_from": "gps"}
+    return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
 
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions) -> tuple[Prepared, EstimatorChoice]:

@@ -64,6 +64,13 @@ def _robust_step_sigma(p: np.ndarray, dt: np.ndarray) -> float:
     return float(1.4826 * np.sqrt(np.mean(mad**2)) / np.sqrt(3.0))  # a step's error is a third of a 2nd diff's
 
 
+def white_sigma_m(stamps_ns: np.ndarray, p_h: np.ndarray) -> float:
+    """Per-axis sigma of the fixes' white noise, from their own second differences (no motion source needed)."""
+    if len(stamps_ns) < 4:
+        return 0.0
+    return _robust_step_sigma(p_h, np.maximum(np.diff(stamps_ns) * 1e-9, 1e-6)) / np.sqrt(2.0)
+
+
 def jump_threshold_m(stamps_ns: np.ndarray, p_h: np.ndarray) -> float:
     """The step error (m) beyond which ``find_jumps`` opens a jump."""
     if len(stamps_ns) < 4:
