@@ -25,11 +25,11 @@ from ...errors import InputError
 from ...geometry import so3_exp
 from .common import NS_PER_S, CalibrationResult, sandwich_covariance
 
-WINDOW_S = 0.5
+WINDOW_S = 0.25  # a ground robot's starts and stops: windows of 0.5 s averaged away a share of them
 GRAVITY_MPS2 = 9.81
-MIN_WINDOWS = 12
+MIN_WINDOWS = 24  # 6 s of windows
 MIN_ACCEL_MPS2 = 0.1  # rms horizontal acceleration below which no angle shows
-LAG_WINDOWS = 8  # neighbouring windows whose errors may be shared (sway, slip)
+LAG_WINDOWS = 16  # neighbouring windows (4 s) whose errors may be shared (sway, slip)
 SCALE_TOLERANCE = 0.2  # |c + i s| this far from 1: the two sides do not measure the same acceleration
 SWAY_KEEP = 0.8  # the sway model is used when it leaves less than this share of the plain fit's rms residual
 

@@ -142,3 +142,38 @@ def test_halves_further_apart_than_their_sigmas_widen_the_lever_arms_sigma():
     scaled = halves_scaled(cov, a, b)
     # x: 10 cm apart at a combined 1.41 cm: 7.07 times wider; y: 1 cm apart, within their sigmas: unchanged
     assert np.sqrt(np.diag(scaled)) == pytest.approx([0.01 * 0.10 / np.sqrt(2e-4), 0.02], rel=1e-9)
+
+
+def stop_and_go(seed: int, duration_s: float = 20.0):
+    """A ground robot's starts and stops: speed (0-0.5 m/s) and turn rate (+-0.6 rad/s) ramping to new levels
+    over 0.4 s every 1.5 s; exact wheels, the IMU (180/0/90, 0.3/-0.2 m) with the simulator's accelerometer noise
+    (0.002 m/s^2/sqrt(Hz) at 200 Hz) and a bias."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration_s, 0.005)
+    knots = np.arange(0.0, duration_s + 1.5, 1.5)
+    x = (knots[:-1, None] + np.array([0.0, 0.4])).ravel()
+    lv, lw = rng.uniform(0.0, 0.5, len(knots)), rng.uniform(-0.6, 0.6, len(knots))
+    v = np.interp(t, x, np.column_stack([lv[:-1], lv[1:]]).ravel())
+    w = np.interp(t, x, np.column_stack([lw[:-1], lw[1:]]).ravel())
+    dv, dw = np.gradient(v, t), np.gradient(w, t)
+    r = np.array([0.3, -0.2])
+    f_base = np.column_stack([dv - w * w * r[0] - dw * r[1], v * w - w * w * r[1] + dw * r[0], np.full_like(t, 9.81)])
+    R_base_imu = so3_exp(np.radians([180.0, 0.0, 90.0]))
+    f_imu = f_base @ R_base_imu + np.array([0.02, -0.03, 0.04]) + rng.normal(0, 0.002 * np.sqrt(200.0), (len(t), 3))
+    stamps = (t * S).astype(np.int64) + 10 * S
+    return stamps[::4], v[::4], w[::4], stamps, f_imu, R_base_imu
+
+
+def test_a_robots_starts_and_stops_are_not_averaged_away():
+    """Windows of 0.5 s (1 s spans) averaged away most of 0.4 s ramps: 0.35 deg rms over 8 such logs, up to 0.67
+    deg off; the 0.25 s windows keep them."""
+    errs = []
+    for seed in range(4):
+        ws, v, w, stamps, f, R_true = stop_and_go(seed)
+        R_guess = so3_exp(np.radians([0.0, 0.0, -20.0])) @ R_true
+        res = estimate_wheel_yaw(ws, v, w, stamps, f, R_base_imu=R_guess)
+        M = so3_exp(np.array([0.0, 0.0, res.yaw_rad])) @ R_guess @ R_true.T
+        err = np.degrees(np.arctan2(M[1, 0], M[0, 0]))
+        assert abs(err) <= 3 * np.degrees(res.sigma_rad) and np.degrees(res.sigma_rad) < 0.2
+        errs.append(err)
+    assert np.sqrt(np.mean(np.square(errs))) < 0.15
