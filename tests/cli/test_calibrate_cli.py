@@ -179,8 +179,9 @@ def test_no_imu(tmp_path, capsys):
 
 
 def test_a_still_platform_gives_its_imu_at_rest_and_names_the_rest(tmp_path, capsys):
-    """Standing still: the IMU at rest is measured (exit 0); the clock offset and the mounting are named as not
-    estimated, with the motion that would show them, and left out of the YAML."""
+    """Standing still: the IMU at rest is measured (exit 0), and the mounting's tilt from gravity against the floor
+    where it is sharp enough; the clock offset and the other axes are named as not estimated, with the motion that
+    would show them."""
     log, out = static_log(tmp_path / "still.bag"), tmp_path / "x.yaml"
     rc, _, err = run([log, "-o", out], capsys)
     assert rc == 0, err
@@ -191,13 +192,21 @@ def test_a_still_platform_gives_its_imu_at_rest_and_names_the_rest(tmp_path, cap
     assert offset.endswith("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; "
                            "on a vehicle, drive a slalom; the other estimates use +0.000 ms and the YAML holds none "
                            "(give it with --imu-time-offset SECONDS or imu_time_offset_s in --calib if it is known)")
-    assert any(line.startswith("not estimated: the IMU's mounting rotation (T_base_imu): too little rotation to "
-                               "estimate the LiDAR-IMU rotation") for line in lines), lines
+    # at rest gravity against the floor gives the tilt; the room's floor pins the pitch, not the roll, to 1 deg
+    assert ("not estimated: the mounting's rotation about the LiDAR x axis: hand-eye could not use the rotations; "
+            "gravity against the ground at rest gives it to 1-sigma ") in err
+    assert ("not estimated: the mounting's rotation about the LiDAR z axis: hand-eye could not use the rotations; "
+            "gravity and the ground at rest give the roll and pitch, not the rotation about the vertical: speed up "
+            "and brake (with wheel odometry) to show it") in err
     text = out.read_text()
-    assert "\nimu_time_offset_s" not in text and "\nT_base_imu:" not in text and "\ngyro_bias_radps:" in text
+    assert "\nimu_time_offset_s" not in text and "\ngyro_bias_radps:" in text
     assert "# - imu_time_offset_s: too little rotation to time the IMU" in text
+    cal = load_calibration(out)
+    pitch_err = np.degrees(np.arcsin(np.asarray(cal.T_base_imu)[0, 2]))  # the IMU is mounted level
+    assert abs(pitch_err) < 0.3 and np.degrees(cal.T_base_imu_rotation_sigma_rad[1]) < 1.0
     m = json.loads(out.with_name("x.calib.metrics.json").read_text())
-    assert set(m["not_estimated"]) == {"imu_time_offset_s", "rotation", "lever_arm", "wheel_scales", "T_base_lidar"}
+    assert set(m["not_estimated"]) == {"imu_time_offset_s", "rotation_x", "rotation_z", "lever_arm", "wheel_scales",
+                                       "T_base_lidar"}
     assert "imu_time_offset_s" not in m["calibration"] and "gyro_bias_sigma_radps" in m["calibration"]
 
 

@@ -33,6 +33,7 @@ ACCEL_BIAS_PRIOR_MPS2 = 0.04  # 1-sigma of the accelerometer's horizontal bias p
 GRAVITY_MPS2 = 9.81
 REST_MARGIN_NS = 100_000_000  # a scan this far inside the still stretch (IMU clock) is taken as at rest
 MAX_REST_SCANS = 10
+VERTICAL_COS = np.cos(np.radians(45.0))  # a LiDAR axis this close to the base z is the vertical one
 SHARPER = 1.0  # a measurement replaces hand-eye's on a direction where its 1-sigma is below this times hand-eye's
 OFFSET_SEARCH_S = 0.1  # an unmeasured clock offset is searched this far either side of the one so far...
 OFFSET_STEP_S = 0.01  # ...on this grid, refined on a finer one (a fifth) about its best point
@@ -70,10 +71,21 @@ def rest_mounting(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray 
     if wheels:
         _yaw(arrays, imu, Rbl, ground.normal, T_ref, est)
     if seeded:
+        sigma_deg = np.degrees(rotation_cov_lidar(est).diagonal().clip(0) ** 0.5)
         for k in np.flatnonzero(~rotation_observable(est)):
             est.skip(f"rotation_{'xyz'[k]}", f"the mounting's rotation about the LiDAR {'xyz'[k]} axis",
-                     "hand-eye could not use the rotations; gravity and the ground at rest give the roll and pitch, "
-                     "not the rotation about the vertical: speed up and brake (with wheel odometry) to show it")
+                     _rest_reason(abs(Rbl[2, k]) > VERTICAL_COS, sigma_deg[k]))
+
+
+def _rest_reason(vertical: bool, sigma_deg: float) -> str:
+    """Why an axis stays unestimated when only the rest gave the mounting: about the vertical nothing at rest
+    shows it; across it, gravity against the ground did not reach the estimator's threshold."""
+    if vertical:
+        return ("hand-eye could not use the rotations; gravity and the ground at rest give the roll and pitch, "
+                "not the rotation about the vertical: speed up and brake (with wheel odometry) to show it")
+    return (f"hand-eye could not use the rotations; gravity against the ground at rest gives it to 1-sigma "
+            f"{sigma_deg:.2f} deg only (little or uneven ground in view): record at rest on open level ground, or turn "
+            "the sensor about two axes for hand-eye")
 
 
 def _seed(normal: np.ndarray, est: Estimates) -> None:
