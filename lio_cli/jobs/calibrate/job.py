@@ -41,7 +41,7 @@ from .plane_lever import lever_from_wheels
 from .planar import ground_rotation
 from .rest import rest_mounting
 from .passes import (PLANAR_FUSION_SIGMAS, LidarPass, PassProgress, Progress, first_span_ns, pass_until,
-                               read_imu, refine_spans)
+                               read_imu, refine_spans, wheel_pass_config)
 from .report import (T_lidar_imu_of, compose, imprecision_notes, reference_T_lidar_imu,
                                rotation_observable, table)
 from ..odom.inputs import named_base, prefer_between, root_base
@@ -206,7 +206,8 @@ def run_calibrate(job: CalibrateJob, progress: Progress | None = None) -> Calibr
                 # de-skews through any yaw alike (a fused pass bends by a wrong yaw, a LiDAR-only one skews)
                 t0 = time.perf_counter()
                 counter.plan(n)
-                wheel_traj, _ = LidarPass(reader, cfg, imu_topics, planar, counter).run(_mounting(est, T_ref))
+                wheel_traj, _ = LidarPass(reader, wheel_pass_config(cfg, lp.voxel_m), imu_topics, planar,
+                                          counter).run(_mounting(est, T_ref))
                 times["wheel_pass"] = time.perf_counter() - t0
                 against = ("wheel scales measured against a gyro-primed pass (not fused with the IMU): the IMU's "
                            "mounting is not fully known (give T_base_imu with --calib, or /tf_static, to use the "

@@ -88,6 +88,7 @@ FIRST_MIN_NS = 20_000_000_000  # ...but at least this much (all of the log when 
 FIRST_SCANS_NS = 5_000_000_000  # the scans starting this soon after the first are kept (``first_scans``)...
 FIRST_SCAN_POINTS = 20000  # ...thinned to at most this many points each
 DEGENERACY_EVERY = 5  # scans between analyses of the geometry (odom: 2); a calibration log's scene changes slowly
+WHEEL_PASS_VOXEL = 0.5  # the 2D wheel pass's map voxel, as a share of the odometry's (halves its registration jitter)
 
 
 def refine_spans(passes: int, planar: bool) -> list[float]:
@@ -131,6 +132,16 @@ def pass_config(cfg: CalibrateConfig, primed: bool, fused: tuple[float, float] |
         "input": cfg.input.model_dump(), **fields, "use_wheel": False, "estimate_time_offset": False,
         "scan_reference": "end", "frame": "lidar", "registration": cfg.registration.model_dump(),
     })
+
+
+def wheel_pass_config(cfg: CalibrateConfig, voxel_m: float | None) -> CalibrateConfig:
+    """``cfg`` for the gyro-primed pass of 2D scans the wheel scales are measured against: its map voxel
+    ``WHEEL_PASS_VOXEL`` times ``voxel_m`` (the odometry's, found from the scans' ranges) unless the
+    configuration gave one."""
+    if cfg.registration.voxel_size_m is not None or voxel_m is None:
+        return cfg
+    reg = cfg.registration.model_copy(update={"voxel_size_m": WHEEL_PASS_VOXEL * voxel_m})
+    return cfg.model_copy(update={"registration": reg})
 
 
 class LidarPass:

@@ -130,3 +130,42 @@ def test_the_gyro_primed_passes_gate_is_odom_s_unless_configured():
     assert OdomConfig().registration.gyro_prior_gate_m is None and GYRO_PRIOR_GATE_M == 1.0  # odom's own: 1 m
     cfg = CalibrateConfig.model_validate({"registration": {"gyro_prior_gate_m": 2.5}})
     assert pass_config(cfg, primed=True).registration.gyro_prior_gate_m == 2.5
+
+
+def test_the_wheel_pass_maps_at_half_the_odometry_s_voxel_unless_configured():
+    from lio_cli.jobs.calibrate.passes import wheel_pass_config
+
+    cfg = CalibrateConfig()
+    assert wheel_pass_config(cfg, 0.5).registration.voxel_size_m == pytest.approx(0.25)
+    assert cfg.registration.voxel_size_m is None  # the configuration itself is left as it was
+    assert wheel_pass_config(cfg, None) is cfg  # no odometry voxel known: nothing to halve
+    given = CalibrateConfig.model_validate({"registration": {"voxel_size_m": 0.4}})
+    assert wheel_pass_config(given, 0.5).registration.voxel_size_m == 0.4
+
+
+def test_the_wheel_pass_s_finer_map_halves_the_2d_registration_jitter(tmp_path):
+    """The wheel scales are fitted against a gyro-primed pass of 2D scans: its error in the distance driven over
+    1 s against the ground truth, at the odometry's voxel and at the wheel pass's."""
+    from lio_cli.jobs.calibrate.passes import wheel_pass_config
+
+    sim = simulate("planar", tmp_path / "rover.mcap", "mcap", duration_s=10.0, seed=31, tf_static=False)
+    t = json.loads(Path(sim.truth_path).read_text())
+    T_bl = np.array(t["T_base_lidar"])
+    mounting = (inv_pose(T_bl) @ np.array(t["T_base_imu"]), t["imu"]["imu_time_offset_s"],
+                np.array(t["imu"]["gyro_bias_mean_radps"]))
+    gt = np.loadtxt(sim.gt_path)
+
+    def jitter_cm(traj) -> float:
+        p = (traj.T_world_lidar @ inv_pose(T_bl))[:, :2, 3]
+        q = np.column_stack([np.interp(traj.stamps_ns * 1e-9, gt[:, 0], gt[:, k]) for k in (1, 2)])
+        d = lambda x: np.linalg.norm(x[10:] - x[:-10], axis=1)  # 10 scans: 1 s
+        return 100 * float(np.std(d(p) - d(q)))
+
+    topics = {"lidar": "/scan", "imu": "/imu"}
+    with open_log(sim.log_path, None) as reader:
+        lp = LidarPass(reader, CalibrateConfig(), topics, planar=True)
+        coarse = jitter_cm(lp.run(mounting)[0])
+        fine = jitter_cm(LidarPass(reader, wheel_pass_config(CalibrateConfig(), lp.voxel_m), topics,
+                                   planar=True).run(mounting)[0])
+    print(f"1 s distance error std: {coarse:.2f} cm at the odometry's voxel, {fine:.2f} cm at half")
+    assert fine < 0.7 * coarse
