@@ -55,7 +55,7 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
     """Yaw correction of ``R_base_imu`` (see ``_fit``). With the gyro, the fit without the sway model runs too:
     when the sway model does not lower the residual clearly (``SWAY_KEEP``: a level robot, whose integrated gyro
     is noise), the plain fit is the estimate; else the two estimates' difference joins the yaw's 1-sigma (the
-    sway model's residuals alone once understated it fivefold on a simulated car). Not the lever arm's: the plain
+    sway model's residuals alone understated it on a simulated car). Not the lever arm's: the plain
     fit's is decimetres off wherever the sway matters; the caller checks it on the log's halves
     (``halves_scaled``)."""
     args = (wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, R_base_imu, imu_time_offset_s,
@@ -77,8 +77,8 @@ def estimate_wheel_yaw(wheel_stamps_ns: np.ndarray, speed_mps: np.ndarray, yaw_r
 def halves_scaled(cov_m2: np.ndarray, first: WheelYaw, second: WheelYaw) -> np.ndarray:
     """The lever arm's covariance ``cov_m2`` (of the whole log) scaled, per axis, by how much further apart the two
     halves' fits (``first``, ``second``) are than their own 1-sigmas allow (never below 1): the residuals alone
-    miss what follows a drive's phases (a simulated car's first half, cruising, 2-20 cm off in y at 1-sigma
-    3-6 cm), and the plain half difference would gate an axis the other half pins to a centimetre."""
+    miss what follows a drive's phases (a cruising half pins the lateral lever arm poorly), and the plain half
+    difference would gate an axis the other half pins to a centimetre."""
     d = second.lever_xy_m - first.lever_xy_m
     spread = np.diag(first.lever_cov_m2) + np.diag(second.lever_cov_m2)
     k = np.sqrt(np.maximum(1.0, d**2 / np.maximum(spread, 1e-12)))
@@ -158,8 +158,8 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
                     np.asarray(up0, float) + np.array([tilt[0], tilt[1], 0.0]), refine - 1)
     r = y - J @ x
     H = A.T @ A
-    # each window's residual freed of its own pull on the fit (HC3): with 10 unknowns over 30-40 windows the
-    # residuals alone understate the error (1-sigma 1.8 cm for a spread of 2.3 over 30 noise draws)
+    # each window's residual freed of its own pull on the fit (HC3): with 10 unknowns over a few dozen windows the
+    # residuals alone understate the error
     L = np.einsum("nai,ij,nbj->nab", J, np.linalg.inv(H), J)
     scores = np.einsum("nji,nj->ni", J, np.linalg.solve(np.eye(2) - L, r[..., None])[..., 0])
     cov = sandwich_covariance(H, scores, lag=min(LAG_WINDOWS, n // 4))
@@ -180,15 +180,19 @@ def _fit(wheel_stamps_ns, speed_mps, yaw_rate_radps, imu_stamps_ns, accel_mps2, 
 def _tilt_walk_cov(A: np.ndarray, H: np.ndarray, t: np.ndarray, psi: np.ndarray, q: float) -> np.ndarray:
     """Covariance of the fit's unknowns from the integrated tilt's random walk: the up vector's error (start frame)
     has covariance ``q`` min(t_i, t_j) per axis, turned into the base frame at each window's heading ``psi``; the
-    horizontal specific force's error is g times it."""
-    dpsi = psi[None, :] - psi[:, None]
-    c, s = np.cos(dpsi), np.sin(dpsi)
-    mt = np.minimum(t[:, None], t[None, :])
+    horizontal specific force's error is g times it. min(t_i, t_j) is a sum of the time steps up to the earlier
+    window and the turn from window i to j a product of the two headings' rotations, so the sum over window pairs
+    is one over the steps: memory and time linear in the windows."""
+    P = np.linalg.solve(H, A.T)  # (p, 2n), window-major columns
     n = len(t)
-    M = np.empty((n, 2, n, 2))
-    M[:, 0, :, 0], M[:, 0, :, 1], M[:, 1, :, 0], M[:, 1, :, 1] = mt * c, -mt * s, mt * s, mt * c
-    P = np.linalg.solve(H, A.T)
-    return GRAVITY_MPS2**2 * q * (P @ M.reshape(2 * n, 2 * n) @ P.T)
+    Pb = P.reshape(len(P), n, 2).transpose(1, 0, 2)  # (n, p, 2): each window's columns
+    c, s = np.cos(psi)[:, None], np.sin(psi)[:, None]
+    W = np.stack([Pb[:, :, 0] * c - Pb[:, :, 1] * s, Pb[:, :, 0] * s + Pb[:, :, 1] * c], axis=2)  # P_i Rot(psi_i)^T
+    order = np.argsort(t, kind="stable")
+    ts = np.asarray(t, float)[order]
+    steps = np.diff(np.concatenate([[0.0], ts]))
+    G = np.cumsum(W[order][::-1], axis=0)[::-1]  # the windows from each step on
+    return GRAVITY_MPS2**2 * q * np.einsum("k,kia,kja->ij", steps, G, G)
 
 
 def _rate_noise_density2(om_xy: np.ndarray, dt_s: float) -> float:
@@ -224,7 +228,7 @@ def _tilt(om: np.ndarray, dt: np.ndarray, up0: np.ndarray) -> tuple[np.ndarray, 
 def _window_means(x: np.ndarray, ts: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Mean over each window [edges[k], edges[k+1]) of ``x`` (samples at ``ts``) interpolated linearly between its
     samples, so a window's mean is centred on the window whatever the samples' phase (a plain mean of the samples
-    inside is centred on them: half a wheel period, 10 ms, off at 50 Hz, a lever arm 4 cm off at 7.5 m/s)."""
+    inside is centred on them, up to half a wheel period off, which moves the lever arm at speed)."""
     x = np.broadcast_to(np.asarray(x, float), np.shape(ts))
     c = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(ts))])  # integral up to each sample
     e = np.clip(edges, ts[0], ts[-1])

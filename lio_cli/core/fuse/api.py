@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ...errors import LioError
 from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
@@ -55,7 +56,10 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     if raised < shape.OPTIMISTIC_SHARE * len(prep.gps):  # an honest claim: the fixes' error is what they say
         return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
-    free = fuse(replace(inputs, gps=None), replace(o, use=use))
+    try:
+        free = fuse(replace(inputs, gps=None), replace(o, use=use))
+    except LioError:  # the sources without GPS do not make a run: the GPS-fused one stands
+        return fused
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
     test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
     if test is None:

@@ -33,6 +33,7 @@ ACCEL_BIAS_PRIOR_MPS2 = 0.04  # 1-sigma of the accelerometer's horizontal bias p
 GRAVITY_MPS2 = 9.81
 REST_MARGIN_NS = 100_000_000  # a scan this far inside the still stretch (IMU clock) is taken as at rest
 MAX_REST_SCANS = 10
+HALF_MIN_ACCEL_MPS2 = 0.03  # a half log's fit: its braking and speeding up may be gentler
 VERTICAL_COS = np.cos(np.radians(45.0))  # a LiDAR axis this close to the base z is the vertical one
 SHARPER = 1.0  # a measurement replaces hand-eye's on a direction where its 1-sigma is below this times hand-eye's
 OFFSET_SEARCH_S = 0.1  # an unmeasured clock offset is searched this far either side of the one so far...
@@ -158,15 +159,19 @@ def _yaw(arrays: SensorArrays, imu: ImuBatch, Rbl: np.ndarray, up: np.ndarray, T
     try:
         off, doff = (off0, est.offset.sigma_s) if measured else (_line_up(fit, off0), OFFSET_SIGMA_S)
         res = fit(off)
-        slope = abs(fit(off + doff).yaw_rad - fit(off - doff).yaw_rad) / 2
-        mid = int(np.median(ws))
-        shift = int(round(off * 1e9))
-        halves = [fit(off, ws < mid, imu.stamps_ns + shift < mid, 0.03).yaw_rad,
-                  fit(off, ws >= mid, imu.stamps_ns + shift >= mid, 0.03).yaw_rad]
+        slope = abs(_wrap(fit(off + doff).yaw_rad - fit(off - doff).yaw_rad)) / 2
     except InputError as err:
         est.notes.append(f"the mounting's rotation about the base z from speeding up and braking: {err}")
         return
-    half = abs(np.angle(np.exp(1j * (halves[1] - halves[0])))) / 2
+    mid = int(np.median(ws))
+    shift = int(round(off * 1e9))
+    try:
+        halves = [fit(off, ws < mid, imu.stamps_ns + shift < mid, HALF_MIN_ACCEL_MPS2).yaw_rad,
+                  fit(off, ws >= mid, imu.stamps_ns + shift >= mid, HALF_MIN_ACCEL_MPS2).yaw_rad]
+    except InputError as err:  # the whole log's fit stands; only the halves' check is missing
+        est.notes.append(f"the wheels' yaw on the log's halves: {err} (their disagreement left out of the 1-sigma)")
+        halves = [res.yaw_rad, res.yaw_rad]
+    half = abs(_wrap(halves[1] - halves[0])) / 2
     sigma = float(np.sqrt(res.sigma_rad**2 + slope**2 + half**2))
     if sigma > MAX_ROTATION_SIGMA_RAD or sigma >= SHARPER * before:
         est.notes.append(f"the wheels' accelerations (body sway taken out) give the mounting's rotation about the base "
@@ -239,3 +244,9 @@ def _across(n: np.ndarray) -> np.ndarray:
 
 def _deg(v: np.ndarray) -> str:
     return "/".join(f"{np.degrees(x):.2f}" for x in v)
+
+
+def _wrap(angle: float) -> float:
+    """An angle difference in (-pi, pi]: two yaws either side of 180 deg are close."""
+    return float(np.angle(np.exp(1j * angle)))
+

@@ -177,3 +177,22 @@ def test_a_robots_starts_and_stops_are_not_averaged_away():
         assert abs(err) <= 3 * np.degrees(res.sigma_rad) and np.degrees(res.sigma_rad) < 0.2
         errs.append(err)
     assert np.sqrt(np.mean(np.square(errs))) < 0.15
+
+
+def test_the_tilt_walk_covariance_is_the_pairwise_sum_in_linear_memory():
+    """The random walk's covariance summed over steps equals the sum over every pair of windows (min(t_i, t_j)
+    and the turn between their headings), for windows in any order."""
+    from lio_cli.core.calibration.yaw_from_wheels import GRAVITY_MPS2, _tilt_walk_cov
+    rng = np.random.default_rng(3)
+    n = 60
+    A = rng.normal(size=(2 * n, 10))
+    H = A.T @ A
+    t, psi = rng.permutation(np.sort(rng.uniform(0.0, 60.0, n))), rng.uniform(-4.0, 4.0, n)
+    d = psi[None, :] - psi[:, None]
+    mt = np.minimum(t[:, None], t[None, :])
+    M = np.empty((n, 2, n, 2))
+    M[:, 0, :, 0], M[:, 0, :, 1], M[:, 1, :, 0], M[:, 1, :, 1] = mt * np.cos(d), -mt * np.sin(d), mt * np.sin(d), \
+        mt * np.cos(d)
+    P = np.linalg.solve(H, A.T)
+    pairwise = GRAVITY_MPS2**2 * 1e-6 * (P @ M.reshape(2 * n, 2 * n) @ P.T)
+    np.testing.assert_allclose(_tilt_walk_cov(A, H, t, psi, 1e-6), pairwise, rtol=1e-9, atol=1e-12 * abs(pairwise).max())
