@@ -232,3 +232,11 @@ def gravity_aligned_rotation(f_base: np.ndarray) -> np.ndarray:
     yaw = np.arctan2(R[1, 0], R[0, 0])
     Rz = so3_exp(np.array([0.0, 0.0, -yaw]))
     return Rz @ R
+
+
+def axes_across(n: np.ndarray) -> np.ndarray:
+    """Two orthonormal axes (rows) across the unit vector ``n``."""
+    a = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(n, a)])
+

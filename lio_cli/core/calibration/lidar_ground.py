@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
+from ...geometry import axes_across
 from .common import CalibrationResult
 
 MAX_TILT_RAD = np.radians(20.0)  # the ground's normal within this of the up guessed
@@ -88,7 +89,7 @@ def fit_lidar_ground(points: np.ndarray, up_guess: np.ndarray, seed: int = 0) ->
     resid = pts @ n - d
     rms = float(np.sqrt(np.mean(resid**2)))
     C = _ls_covariance(pts, n, rms)
-    E = _across(n)  # two axes across the normal: the tilts' components
+    E = axes_across(n)  # two axes across the normal: the tilts' components
     sector = ((np.arctan2(pts @ E[1], pts @ E[0]) + np.pi) / (2 * np.pi) * SECTORS).astype(int) % SECTORS
     counts = np.bincount(sector, minlength=SECTORS)
     full = np.flatnonzero(counts >= MIN_SECTOR_POINTS)
@@ -110,13 +111,6 @@ def _plane(pts: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float]:
     if n @ up < 0:
         n = -n
     return n, float(c @ n)
-
-
-def _across(n: np.ndarray) -> np.ndarray:
-    """Two orthonormal axes (rows) across the unit vector ``n``."""
-    a = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
-    a /= np.linalg.norm(a)
-    return np.stack([a, np.cross(n, a)])
 
 
 def _ls_covariance(pts: np.ndarray, n: np.ndarray, rms: float) -> np.ndarray:

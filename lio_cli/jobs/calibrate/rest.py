@@ -23,7 +23,7 @@ from ...core.calibration.lidar_ground import fit_lidar_ground
 from ...core.calibration.rotation import RotationCalib
 from ...core.calibration.yaw_from_wheels import fit_wheel_sway_yaw
 from ...errors import InputError
-from ...geometry import so3_exp
+from ...geometry import axes_across, so3_exp
 from ...model.records import ImuBatch
 from .estimate import Estimates
 from .passes import SensorArrays
@@ -51,7 +51,7 @@ def rest_mounting(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray 
     Rbl = np.eye(3) if T_base_lidar is None else np.asarray(T_base_lidar, float)[:3, :3]
     wheels = arrays.has_wheels and est.wheel is not None
     if est.rotation is not None and not wheels:
-        B = _across(Rbl[2])
+        B = axes_across(Rbl[2])
         he = np.sqrt(np.clip(np.linalg.eigvalsh(B @ rotation_cov_lidar(est) @ B.T), 0, None))
         if (he <= SHARPER * ACCEL_BIAS_PRIOR_MPS2 / GRAVITY_MPS2).all():  # gravity cannot do better: no fit
             return
@@ -95,7 +95,7 @@ def _seed(normal: np.ndarray, est: Estimates) -> None:
     up = est.static.up_imu
     ax = np.cross(up, normal)
     if np.linalg.norm(ax) < 1e-12:  # parallel, or upside down: any axis across
-        ax = _across(up)[0] * 1e-12
+        ax = axes_across(up)[0] * 1e-12
     R = so3_exp(ax / np.linalg.norm(ax) * np.arctan2(np.linalg.norm(ax), float(up @ normal)))
     cov = np.eye(3) * np.pi**2
     est.rotation = RotationCalib(R_lidar_imu=R, sigma_rad=np.full(3, np.pi), covariance_rad2=cov,
@@ -113,7 +113,7 @@ def _tilt(ground, T_ref, est: Estimates, n_scans: int, seeded: bool) -> None:
     v = R @ est.static.up_imu
     ax = np.cross(v, n)
     c = ax / max(np.linalg.norm(ax), 1e-15) * np.arctan2(np.linalg.norm(ax), float(v @ n))  # turns v onto n
-    B = _across(n)
+    B = axes_across(n)
     # gravity's direction: the accelerometer's noise (negligible at rest) and its horizontal bias
     S = B @ ground.covariance_rad2 @ B.T + np.eye(2) * (ACCEL_BIAS_PRIOR_MPS2 / GRAVITY_MPS2) ** 2
     lam, V = np.linalg.eigh(B @ rotation_cov_lidar(est) @ B.T)  # hand-eye's sharpest and vaguest tilt directions
@@ -232,14 +232,6 @@ def _replace(est: Estimates, T_ref, B: np.ndarray, z: np.ndarray, S: np.ndarray)
     # the precision notes said of the mounting before (``report.imprecision_notes``) no longer hold
     est.notes = [x for x in est.notes if not (x.startswith("the mounting's rotation about the LiDAR") and
                                               "axis is measured to" in x)]
-
-
-def _across(n: np.ndarray) -> np.ndarray:
-    """Two orthonormal axes (rows) across the unit vector ``n``."""
-    e = np.eye(3)[int(np.argmin(np.abs(n)))]
-    a = np.cross(n, e)
-    a /= np.linalg.norm(a)
-    return np.stack([a, np.cross(n, a)])
 
 
 def _deg(v: np.ndarray) -> str:
