@@ -13,11 +13,11 @@ import numpy as np
 
 from ...core.calibration.yaw_from_wheels import estimate_wheel_yaw
 from ...errors import InputError
-from ...geometry import so3_exp
 from ...model.records import ImuBatch
 from .estimate import Estimates
 from .passes import SensorArrays
-from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
+from .mounting import turn_mounting
+from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar
 
 
 UNMEASURED_OFFSET_S = 0.04  # how far off a clock offset the motion could not measure is taken to be
@@ -34,7 +34,6 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
     u = Rbl[2]  # the base z in the LiDAR frame
     cov = rotation_cov_lidar(est)
     current = np.sqrt(max(float(u @ cov @ u), 0.0))
-    before = rotation_observable(est)
     w = est.wheel
     R_lidar_imu = T_lidar_imu_of(est, T_ref)[:3, :3]
     R_base_imu = Rbl @ R_lidar_imu
@@ -64,30 +63,7 @@ def wheel_yaw(arrays: SensorArrays, imu: ImuBatch, T_base_lidar: np.ndarray | No
                          f"{np.degrees(res.sigma_rad):.2f} deg: not estimated ({res.windows} windows, rms {res.rms_accel_mps2:.2f} "
                          f"m/s^2, residual {res.rms_residual_mps2:.3f}, scale {res.scale:.3f}; speed up, brake and turn harder)")
         return
-    Q = Rbl.T @ so3_exp(np.array([0.0, 0.0, res.yaw_rad])) @ Rbl  # the correction, in the LiDAR frame
-    P = np.eye(3) - np.outer(u, u)
-
-    def fixed(c: np.ndarray) -> np.ndarray:  # the base z's variance is now the wheels', its correlations gone
-        return P @ c @ P + res.sigma_rad**2 * np.outer(u, u)
-
-    rot = est.rotation
-    rc = fixed(rot.covariance_rad2)
-    sig = np.sqrt(np.clip(np.diag(rc), 0, None))
-    R_new = Q @ R_lidar_imu  # both fits now hold the composed mounting, turned: nothing left to apply
-    est.rotation = replace(rot, R_lidar_imu=R_new, covariance_rad2=rc, sigma_rad=sig,
-                           observable=sig <= MAX_ROTATION_SIGMA_RAD)
-    if est.lever is not None:
-        lev = est.lever
-        refined = np.isfinite(lev.rotation_covariance_rad2).all()
-        lc = fixed(lev.rotation_covariance_rad2) if refined else lev.rotation_covariance_rad2
-        est.lever = replace(lev, R_lidar_imu=R_new, rotation_covariance_rad2=lc,
-                            rotation_sigma_rad=np.sqrt(np.clip(np.diag(lc), 0, None)) if refined
-                            else lev.rotation_sigma_rad)
-    now = rotation_observable(est)
-    gained = {f"rotation_{'xyz'[k]}" for k in np.flatnonzero(now & ~before)}
-    if now.all():
-        gained |= {s.key for s in est.skipped if s.key.startswith("rotation_about_")}
-    est.skipped = [s for s in est.skipped if s.key not in gained]
+    turn_mounting(est, T_ref, u[None, :], np.array([res.yaw_rad]), np.array([[res.sigma_rad**2]]))
     est.notes.append(f"the mounting's rotation about the base z axis from the wheels' accelerations: "
                      f"{np.degrees(res.yaw_rad):+.2f} deg from the gyro's, 1-sigma {np.degrees(res.sigma_rad):.2f} deg "
                      f"({res.windows} windows, rms {res.rms_accel_mps2:.2f} m/s^2)")

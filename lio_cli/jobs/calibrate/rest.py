@@ -15,8 +15,6 @@ accelerometer's horizontal bias is indistinguishable from tilt on a vehicle turn
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from ...core.calibration.lidar_ground import fit_lidar_ground
@@ -26,6 +24,7 @@ from ...errors import InputError
 from ...geometry import axes_across, so3_exp
 from ...model.records import ImuBatch
 from .estimate import Estimates
+from .mounting import turn_mounting
 from .passes import SensorArrays
 from .report import MAX_ROTATION_SIGMA_RAD, T_lidar_imu_of, rotation_cov_lidar, rotation_observable
 
@@ -125,7 +124,7 @@ def _tilt(ground, T_ref, est: Estimates, n_scans: int, seeded: bool) -> None:
                          f"hand-eye's are sharper ({_deg(he)} deg)")
         return
     Vv = V[:, vaguer]
-    _replace(est, T_ref, Vv.T @ B, Vv.T @ B @ c, Vv.T @ S @ Vv)
+    turn_mounting(est, T_ref, Vv.T @ B, Vv.T @ B @ c, Vv.T @ S @ Vv)
     turned = "hand-eye gave no rotation" if seeded else f"{np.degrees(np.linalg.norm(c)):.2f} deg from hand-eye's" + \
         ("" if vaguer.all() else f" (one direction only: hand-eye's sharper across it, {np.degrees(he.min()):.2f} deg)")
     est.notes.append(f"the mounting's roll and pitch from gravity against the ground the LiDAR saw at rest ({n_scans} "
@@ -178,7 +177,7 @@ def _yaw(arrays: SensorArrays, imu: ImuBatch, Rbl: np.ndarray, up: np.ndarray, T
                          f"z to 1-sigma {np.degrees(sigma):.2f} deg: not used ({np.degrees(before):.2f} deg so far)")
         return
     # the yaw measured is the whole correction about u: R -> exp(yaw u) R
-    _replace(est, T_ref, u[None, :], np.array([res.yaw_rad]), np.array([[sigma**2]]))
+    turn_mounting(est, T_ref, u[None, :], np.array([res.yaw_rad]), np.array([[sigma**2]]))
     how = "the clock offset measured" if measured else \
         f"the clock offset where the two line up best, {1e3 * off:+.1f} ms (used for this only)"
     est.notes.append(f"the mounting's rotation about the base z from the wheels' accelerations (speeding up, braking; "
@@ -201,37 +200,6 @@ def _line_up(fit, off0: float) -> float:
     den = y0 - 2 * y1 + y2
     step = fine[1] - fine[0]
     return float(fine[k] + (0.5 * (y0 - y2) / den * step if den > 0 else 0.0))
-
-
-def _replace(est: Estimates, T_ref, B: np.ndarray, z: np.ndarray, S: np.ndarray) -> None:
-    """Turn the mounting by ``B^T z`` (rows of ``B``: LiDAR axes, orthonormal) and make its covariance about
-    those axes ``S``, their correlations with the others gone; the axes it makes estimated leave the skipped."""
-    before = rotation_observable(est)
-    R = so3_exp(B.T @ z) @ T_lidar_imu_of(est, T_ref)[:3, :3]
-    P = np.eye(3) - B.T @ B
-
-    def fixed(c: np.ndarray) -> np.ndarray:
-        return P @ c @ P + B.T @ S @ B
-
-    rot = est.rotation
-    rc = fixed(rotation_cov_lidar(est))
-    sig = np.sqrt(np.clip(np.diag(rc), 0, None))
-    est.rotation = replace(rot, R_lidar_imu=R, covariance_rad2=rc, sigma_rad=sig,
-                           observable=sig <= MAX_ROTATION_SIGMA_RAD)
-    if est.lever is not None:
-        lev = est.lever
-        refined = np.isfinite(lev.rotation_covariance_rad2).all()
-        est.lever = replace(lev, R_lidar_imu=R,
-                            rotation_covariance_rad2=rc if refined else lev.rotation_covariance_rad2,
-                            rotation_sigma_rad=sig if refined else lev.rotation_sigma_rad)
-    now = rotation_observable(est)
-    gained = {f"rotation_{'xyz'[k]}" for k in np.flatnonzero(now & ~before)}
-    if now.all():
-        gained |= {s.key for s in est.skipped if s.key.startswith("rotation_about_") or s.key == "rotation"}
-    est.skipped = [s for s in est.skipped if s.key not in gained]
-    # the precision notes said of the mounting before (``report.imprecision_notes``) no longer hold
-    est.notes = [x for x in est.notes if not (x.startswith("the mounting's rotation about the LiDAR") and
-                                              "axis is measured to" in x)]
 
 
 def _deg(v: np.ndarray) -> str:
