@@ -13,7 +13,7 @@ from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import graph, shape
+from . import graph, shape, wheel_slip
 from .graph.keyframes import with_outputs
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto, yaw_velocity_onto
 from .initial import Start, initial_state
@@ -88,11 +88,15 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it)."""
-    if o.estimator != "auto" and not o.smooth:
+    if o.estimator not in ("auto", "planar") and not o.smooth:
         return prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
+    if choice.name == "planar" and wheel_slip.applies(prep):  # the planar filter has no accelerometer: its check here
+        check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2)
+        prep.wheel_check = check.to_dict()
+        prep.notes.append("wheels: " + check.why)
     if choice.name == "planar" and not (o.smooth and _graph_smooths(prep, choice.name)):
         planar_use(prep.use)
     return prep, choice
@@ -182,6 +186,7 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
         "motion_gaps": len(prep.coverage) - 1,
         "outputs_dropped_outside_data": prep.out_dropped,
         "notes": list(prep.notes),
+        "wheel_check": prep.wheel_check,
     }
 
 

@@ -17,6 +17,8 @@ REJECT_REASONS = {
     "multipath_jump": "a GPS fix inside a jump of the track its own motion cannot explain (multipath), until the "
                       "track comes back",
     "in_gap": "stamped inside a gap of every motion source",
+    "slip": "a wheel speed during a slip (it changed by more than the accelerometer felt): the IMU's speed was "
+            "used in its place (slip_bridged)",
 }
 # Things noticed and handled without dropping the value.
 NOTE_REASONS = {
@@ -33,6 +35,8 @@ NOTE_REASONS = {
     "dropouts": "GPS pauses of over 5 periods, bridged by the motion sources",
     "noise_raised": "GPS fixes whose claimed sigma the innovations showed optimistic: the measured one was used",
     "snapped": "applied at an IMU sample at most FuseOptions.snap_ns away instead of at its own stamp",
+    "slip_bridged": "wheel speeds replaced by the IMU's speed across a slip (rejected as slip)",
+    "scale_corrected": "wheel speeds multiplied by the wheel scale the accelerometer measured",
 }
 
 

@@ -43,6 +43,7 @@ class Prepared:
     kinds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     notes: list[str] = field(default_factory=list)
+    wheel_check: dict | None = None  # wheel_slip.SlipReport.to_dict() where the wheels were checked
 
     @property
     def t0_ns(self) -> int:

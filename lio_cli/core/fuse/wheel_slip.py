@@ -1,0 +1,322 @@
+"""Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed).
+
+A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of
+a second while the accelerometer feels no such acceleration. The forward acceleration the IMU feels
+(``forward_accel``: specific force plus gravity, the gravity direction in the base frame carried by the gyro
+and pulled slowly towards the accelerometer with the wheels' own acceleration removed, so pitch on uneven
+ground is taken out) is integrated into a speed track; the wheel speed minus that track is a constant plus
+slow drift (accelerometer bias, a wheel scale error times the speed) and jumps for the length of a slip. A
+sample whose departure from the running median of that difference exceeds the chi-square quantile of
+``gate_probability`` (one degree of freedom, the departure's sigma measured robustly on the log) is a slip;
+windows are widened by ``EDGE_S`` each side (a slip's onset and end are not steps).
+
+Outside the slips, the wheel speed scale ``s`` (``s * wheel = true speed``) and the accelerometer's forward
+bias are fitted by least squares to the speed increments over ``BLOCK_S``. The scale is applied where it is
+both measured (sigma at most ``MAX_SCALE_SIGMA``) and off 1 by more than ``SCALE_Z`` sigmas. Slips are
+bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended)
+only when the scale is measured: a slip's extra distance is a share of the path like a scale error's, and
+removing one without knowing the other made every simulated bad-wheel track worse (docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from statistics import NormalDist
+
+import numpy as np
+
+from ...so3 import so3_exp
+from .timeline import Prepared
+
+TAU_S = 1.5
+TILT_GATE_MPS2 = 1.0  # accelerometer samples further than this from the wheels' acceleration do not pull it
+JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's onset and end
+GUARD_S = 1.0  # the first fit leaves out this much around each such jump
+DRIFT_S = 3.0  # that change less its running median over this long
+LEVEL_S = 0.5  # a slip lasts until the difference is back at its level over this long before it
+MAX_SLIP_S = 5.0
+EDGE_S = 0.25  # a slip window widened by this each side
+SIGMA_FLOOR_MPS = 0.01  # the departure's sigma never below this (noise-free simulated wheels)
+MIN_SLIP_REL = 0.05  # and a slip departs by at least this share of the speed
+BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
+MAX_SCALE_SIGMA = 0.005
+SCALE_Z = 3.0
+MIN_SPAN_S = 10.0
+FIT_PASSES = 3
+TRIM_PASSES = 2
+TRIM_Z = 4.0  # shorter logs: nothing is estimated
+
+
+@dataclass
+class SlipReport:
+    windows: list[tuple[float, float]] = field(default_factory=list)  # seconds from the first wheel stamp
+    scale: float | None = None
+    scale_sigma: float | None = None
+    scale_applied: bool = False
+    bridged: int = 0
+    why: str = ""
+
+    def to_dict(self) -> dict:
+        return {"slips": len(self.windows), "windows_s": [[round(a, 2), round(b, 2)] for a, b in self.windows],
+                "scale": None if self.scale is None else round(self.scale, 4),
+                "scale_sigma": None if self.scale_sigma is None else round(self.scale_sigma, 4),
+                "scale_applied": self.scale_applied, "bridged": self.bridged, "why": self.why}
+
+
+def applies(prep: Prepared) -> bool:
+    """IMU gyro and accelerometer plus a forward wheel speed, long enough to measure."""
+    w, imu = prep.wheel, prep.imu
+    if w is None or imu is None or prep.imu_f_b is None or len(w) < 10 or len(imu) < 10:
+        return False
+    if not {"gyro", "accel"} <= set(prep.use.get("imu", ())) or "speed" not in prep.use.get("wheel", ()):
+        return False
+    return (w.stamps_ns[-1] - w.stamps_ns[0]) * 1e-9 >= MIN_SPAN_S and np.isfinite(w.velocity_mps[:, 0]).sum() >= 10
+
+
+def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
+                  g: float) -> tuple[np.ndarray, np.ndarray]:
+    """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share: the up
+    direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
+    carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
+    (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
+    with the same rotation), which ``_fit_scale`` solves for."""
+    n0 = max(1, int(np.searchsorted(t_s, t_s[0] + 1.0)))
+    v = np.interp(t_s[:n0], t_w, v_w)
+    a_w = np.interp(t_s[:n0], t_w, np.gradient(v_w, t_w))
+    kin = np.column_stack([a_w, v * w_b[:n0, 2], -v * w_b[:n0, 1]])
+    u = (f_b[:n0] - kin).mean(axis=0)
+    u = u / max(float(np.linalg.norm(u)), 1e-9)
+    dt = np.diff(t_s, prepend=t_s[0])
+    dR = so3_exp(w_b * dt[:, None])
+    R = np.empty_like(dR)  # the base's rotation since the first sample
+    acc = np.eye(3)
+    for k in range(len(dR)):
+        acc = acc @ dR[k]
+        R[k] = acc
+    ub = np.einsum("nji,j->ni", R, u)  # R^T u
+    B = np.cumsum(R * dt[:, None, None], axis=0)  # integral of R: the gyro bias's rotation error is R^T B b
+    sens = np.empty((len(t_s), 4))
+    for j, e in enumerate(np.eye(3)[:2]):
+        phi = np.einsum("nji,nj->ni", R, B @ e)
+        sens[:, j] = np.cross(ub, phi)[:, 0]
+        sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
+    return f_b[:, 0] - g * ub[:, 0], -g * sens
+
+
+def _windows(mask: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
+    """Index runs [a, b] of ``mask``, each widened by ``EDGE_S``, overlapping ones merged."""
+    out: list[list[int]] = []
+    idx = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    for a, b in zip(idx[::2], idx[1::2] - 1):
+        a = int(np.searchsorted(t, t[a] - EDGE_S))
+        b = int(np.searchsorted(t, t[b] + EDGE_S, side="right")) - 1
+        if out and a <= out[-1][1] + 1:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The running trapezoid integral of ``x`` (sampled at ``t_s``) at the stamps ``t``."""
+    dt = np.diff(t_s)
+    if x.ndim == 1:
+        X = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * dt)])
+        return np.interp(t, t_s, X)
+    X = np.vstack([np.zeros(x.shape[1]), np.cumsum(0.5 * (x[1:] + x[:-1]) * dt[:, None], axis=0)])
+    return np.column_stack([np.interp(t, t_s, X[:, j]) for j in range(x.shape[1])])
+
+
+def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
+               clean: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+    """(scale, its sigma, c) of ``s * dv = dA - c0 dt - dG c[1:]`` over ``BLOCK_S`` increments inside clean
+    stretches: ``c0`` the accelerometer's forward bias, ``c[1:]`` the gyro's x, y bias and the start's tilt
+    error (``G``: their effect on the integrated acceleration, ``forward_accel``)."""
+    rows = []
+    k = 0
+    while k < len(t) - 1:
+        j = int(np.searchsorted(t, t[k] + BLOCK_S))
+        if j >= len(t):
+            break
+        if clean[k:j + 1].all():
+            rows.append(np.concatenate([[v[j] - v[k], t[j] - t[k]], G[j] - G[k], [A[j] - A[k]]]))
+            k = j
+        else:
+            k += 1
+    if len(rows) < 12:
+        return None
+    M = np.array(rows)
+    keep = np.ones(len(M), bool)
+    for _ in range(TRIM_PASSES + 1):  # blocks a slip the windows missed are trimmed, then the fit redone
+        X, y = M[keep, :-1], M[keep, -1]
+        norm = np.maximum(np.abs(X).max(axis=0), 1e-12)
+        XtX = (X / norm).T @ (X / norm)
+        if len(y) < 12 or np.linalg.cond(XtX) > 1e10:
+            return None
+        sol = np.linalg.solve(XtX, (X / norm).T @ y) / norm
+        r_all = M[:, -1] - M[:, :-1] @ sol
+        r = r_all[keep]
+        mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        keep = np.abs(r_all - np.median(r)) <= TRIM_Z * max(mad, 1e-9)
+    s2 = float(r @ r) / max(len(r) - X.shape[1], 1)
+    cov = s2 * np.linalg.inv(XtX) / np.outer(norm, norm)
+    return float(sol[0]), float(np.sqrt(cov[0, 0])), sol[1:]
+
+
+def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
+    """Find slips and the wheel scale; replace ``prep.wheel`` by the corrected copy where they are measured
+    (module docstring). Counts ``slip`` rejections and ``slip_bridged`` / ``scale_corrected`` notes."""
+    rep = SlipReport()
+    w, imu = prep.wheel, prep.imu
+    ok = np.isfinite(w.velocity_mps[:, 0])
+    tw_ns = w.stamps_ns[ok]
+    t0 = tw_ns[0]
+    tw = (tw_ns - t0) * 1e-9
+    vw = w.velocity_mps[ok, 0]
+    ti = (imu.stamps_ns - t0) * 1e-9
+    a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2)
+    A, G = (_integral_at(tw, ti, x) for x in (a, sens))
+    inside = (tw >= ti[0]) & (tw <= ti[-1])
+    z = _chi2_1_sqrt(gate_probability)
+    wins = _guard(tw, _jumps(tw, vw - A, vw, inside, z))  # first around every jump of the raw IMU speed
+    fit = None
+    for _ in range(FIT_PASSES):
+        fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
+        if fit is None:
+            break
+        s, s_sigma, c = fit
+        wins = _detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
+    clean = _clean(inside, wins)
+    rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
+    if fit is None:
+        rep.why = "the wheel speed never changed enough to measure its scale against the accelerometer"
+        return rep
+    A = A - c[0] * tw - G @ c[1:]
+    rep.scale, rep.scale_sigma = s, s_sigma
+    if s_sigma > MAX_SCALE_SIGMA:
+        rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f}: not measured by the accelerometer (the speed hardly "
+                   f"changes), so {len(wins)} slip(s) left in")
+        return rep
+    rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
+    scale = s if rep.scale_applied else 1.0
+    v_new = scale * vw
+    n_bridged = 0
+    for i, j in wins:
+        v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
+        n_bridged += j - i + 1
+    rep.bridged = n_bridged
+    vel = w.velocity_mps.copy()
+    vel[ok, 0] = v_new
+    var = None
+    if w.velocity_var is not None:
+        var = w.velocity_var.copy()
+        var[ok, 0] *= scale**2
+    prep.wheel = replace(w, velocity_mps=vel, velocity_var=var)
+    report = prep.reports["wheel"]
+    report.reject("slip", n_bridged)
+    report.note("slip_bridged", n_bridged)
+    if rep.scale_applied:
+        report.note("scale_corrected", int(ok.sum()))
+    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "
+               f"{len(wins)} slip(s) bridged by the IMU")
+    return rep
+
+
+def _threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """(r, thr): ``d``'s change over ``JUMP_S`` and the bound a slip's change exceeds, ``z`` robust sigmas of
+    ``r`` and ``MIN_SLIP_REL`` of the speed."""
+    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
+    r = np.zeros(len(d))
+    r[m:] = d[m:] - d[:-m]
+    r -= _running_median(t, r, DRIFT_S)  # a slowly drifting difference (tilt, bias) is no slip
+    ri = r[inside]
+    sigma = max(1.4826 * float(np.median(np.abs(ri - np.median(ri)))), SIGMA_FLOOR_MPS)
+    return r, np.maximum(z * sigma, MIN_SLIP_REL * np.abs(v))
+
+
+def _detect(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> list[tuple[int, int]]:
+    """Slip windows of ``d`` (wheel minus IMU speed, bias and scale removed): from a jump beyond the bound
+    (``_threshold``) until ``d`` is back within half of it of its level before the jump (``LEVEL_S``), at most
+    ``MAX_SLIP_S``; widened by ``EDGE_S`` each side."""
+    r, thr = _threshold(t, d, v, inside, z)
+    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
+    n_ref = max(1, int(np.searchsorted(t, t[0] + LEVEL_S)))
+    mask = np.zeros(len(d), bool)
+    k = 0
+    while k < len(d):
+        if not (inside[k] and abs(r[k]) > thr[k]):
+            k += 1
+            continue
+        a = max(k - m, 0)
+        level = float(np.median(d[max(a - n_ref, 0):a + 1]))
+        j = k
+        end = int(np.searchsorted(t, t[a] + MAX_SLIP_S))
+        while j < min(end, len(d)) and abs(d[j] - level) > 0.5 * thr[j]:
+            j += 1
+        mask[a:j] = True
+        k = max(j, k + 1)
+        while k < len(d) and abs(r[k]) > thr[k]:  # the slip's own end, not another onset
+            k += 1
+    return _windows(mask, t)
+
+
+def _jumps(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> np.ndarray:
+    r, thr = _threshold(t, d, v, inside, z)
+    return inside & (np.abs(r) > thr)
+
+
+def _guard(t: np.ndarray, jump: np.ndarray) -> list[tuple[int, int]]:
+    """Windows of ``GUARD_S`` around every jump (kept out of the first fit)."""
+    out: list[tuple[int, int]] = []
+    for k in np.flatnonzero(jump):
+        a = int(np.searchsorted(t, t[k] - GUARD_S))
+        b = int(np.searchsorted(t, t[k] + GUARD_S, side="right")) - 1
+        if out and a <= out[-1][1] + 1:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def _running_median(t: np.ndarray, x: np.ndarray, width_s: float) -> np.ndarray:
+    """The median of ``x`` over ``width_s`` centred on each sample (on a 0.1 s grid, interpolated)."""
+    grid = np.arange(t[0], t[-1] + 0.1, 0.1)
+    lo, hi = np.searchsorted(t, grid - 0.5 * width_s), np.searchsorted(t, grid + 0.5 * width_s)
+    med = np.array([np.median(x[a:b]) if b > a else np.nan for a, b in zip(lo, hi)])
+    ok = np.isfinite(med)
+    return np.interp(t, grid[ok], med[ok])
+
+
+def _clean(inside: np.ndarray, wins: list[tuple[int, int]]) -> np.ndarray:
+    clean = inside.copy()
+    for i, j in wins:
+        clean[i:j + 1] = False
+    return clean
+
+
+def _bridge(i: int, j: int, t: np.ndarray, v: np.ndarray, A: np.ndarray, clean: np.ndarray) -> np.ndarray:
+    """Speeds over samples i..j: the IMU's speed from the clean sample before and the one after, blended
+    linearly in time (one side alone at the log's ends)."""
+    seg = slice(i, j + 1)
+    fwd = bwd = None
+    if i > 0 and clean[i - 1]:
+        k = i - 1
+        fwd = v[k] + (A[seg] - A[k])
+    if j + 1 < len(t) and clean[j + 1]:
+        k = j + 1
+        bwd = v[k] - (A[k] - A[seg])
+    if fwd is None and bwd is None:
+        return v[seg]
+    if fwd is None:
+        return bwd
+    if bwd is None:
+        return fwd
+    wgt = (t[seg] - t[i - 1]) / max(t[j + 1] - t[i - 1], 1e-9)
+    return (1.0 - wgt) * fwd + wgt * bwd
+
+
+def _chi2_1_sqrt(p: float) -> float:
+    """The square root of the chi-square (1 dof) quantile of 1 - p: the two-sided normal quantile."""
+    return NormalDist().inv_cdf(1.0 - max(p, 1e-12) / 2.0)
+
