@@ -87,13 +87,14 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
-    smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it)."""
+    smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). For
+    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         return prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
-    if choice.name == "planar" and wheel_slip.applies(prep):  # the planar filter has no accelerometer: its check here
+    if choice.name == "planar" and wheel_slip.applies(prep):
         check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2)
         prep.wheel_check = check.to_dict()
         prep.notes.append("wheels: " + check.why)

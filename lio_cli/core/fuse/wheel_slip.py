@@ -1,26 +1,29 @@
-"""Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed).
+"""Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed, no odometry).
 
 A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of
-a second while the accelerometer feels no such acceleration. The forward acceleration the IMU feels
-(``forward_accel``: specific force plus gravity, the gravity direction in the base frame carried by the gyro
-and pulled slowly towards the accelerometer with the wheels' own acceleration removed, so pitch on uneven
-ground is taken out) is integrated into a speed track; the wheel speed minus that track is a constant plus
-slow drift (accelerometer bias, a wheel scale error times the speed) and jumps for the length of a slip. A
-sample whose departure from the running median of that difference exceeds the chi-square quantile of
-``gate_probability`` (one degree of freedom, the departure's sigma measured robustly on the log) is a slip;
-windows are widened by ``EDGE_S`` each side (a slip's onset and end are not steps).
+a second while the accelerometer feels no such acceleration. ``forward_accel`` gives the forward acceleration
+the IMU feels: the specific force plus gravity's forward share, the gravity direction in the base frame taken
+from the first second and carried by the gyro alone (pitch on uneven ground is taken out; the wheels never
+pull it, their scale is what it measures). Its integral is a speed track; the wheel speed times the scale
+minus that track is flat but for the accelerometer's forward bias, the gyro's x/y bias and the start's tilt
+(a ramp and slow curves of known shape), and a slip's jump.
 
-Outside the slips, the wheel speed scale ``s`` (``s * wheel = true speed``) and the accelerometer's forward
-bias are fitted by least squares to the speed increments over ``BLOCK_S``. The scale is applied where it is
-both measured (sigma at most ``MAX_SCALE_SIGMA``) and off 1 by more than ``SCALE_Z`` sigmas. Slips are
-bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended)
-only when the scale is measured: a slip's extra distance is a share of the path like a scale error's, and
-removing one without knowing the other made every simulated bad-wheel track worse (docs/benchmarks.md).
+``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on
+the speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed). Slips (``_detect``): the
+difference's change over ``JUMP_S`` (less its running median) beyond the chi-square quantile of
+``gate_probability`` (one degree of freedom, the sigma measured robustly on the log) and ``MIN_SLIP_REL`` of
+the speed starts one; it lasts until the difference is back near its level before. The first fit leaves out
+``GUARD_S`` around every jump of the raw difference; fit and detection then alternate ``FIT_PASSES`` times.
+
+The scale is applied where it is measured (sigma at most ``MAX_SCALE_SIGMA``) and off 1 by more than
+``SCALE_Z`` sigmas. Slips are bridged (their wheel speeds replaced by the IMU's speed, integrated from both
+ends of the window and blended) only when the scale is measured: a slip's extra distance is a share of the
+path as a scale error's is, and removing the slips alone made every simulated bad-wheel track worse (3 %
+scale, three slips: 0.21-1.18 m -> 0.48-1.95 m, docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from statistics import NormalDist
 
@@ -29,27 +32,27 @@ import numpy as np
 from ...so3 import so3_exp
 from .timeline import Prepared
 
-TAU_S = 1.5
-TILT_GATE_MPS2 = 1.0  # accelerometer samples further than this from the wheels' acceleration do not pull it
 JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's onset and end
-GUARD_S = 1.0  # the first fit leaves out this much around each such jump
 DRIFT_S = 3.0  # that change less its running median over this long
+GUARD_S = 1.0  # the first fit leaves out this much around each jump
 LEVEL_S = 0.5  # a slip lasts until the difference is back at its level over this long before it
-MAX_SLIP_S = 5.0
+MAX_SLIP_S = 5.0  # a departure longer than this is the log's drift, not a slip
 EDGE_S = 0.25  # a slip window widened by this each side
 SIGMA_FLOOR_MPS = 0.01  # the departure's sigma never below this (noise-free simulated wheels)
 MIN_SLIP_REL = 0.05  # and a slip departs by at least this share of the speed
 BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
-MAX_SCALE_SIGMA = 0.005
-SCALE_Z = 3.0
-MIN_SPAN_S = 10.0
-FIT_PASSES = 3
-TRIM_PASSES = 2
-TRIM_Z = 4.0  # shorter logs: nothing is estimated
+MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are
+SCALE_Z = 3.0  # sigmas off 1 before the scale is applied
+MIN_SPAN_S = 10.0  # shorter logs: nothing is estimated
+FIT_PASSES = 3  # fit then detect, this many times
+TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
+TRIM_Z = 4.0
 
 
 @dataclass
 class SlipReport:
+    """What the check found (in the metrics as ``wheel_check``)."""
+
     windows: list[tuple[float, float]] = field(default_factory=list)  # seconds from the first wheel stamp
     scale: float | None = None
     scale_sigma: float | None = None
@@ -223,7 +226,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     return rep
 
 
-def _threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray]:
+def _threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
+               z: float) -> tuple[np.ndarray, np.ndarray]:
     """(r, thr): ``d``'s change over ``JUMP_S`` and the bound a slip's change exceeds, ``z`` robust sigmas of
     ``r`` and ``MIN_SLIP_REL`` of the speed."""
     m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
