@@ -27,3 +27,4 @@ def test_slipping_wheels_on_a_flat_road_get_the_planar_filter(tmp_path):
     assert check["slips"] == 3 and check["scale_applied"] and abs(check["scale"] - 1.03) < 0.01
     slip = run.metrics["sources"]["wheel"]["rejected"]["slip"]
     assert slip["count"] == check["bridged"] > 0 and "slip" in slip["why"] and "IMU" in slip["why"]
+    assert f"{slip['count']} slip bridged by the IMU" in run.metrics["sources"]["wheel"]["summary"]
