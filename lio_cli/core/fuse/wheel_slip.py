@@ -43,6 +43,7 @@ MIN_SLIP_REL = 0.05  # and a slip departs by at least this share of the speed
 BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
 MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are
 SCALE_Z = 3.0  # sigmas off 1 before the scale is applied
+MAX_SCALE_OFF = 0.2  # a fitted scale further from 1 than this says the IMU's axes are wrong, not the wheels
 MIN_SPAN_S = 10.0  # shorter logs: nothing is estimated
 FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
@@ -198,8 +199,13 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     A = A - c[0] * tw - G @ c[1:]
     rep.scale, rep.scale_sigma = s, s_sigma
     if s_sigma > MAX_SCALE_SIGMA:
-        rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f}: not measured by the accelerometer (the speed hardly "
-                   f"changes), so {len(wins)} slip(s) left in")
+        rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f}: not measured by the accelerometer to "
+                   f"{MAX_SCALE_SIGMA:.1%} (the speed changes too little, or the IMU's axes are off), so {len(wins)} "
+                   "slip(s) left in")
+        return rep
+    if abs(s - 1.0) > MAX_SCALE_OFF:
+        rep.why = (f"wheel scale {s:.4f}: further from 1 than a wheel's radius error ({MAX_SCALE_OFF:.0%}), the "
+                   f"IMU's forward axis is likely not the base's: wheels left as they are")
         return rep
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0

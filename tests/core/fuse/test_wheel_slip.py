@@ -104,3 +104,17 @@ def test_a_steady_speed_leaves_the_scale_unmeasured_and_the_slips_in():
     assert not check["scale_applied"] and check["bridged"] == 0
     assert "not measured" in check["why"] or "never changed" in check["why"]
     assert "slip" not in res.reports["wheel"].rejected
+
+
+def test_an_imu_turned_round_leaves_the_wheels_alone():
+    # the IMU turned 180 deg about z while the extrinsic says identity: its "forward" is backwards, the fitted
+    # scale about -0.97 with a sigma of 0.0002, a wrong mounting, never a wheel to correct
+    inputs, _, _ = _case(scale=0.97, slips=True)
+    flip = np.array([-1.0, -1.0, 1.0])
+    inputs.imu.accel_mps2 = inputs.imu.accel_mps2 * flip
+    inputs.imu.gyro_radps = inputs.imu.gyro_radps * flip
+    res = fuse(inputs, FuseOptions(estimator="planar", smooth=False, rate_hz=20.0))
+    check = res.info["wheel_check"]
+    assert check["scale"] < 0 and not check["scale_applied"] and check["bridged"] == 0, check
+    assert "IMU's forward axis" in check["why"]
+    assert "slip" not in res.reports["wheel"].rejected
