@@ -122,9 +122,10 @@ def _windows(mask: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
     return [(a, b) for a, b in out]
 
 
-def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The running trapezoid integral of ``x`` (sampled at ``t_s``) at the stamps ``t``."""
-    dt = np.diff(t_s)
+def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """The running trapezoid integral of ``x`` (sampled at ``t_s``) at the stamps ``t``; steps across an IMU
+    gap (``gap``, one per step) add nothing."""
+    dt = np.where(gap, 0.0, np.diff(t_s))
     if x.ndim == 1:
         X = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * dt)])
         return np.interp(t, t_s, X)
@@ -180,8 +181,11 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     vw = w.velocity_mps[ok, 0]
     ti = (imu.stamps_ns - t0) * 1e-9
     a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2)
-    A, G = (_integral_at(tw, ti, x) for x in (a, sens))
+    gap = np.diff(imu.stamps_ns) > prep.imu_gap_ns if prep.imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
+    A, G = (_integral_at(tw, ti, x, gap) for x in (a, sens))
     inside = (tw >= ti[0]) & (tw <= ti[-1])
+    for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
+        inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
     z = _chi2_1_sqrt(gate_probability)
     wins = _guard(tw, _jumps(tw, vw - A, vw, inside, z))  # first around every jump of the raw IMU speed
     fit = None

@@ -86,6 +86,19 @@ def test_slips_and_a_scale_error_are_found_and_the_track_beats_dead_reckoning(sm
     assert rep.rejected["slip"] == check["bridged"] > 0 and "slip" in REJECT_REASONS
 
 
+def test_an_imu_gap_is_neither_a_slip_nor_a_speed_change():
+    inputs, truth, dr = _case(scale=0.97, slips=True)
+    imu = inputs.imu
+    t = (imu.stamps_ns - T0) * 1e-9
+    keep = (t < 12.0) | (t > 13.0)  # 1 s without IMU samples between two slips
+    imu.stamps_ns, imu.gyro_radps, imu.accel_mps2 = imu.stamps_ns[keep], imu.gyro_radps[keep], imu.accel_mps2[keep]
+    res = fuse(inputs, FuseOptions(smooth=True, rate_hz=20.0))
+    check = res.info["wheel_check"]
+    assert check["slips"] == len(BURSTS) and check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL
+    assert all(hi < 12.0 or lo > 13.0 for lo, hi in check["windows_s"])
+    assert _ate(truth, res.stamps_ns, res.poses) < FUSED_OVER_DR * _ate(truth, dr.stamps_ns, dr.poses)
+
+
 def test_exact_wheels_are_left_as_they_are():
     inputs, truth, _ = _case(scale=1.0, slips=False)
     res = fuse(inputs, FuseOptions(smooth=True, rate_hz=20.0))
