@@ -141,6 +141,9 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     note(f"{m['time_s']['total']:.2f} s wall, {m['real_time_factor'] or 0:.0f}x real time", quiet)
     if m.get("start"):
         note(f"start: {m['start']}", quiet)
+    check = (m.get("core") or {}).get("wheel_check")
+    if check:
+        note(f"wheels: {check['why']}", quiet)
     if written:
         note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 
