@@ -113,3 +113,11 @@ def test_scaled_increment_jacobians_match_numeric_ones():
     analytic = f.linearize(values(np.zeros(13))).jacobian()[0]
     numeric = np.column_stack([(f.unwhitenedError(values(np.eye(13)[i] * eps)) - e0) / eps for i in range(13)])
     np.testing.assert_allclose(analytic, numeric, atol=1e-5)
+
+
+def test_the_scale_as_a_graph_variable_agrees(long_slipping_wheels, monkeypatch):
+    monkeypatch.setattr(wheels, "SCALE_IN_GRAPH", True)
+    o = FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
+    w = fuse(long_slipping_wheels.inputs, o).info["smoother"]["wheel"]
+    assert w["scale_from"] == "factor graph"
+    assert abs(w["scale"][0] - 1.0 / LONG) < SCALE_TOL  # measured: 0.95221

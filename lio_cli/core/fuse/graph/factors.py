@@ -6,7 +6,8 @@
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
-  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry.
+  robust loss there took a wheel scale error for outliers and let the IMU drift). Beside odometry: times the
+  wheels' speed scale, slips left out, Huber, looser (``wheels``).
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
@@ -209,7 +210,8 @@ class ChunkGraph:
         self.wheel = WheelTrack.of(meas.prep, seg, meas.noise)
         self.bridged = 0
         od = meas.prep.use.get("odom", set())
-        self.scaled = bool(self.wheel is not None and WHEEL_SCALE and len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
+        beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
+        self.scaled = self.wheel is not None and WHEEL_SCALE and beside_odom
         if self.scaled and wheels.DROP_REL_SIGMA:
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
         self.scale_start: dict[int, float] = {}  # chunk's first keyframe -> its wheel scale from the pre-pass
@@ -243,7 +245,7 @@ class ChunkGraph:
         if not self.scaled:
             return None
         return {"model": "speed scale per chunk, slips gated against the odometry",
-                "scale_prepass": [round(v, 5) for v in self.scale_start.values()],
+                "scale_from": "factor graph" if wheels.SCALE_IN_GRAPH else "odometry (pre-pass)",
                 "scale": [round(v, 5) for v in self.scale_solved.values()],
                 "increments": len(self.m.wheel_dp),
                 "rejected": {"slip": {"count": len(self.wheel_rejected), "why": wheels.SLIP_WHY}}

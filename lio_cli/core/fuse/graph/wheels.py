@@ -1,13 +1,13 @@
-"""Wheel increments beside odometry: a speed scale estimated in the graph, slips left out.
+"""Wheel increments beside odometry: the wheels' speed scale found, slips left out.
 
 Wheels read their forward speed times a scale (a radius off by a few percent) plus slips (bursts of 20-30 % for
-a second or two). Beside odometry both are observable, so the wheel increment factor says
-``R_k^T (p_{k+1} - p_k) = s dp_k`` with ``s`` a variable of the graph (one per chunk: constant over a minute,
-a weak prior at 1), and the increments keep their own sigma under a Huber loss. A gated pre-pass first compares
-the wheels with the graph's starting values (the odometry's poses) over windows of ``WINDOW_NS``: the scale is
-the median ratio over the windows, and a window whose scaled wheel increment misses the odometry's by more than
-``GATE_REL`` of its length and ``GATE_K`` robust sigmas of every window's miss is a slip: its increments are
-left out of the graph and counted (``Gate.rejected``).
+a second or two); beside odometry both are observable. A pre-pass compares the wheel increments with the
+graph's starting values (the odometry's poses) over windows of ``WINDOW_NS``: the scale is the median ratio over
+the windows, and a window whose scaled increment misses the odometry's by more than ``GATE_REL`` of its length
+and ``GATE_K`` robust sigmas of every window's miss is a slip: its increments (and ``GATE_DILATE`` windows either
+side) are left out of the graph and counted (``Gate.rejected``). The rest say ``R_k^T (p_k+1 - p_k) = s dp_k``
+under a Huber loss: ``s`` the pre-pass's (GTSAM's own between factor), or with ``SCALE_IN_GRAPH`` a variable of
+the graph (one per chunk, a weak prior at 1; a Python factor per increment, ``factor``).
 """
 
 from __future__ import annotations
@@ -94,7 +94,8 @@ def scaled_increment(dp: np.ndarray):
 def factor(ka, kb, ks, dp: np.ndarray, sd: np.ndarray) -> gtsam.CustomFactor:
     """The robust scaled wheel increment between pose keys ``ka`` and ``kb`` with scale key ``ks``."""
     loss = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K)
-    model = gtsam.noiseModel.Robust.Create(loss, gtsam.noiseModel.Diagonal.Sigmas(np.maximum(SIGMA_SCALE * sd, MIN_SIGMA_M)))
+    sigmas = np.maximum(SIGMA_SCALE * sd, MIN_SIGMA_M)
+    model = gtsam.noiseModel.Robust.Create(loss, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
     return gtsam.CustomFactor(model, [ka, kb, ks], scaled_increment(np.asarray(dp, float)))
 
 
