@@ -47,9 +47,10 @@ def test_the_scale_is_found_and_the_slip_left_out(long_slipping_wheels):
     # the 2 s slip is 20 intervals of 0.1 s, one window either side is left out with it: measured 40
     slip = w["rejected"]["slip"]
     assert 20 <= slip["count"] <= 50 and "slip" in slip["why"]
-    assert w["increments"] >= 200  # the rest kept (measured 251)
+    assert w["increments"] >= 200  # the rest kept (measured 260)
     fused, odom = ate(case, res.stamps_ns, res.poses), ate(case, case.inputs.odom.stamps_ns, case.inputs.odom.poses)
-    assert fused <= 0.99 * odom  # measured: 0.0422 against 0.0433
+    # measured: 0.0422 against 0.0433 (the old loosened wheels: 0.0422 too; beside odometry poses the poses decide)
+    assert fused <= 0.99 * odom
 
 
 def test_the_old_loosened_wheels_report_no_scale(long_slipping_wheels, monkeypatch):
