@@ -156,7 +156,8 @@ def _smoother(asked: bool, info: dict | None) -> dict:
     if kind != "factor_graph":
         return {"kind": kind, "why": info.get("why", "")}
     if refused is None:
-        return {"kind": kind, "why": "over the whole log, with the accelerometer"}
+        out = {"kind": kind, "why": "over the whole log, with the accelerometer"}
+        return {**out, "wheel": info["wheel"]} if info.get("wheel") else out
     kept = info.get("kept", "filter")  # the chosen filter's own result: its RTS pass, or the filter alone
     return {"kind": kept if kept == "rts" else None,
             "why": f"the factor graph refused by its guard ({refused}); the filter's trajectory"

@@ -72,8 +72,10 @@ def test_the_graph_starts_from_the_odometry_poses(long_wheels, monkeypatch):
     assert absolute < 1e-6 and absolute_f > 0.1
     assert fused <= 1.05 * ate(case, res_f.stamps_ns, res_f.poses)
     assert fused <= 0.3 * ate(case, filt.stamps_ns, filt.poses)
-    # the guard still judges against the filter: its residuals are the filter's, not the start's
-    assert res.info["smoother"]["residuals_filter"] == res_f.info["smoother"]["residuals_filter"]
+    # the guard still judges against the filter: its residuals are the filter's, not the start's (the wheels'
+    # yardstick apart: their scale and slips are found against the start, graph.wheels)
+    same = {k: v for k, v in res.info["smoother"]["residuals_filter"].items() if k != "wheel_increment_m"}
+    assert same and same == {k: res_f.info["smoother"]["residuals_filter"][k] for k in same}
 
 
 def test_beside_gps_the_start_keeps_the_odometry_increments(long_wheels, monkeypatch):

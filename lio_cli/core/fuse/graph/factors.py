@@ -6,7 +6,8 @@
 - Wheels: the increment of position between consecutive keyframes in the first one's base axes, each message's
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
-  robust loss there took a wheel scale error for outliers and let the IMU drift), looser beside odometry.
+  robust loss there took a wheel scale error for outliers and let the IMU drift). Beside odometry: times the
+  wheels' speed scale, slips left out, Huber, looser (``wheels``).
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
@@ -23,10 +24,11 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, G, V, X
+from gtsam.symbol_shorthand import B, G, S, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
+from . import wheels
 from .imu import Segments
 
 HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
@@ -48,9 +50,12 @@ GPS_BIAS_RATIO = 10.0
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
-# wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES), so a wheel
-# scale error or a slip cannot pull it off
+# wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES) when their
+# scale is not estimated (``WHEEL_SCALE``), so a wheel scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 30.0
+# beside odometry: the wheels' speed scale a graph variable, slips gated out, increments at their own sigma
+# (``wheels``)
+WHEEL_SCALE = True
 # beside odometry (where the receiver-error chain is on), the fixes' vertical sigma times this
 ODOM_GPS_VERTICAL_SCALE = 3.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
@@ -167,8 +172,15 @@ class WheelTrack:
     """The wheel base velocity (components and variances as the filter's ``wheel_velocity_rows``) held over each
     IMU segment from the message nearest its middle; ``ok`` where one lies within a wheel gap of it."""
 
-    def __init__(self, z: np.ndarray, var: np.ndarray, ok: np.ndarray):
+    def __init__(self, z: np.ndarray, var: np.ndarray, ok: np.ndarray, rel_var: np.ndarray | None = None):
         self.z, self.sigma, self.ok = z, np.sqrt(var), ok
+        self.rel_var = np.zeros(len(z)) if rel_var is None else rel_var  # the forward variance's share of the speed
+
+    def without_speed_share(self, floor_var: float) -> WheelTrack:
+        """The same track, its forward variance without the configured share of the speed (floored)."""
+        var = self.sigma**2
+        var[:, 0] = np.maximum(var[:, 0] - self.rel_var, floor_var)
+        return WheelTrack(self.z, var, self.ok)
 
     @classmethod
     def of(cls, prep: Prepared, seg: Segments, noise) -> WheelTrack | None:
@@ -187,7 +199,7 @@ class WheelTrack:
         mid = seg.t + (0.5e9 * seg.dt).astype(np.int64)
         j = _nearest(w.stamps_ns, mid)
         ok = has[j] & (np.abs(w.stamps_ns[j] - mid) <= max(1.5 * period * 1e9, 2.5e7))
-        return cls(z[j], var[j], ok)
+        return cls(z[j], var[j], ok, (noise.wheel_speed_rel_sigma * z[j, 0]) ** 2)
 
 
 class ChunkGraph:
@@ -197,6 +209,14 @@ class ChunkGraph:
         self.m, self.seg, self.params, self.s = meas, seg, params, states
         self.wheel = WheelTrack.of(meas.prep, seg, meas.noise)
         self.bridged = 0
+        od = meas.prep.use.get("odom", set())
+        beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
+        self.scaled = self.wheel is not None and WHEEL_SCALE and beside_odom
+        if self.scaled and wheels.DROP_REL_SIGMA:
+            self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
+        self.scale_start: dict[int, float] = {}  # chunk's first keyframe -> its wheel scale from the pre-pass
+        self.scale_solved: dict[int, float] = {}
+        self.wheel_rejected: set[int] = set()  # keyframe intervals left out as slips
         self.bias_seam: dict[int, np.ndarray] = {}  # receiver-error nodes the previous chunk solved (solve)
 
     def bias(self, k: int) -> gtsam.imuBias.ConstantBias:
@@ -211,12 +231,31 @@ class ChunkGraph:
             vals.insert(B(k), self.bias(k))
         for j in self.gps_bias_nodes(k0, k1).tolist():
             vals.insert(G(j), self.bias_seam.get(j, np.zeros(2)))
+        if k0 in self.scale_start and wheels.SCALE_IN_GRAPH:
+            vals.insert(S(k0), np.array([self.scale_start[k0]]))
         return vals
+
+    def solved(self, res: gtsam.Values, k0: int) -> None:
+        """Keep what a chunk's solution says beyond the nav states (its wheel scale)."""
+        if k0 in self.scale_start:
+            self.scale_solved[k0] = float(res.atVector(S(k0))[0]) if wheels.SCALE_IN_GRAPH else self.scale_start[k0]
+
+    def wheel_info(self) -> dict | None:
+        """The scaled wheel increments' figures for the metrics, or None without them."""
+        if not self.scaled:
+            return None
+        return {"model": "speed scale per chunk, slips gated against the odometry",
+                "scale_from": "factor graph" if wheels.SCALE_IN_GRAPH else "odometry (pre-pass)",
+                "scale": [round(v, 5) for v in self.scale_solved.values()],
+                "increments": len(self.m.wheel_dp),
+                "rejected": {"slip": {"count": len(self.wheel_rejected), "why": wheels.SLIP_WHY}}
+                if self.wheel_rejected else {}}
 
     def build(self, k0: int, k1: int) -> gtsam.NonlinearFactorGraph:
         g = gtsam.NonlinearFactorGraph()
         m, seg = self.m, self.seg
         wheel_loss = None if WHEEL_HUBER_K is None else gtsam.noiseModel.mEstimator.Huber.Create(WHEEL_HUBER_K)
+        scaled: list[tuple[int, np.ndarray, np.ndarray, gtsam.Rot3]] = []
         for k in range(k0, k1 - 1):
             pim = gtsam.PreintegratedCombinedMeasurements(self.params, self.bias(k))
             s0, s1 = seg.at_cut[k], seg.at_cut[k + 1]
@@ -226,7 +265,9 @@ class ChunkGraph:
             wheel = self.wheel is not None and bool(self.wheel.ok[s0:s1].all())
             dp, sd = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
             g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
-            if wheel:
+            if wheel and self.scaled:
+                scaled.append((k, dp, sd, pim.deltaRij()))
+            elif wheel:
                 if len(m.odom_k) and m.prep.use["odom"] & set(ODOM_WHEEL_LOOSE_MODES):
                     sd = sd * ODOM_WHEEL_SIGMA_SCALE
                 m.wheel_dp[k] = (dp, sd)
@@ -240,7 +281,28 @@ class ChunkGraph:
                 g.add(gtsam.PriorFactorPose3(X(k), nav(o[0], self.s["p"][k]), gtsam.noiseModel.Diagonal.Sigmas(sig)))
         self._gps(g, k0, k1)
         self._odom(g, k0, k1)
+        if scaled:
+            self._scaled_wheels(g, k0, scaled)
         return g
+
+    def _scaled_wheels(self, g, k0: int, incs: list[tuple[int, np.ndarray, np.ndarray, gtsam.Rot3]]) -> None:
+        """The chunk's wheel increments times its scale variable, slips gated out (``wheels``)."""
+        ks = np.array([inc[0] for inc in incs], np.int64)
+        verdict = wheels.gate(self.m.kt, self.s, ks, np.array([inc[1] for inc in incs]))
+        out = set(verdict.rejected.tolist())
+        self.wheel_rejected |= out
+        self.scale_start[k0] = verdict.scale
+        for k, dp, sd, dR in incs:
+            if k in out:
+                self.m.wheel_dp.pop(k, None)
+                continue
+            self.m.wheel_dp[k] = (verdict.scale * dp, sd)
+            if wheels.SCALE_IN_GRAPH:
+                g.add(wheels.factor(X(k), X(k + 1), S(k0), dp, sd))
+            else:
+                g.add(wheels.fixed_scale_factor(X(k), X(k + 1), dR, verdict.scale * dp, sd))
+        if wheels.SCALE_IN_GRAPH:
+            g.add(wheels.scale_prior(S(k0)))
 
     def gps_bias_nodes(self, k0: int, k1: int) -> np.ndarray:
         """The receiver-error nodes (one per fix, its index) of the fixes on keyframes [k0, k1)."""

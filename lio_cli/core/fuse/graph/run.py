@@ -74,6 +74,8 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
             "iterations": iterations, "initial_error": stats.initial_error, "final_error": stats.final_error,
             "imu_bridged": cg.bridged, "accel_noise_scale": scale, "residuals_filter": before, "residuals_smoothed": after, "fallback": why,
             "refused": [t for t in tries if t]}
+    if cg.wheel_info() is not None:
+        info["wheel"] = cg.wheel_info()
     cov = knots["P_filt"][at_o] if o.want_covariance and len(knots["P_filt"]) else None
     if why is not None:
         prep.notes.append(f"smoother: the filter's trajectory kept, the factor graph's was worse ({why})")
