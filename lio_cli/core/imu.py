@@ -114,6 +114,19 @@ def imu_gap_ns(stamps_ns: np.ndarray, t0_ns: int, t1_ns: int) -> tuple[int, int]
     return int(cost[k]), int(length)
 
 
+def imu_gap_free(stamps_ns: np.ndarray, t0_ns: int, t1_ns: int, max_gap_ns: int = MAX_IMU_GAP_NS) -> bool:
+    """True when ``imu_gap_ns`` over [t0, t1] cannot cost more than ``max_gap_ns``: a sample at or before t0, one at
+    or after t1, and no two consecutive ones between further apart than half of it (a stretch costs at most its
+    length). The usual case in a few operations; False says only that ``imu_gap_ns`` must tell."""
+    s = stamps_ns
+    i = int(np.searchsorted(s, t0_ns, side="right"))
+    j = int(np.searchsorted(s, t1_ns, side="left"))
+    if i == 0 or j == len(s):
+        return False
+    around = s[i - 1:j + 1]
+    return len(around) < 2 or int((around[1:] - around[:-1]).max()) <= max_gap_ns // 2
+
+
 def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
               g_world: np.ndarray | None = None, noise=None, max_gap_ns: int = MAX_IMU_GAP_NS,
               planar: bool = False, accel: bool = True) -> Propagation:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -73,11 +74,12 @@ class PointCloud:
     bad_times: int = 0  # of ``dropped``: points whose time lies absurdly far from the scan's other points
     kept: np.ndarray | None = None  # which of the message's points were kept (row order), when some were dropped
 
-    @property
+    # computed once: the loop asks a scan's span a dozen times (a min/max over every point's stamp each)
+    @cached_property
     def start_ns(self) -> int:
         return int(self.point_stamps_ns.min()) if len(self.point_stamps_ns) else self.stamp_ns
 
-    @property
+    @cached_property
     def end_ns(self) -> int:
         return int(self.point_stamps_ns.max()) if len(self.point_stamps_ns) else self.stamp_ns
 

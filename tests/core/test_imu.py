@@ -92,3 +92,27 @@ def test_covariance_grows_with_time():
     p_full = propagate(s, imu, 10**9, IDENTITY, noise=ImuNoise()).state.P
     assert p_full[3, 3] > p_half[3, 3] > 1e-9  # position variance grows
     assert p_full[0, 0] > p_half[0, 0]
+
+
+def test_a_gap_free_interval_is_one_imu_gap_ns_finds_no_gap_in():
+    """``imu_gap_free`` may only spare ``imu_gap_ns`` where it would find nothing: over random sample spacings
+    (dropouts, late starts, early ends) it is never True where the cost exceeds the limit, and True for an
+    ordinary 200 Hz stream."""
+    from lio_cli.core.imu import MAX_IMU_GAP_NS, imu_gap_free, imu_gap_ns
+
+    rng = np.random.default_rng(5)
+    free = 0
+    for _ in range(3000):
+        steps = rng.choice([5_000_000, 20_000_000, 26_000_000, 60_000_000], size=int(rng.integers(1, 40)),
+                           p=[0.85, 0.05, 0.05, 0.05])
+        stamps = np.cumsum(steps).astype(np.int64) + int(rng.integers(0, 10_000_000))
+        t0 = int(rng.integers(0, 60_000_000))
+        t1 = t0 + int(rng.integers(1, 150_000_000))
+        if imu_gap_free(stamps, t0, t1):
+            free += 1
+            assert imu_gap_ns(stamps, t0, t1)[0] <= MAX_IMU_GAP_NS
+    assert free > 300
+    stamps = np.arange(0, 1_000_000_000, 5_000_000, dtype=np.int64)
+    assert imu_gap_free(stamps, 100_000_000, 200_000_000)
+    assert not imu_gap_free(stamps, 900_000_000, 1_100_000_000)  # no sample after the end: imu_gap_ns tells
+    assert not imu_gap_free(np.delete(stamps, np.arange(30, 36)), 100_000_000, 200_000_000)  # a 35 ms hole

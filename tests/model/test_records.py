@@ -18,3 +18,14 @@ def test_a_shifted_batch_keeps_its_samples_and_frame():
     np.testing.assert_array_equal(moved.stamps_ns, [15, 25])
     assert moved.frame_id == "imu" and moved.gyro_radps is gyro and moved.accel_mps2 is accel
     np.testing.assert_array_equal(batch.stamps_ns, [10, 20])  # the original is untouched
+
+
+def test_a_scans_span_is_its_points_first_and_last_stamp_or_else_its_header():
+    from lio_cli.model.records import PointCloud, TimeConvention
+
+    conv = TimeConvention("none", None, 1.0)
+    cloud = PointCloud(5_000, "lidar", np.zeros((3, 3)), np.array([7_000, 6_000, 9_000], np.int64), conv)
+    assert (cloud.start_ns, cloud.end_ns) == (6_000, 9_000)
+    assert (cloud.start_ns, cloud.end_ns) == (6_000, 9_000)  # asked again: the same
+    empty = PointCloud(5_000, "lidar", np.zeros((0, 3)), np.zeros(0, np.int64), conv)
+    assert (empty.start_ns, empty.end_ns) == (5_000, 5_000)

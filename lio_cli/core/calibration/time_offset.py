@@ -80,7 +80,7 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
     pl = PiecewiseLinear((istamps - istamps[0]) / NS_PER_S, gyro - bias0)
     t_a, t_b = (ta - istamps[0]) / NS_PER_S, (tb - istamps[0]) / NS_PER_S
     grid = np.arange(-max_offset_s, max_offset_s + 0.5 * coarse_step_s, coarse_step_s)
-    score = np.array([_alignment(phi_l, pl.interval_mean(t_a - d, t_b - d) * dt[:, None]) for d in grid])
+    score = _alignments(phi_l, pl, t_a, t_b, dt, grid)
     k = int(np.argmax(score))
     if k in (0, len(grid) - 1):
         raise InputError(f"the IMU-LiDAR time offset lies beyond the +-{max_offset_s:g} s searched (best at the edge): "
@@ -131,6 +131,17 @@ def _alignment(phi_l: np.ndarray, phi_i: np.ndarray) -> float:
     """1 - min_R sum |phi_l - R phi_i|^2 / sum (|phi_l|^2 + |phi_i|^2): 1 when one rotation explains all."""
     s = np.linalg.svd(phi_i.T @ phi_l, compute_uv=False)
     return float(2.0 * s.sum() / ((phi_l**2).sum() + (phi_i**2).sum()))
+
+
+def _alignments(phi_l: np.ndarray, pl: PiecewiseLinear, t_a: np.ndarray, t_b: np.ndarray, dt: np.ndarray,
+                grid: np.ndarray) -> np.ndarray:
+    """``_alignment`` of the gyro's mean rates shifted by each offset of ``grid``, for all offsets at once: the
+    same per-element arithmetic, one 3x3 product and SVD per offset as one batched call (the same bits)."""
+    g, n = len(grid), len(t_a)
+    shift = np.repeat(grid, n)
+    phi_i = (pl.interval_mean(np.tile(t_a, g) - shift, np.tile(t_b, g) - shift) * np.tile(dt, g)[:, None]).reshape(g, n, 3)
+    s = np.linalg.svd(np.swapaxes(phi_i, 1, 2) @ phi_l, compute_uv=False)
+    return 2.0 * s.sum(axis=1) / ((phi_l**2).sum() + (phi_i**2).sum(axis=(1, 2)))
 
 
 def _note_aliases(grid: np.ndarray, score: np.ndarray, k: int, notes: list[str]) -> None:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ...geometry import inv_pose, so3_exp, so3_log
+from ...geometry import so3_exp, so3_log
 
 
 def untouched(measured: np.ndarray, guess: np.ndarray) -> bool:
@@ -14,10 +16,16 @@ def untouched(measured: np.ndarray, guess: np.ndarray) -> bool:
 
 
 def exceeds_jump(measured: np.ndarray, guess: np.ndarray, max_m: float, max_rad: float) -> bool:
-    """The registration moved further than ``max_m`` or turned more than ``max_rad`` from its guess."""
-    jump = inv_pose(guess) @ measured
-    angle = np.arccos(np.clip((np.trace(jump[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
-    return bool(np.linalg.norm(jump[:3, 3]) > max_m or angle > max_rad)
+    """The registration moved further than ``max_m`` or turned more than ``max_rad`` from its guess: the
+    translation and angle of ``inv_pose(guess) @ measured``, in Python floats (a dozen numpy calls on 4x4
+    matrices cost more than the arithmetic; they agree to rounding)."""
+    (g0, g1, g2, gt), (g3, g4, g5, gu), (g6, g7, g8, gv) = guess.tolist()[:3]
+    (m0, m1, m2, mt), (m3, m4, m5, mu), (m6, m7, m8, mv) = measured.tolist()[:3]
+    dx, dy, dz = mt - gt, mu - gu, mv - gv
+    jx, jy, jz = g0 * dx + g3 * dy + g6 * dz, g1 * dx + g4 * dy + g7 * dz, g2 * dx + g5 * dy + g8 * dz
+    trace = (g0 * m0 + g3 * m3 + g6 * m6) + (g1 * m1 + g4 * m4 + g7 * m7) + (g2 * m2 + g5 * m5 + g8 * m8)
+    angle = math.acos(min(max((trace - 1.0) / 2.0, -1.0), 1.0))
+    return math.sqrt(jx * jx + jy * jy + jz * jz) > max_m or angle > max_rad
 
 
 def lean_on_prior(measured: np.ndarray, guess: np.ndarray, dirs_b: list[np.ndarray]) -> np.ndarray:

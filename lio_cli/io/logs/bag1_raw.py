@@ -21,6 +21,7 @@ _BLOCK = 8_192  # index entries turned into Python values at a time (about 1 MB 
 _FIRST_BLOCK = 256  # the first block's: a peek at a topic's first messages converts a few hundred entries
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
+_OP_FIRST = b"\x04\x00\x00\x00op="  # the first field of rosbags' (and so lio's own) message headers: op, conn, time
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 
 
@@ -95,6 +96,8 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
             if buf[h0 + 34:h0 + 37] == b"op=" and buf[h0:h0 + 9] == _TIME and buf[h0 + 17:h0 + 26] == _CONN \
                     and h0 + 30 < h1:
                 op = buf[h0 + 37]  # time, conn, op as rosbag writes them: what _op finds, without its loop
+            elif buf[h0:h0 + 8] == _OP_FIRST and h0 + 9 <= h1:
+                op = buf[h0 + 8]  # op first, as rosbags writes them
             else:
                 op = _op(buf, h0, h1)
             (dlen,) = unpack(buf, h1)

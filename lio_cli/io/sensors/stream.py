@@ -10,6 +10,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Iterator
+from itertools import chain
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -213,57 +214,63 @@ class SensorStream:
         self._last_rec[rec.topic] = t_rec
         return True
 
+    def _imu_batch(self, imu: list, topic: str, frame: str) -> Record:
+        """The IMU samples gathered since the last record as one batch record."""
+        stamps, gyros, accels = zip(*imu)
+        accel = np.array(accels, dtype=np.float64).reshape(-1, 3)
+        scale = self._accel_scale(topic)
+        if scale != 1.0:
+            accel *= scale
+        batch = ImuBatch(frame, np.array(stamps, dtype=np.int64), np.array(gyros, dtype=np.float64).reshape(-1, 3),
+                         accel)
+        return Record("imu", topic, int(batch.stamps_ns[0]), batch)
+
     def __iter__(self) -> Iterator[Record]:
         heap: list[tuple[int, int, int, Record]] = []  # (header stamp, sequence, record time, record)
         seq = 0
         imu: list[tuple[int, np.ndarray, np.ndarray]] = []
         imu_topic, imu_frame = "", ""
-
-        def flush_imu() -> Iterator[Record]:
-            nonlocal imu
-            if imu:
-                stamps, gyros, accels = zip(*imu)
-                accel = np.array(accels, dtype=np.float64).reshape(-1, 3)
-                scale = self._accel_scale(imu_topic)
-                if scale != 1.0:
-                    accel *= scale
-                batch = ImuBatch(imu_frame, np.array(stamps, dtype=np.int64),
-                                 np.array(gyros, dtype=np.float64).reshape(-1, 3), accel)
-                imu = []
-                yield Record("imu", imu_topic, int(batch.stamps_ns[0]), batch)
-
-        def emit(rec: Record, t_rec: int) -> Iterator[Record]:
-            nonlocal imu_topic, imu_frame
-            if not self._accept(rec, t_rec):
-                return
-            if rec.kind == "imu":
-                imu_frame, gyro, accel = rec.data
-                imu_topic = rec.topic
-                imu.append((rec.stamp_ns, gyro, accel))
-                if len(imu) >= self.imu_batch_size:
-                    yield from flush_imu()
+        accept, decode, stats, window, batch_size = self._accept, self._decode, self.stats, self.window_ns, \
+            self.imu_batch_size
+        pop, push = heapq.heappop, heapq.heappush
+        # a record leaves the heap once it is older than the window (all at the log's end: the None after it); IMU
+        # samples gather into a batch that goes out before the next other record or when full. Inline, not a
+        # generator per message
+        for item in chain(self.log.messages(self.kind_of, fast=True), (None,)):
+            if item is None:
+                horizon = math.inf
             else:
-                yield from flush_imu()
-                yield rec
-
-        for topic, msgtype, t_rec, msg in self.log.messages(self.kind_of, fast=True):
-            self.stats.messages[topic] = self.stats.messages.get(topic, 0) + 1
-            try:
-                rec = self._decode(topic, msgtype, msg)
-            except InputError as err:
-                if str(err).startswith(f"{self.log.path}:"):
-                    raise
-                raise InputError(f"{self.log.path}: {topic}: {err}") from err
-            if rec is None:
-                continue
-            heapq.heappush(heap, (rec.stamp_ns, seq, t_rec, rec))
-            seq += 1
-            horizon = max(t_rec, rec.stamp_ns) - self.window_ns
+                topic, msgtype, t_rec, msg = item
+                stats.messages[topic] = stats.messages.get(topic, 0) + 1
+                try:
+                    rec = decode(topic, msgtype, msg)
+                except InputError as err:
+                    if str(err).startswith(f"{self.log.path}:"):
+                        raise
+                    raise InputError(f"{self.log.path}: {topic}: {err}") from err
+                if rec is None:
+                    continue
+                push(heap, (rec.stamp_ns, seq, t_rec, rec))
+                seq += 1
+                horizon = (t_rec if t_rec >= rec.stamp_ns else rec.stamp_ns) - window
             while heap and heap[0][0] <= horizon:
-                yield from emit(*heapq.heappop(heap)[3:1:-1])
-        while heap:
-            yield from emit(*heapq.heappop(heap)[3:1:-1])
-        yield from flush_imu()
+                _, _, t, out = pop(heap)
+                if not accept(out, t):
+                    continue
+                if out.kind == "imu":
+                    imu_frame, gyro, accel = out.data
+                    imu_topic = out.topic
+                    imu.append((out.stamp_ns, gyro, accel))
+                    if len(imu) >= batch_size:
+                        yield self._imu_batch(imu, imu_topic, imu_frame)
+                        imu = []
+                else:
+                    if imu:
+                        yield self._imu_batch(imu, imu_topic, imu_frame)
+                        imu = []
+                    yield out
+        if imu:
+            yield self._imu_batch(imu, imu_topic, imu_frame)
 
 
 def _fmt_ns(ns: int) -> str:

@@ -81,3 +81,21 @@ def test_offset_beyond_the_search_is_refused(handheld):
 def _rz(a):
     c, s = np.cos(a), np.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_the_coarse_grid_in_one_pass_gives_the_bits_of_one_offset_at_a_time():
+    from lio_cli.core.calibration.signals import PiecewiseLinear
+    from lio_cli.core.calibration.time_offset import _alignment, _alignments
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        m, n = int(rng.integers(300, 700)), int(rng.integers(20, 50))
+        t = np.cumsum(rng.uniform(0.004, 0.006, m))
+        pl = PiecewiseLinear(t, rng.normal(0.0, 1.0, (m, 3)) * rng.uniform(0.01, 5.0))
+        ta = np.sort(rng.uniform(0.3, t[-1] - 0.4, n))
+        tb = ta + rng.uniform(0.05, 0.15, n)
+        dt = tb - ta
+        phi_l = rng.normal(0.0, 0.3, (n, 3))
+        grid = np.arange(-0.1, 0.1 + 0.001, 0.002)
+        one_by_one = np.array([_alignment(phi_l, pl.interval_mean(ta - d, tb - d) * dt[:, None]) for d in grid])
+        assert np.array_equal(_alignments(phi_l, pl, ta, tb, dt, grid), one_by_one)

@@ -26,3 +26,42 @@ def test_blocks_of_index_entries_keep_rosbags_order(tmp_path, monkeypatch, first
         want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=theirs.connections)]
         got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, ours.connections)]
     assert len(want) == 40 and got == want
+
+
+def _fields(header: bytes) -> dict[bytes, bytes]:
+    """A record header's fields (length-prefixed ``name=value``), by name."""
+    out, pos = {}, 0
+    while pos < len(header):
+        n = int.from_bytes(header[pos:pos + 4], "little")
+        field = header[pos:pos + 4 + n]
+        out[field[4:].split(b"=", 1)[0]] = field
+        pos += 4 + n
+    return out
+
+
+@pytest.mark.parametrize("order", [(b"time", b"conn", b"op"), (b"op", b"conn", b"time"), (b"conn", b"op", b"time")])
+def test_message_headers_in_any_field_order(tmp_path, order):
+    """rosbag writes a message's header fields as time, conn, op; rosbags (so lio's own logs) as op, conn, time;
+    anything else is read field by field: the same messages in every case."""
+    path = tmp_path / "order.bag"
+    with Writer(path) as w:  # uncompressed chunks: the headers can be rewritten in place
+        w.chunk_threshold = 64
+        a = w.add_connection("/a", "std_msgs/msg/String", msgdef="string data", md5sum=MD5)
+        for k in range(12):
+            w.write(a, 100 + k, (3).to_bytes(4, "little") + b"m%02d" % k)
+    data = bytearray(path.read_bytes())
+    pos = data.find(b"\x04\x00\x00\x00op=\x02")
+    rewritten = 0
+    while pos >= 0:  # each message-data record: its header's three fields, permuted in place (same length)
+        start = pos - 4
+        hlen = int.from_bytes(data[start:start + 4], "little")
+        fields = _fields(bytes(data[start + 4:start + 4 + hlen]))
+        data[start + 4:start + 4 + hlen] = b"".join(fields[name] for name in order)
+        rewritten += 1
+        pos = data.find(b"\x04\x00\x00\x00op=\x02", start + 4 + hlen)
+    path.write_bytes(bytes(data))
+    assert rewritten == 12
+    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
+        want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=theirs.connections)]
+        got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, ours.connections)]
+    assert len(want) == 12 and got == want
