@@ -5,10 +5,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import S, X
 
 from lio_cli.core.fuse import FuseOptions, fuse
 from lio_cli.core.fuse.graph import factors, wheels
@@ -92,33 +90,3 @@ def test_gate_at_rest_keeps_the_scale_one():
     kt, s = _line(50, speed_mps=0.0)
     g = wheels.gate(kt, s, np.arange(50), np.zeros((50, 3)))
     assert g.scale == 1.0 and len(g.rejected) == 0
-
-
-def test_scaled_increment_jacobians_match_numeric_ones():
-    rng = np.random.default_rng(2)
-    Ta = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0.0, 0.5, 3)), rng.normal(0.0, 1.0, 3))
-    Tb = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0.0, 0.5, 3)), rng.normal(0.0, 1.0, 3))
-    dp = rng.normal(0.0, 1.0, 3)
-    f = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), [X(0), X(1), S(0)], wheels.scaled_increment(dp))
-
-    def values(d: np.ndarray) -> gtsam.Values:
-        v = gtsam.Values()
-        v.insert(X(0), Ta.retract(d[:6]))
-        v.insert(X(1), Tb.retract(d[6:12]))
-        v.insert(S(0), np.array([1.1 + d[12]]))
-        return v
-
-    e0, eps = f.unwhitenedError(values(np.zeros(13))), 1e-6
-    expected = Ta.rotation().matrix().T @ (Tb.translation() - Ta.translation()) - 1.1 * dp
-    np.testing.assert_allclose(e0, expected, atol=1e-12)
-    analytic = f.linearize(values(np.zeros(13))).jacobian()[0]
-    numeric = np.column_stack([(f.unwhitenedError(values(np.eye(13)[i] * eps)) - e0) / eps for i in range(13)])
-    np.testing.assert_allclose(analytic, numeric, atol=1e-5)
-
-
-def test_the_scale_as_a_graph_variable_agrees(long_slipping_wheels, monkeypatch):
-    monkeypatch.setattr(wheels, "SCALE_IN_GRAPH", True)
-    o = FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True)
-    w = fuse(long_slipping_wheels.inputs, o).info["smoother"]["wheel"]
-    assert w["scale_from"] == "factor graph"
-    assert abs(w["scale"][0] - 1.0 / LONG) < SCALE_TOL  # measured: 0.95221

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, G, S, V, X
+from gtsam.symbol_shorthand import B, G, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
@@ -212,10 +212,9 @@ class ChunkGraph:
         od = meas.prep.use.get("odom", set())
         beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
         self.scaled = self.wheel is not None and WHEEL_SCALE and beside_odom
-        if self.scaled and wheels.DROP_REL_SIGMA:
+        if self.scaled:  # the forward sigma's share of the speed stood for a scale error: the scale carries it
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
         self.scale_start: dict[int, float] = {}  # chunk's first keyframe -> its wheel scale from the pre-pass
-        self.scale_solved: dict[int, float] = {}
         self.wheel_rejected: set[int] = set()  # keyframe intervals left out as slips
         self.bias_seam: dict[int, np.ndarray] = {}  # receiver-error nodes the previous chunk solved (solve)
 
@@ -231,22 +230,15 @@ class ChunkGraph:
             vals.insert(B(k), self.bias(k))
         for j in self.gps_bias_nodes(k0, k1).tolist():
             vals.insert(G(j), self.bias_seam.get(j, np.zeros(2)))
-        if k0 in self.scale_start and wheels.SCALE_IN_GRAPH:
-            vals.insert(S(k0), np.array([self.scale_start[k0]]))
         return vals
-
-    def solved(self, res: gtsam.Values, k0: int) -> None:
-        """Keep what a chunk's solution says beyond the nav states (its wheel scale)."""
-        if k0 in self.scale_start:
-            self.scale_solved[k0] = float(res.atVector(S(k0))[0]) if wheels.SCALE_IN_GRAPH else self.scale_start[k0]
 
     def wheel_info(self) -> dict | None:
         """The scaled wheel increments' figures for the metrics, or None without them."""
         if not self.scaled:
             return None
         return {"model": "speed scale per chunk, slips gated against the odometry",
-                "scale_from": "factor graph" if wheels.SCALE_IN_GRAPH else "odometry (pre-pass)",
-                "scale": [round(v, 5) for v in self.scale_solved.values()],
+                "scale_from": "odometry (pre-pass)",
+                "scale": [round(v, 5) for v in self.scale_start.values()],
                 "increments": len(self.m.wheel_dp),
                 "rejected": {"slip": {"count": len(self.wheel_rejected), "why": wheels.SLIP_WHY}}
                 if self.wheel_rejected else {}}
@@ -297,12 +289,7 @@ class ChunkGraph:
                 self.m.wheel_dp.pop(k, None)
                 continue
             self.m.wheel_dp[k] = (verdict.scale * dp, sd)
-            if wheels.SCALE_IN_GRAPH:
-                g.add(wheels.factor(X(k), X(k + 1), S(k0), dp, sd))
-            else:
-                g.add(wheels.fixed_scale_factor(X(k), X(k + 1), dR, verdict.scale * dp, sd))
-        if wheels.SCALE_IN_GRAPH:
-            g.add(wheels.scale_prior(S(k0)))
+            g.add(wheels.fixed_scale_factor(X(k), X(k + 1), dR, verdict.scale * dp, sd))
 
     def gps_bias_nodes(self, k0: int, k1: int) -> np.ndarray:
         """The receiver-error nodes (one per fix, its index) of the fixes on keyframes [k0, k1)."""

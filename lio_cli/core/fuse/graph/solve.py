@@ -87,7 +87,6 @@ def solve(cg: ChunkGraph, K: int, first: Prior, seam: Callable[[dict, int, int],
         init = cg.values(s0, s1)
         opt = gtsam.LevenbergMarquardtOptimizer(g, init, lm)
         res = opt.optimize()
-        cg.solved(res, s0)
         stats.iterations += opt.iterations()
         stats.initial_error += g.error(init)
         stats.final_error += g.error(res)

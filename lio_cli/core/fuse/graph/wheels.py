@@ -6,8 +6,8 @@ graph's starting values (the odometry's poses) over windows of ``WINDOW_NS``: th
 the windows, and a window whose scaled increment misses the odometry's by more than ``GATE_REL`` of its length
 and ``GATE_K`` robust sigmas of every window's miss is a slip: its increments (and ``GATE_DILATE`` windows either
 side) are left out of the graph and counted (``Gate.rejected``). The rest say ``R_k^T (p_k+1 - p_k) = s dp_k``
-under a Huber loss: ``s`` the pre-pass's (GTSAM's own between factor), or with ``SCALE_IN_GRAPH`` a variable of
-the graph (one per chunk, a weak prior at 1; a Python factor per increment, ``factor``).
+under a Huber loss, ``s`` the pre-pass's, in GTSAM's own between factor (the scale as a graph variable, a Python
+factor per increment, landed within 0.06 % of it at 3x the cost: docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -22,21 +22,15 @@ GATE_REL = 0.05  # a window's miss beyond this share of its length is a slip (bu
 GATE_K = 3.0  # and beyond this many robust sigmas of the windows' misses (odometry's own noise at low speed)
 GATE_DILATE = 1  # windows left out on each side of a slip's
 MIN_WINDOW_M = 0.05  # windows shorter than this do not vote for the scale
-SCALE_PRIOR_SIGMA = 0.1  # the scale's prior about 1: wheels are never 10 % off without a reason
 SCALE_BOUNDS = (0.5, 2.0)  # a pre-pass scale outside these is not a wheel's: 1 is kept
 MIN_SIGMA_M = 0.001  # a short interval's (a fix beside an odometry pose) increment is no surer than the poses
 # the increments' sigmas times this (as without the scale, ``factors.ODOM_WHEEL_SIGMA_SCALE``): tighter, the
 # rover's wheels drew the graph off beside odometry and GPS, slips gated out or not (docs/benchmarks.md)
 SIGMA_SCALE = 30.0
-# the scale a graph variable (a Python factor per increment); else the pre-pass's, fixed (GTSAM's C++ factor)
-SCALE_IN_GRAPH = False
 LOOSE_ROTATION_RAD = 1.0  # the fixed-scale factor's rotation: the gyro's (already in the IMU factor)
 HUBER_K = 2.0  # whitened norm of a 3D increment residual (what the gate let through at a slip's edges)
 SLIP_WHY = ("a keyframe interval's wheel increment, times the wheel scale, missed the odometry's beyond the gate "
             "(a slip): left out of the factor graph")
-# wheel increments' forward sigma without the configured share of the speed (``wheel_speed_rel_sigma``, which
-# stands for a scale error): the scale variable now carries that
-DROP_REL_SIGMA = True
 
 
 @dataclass
@@ -72,33 +66,6 @@ def gate(kt: np.ndarray, states: dict[str, np.ndarray], ks: np.ndarray, dps: np.
     return Gate(scale, ks[slip[inv]])
 
 
-def scaled_increment(dp: np.ndarray):
-    """A CustomFactor's error function on (X_k, X_k+1, S): ``R_k^T (p_k+1 - p_k) - s dp`` (Pose3's tangent:
-    rotation, then translation in body axes)."""
-    col = -dp.reshape(3, 1)
-
-    def error(this, values, H):
-        keys = this.keys()
-        Ta, Tb = values.atPose3(keys[0]), values.atPose3(keys[1])
-        s = float(values.atVector(keys[2])[0])
-        Ra = Ta.rotation().matrix()
-        a = Ra.T @ (Tb.translation() - Ta.translation())
-        if H is not None:
-            H[0] = np.hstack([_skew(a), -np.eye(3)])
-            H[1] = np.hstack([np.zeros((3, 3)), Ra.T @ Tb.rotation().matrix()])
-            H[2] = col
-        return a - s * dp
-    return error
-
-
-def factor(ka, kb, ks, dp: np.ndarray, sd: np.ndarray) -> gtsam.CustomFactor:
-    """The robust scaled wheel increment between pose keys ``ka`` and ``kb`` with scale key ``ks``."""
-    loss = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K)
-    sigmas = np.maximum(SIGMA_SCALE * sd, MIN_SIGMA_M)
-    model = gtsam.noiseModel.Robust.Create(loss, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
-    return gtsam.CustomFactor(model, [ka, kb, ks], scaled_increment(np.asarray(dp, float)))
-
-
 def fixed_scale_factor(ka, kb, dR: gtsam.Rot3, dp: np.ndarray, sd: np.ndarray) -> gtsam.BetweenFactorPose3:
     """The robust wheel increment ``dp`` (already scaled) as GTSAM's own between factor, its rotation the gyro's
     ``dR``, loose."""
@@ -106,11 +73,3 @@ def fixed_scale_factor(ka, kb, dR: gtsam.Rot3, dp: np.ndarray, sd: np.ndarray) -
     sig = np.r_[np.full(3, LOOSE_ROTATION_RAD), np.maximum(SIGMA_SCALE * sd, MIN_SIGMA_M)]
     model = gtsam.noiseModel.Robust.Create(loss, gtsam.noiseModel.Diagonal.Sigmas(sig))
     return gtsam.BetweenFactorPose3(ka, kb, gtsam.Pose3(dR, np.asarray(dp, float)), model)
-
-
-def scale_prior(ks, sigma: float = SCALE_PRIOR_SIGMA) -> gtsam.PriorFactorVector:
-    return gtsam.PriorFactorVector(ks, np.ones(1), gtsam.noiseModel.Isotropic.Sigma(1, sigma))
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
