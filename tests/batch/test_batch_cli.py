@@ -458,8 +458,8 @@ def test_force_never_replaces_a_folder_no_run_wrote(sim, pooled, tmp_path, capsy
 def test_runs_asking_for_different_registration_threads_each_get_a_fresh_process(sim, tmp_path, monkeypatch,
                                                                                  second, fresh):
     """kiss-icp keeps the thread count of a process's first registration. With --jobs 1 the runs go in this
-    process, but a calibrate run (1 thread: its result repeats exactly) beside an odom run (all cores) gets a
-    worker process of its own, as each run does then."""
+    process, but a calibrate run (1 thread: its result repeats exactly) beside an odom run asking for all cores
+    gets a worker process of its own, as each run does then."""
     from lio_cli.batch import executors
 
     real, seen = executors.ProcessPoolExecutor, []
@@ -475,9 +475,11 @@ output: out
 runs:
   - log: {log}
     name: first
+    options: {{registration.threads: 0}}
   - log: {log}
     name: second
     command: {second}
+    options: {{registration.threads: {0 if second == "odom" else 1}}}
 """)
     assert run_lio("batch", manifest, "--jobs", "1", "-q")[0] == 0
     assert seen == ([1] if fresh else [])  # one worker, a fresh one per run; else the runs run in this process
@@ -491,8 +493,8 @@ def test_registration_threads_of_each_command():
     from lio_cli.config.fuse import FuseConfig
     from lio_cli.config.odom import OdomConfig
 
-    assert registration_threads("odom", OdomConfig()) == 0
+    assert registration_threads("odom", OdomConfig()) == 1
     assert registration_threads("calibrate", CalibrateConfig()) == 1
-    assert registration_threads("deskew", DeskewConfig()) == 0
+    assert registration_threads("deskew", DeskewConfig()) == 1
     assert registration_threads("deskew", DeskewConfig.model_validate({"trajectory": {"path": "x.tum"}})) is None
     assert registration_threads("fuse", FuseConfig()) is None

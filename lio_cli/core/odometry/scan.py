@@ -51,7 +51,9 @@ def prepare(o: OdomState, cloud: PointCloud, knots_ns, knot_poses, t_ref: int) -
         return None
     if o.reg is None:
         o.reg = new_map(rc, rng[keep], imu_prior=o.settings.imu_prior, planar=o.settings.planar)
-    return points if kept == len(points) else points[keep]  # all in range, as most scans: no copy
+    if kept == len(points):  # all in range: no copy
+        return points
+    return np.compress(keep, points, axis=0)  # numpy's points[keep] on (N, 3) rows is ~20x slower
 
 
 def scheduled_directions(schedule: DegeneracySchedule, points: np.ndarray, R_now: np.ndarray, last_pose: np.ndarray,

@@ -162,3 +162,29 @@ def test_loading_the_registration_leaves_kiss_icps_pydantic_configuration_unload
             "print(sorted(m for m in sys.modules if m.startswith(('pydantic_settings', 'kiss_icp.config'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_the_map_stays_bounded_over_a_long_drive():
+    # 600 scans 2 m apart along a 1.2 km street: the map keeps only what lies within max_range_m of the sensor
+    rng = np.random.default_rng(3)
+    reg = ScanRegistration(RegistrationConfig(max_range_m=40.0), 1.0, imu_prior=True, planar=False,
+                           fixed_correspondence_m=0.5)
+    sizes = []
+    for k in range(600):
+        x = 2.0 * k
+        n = 3000  # the street around the sensor, in the world frame: ground and two facades
+        ground = np.column_stack([rng.uniform(x - 40, x + 40, n), rng.uniform(-12, 12, n), np.full(n, -1.5)])
+        walls = np.column_stack([rng.uniform(x - 40, x + 40, n), np.where(rng.random(n) < 0.5, -12.0, 12.0),
+                                 rng.uniform(-1.5, 6.0, n)])
+        pose = np.eye(4)
+        pose[0, 3] = x
+        frame, _ = reg.downsample(np.vstack([ground, walls]) - [x, 0.0, 0.0])  # in the sensor's frame
+        reg.accept(None, frame, pose)
+        sizes.append(len(reg.map.point_cloud()))
+    cloud = reg.map.point_cloud()
+    # nothing behind the last 40 m (a voxel's first point decides: a voxel's diagonal more at most)
+    assert cloud[:, 0].min() >= 2.0 * 599 - 40.0 - 1.8
+    # the size levels off once the sensor has driven max_range_m: the last 400 scans within 10 % of each other
+    steady = np.array(sizes[200:])
+    assert steady.max() <= 1.1 * steady.min()
+    assert sizes[-1] < 0.2 * sizes[0] * 600  # far from every scan's points kept

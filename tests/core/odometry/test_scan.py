@@ -28,6 +28,17 @@ def test_points_are_moved_into_the_base_frame_and_kept_within_the_range_limits()
     assert keep.tolist() == [False, True, False]
 
 
+def test_prepare_keeps_the_points_in_range_in_their_order(make_state):
+    o = make_state()
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-150.0, 150.0, (400, 3))  # the default limits keep 0.5-100 m
+    kept = prepare(o, _cloud(points), None, None, NS // 10)
+    base, ranges, keep = points_in_range(_cloud(points), None, None, NS // 10, o.ext.T_base_lidar, o.cfg.registration)
+    assert 50 < keep.sum() < 400  # some dropped: the copying path
+    np.testing.assert_array_equal(kept, base[keep])
+    assert ((row := np.linalg.norm(kept, axis=1)) <= 100.0).all() and (row >= 0.5).all()
+
+
 def test_too_few_points_in_range_skip_the_scan_and_start_no_map(make_state):
     o = make_state()
     assert prepare(o, _cloud(np.full((10, 3), 5.0)), None, None, NS // 10) is None
