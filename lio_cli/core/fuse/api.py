@@ -85,19 +85,18 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
 
 
-def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions) -> tuple[Prepared, EstimatorChoice]:
+def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). For
-    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied)."""
+    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied),
+    unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         return prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
-    if choice.name == "planar" and wheel_slip.applies(prep):
-        check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2)
-        prep.wheel_check = check.to_dict()
-        prep.notes.append("wheels: " + check.why)
+    if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
+        prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
     if choice.name == "planar" and not (o.smooth and _graph_smooths(prep, choice.name)):
         planar_use(prep.use)
     return prep, choice
@@ -157,7 +156,7 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
 
 def pick_estimator(inputs: FuseInputs, options: FuseOptions) -> EstimatorChoice:
     """The estimator ``fuse`` would run on these inputs and why (for a caller that fuses in pieces)."""
-    return _prepare_and_choose(inputs, options)[1]
+    return _prepare_and_choose(inputs, options, check=False)[1]
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):

@@ -240,7 +240,7 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
             keep &= res.stamps_ns > kept[-1].stamps_ns[-1]
         kept.append(_take(res, keep))
         infos.append({"span_ns": [a, b], "poses": int(np.count_nonzero(keep)), "joined_on_overlap": joined,
-                      "start": res.info.get("start")})
+                      "start": res.info.get("start"), "wheel_check": res.info.get("wheel_check")})
         prev = res
         if step:
             step(k + 1, n)
@@ -253,7 +253,21 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
                      velocities_mps=None if first.velocities_mps is None else np.concatenate(
                          [r.velocities_mps for r in kept]),
                      reports=merge_reports([r.reports for r in kept]), info=dict(first.info))
+    if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
+        merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
     return merged, infos
 
 
-__all__ = ["MemoryPlan", "align_onto", "fuse_chunked", "knot_count", "merge_reports", "plan", "slice_inputs"]
+def merge_wheel_checks(checks: list[dict | None]) -> dict:
+    """One wheel check for a run fused in chunks: each chunk checked its own wheels (its windows relative to its
+    start are in the chunk's own entry)."""
+    done = [c for c in checks if c]
+    slips, bridged = sum(c["slips"] for c in done), sum(c["bridged"] for c in done)
+    scales = [c["scale"] if c["scale_applied"] else 1.0 for c in done]
+    return {"slips": slips, "windows_s": None, "scale": None, "scale_sigma": None, "bridged": bridged,
+            "scale_applied": any(c["scale_applied"] for c in done), "per_chunk_scale": scales,
+            "why": f"checked per chunk ({len(done)} of {len(checks)}): {slips} slip(s) bridged by the IMU, wheel scale "
+                   + ", ".join(f"{v:.4f}" for v in scales)}
+
+
+__all__ = ["MemoryPlan", "align_onto", "fuse_chunked", "knot_count", "merge_reports", "merge_wheel_checks", "plan", "slice_inputs"]

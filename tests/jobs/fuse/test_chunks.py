@@ -6,7 +6,8 @@ import numpy as np
 
 from lio_cli.core.fuse import FuseInputs, FuseOptions, FuseResult, ImuSeries, SourceReport, WheelSeries
 from lio_cli.geometry import make_pose, so3_exp
-from lio_cli.jobs.fuse.chunks import align_onto, bytes_per_knot, knot_count, merge_reports, plan, slice_inputs
+from lio_cli.jobs.fuse.chunks import (align_onto, bytes_per_knot, knot_count, merge_reports, merge_wheel_checks, plan,
+                                      slice_inputs)
 
 T0 = 1_700_000_000 * 10**9
 
@@ -110,3 +111,13 @@ def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
         "(30 s plus 10 s of overlap each side) needs 52 MB: fuse --no-smooth or raise --max-memory to 52 (MB) or more")
     fits = plan(_inputs(), FuseOptions(estimator="ekf", smooth=True), use, 52.0)
     assert len(fits.chunks) == 4
+
+
+def test_a_chunked_run_sums_every_chunks_wheel_check():
+    a = {"slips": 2, "windows_s": [[1.0, 2.5], [7.0, 8.0]], "scale": 1.0291, "scale_sigma": 0.001, "bridged": 150,
+         "scale_applied": True, "why": "x"}
+    b = {"slips": 1, "windows_s": [[3.0, 4.0]], "scale": 1.002, "scale_sigma": 0.004, "bridged": 60,
+         "scale_applied": False, "why": "y"}
+    m = merge_wheel_checks([a, None, b])
+    assert (m["slips"], m["bridged"], m["scale_applied"], m["per_chunk_scale"]) == (3, 210, True, [1.0291, 1.0])
+    assert m["why"] == "checked per chunk (2 of 3): 3 slip(s) bridged by the IMU, wheel scale 1.0291, 1.0000"
