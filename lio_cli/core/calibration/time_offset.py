@@ -29,6 +29,7 @@ MIN_PEAK_RATE_RADPS = np.radians(10.0)
 MIN_ALIGNMENT = 0.5
 WEAK_SIGMA_S = 0.001
 OUTLIER_FLOOR_RAD = 1e-4  # residual sigma below which nothing is an outlier
+GRID_BLOCK_ROWS = 200_000  # offsets x intervals per batched block of the coarse grid: ~50 MB of temporaries
 MOVE_HINT = ("swing the sensor back and forth (yaw or roll sweeps of +-30 deg at about 1 Hz) for 10-20 s; on a vehicle, "
              "drive a slalom")
 
@@ -136,12 +137,19 @@ def _alignment(phi_l: np.ndarray, phi_i: np.ndarray) -> float:
 def _alignments(phi_l: np.ndarray, pl: PiecewiseLinear, t_a: np.ndarray, t_b: np.ndarray, dt: np.ndarray,
                 grid: np.ndarray) -> np.ndarray:
     """``_alignment`` of the gyro's mean rates shifted by each offset of ``grid``, for all offsets at once: the
-    same per-element arithmetic, one 3x3 product and SVD per offset as one batched call (the same bits)."""
-    g, n = len(grid), len(t_a)
-    shift = np.repeat(grid, n)
-    phi_i = (pl.interval_mean(np.tile(t_a, g) - shift, np.tile(t_b, g) - shift) * np.tile(dt, g)[:, None]).reshape(g, n, 3)
-    s = np.linalg.svd(np.swapaxes(phi_i, 1, 2) @ phi_l, compute_uv=False)
-    return 2.0 * s.sum(axis=1) / ((phi_l**2).sum() + (phi_i**2).sum(axis=(1, 2)))
+    same per-element arithmetic, one 3x3 product and SVD per offset as batched calls (the same bits), in blocks of
+    offsets so memory stays linear in the log whatever the grid."""
+    n = len(t_a)
+    block = max(1, GRID_BLOCK_ROWS // max(n, 1))
+    out = []
+    for i in range(0, len(grid), block):
+        sub = grid[i:i + block]
+        g, shift = len(sub), np.repeat(sub, n)
+        phi_i = (pl.interval_mean(np.tile(t_a, g) - shift, np.tile(t_b, g) - shift)
+                 * np.tile(dt, g)[:, None]).reshape(g, n, 3)
+        s = np.linalg.svd(np.swapaxes(phi_i, 1, 2) @ phi_l, compute_uv=False)
+        out.append(2.0 * s.sum(axis=1) / ((phi_l**2).sum() + (phi_i**2).sum(axis=(1, 2))))
+    return np.concatenate(out)
 
 
 def _note_aliases(grid: np.ndarray, score: np.ndarray, k: int, notes: list[str]) -> None:

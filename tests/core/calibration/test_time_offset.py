@@ -83,9 +83,13 @@ def _rz(a):
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def test_the_coarse_grid_in_one_pass_gives_the_bits_of_one_offset_at_a_time():
+@pytest.mark.parametrize("block_rows", [200_000, 1_000])  # one block; blocks of 20-50 offsets, the last partial
+def test_the_coarse_grid_in_one_pass_gives_the_bits_of_one_offset_at_a_time(block_rows, monkeypatch):
+    from lio_cli.core.calibration import time_offset
     from lio_cli.core.calibration.signals import PiecewiseLinear
     from lio_cli.core.calibration.time_offset import _alignment, _alignments
+
+    monkeypatch.setattr(time_offset, "GRID_BLOCK_ROWS", block_rows)
 
     rng = np.random.default_rng(3)
     for _ in range(20):
