@@ -53,8 +53,8 @@ ODOM_DELTA_SHARE = 0.1
 # wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES) when their
 # scale is not estimated (``WHEEL_SCALE``), so a wheel scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 30.0
-# beside odometry: the wheels' speed scale a graph variable, slips gated out, increments at their own sigma
-# (``wheels``)
+# beside odometry: the wheel increments times the speed scale a pre-pass finds against the odometry, slips gated
+# out, Huber, ``wheels.SIGMA_SCALE`` times their sigma (``wheels``)
 WHEEL_SCALE = True
 # beside odometry (where the receiver-error chain is on), the fixes' vertical sigma times this
 ODOM_GPS_VERTICAL_SCALE = 3.0
