@@ -79,12 +79,13 @@ def applies(prep: Prepared) -> bool:
 
 
 def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
-                  g: float) -> tuple[np.ndarray, np.ndarray]:
+                  g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share: the up
     direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
     carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
     (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
-    with the same rotation), which ``_fit_scale`` solves for."""
+    with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
+    rotate nothing: the gyro sample after a gap never covers the gap's length."""
     n0 = max(1, int(np.searchsorted(t_s, t_s[0] + 1.0)))
     v = np.interp(t_s[:n0], t_w, v_w)
     a_w = np.interp(t_s[:n0], t_w, np.gradient(v_w, t_w))
@@ -92,6 +93,7 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
     u = (f_b[:n0] - kin).mean(axis=0)
     u = u / max(float(np.linalg.norm(u)), 1e-9)
     dt = np.diff(t_s, prepend=t_s[0])
+    dt[1:][gap] = 0.0
     dR = so3_exp(w_b * dt[:, None])
     R = dR  # the base's rotation since the first sample: the running product, in log2(N) batched steps
     step = 1
@@ -180,8 +182,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     tw = (tw_ns - t0) * 1e-9
     vw = w.velocity_mps[ok, 0]
     ti = (imu.stamps_ns - t0) * 1e-9
-    a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2)
     gap = np.diff(imu.stamps_ns) > prep.imu_gap_ns if prep.imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
+    a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2, gap)
     A, G = (_integral_at(tw, ti, x, gap) for x in (a, sens))
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there

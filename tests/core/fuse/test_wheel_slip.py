@@ -87,9 +87,12 @@ def test_slips_and_a_scale_error_are_found_and_the_track_beats_dead_reckoning(sm
 
 
 def test_an_imu_gap_is_neither_a_slip_nor_a_speed_change():
+    # the gyro vibrating (0.2 rad/s about x and y, one sample in two): integrated over the gap's length, the
+    # sample after it tilted gravity by 0.2 rad for the rest of the run (scale 1.20 +- 0.14, ATE 2.04 m)
     inputs, truth, dr = _case(scale=0.97, slips=True)
     imu = inputs.imu
     t = (imu.stamps_ns - T0) * 1e-9
+    imu.gyro_radps[:, :2] += 0.2 * np.where(np.arange(len(t)) % 2 == 0, 1.0, -1.0)[:, None]
     keep = (t < 12.0) | (t > 13.0)  # 1 s without IMU samples between two slips
     imu.stamps_ns, imu.gyro_radps, imu.accel_mps2 = imu.stamps_ns[keep], imu.gyro_radps[keep], imu.accel_mps2[keep]
     res = fuse(inputs, FuseOptions(smooth=True, rate_hz=20.0))
