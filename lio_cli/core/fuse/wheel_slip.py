@@ -80,8 +80,8 @@ def applies(prep: Prepared) -> bool:
 
 def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
                   g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The base's forward acceleration (m/s^2) at the IMU stamps, the specific force along the level part of the
-    IMU's x axis (``f_x`` plus gravity's forward share, over the cosine of the mount's pitch): the up
+    """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
+    cosine of the IMU mount's pitch (a pitched x axis feels that share of the forward acceleration): the up
     direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
     carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
     (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
@@ -108,10 +108,8 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
         phi = np.einsum("nji,nj->ni", R, B @ e)
         sens[:, j] = np.cross(ub, phi)[:, 0]
         sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
-    # along the level part of the IMU's x axis, x_h = (e_x - u_x u) / c: a pitched mount reads the same
-    c = np.sqrt(np.maximum(1.0 - ub[:, 0] ** 2, 1e-6))
-    fu = np.einsum("ni,ni->n", f_b, ub)
-    return (f_b[:, 0] - ub[:, 0] * fu) / c, -g * sens / c[:, None]
+    c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))  # the mount's pitch: the start's, the gyro's drift never in
+    return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
 
 
 def _windows(mask: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
