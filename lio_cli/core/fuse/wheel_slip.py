@@ -19,7 +19,9 @@ The scale is applied where it is measured (sigma at most ``MAX_SCALE_SIGMA``) an
 ``SCALE_Z`` sigmas. Slips are bridged (their wheel speeds replaced by the IMU's speed, integrated from both
 ends of the window and blended) only when the scale is measured: a slip's extra distance is a share of the
 path as a scale error's is, and removing the slips alone made every simulated bad-wheel track worse (3 %
-scale, three slips: 0.21-1.18 m -> 0.48-1.95 m, docs/benchmarks.md).
+scale, three slips: 0.21-1.18 m -> 0.48-1.95 m, docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
+kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed
+after it (``_closes``); otherwise it is left in and counted (``left_in``).
 """
 
 from __future__ import annotations
@@ -36,7 +38,9 @@ JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's
 DRIFT_S = 3.0  # that change less its running median over this long
 GUARD_S = 1.0  # the first fit leaves out this much around each jump
 LEVEL_S = 0.5  # a slip lasts until the difference is back at its level over this long before it
-MAX_SLIP_S = 5.0  # a departure longer than this is the log's drift, not a slip
+MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only if the IMU's speed closes it
+CLOSE_REL = 0.05  # ... within this share of the speed (or CLOSE_MPS) of the wheel speed after it
+CLOSE_MPS = 0.05
 EDGE_S = 0.25  # a slip window widened by this each side
 SIGMA_FLOOR_MPS = 0.01  # the departure's sigma never below this (noise-free simulated wheels)
 MIN_SLIP_REL = 0.05  # and a slip departs by at least this share of the speed
@@ -59,13 +63,15 @@ class SlipReport:
     scale_sigma: float | None = None
     scale_applied: bool = False
     bridged: int = 0
+    left_in: int = 0  # slips longer than MAX_SLIP_S the IMU's speed did not close: out of the fit, not bridged
     why: str = ""
 
     def to_dict(self) -> dict:
         return {"slips": len(self.windows), "windows_s": [[round(a, 2), round(b, 2)] for a, b in self.windows],
                 "scale": None if self.scale is None else round(self.scale, 4),
                 "scale_sigma": None if self.scale_sigma is None else round(self.scale_sigma, 4),
-                "scale_applied": self.scale_applied, "bridged": self.bridged, "why": self.why}
+                "scale_applied": self.scale_applied, "bridged": self.bridged, "left_in": self.left_in,
+                "why": self.why}
 
 
 def applies(prep: Prepared) -> bool:
@@ -114,16 +120,21 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
 
 def _windows(mask: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
     """Index runs [a, b] of ``mask``, each widened by ``EDGE_S``, overlapping ones merged."""
-    out: list[list[int]] = []
     idx = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    for a, b in zip(idx[::2], idx[1::2] - 1):
-        a = int(np.searchsorted(t, t[a] - EDGE_S))
-        b = int(np.searchsorted(t, t[b] + EDGE_S, side="right")) - 1
+    return _merge(t, list(zip(idx[::2], idx[1::2] - 1)), EDGE_S)
+
+
+def _merge(t: np.ndarray, runs: list[tuple[int, int]], pad_s: float) -> list[tuple[int, int]]:
+    """Index runs (in order) widened by ``pad_s`` each side, overlapping or touching ones merged."""
+    out: list[tuple[int, int]] = []
+    for a, b in runs:
+        a = int(np.searchsorted(t, t[a] - pad_s))
+        b = int(np.searchsorted(t, t[b] + pad_s, side="right")) - 1
         if out and a <= out[-1][1] + 1:
-            out[-1][1] = max(out[-1][1], b)
+            out[-1] = (out[-1][0], max(out[-1][1], b))
         else:
-            out.append([a, b])
-    return [(a, b) for a, b in out]
+            out.append((a, b))
+    return out
 
 
 def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
@@ -191,10 +202,13 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
     z = _chi2_1_sqrt(gate_probability)
-    wins = _guard(tw, _jumps(tw, vw - A, vw, inside, z))  # first around every jump of the raw IMU speed
+    wins, plain = _guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
     fit = None
-    for _ in range(FIT_PASSES):
+    for p in range(FIT_PASSES):
         fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
+        if fit is None and p == 0 and wins != plain:  # departures kept out left too little: the jumps alone
+            wins = plain
+            fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
         if fit is None:
             break
         s, s_sigma, c = fit
@@ -220,6 +234,9 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     v_new = scale * vw
     n_bridged = 0
     for i, j in wins:
+        if tw[j] - tw[i] > MAX_SLIP_S + 2 * EDGE_S and not _closes(i, j, scale * vw, A, clean):
+            rep.left_in += 1
+            continue
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
     rep.bridged = n_bridged
@@ -236,7 +253,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
     rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "
-               f"{len(wins)} slip(s) bridged by the IMU")
+               f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
+               + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" if rep.left_in else ""))
     return rep
 
 
@@ -255,8 +273,8 @@ def _threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
 
 def _detect(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> list[tuple[int, int]]:
     """Slip windows of ``d`` (wheel minus IMU speed, bias and scale removed): from a jump beyond the bound
-    (``_threshold``) until ``d`` is back within half of it of its level before the jump (``LEVEL_S``), at most
-    ``MAX_SLIP_S``; widened by ``EDGE_S`` each side."""
+    (``_threshold``) until ``d`` is back within half of it of its level before the jump (``LEVEL_S``) or the
+    log ends, however long (one longer than ``MAX_SLIP_S`` stays out of the fit too); widened by ``EDGE_S``."""
     r, thr = _threshold(t, d, v, inside, z)
     m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
     n_ref = max(1, int(np.searchsorted(t, t[0] + LEVEL_S)))
@@ -269,8 +287,7 @@ def _detect(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: 
         a = max(k - m, 0)
         level = float(np.median(d[max(a - n_ref, 0):a + 1]))
         j = k
-        end = int(np.searchsorted(t, t[a] + MAX_SLIP_S))
-        while j < min(end, len(d)) and abs(d[j] - level) > 0.5 * thr[j]:
+        while j < len(d) and abs(d[j] - level) > 0.5 * thr[j]:
             j += 1
         mask[a:j] = True
         k = max(j, k + 1)
@@ -279,22 +296,29 @@ def _detect(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: 
     return _windows(mask, t)
 
 
-def _jumps(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> np.ndarray:
+def _guard(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
+           z: float) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """Windows of ``GUARD_S`` around every jump of ``d`` (kept out of the first fit): (paired, plain). Paired:
+    one leaving ``d`` departed spans up to the next bringing it back (or the log's end), a long slip's middle
+    out too."""
     r, thr = _threshold(t, d, v, inside, z)
-    return inside & (np.abs(r) > thr)
-
-
-def _guard(t: np.ndarray, jump: np.ndarray) -> list[tuple[int, int]]:
-    """Windows of ``GUARD_S`` around every jump (kept out of the first fit)."""
+    wins = _merge(t, [(k, k) for k in np.flatnonzero(inside & (np.abs(r) > thr))], GUARD_S)
+    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
     out: list[tuple[int, int]] = []
-    for k in np.flatnonzero(jump):
-        a = int(np.searchsorted(t, t[k] - GUARD_S))
-        b = int(np.searchsorted(t, t[k] + GUARD_S, side="right")) - 1
-        if out and a <= out[-1][1] + 1:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
+    opened, at = 0.0, 0  # the open departure's sign and its window
+    for a, b in wins:
+        step = r[a + m:b + 1:m].sum()  # d's change across the window, its drift taken out
+        move = float(np.sign(step)) if abs(step) > max(thr[a], thr[b]) else 0.0
+        if opened and move == -opened:
+            out[at:] = [(out[at][0], b)]
+            opened = 0.0
         else:
             out.append((a, b))
-    return out
+            if move and not opened:
+                opened, at = move, len(out) - 1
+    if opened:  # never back: out to the log's end
+        out[at:] = [(out[at][0], len(t) - 1)]
+    return out, wins
 
 
 def _running_median(t: np.ndarray, x: np.ndarray, width_s: float) -> np.ndarray:
@@ -336,6 +360,15 @@ def _bridge(i: int, j: int, t: np.ndarray, v: np.ndarray, A: np.ndarray, clean: 
         return fwd
     wgt = (t[seg] - t[i - 1]) / max(t[j + 1] - t[i - 1], 1e-9)
     return (1.0 - wgt) * fwd + wgt * bwd
+
+
+def _closes(i: int, j: int, v: np.ndarray, A: np.ndarray, clean: np.ndarray) -> bool:
+    """Whether the IMU's speed from the clean sample before the window lands on the wheel speed of the clean
+    sample after it (``CLOSE_REL``, ``CLOSE_MPS``): a long bridge is sound only then."""
+    if i == 0 or j + 1 >= len(v) or not (clean[i - 1] and clean[j + 1]):
+        return False
+    miss = abs(v[i - 1] + A[j + 1] - A[i - 1] - v[j + 1])
+    return miss <= max(CLOSE_REL * max(abs(v[i - 1]), abs(v[j + 1])), CLOSE_MPS)
 
 
 def _chi2_1_sqrt(p: float) -> float:

@@ -30,7 +30,7 @@ def _speed(t: np.ndarray, steady: bool) -> tuple[np.ndarray, np.ndarray]:
     return 3.0 + 1.5 * np.sin(w * t), 1.5 * w * np.cos(w * t)
 
 
-def _case(scale: float, slips: bool, steady: bool = False, seed: int = 0):
+def _case(scale: float, slips: bool, steady: bool = False, seed: int = 0, bursts=BURSTS):
     """(inputs, truth trajectory, wheel speed + gyro dead reckoning) of a level drive along a winding road;
     ``scale``: true wheel radius over nominal (the wheel reads the speed over ``scale``)."""
     rng = np.random.default_rng(seed)
@@ -44,7 +44,7 @@ def _case(scale: float, slips: bool, steady: bool = False, seed: int = 0):
     st = T0 + np.round(t * NS).astype(np.int64)
     imu = ImuSeries(st, gyro, f)
     tw = t[::4]  # 50 Hz
-    slip = sum(s * smooth_window(tw, a, d) for a, d, s in BURSTS) if slips else np.zeros_like(tw)
+    slip = sum(s * smooth_window(tw, a, d) for a, d, s in bursts) if slips else np.zeros_like(tw)
     vw = v[::4] / scale * (1.0 + slip)
     wheel = WheelSeries(st[::4], np.column_stack([vw, np.full_like(tw, np.nan), np.full_like(tw, np.nan)]),
                         np.full_like(tw, np.nan))
@@ -161,3 +161,24 @@ def test_an_imu_yawed_on_its_mount_leaves_the_wheels_alone():
     res = fuse(inputs, FuseOptions(estimator="planar", smooth=False, rate_hz=20.0))
     check = res.info["wheel_check"]
     assert not check["scale_applied"] and check["bridged"] == 0, check
+
+
+def test_a_slip_longer_than_max_slip_s_stays_out_of_the_fit_and_is_bridged_when_the_imu_closes_it():
+    # 9 s at 30 %: cut at MAX_SLIP_S into two windows, its middle in the fit (scale 0.899), nothing bridged
+    inputs, truth, dr = _case(scale=0.97, slips=True, bursts=((8.0, 9.0, 0.3),))
+    res = fuse(inputs, FuseOptions(smooth=False, rate_hz=20.0))
+    check = res.info["wheel_check"]
+    assert check["slips"] == 1 and check["left_in"] == 0 and check["bridged"] > 0, check
+    lo, hi = check["windows_s"][0]
+    assert lo <= 8.0 and 17.0 <= hi <= 18.0 and abs(check["scale"] - 0.97) < SCALE_TOL
+    assert _ate(truth, res.stamps_ns, res.poses) < FUSED_OVER_DR * _ate(truth, dr.stamps_ns, dr.poses)
+
+
+def test_a_slip_lasting_to_the_end_is_left_in_but_out_of_the_fit():
+    # no clean wheel speed after it to close the IMU's speed on: bridging would integrate 8 s one-sided
+    inputs, _, _ = _case(scale=0.97, slips=True, bursts=((8.0, 1.5, 0.25), (22.0, 9.0, 0.3)))
+    res = fuse(inputs, FuseOptions(smooth=False, rate_hz=20.0))
+    check = res.info["wheel_check"]
+    assert check["slips"] == 2 and check["left_in"] == 1 and check["windows_s"][1][1] > 29.0, check
+    assert check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL
+    assert "1 longer than 5 s left in" in check["why"]
