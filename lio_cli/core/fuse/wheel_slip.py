@@ -186,7 +186,7 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
 
 def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
     """Find slips and the wheel scale; replace ``prep.wheel`` by the corrected copy where they are measured
-    (module docstring). Counts ``slip`` rejections and ``slip_bridged`` / ``scale_corrected`` notes."""
+    (module docstring). Counts ``slip_bridged`` / ``slip_left_in`` / ``scale_corrected`` notes."""
     rep = SlipReport()
     w, imu = prep.wheel, prep.imu
     ok = np.isfinite(w.velocity_mps[:, 0])
@@ -232,10 +232,11 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0
     v_new = scale * vw
-    n_bridged = 0
+    n_bridged = n_left = 0
     for i, j in wins:
         if tw[j] - tw[i] > MAX_SLIP_S + 2 * EDGE_S and not _closes(i, j, scale * vw, A, clean):
             rep.left_in += 1
+            n_left += j - i + 1
             continue
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
@@ -248,8 +249,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         var[ok, 0] *= scale**2
     prep.wheel = replace(w, velocity_mps=vel, velocity_var=var)
     report = prep.reports["wheel"]
-    report.reject("slip", n_bridged)
-    report.note("slip_bridged", n_bridged)
+    report.note("slip_bridged", n_bridged)  # replaced, not dropped: no rejection
+    report.note("slip_left_in", n_left)
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
     rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "

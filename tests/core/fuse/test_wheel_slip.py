@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lio_cli.core.fuse import FuseInputs, FuseOptions, ImuSeries, WheelSeries, fuse
-from lio_cli.core.fuse.report import REJECT_REASONS
+from lio_cli.core.fuse.report import NOTE_REASONS
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.simulation.sensors import smooth_window
 from lio_cli.so3 import so3_exp
@@ -83,8 +83,9 @@ def test_slips_and_a_scale_error_are_found_and_the_track_beats_dead_reckoning(sm
     for (a, d, _), (lo, hi) in zip(BURSTS, check["windows_s"]):  # every burst inside its window, no wider than 1 s
         assert lo <= a and a + d <= hi <= a + d + 1.0
     assert check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL
-    rep = res.reports["wheel"]
-    assert rep.rejected["slip"] == check["bridged"] > 0 and "slip" in REJECT_REASONS
+    rep = res.reports["wheel"]  # replaced, not dropped: counted as bridged, never as rejected
+    assert rep.notes["slip_bridged"] == check["bridged"] > 0 and "slip_bridged" in NOTE_REASONS
+    assert sum(rep.rejected.values()) == 0, rep.rejected
 
 
 def test_an_imu_gap_is_neither_a_slip_nor_a_speed_change():
@@ -108,7 +109,7 @@ def test_exact_wheels_are_left_as_they_are():
     res = fuse(inputs, FuseOptions(smooth=True, rate_hz=20.0))
     check = res.info["wheel_check"]
     assert check["slips"] == 0 and not check["scale_applied"] and abs(check["scale"] - 1.0) < SCALE_TOL
-    assert "slip" not in res.reports["wheel"].rejected
+    assert not res.reports["wheel"].notes.get("slip_bridged")
     assert "scale_corrected" not in res.reports["wheel"].notes
 
 
@@ -120,7 +121,7 @@ def test_a_steady_speed_leaves_the_scale_unmeasured_and_the_slips_in():
     check = res.info["wheel_check"]
     assert not check["scale_applied"] and check["bridged"] == 0
     assert "not measured" in check["why"] or "never changed" in check["why"]
-    assert "slip" not in res.reports["wheel"].rejected
+    assert not res.reports["wheel"].notes.get("slip_bridged")
 
 
 def test_an_imu_turned_round_leaves_the_wheels_alone():
@@ -134,7 +135,7 @@ def test_an_imu_turned_round_leaves_the_wheels_alone():
     check = res.info["wheel_check"]
     assert check["scale"] < 0 and not check["scale_applied"] and check["bridged"] == 0, check
     assert "IMU's forward axis" in check["why"]
-    assert "slip" not in res.reports["wheel"].rejected
+    assert not res.reports["wheel"].notes.get("slip_bridged")
 
 
 def _mount(inputs, rotvec) -> None:
