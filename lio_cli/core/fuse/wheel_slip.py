@@ -52,6 +52,8 @@ MIN_SPAN_S = 10.0  # shorter logs: nothing is estimated
 FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
 TRIM_Z = 4.0
+MIN_BLOCKS = 12  # fewer clean increments: no fit
+RCOND = 1e-5  # singular values of the fit's (column-normalised) matrix below this share of the largest: unseen
 
 
 @dataclass
@@ -149,10 +151,11 @@ def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray)
 
 
 def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
-               clean: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+               clean: np.ndarray) -> tuple[float, float, np.ndarray] | str:
     """(scale, its sigma, c) of ``s * dv = dA - c0 dt - dG c[1:]`` over ``BLOCK_S`` increments inside clean
     stretches: ``c0`` the accelerometer's forward bias, ``c[1:]`` the gyro's x, y bias and the start's tilt
-    error (``G``: their effect on the integrated acceleration, ``forward_accel``)."""
+    error (``G``: their effect on the integrated acceleration, ``forward_accel``); or why not. Combinations of
+    the terms the drive leaves unseen (a straight one: the roll tilt and gyro x bias) are left out (``RCOND``)."""
     rows = []
     k = 0
     while k < len(t) - 1:
@@ -164,23 +167,33 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
             k = j
         else:
             k += 1
-    if len(rows) < 12:
-        return None
+    few = (f"{len(rows)} clean {BLOCK_S:g} s stretches (no slip window, no IMU gap), fewer than {MIN_BLOCKS}: "
+           "scale not measured")
+    if len(rows) < MIN_BLOCKS:
+        return few
     M = np.array(rows)
+    if np.abs(M[:, 0]).max() < SIGMA_FLOOR_MPS:
+        return "the wheel speed never changed enough to measure its scale against the accelerometer"
     keep = np.ones(len(M), bool)
     for _ in range(TRIM_PASSES + 1):  # blocks a slip the windows missed are trimmed, then the fit redone
         X, y = M[keep, :-1], M[keep, -1]
+        if len(y) < MIN_BLOCKS:
+            return (f"{len(M) - len(y)} of {len(M)} speed increments disagree with the accelerometer's beyond "
+                    f"{TRIM_Z:g} sigmas: the IMU's forward axis is likely not the base's, scale not measured")
         norm = np.maximum(np.abs(X).max(axis=0), 1e-12)
-        XtX = (X / norm).T @ (X / norm)
-        if len(y) < 12 or np.linalg.cond(XtX) > 1e10:
-            return None
-        sol = np.linalg.solve(XtX, (X / norm).T @ y) / norm
+        U, S, Vt = np.linalg.svd(X / norm, full_matrices=False)
+        seen = S > RCOND * S[0]
+        if np.abs(Vt[~seen, 0]).max(initial=0.0) > 0.1:
+            return ("the wheel speed's changes cannot be told from the accelerometer's bias and tilt terms "
+                    "(ill-conditioned fit): scale not measured")
+        P = Vt[seen].T / S[seen]  # the truncated pseudo-inverse is P U^T, its covariance P P^T
+        sol = P @ (U[:, seen].T @ y) / norm
         r_all = M[:, -1] - M[:, :-1] @ sol
         r = r_all[keep]
         mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
         keep = np.abs(r_all - np.median(r)) <= TRIM_Z * max(mad, 1e-9)
-    s2 = float(r @ r) / max(len(r) - X.shape[1], 1)
-    cov = s2 * np.linalg.inv(XtX) / np.outer(norm, norm)
+    s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
+    cov = s2 * (P @ P.T) / np.outer(norm, norm)
     return float(sol[0]), float(np.sqrt(cov[0, 0])), sol[1:]
 
 
@@ -203,21 +216,21 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
     z = _chi2_1_sqrt(gate_probability)
     wins, plain = _guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
-    fit = None
+    fit: tuple | str = ""
     for p in range(FIT_PASSES):
         fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
-        if fit is None and p == 0 and wins != plain:  # departures kept out left too little: the jumps alone
+        if isinstance(fit, str) and p == 0 and wins != plain:  # departures kept out left too little: the jumps alone
             wins = plain
             fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
-        if fit is None:
+        if isinstance(fit, str):
             break
         s, s_sigma, c = fit
         wins = _detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
+    if isinstance(fit, str):  # no windows reported: none were used
+        rep.why = fit
+        return rep
     clean = _clean(inside, wins)
     rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
-    if fit is None:
-        rep.why = "the wheel speed never changed enough to measure its scale against the accelerometer"
-        return rep
     A = A - c[0] * tw - G @ c[1:]
     rep.scale, rep.scale_sigma = s, s_sigma
     if s_sigma > MAX_SCALE_SIGMA:
