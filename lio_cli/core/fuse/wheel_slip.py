@@ -9,11 +9,11 @@ minus that track is flat but for the accelerometer's forward bias, the gyro's x/
 (a ramp and slow curves of known shape), and a slip's jump.
 
 ``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on
-the speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed). Slips (``_detect``): the
-difference's change over ``JUMP_S`` (less its running median) beyond the chi-square quantile of
-``gate_probability`` (one degree of freedom, the sigma measured robustly on the log) and ``MIN_SLIP_REL`` of
-the speed starts one; it lasts until the difference is back near its level before. The first fit leaves out
-``GUARD_S`` around every jump of the raw difference; fit and detection then alternate ``FIT_PASSES`` times.
+the speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed; combinations of the terms
+the drive never shows, as on a straight one, left out). Slips: ``slip_windows`` (a jump of the difference
+until it is back at its level). The first fit leaves out the raw difference's jumps (``slip_windows.guard``);
+fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the first second, divides the
+forward acceleration by its cosine.
 
 The scale is applied where it is measured (sigma at most ``MAX_SCALE_SIGMA``) and off 1 by more than
 ``SCALE_Z`` sigmas. Slips are bridged (their wheel speeds replaced by the IMU's speed, integrated from both
@@ -27,23 +27,16 @@ after it (``_closes``); otherwise it is left in and counted (``left_in``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from statistics import NormalDist
 
 import numpy as np
 
 from ...so3 import so3_exp
+from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, chi2_1_sqrt, detect, guard
 from .timeline import Prepared
 
-JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's onset and end
-DRIFT_S = 3.0  # that change less its running median over this long
-GUARD_S = 1.0  # the first fit leaves out this much around each jump
-LEVEL_S = 0.5  # a slip lasts until the difference is back at its level over this long before it
 MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only if the IMU's speed closes it
 CLOSE_REL = 0.05  # ... within this share of the speed (or CLOSE_MPS) of the wheel speed after it
 CLOSE_MPS = 0.05
-EDGE_S = 0.25  # a slip window widened by this each side
-SIGMA_FLOOR_MPS = 0.01  # the departure's sigma never below this (noise-free simulated wheels)
-MIN_SLIP_REL = 0.05  # and a slip departs by at least this share of the speed
 BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
 MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are
 SCALE_Z = 3.0  # sigmas off 1 before the scale is applied
@@ -118,25 +111,6 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
         sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
     c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))  # the mount's pitch: the start's, the gyro's drift never in
     return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
-
-
-def _windows(mask: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
-    """Index runs [a, b] of ``mask``, each widened by ``EDGE_S``, overlapping ones merged."""
-    idx = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return _merge(t, list(zip(idx[::2], idx[1::2] - 1)), EDGE_S)
-
-
-def _merge(t: np.ndarray, runs: list[tuple[int, int]], pad_s: float) -> list[tuple[int, int]]:
-    """Index runs (in order) widened by ``pad_s`` each side, overlapping or touching ones merged."""
-    out: list[tuple[int, int]] = []
-    for a, b in runs:
-        a = int(np.searchsorted(t, t[a] - pad_s))
-        b = int(np.searchsorted(t, t[b] + pad_s, side="right")) - 1
-        if out and a <= out[-1][1] + 1:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
 
 
 def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
@@ -214,8 +188,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
-    z = _chi2_1_sqrt(gate_probability)
-    wins, plain = _guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
+    z = chi2_1_sqrt(gate_probability)
+    wins, plain = guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
     fit: tuple | str = ""
     for p in range(FIT_PASSES):
         fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
@@ -225,7 +199,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         if isinstance(fit, str):
             break
         s, s_sigma, c = fit
-        wins = _detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
+        wins = detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
     if isinstance(fit, str):  # no windows reported: none were used
         rep.why = fit
         return rep
@@ -268,84 +242,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         report.note("scale_corrected", int(ok.sum()))
     rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
-               + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" if rep.left_in else ""))
+               + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep
-
-
-def _threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
-               z: float) -> tuple[np.ndarray, np.ndarray]:
-    """(r, thr): ``d``'s change over ``JUMP_S`` and the bound a slip's change exceeds, ``z`` robust sigmas of
-    ``r`` and ``MIN_SLIP_REL`` of the speed."""
-    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
-    r = np.zeros(len(d))
-    r[m:] = d[m:] - d[:-m]
-    r -= _running_median(t, r, DRIFT_S)  # a slowly drifting difference (tilt, bias) is no slip
-    ri = r[inside]
-    sigma = max(1.4826 * float(np.median(np.abs(ri - np.median(ri)))), SIGMA_FLOOR_MPS)
-    return r, np.maximum(z * sigma, MIN_SLIP_REL * np.abs(v))
-
-
-def _detect(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> list[tuple[int, int]]:
-    """Slip windows of ``d`` (wheel minus IMU speed, bias and scale removed): from a jump beyond the bound
-    (``_threshold``) until ``d`` is back within half of it of its level before the jump (``LEVEL_S``) or the
-    log ends, however long (one longer than ``MAX_SLIP_S`` stays out of the fit too); widened by ``EDGE_S``."""
-    r, thr = _threshold(t, d, v, inside, z)
-    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
-    n_ref = max(1, int(np.searchsorted(t, t[0] + LEVEL_S)))
-    mask = np.zeros(len(d), bool)
-    k = 0
-    while k < len(d):
-        if not (inside[k] and abs(r[k]) > thr[k]):
-            k += 1
-            continue
-        a = max(k - m, 0)
-        level = float(np.median(d[max(a - n_ref, 0):a + 1]))
-        j = k
-        while j < len(d) and abs(d[j] - level) > 0.5 * thr[j]:
-            j += 1
-        mask[a:j] = True
-        k = max(j, k + 1)
-        while k < len(d) and abs(r[k]) > thr[k]:  # the slip's own end, not another onset
-            k += 1
-    return _windows(mask, t)
-
-
-def _guard(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
-           z: float) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
-    """Windows of ``GUARD_S`` around every jump of ``d`` (kept out of the first fit): (paired, plain). Paired:
-    one leaving ``d`` departed spans up to the next bringing it back (or the log's end), a long slip's middle
-    out too."""
-    r, thr = _threshold(t, d, v, inside, z)
-    wins = _merge(t, [(k, k) for k in np.flatnonzero(inside & (np.abs(r) > thr))], GUARD_S)
-    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
-    out: list[tuple[int, int]] = []
-    opened, at = 0.0, 0  # the open departure's sign and its window
-    for a, b in wins:
-        step = r[a + m:b + 1:m].sum()  # d's change across the window, its drift taken out
-        move = float(np.sign(step)) if abs(step) > max(thr[a], thr[b]) else 0.0
-        if opened and move == -opened:
-            out[at:] = [(out[at][0], b)]
-            opened = 0.0
-        else:
-            out.append((a, b))
-            if move and not opened:
-                opened, at = move, len(out) - 1
-    if opened:  # never back: out to the log's end
-        out[at:] = [(out[at][0], len(t) - 1)]
-    return out, wins
-
-
-def _running_median(t: np.ndarray, x: np.ndarray, width_s: float) -> np.ndarray:
-    """The median of ``x`` over ``width_s`` centred on each sample: of every sample about 0.1 s apart (the
-    series' ends mirrored), interpolated back."""
-    step = max(1, int(round(0.1 * (len(t) - 1) / max(t[-1] - t[0], 1e-9))))
-    ts, xs = t[::step], x[::step]
-    half = max(1, int(round(0.5 * width_s / 0.1)))
-    if len(xs) <= half:
-        return np.full_like(x, np.median(x))
-    padded = np.pad(xs, half, mode="reflect")
-    med = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
-    return np.interp(t, ts, med)
 
 
 def _clean(inside: np.ndarray, wins: list[tuple[int, int]]) -> np.ndarray:
@@ -384,8 +282,4 @@ def _closes(i: int, j: int, v: np.ndarray, A: np.ndarray, clean: np.ndarray) -> 
     miss = abs(v[i - 1] + A[j + 1] - A[i - 1] - v[j + 1])
     return miss <= max(CLOSE_REL * max(abs(v[i - 1]), abs(v[j + 1])), CLOSE_MPS)
 
-
-def _chi2_1_sqrt(p: float) -> float:
-    """The square root of the chi-square (1 dof) quantile of 1 - p: the two-sided normal quantile."""
-    return NormalDist().inv_cdf(1.0 - max(p, 1e-12) / 2.0)
 
