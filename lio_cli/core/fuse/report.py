@@ -17,8 +17,6 @@ REJECT_REASONS = {
     "multipath_jump": "a GPS fix inside a jump of the track its own motion cannot explain (multipath), until the "
                       "track comes back",
     "in_gap": "stamped inside a gap of every motion source",
-    "slip": "a wheel speed during a slip (it changed by more than the accelerometer felt): the IMU's speed was "
-            "used in its place (slip_bridged)",
 }
 # Things noticed and handled without dropping the value.
 NOTE_REASONS = {
@@ -35,7 +33,10 @@ NOTE_REASONS = {
     "dropouts": "GPS pauses of over 5 periods, bridged by the motion sources",
     "noise_raised": "GPS fixes whose claimed sigma the innovations showed optimistic: the measured one was used",
     "snapped": "applied at an IMU sample at most FuseOptions.snap_ns away instead of at its own stamp",
-    "slip_bridged": "wheel speeds replaced by the IMU's speed across a slip (rejected as slip)",
+    "slip_bridged": "wheel speeds during a slip (they changed by more than the accelerometer felt): the IMU's "
+                    "speed was used in their place",
+    "slip_left_in": "wheel speeds of a slip longer than 5 s the IMU's speed did not close: used as they are, "
+                    "kept out of the wheel scale fit",
     "scale_corrected": "wheel speeds multiplied by the wheel scale the accelerometer measured",
 }
 

@@ -9,37 +9,34 @@ minus that track is flat but for the accelerometer's forward bias, the gyro's x/
 (a ramp and slow curves of known shape), and a slip's jump.
 
 ``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on
-the speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed). Slips (``_detect``): the
-difference's change over ``JUMP_S`` (less its running median) beyond the chi-square quantile of
-``gate_probability`` (one degree of freedom, the sigma measured robustly on the log) and ``MIN_SLIP_REL`` of
-the speed starts one; it lasts until the difference is back near its level before. The first fit leaves out
-``GUARD_S`` around every jump of the raw difference; fit and detection then alternate ``FIT_PASSES`` times.
+the speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed; combinations of the terms
+the drive never shows, as on a straight one, left out). Slips: ``slip_windows`` (a jump of the difference
+until it is back at its level). The first fit leaves out the raw difference's jumps (``slip_windows.guard``);
+fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the first second, divides the
+forward acceleration by its cosine.
 
 The scale is applied where it is measured (sigma at most ``MAX_SCALE_SIGMA``) and off 1 by more than
 ``SCALE_Z`` sigmas. Slips are bridged (their wheel speeds replaced by the IMU's speed, integrated from both
 ends of the window and blended) only when the scale is measured: a slip's extra distance is a share of the
 path as a scale error's is, and removing the slips alone made every simulated bad-wheel track worse (3 %
-scale, three slips: 0.21-1.18 m -> 0.48-1.95 m, docs/benchmarks.md).
+scale, three slips: 0.21-1.18 m -> 0.48-1.95 m, docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
+kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed
+after it (``_closes``); otherwise it is left in and counted (``left_in``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from statistics import NormalDist
 
 import numpy as np
 
 from ...so3 import so3_exp
+from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, chi2_1_sqrt, detect, guard
 from .timeline import Prepared
 
-JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's onset and end
-DRIFT_S = 3.0  # that change less its running median over this long
-GUARD_S = 1.0  # the first fit leaves out this much around each jump
-LEVEL_S = 0.5  # a slip lasts until the difference is back at its level over this long before it
-MAX_SLIP_S = 5.0  # a departure longer than this is the log's drift, not a slip
-EDGE_S = 0.25  # a slip window widened by this each side
-SIGMA_FLOOR_MPS = 0.01  # the departure's sigma never below this (noise-free simulated wheels)
-MIN_SLIP_REL = 0.05  # and a slip departs by at least this share of the speed
+MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only if the IMU's speed closes it
+CLOSE_REL = 0.05  # ... within this share of the speed (or CLOSE_MPS) of the wheel speed after it
+CLOSE_MPS = 0.05
 BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
 MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are
 SCALE_Z = 3.0  # sigmas off 1 before the scale is applied
@@ -48,6 +45,8 @@ MIN_SPAN_S = 10.0  # shorter logs: nothing is estimated
 FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
 TRIM_Z = 4.0
+MIN_BLOCKS = 12  # fewer clean increments: no fit
+RCOND = 1e-5  # singular values of the fit's (column-normalised) matrix below this share of the largest: unseen
 
 
 @dataclass
@@ -59,13 +58,15 @@ class SlipReport:
     scale_sigma: float | None = None
     scale_applied: bool = False
     bridged: int = 0
+    left_in: int = 0  # slips longer than MAX_SLIP_S the IMU's speed did not close: out of the fit, not bridged
     why: str = ""
 
     def to_dict(self) -> dict:
         return {"slips": len(self.windows), "windows_s": [[round(a, 2), round(b, 2)] for a, b in self.windows],
                 "scale": None if self.scale is None else round(self.scale, 4),
                 "scale_sigma": None if self.scale_sigma is None else round(self.scale_sigma, 4),
-                "scale_applied": self.scale_applied, "bridged": self.bridged, "why": self.why}
+                "scale_applied": self.scale_applied, "bridged": self.bridged, "left_in": self.left_in,
+                "why": self.why}
 
 
 def applies(prep: Prepared) -> bool:
@@ -79,12 +80,14 @@ def applies(prep: Prepared) -> bool:
 
 
 def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
-                  g: float) -> tuple[np.ndarray, np.ndarray]:
-    """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share: the up
+                  g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
+    cosine of the IMU mount's pitch (a pitched x axis feels that share of the forward acceleration): the up
     direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
     carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
     (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
-    with the same rotation), which ``_fit_scale`` solves for."""
+    with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
+    rotate nothing: the gyro sample after a gap never covers the gap's length."""
     n0 = max(1, int(np.searchsorted(t_s, t_s[0] + 1.0)))
     v = np.interp(t_s[:n0], t_w, v_w)
     a_w = np.interp(t_s[:n0], t_w, np.gradient(v_w, t_w))
@@ -92,6 +95,7 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
     u = (f_b[:n0] - kin).mean(axis=0)
     u = u / max(float(np.linalg.norm(u)), 1e-9)
     dt = np.diff(t_s, prepend=t_s[0])
+    dt[1:][gap] = 0.0
     dR = so3_exp(w_b * dt[:, None])
     R = dR  # the base's rotation since the first sample: the running product, in log2(N) batched steps
     step = 1
@@ -105,21 +109,8 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
         phi = np.einsum("nji,nj->ni", R, B @ e)
         sens[:, j] = np.cross(ub, phi)[:, 0]
         sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
-    return f_b[:, 0] - g * ub[:, 0], -g * sens
-
-
-def _windows(mask: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
-    """Index runs [a, b] of ``mask``, each widened by ``EDGE_S``, overlapping ones merged."""
-    out: list[list[int]] = []
-    idx = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    for a, b in zip(idx[::2], idx[1::2] - 1):
-        a = int(np.searchsorted(t, t[a] - EDGE_S))
-        b = int(np.searchsorted(t, t[b] + EDGE_S, side="right")) - 1
-        if out and a <= out[-1][1] + 1:
-            out[-1][1] = max(out[-1][1], b)
-        else:
-            out.append([a, b])
-    return [(a, b) for a, b in out]
+    c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))  # the mount's pitch: the start's, the gyro's drift never in
+    return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
 
 
 def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
@@ -134,10 +125,11 @@ def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray)
 
 
 def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
-               clean: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+               clean: np.ndarray) -> tuple[float, float, np.ndarray] | str:
     """(scale, its sigma, c) of ``s * dv = dA - c0 dt - dG c[1:]`` over ``BLOCK_S`` increments inside clean
     stretches: ``c0`` the accelerometer's forward bias, ``c[1:]`` the gyro's x, y bias and the start's tilt
-    error (``G``: their effect on the integrated acceleration, ``forward_accel``)."""
+    error (``G``: their effect on the integrated acceleration, ``forward_accel``); or why not. Combinations of
+    the terms the drive leaves unseen (a straight one: the roll tilt and gyro x bias) are left out (``RCOND``)."""
     rows = []
     k = 0
     while k < len(t) - 1:
@@ -149,29 +141,39 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
             k = j
         else:
             k += 1
-    if len(rows) < 12:
-        return None
+    few = (f"{len(rows)} clean {BLOCK_S:g} s stretches (no slip window, no IMU gap), fewer than {MIN_BLOCKS}: "
+           "scale not measured")
+    if len(rows) < MIN_BLOCKS:
+        return few
     M = np.array(rows)
+    if np.abs(M[:, 0]).max() < SIGMA_FLOOR_MPS:
+        return "the wheel speed never changed enough to measure its scale against the accelerometer"
     keep = np.ones(len(M), bool)
     for _ in range(TRIM_PASSES + 1):  # blocks a slip the windows missed are trimmed, then the fit redone
         X, y = M[keep, :-1], M[keep, -1]
+        if len(y) < MIN_BLOCKS:
+            return (f"{len(M) - len(y)} of {len(M)} speed increments disagree with the accelerometer's beyond "
+                    f"{TRIM_Z:g} sigmas: the IMU's forward axis is likely not the base's, scale not measured")
         norm = np.maximum(np.abs(X).max(axis=0), 1e-12)
-        XtX = (X / norm).T @ (X / norm)
-        if len(y) < 12 or np.linalg.cond(XtX) > 1e10:
-            return None
-        sol = np.linalg.solve(XtX, (X / norm).T @ y) / norm
+        U, S, Vt = np.linalg.svd(X / norm, full_matrices=False)
+        seen = S > RCOND * S[0]
+        if np.abs(Vt[~seen, 0]).max(initial=0.0) > 0.1:
+            return ("the wheel speed's changes cannot be told from the accelerometer's bias and tilt terms "
+                    "(ill-conditioned fit): scale not measured")
+        P = Vt[seen].T / S[seen]  # the truncated pseudo-inverse is P U^T, its covariance P P^T
+        sol = P @ (U[:, seen].T @ y) / norm
         r_all = M[:, -1] - M[:, :-1] @ sol
         r = r_all[keep]
         mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
         keep = np.abs(r_all - np.median(r)) <= TRIM_Z * max(mad, 1e-9)
-    s2 = float(r @ r) / max(len(r) - X.shape[1], 1)
-    cov = s2 * np.linalg.inv(XtX) / np.outer(norm, norm)
+    s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
+    cov = s2 * (P @ P.T) / np.outer(norm, norm)
     return float(sol[0]), float(np.sqrt(cov[0, 0])), sol[1:]
 
 
 def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
     """Find slips and the wheel scale; replace ``prep.wheel`` by the corrected copy where they are measured
-    (module docstring). Counts ``slip`` rejections and ``slip_bridged`` / ``scale_corrected`` notes."""
+    (module docstring). Counts ``slip_bridged`` / ``slip_left_in`` / ``scale_corrected`` notes."""
     rep = SlipReport()
     w, imu = prep.wheel, prep.imu
     ok = np.isfinite(w.velocity_mps[:, 0])
@@ -180,26 +182,29 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     tw = (tw_ns - t0) * 1e-9
     vw = w.velocity_mps[ok, 0]
     ti = (imu.stamps_ns - t0) * 1e-9
-    a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2)
     gap = np.diff(imu.stamps_ns) > prep.imu_gap_ns if prep.imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
+    a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2, gap)
     A, G = (_integral_at(tw, ti, x, gap) for x in (a, sens))
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
-    z = _chi2_1_sqrt(gate_probability)
-    wins = _guard(tw, _jumps(tw, vw - A, vw, inside, z))  # first around every jump of the raw IMU speed
-    fit = None
-    for _ in range(FIT_PASSES):
+    z = chi2_1_sqrt(gate_probability)
+    wins, plain = guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
+    fit: tuple | str = ""
+    for p in range(FIT_PASSES):
         fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
-        if fit is None:
+        if isinstance(fit, str) and p == 0 and wins != plain:  # departures kept out left too little: the jumps alone
+            wins = plain
+            fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
+        if isinstance(fit, str):
             break
         s, s_sigma, c = fit
-        wins = _detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
+        wins = detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
+    if isinstance(fit, str):  # no windows reported: none were used
+        rep.why = fit
+        return rep
     clean = _clean(inside, wins)
     rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
-    if fit is None:
-        rep.why = "the wheel speed never changed enough to measure its scale against the accelerometer"
-        return rep
     A = A - c[0] * tw - G @ c[1:]
     rep.scale, rep.scale_sigma = s, s_sigma
     if s_sigma > MAX_SCALE_SIGMA:
@@ -214,8 +219,12 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0
     v_new = scale * vw
-    n_bridged = 0
+    n_bridged = n_left = 0
     for i, j in wins:
+        if tw[j] - tw[i] > MAX_SLIP_S + 2 * EDGE_S and not _closes(i, j, scale * vw, A, clean):
+            rep.left_in += 1
+            n_left += j - i + 1
+            continue
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
     rep.bridged = n_bridged
@@ -227,83 +236,14 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         var[ok, 0] *= scale**2
     prep.wheel = replace(w, velocity_mps=vel, velocity_var=var)
     report = prep.reports["wheel"]
-    report.reject("slip", n_bridged)
-    report.note("slip_bridged", n_bridged)
+    report.note("slip_bridged", n_bridged)  # replaced, not dropped: no rejection
+    report.note("slip_left_in", n_left)
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
     rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "
-               f"{len(wins)} slip(s) bridged by the IMU")
+               f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
+               + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep
-
-
-def _threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
-               z: float) -> tuple[np.ndarray, np.ndarray]:
-    """(r, thr): ``d``'s change over ``JUMP_S`` and the bound a slip's change exceeds, ``z`` robust sigmas of
-    ``r`` and ``MIN_SLIP_REL`` of the speed."""
-    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
-    r = np.zeros(len(d))
-    r[m:] = d[m:] - d[:-m]
-    r -= _running_median(t, r, DRIFT_S)  # a slowly drifting difference (tilt, bias) is no slip
-    ri = r[inside]
-    sigma = max(1.4826 * float(np.median(np.abs(ri - np.median(ri)))), SIGMA_FLOOR_MPS)
-    return r, np.maximum(z * sigma, MIN_SLIP_REL * np.abs(v))
-
-
-def _detect(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> list[tuple[int, int]]:
-    """Slip windows of ``d`` (wheel minus IMU speed, bias and scale removed): from a jump beyond the bound
-    (``_threshold``) until ``d`` is back within half of it of its level before the jump (``LEVEL_S``), at most
-    ``MAX_SLIP_S``; widened by ``EDGE_S`` each side."""
-    r, thr = _threshold(t, d, v, inside, z)
-    m = max(1, int(np.searchsorted(t, t[0] + JUMP_S)))
-    n_ref = max(1, int(np.searchsorted(t, t[0] + LEVEL_S)))
-    mask = np.zeros(len(d), bool)
-    k = 0
-    while k < len(d):
-        if not (inside[k] and abs(r[k]) > thr[k]):
-            k += 1
-            continue
-        a = max(k - m, 0)
-        level = float(np.median(d[max(a - n_ref, 0):a + 1]))
-        j = k
-        end = int(np.searchsorted(t, t[a] + MAX_SLIP_S))
-        while j < min(end, len(d)) and abs(d[j] - level) > 0.5 * thr[j]:
-            j += 1
-        mask[a:j] = True
-        k = max(j, k + 1)
-        while k < len(d) and abs(r[k]) > thr[k]:  # the slip's own end, not another onset
-            k += 1
-    return _windows(mask, t)
-
-
-def _jumps(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray, z: float) -> np.ndarray:
-    r, thr = _threshold(t, d, v, inside, z)
-    return inside & (np.abs(r) > thr)
-
-
-def _guard(t: np.ndarray, jump: np.ndarray) -> list[tuple[int, int]]:
-    """Windows of ``GUARD_S`` around every jump (kept out of the first fit)."""
-    out: list[tuple[int, int]] = []
-    for k in np.flatnonzero(jump):
-        a = int(np.searchsorted(t, t[k] - GUARD_S))
-        b = int(np.searchsorted(t, t[k] + GUARD_S, side="right")) - 1
-        if out and a <= out[-1][1] + 1:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
-
-
-def _running_median(t: np.ndarray, x: np.ndarray, width_s: float) -> np.ndarray:
-    """The median of ``x`` over ``width_s`` centred on each sample: of every sample about 0.1 s apart (the
-    series' ends mirrored), interpolated back."""
-    step = max(1, int(round(0.1 * (len(t) - 1) / max(t[-1] - t[0], 1e-9))))
-    ts, xs = t[::step], x[::step]
-    half = max(1, int(round(0.5 * width_s / 0.1)))
-    if len(xs) <= half:
-        return np.full_like(x, np.median(x))
-    padded = np.pad(xs, half, mode="reflect")
-    med = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
-    return np.interp(t, ts, med)
 
 
 def _clean(inside: np.ndarray, wins: list[tuple[int, int]]) -> np.ndarray:
@@ -334,7 +274,12 @@ def _bridge(i: int, j: int, t: np.ndarray, v: np.ndarray, A: np.ndarray, clean: 
     return (1.0 - wgt) * fwd + wgt * bwd
 
 
-def _chi2_1_sqrt(p: float) -> float:
-    """The square root of the chi-square (1 dof) quantile of 1 - p: the two-sided normal quantile."""
-    return NormalDist().inv_cdf(1.0 - max(p, 1e-12) / 2.0)
+def _closes(i: int, j: int, v: np.ndarray, A: np.ndarray, clean: np.ndarray) -> bool:
+    """Whether the IMU's speed from the clean sample before the window lands on the wheel speed of the clean
+    sample after it (``CLOSE_REL``, ``CLOSE_MPS``): a long bridge is sound only then."""
+    if i == 0 or j + 1 >= len(v) or not (clean[i - 1] and clean[j + 1]):
+        return False
+    miss = abs(v[i - 1] + A[j + 1] - A[i - 1] - v[j + 1])
+    return miss <= max(CLOSE_REL * max(abs(v[i - 1]), abs(v[j + 1])), CLOSE_MPS)
+
 

@@ -12,8 +12,8 @@ KIND_LABEL = {"gyro": "gyro", "orientation": "orientation", "wheel_speed": "spee
               "wheel_yaw_rate": "yaw rate", "odom": "pose", "gps": "horizontal", "gps_vertical": "vertical"}
 REJECT_LABEL = {"no_fix": "no fix", "nan": "NaN", "out_of_range": "out of range", "all_zero": "all zero",
                 "duplicate_stamp": "duplicate stamp", "invalid_pose": "invalid pose", "multipath_jump": "multipath jump",
-                "outside_span": "outside the motion sources' span", "in_gap": "in a gap of every motion source",
-                "slip": "slip bridged by the IMU"}
+                "outside_span": "outside the motion sources' span", "in_gap": "in a gap of every motion source"}
+NOTE_LABEL = {"slip_bridged": "slip bridged by the IMU"}  # notes of values changed before use: after the used
 
 
 def _label(kind: str) -> str:
@@ -21,8 +21,9 @@ def _label(kind: str) -> str:
 
 
 def source_summary(src: str, updates: int, predictions: int, by_kind: dict[str, dict[str, int]],
-                   rejected: dict[str, int]) -> str:
-    """The source's line (module docstring) from its report's counters."""
+                   rejected: dict[str, int], notes: dict[str, int] | None = None) -> str:
+    """The source's line (module docstring) from its report's counters; ``notes`` adds the values changed
+    before use (``NOTE_LABEL``: ``wheel: 1501 speed updates, 337 slip bridged by the IMU``)."""
     used = []
     if predictions:
         used.append(f"{predictions} samples propagated")
@@ -34,6 +35,7 @@ def source_summary(src: str, updates: int, predictions: int, by_kind: dict[str, 
     used += [f"{c['updates']} {_label(k)} updates" for k, c in kinds.items()]
     if updates and not by_kind:  # the complementary filter's blends
         used.append(f"{updates} {'blends' if src != 'imu' else 'orientation blends'}")
+    used += [f"{n} {label}" for k, label in NOTE_LABEL.items() if (n := (notes or {}).get(k))]
     why = [f"{c['outlier']} {_label(k)} innovation beyond the gate" for k, c in by_kind.items() if c.get("outlier")]
     why += [f"{n} {REJECT_LABEL.get(r, r.replace('_', ' '))}" for r, n in rejected.items() if r != "outlier" and n]
     total = sum(n for n in rejected.values())

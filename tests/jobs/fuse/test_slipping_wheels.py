@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.jobs.fuse.job import FuseJob, run_fuse
+from lio_cli.jobs.fuse.summary import source_summary
 from lio_cli.simulation.run import simulate
 
 from .test_simulated import _ate, _dead_reckoning
@@ -25,6 +26,13 @@ def test_slipping_wheels_on_a_flat_road_get_the_planar_filter(tmp_path):
     assert _ate(log, run.trajectory) < WHEEL_RATIO * _dead_reckoning(log)
     check = run.metrics["core"]["wheel_check"]
     assert check["slips"] == 3 and check["scale_applied"] and abs(check["scale"] - 1.03) < 0.01
-    slip = run.metrics["sources"]["wheel"]["rejected"]["slip"]
-    assert slip["count"] == check["bridged"] > 0 and "slip" in slip["why"] and "IMU" in slip["why"]
-    assert f"{slip['count']} slip bridged by the IMU" in run.metrics["sources"]["wheel"]["summary"]
+    wheel = run.metrics["sources"]["wheel"]  # bridged speeds are replaced, not dropped: no rejection
+    slip = wheel["handled"]["slip_bridged"]
+    assert slip["count"] == check["bridged"] > 0 and "slip" in slip["what"] and "IMU" in slip["what"]
+    assert "slip" not in wheel["rejected"] and "rejected" not in wheel["summary"], wheel["summary"]
+
+
+def test_the_summary_line_counts_bridged_speeds_as_used_not_rejected():
+    line = source_summary("wheel", 1501, 0, {"wheel_speed": {"updates": 1501, "outlier": 0}}, {},
+                          {"slip_bridged": 337, "scale_corrected": 1501})
+    assert line == "wheel: 1501 speed updates, 337 slip bridged by the IMU"
