@@ -183,7 +183,8 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
                          updates_by_kind=rep.by_kind,
                          rejected={k: {"count": v, "why": REJECT_REASONS.get(k, k)} for k, v in rep.rejected.items()},
                          handled={k: {"count": v, "what": NOTE_REASONS.get(k, k)} for k, v in rep.notes.items()},
-                         summary=source_summary(src, rep.updates, rep.predictions, rep.by_kind, rep.rejected))
+                         summary=source_summary(src, rep.updates, rep.predictions, rep.by_kind, rep.rejected,
+                                                rep.notes))
         else:
             entry["unused"] = "no measurement of this source selected"
         per_source[src] = entry

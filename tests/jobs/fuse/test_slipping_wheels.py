@@ -30,6 +30,7 @@ def test_slipping_wheels_on_a_flat_road_get_the_planar_filter(tmp_path):
     slip = wheel["handled"]["slip_bridged"]
     assert slip["count"] == check["bridged"] > 0 and "slip" in slip["what"] and "IMU" in slip["what"]
     assert "slip" not in wheel["rejected"] and "rejected" not in wheel["summary"], wheel["summary"]
+    assert wheel["summary"].endswith(f", {check['bridged']} slip bridged by the IMU"), wheel["summary"]
 
 
 def test_the_summary_line_counts_bridged_speeds_as_used_not_rejected():
