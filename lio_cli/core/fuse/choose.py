@@ -41,7 +41,7 @@ class EstimatorChoice:
     evidence: dict
 
 
-def _gravity_evidence(prep: Prepared) -> dict | None:
+def gravity_evidence(prep: Prepared) -> dict | None:
     """Tilt wander (deg), climb extent and path length (m) from the IMU and the wheels; None without both."""
     imu, w = prep.imu, prep.wheel
     if imu is None or prep.imu_f_b is None or "accel" not in prep.use.get("imu", ()) or w is None or len(w) < 2:
@@ -96,7 +96,7 @@ def choose_estimator(prep: Prepared) -> EstimatorChoice:
         return EstimatorChoice("ekf", "odometry poses and an accelerometer: the 3D filter follows the odometry's "
                                       "attitude (the planar one cannot, and is noisier between its poses)", {})
     ev: dict = {}
-    g, od = _gravity_evidence(prep), _odom_evidence(prep)
+    g, od = gravity_evidence(prep), _odom_evidence(prep)
     ev.update(g or {})
     ev.update(od or {})
     if od is not None:
