@@ -343,10 +343,11 @@ class ChunkGraph:
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
                 ps = ODOM_POSE_SIGMA_SCALE * od.position_sigma_m[i]
-                rs, tilt, zs = od.rotation_sigma_rad[i], 1.0, 1.0
-                if self.level is not None:  # the height prior holds height and tilt: the odometry's drift less
-                    tilt, zs = height.ODOM_TILT_SIGMA_SCALE, height.ODOM_VERTICAL_SIGMA_SCALE
-                sig = np.r_[rs * tilt, rs * tilt, rs, ps, ps, ps * zs]
+                # beside the height prior, the odometry's height (it drifts with its pitch) held less
+                zs, ts = (1.0, 1.0) if self.level is None else (height.ODOM_VERTICAL_SIGMA_SCALE,
+                                                                 height.ODOM_TILT_SIGMA_SCALE)
+                rs = od.rotation_sigma_rad[i]
+                sig = np.r_[rs * ts, rs * ts, rs, ps, ps, ps * zs]
                 g.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_odom @ od.poses[i]),
                                              gtsam.noiseModel.Diagonal.Sigmas(sig)))
             return

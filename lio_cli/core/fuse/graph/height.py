@@ -1,15 +1,14 @@
 """A height prior beside odometry, on a wheeled platform whose IMU and wheels find the motion near a plane.
 
-A scan matcher's height drifts with its pitch (metres over a few hundred), and the graph followed it: its tight
-pose priors hold the attitude to the odometry's (tied to the world by the filter's start), and the wheels' only
-height information is the non-holonomic zero vertical speed, which a body on its suspension breaks every 0.1 s.
-Where the IMU's gravity direction and the wheels' distance (``choose.gravity_evidence``: the climb integrated
-from the pitch less its median; the evidence and thresholds that choose the planar estimator) say the motion
+A scan matcher's height drifts with its pitch (metres over a few hundred), and the graph followed it: its pose
+priors hold height and attitude to the odometry's, and the wheels' only height information is the
+non-holonomic zero vertical speed, which a body on its suspension breaks every 0.1 s. Where the IMU's gravity
+direction and the wheels' distance (``choose.gravity_evidence``: the climb integrated from the pitch less its
+median, slip windows and ``SLIP_DILATE`` either side left out; the planar estimator's thresholds) say the motion
 stays within ``climb_m`` of a plane, every ``EVERY_KEYFRAMES``-th keyframe's height gets a prior: within that
-climb (at least ``MIN_SIGMA_M``) of the first keyframe's. The odometry's poses then hold tilt and height less
-(their sigmas times ``ODOM_TILT_SIGMA_SCALE`` and ``ODOM_VERTICAL_SIGMA_SCALE``), so the IMU's gravity and the
-prior set them; the graph starts at the prior's height (``run``). A platform the evidence finds climbing (or
-without wheels, or without odometry) gets none of this.
+climb (``MIN_SIGMA_M`` .. ``MAX_SIGMA_M``) of the first keyframe's. The odometry poses' vertical sigma is then
+multiplied by ``ODOM_VERTICAL_SIGMA_SCALE`` so their drift no longer outweighs it, and the graph starts at the
+prior's height (``run``). A platform the evidence finds climbing, or too vaguely level, gets none of this.
 """
 
 from __future__ import annotations
@@ -24,10 +23,13 @@ from .. import choose
 from ..timeline import Prepared
 
 ENABLED = True
-EVERY_KEYFRAMES = 3  # a prior every 0.3 s at the 0.1 s grid (every 1 s: the car's bad-wheel climb, 0.5 m, too loose)
-MIN_SIGMA_M = 0.05  # never tighter than this (bumps, the evidence's own noise)
-ODOM_TILT_SIGMA_SCALE = 10.0  # odometry poses' roll and pitch sigmas beside the prior
-ODOM_VERTICAL_SIGMA_SCALE = 10.0  # and their vertical position's
+EVERY_KEYFRAMES = 10  # a prior every 1 s at the 0.1 s grid
+SLIP_DILATE = 1  # the evidence's slip windows widened by one on each side (a slip's onset and end)
+MIN_SIGMA_M = 0.1  # never tighter: the evidence's own noise (0.22 m on a 320 m drive flat to 0.03 m)
+# a climb beyond this: IMU and wheels too vague to hold the height better than the odometry, no prior
+MAX_SIGMA_M = 0.3
+ODOM_VERTICAL_SIGMA_SCALE = 10.0  # odometry poses' vertical sigma beside the prior
+ODOM_TILT_SIGMA_SCALE = 10.0  # and their roll and pitch sigmas (the IMU's gravity then sets the tilt)
 MODEL = "height prior: the motion near a plane by IMU and wheels"
 
 
@@ -42,11 +44,13 @@ def level(prep: Prepared) -> Level | None:
     """The prior when the wheels and IMU find the motion near a plane (module docstring), else None."""
     if not ENABLED:
         return None
-    ev = choose.gravity_evidence(prep)
+    ev = choose.gravity_evidence(prep, SLIP_DILATE)
     if ev is None:
         return None
     limit = max(choose.MIN_CLIMB_M, choose.CLIMB_SHARE * ev["path_m"])
     if ev["tilt_p95_deg"] > choose.MAX_TILT_DEG or ev["climb_m"] > limit:
+        return None
+    if ev["climb_m"] > MAX_SIGMA_M:
         return None
     return Level(max(float(ev["climb_m"]), MIN_SIGMA_M), ev)
 
