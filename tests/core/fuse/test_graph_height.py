@@ -64,9 +64,8 @@ def test_without_the_prior_the_height_follows_the_odometry(drifting_odometry, mo
     assert _height_rms(drifting_odometry, res) > HEIGHT_RMS_M
 
 
-def test_a_platform_the_evidence_finds_climbing_gets_no_prior(drifting_odometry, monkeypatch):
-    monkeypatch.setattr(choose, "MIN_CLIMB_M", 0.01)  # the drive's evidence climbs 0.15 m over 128 m
-    monkeypatch.setattr(choose, "CLIMB_SHARE", 0.0)
+def test_a_platform_the_evidence_finds_tilting_gets_no_prior(drifting_odometry, monkeypatch):
+    monkeypatch.setattr(choose, "MAX_TILT_DEG", 0.5)  # the drive's ground tilts it by 0.92 deg (95th percentile)
     res = fuse(drifting_odometry.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
     assert "height" not in res.info["smoother"]
 

@@ -343,7 +343,7 @@ class ChunkGraph:
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
                 ps = ODOM_POSE_SIGMA_SCALE * od.position_sigma_m[i]
-                # beside the height prior, the odometry's height (it drifts with its pitch) held less
+                # beside the height prior, the odometry's height and tilt (they drift with its pitch) held less
                 zs, ts = (1.0, 1.0) if self.level is None else (height.ODOM_VERTICAL_SIGMA_SCALE,
                                                                  height.ODOM_TILT_SIGMA_SCALE)
                 rs = od.rotation_sigma_rad[i]

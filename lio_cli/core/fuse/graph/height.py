@@ -6,9 +6,10 @@ non-holonomic zero vertical speed, which a body on its suspension breaks every 0
 direction and the wheels' distance (``choose.gravity_evidence``: the climb integrated from the pitch less its
 median, slip windows and ``SLIP_DILATE`` either side left out; the planar estimator's thresholds) say the motion
 stays within ``climb_m`` of a plane, every ``EVERY_KEYFRAMES``-th keyframe's height gets a prior: within that
-climb (``MIN_SIGMA_M`` .. ``MAX_SIGMA_M``) of the first keyframe's. The odometry poses' vertical sigma is then
-multiplied by ``ODOM_VERTICAL_SIGMA_SCALE`` so their drift no longer outweighs it, and the graph starts at the
-prior's height (``run``). A platform the evidence finds climbing, or too vaguely level, gets none of this.
+climb (``MIN_SIGMA_M`` .. ``MAX_SIGMA_M``) of the first keyframe's. The odometry poses' vertical, roll and pitch
+sigmas are then multiplied by ``ODOM_VERTICAL_SIGMA_SCALE`` and ``ODOM_TILT_SIGMA_SCALE`` so their drift no longer
+outweighs it (the IMU's gravity sets the tilt), and the graph starts at the prior's height (``run``). A platform
+the evidence finds tilting or climbing, or too vaguely level, gets none of this.
 """
 
 from __future__ import annotations
@@ -47,10 +48,7 @@ def level(prep: Prepared) -> Level | None:
     ev = choose.gravity_evidence(prep, SLIP_DILATE)
     if ev is None:
         return None
-    limit = max(choose.MIN_CLIMB_M, choose.CLIMB_SHARE * ev["path_m"])
-    if ev["tilt_p95_deg"] > choose.MAX_TILT_DEG or ev["climb_m"] > limit:
-        return None
-    if ev["climb_m"] > MAX_SIGMA_M:
+    if ev["tilt_p95_deg"] > choose.MAX_TILT_DEG or ev["climb_m"] > MAX_SIGMA_M:  # MAX_SIGMA_M < choose's climb limit
         return None
     return Level(max(float(ev["climb_m"]), MIN_SIGMA_M), ev)
 
