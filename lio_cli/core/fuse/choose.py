@@ -41,8 +41,9 @@ class EstimatorChoice:
     evidence: dict
 
 
-def _gravity_evidence(prep: Prepared) -> dict | None:
-    """Tilt wander (deg), climb extent and path length (m) from the IMU and the wheels; None without both."""
+def gravity_evidence(prep: Prepared, dilate: int = 0) -> dict | None:
+    """Tilt wander (deg), climb extent and path length (m) from the IMU and the wheels; None without both.
+    ``dilate``: windows left out on each side of a slip's too (its onset and end)."""
     imu, w = prep.imu, prep.wheel
     if imu is None or prep.imu_f_b is None or "accel" not in prep.use.get("imu", ()) or w is None or len(w) < 2:
         return None
@@ -64,6 +65,8 @@ def _gravity_evidence(prep: Prepared) -> dict | None:
     # such acceleration; those windows say nothing about the ground
     unfelt = np.abs(a_wheel) - np.abs(prep.imu_f_b[:, 0] - np.median(prep.imu_f_b[:, 0]))
     slip = (unfelt[:m * n].reshape(m, n) > SLIP_MPS2).any(axis=1)
+    for _ in range(dilate):
+        slip = slip | np.r_[False, slip[:-1]] | np.r_[slip[1:], False]
     if slip.all():
         slip[:] = False
     med = np.median(up[~slip], axis=0)
@@ -96,7 +99,7 @@ def choose_estimator(prep: Prepared) -> EstimatorChoice:
         return EstimatorChoice("ekf", "odometry poses and an accelerometer: the 3D filter follows the odometry's "
                                       "attitude (the planar one cannot, and is noisier between its poses)", {})
     ev: dict = {}
-    g, od = _gravity_evidence(prep), _odom_evidence(prep)
+    g, od = gravity_evidence(prep), _odom_evidence(prep)
     ev.update(g or {})
     ev.update(od or {})
     if od is not None:

@@ -28,7 +28,7 @@ from gtsam.symbol_shorthand import B, G, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
-from . import wheels
+from . import height, wheels
 from .imu import Segments
 
 HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
@@ -212,6 +212,8 @@ class ChunkGraph:
         od = meas.prep.use.get("odom", set())
         beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
         self.scaled = self.wheel is not None and WHEEL_SCALE and beside_odom
+        self.level = height.level(meas.prep) if self.wheel is not None and beside_odom else None
+        self.levelled = 0
         if self.scaled:  # the forward sigma's share of the speed stood for a scale error: the scale carries it
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
         self.scale_start: dict[int, float] = {}  # chunk's first keyframe -> its wheel scale from the pre-pass
@@ -275,6 +277,8 @@ class ChunkGraph:
         self._odom(g, k0, k1)
         if scaled:
             self._scaled_wheels(g, k0, scaled)
+        if self.level is not None:
+            self.levelled += height.add(g, self.level, float(self.s["p"][0, 2]), k0, k1)
         return g
 
     def _scaled_wheels(self, g, k0: int, incs: list[tuple[int, np.ndarray, np.ndarray, gtsam.Rot3]]) -> None:
@@ -339,7 +343,11 @@ class ChunkGraph:
             for a in np.flatnonzero((m.odom_k >= k0) & (m.odom_k < k1)).tolist():
                 i, k = int(m.odom_idx[a]), int(m.odom_k[a])
                 ps = ODOM_POSE_SIGMA_SCALE * od.position_sigma_m[i]
-                sig = np.r_[np.full(3, od.rotation_sigma_rad[i]), np.full(3, ps)]
+                # beside the height prior, the odometry's height and tilt (they drift with its pitch) held less
+                zs, ts = (1.0, 1.0) if self.level is None else (height.ODOM_VERTICAL_SIGMA_SCALE,
+                                                                 height.ODOM_TILT_SIGMA_SCALE)
+                rs = od.rotation_sigma_rad[i]
+                sig = np.r_[rs * ts, rs * ts, rs, ps, ps, ps * zs]
                 g.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_odom @ od.poses[i]),
                                              gtsam.noiseModel.Diagonal.Sigmas(sig)))
             return

@@ -15,7 +15,7 @@ from ..inputs import FuseOptions
 from ..result import FuseResult, anchor_to_origin
 from ..state3d import BA_, B_, P_, R_, V_, Layout, initial_estimate
 from ..timeline import Prepared
-from . import guard
+from . import guard, height
 from .factors import ChunkGraph, Measurements, nav
 from .imu import Segments, imu_params
 from .keyframes import filter_options, keyframe_stamps, with_outputs
@@ -63,6 +63,8 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
     for scale in ACCEL_NOISE_SCALES:  # the accelerometer trusted less when the graph explained the rest worse
         params = imu_params(replace(o.noise, accel_noise_density=scale * o.noise.accel_noise_density), o.gravity_mps2)
         cg = ChunkGraph(meas, seg, params, states)
+        if cg.level is not None:  # start at the prior's height: from the odometry's drifted one LM stalls
+            states["p"][:, 2], states["v"][:, 2] = states["p"][0, 2], 0.0
         smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L), seam)
         iterations += stats.iterations
         before, after = guard.residuals(meas, filtered), guard.residuals(meas, smoothed)
@@ -76,6 +78,9 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
             "refused": [t for t in tries if t]}
     if cg.wheel_info() is not None:
         info["wheel"] = cg.wheel_info()
+    if cg.level is not None:
+        info["height"] = {"model": height.MODEL, "sigma_m": round(cg.level.sigma_m, 4), "priors": cg.levelled,
+                          "evidence": cg.level.evidence}
     cov = knots["P_filt"][at_o] if o.want_covariance and len(knots["P_filt"]) else None
     if why is not None:
         prep.notes.append(f"smoother: the filter's trajectory kept, the factor graph's was worse ({why})")
