@@ -301,6 +301,7 @@ def summary(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global SEED
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio-fuse-robustness"), help="cache of logs, odometry, fuse outputs")
     ap.add_argument("--quick", action="store_true", help="moving starts, rotated IMU, bad wheels only (12 cells)")
@@ -308,9 +309,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cells", action="append", default=[], help="keep cells whose name holds this (repeat: all of them)")
     ap.add_argument("--duration", type=float, default=45.0, help="seconds per log (cached logs of another length are remade)")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=SEED, help=f"simulation seed (default {SEED}; another seed: a held-out check)")
     ap.add_argument("--json", type=Path, help="also write the rows here")
     a = ap.parse_args(argv)
-    work = a.work / f"{a.duration:g}s"
+    SEED = a.seed
+    work = a.work / (f"{a.duration:g}s" + ("" if a.seed == 7 else f"-seed{a.seed}"))  # the cache is per seed
     for sub in ("logs", "odom", "fuse"):
         (work / sub).mkdir(parents=True, exist_ok=True)
     platforms = tuple(a.platforms.split(","))
