@@ -21,6 +21,7 @@ from ...config.odom import OdomConfig
 from ...core.odometry import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
 from ...evaluation.scoring import Score
+from ...heap import HeapTrim
 from ...io.messages.pointcloud import parse_time_convention
 from ...io.logs.base import LogReader
 from ...io.logs.reader import open_log
@@ -122,6 +123,7 @@ class _OdomRun:
         self.first_imu_ns: int | None = None
         self.t_read = 0.0
         self.done = 0
+        self.heap = HeapTrim()  # a long log's RSS stays flat
 
     def run(self) -> OdomResult:
         cfg, inputs = self.cfg, self.inputs
@@ -222,6 +224,7 @@ class _OdomRun:
             if self.map is not None:
                 self.map.settle(odo.stamps_ns, odo.poses, odo.settled)
             self.done += 1
+            self.heap.scan_done()
             if self.progress:
                 self.progress(self.done, self.reader.topics[self.inputs.lidar].count)
 
