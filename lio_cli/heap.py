@@ -1,9 +1,10 @@
-"""The C heap's free pages handed back to the kernel every so many scans, so a long run's RSS stays flat.
+"""The C heap's free pages handed back to the kernel when an odometry run ends.
 
-Per-scan arrays of varying sizes (decoded clouds, de-skewed points, kiss-icp's vectors) leave holes inside
-glibc's heap that later requests do not fill exactly; glibc only gives memory back from the heap's top, so the
-free space in the middle stays resident and grows with the log. ``malloc_trim(0)`` releases every whole free
-page anywhere in the heap (and the other arenas) without moving anything. glibc only: elsewhere (musl, macOS,
+Per-scan arrays of varying sizes (about 5 MB a 16-beam scan of 256-512 kB blocks) leave holes inside glibc's heap
+that free() keeps resident, since glibc only gives memory back from the heap's top. ``malloc_trim(0)`` releases
+every whole free page anywhere in the heap (and the other arenas) without moving anything, so a process that goes
+on (a batch worker's next job) starts from what is really in use. Not done per scan: the next scans fault the
+same pages back in (CPU) and the run's peak stays (docs/benchmarks.md). glibc only: elsewhere (musl, macOS,
 Windows) there is no ``malloc_trim`` and this is a no-op.
 """
 
@@ -13,8 +14,6 @@ import ctypes
 import sys
 from collections.abc import Callable
 from functools import cache
-
-TRIM_EVERY_SCANS = 100  # about 10 s of a 10 Hz LiDAR: the pages faulted back in afterwards cost little
 
 
 @cache
@@ -33,20 +32,13 @@ def glibc_trim() -> Callable[[], int] | None:
     return lambda: trim(0)
 
 
-class HeapTrim:
-    """Counts scans and trims the C heap after every ``every``-th (a no-op without glibc)."""
-
-    def __init__(self, every: int = TRIM_EVERY_SCANS, trim: Callable[[], int] | None = None) -> None:
-        self.every = every
-        self.trim = trim if trim is not None else glibc_trim()
-        self.scans = 0
-        self.trims = 0
-
-    def scan_done(self) -> None:
-        self.scans += 1
-        if self.trim is not None and self.scans % self.every == 0:
-            self.trim()
-            self.trims += 1
+def trim_heap() -> bool:
+    """Hand the C heap's free pages back to the kernel; False where there is no glibc (nothing done)."""
+    trim = glibc_trim()
+    if trim is None:
+        return False
+    trim()
+    return True
 
 
-__all__ = ["TRIM_EVERY_SCANS", "HeapTrim", "glibc_trim"]
+__all__ = ["glibc_trim", "trim_heap"]

@@ -1,5 +1,5 @@
-"""The C heap trimmed every so many scans: on schedule, a no-op without glibc, memory really handed back, and an
-odometry run's trajectory unchanged by it."""
+"""The C heap trimmed when an odometry run ends: once per run, a no-op without glibc, memory really handed back,
+and the trajectory unchanged by it."""
 
 from __future__ import annotations
 
@@ -13,18 +13,8 @@ import pytest
 import lio_cli.heap as heap
 import lio_cli.jobs.odom.job as odom_job
 from lio_cli.cli.app import main
+from lio_cli.config.odom import OdomConfig
 from lio_cli.simulation.run import simulate
-
-
-def test_the_heap_is_trimmed_after_every_nth_scan():
-    calls = []
-    trim = heap.HeapTrim(every=3, trim=lambda: calls.append(len(calls)) or 1)
-    at = []
-    for scan in range(1, 11):
-        trim.scan_done()
-        if len(calls) > len(at):
-            at.append(scan)
-    assert at == [3, 6, 9] and trim.trims == 3 and trim.scans == 10
 
 
 @pytest.fixture
@@ -36,11 +26,7 @@ def uncached():
 
 def test_without_linux_there_is_nothing_to_trim(monkeypatch, uncached):
     monkeypatch.setattr(sys, "platform", "darwin")
-    assert heap.glibc_trim() is None
-    trim = heap.HeapTrim(every=1)
-    for _ in range(5):
-        trim.scan_done()
-    assert trim.trim is None and trim.trims == 0 and trim.scans == 5
+    assert heap.glibc_trim() is None and heap.trim_heap() is False
 
 
 def test_a_c_library_other_than_glibc_is_left_alone(monkeypatch, uncached):
@@ -49,7 +35,7 @@ def test_a_c_library_other_than_glibc_is_left_alone(monkeypatch, uncached):
 
     monkeypatch.setattr(sys, "platform", "linux")
     monkeypatch.setattr(ctypes, "CDLL", lambda name: Musl())
-    assert heap.glibc_trim() is None
+    assert heap.glibc_trim() is None and heap.trim_heap() is False
 
 
 def _rss_mb() -> float:
@@ -71,12 +57,26 @@ def test_free_holes_inside_the_heap_leave_the_resident_set():
     assert all(float(b[0]) == 4 * i and float(b[-1]) == 4 * i for i, b in enumerate(kept))  # live blocks untouched
 
 
-def test_trimming_after_every_scan_leaves_the_trajectory_byte_for_byte(tmp_path, monkeypatch):
+def test_an_odometry_run_trims_the_heap_once_at_its_end_and_its_trajectory_is_unchanged(tmp_path, monkeypatch):
     res = simulate("handheld", tmp_path / "walk.bag", "ros1", duration_s=3.0, seed=2, columns=360)
+    monkeypatch.setattr(odom_job, "trim_heap", lambda: False)
     assert main(["odom", str(res.log_path), "-o", str(tmp_path / "plain.tum"), "-q"]) == 0
-    trims = []
-    real = heap.glibc_trim() or (lambda: 0)
-    monkeypatch.setattr(odom_job, "HeapTrim", lambda: heap.HeapTrim(every=1, trim=lambda: trims.append(1) or real()))
+    written = []  # whether the trajectory was already written at each trim: no, the run's end comes first
+    monkeypatch.setattr(odom_job, "trim_heap", lambda: written.append((tmp_path / "trimmed.tum").exists()) or True)
     assert main(["odom", str(res.log_path), "-o", str(tmp_path / "trimmed.tum"), "-q"]) == 0
-    assert len(trims) == 30
+    assert written == [False]
     assert (tmp_path / "trimmed.tum").read_bytes() == (tmp_path / "plain.tum").read_bytes()
+
+
+def test_a_failed_odometry_run_trims_the_heap_too(tmp_path, monkeypatch):
+    res = simulate("handheld", tmp_path / "walk.bag", "ros1", duration_s=1.0, seed=2, columns=360)
+    calls = []
+    monkeypatch.setattr(odom_job, "trim_heap", lambda: calls.append(1) or True)
+
+    def lost(self):
+        raise odom_job.ProcessingError("lost")
+
+    monkeypatch.setattr(odom_job._OdomRun, "run", lost)
+    with pytest.raises(odom_job.ProcessingError, match="lost"):
+        odom_job.run_odom(odom_job.OdomJob(res.log_path, OdomConfig()))
+    assert calls == [1]

@@ -21,7 +21,7 @@ from ...config.odom import OdomConfig
 from ...core.odometry import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
 from ...evaluation.scoring import Score
-from ...heap import HeapTrim
+from ...heap import trim_heap
 from ...io.messages.pointcloud import parse_time_convention
 from ...io.logs.base import LogReader
 from ...io.logs.reader import open_log
@@ -95,7 +95,10 @@ def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader |
     ``registration.slow_register_every``). ``scans``: called as each scan in the map settles, with its stamp,
     pose (internal world) and de-skewed points (base frame)."""
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
-        return _OdomRun(log, job.config, progress, settled, job.map_voxel_m, scans).run()
+        try:
+            return _OdomRun(log, job.config, progress, settled, job.map_voxel_m, scans).run()
+        finally:
+            trim_heap()  # the run's free heap pages back to the system, for what the process does next
 
 
 def score_odom(result: OdomResult, reference: Trajectory) -> None:
@@ -123,7 +126,6 @@ class _OdomRun:
         self.first_imu_ns: int | None = None
         self.t_read = 0.0
         self.done = 0
-        self.heap = HeapTrim()  # a long log's RSS stays flat
 
     def run(self) -> OdomResult:
         cfg, inputs = self.cfg, self.inputs
@@ -224,7 +226,6 @@ class _OdomRun:
             if self.map is not None:
                 self.map.settle(odo.stamps_ns, odo.poses, odo.settled)
             self.done += 1
-            self.heap.scan_done()
             if self.progress:
                 self.progress(self.done, self.reader.topics[self.inputs.lidar].count)
 
