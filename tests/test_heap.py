@@ -1,5 +1,5 @@
-"""The C heap trimmed when an odometry run ends: once per run, a no-op without glibc, memory really handed back,
-and the trajectory unchanged by it."""
+"""The C heap trimmed after each batch run: once per run (failed ones too), a no-op without glibc, memory really
+handed back."""
 
 from __future__ import annotations
 
@@ -11,10 +11,8 @@ import numpy as np
 import pytest
 
 import lio_cli.heap as heap
-import lio_cli.jobs.odom.job as odom_job
-from lio_cli.cli.app import main
+import lio_cli.batch.runs as runs
 from lio_cli.config.odom import OdomConfig
-from lio_cli.simulation.run import simulate
 
 
 @pytest.fixture
@@ -57,26 +55,22 @@ def test_free_holes_inside_the_heap_leave_the_resident_set():
     assert all(float(b[0]) == 4 * i and float(b[-1]) == 4 * i for i, b in enumerate(kept))  # live blocks untouched
 
 
-def test_an_odometry_run_trims_the_heap_once_at_its_end_and_its_trajectory_is_unchanged(tmp_path, monkeypatch):
-    res = simulate("handheld", tmp_path / "walk.bag", "ros1", duration_s=3.0, seed=2, columns=360)
-    monkeypatch.setattr(odom_job, "trim_heap", lambda: False)
-    assert main(["odom", str(res.log_path), "-o", str(tmp_path / "plain.tum"), "-q"]) == 0
-    written = []  # whether the trajectory was already written at each trim: no, the run's end comes first
-    monkeypatch.setattr(odom_job, "trim_heap", lambda: written.append((tmp_path / "trimmed.tum").exists()) or True)
-    assert main(["odom", str(res.log_path), "-o", str(tmp_path / "trimmed.tum"), "-q"]) == 0
-    assert written == [False]
-    assert (tmp_path / "trimmed.tum").read_bytes() == (tmp_path / "plain.tum").read_bytes()
+def _task(log, tmp_path) -> runs.RunTask:
+    return runs.RunTask("r1", "odom", log, None, None, OdomConfig(), tmp_path / "out")
 
 
-def test_a_failed_odometry_run_trims_the_heap_too(tmp_path, monkeypatch):
-    res = simulate("handheld", tmp_path / "walk.bag", "ros1", duration_s=1.0, seed=2, columns=360)
+def test_a_batch_worker_trims_the_heap_after_each_run(tmp_path, monkeypatch):
     calls = []
-    monkeypatch.setattr(odom_job, "trim_heap", lambda: calls.append(1) or True)
+    monkeypatch.setattr(runs, "trim_heap", lambda: calls.append(1) or True)
+    monkeypatch.setattr(runs, "_execute", lambda task, here, t0: (calls.append("ran"), {"status": "ok"})[1])
+    assert runs.execute(_task(tmp_path / "a.bag", tmp_path)) == {"status": "ok"}
+    assert runs.execute(_task(tmp_path / "b.bag", tmp_path)) == {"status": "ok"}
+    assert calls == ["ran", 1, "ran", 1]
 
-    def lost(self):
-        raise odom_job.ProcessingError("lost")
 
-    monkeypatch.setattr(odom_job._OdomRun, "run", lost)
-    with pytest.raises(odom_job.ProcessingError, match="lost"):
-        odom_job.run_odom(odom_job.OdomJob(res.log_path, OdomConfig()))
+def test_a_failed_batch_run_trims_the_heap_too(tmp_path, monkeypatch):
+    calls = []
+    monkeypatch.setattr(runs, "trim_heap", lambda: calls.append(1) or True)
+    rec = runs.execute(_task(tmp_path / "missing.bag", tmp_path))
+    assert rec["status"] == "failed" and rec["exit_code"] == 2, rec
     assert calls == [1]

@@ -21,7 +21,6 @@ from ...config.odom import OdomConfig
 from ...core.odometry import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
 from ...evaluation.scoring import Score
-from ...heap import trim_heap
 from ...io.messages.pointcloud import parse_time_convention
 from ...io.logs.base import LogReader
 from ...io.logs.reader import open_log
@@ -95,10 +94,7 @@ def run_odom(job: OdomJob, progress: Progress | None = None, reader: LogReader |
     ``registration.slow_register_every``). ``scans``: called as each scan in the map settles, with its stamp,
     pose (internal world) and de-skewed points (base frame)."""
     with nullcontext(reader) if reader is not None else open_log(job.log, job.config.input.format) as log:
-        try:
-            return _OdomRun(log, job.config, progress, settled, job.map_voxel_m, scans).run()
-        finally:
-            trim_heap()  # the run's free heap pages back to the system, for what the process does next
+        return _OdomRun(log, job.config, progress, settled, job.map_voxel_m, scans).run()
 
 
 def score_odom(result: OdomResult, reference: Trajectory) -> None:
