@@ -29,6 +29,7 @@ from pydantic import BaseModel
 
 from .. import __version__
 from ..errors import LioError
+from ..heap import trim_heap
 from ..io.files.atomic import replace_path
 from .commands import key_metrics, metrics_file, run_command
 
@@ -165,6 +166,8 @@ def execute(task: RunTask) -> dict[str, Any]:
         except Exception as err:  # a bug: recorded, the batch goes on
             return record(task, "failed", "internal", 1, f"internal error: {type(err).__name__}: {_one_line(err)}",
                           time_s=time.perf_counter() - t0, worker=here)
+        finally:
+            trim_heap()  # the run's free heap pages back before this worker's next run
 
 
 def _execute(task: RunTask, here: str, t0: float) -> dict[str, Any]:
