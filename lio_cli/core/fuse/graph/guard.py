@@ -5,7 +5,8 @@ outlier weighs the same for both; the mean residual of each 5 s window of fixes 
 against that error's own sigma), odometry and wheel increments (translation). The smoothed
 solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor
 *and* the RMS its own sigmas predict (``noise_levels``, times ``NOISE_MARGIN``): a filter that jumps to every
-odometry pose or GPS fix sits closer to them than their noise, a smoother need not.
+odometry pose or GPS fix sits closer to them than their noise, a smoother need not. Beside odometry GPS's
+residuals are not judged (``judged``): there the filter follows a consumer receiver's wander.
 """
 
 from __future__ import annotations
