@@ -5,7 +5,8 @@ outlier weighs the same for both; the mean residual of each 5 s window of fixes 
 against that error's own sigma), odometry and wheel increments (translation). The smoothed
 solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor
 *and* the RMS its own sigmas predict (``noise_levels``, times ``NOISE_MARGIN``): a filter that jumps to every
-odometry pose or GPS fix sits closer to them than their noise, a smoother need not.
+odometry pose or GPS fix sits closer to them than their noise, a smoother need not. Beside odometry GPS's
+residuals are not judged (``judged``): there the filter follows a consumer receiver's wander.
 """
 
 from __future__ import annotations
@@ -65,11 +66,21 @@ def noise_levels(m: Measurements) -> dict[str, float]:
     return out
 
 
-def verdict(filtered: dict[str, float], smoothed: dict[str, float], noise: dict[str, float] | None = None
-            ) -> str | None:
-    """Why the smoothed solution is worse than the filter's (and than its sigmas predict), or None."""
+def judged(m: Measurements) -> set[str]:
+    """The residuals the guard judges by: beside odometry not GPS's (a filter that follows the fixes sits closer
+    to a consumer receiver's wander than a smoother held to the odometry's shape)."""
+    names = set(FLOORS)
+    return names - {"gps_horizontal_m", "gps_slow_m"} if len(m.odom_k) > 1 else names
+
+
+def verdict(filtered: dict[str, float], smoothed: dict[str, float], noise: dict[str, float] | None = None,
+            judge: set[str] | None = None) -> str | None:
+    """Why the smoothed solution is worse than the filter's (and than its sigmas predict), or None; only the
+    residuals in ``judge`` (all without it)."""
     noise = noise or {}
     for name, f in filtered.items():
+        if judge is not None and name not in judge:
+            continue
         sm = smoothed.get(name, f)
         if sm > max(RATIO * f + FLOORS[name], NOISE_MARGIN * noise.get(name, 0.0)):
             return f"{name.rsplit('_', 1)[0].replace('_', ' ')} residual {sm:.3g} vs the filter's {f:.3g}"
