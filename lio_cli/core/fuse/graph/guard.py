@@ -6,7 +6,7 @@ against that error's own sigma), odometry and wheel increments (translation). Th
 solution is refused when one source's RMS exceeds the filter's by more than ``RATIO`` plus that source's floor
 *and* the RMS its own sigmas predict (``noise_levels``, times ``NOISE_MARGIN``): a filter that jumps to every
 odometry pose or GPS fix sits closer to them than their noise, a smoother need not. Beside odometry GPS's
-residuals are not judged (``judged``): there the filter follows a consumer receiver's wander.
+residuals may be worse by more (``ratios``): there the filter follows a consumer receiver's wander.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 from .factors import Measurements
 
 RATIO = 1.05  # worse than the filter only beyond this: a good smoother's residual sits near the filter's
+GPS_BESIDE_ODOM_RATIO = 1.5  # GPS's, beside odometry (``ratios``)
 CLIP = 3.0
 NOISE_MARGIN = 1.05  # worse only beyond both the filter's residual and the sigmas' own prediction, by this
 FLOORS = {"gps_horizontal_m": 0.02, "gps_slow_m": 0.05, "odom_increment_m": 0.005, "wheel_increment_m": 0.002}
@@ -66,22 +67,23 @@ def noise_levels(m: Measurements) -> dict[str, float]:
     return out
 
 
-def judged(m: Measurements) -> set[str]:
-    """The residuals the guard judges by: beside odometry not GPS's (a filter that follows the fixes sits closer
-    to a consumer receiver's wander than a smoother held to the odometry's shape)."""
-    names = set(FLOORS)
-    return names - {"gps_horizontal_m", "gps_slow_m"} if len(m.odom_k) > 1 else names
+def ratios(m: Measurements) -> dict[str, float]:
+    """Per residual, how much worse than the filter's the guard lets it be: beside odometry GPS's by
+    ``GPS_BESIDE_ODOM_RATIO`` (a filter that follows the fixes sits closer to a consumer receiver's wander than a
+    smoother held to the odometry's shape; odometry that lost track still moves them by far more)."""
+    out = dict.fromkeys(FLOORS, RATIO)
+    if len(m.odom_k) > 1:
+        out.update(gps_horizontal_m=GPS_BESIDE_ODOM_RATIO, gps_slow_m=GPS_BESIDE_ODOM_RATIO)
+    return out
 
 
 def verdict(filtered: dict[str, float], smoothed: dict[str, float], noise: dict[str, float] | None = None,
-            judge: set[str] | None = None) -> str | None:
-    """Why the smoothed solution is worse than the filter's (and than its sigmas predict), or None; only the
-    residuals in ``judge`` (all without it)."""
-    noise = noise or {}
+            ratio: dict[str, float] | None = None) -> str | None:
+    """Why the smoothed solution is worse than the filter's (and than its sigmas predict), or None; ``ratio``
+    per residual (``RATIO`` without it)."""
+    noise, ratio = noise or {}, ratio or {}
     for name, f in filtered.items():
-        if judge is not None and name not in judge:
-            continue
         sm = smoothed.get(name, f)
-        if sm > max(RATIO * f + FLOORS[name], NOISE_MARGIN * noise.get(name, 0.0)):
+        if sm > max(ratio.get(name, RATIO) * f + FLOORS[name], NOISE_MARGIN * noise.get(name, 0.0)):
             return f"{name.rsplit('_', 1)[0].replace('_', ' ')} residual {sm:.3g} vs the filter's {f:.3g}"
     return None

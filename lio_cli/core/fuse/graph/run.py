@@ -68,7 +68,7 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
         smoothed, stats = solve(cg, len(kt), _start_prior(prep, o, start, ekf.L), seam)
         iterations += stats.iterations
         before, after = guard.residuals(meas, filtered), guard.residuals(meas, smoothed)
-        why = guard.verdict(before, after, guard.noise_levels(meas), guard.judged(meas))
+        why = guard.verdict(before, after, guard.noise_levels(meas), guard.ratios(meas))
         tries.append(why)
         if why is None:
             break
