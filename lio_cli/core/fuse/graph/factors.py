@@ -22,6 +22,8 @@
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, G, V, X
@@ -116,6 +118,11 @@ class Measurements:
                     i = j[k]
                     sig = float(np.sqrt(max(np.trace(imu.orientation_cov[i]) / 3.0, 1e-12)))
                     self.orient[k] = (prep.imu_R_wb[i], sig)
+
+    @cached_property
+    def level(self) -> height.Level | None:
+        """The log's height prior (``height.level``), worked out once for every try of the graph."""
+        return height.level(self.prep)
 
     def odom_world(self, s: dict[str, np.ndarray]) -> np.ndarray:
         """The odometry frame in the world: the states ``s`` at the first odometry pose, as the filter ties it."""
@@ -212,7 +219,7 @@ class ChunkGraph:
         od = meas.prep.use.get("odom", set())
         beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
         self.scaled = self.wheel is not None and WHEEL_SCALE and beside_odom
-        self.level = height.level(meas.prep) if self.wheel is not None and beside_odom else None
+        self.level = meas.level if self.wheel is not None and beside_odom else None
         self.levelled = 0
         if self.scaled:  # the forward sigma's share of the speed stood for a scale error: the scale carries it
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
