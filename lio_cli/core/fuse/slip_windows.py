@@ -5,8 +5,6 @@ windows around the raw difference's jumps."""
 
 from __future__ import annotations
 
-from statistics import NormalDist
-
 import numpy as np
 
 JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's onset and end
@@ -112,8 +110,3 @@ def running_median(t: np.ndarray, x: np.ndarray, width_s: float) -> np.ndarray:
     padded = np.pad(xs, half, mode="reflect")
     med = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
     return np.interp(t, ts, med)
-
-
-def chi2_1_sqrt(p: float) -> float:
-    """The square root of the chi-square (1 dof) quantile of 1 - p: the two-sided normal quantile."""
-    return NormalDist().inv_cdf(1.0 - max(p, 1e-12) / 2.0)

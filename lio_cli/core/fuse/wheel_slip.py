@@ -31,7 +31,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ...so3 import so3_exp
-from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, chi2_1_sqrt, detect, guard
+from .kalman import chi2_thresholds
+from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard
 from .timeline import Prepared
 
 MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only if the IMU's speed closes it
@@ -188,7 +189,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
-    z = chi2_1_sqrt(gate_probability)
+    z = float(np.sqrt(chi2_thresholds(gate_probability, 1)[1]))  # inf without a gate: no slip
     wins, plain = guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
     fit: tuple | str = ""
     for p in range(FIT_PASSES):
