@@ -34,9 +34,11 @@ def read_errors() -> tuple[type[BaseException], ...]:
     from rosbags.serde import SerdeError
     from rosbags.typesys import TypesysError
 
+    from .bag1_index import Bag1AnyReaderError
+
     errors: list[type[BaseException]] = [
         OSError, EOFError, ValueError, KeyError, IndexError, struct.error, zlib.error, sqlite3.Error,
-        McapError, AnyReaderError, Bag1ReaderError, Bag2ReaderError, SerdeError, TypesysError,
+        McapError, AnyReaderError, Bag1AnyReaderError, Bag1ReaderError, Bag2ReaderError, SerdeError, TypesysError,
         RuntimeError,  # lz4.frame's error on a damaged frame
         MemoryError, OverflowError,  # a length field claiming more than there is
     ]  # ValueError holds UnicodeDecodeError and mcap's CRCValidationError
@@ -204,7 +206,7 @@ class LogReader(abc.ABC):
         wanted = set(topics) if topics is not None else None
         try:
             yield from self._iter_records(wanted)
-        except InputError:
+        except (InputError, GeneratorExit):  # GeneratorExit: closed early (no need to build read_errors)
             raise
         except read_errors() as err:
             raise self._wrap("cannot read messages", err) from err
@@ -260,7 +262,7 @@ class LogReader(abc.ABC):
                 if msg is None:
                     msg = self._deserialize(raw, msgtype, handle)
                 yield topic, msgtype, t_ns, msg
-        except InputError:
+        except (InputError, GeneratorExit):  # GeneratorExit: closed early (no need to build read_errors)
             raise
         except read_errors() as err:
             raise self._wrap("cannot read messages", err) from err
