@@ -16,15 +16,12 @@ from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.messages.pointcloud import parse_time_convention
 from ..io.files.trajectory import format_tum
-from ..jobs.contract import load_reference
 from ..io.files.atomic import check_writable
 from ..io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 from ..io.files.point_clouds import check_map_suffix
 from ..jobs.odom import (TAG, DivergedRun, OdomJob, OdomResult, map_outputs, run_odom, score_odom, write_odom,
                          write_odom_map, write_odom_plots)
 from ..jobs.outputs import check_outputs, default_output, log_stem, run_outputs
-from ..jobs.plot import plot_files
-from ..plots.live import LiveView, rerun_module
 from .common import (FLAG, INPUT_PANEL, MOTION_PANEL, OUTPUT_PANEL, BaseFrameOpt, CalibOpt, ConfigOpt, ForceOpt,
                      FormatOpt, ImuTimeOffsetOpt, ImuTopicOpt, JsonOpt, LidarTopicOpt, LioCommand, LogArg, PointTimeOpt,
                      PreferCalibOpt, QuietOpt, WheelTopicOpt, config_default, err_console, job_progress, note, one_of,
@@ -126,12 +123,22 @@ def odom(
         inputs.append(Path(gt))
     _check_extra_outputs(out, map_file, plot, viz_save, force, inputs)
     if viz or viz_save is not None:
+        from ..plots.live import rerun_module
+
         rerun_module()  # not installed: how to install it, before the work
     if out is not None:
         check_outputs(out, TAG, force, inputs)
 
-    reference = load_reference(Path(log), gt) if gt is not None else None
-    view = LiveView(viz_save, viz, log_stem(log)) if viz or viz_save is not None else None
+    reference = None
+    if gt is not None:
+        from ..jobs.contract import load_reference  # the evaluation: loaded only when there is a reference
+
+        reference = load_reference(Path(log), gt)
+    view = None
+    if viz or viz_save is not None:
+        from ..plots.live import LiveView
+
+        view = LiveView(viz_save, viz, log_stem(log))
     with job_progress("odometry", quiet) as update:
         try:
             result = run_odom(OdomJob(Path(log), cfg, voxel_m), progress=update,
@@ -201,7 +208,11 @@ def _check_extra_outputs(out: Path | None, map_file: Path | None, plot: Path | N
         named += [("the map (--map)", map_file), ("the map's top view", map_outputs(map_file)[1])]
     if viz_save is not None:
         named.append(("the recording (--viz-save)", viz_save))
-    refuse_shared_outputs(named + plot_outputs(plot, plot_files()))
+    if plot is not None:
+        from ..jobs.plot import plot_files
+
+        named += plot_outputs(plot, plot_files())
+    refuse_shared_outputs(named)
     for path in [*(map_outputs(map_file) if map_file is not None else []), *([viz_save] if viz_save else [])]:
         check_writable(path, force, inputs)
     if plot is not None:

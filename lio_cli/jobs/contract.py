@@ -14,8 +14,6 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from ..evaluation.scoring import score
-from ..io.sensors.sources import load_ground_truth
 from ..model.trajectory import Trajectory
 
 Progress = Callable[[int, int | None], None]  # (work done, total work or None)
@@ -45,6 +43,8 @@ class Command:
 def load_reference(log: Path, gt: str) -> Trajectory:
     """The ground truth ``gt`` (a TUM/KITTI file, or a topic of ``log``) named as given. Read before the run: a bad
     one is bad input before the work, not after it."""
+    from ..io.sensors.sources import load_ground_truth  # loaded only by a run that has a reference
+
     ref = load_ground_truth(log, gt)
     return Trajectory(ref.stamps_ns, ref.poses, gt)
 
@@ -52,6 +52,8 @@ def load_reference(log: Path, gt: str) -> Trajectory:
 def score_into(result: Any, reference: Trajectory, name: str) -> None:
     """ATE/RPE of ``result.trajectory`` (called ``name`` in messages) against ``reference``, as ``result.score`` and
     ``result.metrics["accuracy"]``."""
+    from ..evaluation.scoring import score  # loaded only by a run that has a reference
+
     est = result.trajectory
     result.score = score(reference, Trajectory(est.stamps_ns, est.poses, name))
     result.metrics["accuracy"] = result.score.to_dict()

@@ -13,6 +13,7 @@ from contextlib import nullcontext
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,7 +21,6 @@ from ...config import with_overrides
 from ...config.odom import OdomConfig
 from ...core.odometry import Diverged, LioOdometry, OdomStats
 from ...errors import InputError, ProcessingError
-from ...evaluation.scoring import Score
 from ...io.messages.pointcloud import parse_time_convention
 from ...io.logs.base import LogReader
 from ...io.logs.reader import open_log
@@ -30,7 +30,10 @@ from ...model.records import ImuBatch, PointCloud
 from ...model.trajectory import Trajectory
 from ..contract import score_into
 from .inputs import Mounting, OdomInputs, choose_inputs
-from .map import RunMap, ScanSink
+
+if TYPE_CHECKING:  # the evaluation and the map are loaded only by runs that score or map
+    from ...evaluation.scoring import Score
+    from .map import ScanSink
 
 _IMU_WAIT_NS = 500_000_000  # a scan waits at most this long (log time) for IMU covering its end
 _DOUBT_NOTE_SCANS = 5  # this many scans the IMU state could not explain, and...
@@ -109,7 +112,11 @@ class _OdomRun:
                  settled: PoseSink | None = None, map_voxel_m: float | None = None,
                  scans: ScanSink | None = None) -> None:
         self.reader, self.cfg, self.progress = reader, cfg, progress
-        self.map = RunMap(map_voxel_m, scans) if map_voxel_m or scans else None
+        self.map = None
+        if map_voxel_m or scans:
+            from .map import RunMap
+
+            self.map = RunMap(map_voxel_m, scans)
         self.settled, self.sent = settled, 0  # poses handed to ``settled`` so far
         self.t_wall = time.perf_counter()
         self.notes: list[str] = []

@@ -7,11 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...errors import InputError
-from ...io.files.point_clouds import write_point_map
 from ...io.files.trajectory import format_tum
 from ...model.trajectory import Trajectory
 from ..outputs import write_run
-from ..plot import align_to_first
 from .job import OdomResult
 
 TAG = "odom"  # in the name of every file a run writes
@@ -35,6 +33,7 @@ def map_outputs(path: Path) -> list[Path]:
 
 def write_odom_map(result: OdomResult, path: Path, force: bool) -> list[Path]:
     """The run's map (``OdomJob.map_voxel_m``) as PLY/PCD and its top view with the trajectory over it."""
+    from ...io.files.point_clouds import write_point_map
     from ...plots.map import write_map_preview
 
     cloud, png = map_outputs(path)
@@ -51,6 +50,8 @@ def picture_tracks(result: OdomResult, reference: Trajectory | None) -> tuple[li
     odom = Trajectory(result.trajectory.stamps_ns, result.trajectory.poses, "lio odom", "odom")
     if reference is None:
         return [odom], []
+    from ..plot import align_to_first  # the evaluation's alignment: loaded only with a reference
+
     gt = Trajectory(reference.stamps_ns, reference.poses, f"ground truth {reference.name}", reference.kind)
     for mode in ("se3", "origin"):
         try:
