@@ -66,6 +66,10 @@ _RAW_DIGESTS = {
         "cd5e73d190d741a2f92e81eda573aca7",
         "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
     },
+    "tf2_msgs/msg/TFMessage": {
+        "94810edda583a504dfda3829e70d7eec",
+        "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    },
 }
 
 

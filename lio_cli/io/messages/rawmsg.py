@@ -1,5 +1,5 @@
 """Parse the hot message types, sensor_msgs/PointCloud2, sensor_msgs/Imu and nav_msgs/Odometry (wheel
-odometry), straight from their bytes.
+odometry), and tf2_msgs/TFMessage (every run reads /tf_static), straight from their bytes.
 
 A LiDAR log is mostly these; going through a generic typestore deserialiser costs more than the
 numpy work on the points. The parsers read ROS 1 serialisation and little-endian CDR (ROS 2, MCAP) and
@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .decode import ODOMETRY
+from .decode import ODOMETRY, TF_MESSAGE
 from .stamped_bytes import BODY_DTYPES, split_header
 
 _U32 = struct.Struct("<I")
@@ -222,8 +222,66 @@ def parse_odometry(buf, cdr: bool) -> RawOdometry | None:
                        TwistWithCovariance(Twist(Vector3(lx, ly, lz), Vector3(ax, ay, az))))
 
 
+class Transform(NamedTuple):
+    translation: Vector3
+    rotation: Quaternion
+
+
+class TransformStamped(NamedTuple):
+    header: Header
+    child_frame_id: str
+    transform: Transform
+
+
+class RawTFMessage(NamedTuple):
+    """A tf2_msgs/TFMessage as the typestore's message has it: ``transforms``, each a TransformStamped."""
+
+    transforms: list
+
+
+_SEVEN_F8 = struct.Struct("<7d")
+_MAX_TRANSFORMS = 100_000  # a count beyond this is damage, not a tree
+
+
+def parse_tf(buf, cdr: bool) -> RawTFMessage | None:
+    """A TFMessage; None for big-endian CDR, bytes left over (a definition other than the standard one: an MCAP
+    channel stores no hash to tell) or bytes it cannot read (the typestore then reports them in its own words)."""
+    if cdr and (len(buf) < 8 or buf[1] != 1):
+        return None
+    try:
+        return _tf_message(buf, cdr)
+    except (struct.error, ValueError):
+        return None
+
+
+def _tf_message(buf, cdr: bool) -> RawTFMessage | None:
+    pos = 4 if cdr else 0
+    (n,) = _U32.unpack_from(buf, pos)
+    pos += 4
+    if n > _MAX_TRANSFORMS:
+        raise ValueError(f"TFMessage claims {n} transforms")
+    transforms = []
+    for _ in range(n):
+        if cdr:
+            pos = _align(pos, 4)
+            sec, nsec = _STAMP_CDR.unpack_from(buf, pos)
+            frame, pos = _string(buf, pos + 8, True)
+            child, pos = _string(buf, _align(pos, 4), True)
+            pos = _align(pos, 8)
+        else:
+            _, sec, nsec = _STAMP_ROS1.unpack_from(buf, pos)
+            frame, pos = _string(buf, pos + 12, False)
+            child, pos = _string(buf, pos, False)
+        tx, ty, tz, qx, qy, qz, qw = _SEVEN_F8.unpack_from(buf, pos)
+        pos += _SEVEN_F8.size
+        transforms.append(TransformStamped(Header(Time(sec, nsec), frame), child,
+                                           Transform(Vector3(tx, ty, tz), Quaternion(qx, qy, qz, qw))))
+    return RawTFMessage(transforms) if pos == len(buf) else None
+
+
 RAW_PARSERS = {
     "sensor_msgs/msg/PointCloud2": parse_pointcloud2,
     "sensor_msgs/msg/Imu": parse_imu,
     "nav_msgs/msg/Odometry": parse_odometry,
+    TF_MESSAGE: parse_tf,
 }

@@ -165,7 +165,7 @@ def read_static_frames(log: LogReader, topic: str = TF_STATIC_TOPIC) -> FrameTre
 
 def _read_all(log: LogReader, topic: str, count: int, tree: FrameTree) -> None:
     seen = 0
-    messages = log.messages([topic])
+    messages = log.messages([topic], fast=True)  # TFMessage parsed from its bytes (rawmsg.parse_tf)
     try:
         for _, _, _, msg in messages:
             for ts, tr in zip(msg.transforms, decode_tf(msg)):
@@ -191,7 +191,7 @@ def _add_fixed_tf(log: LogReader, tree: FrameTree) -> None:
     if info is None or info.msgtype != TF_MESSAGE or info.count == 0:
         return
     seen: dict[tuple[str, str], tuple[np.ndarray, int]] = {}
-    messages = log.messages([TF_TOPIC])
+    messages = log.messages([TF_TOPIC], fast=True)
     try:
         for n, (_, _, _, msg) in enumerate(messages):
             for tr in decode_tf(msg):

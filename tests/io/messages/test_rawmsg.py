@@ -1,4 +1,4 @@
-"""The raw PointCloud2/Imu/Odometry parsers agree with rosbags' typestore on ROS 1 and CDR bytes, alignment included."""
+"""The raw PointCloud2/Imu/Odometry/TFMessage parsers agree with rosbags' typestore on ROS 1 and CDR bytes, alignment included."""
 
 from __future__ import annotations
 
@@ -8,13 +8,15 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from lio_cli.io.logs.writer import TF_MESSAGE_DEF
 from lio_cli.io.messages.encode import MessageFactory
-from lio_cli.io.messages.decode import decode_odometry, decode_pose
-from lio_cli.io.messages.rawmsg import parse_imu, parse_odometry, parse_pointcloud2
+from lio_cli.io.messages.decode import decode_odometry, decode_pose, decode_tf
+from lio_cli.io.messages.rawmsg import parse_imu, parse_odometry, parse_pointcloud2, parse_tf
 
 STORES = {"ros1": get_typestore(Stores.ROS1_NOETIC), "cdr": get_typestore(Stores.ROS2_HUMBLE)}
+STORES["ros1"].register(get_types_from_msg(TF_MESSAGE_DEF, "tf2_msgs/msg/TFMessage"))  # not in the ROS 1 store
 MAKE = {k: MessageFactory(v) for k, v in STORES.items()}
 SETTINGS = settings(max_examples=40, deadline=None, derandomize=True)
 names = st.text(alphabet="abcdefghijklmnopqrstuvwxyz_", min_size=0, max_size=11)
@@ -120,3 +122,53 @@ def test_truncated_bytes_raise(kind):
     with pytest.raises((ValueError, struct.error)):
         parse_odometry(raw[:-40], kind == "cdr")
     assert parse_odometry(raw + bytes(8), kind == "cdr") is None  # not the standard layout: the typestore reads it
+
+
+def _tf_bytes(kind: str, frames: list[tuple[str, str]], seed: int, little_endian: bool = True):
+    rng = np.random.default_rng(seed)
+    make = MAKE[kind]
+    ts = []
+    for parent, child in frames:
+        T = np.eye(4)
+        T[:3, 3] = rng.normal(size=3)
+        msg = make.transform_stamped(int(rng.integers(0, 2**31)) * 10**9 + int(rng.integers(0, 10**9)), parent,
+                                     child, T)
+        msg.transform.rotation = make.quaternion(rng.normal(size=4))  # any quaternion, as a log may hold
+        ts.append(msg)
+    return serialise(kind, make.tf_message(ts), "tf2_msgs/msg/TFMessage", little_endian)
+
+
+@SETTINGS
+@given(kind=st.sampled_from(["ros1", "cdr"]), frames=st.lists(st.tuples(names, names), max_size=4),
+       seed=st.integers(0, 2**16))
+def test_tf_message_matches_typestore(kind, frames, seed):
+    """Every transform's stamp, frames, translation and rotation, and the records decode_tf makes of them, as
+    from the typestore (frame names of every length: the CDR alignment after each string)."""
+    raw = _tf_bytes(kind, frames, seed)
+    ref = STORES[kind].deserialize_ros1(raw, "tf2_msgs/msg/TFMessage") if kind == "ros1" else \
+        STORES[kind].deserialize_cdr(raw, "tf2_msgs/msg/TFMessage")
+    got = parse_tf(raw, kind == "cdr")
+    assert len(got.transforms) == len(ref.transforms) == len(frames)
+    for g, r in zip(got.transforms, ref.transforms):
+        assert (g.header.stamp.sec, g.header.stamp.nanosec, g.header.frame_id, g.child_frame_id) == \
+            (r.header.stamp.sec, r.header.stamp.nanosec, r.header.frame_id, r.child_frame_id)
+        for a, b in ((g.transform.translation, r.transform.translation), (g.transform.rotation, r.transform.rotation)):
+            assert all(getattr(a, k) == getattr(b, k) for k in "xyz")
+        assert g.transform.rotation.w == r.transform.rotation.w
+    try:
+        want = [(t.stamp_ns, t.parent, t.child, t.pose.tobytes()) for t in decode_tf(ref)]
+    except Exception as err:  # noqa: BLE001 - a zero quaternion: the same refusal
+        with pytest.raises(type(err), match=str(err)):
+            decode_tf(got)
+    else:
+        assert [(t.stamp_ns, t.parent, t.child, t.pose.tobytes()) for t in decode_tf(got)] == want
+
+
+@pytest.mark.parametrize("kind", ["ros1", "cdr"])
+def test_tf_bytes_it_cannot_read_go_to_the_typestore(kind):
+    """Damaged, longer than the standard layout, or big-endian: None, and the typestore reads (or reports) them."""
+    raw = _tf_bytes(kind, [("base", "lidar"), ("base", "imu")], 1)
+    assert parse_tf(raw, kind == "cdr") is not None
+    assert parse_tf(raw[:-9], kind == "cdr") is None
+    assert parse_tf(raw + bytes(8), kind == "cdr") is None
+    assert parse_tf(_tf_bytes("cdr", [("base", "lidar")], 1, little_endian=False), True) is None
