@@ -143,7 +143,7 @@ class Bag1Reader:
                 typs.update(self.default_typestore.fielddefs)
             else:
                 raise Bag1AnyReaderError("Bag contains no type definitions. "
-                                      "Instantiate AnyReader with a default_typestore argument.")
+                                         "Instantiate AnyReader with a default_typestore argument.")
         typestore = get_typestore(Stores.EMPTY)
         typestore.register(typs)
         for msgtype, digest in digests.items():

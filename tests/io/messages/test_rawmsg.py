@@ -1,4 +1,5 @@
-"""The raw PointCloud2/Imu/Odometry/TFMessage parsers agree with rosbags' typestore on ROS 1 and CDR bytes, alignment included."""
+"""The raw PointCloud2/Imu/Odometry/TFMessage parsers agree with rosbags' typestore on ROS 1 and CDR bytes,
+alignment included."""
 
 from __future__ import annotations
 
