@@ -7,23 +7,15 @@ stably sorted by time per connection: the order of rosbags' sort. The chunk read
 per-topic spans use the columns; rosbags' ``indexes`` lists (what its own ``messages`` reads) are made from
 them on first use of a connection. The rest of the open (bag header, connections, chunk infos and headers)
 is rosbags' own.
-
-``Bag1Reader`` is rosbags' ``AnyReader`` for ROS 1 bags alone (the same connections, typestore, checks and
-messages), without the import of ``rosbags.highlevel``, which loads the ROS 2 reader and its storages too.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from contextlib import ExitStack, suppress
-from heapq import merge
-from itertools import count, groupby
+from itertools import count
 
 import numpy as np
-from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.rosbag1.reader import Header, IndexData, Reader, ReaderError, RecordType, read_bytes, read_uint32
-from rosbags.serde import SerdeError
-from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])  # one index entry as stored
 
@@ -90,102 +82,4 @@ def _columns(blocks: list[tuple[int, int, bytes]]) -> np.ndarray:
     return cols[:, np.argsort(times, kind="stable")]
 
 
-class Bag1AnyReaderError(Exception):
-    """What ``AnyReaderError`` is to ``AnyReader``: a bag that cannot be opened or a message not decoded."""
-
-
-class Bag1Reader:
-    """rosbags' ``AnyReader`` over ROS 1 bags (``ColumnIndexReader`` each): ``open``, ``connections``,
-    ``typestore``, ``deserialize``, ``messages``, ``close``, the span and count, with its errors' texts."""
-
-    def __init__(self, paths: list, default_typestore=None) -> None:
-        if not paths:
-            raise Bag1AnyReaderError("Must call with at least one path.")
-        if missing := [x for x in paths if not x.exists()]:
-            raise FileNotFoundError(f"The following paths are missing: {missing!r}")
-        self.paths, self.default_typestore = paths, default_typestore
-        self.stack: ExitStack | None = None
-        self.connections: list = []
-        self.typestore = get_typestore(Stores.EMPTY)
-        try:
-            self.readers = [ColumnIndexReader(x) for x in paths]
-        except ReaderError as err:
-            raise Bag1AnyReaderError(*err.args) from None
-
-    def open(self) -> None:
-        if self.stack:
-            raise Bag1AnyReaderError("AnyReader is already open.")
-        self.stack = ExitStack()
-        try:
-            self._open()
-        except BaseException as err:
-            with suppress(Exception):
-                self.close()
-            if isinstance(err, (ReaderError, TypesysError)):
-                raise Bag1AnyReaderError(*err.args) from None
-            raise
-
-    def _open(self) -> None:
-        """The readers opened, the typestore made of the stored definitions and checked against their md5s."""
-        for reader in self.readers:
-            self.stack.enter_context(reader)
-        typs: dict = {}
-        digests: dict[str, str] = {}
-        connections = [y for x in self.readers for y in x.connections]
-        if connections:
-            definitions = [x for x in connections if x.msgdef.format != MessageDefinitionFormat.NONE]
-            if definitions:
-                for connection in definitions:  # a ROS 1 bag's are all msg
-                    typs.update(get_types_from_msg(connection.msgdef.data, connection.msgtype))
-                    if connection.digest:
-                        digests[connection.msgtype] = connection.digest
-            elif self.default_typestore:
-                typs.update(self.default_typestore.fielddefs)
-            else:
-                raise Bag1AnyReaderError("Bag contains no type definitions. "
-                                         "Instantiate AnyReader with a default_typestore argument.")
-        typestore = get_typestore(Stores.EMPTY)
-        typestore.register(typs)
-        for msgtype, digest in digests.items():
-            if (have := typestore.generate_msgdef(msgtype)[1]) != digest:
-                raise Bag1AnyReaderError(f"Message type {msgtype!r} hash mismatch {have} != {digest}")
-        self.connections = connections
-        self.typestore = typestore
-
-    def close(self) -> None:
-        if not self.stack:
-            raise Bag1AnyReaderError("AnyReader is not open.")
-        stack, self.stack = self.stack, None
-        self.connections.clear()
-        self.typestore = get_typestore(Stores.EMPTY)
-        stack.close()
-
-    def deserialize(self, rawdata: bytes, typ: str) -> object:
-        try:
-            return self.typestore.deserialize_ros1(rawdata, typ)
-        except SerdeError as err:
-            raise Bag1AnyReaderError(*err.args) from None
-
-    @property
-    def start_time(self) -> int:
-        return min(x.start_time for x in self.readers)
-
-    @property
-    def end_time(self) -> int:
-        return max(x.end_time for x in self.readers)
-
-    @property
-    def message_count(self) -> int:
-        return sum(x.message_count for x in self.readers)
-
-    def messages(self, connections=()):
-        """(connection, record time ns, bytes) of ``connections`` (all if empty) over the bags in time order."""
-        if connections:
-            generators = [reader.messages(connections=list(conns)) for reader, conns in
-                          groupby(sorted(connections, key=lambda x: id(x.owner)), key=lambda x: x.owner)]
-        else:
-            generators = [reader.messages() for reader in self.readers]
-        yield from merge(*generators, key=lambda x: x[1])
-
-
-__all__ = ["Bag1Reader", "Bag1AnyReaderError", "ColumnIndexReader"]
+__all__ = ["ColumnIndexReader"]

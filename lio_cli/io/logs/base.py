@@ -34,11 +34,9 @@ def read_errors() -> tuple[type[BaseException], ...]:
     from rosbags.serde import SerdeError
     from rosbags.typesys import TypesysError
 
-    from .bag1_index import Bag1AnyReaderError
-
     errors: list[type[BaseException]] = [
         OSError, EOFError, ValueError, KeyError, IndexError, struct.error, zlib.error, sqlite3.Error,
-        McapError, AnyReaderError, Bag1AnyReaderError, Bag1ReaderError, Bag2ReaderError, SerdeError, TypesysError,
+        McapError, AnyReaderError, Bag1ReaderError, Bag2ReaderError, SerdeError, TypesysError,
         RuntimeError,  # lz4.frame's error on a damaged frame
         MemoryError, OverflowError,  # a length field claiming more than there is
     ]  # ValueError holds UnicodeDecodeError and mcap's CRCValidationError

@@ -1,5 +1,4 @@
-"""ROS 1 bags and ROS 2 bag folders, read through rosbags' AnyReader (ROS 2) or ``bag1_index.Bag1Reader`` (ROS 1,
-its equivalent without the import of rosbags' ROS 2 reader)."""
+"""ROS 1 bags and ROS 2 bag folders, read through rosbags' AnyReader."""
 
 from __future__ import annotations
 
@@ -13,19 +12,27 @@ from .base import LogConnection, LogReader, RawRecord, first_line, merge_span, r
 from .mcap import mcap_channel_spans
 
 
+class _BagPath(type(Path())):
+    """A path that reports the .bag suffix, so rosbags' AnyReader reads it as a ROS 1 bag."""
+
+    @property
+    def suffix(self) -> str:
+        return ".bag"
+
+
 class RosbagsLog(LogReader):
-    """ROS 1 and ROS 2 bags through rosbags' AnyReader (``Bag1Reader`` for ROS 1)."""
+    """ROS 1 and ROS 2 bags through rosbags' AnyReader."""
 
     def __init__(self, path: Path, fmt: str, paths: list[Path]) -> None:
         super().__init__(path, fmt, paths)
         self._conn_cache: dict[int, LogConnection] = {}  # id(rosbags connection) -> its LogConnection
         self._chunks: dict[int, bytes] = {}  # a ROS 1 bag's last decompressed chunks (bag1_raw.messages)
-        if fmt == "ros1":
-            from .bag1_index import Bag1AnyReaderError as AnyReaderError
-        else:
-            from rosbags.highlevel import AnyReaderError
+        from rosbags.highlevel import AnyReaderError
         from rosbags.typesys import Stores, get_typestore
 
+        if fmt == "ros1":
+            # AnyReader tells ROS 1 from ROS 2 by the .bag suffix; a bag named otherwise is ROS 1 by content
+            paths = [p if p.suffix == ".bag" else _BagPath(p) for p in paths]
         try:
             try:
                 self._reader = _any_reader(paths, fmt)
@@ -132,14 +139,15 @@ class RosbagsLog(LogReader):
 
 
 def _any_reader(paths: list[Path], fmt: str, default_typestore=None):
-    """rosbags' AnyReader for ROS 2; for ROS 1 bags ``bag1_index``'s reader, whose index is held as columns."""
-    if fmt == "ros1":
-        from .bag1_index import Bag1Reader
-
-        return Bag1Reader(paths, default_typestore=default_typestore)
+    """rosbags' AnyReader; for ROS 1 bags with ``bag1_index``'s reader, whose index is held as columns."""
     from rosbags.highlevel import AnyReader
 
-    return AnyReader(paths, default_typestore=default_typestore)
+    reader = AnyReader(paths, default_typestore=default_typestore)
+    if fmt == "ros1":
+        from .bag1_index import ColumnIndexReader
+
+        reader.readers = [ColumnIndexReader(p) for p in paths]
+    return reader
 
 
 def _ros2_spans(folder: Path) -> dict[str, tuple[int, int]]:

@@ -7,7 +7,7 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 from rosbags.rosbag1 import reader as rosbag1_reader
 
-from lio_cli.io.logs.bag1_index import Bag1AnyReaderError, Bag1Reader, ColumnIndexReader
+from lio_cli.io.logs.bag1_index import ColumnIndexReader
 from lio_cli.io.logs.reader import open_log
 
 from ..sensors.test_series import _build
@@ -66,64 +66,3 @@ def test_a_bag_without_messages_opens(tmp_path):
         assert [c[:-1] for c in ours.connections] == [c[:-1] for c in theirs.connections]
         assert ours.message_count == theirs.message_count == 0
         assert list(ours.messages()) == []
-
-
-def _same_as_any_reader(paths) -> None:
-    from rosbags.highlevel import AnyReader
-
-    with AnyReader(paths) as theirs:
-        ours = Bag1Reader(paths)
-        ours.open()
-        try:
-            assert [c[:-1] for c in ours.connections] == [c[:-1] for c in theirs.connections]
-            assert (ours.start_time, ours.end_time, ours.message_count) == \
-                (theirs.start_time, theirs.end_time, theirs.message_count)
-            assert ours.typestore.fielddefs == theirs.typestore.fielddefs
-            mine = [(c.id, c.topic, t, bytes(d)) for c, t, d in ours.messages()]
-            assert mine == [(c.id, c.topic, t, bytes(d)) for c, t, d in theirs.messages()]
-            chosen = [c for c in ours.connections if c.topic == "/b"]
-            assert [(c.topic, t) for c, t, _ in ours.messages(connections=chosen)] == \
-                [(c.topic, t) for c, t, _ in theirs.messages(connections=[c for c in theirs.connections
-                                                                          if c.topic == "/b"])]
-            _, _, raw = next(iter(ours.messages()))
-            kind = "std_msgs/msg/String"
-            assert ours.deserialize(raw, kind).data == theirs.deserialize(raw, kind).data == "m00"
-        finally:
-            ours.close()
-
-
-def _strings(path, topics, md5=MD5, msgdef="string data") -> None:
-    with Writer(path) as w:
-        w.chunk_threshold = 64
-        conns = [w.add_connection(t, "std_msgs/msg/String", msgdef=msgdef, md5sum=md5) for t in topics]
-        for k in range(12):
-            w.write(conns[k % len(conns)], 100 + 7 * k, (3).to_bytes(4, "little") + b"m%02d" % k)
-
-
-def test_bag1_reader_reads_as_rosbags_any_reader(tmp_path):
-    """The ROS 1 reader without rosbags.highlevel: the connections, span, typestore and messages of AnyReader, of
-    one bag and of two merged in time order."""
-    _strings(tmp_path / "one.bag", ["/a", "/b"])
-    _strings(tmp_path / "two.bag", ["/b", "/c"])
-    _same_as_any_reader([tmp_path / "one.bag"])
-    _same_as_any_reader([tmp_path / "one.bag", tmp_path / "two.bag"])
-
-
-def test_bag1_reader_fails_with_any_readers_words(tmp_path):
-    """A wrong md5 and an undecodable message: AnyReader's error texts."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
-
-    def both(paths, raw=None):
-        texts = []
-        for reader, error in ((AnyReader(paths), AnyReaderError), (Bag1Reader(paths), Bag1AnyReaderError)):
-            with pytest.raises(error) as err:
-                reader.open()
-                reader.deserialize(raw, "std_msgs/msg/String")
-            texts.append(str(err.value))
-        assert texts[0] == texts[1]
-        return texts[1]
-
-    _strings(tmp_path / "md5.bag", ["/a"], md5="0" * 32)
-    assert "hash mismatch" in both([tmp_path / "md5.bag"])
-    _strings(tmp_path / "ok.bag", ["/a"])
-    assert both([tmp_path / "ok.bag"], raw=b"\xff\xff")
