@@ -41,9 +41,14 @@ class EstimatorChoice:
     evidence: dict
 
 
-def gravity_evidence(prep: Prepared, dilate: int = 0) -> dict | None:
+def gravity_evidence(prep: Prepared, dilate: int = 0, wheel_scale: float = 1.0,
+                     slip_spans_ns: np.ndarray | None = None, level_fit: bool = False) -> dict | None:
     """Tilt wander (deg), climb extent and path length (m) from the IMU and the wheels; None without both.
-    ``dilate``: windows left out on each side of a slip's too (its onset and end)."""
+    ``dilate``: windows left out on each side of a slip's too (its onset and end). ``wheel_scale``: the wheel
+    speed's true scale where another source found it; ``slip_spans_ns`` (rows start, end): spans another source
+    found slipping, their windows left out as the IMU's slips are. ``level_fit``: the climb's level (the
+    mounting's pitch) fitted in least squares along the distance, not the windows' median (which a few dozen
+    windows leave off by tenths of a percent: tenths of a metre over 70 m)."""
     imu, w = prep.imu, prep.wheel
     if imu is None or prep.imu_f_b is None or "accel" not in prep.use.get("imu", ()) or w is None or len(w) < 2:
         return None
@@ -53,7 +58,7 @@ def gravity_evidence(prep: Prepared, dilate: int = 0) -> dict | None:
     m = len(t) // n if n else 0
     if m < 2:
         return None
-    speed = np.nan_to_num(w.velocity_mps[:, 0])
+    speed = wheel_scale * np.nan_to_num(w.velocity_mps[:, 0])
     v = np.interp(imu.stamps_ns, w.stamps_ns, speed)
     f = prep.imu_f_b.copy()
     a_wheel = np.gradient(v, t)
@@ -65,6 +70,10 @@ def gravity_evidence(prep: Prepared, dilate: int = 0) -> dict | None:
     # such acceleration; those windows say nothing about the ground
     unfelt = np.abs(a_wheel) - np.abs(prep.imu_f_b[:, 0] - np.median(prep.imu_f_b[:, 0]))
     slip = (unfelt[:m * n].reshape(m, n) > SLIP_MPS2).any(axis=1)
+    if slip_spans_ns is not None and len(slip_spans_ns):
+        w0 = imu.stamps_ns[:m * n:n]
+        w1 = imu.stamps_ns[n - 1:m * n:n]
+        slip |= ((w0[:, None] <= slip_spans_ns[None, :, 1]) & (w1[:, None] >= slip_spans_ns[None, :, 0])).any(axis=1)
     for _ in range(dilate):
         slip = slip | np.r_[False, slip[:-1]] | np.r_[slip[1:], False]
     if slip.all():
@@ -75,6 +84,10 @@ def gravity_evidence(prep: Prepared, dilate: int = 0) -> dict | None:
     tilt = np.degrees(np.arccos(np.clip(up[~slip] @ med, -1.0, 1.0)))
     v_win = v[:m * n].reshape(m, n).mean(axis=1)
     climb = np.cumsum(v_win * (up[:, 0] - med[0]) * n * period)  # forward axis's share of "up" is sin(pitch)
+    if level_fit:  # a level off by c climbs c per metre of the windows kept
+        x = np.cumsum(np.where(slip, 0.0, v_win) * n * period)
+        if np.ptp(x) > 0:
+            climb = climb - np.polyfit(x, climb, 1)[0] * x
     return {"tilt_p95_deg": round(float(np.percentile(tilt, 95)), 2), "climb_m": round(float(np.ptp(climb)), 2),
             "path_m": round(float(np.sum(np.abs(v_win)) * n * period), 1), "slip_windows": int(slip.sum())}
 

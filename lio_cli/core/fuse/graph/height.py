@@ -4,12 +4,15 @@ A scan matcher's height drifts with its pitch (metres over a few hundred), and t
 priors hold height and attitude to the odometry's, and the wheels' only height information is the
 non-holonomic zero vertical speed, which a body on its suspension breaks every 0.1 s. Where the IMU's gravity
 direction and the wheels' distance (``choose.gravity_evidence``: the climb integrated from the pitch less its
-median, slip windows and ``SLIP_DILATE`` either side left out; the planar estimator's thresholds) say the motion
+level fitted along the distance, slip windows and ``SLIP_DILATE`` either side left out; the planar estimator's
+thresholds; the wheel speed times the scale found against the odometry and the windows it finds slipping left
+out too, ``wheels.against_odometry``: else a scale error reads as pitch wherever the speed changes) say the motion
 stays within ``climb_m`` of a plane, every ``EVERY_KEYFRAMES``-th keyframe's height gets a prior: within that
 climb (``MIN_SIGMA_M`` .. ``MAX_SIGMA_M``) of the first keyframe's. The odometry poses' vertical, roll and pitch
 sigmas are then multiplied by ``ODOM_VERTICAL_SIGMA_SCALE`` and ``ODOM_TILT_SIGMA_SCALE`` so their drift no longer
 outweighs it (the IMU's gravity sets the tilt), and the graph starts at the prior's height (``run``). A platform
-the evidence finds tilting or climbing, or too vaguely level, gets none of this.
+the evidence finds tilting or climbing, or too vaguely level, or whose odometry already stays within the prior's
+height, gets none of this.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 from gtsam.symbol_shorthand import X
 
 from .. import choose
+from . import wheels
 from ..timeline import Prepared
 
 ENABLED = True
@@ -45,12 +49,23 @@ def level(prep: Prepared) -> Level | None:
     """The prior when the wheels and IMU find the motion near a plane (module docstring), else None."""
     if not ENABLED:
         return None
-    ev = choose.gravity_evidence(prep, SLIP_DILATE)
+    found = None
+    if prep.odom is not None and len(prep.odom) > 1 and prep.wheel is not None and len(prep.wheel) > 1:
+        found = wheels.against_odometry(prep.wheel, prep.odom)
+    ev = (choose.gravity_evidence(prep, SLIP_DILATE, level_fit=True) if found is None else
+          choose.gravity_evidence(prep, SLIP_DILATE, found.scale, found.slips_ns, level_fit=True))
     if ev is None:
         return None
+    if found is not None:
+        ev = {**ev, "wheel_scale": round(found.scale, 4), "odom_slip_windows": len(found.slips_ns)}
     if ev["tilt_p95_deg"] > choose.MAX_TILT_DEG or ev["climb_m"] > MAX_SIGMA_M:  # MAX_SIGMA_M < choose's climb limit
         return None
-    return Level(max(float(ev["climb_m"]), MIN_SIGMA_M), ev)
+    sigma = max(float(ev["climb_m"]), MIN_SIGMA_M)
+    if found is not None:
+        ev["odom_vertical_m"] = round(float(np.ptp(prep.odom.poses[:, 2, 3])), 3)
+        if ev["odom_vertical_m"] <= sigma:  # the odometry's height already within the prior's: nothing to hold
+            return None
+    return Level(sigma, ev)
 
 
 def _height(z: float):

@@ -7,7 +7,8 @@ the windows, and a window whose scaled increment misses the odometry's by more t
 and ``GATE_K`` robust sigmas of every window's miss is a slip: its increments (and ``GATE_DILATE`` windows either
 side) are left out of the graph and counted (``Gate.rejected``). The rest say ``R_k^T (p_k+1 - p_k) = s dp_k``
 under a Huber loss, ``s`` the pre-pass's, in GTSAM's own between factor (the scale as a graph variable, a Python
-factor per increment, landed within 0.06 % of it at 3x the cost: docs/benchmarks.md).
+factor per increment, landed within 0.06 % of it at 3x the cost: docs/benchmarks.md). ``against_odometry`` is the
+same comparison over the whole log before the graph (the height prior's evidence, ``height``).
 """
 
 from __future__ import annotations
@@ -73,3 +74,37 @@ def fixed_scale_factor(ka, kb, dR: gtsam.Rot3, dp: np.ndarray, sd: np.ndarray) -
     sig = np.r_[np.full(3, LOOSE_ROTATION_RAD), np.maximum(SIGMA_SCALE * sd, MIN_SIGMA_M)]
     model = gtsam.noiseModel.Robust.Create(loss, gtsam.noiseModel.Diagonal.Sigmas(sig))
     return gtsam.BetweenFactorPose3(ka, kb, gtsam.Pose3(dR, np.asarray(dp, float)), model)
+
+
+@dataclass
+class Spans:
+    """The wheels against the odometry over the whole log: the scale and the spans that slipped."""
+    scale: float
+    slips_ns: np.ndarray  # (n, 2) start, end of each window found slipping
+
+
+def against_odometry(wheel, odom) -> Spans:
+    """The wheels' distance per ``WINDOW_NS`` against the odometry's path over it: the scale (median ratio of
+    the moving windows) and the slips (the gate of ``gate``), without the graph's states (the height prior's
+    evidence needs them before the graph is built)."""
+    t0, t1 = max(wheel.stamps_ns[0], odom.stamps_ns[0]), min(wheel.stamps_ns[-1], odom.stamps_ns[-1])
+    edges = np.arange(t0, t1 + 1, WINDOW_NS)
+    if len(edges) < 2:
+        return Spans(1.0, np.zeros((0, 2), np.int64))
+    P = odom.poses
+    # the odometry's forward distance: each increment in its first pose's axes (its noise sideways and vertical
+    # would lengthen a path of norms at low speed)
+    fwd = np.einsum("ni,ni->n", P[:-1, :3, 0], np.diff(P[:, :3, 3], axis=0))
+    path = np.r_[0.0, np.cumsum(fwd)]
+    speed = np.nan_to_num(wheel.velocity_mps[:, 0])
+    dist = np.r_[0.0, np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(wheel.stamps_ns) * 1e-9)]
+    a = np.diff(np.interp(edges, odom.stamps_ns, path))
+    d = np.diff(np.interp(edges, wheel.stamps_ns, dist))
+    moving = np.abs(d) > MIN_WINDOW_M
+    scale = 1.0
+    if moving.any():
+        s = float(np.median(a[moving] / d[moving]))
+        scale = s if SCALE_BOUNDS[0] <= s <= SCALE_BOUNDS[1] else 1.0
+    miss = np.abs(a - scale * d)
+    slip = moving & (miss > GATE_REL * scale * np.abs(d)) & (miss > GATE_K * 1.4826 * float(np.median(miss)))
+    return Spans(scale, np.column_stack([edges[:-1][slip], edges[1:][slip]]))
