@@ -30,10 +30,11 @@ _IDLE = _idle_refs()
 
 class ArrayPool:
     """Up to ``keep`` buffers reused for arrays of at least ``MIN_POOLED_BYTES``; smaller ones are plain
-    ``np.empty``. A request with every fitting buffer in use gets a new buffer if the pool has room (or in place
-    of an idle buffer of another size), else a plain array."""
+    ``np.empty``. A request takes the smallest idle buffer of its power-of-two capacity or up to two sizes larger
+    (so sizes wobbling across a power of two do not swap buffers); else a new buffer in place of an idle one too
+    small, else a new one while the pool has room, else a plain array."""
 
-    def __init__(self, keep: int = 16) -> None:
+    def __init__(self, keep: int = 8) -> None:
         self.keep = keep
         self.bufs: list[np.ndarray] = []
         self.allocated = 0  # buffers made (reuse is every other request)
@@ -49,20 +50,25 @@ class ArrayPool:
         cap = 1 << (nbytes - 1).bit_length()
         with self._lock:
             bufs = self.bufs
-            idle = -1
+            best = small = -1
             for i in range(len(bufs)):
                 if _getrefcount(bufs[i]) <= _IDLE:
-                    if len(bufs[i]) == cap:
-                        return bufs[i][:nbytes].view(dtype).reshape(shape)
-                    idle = i
-            if len(bufs) >= self.keep and idle < 0:
-                return np.empty(shape, dtype)  # every buffer in use: a plain array, not kept
-            buf = np.empty(cap, np.uint8)
-            if len(bufs) < self.keep:
+                    size = len(bufs[i])
+                    if size < cap:
+                        small = i
+                    elif size <= 4 * cap and (best < 0 or size < len(bufs[best])):
+                        best = i
+            if best >= 0:
+                buf = bufs[best]
+            elif small >= 0:
+                buf = bufs[small] = np.empty(cap, np.uint8)
+                self.allocated += 1
+            elif len(bufs) < self.keep:
+                buf = np.empty(cap, np.uint8)
                 bufs.append(buf)
+                self.allocated += 1
             else:
-                bufs[idle] = buf  # an idle buffer of another size makes room
-            self.allocated += 1
+                return np.empty(shape, dtype)  # every buffer in use (or idle but far larger): a plain array
             return buf[:nbytes].view(dtype).reshape(shape)
 
 
