@@ -7,6 +7,9 @@ in use that stays flat while the heap grows is fragmentation, not something lio 
 
     python benchmarks/odom_memory.py walk-180s.bag                  # every 300 scans
     python benchmarks/odom_memory.py walk-180s.bag --every 100 --tracemalloc
+    python benchmarks/odom_memory.py walk-600s.bag --every 500 --out o.tum   # keep the trajectory (its md5)
+
+The last line printed is the scans and the process's peak RSS (``ru_maxrss``) once the run has written its outputs.
 """
 
 from __future__ import annotations
