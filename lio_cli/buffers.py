@@ -15,7 +15,7 @@ import threading
 
 import numpy as np
 
-MIN_POOLED_BYTES = 65_536  # smaller blocks come from glibc's bins, which reuse them exactly
+MIN_POOLED_BYTES = 65_536  # smaller arrays stay plain: not the blocks that spread the heap
 _getrefcount = sys.getrefcount
 
 
