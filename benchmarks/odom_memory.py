@@ -7,6 +7,9 @@ in use that stays flat while the heap grows is fragmentation, not something lio 
 
     python benchmarks/odom_memory.py walk-180s.bag                  # every 300 scans
     python benchmarks/odom_memory.py walk-180s.bag --every 100 --tracemalloc
+    python benchmarks/odom_memory.py walk-600s.bag --every 500 --out o.tum   # keep the trajectory (its md5)
+
+The last line printed is the scans and the process's peak RSS (``ru_maxrss``) once the run has written its outputs.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from __future__ import annotations
 import argparse
 import ctypes
 import os
+import resource
 import runpy
 import sys
 import tempfile
@@ -49,6 +53,7 @@ def main() -> int:
     ap.add_argument("log", type=Path)
     ap.add_argument("--every", type=int, default=300, help="scans between samples")
     ap.add_argument("--tracemalloc", action="store_true", help="also what Python and numpy hold")
+    ap.add_argument("--out", type=Path, default=None, help="the trajectory (default: a temporary folder)")
     args, odom_args = ap.parse_known_args()
     print("| scan | RSS MB | heap MB | in use MB | free in the heap MB | mmapped MB | map points | traced MB |")
     print("|---|---|---|---|---|---|---|---|")
@@ -68,13 +73,16 @@ def main() -> int:
     loop.LioOdometry.process = sampled
     if args.tracemalloc:
         tracemalloc.start()
-    out = Path(tempfile.mkdtemp(prefix="lio-odom-memory-")) / "odom.tum"
+    out = args.out or Path(tempfile.mkdtemp(prefix="lio-odom-memory-")) / "odom.tum"
     sys.argv = ["lio", "odom", str(args.log), "-o", str(out), "-q", "--force", *odom_args]
     try:
         runpy.run_module("lio_cli", run_name="__main__")
     except SystemExit as done:
-        return int(done.code or 0)
-    return 0
+        code = int(done.code or 0)
+    else:
+        code = 0
+    print(f"scans {count[0]}, peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.1f} MB")
+    return code
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The C heap's free pages handed back to the kernel after each run of a ``lio batch`` worker.
 
-Per-scan arrays of varying sizes (on a 16-beam log, blocks of 256-512 kB: decoded clouds waiting for IMU, message
-bytes, de-skewed points) leave holes inside glibc's heap that free() keeps resident, since glibc only gives memory
+Arrays of varying sizes (on a 16-beam log, blocks of 256-512 kB; the per-scan ones now come from
+``buffers.ArrayPool``) leave holes inside glibc's heap that free() keeps resident, since glibc only gives memory
 back from the heap's top. ``malloc_trim(0)`` releases every whole free page anywhere in the heap (and the other
 arenas) without moving anything, so a worker's next run starts from what is really in use. Not done per scan
 (the next scans fault the same pages back in: CPU, and the run's peak stays) nor at the end of a single command

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..buffers import ArrayPool
 from ..geometry import interpolate_poses, inv_pose
+
+_POOL = ArrayPool()  # the blend's buffers and the de-skewed points, the same few sizes every scan
 
 
 def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.ndarray, knot_poses: np.ndarray,
@@ -55,16 +58,16 @@ def deskew(points_lidar: np.ndarray, stamps_ns: np.ndarray, knot_stamps_ns: np.n
     # (4, N) so every elementwise step runs along a row.
     T = rel[:, :3, :]
     W = np.concatenate([T[:-1], T[1:] - T[:-1]], axis=1)  # (m-1, 6, 4): [A; D]
-    ph = np.empty((4, n))
+    ph = _POOL.empty((4, n))
     ph[:3] = points_lidar.T if order is None else points_lidar[order].T
     ph[3] = 1.0
-    Q = np.empty((6, n))
+    Q = _POOL.empty((6, n))
     for k in range(m - 1):
         lo, hi = bounds[k], bounds[k + 1]
         if hi > lo:
             np.matmul(W[k], ph[:, lo:hi], out=Q[:, lo:hi])
     Q[3:] *= a
-    res = np.empty((n, 3))
+    res = _POOL.empty((n, 3))
     if order is None:
         np.add(Q[:3], Q[3:], out=res.T)
     else:

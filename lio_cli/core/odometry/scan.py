@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from ...buffers import ArrayPool
 from ...config.odom import FusionConfig, RegistrationConfig
 from ...geometry import row_norms
 from ...model.records import PointCloud
@@ -15,6 +16,8 @@ from .degeneracy import CLEAR_MARGIN, analyse_degeneracy
 from .registration import ScanRegistration, auto_voxel_size
 from .state import DegeneracySchedule, OdomState, ScanResult
 from .tuning import IMU_PRIOR_CORRESPONDENCE_M, WHEEL_KEEP_NS
+
+_POOL = ArrayPool()  # the points in range of each scan
 
 
 def points_in_range(cloud: PointCloud, knots_ns, knot_poses, t_ref: int, T_base_lidar: np.ndarray,
@@ -53,7 +56,8 @@ def prepare(o: OdomState, cloud: PointCloud, knots_ns, knot_poses, t_ref: int) -
         o.reg = new_map(rc, rng[keep], imu_prior=o.settings.imu_prior, planar=o.settings.planar)
     if kept == len(points):  # all in range: no copy
         return points
-    return np.compress(keep, points, axis=0)  # numpy's points[keep] on (N, 3) rows is ~20x slower
+    # numpy's points[keep] on (N, 3) rows is ~20x slower
+    return np.compress(keep, points, axis=0, out=_POOL.empty((kept, 3)))
 
 
 def scheduled_directions(schedule: DegeneracySchedule, points: np.ndarray, R_now: np.ndarray, last_pose: np.ndarray,

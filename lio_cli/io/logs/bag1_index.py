@@ -72,14 +72,21 @@ class ColumnIndexReader(Reader):
 
 
 def _columns(blocks: list[tuple[int, int, bytes]]) -> np.ndarray:
-    """(3, m) time, chunk position, offset of a connection's index records, stably sorted by time."""
+    """(3, m) time, chunk position, offset of a connection's index records, stably sorted by time. Built in place
+    and sorted only when not in order already (a recorder's records are): a long log's index is megabytes."""
     if not blocks:
         return np.zeros((3, 0), np.int64)
     entries = np.frombuffer(b"".join(b[2] for b in blocks), _ENTRY)
-    times = entries["sec"].astype(np.int64) * 1_000_000_000 + entries["nsec"]
-    chunk_pos = np.repeat(np.array([b[1] for b in blocks], np.int64), [len(b[2]) // _ENTRY.itemsize for b in blocks])
-    cols = np.stack([times, chunk_pos, entries["offset"].astype(np.int64)])
-    return cols[:, np.argsort(times, kind="stable")]
+    cols = np.empty((3, len(entries)), np.int64)
+    times = cols[0]
+    times[:] = entries["sec"]
+    times *= 1_000_000_000
+    times += entries["nsec"]
+    cols[1] = np.repeat(np.array([b[1] for b in blocks], np.int64), [len(b[2]) // _ENTRY.itemsize for b in blocks])
+    cols[2] = entries["offset"]
+    if len(times) > 1 and not (times[1:] >= times[:-1]).all():
+        cols = cols[:, np.argsort(times, kind="stable")]
+    return cols
 
 
 __all__ = ["ColumnIndexReader"]

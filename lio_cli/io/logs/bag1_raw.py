@@ -16,13 +16,16 @@ from itertools import chain
 
 import numpy as np
 
+from ...buffers import ArrayPool
+
 _U32 = struct.Struct("<I")
-_BLOCK = 8_192  # index entries turned into Python values at a time (about 1 MB of Python ints)
+_BLOCK = 8_192  # index entries of a connection turned into Python values at a time (about 1 MB of Python ints)
 _FIRST_BLOCK = 256  # the first block's: a peek at a topic's first messages converts a few hundred entries
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 _OP_FIRST = b"\x04\x00\x00\x00op="  # the first field of rosbags' (and so lio's own) message headers: op, conn, time
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
+_POOL = ArrayPool(2 * KEEP_CHUNKS)  # chunks as read, each a read-only view of a pooled buffer
 
 
 def _op(buf: bytes, start: int, end: int) -> int:
@@ -38,16 +41,17 @@ def _op(buf: bytes, start: int, end: int) -> int:
     raise ValueError("record header without op")
 
 
-def _chunk(reader, pos: int, chunks: dict[int, bytes]) -> bytes:
-    """The decompressed chunk at ``pos``, from ``chunks`` (the last ``KEEP_CHUNKS`` decompressed) or the file."""
+def _chunk(reader, pos: int, chunks: dict[int, bytes]) -> bytes | memoryview:
+    """The decompressed chunk at ``pos``, from ``chunks`` (the last ``KEEP_CHUNKS`` decompressed) or the file.
+    Read into a pooled buffer: an uncompressed chunk (which decompresses to itself) is a view of it."""
     buf = chunks.get(pos)
     if buf is None:
         chunk = reader.chunks[pos]
         reader.bio.seek(chunk.datapos)
-        raw = reader.bio.read(chunk.datasize)
-        if len(raw) != chunk.datasize:
+        raw = memoryview(_POOL.empty(chunk.datasize, np.uint8))
+        if reader.bio.readinto(raw) != chunk.datasize:
             raise ValueError("chunk truncated")
-        buf = chunks[pos] = chunk.decompressor(raw)
+        buf = chunks[pos] = chunk.decompressor(raw.toreadonly())
         if len(chunks) > KEEP_CHUNKS:
             del chunks[next(iter(chunks))]  # the oldest decompressed
     return buf
@@ -57,25 +61,41 @@ def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int
     """Blocks of (time, chunk position, offset in chunk, index of the connection in ``connections``) of every
     index entry in the order rosbags' ``heapq.merge`` of its index lists gives (its entries compare by time
     only: equal times come connection by connection in the order asked, each in its index order), i.e. a
-    stable sort by time. The entries are the reader's index columns (``bag1_index``), turned into Python
-    values a block at a time."""
+    stable sort by time. The entries are the reader's index columns (``bag1_index``: each connection's sorted by
+    time), merged and turned into Python values a block at a time: a block is every entry up to a time, so the
+    entries of one time are in one block, sorted there as the whole would be."""
     parts = [reader.index_columns[conn.id] for conn in connections]
-    cols = np.concatenate(parts, axis=1) if len(parts) != 1 else parts[0]
-    which = np.repeat(np.arange(len(parts), dtype=np.int32), [p.shape[1] for p in parts])
-    # one connection's columns are already in that order (``bag1_index`` sorts them); a topic peek reads a few
-    order = np.argsort(cols[0], kind="stable") if len(parts) != 1 else np.arange(cols.shape[1])
-    lo, size, n = 0, _FIRST_BLOCK, len(order)
-    while lo < n:
-        sel = order[lo:lo + size]
-        lo, size = lo + size, min(4 * size, _BLOCK)
-        yield zip(*(cols[:, sel].tolist()), which[sel].tolist())
+    starts = [0] * len(parts)
+    size = _FIRST_BLOCK
+    while True:
+        live = [k for k, p in enumerate(parts) if starts[k] < p.shape[1]]
+        if not live:
+            return
+        # up to the earliest of the live connections' size-th next times: at least one entry, at most about size each
+        cut = min(parts[k][0, min(starts[k] + size, parts[k].shape[1]) - 1] for k in live)
+        cols, which = [], []
+        for k in live:
+            p, lo = parts[k], starts[k]
+            hi = lo + int(np.searchsorted(p[0, lo:], cut, side="right"))
+            if hi > lo:
+                cols.append(p[:, lo:hi])
+                which.append(np.full(hi - lo, k, dtype=np.int32))
+            starts[k] = hi
+        size = min(4 * size, _BLOCK)
+        if len(cols) == 1:
+            yield zip(*(cols[0].tolist()), which[0].tolist())
+            continue
+        block, k_of = np.concatenate(cols, axis=1), np.concatenate(which)
+        order = np.argsort(block[0], kind="stable")
+        yield zip(*(block[:, order].tolist()), k_of[order].tolist())
 
 
-def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
-             ) -> Iterator[tuple[str, str, int, bytes, object]]:
+def messages(reader, connections: list, chunks: dict[int, bytes] | None = None, views: bool = False
+             ) -> Iterator[tuple[str, str, int, bytes | memoryview, object]]:
     """(topic, msgtype, record time ns, serialised message, connection) of ``connections`` (rosbags
     connections of the one ROS 1 ``reader``, a ``bag1_index.ColumnIndexReader``), in the order rosbags'
-    ``reader.messages(connections=...)`` yields them.
+    ``reader.messages(connections=...)`` yields them. ``views``: a message may be a read-only view of its chunk
+    (no copy; it keeps the chunk's buffer from reuse while it lives), else it is bytes.
 
     ``chunks`` (chunk position -> decompressed bytes, the last ``KEEP_CHUNKS``) may be kept by the caller
     across calls: messages in record-time order go back and forth between neighbouring chunks whose times
@@ -107,7 +127,8 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None
             pos = d0 + dlen
         if op != _OP_MSGDATA or d0 + dlen > len(buf):
             raise ValueError("expected message data in the bag chunk")
-        yield topics[k], types[k], t_ns, buf[d0:d0 + dlen], connections[k]
+        data = buf[d0:d0 + dlen]
+        yield topics[k], types[k], t_ns, data if views or type(data) is bytes else bytes(data), connections[k]
 
 
 def connection_messages(reader, connections: list, chunks: dict[int, bytes] | None = None,
@@ -135,7 +156,7 @@ def connection_messages(reader, connections: list, chunks: dict[int, bytes] | No
                 return None
             out = parts[ci]
             for j, a, b in zip(sel.tolist(), *spans):
-                out[j] = buf[a:b]
+                out[j] = bytes(buf[a:b])  # a copy: a view would keep the chunk's whole buffer
             done += len(sel)
         if progress is not None:
             progress(done)

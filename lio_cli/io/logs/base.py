@@ -132,8 +132,9 @@ class LogReader(abc.ABC):
         self.end_ns: int = 0
 
     @abc.abstractmethod
-    def _iter_raw(self, topics: set[str] | None) -> Iterator[tuple[str, str, int, Any, Any]]:
-        """(topic, msgtype, record time ns, serialised bytes, decoding handle) of ``topics`` (None: all)."""
+    def _iter_raw(self, topics: set[str] | None, views: bool = False) -> Iterator[tuple[str, str, int, Any, Any]]:
+        """(topic, msgtype, record time ns, serialised bytes, decoding handle) of ``topics`` (None: all);
+        ``views``: the bytes may be a read-only memoryview into what the backend read (no copy)."""
 
     @abc.abstractmethod
     def _deserialize(self, raw: Any, msgtype: str, handle: Any) -> Any:
@@ -249,7 +250,7 @@ class LogReader(abc.ABC):
         cdr = self.format != "ros1"
         parsers: dict = {}
         try:
-            for topic, msgtype, t_ns, raw, handle in self._iter_raw(wanted):
+            for topic, msgtype, t_ns, raw, handle in self._iter_raw(wanted, fast):
                 msg = None
                 if fast:
                     key = (msgtype, getattr(handle, "digest", "") or "")
@@ -262,7 +263,7 @@ class LogReader(abc.ABC):
                     if parser is not None:
                         msg = parser(raw, getattr(handle, "cdr", cdr))
                 if msg is None:
-                    msg = self._deserialize(raw, msgtype, handle)
+                    msg = self._deserialize(raw if type(raw) is not memoryview else bytes(raw), msgtype, handle)
                 yield topic, msgtype, t_ns, msg
         except (InputError, GeneratorExit):  # GeneratorExit: closed early (no need to build read_errors)
             raise

@@ -105,7 +105,7 @@ class McapLog(LogReader):
             ) from err
         self.start_ns, self.end_ns = start or 0, end or 0
 
-    def _iter_raw(self, topics: set[str] | None):
+    def _iter_raw(self, topics: set[str] | None, views: bool = False):
         self._file.seek(0)
         from mcap.reader import make_reader
 

@@ -74,9 +74,10 @@ class RosbagsLog(LogReader):
                 merge_span(spans, conn.topic, int(cols[0, 0]), int(cols[0, -1]))
         return spans
 
-    def _iter_raw(self, topics: set[str] | None):
+    def _iter_raw(self, topics: set[str] | None, views: bool = False):
         """(topic, msgtype, record time, serialised bytes, rosbags connection) of ``topics`` in record-time
-        order; a single ROS 1 bag's straight from its chunks (``bag1_raw``: the same messages)."""
+        order; a single ROS 1 bag's straight from its chunks (``bag1_raw``: the same messages; ``views``: as
+        views of the chunk where it allows)."""
         conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
         if not conns:
             return iter(())
@@ -84,7 +85,7 @@ class RosbagsLog(LogReader):
         if self.format == "ros1" and len(readers) == 1:
             from .bag1_raw import messages
 
-            return messages(readers[0], conns, self._chunks)
+            return messages(readers[0], conns, self._chunks, views)
         return ((c.topic, c.msgtype, int(t_ns), raw, c) for c, t_ns, raw in self._reader.messages(connections=conns))
 
     def _topic_messages(self, topics: list[str], progress) -> dict[str, list[bytes]] | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...buffers import ArrayPool
 from ...errors import InputError
 from ...model.records import PointCloud, TimeConvention
 
@@ -43,6 +44,7 @@ DEFAULT_SCAN_PERIOD_NS = 100_000_000
 # tenth of a second; 5e5 s in one point is damage), dropped and counted like a NaN return.
 MAX_POINT_TIME_SPREAD_NS = 1_000_000_000
 SPIN_AGREEMENT = 0.9  # share of azimuth steps turning one way for an unorganised cloud to be a spinning sweep
+_POOL = ArrayPool()  # decoded points and stamps: clouds wait for their IMU, then are dropped
 
 
 def parse_time_convention(spec: str) -> TimeConvention:
@@ -225,7 +227,7 @@ def decode_pointcloud2(
     n_valid = int(np.count_nonzero(valid))
     dropped = len(arr) - n_valid
     keep = slice(None) if dropped == 0 else valid
-    xyz = np.empty((n_valid, 3), dtype=np.float64)
+    xyz = _POOL.empty((n_valid, 3))
     xyz[:, 0], xyz[:, 1], xyz[:, 2] = x[keep], y[keep], z[keep]
     bad_times = 0
     if raw_t is not None:
@@ -237,7 +239,8 @@ def decode_pointcloud2(
             stamps, xyz = stamps[good], xyz[good]
             n_valid -= bad_times
             dropped += bad_times
-        stamps = stamps.astype(np.int64, copy=False)
+        if stamps.dtype != np.int64:
+            stamps = _cast(stamps, np.int64)
         stamps += header_ns
     if raw_t is None and conv.name == "azimuth":
         if int(msg.height) > 1:  # organised: the column index is the firing order
@@ -251,6 +254,13 @@ def decode_pointcloud2(
     marks = _header_marks(header_ns, stamps)
     return PointCloud(header_ns, str(msg.header.frame_id), xyz, stamps, conv, marks, dropped,
                       bad_times=bad_times, kept=valid if dropped else None)
+
+
+def _cast(values: np.ndarray, dtype) -> np.ndarray:
+    """``values.astype(dtype)`` into a pooled array."""
+    out = _POOL.empty(values.shape, dtype)
+    np.copyto(out, values, casting="unsafe")
+    return out
 
 
 def _first_element(col: np.ndarray) -> np.ndarray:
@@ -267,7 +277,7 @@ def _offsets_ns(raw_t: np.ndarray, raw_ns: np.ndarray | None, conv: TimeConventi
     if raw_t.dtype.kind == "f":
         with np.errstate(over="ignore", invalid="ignore"):
             # in place: every temporary of this size is a fresh mmap (and page faults) per scan
-            t = raw_t.astype(np.float64)
+            t = _cast(raw_t, np.float64)
             if conv.absolute and conv.scale_ns == 1e9:
                 # seconds since epoch: the header's whole seconds first (exact), then its fraction: no rounding added
                 sec, nsec = divmod(header_ns, 1_000_000_000)

@@ -65,3 +65,27 @@ def test_message_headers_in_any_field_order(tmp_path, order):
         want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=theirs.connections)]
         got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, ours.connections)]
     assert len(want) == 12 and got == want
+
+
+@pytest.mark.parametrize("compression", [None, "bz2", "lz4"])
+def test_messages_as_views_of_pooled_chunks_are_rosbags_bytes(tmp_path, compression):
+    """Chunks are read into reused buffers: messages as views (while others are read after them) and as bytes
+    are rosbags' bytes, compressed chunks or not."""
+    path = tmp_path / "chunks.bag"
+    w = Writer(path)
+    if compression is not None:
+        w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+    with w:
+        w.chunk_threshold = 256
+        conn = w.add_connection("/a", "std_msgs/msg/String", msgdef="string data", md5sum=MD5)
+        for k in range(200):
+            body = bytes([k]) * (1 + 37 * k % 300)
+            w.write(conn, 100 + k, len(body).to_bytes(4, "little") + body)
+    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
+        want = [bytes(d) for _, _, d in theirs.messages()]
+        views = [d for *_, d, _ in bag1_raw.messages(ours, ours.connections, {}, views=True)]
+        copies = [d for *_, d, _ in bag1_raw.messages(ours, ours.connections, {})]
+    assert len(want) == 200 and [bytes(v) for v in views] == want and copies == want
+    assert all(type(c) is bytes for c in copies)
+    if compression is None:  # an uncompressed chunk is its pooled buffer: views of it, read-only
+        assert all(type(v) is memoryview and v.readonly for v in views)
