@@ -187,6 +187,7 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
         "outputs_dropped_outside_data": prep.out_dropped,
         "notes": list(prep.notes),
         "wheel_check": prep.wheel_check,
+        "wheel_yaw_check": prep.wheel_yaw_check,
     }
 
 

@@ -56,10 +56,11 @@ class FuseRun:
 
 
 def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: bool = False) -> FuseOptions:
-    """The estimation core's options for a configuration and a resolved measurement selection."""
+    """The estimation core's options for a configuration and a resolved measurement selection (the wheels' yaw
+    rate weighed against the gyro when the configuration gives no selection)."""
     return FuseOptions(
         estimator=cfg.estimator, smooth=cfg.smooth,
-        use=None if use is None else {s: set(m) for s, m in use.items()},
+        use=None if use is None else {s: set(m) for s, m in use.items()}, weigh_wheel_yaw=cfg.use is None,
         noise=NoiseOptions(**cfg.noise.model_dump()), rate_hz=cfg.rate_hz,
         gate_probability=cfg.gate_probability, gate_max_rejects=cfg.gate_max_rejects, gap_periods=cfg.gap_periods,
         min_gap_ns=int(round(cfg.min_gap_s * 1e9)), snap_ns=int(round(cfg.snap_s * 1e9)),
