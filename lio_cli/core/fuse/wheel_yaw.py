@@ -7,9 +7,9 @@ against the gyro's z (base frame) averaged over the message's period, ``gyro - w
 (a bias line per ``CHUNK_S``, ``c`` the wheels' yaw scale off the gyro's), fitted by least squares with samples
 further than ``TRIM_Z`` robust sigmas trimmed. The wheels' yaw rate enters when their scale agrees with the
 gyro's (``|c| + 2 sigma_c <= SCALE_TOL``; a 3 % radius error is 0.03) and few samples are far (``MAX_FAR_SHARE``).
-Its variance is the residual's robust variance less the averaged gyro's (the configured noise density over the
-wheel period) where that difference is resolved (``RESOLVE_Z`` standard errors of the residual's variance), else
-the residual's whole variance (a configured gyro noier than the residual: it bounds the wheels'), plus the
+Its variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own
+second differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of
+the residual's variance), plus the
 scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
 pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
 (rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``.
@@ -64,6 +64,16 @@ def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b
     return out
 
 
+def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: float) -> float:
+    """The gyro's white noise variance per sample: from its own second differences (``6 sigma^2`` for white noise;
+    the motion is smooth at the IMU's rate), robustly; the configured density's where too few samples."""
+    ok = ~(gap[1:] | gap[:-1])
+    d2 = (gz[2:] - 2.0 * gz[1:-1] + gz[:-2])[ok]
+    if len(d2) < MIN_SAMPLES:
+        return density**2 / float(np.median(np.diff(ti)))
+    return (1.4826 * float(np.median(np.abs(d2)))) ** 2 / 6.0
+
+
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
     """The check (module docstring): (report, the wheel yaw rates with far samples NaN, their variances), the two
@@ -101,10 +111,8 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     s2 = float(r[keep] @ r[keep]) / max(n - X.shape[1], 1)
     cov = s2 * np.linalg.pinv(X[keep].T @ X[keep])
     c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
-    gyro_var = gyro_density**2 / period  # the gyro averaged over one wheel period
-    wheel_var = sigma**2 - gyro_var
-    if wheel_var < RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n):  # the gyro's configured noise is more than the residual
-        wheel_var = sigma**2  # holds: the split is not seen, the residual bounds the wheels' noise
+    gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
+    wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
     far = np.zeros(len(yaw), bool)
     far[idx] = np.abs(r) > gate_z * max(sigma, 1e-12)
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
