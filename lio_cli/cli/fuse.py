@@ -144,6 +144,9 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     check = (m.get("core") or {}).get("wheel_check")
     if check:
         note(f"wheels: {check['why']}", quiet)
+    yaw = (m.get("core") or {}).get("wheel_yaw_check")
+    if yaw:
+        note(f"wheel yaw rate: {yaw['why']}", quiet)
     if written:
         note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 

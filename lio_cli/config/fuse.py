@@ -96,6 +96,9 @@ class FuseConfig(Strict):
     use: Optional[dict[Literal["imu", "wheel", "odom", "gps"], list[str]]] = Field(
         None, description="source -> measurements (imu: gyro, accel, orientation; wheel: speed, velocity, yaw_rate; "
                           "odom: pose or delta; gps: position); default: every source found, the core's selection")
+    weigh_wheel_yaw: Optional[bool] = Field(
+        None, description="beside a gyro, the wheels' yaw rate weighed against it over the log and used with the noise "
+                          "it shows where it agrees; default: when use is not given")
     estimator: Literal["auto", "ekf", "planar", "complementary"] = Field(
         "auto", description="auto (planar for a wheeled robot whose motion stays near a plane, else ekf), ekf (3D "
                             "error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")

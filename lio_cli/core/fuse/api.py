@@ -53,7 +53,9 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
     (``shape``); else the GPS-fused ``fused``."""
     raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
-    if raised < shape.OPTIMISTIC_SHARE * len(prep.gps):  # an honest claim: the fixes' error is what they say
+    # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
+    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have their shape tested too
+    if raised < shape.OPTIMISTIC_SHARE * len(prep.gps) and not _wheels_verified(prep):
         return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     try:
@@ -83,6 +85,15 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
                          "slow error explains it): " + str((free.info.get("smoother") or {}).get("why"))},
             "start": free.info.get("start"), "world_yaw_from": "gps"}
     return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
+
+
+def _wheels_verified(prep: Prepared) -> bool:
+    """The wheels' speed scale measured by the accelerometer (``wheel_slip``, no slip left in) and their yaw rate
+    agreeing with the gyro (``wheel_yaw``)."""
+    speed, yaw = prep.wheel_check or {}, prep.wheel_yaw_check or {}
+    sigma = speed.get("scale_sigma")
+    return bool(yaw.get("used")) and sigma is not None and sigma <= wheel_slip.MAX_SCALE_SIGMA \
+        and not speed.get("left_in")
 
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
@@ -187,6 +198,7 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
         "outputs_dropped_outside_data": prep.out_dropped,
         "notes": list(prep.notes),
         "wheel_check": prep.wheel_check,
+        "wheel_yaw_check": prep.wheel_yaw_check,
     }
 
 

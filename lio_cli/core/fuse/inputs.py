@@ -153,6 +153,8 @@ class FuseOptions:
     gyro and accel, plus orientation where the messages carry one; wheel speed, plus the wheel yaw rate
     only without an IMU (a gyro is far better; skid and baseline errors bias wheel yaw rates); odometry
     poses, or increments (delta) when GPS is used too; GPS position.
+    ``weigh_wheel_yaw``: beside a gyro, the wheels' yaw rate weighed against it over the log and used where the
+    data show it agrees, with the noise they show (``wheel_yaw``); ``None``: when ``use`` is None.
     ``smooth``: the whole log before and after each instant: the factor graph (``graph``) whenever the
     accelerometer is used, whatever the filter (its guard falls back on the chosen filter), else the RTS pass
     over the EKF (the complementary filter has none); ``False``: the filter alone.
@@ -176,6 +178,7 @@ class FuseOptions:
     estimator: str = "auto"
     smooth: bool = False  # the core's default is the filter alone; lio fuse and its config default to smoothing
     use: dict[str, set[str]] | None = None
+    weigh_wheel_yaw: bool | None = None
     noise: NoiseOptions = field(default_factory=NoiseOptions)
     rate_hz: float | None = None
     stamps_ns: np.ndarray | None = None

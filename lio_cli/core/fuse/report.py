@@ -17,6 +17,8 @@ REJECT_REASONS = {
     "multipath_jump": "a GPS fix inside a jump of the track its own motion cannot explain (multipath), until the "
                       "track comes back",
     "in_gap": "stamped inside a gap of every motion source",
+    "yaw_slip": "a wheel yaw rate far (beyond the gate) from the bias-corrected gyro's, where the wheels' yaw rate "
+                "is otherwise used beside the gyro: a slip, left out",
 }
 # Things noticed and handled without dropping the value.
 NOTE_REASONS = {
@@ -38,6 +40,8 @@ NOTE_REASONS = {
     "slip_left_in": "wheel speeds of a slip longer than 5 s the IMU's speed did not close: used as they are, "
                     "kept out of the wheel scale fit",
     "scale_corrected": "wheel speeds multiplied by the wheel scale the accelerometer measured",
+    "yaw_noise_estimated": "wheel yaw rates used beside the gyro with the noise their residual against the gyro "
+                           "shows (the message's or the default replaced)",
 }
 
 

@@ -8,16 +8,18 @@ stamp sees the propagated state; outputs last, so they see every update at their
 from __future__ import annotations
 
 from bisect import bisect_right
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ...errors import InputError
 from .gps_quality import assess_gps
+from .kalman import chi2_thresholds
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .lever import imu_in_base
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
+from .wheel_yaw import weigh as weigh_yaw
 
 IMU, WHEEL, ODOM, GPS, OUT = 0, 1, 2, 3, 4
 SOURCE_OF_KIND = {IMU: "imu", WHEEL: "wheel", ODOM: "odom", GPS: "gps"}
@@ -44,6 +46,7 @@ class Prepared:
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     notes: list[str] = field(default_factory=list)
     wheel_check: dict | None = None  # wheel_slip.SlipReport.to_dict() where the wheels were checked
+    wheel_yaw_check: dict | None = None  # wheel_yaw.YawCheck.to_dict() where the wheels' yaw rate was weighed
 
     @property
     def t0_ns(self) -> int:
@@ -163,6 +166,10 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
             runs += _runs(cleaned.stamps_ns, thr)
     if prep.gps is not None:
         assess_gps(prep.gps, reports["gps"])
+    weigh = options.use is None if options.weigh_wheel_yaw is None else options.weigh_wheel_yaw
+    if weigh and prep.wheel is not None and prep.imu is not None and "gyro" in use["imu"] \
+            and "yaw_rate" not in use["wheel"]:
+        _weigh_wheel_yaw(prep, options)
     prep.coverage = _merge(runs)
     if not prep.coverage:
         raise InputError("no usable sample in any motion source")
@@ -170,6 +177,23 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     _output(prep, options)
     _events(prep, options.snap_ns)
     return prep
+
+
+def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
+    """The wheels' yaw rate beside the gyro where the data show it agrees (``wheel_yaw``): into the selection,
+    with its estimated variance and its slips left out (rejected as ``yaw_slip``)."""
+    w = prep.wheel
+    z = float(np.sqrt(chi2_thresholds(options.gate_probability, 1)[1]))
+    check, yaw, var = weigh_yaw(w.stamps_ns, w.yaw_rate_radps, prep.imu.stamps_ns, prep.imu_w_b[:, 2], prep.imu_gap_ns,
+                            options.noise.gyro_noise_density, z)
+    prep.wheel_yaw_check = check.to_dict()
+    if yaw is None:
+        return
+    rep = prep.reports["wheel"]
+    rep.reject("yaw_slip", check.far)
+    rep.note("yaw_noise_estimated", int(np.isfinite(yaw).sum()))
+    prep.wheel = replace(w, yaw_rate_radps=yaw, yaw_rate_var=var)
+    prep.use["wheel"].add("yaw_rate")
 
 
 def _check_clocks(prep: Prepared) -> None:

@@ -60,6 +60,7 @@ def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: 
     return FuseOptions(
         estimator=cfg.estimator, smooth=cfg.smooth,
         use=None if use is None else {s: set(m) for s, m in use.items()},
+        weigh_wheel_yaw=None if use is None and cfg.weigh_wheel_yaw is None else weighs_wheel_yaw(cfg),
         noise=NoiseOptions(**cfg.noise.model_dump()), rate_hz=cfg.rate_hz,
         gate_probability=cfg.gate_probability, gate_max_rejects=cfg.gate_max_rejects, gap_periods=cfg.gap_periods,
         min_gap_ns=int(round(cfg.min_gap_s * 1e9)), snap_ns=int(round(cfg.snap_s * 1e9)),
@@ -67,6 +68,12 @@ def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: 
         alpha_odom=cfg.alpha_odom, alpha_orientation=cfg.alpha_orientation, alpha_gps=cfg.alpha_gps,
         want_covariance=covariance,
     )
+
+
+def weighs_wheel_yaw(cfg: FuseConfig) -> bool:
+    """Whether the run weighs the wheels' yaw rate against the gyro: as configured, else without a ``use`` (None
+    in the core's options where neither is given: the core's own default, the same)."""
+    return cfg.use is None if cfg.weigh_wheel_yaw is None else cfg.weigh_wheel_yaw
 
 
 def run_fuse(job: FuseJob, progress: Progress | None = None) -> FuseRun:
@@ -107,7 +114,8 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
         "input.imu_topic": _topic(sources, "imu"), "input.wheel_topic": _topic(sources, "wheel"),
         "input.gps_topic": _topic(sources, "gps"), "input.base_frame": sources.base_frame,
         "input.wheel_twist_frame": sources.wheel_twist_frame,
-        "input.gps_origin": _gps_origin(sources), "use": sources.use, "estimator": choice.name,
+        "input.gps_origin": _gps_origin(sources), "use": sources.use, "weigh_wheel_yaw": options.weigh_wheel_yaw,
+        "estimator": choice.name,
     }, "resolved configuration")
     traj = Trajectory(result.stamps_ns, result.poses, f"{job.log}:fuse", "fuse")
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu

@@ -59,16 +59,32 @@ def test_a_slow_gps_error_does_not_make_imu_and_wheels_worse(case, monkeypatch):
     assert with_gps <= 1.05 * without + 0.002 and bent > 0.05
 
 
-def test_an_honest_claim_is_fused_as_it_is():
-    """White 3 m fixes whose covariance says 3 m: nothing to raise, so GPS shapes the track as before."""
+@pytest.fixture(scope="module")
+def honest():
+    """White 3 m fixes whose covariance says 3 m beside exact wheels."""
     c = simulate_case("planar", 30.0, seed=3, wheel_errors=False, gps_sigma_m=1.0)
     g = c.inputs.gps
     z = interpolate_poses(c.truth_stamps_ns, c.truth_poses, g.stamps_ns)[:, :3, 3]
     z[:, :2] += np.random.default_rng(2).normal(0.0, 3.0, (len(z), 2))
     cov = np.broadcast_to(np.diag([9.0, 9.0, 9.0]), (len(z), 3, 3)).copy()
-    res = fuse(replace(c.inputs, gps=GpsSeries(g.stamps_ns, z, cov, np.ones(len(z), bool))),
-               FuseOptions(rate_hz=20.0, smooth=True))
+    return replace(c, inputs=replace(c.inputs, gps=GpsSeries(g.stamps_ns, z, cov, np.ones(len(z), bool))))
+
+
+def test_an_honest_claim_is_fused_as_it_is(honest):
+    """Nothing to raise and wheels the IMU did not verify (their yaw rate not weighed): GPS shapes the track."""
+    res = fuse(honest.inputs, FuseOptions(rate_hz=20.0, smooth=True, weigh_wheel_yaw=False))
     assert "gps_shape" not in res.info and res.info["smoother"]["kind"] == "factor_graph"
+
+
+def test_beside_wheels_the_imu_verified_an_honest_claim_is_tested_too(honest):
+    """Speed scale measured, yaw rate agreeing with the gyro: the GPS-free track is tested against the fixes
+    whatever the filter's innovations say."""
+    o = FuseOptions(rate_hz=20.0, smooth=True)
+    res = fuse(honest.inputs, o)
+    assert res.info["wheel_yaw_check"]["used"] and res.info["gps_shape"]["consistent"]
+    fused = fuse(honest.inputs, replace(o, weigh_wheel_yaw=False))
+    # measured: 0.0016 m against the GPS-fused graph's 0.008 m
+    assert ate(honest, res) < 0.5 * ate(honest, fused)
 
 
 def test_a_track_the_fixes_contradict_is_told_apart():

@@ -40,9 +40,11 @@ def test_circle_follows_the_unicycle_and_closes(fuse_logs):
     k = np.argmin(np.abs(run.trajectory.stamps_ns - (fuse_logs.T0_NS + int(2 * np.pi * 1e9))))  # half a turn
     np.testing.assert_allclose(run.trajectory.positions[k], [0.0, 4.0, 0.0], atol=POS_TOL_M)
     m = run.metrics
-    assert m["sources_used"] == ["imu", "wheel"] and m["updates"]["wheel"] == len(run.sources.inputs.wheel)
+    # exact wheels: their yaw rate agrees with the gyro and enters beside it (speed and yaw rate per message)
+    assert m["sources_used"] == ["imu", "wheel"] and m["updates"]["wheel"] == 2 * len(run.sources.inputs.wheel)
+    assert m["core"]["wheel_yaw_check"]["used"]
     assert m["sources"]["imu"]["predictions"] == len(run.sources.inputs.imu)
-    assert run.config.use == {"imu": ["accel", "gyro"], "wheel": ["speed"]}
+    assert run.config.use == {"imu": ["accel", "gyro"], "wheel": ["speed"]} and run.config.weigh_wheel_yaw
 
 
 def test_imu_orientation_enters_only_where_the_message_carries_one(fuse_logs):

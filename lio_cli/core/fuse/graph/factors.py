@@ -7,7 +7,8 @@
   base velocity (forward speed and the non-holonomic zeros, as the filter's ``wheel_velocity_rows``) rotated by
   the gyro as preintegrated; a ``BetweenFactorPose3`` whose rotation is left loose (the gyro's), Gaussian (a
   robust loss there took a wheel scale error for outliers and let the IMU drift). Beside odometry: times the
-  wheels' speed scale, slips left out, Huber, looser (``wheels``).
+  wheels' speed scale, slips left out, Huber, looser (``wheels``). The wheels' yaw rate where the timeline let
+  it in beside the gyro: a factor per interval tight about z only (``wheels.YawTrack``).
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
@@ -215,6 +216,7 @@ class ChunkGraph:
     def __init__(self, meas: Measurements, seg: Segments, params, states: dict[str, np.ndarray]):
         self.m, self.seg, self.params, self.s = meas, seg, params, states
         self.wheel = WheelTrack.of(meas.prep, seg, meas.noise)
+        self.yaw = wheels.YawTrack.of(meas.prep, seg.t, seg.dt, _nearest)
         self.bridged = 0
         od = meas.prep.use.get("odom", set())
         beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
@@ -266,6 +268,9 @@ class ChunkGraph:
             wheel = self.wheel is not None and bool(self.wheel.ok[s0:s1].all())
             dp, sd = seg.integrate_with(pim, s0, s1, self.wheel if wheel else None)
             g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
+            if self.yaw is not None and self.yaw.ok[s0:s1].all():
+                g.add(self.yaw.factor(X(k), X(k + 1), pim.deltaRij(), seg.w[:, 2], float(self.s["bg"][k][2]), seg.dt,
+                                      slice(s0, s1)))
             if wheel and self.scaled:
                 scaled.append((k, dp, sd, pim.deltaRij()))
             elif wheel:

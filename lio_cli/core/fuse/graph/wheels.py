@@ -9,6 +9,11 @@ side) are left out of the graph and counted (``Gate.rejected``). The rest say ``
 under a Huber loss, ``s`` the pre-pass's, in GTSAM's own between factor (the scale as a graph variable, a Python
 factor per increment, landed within 0.06 % of it at 3x the cost: docs/benchmarks.md). ``against_odometry`` is the
 same comparison over the whole log before the graph (the height prior's evidence, ``height``).
+
+The wheels' yaw rate, where the timeline let it in beside the gyro (``wheel_yaw``: it agrees with the gyro, its
+noise measured, slips out): ``YawTrack``, one factor per keyframe interval whose rotation is the gyro's with the
+yaw turned to the wheels' (their yaw increment less the gyro's, bias-corrected at the linearisation point), tight
+about z only, Gaussian, the wheels' sigma summed over the interval as the speed's is.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ MIN_SIGMA_M = 0.001  # a short interval's (a fix beside an odometry pose) increm
 # rover's wheels drew the graph off beside odometry and GPS, slips gated out or not (docs/benchmarks.md)
 SIGMA_SCALE = 30.0
 LOOSE_ROTATION_RAD = 1.0  # the fixed-scale factor's rotation: the gyro's (already in the IMU factor)
+FREE_M = 1e4  # the yaw factor's translation: free
 HUBER_K = 2.0  # whitened norm of a 3D increment residual (what the gate let through at a slip's edges)
 SLIP_WHY = ("a keyframe interval's wheel increment, times the wheel scale, missed the odometry's beyond the gate "
             "(a slip): left out of the factor graph")
@@ -65,6 +71,35 @@ def gate(kt: np.ndarray, states: dict[str, np.ndarray], ks: np.ndarray, dps: np.
         slip[1:] |= slip[:-1].copy()
         slip[:-1] |= np.r_[slip[1:]]
     return Gate(scale, ks[slip[inv]])
+
+
+class YawTrack:
+    """The wheels' yaw rate and sigma held over each IMU segment from the message nearest its middle; ``ok`` where
+    one lies within a wheel gap of it."""
+
+    def __init__(self, z: np.ndarray, sigma: np.ndarray, ok: np.ndarray):
+        self.z, self.sigma, self.ok = z, sigma, ok
+
+    @classmethod
+    def of(cls, prep, seg_t: np.ndarray, seg_dt: np.ndarray, nearest) -> YawTrack | None:
+        w = prep.wheel
+        if w is None or len(w) < 2 or "yaw_rate" not in prep.use.get("wheel", ()) or w.yaw_rate_var is None:
+            return None
+        has = np.isfinite(w.yaw_rate_radps)
+        period = float(np.median(np.diff(w.stamps_ns))) * 1e-9
+        mid = seg_t + (0.5e9 * seg_dt).astype(np.int64)
+        j = nearest(w.stamps_ns, mid)
+        ok = has[j] & (np.abs(w.stamps_ns[j] - mid) <= max(1.5 * period * 1e9, 2.5e7))
+        return cls(np.nan_to_num(w.yaw_rate_radps[j]), np.sqrt(w.yaw_rate_var[j]), ok)
+
+    def factor(self, ka, kb, dR: gtsam.Rot3, gyro_z: np.ndarray, bias_z: float, dt: np.ndarray,
+               segs: slice) -> gtsam.BetweenFactorPose3:
+        """The interval's rotation with the wheels' yaw (class docstring); its translation free."""
+        turn = float(np.dot(self.z[segs] - (gyro_z[segs] - bias_z), dt[segs]))
+        sig = np.r_[LOOSE_ROTATION_RAD, LOOSE_ROTATION_RAD, max(float(np.dot(self.sigma[segs], dt[segs])), 1e-9),
+                    np.full(3, FREE_M)]
+        meas = gtsam.Pose3(dR.compose(gtsam.Rot3.Rz(turn)), np.zeros(3))
+        return gtsam.BetweenFactorPose3(ka, kb, meas, gtsam.noiseModel.Diagonal.Sigmas(sig))
 
 
 def fixed_scale_factor(ka, kb, dR: gtsam.Rot3, dp: np.ndarray, sd: np.ndarray) -> gtsam.BetweenFactorPose3:

@@ -1,0 +1,145 @@
+"""The wheels' yaw rate weighed against the gyro from the data (IMU gyro + wheel yaw rate, default selection).
+
+Beside a gyro the wheels' yaw rate is left out by default: skid steering, a radius or baseline error and slips
+bias it. But good wheels measure the yaw rate without the gyro's bias, which a moving start leaves unknown, and
+their heading is then the better one. ``weigh`` compares the two over the log: the wheel yaw rate of each message
+against the gyro's z (base frame) averaged over the message's period, ``gyro - wheel = b_j + b'_j t + c gyro``
+(a bias line per ``CHUNK_S``, ``c`` the wheels' yaw scale off the gyro's), fitted by least squares with samples
+further than ``TRIM_Z`` robust sigmas trimmed. The wheels' yaw rate enters when their scale agrees with the
+gyro's (``|c| + 2 sigma_c <= SCALE_TOL``; a 3 % radius error is 0.03) and few samples are far (``MAX_FAR_SHARE``).
+Its variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own
+second differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of
+the residual's variance), plus the
+scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
+pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
+(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slowly)
+MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
+MIN_SAMPLES = 200
+MIN_YAW_RATE_RADPS = 0.05  # the drive must turn at least this fast somewhere, or the scale is not seen
+SCALE_TOL = 0.005  # the wheels' yaw scale may differ from the gyro's by this share
+MAX_FAR_SHARE = 0.2  # more samples further than the gate from the gyro: the wheels' yaw rate stays out
+TRIM_Z = 4.0
+TRIM_PASSES = 3
+RESOLVE_Z = 3.0  # the estimated variance is at least this many standard errors of the residual's variance
+SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and end are below the gate)
+
+
+@dataclass
+class YawCheck:
+    """What the check found (in the metrics as ``wheel_yaw_check``)."""
+
+    used: bool = False
+    why: str = ""
+    scale_off: float | None = None  # c: gyro - wheel = bias + c * gyro
+    scale_off_sigma: float | None = None
+    sigma_radps: float | None = None  # the wheels' yaw-rate noise, estimated
+    residual_sigma_radps: float | None = None
+    far: int = 0
+
+    def to_dict(self) -> dict:
+        r = lambda v, n=6: None if v is None else float(f"{v:.{n}g}")  # noqa: E731
+        return {"used": self.used, "why": self.why, "scale_off": r(self.scale_off, 4),
+                "scale_off_sigma": r(self.scale_off_sigma, 3), "sigma_radps": r(self.sigma_radps, 3),
+                "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far}
+
+
+def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The gyro's mean over [a, b] (seconds, the IMU's trapezoid integral); NaN across an IMU gap."""
+    dt = np.diff(ti)
+    G = np.concatenate([[0.0], np.cumsum(0.5 * (gz[1:] + gz[:-1]) * dt)])
+    out = (np.interp(b, ti, G) - np.interp(a, ti, G)) / (b - a)
+    out[(a < ti[0]) | (b > ti[-1])] = np.nan
+    ga = np.cumsum(np.r_[0, gap.astype(np.int64)])  # gaps before each IMU sample
+    crosses = np.interp(b, ti, ga) != np.interp(a, ti, ga)
+    out[crosses] = np.nan
+    return out
+
+
+def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: float) -> float:
+    """The gyro's white noise variance per sample: from its own second differences (``6 sigma^2`` for white noise;
+    the motion is smooth at the IMU's rate), robustly; the configured density's where too few samples."""
+    ok = ~(gap[1:] | gap[:-1])
+    d2 = (gz[2:] - 2.0 * gz[1:-1] + gz[:-2])[ok]
+    if len(d2) < MIN_SAMPLES:
+        return density**2 / float(np.median(np.diff(ti)))
+    return (1.4826 * float(np.median(np.abs(d2)))) ** 2 / 6.0
+
+
+def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
+          gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
+    """The check (module docstring): (report, the wheel yaw rates with far samples NaN, their variances), the two
+    arrays None where the wheels' yaw rate stays out."""
+    rep = YawCheck()
+    t0 = int(ti_ns[0])
+    tw, ti = (tw_ns - t0) * 1e-9, (ti_ns - t0) * 1e-9
+    gap = np.diff(ti_ns) > imu_gap_ns if imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
+    ok = np.isfinite(yaw)
+    if ok.sum() < MIN_SAMPLES or np.ptp(tw[ok]) < MIN_SPAN_S:
+        rep.why = f"fewer than {MIN_SAMPLES} wheel yaw rates over {MIN_SPAN_S:g} s: the gyro's alone"
+        return rep, None, None
+    period = float(np.median(np.diff(tw[ok])))
+    g = _gyro_mean(ti, gz, gap, tw - 0.5 * period, tw + 0.5 * period)
+    ok &= np.isfinite(g)
+    if ok.sum() < MIN_SAMPLES or np.abs(g[ok]).max() < MIN_YAW_RATE_RADPS:
+        rep.why = f"the drive never turns faster than {MIN_YAW_RATE_RADPS:g} rad/s: the wheels' yaw scale is not seen"
+        return rep, None, None
+    idx = np.flatnonzero(ok)
+    chunk = np.floor(tw[idx] / CHUNK_S).astype(np.int64)
+    _, inv = np.unique(chunk, return_inverse=True)
+    m = inv.max() + 1
+    X = np.zeros((len(idx), 2 * m + 1))
+    X[np.arange(len(idx)), 2 * inv] = 1.0
+    X[np.arange(len(idx)), 2 * inv + 1] = tw[idx] - CHUNK_S * chunk
+    X[:, -1] = g[idx]
+    d = g[idx] - yaw[idx]
+    keep = np.ones(len(idx), bool)
+    for _ in range(TRIM_PASSES):
+        sol, *_ = np.linalg.lstsq(X[keep], d[keep], rcond=None)
+        r = d - X @ sol
+        sigma = 1.4826 * float(np.median(np.abs(r[keep])))
+        keep = np.abs(r) <= TRIM_Z * max(sigma, 1e-12)
+    n = int(keep.sum())
+    s2 = float(r[keep] @ r[keep]) / max(n - X.shape[1], 1)
+    cov = s2 * np.linalg.pinv(X[keep].T @ X[keep])
+    c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
+    gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
+    wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
+    far = np.zeros(len(yaw), bool)
+    far[idx] = np.abs(r) > gate_z * max(sigma, 1e-12)
+    rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
+    rep.sigma_radps = float(np.sqrt(wheel_var))
+    rep.far = int(far.sum())
+    if abs(c) + 2.0 * c_sigma > SCALE_TOL:
+        rep.why = (f"the wheels' yaw rate is {-c:+.2%} (+- {c_sigma:.3%}) off the gyro's, beyond {SCALE_TOL:.1%}: "
+                   "the gyro's alone")
+        return rep, None, None
+    if rep.far > MAX_FAR_SHARE * len(idx):
+        rep.why = (f"{rep.far} of {len(idx)} wheel yaw rates are further than the gate from the gyro's (more than "
+                   f"{MAX_FAR_SHARE:.0%}): the gyro's alone")
+        return rep, None, None
+    if rep.far:  # a run of far samples (a slip) widens to its edges; a lone one is left out alone
+        run = far & (np.r_[far[1:], False] | np.r_[False, far[:-1]])
+        edge = np.zeros(len(tw) + 1)
+        for i in np.flatnonzero(run):
+            edge[np.searchsorted(tw, tw[i] - SLIP_EDGE_S)] += 1
+            edge[np.searchsorted(tw, tw[i] + SLIP_EDGE_S, side="right")] -= 1
+        far = (far | (np.cumsum(edge)[:-1] > 0)) & np.isfinite(yaw)
+        rep.far = int(far.sum())
+    out = yaw.copy()
+    out[far] = np.nan
+    w = np.nan_to_num(yaw)
+    var = wheel_var + ((abs(c) + c_sigma) * w) ** 2
+    rep.used = True
+    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, noise "
+               f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
+               + (f", {rep.far} samples of slips left out" if rep.far else ""))
+    return rep, out, var
