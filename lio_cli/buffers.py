@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import weakref
 
 import numpy as np
 
@@ -26,6 +27,7 @@ def _idle_refs() -> int:
 
 
 _IDLE = _idle_refs()
+_POOLS: weakref.WeakSet = weakref.WeakSet()  # every pool, so a batch worker can empty them between runs
 
 
 class ArrayPool:
@@ -39,37 +41,54 @@ class ArrayPool:
         self.bufs: list[np.ndarray] = []
         self.allocated = 0  # buffers made (reuse is every other request)
         self._lock = threading.Lock()  # a check and a hand-out are one step for threads sharing the pool
+        _POOLS.add(self)
 
     def empty(self, shape: int | tuple[int, ...], dtype=np.float64) -> np.ndarray:
         """An uninitialised C-ordered array of ``shape`` and ``dtype``, a view of a pooled buffer."""
         dtype = np.dtype(dtype)
         shape = (shape,) if isinstance(shape, int) else tuple(shape)
-        nbytes = dtype.itemsize * math.prod(shape)
+        nbytes = int(dtype.itemsize * math.prod(shape))
         if nbytes < MIN_POOLED_BYTES:
             return np.empty(shape, dtype)
         cap = 1 << (nbytes - 1).bit_length()
         with self._lock:
             bufs = self.bufs
-            best = small = -1
+            best = small = large = -1
             for i in range(len(bufs)):
                 if _getrefcount(bufs[i]) <= _IDLE:
                     size = len(bufs[i])
                     if size < cap:
                         small = i
-                    elif size <= 4 * cap and (best < 0 or size < len(bufs[best])):
-                        best = i
+                    elif size <= 4 * cap:
+                        if best < 0 or size < len(bufs[best]):
+                            best = i
+                    elif large < 0 or size > len(bufs[large]):
+                        large = i
             if best >= 0:
                 buf = bufs[best]
-            elif small >= 0:
-                buf = bufs[small] = np.empty(cap, np.uint8)
+            elif small >= 0 or (large >= 0 and len(bufs) >= self.keep):
+                # a full pool gives up its largest idle buffer rather than serve plain arrays beside it for good
+                buf = bufs[small if small >= 0 else large] = np.empty(cap, np.uint8)
                 self.allocated += 1
             elif len(bufs) < self.keep:
                 buf = np.empty(cap, np.uint8)
                 bufs.append(buf)
                 self.allocated += 1
             else:
-                return np.empty(shape, dtype)  # every buffer in use (or idle but far larger): a plain array
+                return np.empty(shape, dtype)  # every buffer in use: a plain array
             return buf[:nbytes].view(dtype).reshape(shape)
 
+    def release_idle(self) -> None:
+        """Drop the buffers nothing refers to (a worker between runs: the next log's sizes may differ)."""
+        with self._lock:
+            bufs = self.bufs
+            self.bufs = [bufs[i] for i in range(len(bufs)) if _getrefcount(bufs[i]) > _IDLE]  # as ``empty`` counts
 
-__all__ = ["ArrayPool", "MIN_POOLED_BYTES"]
+
+def release_idle_buffers() -> None:
+    """``ArrayPool.release_idle`` of every pool."""
+    for pool in list(_POOLS):
+        pool.release_idle()
+
+
+__all__ = ["ArrayPool", "MIN_POOLED_BYTES", "release_idle_buffers"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lio_cli.buffers import MIN_POOLED_BYTES, ArrayPool
+from lio_cli.buffers import MIN_POOLED_BYTES, ArrayPool, release_idle_buffers
 
 
 def test_a_buffer_seen_by_a_view_is_not_reused():
@@ -43,3 +43,30 @@ def test_small_requests_and_a_full_pool_give_plain_arrays():
     first = pool.empty(MIN_POOLED_BYTES // 8)
     second = pool.empty(MIN_POOLED_BYTES // 8)  # the one buffer is in use
     assert first.base is pool.bufs[0] and second.base is None and pool.allocated == 1
+
+
+def test_a_full_pool_of_far_larger_idle_buffers_gives_one_up():
+    """After a big log, a worker's small requests replace an idle oversized buffer instead of being served plain
+    arrays forever beside it."""
+    pool = ArrayPool(keep=2)
+    big = [pool.empty(1_000_000), pool.empty(1_000_000)]  # 8 MB each
+    del big
+    small = pool.empty(MIN_POOLED_BYTES // 8)
+    assert small.base is not None and any(np.shares_memory(small, b) for b in pool.bufs)
+    assert sorted(len(b) for b in pool.bufs) == [MIN_POOLED_BYTES, 8 * 2**20]
+
+
+def test_idle_buffers_are_released_and_held_ones_kept():
+    pool = ArrayPool(keep=4)
+    held = pool.empty(100_000)
+    held[:] = 7.0
+    idle = pool.empty(100_000)
+    del idle
+    release_idle_buffers()
+    assert len(pool.bufs) == 1 and np.shares_memory(held, pool.bufs[0]) and (held == 7.0).all()
+
+
+def test_numpy_integer_shapes_are_sizes_like_ints():
+    pool = ArrayPool(keep=1)
+    a = pool.empty((np.int64(3), np.int64(10_000)))
+    assert a.shape == (3, 10_000) and a.base is pool.bufs[0]

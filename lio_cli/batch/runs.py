@@ -29,6 +29,7 @@ from pydantic import BaseModel
 
 from .. import __version__
 from ..errors import LioError
+from ..buffers import release_idle_buffers
 from ..heap import trim_heap
 from ..io.files.atomic import replace_path
 from .commands import key_metrics, metrics_file, run_command
@@ -167,6 +168,7 @@ def execute(task: RunTask) -> dict[str, Any]:
             return record(task, "failed", "internal", 1, f"internal error: {type(err).__name__}: {_one_line(err)}",
                           time_s=time.perf_counter() - t0, worker=here)
         finally:
+            release_idle_buffers()  # the next log's scans may be of other sizes
             trim_heap()  # the run's free heap pages back before this worker's next run
 
 
