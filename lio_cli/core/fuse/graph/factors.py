@@ -19,7 +19,7 @@
   sources and GPS only anchors it over longer spans; the fix's own sigma is then its white part. The vertical
   fix has such a chain too (a node's third axis; sigma ``GPS_BIAS_RATIO`` times the vertical sigma the factor
   uses): a consumer receiver's altitude wanders by tens of metres over a minute, which white fixes draw the
-  height after.
+  height after. Where the height prior holds the odometry's height (``height``) the vertical fix stays white.
 - IMU orientation: a rotation prior at keyframes where the filter used one.
 """
 
@@ -329,11 +329,13 @@ class ChunkGraph:
             if m.gps_bias_sigma_v > 0:
                 nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
                 g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _fix_axes(z[:2], slice(0, 2))))
-                nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
-                g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3))))
-                continue
-            nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
-            g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
+                if self.level is None:  # with a height prior the vertical fix stays white (below)
+                    nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
+                    g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3))))
+                    continue
+            else:
+                nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
+                g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
             nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
             g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
         nodes = self.gps_bias_nodes(k0, k1)
