@@ -3,7 +3,8 @@ message claims checked against the innovations.
 
 Before any filter runs (``assess_gps``, on ``Prepared.gps``): each fix's horizontal and vertical sigma (its
 covariance, else ``NoiseOptions.gps_position_sigma_m`` and ``gps_vertical_sigma_m``), and an ``accepted`` mask
-that leaves out multipath jumps: a fix-to-fix step that the track's own recent velocity cannot explain (more
+that leaves out multipath jumps: a fix-to-fix step that the track's own recent velocity (the slope through its
+last fixes) cannot explain (more
 than ``JUMP_SIGMAS`` times the steps' robust spread, and at least ``JUMP_MIN_M``) opens a jump; the fixes after
 it stay out until a step brings the track back within that bound of where it was (consistency returns), or
 ``JUMP_MAX_S`` has passed (the new level is then kept: a receiver that changed satellites for good). Pauses
@@ -36,7 +37,7 @@ JUMP_SIGMAS = 5.0  # a step this many robust sigmas beyond the track's own motio
 JUMP_MIN_M = 3.0  # ... and at least this long
 JUMP_MAX_S = 30.0  # a jump lasting longer is the receiver's new level
 DROPOUT_PERIODS = 5.0  # a pause this many median periods long is a dropout
-VELOCITY_STEPS = 5  # the track's velocity: the median of this many previous steps
+VELOCITY_STEPS = 5  # the track's velocity: the slope through this many previous steps' fixes
 WINDOW = 50  # innovations the measured noise is taken over
 MIN_WINDOW = 10  # innovations needed before it counts
 RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above this many times it, well
@@ -88,22 +89,23 @@ def find_jumps(stamps_ns: np.ndarray, p_h: np.ndarray) -> tuple[np.ndarray, int,
     dt = np.maximum(np.diff(stamps_ns) * 1e-9, 1e-6)
     period = float(np.median(dt))
     thr = jump_threshold_m(stamps_ns, p_h)
-    vel: deque = deque(maxlen=VELOCITY_STEPS)
+    t_s = (stamps_ns - stamps_ns[0]) * 1e-9
+    recent: deque = deque([(t_s[0], p_h[0])], maxlen=VELOCITY_STEPS + 1)  # fixes on the current level
     offset, t_open, opened, kept = None, 0, 0, 0
     for k in range(1, n):
         if dt[k - 1] > DROPOUT_PERIODS * period:  # nothing to compare across a dropout
-            vel.clear()
+            recent.clear()
+            recent.append((t_s[k], p_h[k]))
             if offset is not None:
                 out[k] = True
             continue
-        step = p_h[k] - p_h[k - 1]
-        v = np.median(np.array(vel), axis=0) if vel else np.zeros(2)
-        e = step - v * dt[k - 1]
+        e = p_h[k] - p_h[k - 1] - _track_velocity(recent) * dt[k - 1]
         big = float(np.hypot(*e)) > thr
         if offset is None:
-            if big and len(vel) >= 2:
+            if big and len(recent) >= 3:
                 offset, t_open, opened = e.copy(), int(stamps_ns[k]), opened + 1
                 out[k] = True
+                _shift(recent, e, t_s[k], p_h[k])
                 continue
         else:
             if big:
@@ -115,9 +117,29 @@ def find_jumps(stamps_ns: np.ndarray, p_h: np.ndarray) -> tuple[np.ndarray, int,
             else:
                 out[k] = True
             if big:
+                _shift(recent, e, t_s[k], p_h[k])
                 continue
-        vel.append(step / dt[k - 1])
+        recent.append((t_s[k], p_h[k]))
     return out, opened, kept
+
+
+def _track_velocity(recent: deque) -> np.ndarray:
+    """The GPS track's velocity: the least-squares slope through its recent fixes (a single step's is as noisy
+    as two fixes, metres per period; the slope over a second is a few times steadier)."""
+    if len(recent) < 2:
+        return np.zeros(2)
+    t = np.array([r[0] for r in recent])
+    p = np.array([r[1] for r in recent])
+    tc = t - t.mean()
+    return (tc @ (p - p.mean(axis=0))) / max(float(tc @ tc), 1e-12)
+
+
+def _shift(recent: deque, e: np.ndarray, t: float, p: np.ndarray) -> None:
+    """The recent fixes moved by a jump's step ``e`` onto the new level, and the fix after it appended."""
+    moved = [(tr, pr + e) for tr, pr in recent]
+    recent.clear()
+    recent.extend(moved)
+    recent.append((t, p))
 
 
 def assess_gps(gps: GpsSeries, report: SourceReport) -> GpsSeries:

@@ -17,7 +17,10 @@
   horizontal factor is position + a slowly varying receiver error (``G``: one 2D node per fix, a first-order
   Gauss-Markov chain of correlation time ``GPS_BIAS_TAU_S`` and ``GPS_BIAS_RATIO`` times the fixes' sigma: a
   prior on a chunk's first node, ``b1 = phi b0 + w`` between neighbours), so the local shape follows the motion
-  sources and GPS only anchors it over longer spans; the fix's own sigma is then its white part.
+  sources and GPS only anchors it over longer spans; the fix's own sigma is then its white part. The vertical
+  fix has such a chain too (a node's third axis; sigma ``GPS_BIAS_RATIO`` times the vertical sigma the factor
+  uses): a consumer receiver's altitude wanders by tens of metres over a minute, which white fixes draw the
+  height after. Where the height prior holds the odometry's height (``height``) the vertical fix stays white.
 - IMU orientation: a rotation prior at keyframes where the filter used one.
 """
 
@@ -50,6 +53,7 @@ GPS_BIAS_TAU_S = 60.0  # correlation time of a receiver's slow error (multipath,
 # its sigma over the fixes' own (the timeline's) horizontal sigma: consumer receivers claim a third of the truth,
 # and the chain must leave the shape over seconds to the motion sources
 GPS_BIAS_RATIO = 10.0
+PINNED_SIGMA_M = 1e-4  # a receiver-error axis held at zero (the horizontal one without odometry)
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
@@ -83,7 +87,7 @@ class Measurements:
         K = len(kt)
         self.wheel_dp: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe k -> increment to k+1, sigma
         self.gps_k = self.gps_j = np.zeros(0, np.int64)
-        self.gps_bias_sigma = 0.0
+        self.gps_bias_sigma = self.gps_bias_sigma_v = 0.0  # the receiver-error chain's, horizontal and vertical
         g = prep.gps
         if g is not None and len(g) and "gps" in prep.use:
             ok = (g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]) & _accepted(g)
@@ -96,9 +100,12 @@ class Measurements:
                 self.gps_h, self.gps_v = gps_sigmas(g, idx)
                 self.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
                 self.gps_t_s = (g.stamps_ns[idx] - kt[0]) * 1e-9
-                # only beside odometry: without it the chain measured mixed (docs/benchmarks.md)
+                # horizontally only beside odometry: without it the chain measured mixed (docs/benchmarks.md)
                 if prep.odom is not None and "odom" in prep.use:
                     self.gps_bias_sigma = GPS_BIAS_RATIO * float(np.median(self.gps_h))
+                    self.gps_bias_sigma_v = GPS_BIAS_RATIO * ODOM_GPS_VERTICAL_SCALE * float(np.median(self.gps_v))
+                else:
+                    self.gps_bias_sigma_v = GPS_BIAS_RATIO * float(np.median(self.gps_v))
         self.odom_pairs = np.zeros((0, 2), np.int64)
         od = prep.odom
         if od is not None and len(od) > 1 and "odom" in prep.use:
@@ -131,25 +138,26 @@ class Measurements:
         return nav(s["R"][k], s["p"][k]).matrix() @ np.linalg.inv(self.prep.odom.poses[self.odom_idx[0]])
 
 
-def _horizontal_fix(z: np.ndarray):
-    """A CustomFactor's error function: the keyframe's horizontal position plus the receiver error minus the fix."""
+def _fix_axes(z: np.ndarray, axes: slice):
+    """A CustomFactor's error function: the keyframe's position on ``axes`` (horizontal 0:2, vertical 2:3) plus
+    the receiver error there minus the fix."""
     def error(this, values, H):
         T = values.atPose3(this.keys()[0])
-        b = values.atPoint2(this.keys()[1])
+        b = values.atPoint3(this.keys()[1])
         if H is not None:
-            H[0] = np.hstack([np.zeros((2, 3)), T.rotation().matrix()[:2, :]])
-            H[1] = np.eye(2)
-        return T.translation()[:2] + b - z
+            H[0] = np.hstack([np.zeros((len(z), 3)), T.rotation().matrix()[axes, :]])
+            H[1] = np.eye(3)[axes, :]
+        return T.translation()[axes] + b[axes] - z
     return error
 
 
 def _markov_step(phi: float):
     """A CustomFactor's error function: the next receiver error minus ``phi`` times the previous one."""
     def error(this, values, H):
-        a, b = values.atPoint2(this.keys()[0]), values.atPoint2(this.keys()[1])
+        a, b = values.atPoint3(this.keys()[0]), values.atPoint3(this.keys()[1])
         if H is not None:
-            H[0] = -phi * np.eye(2)
-            H[1] = np.eye(2)
+            H[0] = -phi * np.eye(3)
+            H[1] = np.eye(3)
         return b - phi * a
     return error
 
@@ -240,7 +248,7 @@ class ChunkGraph:
             vals.insert(V(k), s["v"][k])
             vals.insert(B(k), self.bias(k))
         for j in self.gps_bias_nodes(k0, k1).tolist():
-            vals.insert(G(j), self.bias_seam.get(j, np.zeros(2)))
+            vals.insert(G(j), self.bias_seam.get(j, np.zeros(3)))
         return vals
 
     def wheel_info(self) -> dict | None:
@@ -310,7 +318,7 @@ class ChunkGraph:
     def gps_bias_nodes(self, k0: int, k1: int) -> np.ndarray:
         """The receiver-error nodes (one per fix, its index) of the fixes on keyframes [k0, k1)."""
         m = self.m
-        if not (len(m.gps_k) and m.gps_bias_sigma > 0):
+        if not (len(m.gps_k) and m.gps_bias_sigma_v > 0):
             return np.zeros(0, np.int64)
         return np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
 
@@ -323,28 +331,33 @@ class ChunkGraph:
             k, z, h, v = int(m.gps_k[j]), m.gps_z[j], float(m.gps_h[j]), float(m.gps_v[j])
             if m.gps_bias_sigma > 0:  # beside odometry: its increments carry the height, the altitude wanders
                 v *= ODOM_GPS_VERTICAL_SCALE
-            nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
-            if m.gps_bias_sigma > 0:
+            if m.gps_bias_sigma_v > 0:
                 nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
-                g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _horizontal_fix(z[:2])))
+                g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _fix_axes(z[:2], slice(0, 2))))
+                if self.level is None:  # with a height prior the vertical fix stays white (below)
+                    nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
+                    g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3))))
+                    continue
             else:
                 nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
                 g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
+            nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
             g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
         nodes = self.gps_bias_nodes(k0, k1)
         if not len(nodes):
             return
-        sb, t = m.gps_bias_sigma, m.gps_t_s
+        sh = m.gps_bias_sigma if m.gps_bias_sigma > 0 else PINNED_SIGMA_M
+        sb, t = np.r_[sh, sh, m.gps_bias_sigma_v], m.gps_t_s
         for a, b in zip(nodes[:-1].tolist(), nodes[1:].tolist()):  # Gauss-Markov steps over the fixes' spacing
             phi = float(np.exp(-(t[b] - t[a]) / GPS_BIAS_TAU_S))
-            step = gtsam.noiseModel.Isotropic.Sigma(2, sb * float(np.sqrt(max(1.0 - phi * phi, 1e-12))))
+            step = gtsam.noiseModel.Diagonal.Sigmas(sb * float(np.sqrt(max(1.0 - phi * phi, 1e-12))))
             g.add(gtsam.CustomFactor(step, [G(a), G(b)], _markov_step(phi)))
         first = int(nodes[0])
         if first in self.bias_seam:  # the previous chunk's value, as loose as the error moves in a few seconds
             seam = sb * float(np.sqrt(1.0 - np.exp(-2.0 * GPS_BIAS_PERIOD_NS * 1e-9 / GPS_BIAS_TAU_S)))
-            g.add(gtsam.PriorFactorPoint2(G(first), self.bias_seam[first], gtsam.noiseModel.Isotropic.Sigma(2, seam)))
+            g.add(gtsam.PriorFactorPoint3(G(first), self.bias_seam[first], gtsam.noiseModel.Diagonal.Sigmas(seam)))
         else:
-            g.add(gtsam.PriorFactorPoint2(G(first), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, sb)))
+            g.add(gtsam.PriorFactorPoint3(G(first), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sb)))
 
     def _odom(self, g, k0: int, k1: int) -> None:
         """Absolute poses (``pose``: tied to the world at the first one by the filter's pose there, as the filter

@@ -96,7 +96,7 @@ def solve(cg: ChunkGraph, K: int, first: Prior, seam: Callable[[dict, int, int],
             nxt = spans[c + 1][0]
             prior = seam(sol, nxt - s0, nxt)
             shared = set(cg.gps_bias_nodes(s0, s1).tolist()) & set(cg.gps_bias_nodes(nxt, spans[c + 1][1]).tolist())
-            cg.bias_seam = {j: res.atPoint2(G(j)) for j in shared}
+            cg.bias_seam = {j: res.atPoint3(G(j)) for j in shared}
         _keep(out, sol, s0, a, b, prev)
         prev = (sol, s0, s1)
     return out, stats
