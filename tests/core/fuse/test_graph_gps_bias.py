@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lio_cli.core.fuse import FuseOptions, GpsSeries, fuse
-from lio_cli.core.fuse.graph import factors, run
+from lio_cli.core.fuse.graph import factors, gps, run
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.geometry import interpolate_poses
 from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
@@ -54,7 +54,7 @@ def test_a_slow_receiver_error_leaves_the_odometry_shape(case, monkeypatch):
     res = fuse(case.inputs, o)
     assert res.info["smoother"]["fallback"] is None
     fused = ate(case, res.stamps_ns, res.poses)
-    monkeypatch.setattr(factors, "GPS_BIAS_RATIO", 0.0)  # the fixes as white noise
+    monkeypatch.setattr(gps, "GPS_BIAS_RATIO", 0.0)  # the fixes as white noise
     monkeypatch.setattr(run, "ODOM_SEED", False)  # from the filter's states (from the odometry's, Huber keeps them)
     w = fuse(case.inputs, o)
     white = ate(case, w.stamps_ns, w.poses)
@@ -102,7 +102,7 @@ def _gps_vertical_sigmas(inputs, monkeypatch) -> tuple[np.ndarray, np.ndarray]:
     fuse(inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True))
     cg = seen["cg"]
     g = cg.build(0, min(seen["K"], 200))
-    # the vertical fix: a 1D factor on a pose and its receiver-error node (``factors._fix_axes``)
+    # the vertical fix: a 1D factor on a pose and its receiver-error node (``gps._fix_axes``)
     models = [g.at(i).noiseModel() for i in range(g.size())
               if isinstance(g.at(i), gtsam.CustomFactor) and g.at(i).dim() == 1]
     sig = [nm.noise().sigmas()[0] for nm in models]
@@ -116,8 +116,8 @@ def test_beside_odometry_the_gps_vertical_is_trusted_less(case, monkeypatch):
     (a 1D factor on the pose and the fix's chain node: consumer altitudes wander by tens of metres)."""
     with_odom, own = _gps_vertical_sigmas(case.inputs, monkeypatch)
     assert len(with_odom) > 10
-    np.testing.assert_allclose(with_odom, factors.ODOM_GPS_VERTICAL_SCALE * own)
+    np.testing.assert_allclose(with_odom, gps.ODOM_GPS_VERTICAL_SCALE * own)
     alone, own = _gps_vertical_sigmas(replace(case.inputs, odom=None), monkeypatch)
     np.testing.assert_allclose(alone, own)
-    assert factors.ODOM_GPS_VERTICAL_SCALE > 1.0
+    assert gps.ODOM_GPS_VERTICAL_SCALE > 1.0
 

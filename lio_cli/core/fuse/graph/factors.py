@@ -12,15 +12,7 @@
 - Odometry: absolute poses as ``PriorFactorPose3`` in the world the filter ties them to (``pose``), or
   ``BetweenFactorPose3`` of consecutive poses with the two poses' variances summed, scaled by
   ``ODOM_DELTA_SHARE`` (``delta``).
-- GPS: the fix (ENU about the first fix, the filter's world) on its own keyframe, horizontal (Huber) and
-  vertical (Cauchy) as two factors, so a wandering altitude never down-weights a good horizontal fix. The
-  horizontal factor is position + a slowly varying receiver error (``G``: one 2D node per fix, a first-order
-  Gauss-Markov chain of correlation time ``GPS_BIAS_TAU_S`` and ``GPS_BIAS_RATIO`` times the fixes' sigma: a
-  prior on a chunk's first node, ``b1 = phi b0 + w`` between neighbours), so the local shape follows the motion
-  sources and GPS only anchors it over longer spans; the fix's own sigma is then its white part. The vertical
-  fix has such a chain too (a node's third axis; sigma ``GPS_BIAS_RATIO`` times the vertical sigma the factor
-  uses): a consumer receiver's altitude wanders by tens of metres over a minute, which white fixes draw the
-  height after. Where the height prior holds the odometry's height (``height``) the vertical fix stays white.
+- GPS: each fix on its keyframe with a slow receiver-error chain (``gps``).
 - IMU orientation: a rotation prior at keyframes where the filter used one.
 """
 
@@ -34,26 +26,18 @@ from gtsam.symbol_shorthand import B, G, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
-from . import height, wheels
+from . import gps, height, wheels
+from .gps import FREE_SIGMA
 from .imu import Segments
 
-HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
-CAUCHY_K = 1.0  # vertical GPS: an altitude wander is a run of outliers
 # wheel increments without a robust loss: a robust one takes a wheel scale error for outliers and lets the graph
 # drift on the IMU
 WHEEL_HUBER_K: float | None = None
-FREE_SIGMA = 1e4  # an axis a factor leaves out (metres)
 BRIDGE_ACCEL_DENSITY = 1.0  # m/s^2/sqrt(Hz): how far the filter's increment across an IMU gap is trusted
 BRIDGE_ROTATION_DENSITY = 0.1  # rad/sqrt(s)
 ORIENTATION_MAX_DT_NS = 10_000_000
 WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (already in the IMU factor)
 FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
-GPS_BIAS_PERIOD_NS = 5_000_000_000  # the guard's windows of the receiver error (guard.residuals)
-GPS_BIAS_TAU_S = 60.0  # correlation time of a receiver's slow error (multipath, atmosphere, satellite geometry)
-# its sigma over the fixes' own (the timeline's) horizontal sigma: consumer receivers claim a third of the truth,
-# and the chain must leave the shape over seconds to the motion sources
-GPS_BIAS_RATIO = 10.0
-PINNED_SIGMA_M = 1e-4  # a receiver-error axis held at zero (the horizontal one without odometry)
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
@@ -63,8 +47,6 @@ ODOM_WHEEL_SIGMA_SCALE = 30.0
 # beside odometry: the wheel increments times the speed scale a pre-pass finds against the odometry, slips gated
 # out, Huber, ``wheels.SIGMA_SCALE`` times their sigma (``wheels``)
 WHEEL_SCALE = True
-# beside odometry (where the receiver-error chain is on), the fixes' vertical sigma times this
-ODOM_GPS_VERTICAL_SCALE = 3.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
 # odometry poses' position sigma times this in the graph: a scan matcher's poses share their drift, so one
 # independent prior per pose counts them many times over (and pins each keyframe to the pose's noise)
@@ -86,26 +68,7 @@ class Measurements:
         self.prep, self.kt, self.noise = prep, kt, noise
         K = len(kt)
         self.wheel_dp: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # keyframe k -> increment to k+1, sigma
-        self.gps_k = self.gps_j = np.zeros(0, np.int64)
-        self.gps_bias_sigma = self.gps_bias_sigma_v = 0.0  # the receiver-error chain's, horizontal and vertical
-        g = prep.gps
-        if g is not None and len(g) and "gps" in prep.use:
-            ok = (g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]) & _accepted(g)
-            idx = np.flatnonzero(ok)
-            first = np.flatnonzero((g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]))
-            if len(idx):
-                self.gps_idx = idx
-                self.gps_k = np.searchsorted(kt, g.stamps_ns[idx])
-                self.gps_z = g.position_enu_m[idx] - g.position_enu_m[first[0]]  # the filter's anchor
-                self.gps_h, self.gps_v = gps_sigmas(g, idx)
-                self.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
-                self.gps_t_s = (g.stamps_ns[idx] - kt[0]) * 1e-9
-                # horizontally only beside odometry: without it the chain measured mixed (docs/benchmarks.md)
-                if prep.odom is not None and "odom" in prep.use:
-                    self.gps_bias_sigma = GPS_BIAS_RATIO * float(np.median(self.gps_h))
-                    self.gps_bias_sigma_v = GPS_BIAS_RATIO * ODOM_GPS_VERTICAL_SCALE * float(np.median(self.gps_v))
-                else:
-                    self.gps_bias_sigma_v = GPS_BIAS_RATIO * float(np.median(self.gps_v))
+        gps.attach_fixes(self, prep, kt)
         self.odom_pairs = np.zeros((0, 2), np.int64)
         od = prep.odom
         if od is not None and len(od) > 1 and "odom" in prep.use:
@@ -138,50 +101,11 @@ class Measurements:
         return nav(s["R"][k], s["p"][k]).matrix() @ np.linalg.inv(self.prep.odom.poses[self.odom_idx[0]])
 
 
-def _fix_axes(z: np.ndarray, axes: slice):
-    """A CustomFactor's error function: the keyframe's position on ``axes`` (horizontal 0:2, vertical 2:3) plus
-    the receiver error there minus the fix."""
-    def error(this, values, H):
-        T = values.atPose3(this.keys()[0])
-        b = values.atPoint3(this.keys()[1])
-        if H is not None:
-            H[0] = np.hstack([np.zeros((len(z), 3)), T.rotation().matrix()[axes, :]])
-            H[1] = np.eye(3)[axes, :]
-        return T.translation()[axes] + b[axes] - z
-    return error
-
-
-def _markov_step(phi: float):
-    """A CustomFactor's error function: the next receiver error minus ``phi`` times the previous one."""
-    def error(this, values, H):
-        a, b = values.atPoint3(this.keys()[0]), values.atPoint3(this.keys()[1])
-        if H is not None:
-            H[0] = -phi * np.eye(3)
-            H[1] = np.eye(3)
-        return b - phi * a
-    return error
-
-
 def _nearest(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
     j = np.clip(np.searchsorted(grid, t), 1, max(len(grid) - 1, 1))
     lo = grid[j - 1]
     hi = grid[np.minimum(j, len(grid) - 1)]
     return np.where(t - lo <= hi - t, j - 1, np.minimum(j, len(grid) - 1))
-
-
-def _accepted(g) -> np.ndarray:
-    """The filter's GPS gating when the prepared timeline carries it (``accepted``), else every fix."""
-    acc = getattr(g, "accepted", None)
-    return np.ones(len(g), bool) if acc is None else np.asarray(acc, bool)
-
-
-def gps_sigmas(g, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal and vertical sigma per fix: the timeline's own where it has them, else the fix covariance."""
-    h, v = getattr(g, "sigma_h_m", None), getattr(g, "sigma_v_m", None)
-    if h is not None and v is not None:
-        return np.asarray(h, float)[idx], np.asarray(v, float)[idx]
-    c = g.cov_m2[idx]
-    return np.sqrt(0.5 * (c[:, 0, 0] + c[:, 1, 1])), np.sqrt(c[:, 2, 2])
 
 
 class WheelTrack:
@@ -293,7 +217,7 @@ class ChunkGraph:
             if o is not None:
                 sig = np.r_[np.full(3, o[1]), np.full(3, FREE_SIGMA)]
                 g.add(gtsam.PriorFactorPose3(X(k), nav(o[0], self.s["p"][k]), gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        self._gps(g, k0, k1)
+        gps.add_fixes(g, self.m, self.level, self.gps_bias_nodes(k0, k1), self.bias_seam, k0, k1)
         self._odom(g, k0, k1)
         if scaled:
             self._scaled_wheels(g, k0, scaled)
@@ -321,43 +245,6 @@ class ChunkGraph:
         if not (len(m.gps_k) and m.gps_bias_sigma_v > 0):
             return np.zeros(0, np.int64)
         return np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
-
-    def _gps(self, g, k0: int, k1: int) -> None:
-        m = self.m
-        huber = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K)
-        cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
-        sel = np.flatnonzero((m.gps_k >= k0) & (m.gps_k < k1))
-        for j in sel.tolist():
-            k, z, h, v = int(m.gps_k[j]), m.gps_z[j], float(m.gps_h[j]), float(m.gps_v[j])
-            if m.gps_bias_sigma > 0:  # beside odometry: its increments carry the height, the altitude wanders
-                v *= ODOM_GPS_VERTICAL_SCALE
-            if m.gps_bias_sigma_v > 0:
-                nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
-                g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _fix_axes(z[:2], slice(0, 2))))
-                if self.level is None:  # with a height prior the vertical fix stays white (below)
-                    nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
-                    g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3))))
-                    continue
-            else:
-                nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
-                g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
-            nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
-            g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
-        nodes = self.gps_bias_nodes(k0, k1)
-        if not len(nodes):
-            return
-        sh = m.gps_bias_sigma if m.gps_bias_sigma > 0 else PINNED_SIGMA_M
-        sb, t = np.r_[sh, sh, m.gps_bias_sigma_v], m.gps_t_s
-        for a, b in zip(nodes[:-1].tolist(), nodes[1:].tolist()):  # Gauss-Markov steps over the fixes' spacing
-            phi = float(np.exp(-(t[b] - t[a]) / GPS_BIAS_TAU_S))
-            step = gtsam.noiseModel.Diagonal.Sigmas(sb * float(np.sqrt(max(1.0 - phi * phi, 1e-12))))
-            g.add(gtsam.CustomFactor(step, [G(a), G(b)], _markov_step(phi)))
-        first = int(nodes[0])
-        if first in self.bias_seam:  # the previous chunk's value, as loose as the error moves in a few seconds
-            seam = sb * float(np.sqrt(1.0 - np.exp(-2.0 * GPS_BIAS_PERIOD_NS * 1e-9 / GPS_BIAS_TAU_S)))
-            g.add(gtsam.PriorFactorPoint3(G(first), self.bias_seam[first], gtsam.noiseModel.Diagonal.Sigmas(seam)))
-        else:
-            g.add(gtsam.PriorFactorPoint3(G(first), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sb)))
 
     def _odom(self, g, k0: int, k1: int) -> None:
         """Absolute poses (``pose``: tied to the world at the first one by the filter's pose there, as the filter
