@@ -74,6 +74,24 @@ def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: fl
     return (1.4826 * float(np.median(np.abs(d2)))) ** 2 / 6.0
 
 
+def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
+                      keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + c g`` (chunk j = ``inv``), summed per
+    chunk: (2m+1)^2 whatever the log's length (the design matrix itself is one row per sample)."""
+    m = int(inv.max()) + 1
+    j, t, gk, dk = inv[keep], tc[keep], g[keep], d[keep]
+    s = lambda w: np.bincount(j, weights=w, minlength=m)  # noqa: E731
+    A = np.zeros((2 * m + 1, 2 * m + 1))
+    b, a = np.arange(0, 2 * m, 2), np.arange(1, 2 * m, 2)
+    A[b, b], A[b, a], A[a, a] = s(np.ones(len(j))), s(t), s(t * t)
+    A[a, b] = A[b, a]
+    A[b, -1], A[a, -1] = s(gk), s(t * gk)
+    A[-1, b], A[-1, a] = A[b, -1], A[a, -1]
+    A[-1, -1] = float(gk @ gk)
+    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), [float(gk @ dk)]])
+    return A, rhs
+
+
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
     """The check (module docstring): (report, the wheel yaw rates with far samples NaN, their variances), the two
@@ -95,21 +113,19 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     idx = np.flatnonzero(ok)
     chunk = np.floor(tw[idx] / CHUNK_S).astype(np.int64)
     _, inv = np.unique(chunk, return_inverse=True)
-    m = inv.max() + 1
-    X = np.zeros((len(idx), 2 * m + 1))
-    X[np.arange(len(idx)), 2 * inv] = 1.0
-    X[np.arange(len(idx)), 2 * inv + 1] = tw[idx] - CHUNK_S * chunk
-    X[:, -1] = g[idx]
-    d = g[idx] - yaw[idx]
+    tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
+    gi, d = g[idx], g[idx] - yaw[idx]
     keep = np.ones(len(idx), bool)
     for _ in range(TRIM_PASSES):
-        sol, *_ = np.linalg.lstsq(X[keep], d[keep], rcond=None)
-        r = d - X @ sol
+        A, rhs = _normal_equations(inv, tc, gi, d, keep)
+        sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
+        r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * gi
         sigma = 1.4826 * float(np.median(np.abs(r[keep])))
         keep = np.abs(r) <= TRIM_Z * max(sigma, 1e-12)
     n = int(keep.sum())
-    s2 = float(r[keep] @ r[keep]) / max(n - X.shape[1], 1)
-    cov = s2 * np.linalg.pinv(X[keep].T @ X[keep])
+    A, _ = _normal_equations(inv, tc, gi, d, keep)
+    s2 = float(r[keep] @ r[keep]) / max(n - len(A), 1)
+    cov = s2 * np.linalg.pinv(A)
     c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
