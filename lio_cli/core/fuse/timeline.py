@@ -191,6 +191,7 @@ def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
         return
     rep = prep.reports["wheel"]
     rep.reject("yaw_slip", check.far)
+    rep.reject("yaw_unchecked", check.unchecked)
     rep.note("yaw_noise_estimated", int(np.isfinite(yaw).sum()))
     prep.wheel = replace(w, yaw_rate_radps=yaw, yaw_rate_var=var)
     prep.use["wheel"].add("yaw_rate")

@@ -12,7 +12,8 @@ second differences, over the wheel period), at least what the samples resolve (`
 the residual's variance), plus the
 scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
 pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
-(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``.
+(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. Samples without a gyro mean
+(an IMU gap, outside its span) are never weighed: left out too (rejected as ``yaw_unchecked``).
 """
 
 from __future__ import annotations
@@ -44,12 +45,14 @@ class YawCheck:
     sigma_radps: float | None = None  # the wheels' yaw-rate noise, estimated
     residual_sigma_radps: float | None = None
     far: int = 0
+    unchecked: int = 0  # wheel yaw rates without a gyro mean to weigh them against (an IMU gap, outside its span)
 
     def to_dict(self) -> dict:
         r = lambda v, n=6: None if v is None else float(f"{v:.{n}g}")  # noqa: E731
         return {"used": self.used, "why": self.why, "scale_off": r(self.scale_off, 4),
                 "scale_off_sigma": r(self.scale_off_sigma, 3), "sigma_radps": r(self.sigma_radps, 3),
-                "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far}
+                "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far,
+                "unchecked_samples": self.unchecked}
 
 
 def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -150,12 +153,15 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
             edge[np.searchsorted(tw, tw[i] + SLIP_EDGE_S, side="right")] -= 1
         far = (far | (np.cumsum(edge)[:-1] > 0)) & np.isfinite(yaw)
         rep.far = int(far.sum())
+    unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
+    rep.unchecked = int(unchecked.sum())
     out = yaw.copy()
-    out[far] = np.nan
+    out[far | unchecked] = np.nan
     w = np.nan_to_num(yaw)
     var = wheel_var + ((abs(c) + c_sigma) * w) ** 2
     rep.used = True
     rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
-               + (f", {rep.far} samples of slips left out" if rep.far else ""))
+               + (f", {rep.far} samples of slips left out" if rep.far else "")
+               + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))
     return rep, out, var

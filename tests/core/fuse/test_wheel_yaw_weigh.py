@@ -72,3 +72,14 @@ def test_memory_is_linear_in_the_log_s_length():
     # measured: 10 min 6.4 MB, 40 min 26 MB (the dense design matrix made it 18 and 246 MB)
     small, large = _peak_bytes(10), _peak_bytes(40)
     assert large < 5 * small
+
+
+def test_wheel_yaw_rates_without_a_gyro_mean_are_left_out_and_counted():
+    tw, yw, ti, gz = _series(2.0)
+    hole = (ti >= 30 * NS) & (ti < 31 * NS)  # an IMU gap of a second
+    check, yaw, var = wheel_yaw.weigh(tw, yw, ti[~hole], gz[~hole], 20_000_000, 1e-3, 3.9)
+    in_gap = (tw > 30 * NS - 10_000_000) & (tw < 31 * NS + 10_000_000)  # their periods cross the gap
+    assert check.used and np.isnan(yaw[in_gap]).all()
+    # the gap's 51 and the first, whose period starts before the IMU's first sample
+    assert check.unchecked == in_gap.sum() + 1 == 52 and check.to_dict()["unchecked_samples"] == 52
+    assert np.isfinite(yaw).sum() == len(yw) - check.unchecked - check.far
