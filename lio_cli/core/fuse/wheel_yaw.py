@@ -12,7 +12,9 @@ second differences, over the wheel period), at least what the samples resolve (`
 the residual's variance), plus the
 scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
 pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
-(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. Samples without a gyro mean
+(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma is at least what
+the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half a wheel period
+(where in its period a wheel message took its rate). Samples without a gyro mean
 (an IMU gap, outside its span) are never weighed: left out too (rejected as ``yaw_unchecked``).
 """
 
@@ -32,6 +34,7 @@ TRIM_Z = 4.0
 TRIM_PASSES = 3
 RESOLVE_Z = 3.0  # the estimated variance is at least this many standard errors of the residual's variance
 SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and end are below the gate)
+ACCEL_WINDOW_S = 0.1  # the gyro's yaw acceleration (the gate's floor) from its means over this long either side
 
 
 @dataclass
@@ -108,6 +111,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
         rep.why = f"fewer than {MIN_SAMPLES} wheel yaw rates over {MIN_SPAN_S:g} s: the gyro's alone"
         return rep, None, None
     period = float(np.median(np.diff(tw[ok])))
+    win = max(period, ACCEL_WINDOW_S)
     g = _gyro_mean(ti, gz, gap, tw - 0.5 * period, tw + 0.5 * period)
     ok &= np.isfinite(g)
     if ok.sum() < MIN_SAMPLES or np.abs(g[ok]).max() < MIN_YAW_RATE_RADPS:
@@ -132,8 +136,10 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
+    accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
+    floor2 = gyro_var + (np.nan_to_num(accel[idx]) * 0.5 * period) ** 2  # what the comparison cannot resolve
     far = np.zeros(len(yaw), bool)
-    far[idx] = np.abs(r) > gate_z * max(sigma, 1e-12)
+    far[idx] = np.abs(r) > gate_z * np.maximum(max(sigma, 1e-12), np.sqrt(floor2))
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
