@@ -20,7 +20,7 @@ the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acce
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -49,6 +49,8 @@ class YawCheck:
     residual_sigma_radps: float | None = None
     far: int = 0
     unchecked: int = 0  # wheel yaw rates without a gyro mean to weigh them against (an IMU gap, outside its span)
+    far_mask: np.ndarray | None = field(default=None, repr=False)  # per wheel sample, where used
+    unchecked_mask: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         r = lambda v, n=6: None if v is None else float(f"{v:.{n}g}")  # noqa: E731
@@ -56,6 +58,37 @@ class YawCheck:
                 "scale_off_sigma": r(self.scale_off_sigma, 3), "sigma_radps": r(self.sigma_radps, 3),
                 "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far,
                 "unchecked_samples": self.unchecked}
+
+
+@dataclass
+class Weighed:
+    """One log's weighing, applied by stamp to a piece of it (a run fused in chunks weighs the whole log once, so
+    every chunk uses its decision, noise and slips)."""
+
+    check: dict  # YawCheck.to_dict()
+    stamps_ns: np.ndarray | None = None  # the weighed wheel samples; None where the yaw rate stays out
+    yaw: np.ndarray | None = None  # far and unchecked samples NaN
+    var: np.ndarray | None = None
+    far: np.ndarray | None = None
+    unchecked: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, stamps_ns: np.ndarray, check: YawCheck, yaw: np.ndarray | None, var: np.ndarray | None) -> Weighed:
+        if yaw is None:
+            return cls(check.to_dict())
+        return cls(check.to_dict(), stamps_ns, yaw, var, check.far_mask, check.unchecked_mask)
+
+    def on(self, stamps_ns: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int] | None:
+        """(the wheel yaw rates at these stamps, their variances, far and unchecked samples among them); a stamp
+        the whole log's weighing has not seen is unchecked. None where the yaw rate stays out."""
+        if self.yaw is None:
+            return None
+        i = np.minimum(np.searchsorted(self.stamps_ns, stamps_ns), len(self.stamps_ns) - 1)
+        seen = self.stamps_ns[i] == stamps_ns
+        out = np.where(seen, self.yaw[i], np.nan)
+        unseen = int(np.count_nonzero(~seen & np.isfinite(yaw)))
+        return out, self.var[i], int(np.count_nonzero(seen & self.far[i])), \
+            int(np.count_nonzero(seen & self.unchecked[i])) + unseen
 
 
 def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -165,7 +198,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     out[far | unchecked] = np.nan
     w = np.nan_to_num(yaw)
     var = wheel_var + ((abs(c) + c_sigma) * w) ** 2
-    rep.used = True
+    rep.used, rep.far_mask, rep.unchecked_mask = True, far, unchecked
     rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
                + (f", {rep.far} samples of slips left out" if rep.far else "")

@@ -17,3 +17,16 @@ def test_an_ideal_log_has_no_yaw_slip(tmp_path):
     # the yaw rate), with the gyro's yaw acceleration over half a wheel period: none
     assert check["used"] and check["far_samples"] == 0, check
     assert "yaw_slip" not in run.metrics["rejected"].get("wheel", {})
+
+
+def test_a_run_fused_in_chunks_uses_and_reports_the_whole_log_s_weighing(tmp_path):
+    log = tmp_path / "slips.bag"
+    simulate("planar", log, duration_s=60.0, wheel_errors=False, wheel_slip_bursts=2)
+    whole = run_fuse(FuseJob(log, FuseConfig(smooth=False)))
+    chunked = run_fuse(FuseJob(log, FuseConfig(smooth=False, max_memory_mb=22.0)))
+    assert whole.metrics["memory"]["chunks"] == 1 and chunked.metrics["memory"]["chunks"] == 2
+    check = chunked.metrics["core"]["wheel_yaw_check"]
+    # each chunk weighed its own 40-50 s before and the first one's check was reported: 73 far samples, not 184
+    assert check == whole.metrics["core"]["wheel_yaw_check"] and check["used"] and check["far_samples"] > 100
+    assert chunked.metrics["rejected"]["wheel"] == whole.metrics["rejected"]["wheel"] == {
+        "yaw_slip": check["far_samples"], "yaw_unchecked": check["unchecked_samples"]}
