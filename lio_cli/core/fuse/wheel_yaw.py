@@ -133,8 +133,8 @@ def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndar
 
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
-    """The check (module docstring): (report, the wheel yaw rates with far samples NaN, their variances), the two
-    arrays None where the wheels' yaw rate stays out."""
+    """The check (module docstring): (report, the wheel yaw rates with far and unchecked samples NaN, their
+    variances), the two arrays None where the wheels' yaw rate stays out."""
     rep = YawCheck()
     t0 = int(ti_ns[0])
     tw, ti = (tw_ns - t0) * 1e-9, (ti_ns - t0) * 1e-9
