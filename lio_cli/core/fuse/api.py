@@ -170,6 +170,13 @@ def pick_estimator(inputs: FuseInputs, options: FuseOptions) -> EstimatorChoice:
     return _prepare_and_choose(inputs, options, check=False)[1]
 
 
+def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[EstimatorChoice, FuseOptions]:
+    """The estimator ``fuse`` would run and the options every piece of the log is then fused with: that estimator
+    and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same."""
+    prep, choice = _prepare_and_choose(inputs, options, check=False)
+    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed)
+
+
 def _planar_seed(prep: Prepared, o: FuseOptions):
     """Keyframe stamps -> the planar filter's x, y, yaw and speed there (the graph's start where planar was
     chosen: the 3D filter can be far off on such logs, e.g. a moving start with a rotated IMU, 6.7 m vs 0.18 m)."""

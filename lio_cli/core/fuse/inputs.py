@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import ConfigError
+from .wheel_yaw import Weighed
 
 ESTIMATORS = ("auto", "ekf", "planar", "complementary")  # auto: chosen from the data (choose.py)
 
@@ -154,7 +155,8 @@ class FuseOptions:
     only without an IMU (a gyro is far better; skid and baseline errors bias wheel yaw rates); odometry
     poses, or increments (delta) when GPS is used too; GPS position.
     ``weigh_wheel_yaw``: beside a gyro, the wheels' yaw rate weighed against it over the log and used where the
-    data show it agrees, with the noise they show (``wheel_yaw``); ``None``: when ``use`` is None.
+    data show it agrees, with the noise they show (``wheel_yaw``); ``None``: when ``use`` is None. ``wheel_yaw``:
+    a weighing already made over the whole log (a run fused in pieces), used instead of weighing the piece.
     ``smooth``: the whole log before and after each instant: the factor graph (``graph``) whenever the
     accelerometer is used, whatever the filter (its guard falls back on the chosen filter), else the RTS pass
     over the EKF (the complementary filter has none); ``False``: the filter alone.
@@ -179,6 +181,7 @@ class FuseOptions:
     smooth: bool = False  # the core's default is the filter alone; lio fuse and its config default to smoothing
     use: dict[str, set[str]] | None = None
     weigh_wheel_yaw: bool | None = None
+    wheel_yaw: Weighed | None = None  # the whole log's weighing (``whole_log_options``), applied here by stamp
     noise: NoiseOptions = field(default_factory=NoiseOptions)
     rate_hz: float | None = None
     stamps_ns: np.ndarray | None = None

@@ -19,6 +19,7 @@ from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, W
 from .lever import imu_in_base
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
+from .wheel_yaw import Weighed
 from .wheel_yaw import weigh as weigh_yaw
 
 IMU, WHEEL, ODOM, GPS, OUT = 0, 1, 2, 3, 4
@@ -47,6 +48,7 @@ class Prepared:
     notes: list[str] = field(default_factory=list)
     wheel_check: dict | None = None  # wheel_slip.SlipReport.to_dict() where the wheels were checked
     wheel_yaw_check: dict | None = None  # wheel_yaw.YawCheck.to_dict() where the wheels' yaw rate was weighed
+    wheel_yaw_weighed: Weighed | None = None  # the weighing itself, for FuseOptions.wheel_yaw
 
     @property
     def t0_ns(self) -> int:
@@ -180,17 +182,24 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
 
 
 def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
-    """The wheels' yaw rate beside the gyro where the data show it agrees (``wheel_yaw``): into the selection,
-    with its estimated variance and its slips left out (rejected as ``yaw_slip``)."""
+    """The wheels' yaw rate beside the gyro where the data show it agrees (``wheel_yaw``; the whole log's weighing
+    where ``options.wheel_yaw`` holds it): into the selection, with its estimated variance and its slips left out
+    (rejected as ``yaw_slip``)."""
     w = prep.wheel
-    z = float(np.sqrt(chi2_thresholds(options.gate_probability, 1)[1]))
-    check, yaw, var = weigh_yaw(w.stamps_ns, w.yaw_rate_radps, prep.imu.stamps_ns, prep.imu_w_b[:, 2], prep.imu_gap_ns,
-                            options.noise.gyro_noise_density, z)
-    prep.wheel_yaw_check = check.to_dict()
-    if yaw is None:
+    weighed = options.wheel_yaw
+    if weighed is None:
+        z = float(np.sqrt(chi2_thresholds(options.gate_probability, 1)[1]))
+        check, yaw, var = weigh_yaw(w.stamps_ns, w.yaw_rate_radps, prep.imu.stamps_ns, prep.imu_w_b[:, 2],
+                                    prep.imu_gap_ns, options.noise.gyro_noise_density, z)
+        weighed = Weighed.of(w.stamps_ns, check, yaw, var)
+    prep.wheel_yaw_weighed, prep.wheel_yaw_check = weighed, weighed.check
+    piece = weighed.on(w.stamps_ns, w.yaw_rate_radps)
+    if piece is None:
         return
+    yaw, var, far, unchecked = piece
     rep = prep.reports["wheel"]
-    rep.reject("yaw_slip", check.far)
+    rep.reject("yaw_slip", far)
+    rep.reject("yaw_unchecked", unchecked)
     rep.note("yaw_noise_estimated", int(np.isfinite(yaw).sum()))
     prep.wheel = replace(w, yaw_rate_radps=yaw, yaw_rate_var=var)
     prep.use["wheel"].add("yaw_rate")

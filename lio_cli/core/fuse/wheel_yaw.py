@@ -12,12 +12,15 @@ second differences, over the wheel period), at least what the samples resolve (`
 the residual's variance), plus the
 scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
 pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
-(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``.
+(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma is at least what
+the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half a wheel period
+(where in its period a wheel message took its rate). Samples without a gyro mean
+(an IMU gap, outside its span) are never weighed: left out too (rejected as ``yaw_unchecked``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,6 +34,7 @@ TRIM_Z = 4.0
 TRIM_PASSES = 3
 RESOLVE_Z = 3.0  # the estimated variance is at least this many standard errors of the residual's variance
 SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and end are below the gate)
+ACCEL_WINDOW_S = 0.1  # the gyro's yaw acceleration (the gate's floor) from its means over this long either side
 
 
 @dataclass
@@ -44,12 +48,47 @@ class YawCheck:
     sigma_radps: float | None = None  # the wheels' yaw-rate noise, estimated
     residual_sigma_radps: float | None = None
     far: int = 0
+    unchecked: int = 0  # wheel yaw rates without a gyro mean to weigh them against (an IMU gap, outside its span)
+    far_mask: np.ndarray | None = field(default=None, repr=False)  # per wheel sample, where used
+    unchecked_mask: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         r = lambda v, n=6: None if v is None else float(f"{v:.{n}g}")  # noqa: E731
         return {"used": self.used, "why": self.why, "scale_off": r(self.scale_off, 4),
                 "scale_off_sigma": r(self.scale_off_sigma, 3), "sigma_radps": r(self.sigma_radps, 3),
-                "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far}
+                "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far,
+                "unchecked_samples": self.unchecked}
+
+
+@dataclass
+class Weighed:
+    """One log's weighing, applied by stamp to a piece of it (a run fused in chunks weighs the whole log once, so
+    every chunk uses its decision, noise and slips)."""
+
+    check: dict  # YawCheck.to_dict()
+    stamps_ns: np.ndarray | None = None  # the weighed wheel samples; None where the yaw rate stays out
+    yaw: np.ndarray | None = None  # far and unchecked samples NaN
+    var: np.ndarray | None = None
+    far: np.ndarray | None = None
+    unchecked: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, stamps_ns: np.ndarray, check: YawCheck, yaw: np.ndarray | None, var: np.ndarray | None) -> Weighed:
+        if yaw is None:
+            return cls(check.to_dict())
+        return cls(check.to_dict(), stamps_ns, yaw, var, check.far_mask, check.unchecked_mask)
+
+    def on(self, stamps_ns: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int] | None:
+        """(the wheel yaw rates at these stamps, their variances, far and unchecked samples among them); a stamp
+        the whole log's weighing has not seen is unchecked. None where the yaw rate stays out."""
+        if self.yaw is None:
+            return None
+        i = np.minimum(np.searchsorted(self.stamps_ns, stamps_ns), len(self.stamps_ns) - 1)
+        seen = self.stamps_ns[i] == stamps_ns
+        out = np.where(seen, self.yaw[i], np.nan)
+        unseen = int(np.count_nonzero(~seen & np.isfinite(yaw)))
+        return out, self.var[i], int(np.count_nonzero(seen & self.far[i])), \
+            int(np.count_nonzero(seen & self.unchecked[i])) + unseen
 
 
 def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -74,10 +113,28 @@ def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: fl
     return (1.4826 * float(np.median(np.abs(d2)))) ** 2 / 6.0
 
 
+def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
+                      keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + c g`` (chunk j = ``inv``), summed per
+    chunk: (2m+1)^2 whatever the log's length (the design matrix itself is one row per sample)."""
+    m = int(inv.max()) + 1
+    j, t, gk, dk = inv[keep], tc[keep], g[keep], d[keep]
+    s = lambda w: np.bincount(j, weights=w, minlength=m)  # noqa: E731
+    A = np.zeros((2 * m + 1, 2 * m + 1))
+    b, a = np.arange(0, 2 * m, 2), np.arange(1, 2 * m, 2)
+    A[b, b], A[b, a], A[a, a] = s(np.ones(len(j))), s(t), s(t * t)
+    A[a, b] = A[b, a]
+    A[b, -1], A[a, -1] = s(gk), s(t * gk)
+    A[-1, b], A[-1, a] = A[b, -1], A[a, -1]
+    A[-1, -1] = float(gk @ gk)
+    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), [float(gk @ dk)]])
+    return A, rhs
+
+
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
-    """The check (module docstring): (report, the wheel yaw rates with far samples NaN, their variances), the two
-    arrays None where the wheels' yaw rate stays out."""
+    """The check (module docstring): (report, the wheel yaw rates with far and unchecked samples NaN, their
+    variances), the two arrays None where the wheels' yaw rate stays out."""
     rep = YawCheck()
     t0 = int(ti_ns[0])
     tw, ti = (tw_ns - t0) * 1e-9, (ti_ns - t0) * 1e-9
@@ -87,6 +144,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
         rep.why = f"fewer than {MIN_SAMPLES} wheel yaw rates over {MIN_SPAN_S:g} s: the gyro's alone"
         return rep, None, None
     period = float(np.median(np.diff(tw[ok])))
+    win = max(period, ACCEL_WINDOW_S)
     g = _gyro_mean(ti, gz, gap, tw - 0.5 * period, tw + 0.5 * period)
     ok &= np.isfinite(g)
     if ok.sum() < MIN_SAMPLES or np.abs(g[ok]).max() < MIN_YAW_RATE_RADPS:
@@ -95,26 +153,26 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     idx = np.flatnonzero(ok)
     chunk = np.floor(tw[idx] / CHUNK_S).astype(np.int64)
     _, inv = np.unique(chunk, return_inverse=True)
-    m = inv.max() + 1
-    X = np.zeros((len(idx), 2 * m + 1))
-    X[np.arange(len(idx)), 2 * inv] = 1.0
-    X[np.arange(len(idx)), 2 * inv + 1] = tw[idx] - CHUNK_S * chunk
-    X[:, -1] = g[idx]
-    d = g[idx] - yaw[idx]
+    tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
+    gi, d = g[idx], g[idx] - yaw[idx]
     keep = np.ones(len(idx), bool)
     for _ in range(TRIM_PASSES):
-        sol, *_ = np.linalg.lstsq(X[keep], d[keep], rcond=None)
-        r = d - X @ sol
+        A, rhs = _normal_equations(inv, tc, gi, d, keep)
+        sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
+        r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * gi
         sigma = 1.4826 * float(np.median(np.abs(r[keep])))
         keep = np.abs(r) <= TRIM_Z * max(sigma, 1e-12)
     n = int(keep.sum())
-    s2 = float(r[keep] @ r[keep]) / max(n - X.shape[1], 1)
-    cov = s2 * np.linalg.pinv(X[keep].T @ X[keep])
+    A, _ = _normal_equations(inv, tc, gi, d, keep)
+    s2 = float(r[keep] @ r[keep]) / max(n - len(A), 1)
+    cov = s2 * np.linalg.pinv(A)
     c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
+    accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
+    floor2 = gyro_var + (np.nan_to_num(accel[idx]) * 0.5 * period) ** 2  # what the comparison cannot resolve
     far = np.zeros(len(yaw), bool)
-    far[idx] = np.abs(r) > gate_z * max(sigma, 1e-12)
+    far[idx] = np.abs(r) > gate_z * np.maximum(max(sigma, 1e-12), np.sqrt(floor2))
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
@@ -134,12 +192,15 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
             edge[np.searchsorted(tw, tw[i] + SLIP_EDGE_S, side="right")] -= 1
         far = (far | (np.cumsum(edge)[:-1] > 0)) & np.isfinite(yaw)
         rep.far = int(far.sum())
+    unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
+    rep.unchecked = int(unchecked.sum())
     out = yaw.copy()
-    out[far] = np.nan
+    out[far | unchecked] = np.nan
     w = np.nan_to_num(yaw)
     var = wheel_var + ((abs(c) + c_sigma) * w) ** 2
-    rep.used = True
+    rep.used, rep.far_mask, rep.unchecked_mask = True, far, unchecked
     rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
-               + (f", {rep.far} samples of slips left out" if rep.far else ""))
+               + (f", {rep.far} samples of slips left out" if rep.far else "")
+               + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))
     return rep, out, var

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +20,7 @@ import numpy as np
 from ...config import with_overrides
 from ...config.fuse import FuseConfig
 from ...core.fuse import (COVARIANCE_LAYOUT, NOTE_REASONS, REJECT_REASONS, FuseOptions, FuseResult,
-                          NoiseOptions, pick_estimator)
+                          NoiseOptions, whole_log_options)
 from ...evaluation.scoring import Score
 from ...gc_pause import cyclic_gc_paused
 from ...io.logs.reader import open_log
@@ -97,8 +97,7 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
         fmt = reader.format
     t_read = time.perf_counter() - t_wall
     options = core_options(cfg, sources.use, job.covariance)
-    choice = pick_estimator(sources.inputs, options)  # once for the whole log, so every chunk runs the same one
-    options = replace(options, estimator=choice.name)
+    choice, options = whole_log_options(sources.inputs, options)  # once for the whole log: every chunk the same
     memory = plan(sources.inputs, options, sources.use, cfg.max_memory_mb)
 
     def fuse_step(k: int, n: int) -> None:

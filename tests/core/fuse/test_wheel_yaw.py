@@ -73,6 +73,8 @@ def test_exact_wheels_give_the_heading_and_the_gyro_bias_on_a_moving_start(smoot
     rep = res.reports["wheel"]
     assert rep.by_kind["wheel_yaw_rate"]["updates"] > 0.9 * len(inputs.wheel.stamps_ns)
     assert rep.notes["yaw_noise_estimated"] > 0 and "yaw_noise_estimated" in NOTE_REASONS
+    # the first wheel message's period starts before the IMU's first sample: never weighed, left out
+    assert rep.rejected["yaw_unchecked"] == check["unchecked_samples"] == 1 and "yaw_unchecked" in REJECT_REASONS
 
 
 def test_wheels_whose_yaw_scale_is_off_are_left_out():
