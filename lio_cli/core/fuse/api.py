@@ -165,11 +165,6 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
     return fallback, kept
 
 
-def pick_estimator(inputs: FuseInputs, options: FuseOptions) -> EstimatorChoice:
-    """The estimator ``fuse`` would run on these inputs and why (for a caller that fuses in pieces)."""
-    return _prepare_and_choose(inputs, options, check=False)[1]
-
-
 def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[EstimatorChoice, FuseOptions]:
     """The estimator ``fuse`` would run and the options every piece of the log is then fused with: that estimator
     and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same."""
