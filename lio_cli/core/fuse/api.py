@@ -91,9 +91,7 @@ def _wheels_verified(prep: Prepared) -> bool:
     """The wheels' speed scale measured by the accelerometer (``wheel_slip``, no slip left in) and their yaw rate
     agreeing with the gyro (``wheel_yaw``)."""
     speed, yaw = prep.wheel_check or {}, prep.wheel_yaw_check or {}
-    sigma = speed.get("scale_sigma")
-    return bool(yaw.get("used")) and sigma is not None and sigma <= wheel_slip.MAX_SCALE_SIGMA \
-        and not speed.get("left_in")
+    return bool(yaw.get("used")) and bool(speed.get("verified"))
 
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:

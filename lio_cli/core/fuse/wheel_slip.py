@@ -60,6 +60,7 @@ class SlipReport:
     scale_applied: bool = False
     bridged: int = 0
     left_in: int = 0  # slips longer than MAX_SLIP_S the IMU's speed did not close: out of the fit, not bridged
+    verified: bool = False  # the scale measured, near 1, every slip bridged: the speeds can be trusted
     why: str = ""
 
     def to_dict(self) -> dict:
@@ -67,7 +68,7 @@ class SlipReport:
                 "scale": None if self.scale is None else round(self.scale, 4),
                 "scale_sigma": None if self.scale_sigma is None else round(self.scale_sigma, 4),
                 "scale_applied": self.scale_applied, "bridged": self.bridged, "left_in": self.left_in,
-                "why": self.why}
+                "verified": self.verified, "why": self.why}
 
 
 def applies(prep: Prepared) -> bool:
@@ -229,6 +230,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
     rep.bridged = n_bridged
+    rep.verified = rep.left_in == 0
     vel = w.velocity_mps.copy()
     vel[ok, 0] = v_new
     var = None

@@ -262,11 +262,16 @@ def merge_wheel_checks(checks: list[dict | None]) -> dict:
     """One wheel check for a run fused in chunks: each chunk checked its own wheels (its windows relative to its
     start are in the chunk's own entry)."""
     done = [c for c in checks if c]
-    slips, bridged = sum(c["slips"] for c in done), sum(c["bridged"] for c in done)
+    # a chunk whose scale was not measured stopped before bridging: its windows were found, not bridged
+    reached = [c for c in done if c.get("verified") or c.get("left_in")]
+    left_in = sum(c.get("left_in", 0) for c in reached)
+    slips, bridged = sum(c["slips"] for c in reached) - left_in, sum(c["bridged"] for c in done)
     scales = [c["scale"] if c["scale_applied"] else 1.0 for c in done]
-    return {"slips": slips, "windows_s": None, "scale": None, "scale_sigma": None, "bridged": bridged,
+    return {"slips": sum(c["slips"] for c in done), "windows_s": None, "scale": None, "scale_sigma": None,
+            "bridged": bridged, "left_in": left_in, "verified": len(reached) == len(done) and not left_in,
             "scale_applied": any(c["scale_applied"] for c in done), "per_chunk_scale": scales,
-            "why": f"checked per chunk ({len(done)} of {len(checks)}): {slips} slip(s) bridged by the IMU, wheel scale "
+            "why": f"checked per chunk ({len(done)} of {len(checks)}): {slips} slip(s) bridged by the IMU"
+                   + (f", {left_in} left in" if left_in else "") + ", wheel scale "
                    + ", ".join(f"{v:.4f}" for v in scales)}
 
 

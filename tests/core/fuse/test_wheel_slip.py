@@ -82,7 +82,7 @@ def test_slips_and_a_scale_error_are_found_and_the_track_beats_dead_reckoning(sm
     assert check["slips"] == len(BURSTS)
     for (a, d, _), (lo, hi) in zip(BURSTS, check["windows_s"]):  # every burst inside its window, no wider than 1 s
         assert lo <= a and a + d <= hi <= a + d + 1.0
-    assert check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL
+    assert check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL and check["verified"]
     rep = res.reports["wheel"]  # replaced, not dropped: counted as bridged, never as rejected
     assert rep.notes["slip_bridged"] == check["bridged"] > 0 and "slip_bridged" in NOTE_REASONS
     assert sum(rep.rejected.values()) == 0, rep.rejected
@@ -162,6 +162,7 @@ def test_an_imu_yawed_on_its_mount_leaves_the_wheels_alone():
     res = fuse(inputs, FuseOptions(estimator="planar", smooth=False, rate_hz=20.0))
     check = res.info["wheel_check"]
     assert not check["scale_applied"] and check["bridged"] == 0 and check["slips"] == 0, check
+    assert not check["verified"]
     assert "forward axis" in check["why"] or "not measured" in check["why"]
 
 
@@ -193,5 +194,6 @@ def test_a_slip_lasting_to_the_end_is_left_in_but_out_of_the_fit():
     res = fuse(inputs, FuseOptions(smooth=False, rate_hz=20.0))
     check = res.info["wheel_check"]
     assert check["slips"] == 2 and check["left_in"] == 1 and check["windows_s"][1][1] > 29.0, check
+    assert not check["verified"]
     assert check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL
     assert "1 longer than 5 s left in" in check["why"]

@@ -115,9 +115,22 @@ def test_plan_refuses_when_even_the_shortest_chunk_is_over_budget():
 
 def test_a_chunked_run_sums_every_chunks_wheel_check():
     a = {"slips": 2, "windows_s": [[1.0, 2.5], [7.0, 8.0]], "scale": 1.0291, "scale_sigma": 0.001, "bridged": 150,
-         "scale_applied": True, "why": "x"}
+         "left_in": 0, "verified": True, "scale_applied": True, "why": "x"}
     b = {"slips": 1, "windows_s": [[3.0, 4.0]], "scale": 1.002, "scale_sigma": 0.004, "bridged": 60,
-         "scale_applied": False, "why": "y"}
+         "left_in": 0, "verified": True, "scale_applied": False, "why": "y"}
     m = merge_wheel_checks([a, None, b])
     assert (m["slips"], m["bridged"], m["scale_applied"], m["per_chunk_scale"]) == (3, 210, True, [1.0291, 1.0])
+    assert m["verified"] and m["left_in"] == 0
     assert m["why"] == "checked per chunk (2 of 3): 3 slip(s) bridged by the IMU, wheel scale 1.0291, 1.0000"
+
+
+def test_a_chunk_whose_scale_was_not_measured_bridged_none_of_its_slips():
+    """Its windows were found before the scale fit refused: they stay counted as slips, not as bridged ones, and a
+    slip left in elsewhere is named; the run's wheels are then not verified."""
+    a = {"slips": 2, "windows_s": [[1.0, 2.5], [7.0, 8.0]], "scale": 1.0291, "scale_sigma": 0.001, "bridged": 150,
+         "left_in": 1, "verified": False, "scale_applied": True, "why": "x"}
+    b = {"slips": 3, "windows_s": [[3.0, 4.0]] * 3, "scale": 1.03, "scale_sigma": 0.02, "bridged": 0,
+         "left_in": 0, "verified": False, "scale_applied": False, "why": "not measured"}
+    m = merge_wheel_checks([a, b])
+    assert (m["slips"], m["bridged"], m["left_in"], m["verified"]) == (5, 150, 1, False)
+    assert m["why"] == "checked per chunk (2 of 2): 1 slip(s) bridged by the IMU, 1 left in, wheel scale 1.0291, 1.0000"
