@@ -47,8 +47,12 @@ class Prepared:
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     notes: list[str] = field(default_factory=list)
     wheel_check: dict | None = None  # wheel_slip.SlipReport.to_dict() where the wheels were checked
-    wheel_yaw_check: dict | None = None  # wheel_yaw.YawCheck.to_dict() where the wheels' yaw rate was weighed
-    wheel_yaw_weighed: Weighed | None = None  # the weighing itself, for FuseOptions.wheel_yaw
+    wheel_yaw_weighed: Weighed | None = None  # the wheels' yaw rate weighed against the gyro (FuseOptions.wheel_yaw)
+
+    @property
+    def wheel_yaw_check(self) -> dict | None:
+        """``wheel_yaw.YawCheck.to_dict()`` where the wheels' yaw rate was weighed."""
+        return None if self.wheel_yaw_weighed is None else self.wheel_yaw_weighed.check
 
     @property
     def t0_ns(self) -> int:
@@ -192,7 +196,7 @@ def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
         check, yaw, var = weigh_yaw(w.stamps_ns, w.yaw_rate_radps, prep.imu.stamps_ns, prep.imu_w_b[:, 2],
                                     prep.imu_gap_ns, options.noise.gyro_noise_density, z)
         weighed = Weighed.of(w.stamps_ns, check, yaw, var)
-    prep.wheel_yaw_weighed, prep.wheel_yaw_check = weighed, weighed.check
+    prep.wheel_yaw_weighed = weighed
     piece = weighed.on(w.stamps_ns, w.yaw_rate_radps)
     if piece is None:
         return

@@ -151,9 +151,9 @@ class ChunkGraph:
         self.yaw = wheels.YawTrack.of(meas.prep, seg.t, seg.dt, _nearest)
         self.bridged = 0
         od = meas.prep.use.get("odom", set())
-        beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
-        self.scaled = self.wheel is not None and WHEEL_SCALE and beside_odom
-        self.level = meas.level if self.wheel is not None and beside_odom else None
+        self.beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
+        self.scaled = self.wheel is not None and WHEEL_SCALE and self.beside_odom
+        self.level = meas.level if self.wheel is not None and self.beside_odom else None
         self.levelled = 0
         if self.scaled:  # the forward sigma's share of the speed stood for a scale error: the scale carries it
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
@@ -206,7 +206,7 @@ class ChunkGraph:
             if wheel and self.scaled:
                 scaled.append((k, dp, sd, pim.deltaRij()))
             elif wheel:
-                if len(m.odom_k) and m.prep.use["odom"] & set(ODOM_WHEEL_LOOSE_MODES):
+                if self.beside_odom:
                     sd = sd * ODOM_WHEEL_SIGMA_SCALE
                 m.wheel_dp[k] = (dp, sd)
                 sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
