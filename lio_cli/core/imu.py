@@ -127,6 +127,15 @@ def imu_gap_free(stamps_ns: np.ndarray, t0_ns: int, t1_ns: int, max_gap_ns: int 
     return len(around) < 2 or int((around[1:] - around[:-1]).max()) <= max_gap_ns // 2
 
 
+def imu_hole_ns(stamps_ns: np.ndarray, t0_ns: int, t1_ns: int, max_gap_ns: int = MAX_IMU_GAP_NS) -> int | None:
+    """The length of the stretch without samples that makes [t0, t1] an IMU gap (``imu_gap_ns``'s cost over
+    ``max_gap_ns``), None where there is none (``imu_gap_free`` answers the usual case first)."""
+    if imu_gap_free(stamps_ns, t0_ns, t1_ns, max_gap_ns):
+        return None
+    cost_ns, hole_ns = imu_gap_ns(stamps_ns, t0_ns, t1_ns)
+    return hole_ns if cost_ns > max_gap_ns else None
+
+
 def propagate(state: NavState, imu: ImuBatch, t_end_ns: int, ext: Extrinsics, *,
               g_world: np.ndarray | None = None, noise=None, max_gap_ns: int = MAX_IMU_GAP_NS,
               planar: bool = False, accel: bool = True) -> Propagation:

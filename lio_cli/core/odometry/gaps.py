@@ -18,7 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ...model.records import ImuBatch, PointCloud
-from ..imu import MAX_IMU_GAP_NS, NavState, imu_gap_ns
+from ..imu import NavState, imu_hole_ns
 from .lidar_step import lidar_step
 from .state import OdomState, ScanResult
 from .tuning import (DRIFT_SIGMA_MPS, DRIFT_SIGMA_MPS2, GATE_M, MAX_BRIDGE_GATE_M, RESEED_SIGMA_M, RESEED_SIGMA_MPS,
@@ -39,8 +39,8 @@ def bridge_refused(has_state: bool, imu_window: Callable[[int], ImuBatch], t_pre
         return "no IMU state to carry across it"
     if (t_ref - t_prev) * 1e-9 > max_bridge_s:
         return f"longer than max_bridge_s, {max_bridge_s:g} s"
-    cost_ns, hole_ns = imu_gap_ns(imu_window(t_prev).stamps_ns, t_prev, t_ref)
-    if cost_ns > MAX_IMU_GAP_NS:
+    hole_ns = imu_hole_ns(imu_window(t_prev).stamps_ns, t_prev, t_ref)
+    if hole_ns is not None:
         return f"the IMU has a {hole_ns * 1e-9:.3g} s gap in it too"
     return None
 

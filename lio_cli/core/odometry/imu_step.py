@@ -9,7 +9,7 @@ import time
 
 from ...geometry import inv_pose, project_to_se2
 from ...model.records import PointCloud
-from ..imu import MAX_IMU_GAP_NS, imu_gap_free, imu_gap_ns, propagate
+from ..imu import imu_hole_ns, propagate
 from ..motion_compensation import constant_velocity_knots
 from .gaps import imu_gap_step
 from .guards import icp_cap, implausible, predicted_only, registration_failed, state_implausible, turning_slowly
@@ -28,10 +28,9 @@ def imu_step(o: OdomState, cloud: PointCloud, t_prev: int, t_ref: int,
     rc = cfg.registration
     tick = time.process_time()
     imu = o.imu_window(t_prev)
-    if not imu_gap_free(imu.stamps_ns, t_prev, t_ref):
-        cost_ns, hole_ns = imu_gap_ns(imu.stamps_ns, t_prev, t_ref)
-        if cost_ns > MAX_IMU_GAP_NS:  # rates interpolated or held across it would prime the scan wrongly
-            return imu_gap_step(o, cloud, t_prev, t_ref, hole_ns)
+    hole_ns = imu_hole_ns(imu.stamps_ns, t_prev, t_ref)
+    if hole_ns is not None:  # rates interpolated or held across it would prime the scan wrongly
+        return imu_gap_step(o, cloud, t_prev, t_ref, hole_ns)
     o.gaps.imu_gap_from = None
     # propagate
     prop = propagate(nav.state, imu, t_ref, o.ext, noise=o.settings.imu_noise, planar=planar)

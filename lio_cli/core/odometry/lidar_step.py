@@ -8,7 +8,7 @@ import numpy as np
 
 from ...geometry import inv_pose, project_to_se2
 from ...model.records import ImuBatch, PointCloud
-from ..imu import MAX_IMU_GAP_NS, imu_gap_ns
+from ..imu import imu_hole_ns
 from .blind import register_blind
 from .guards import count_lost
 from .pose_checks import exceeds_jump, lean_on_prior, untouched
@@ -28,7 +28,7 @@ def imu_hole(o: OdomState, t_prev: int, t_ref: int) -> bool:
     stamps = o.imu_window(t_prev).stamps_ns
     if not len(stamps) or stamps[0] > t_prev:
         return False  # before the IMU starts: no gap, nothing to prime with (a gap's end is not known online)
-    hole = imu_gap_ns(stamps, t_prev, t_ref)[0] > MAX_IMU_GAP_NS
+    hole = imu_hole_ns(stamps, t_prev, t_ref) is not None
     o.stats.imu_gaps += int(hole)
     return hole
 

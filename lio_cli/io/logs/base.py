@@ -184,7 +184,7 @@ class LogReader(abc.ABC):
         try:
             for topic, msgtype, t_ns, raw, _ in self._iter_raw(wanted):
                 yield topic, msgtype, t_ns, raw
-        except InputError:
+        except (InputError, GeneratorExit):  # GeneratorExit: closed early (no need to build read_errors)
             raise
         except read_errors() as err:
             raise self._wrap("cannot read messages", err) from err
