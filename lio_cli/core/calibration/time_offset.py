@@ -128,17 +128,12 @@ def _rate_change(ta: np.ndarray, phi_l: np.ndarray, window_s: float = 1.0) -> fl
     return float(np.percentile(np.linalg.norm(np.diff(rate, axis=0), axis=1) / window_s, 95))
 
 
-def _alignment(phi_l: np.ndarray, phi_i: np.ndarray) -> float:
-    """1 - min_R sum |phi_l - R phi_i|^2 / sum (|phi_l|^2 + |phi_i|^2): 1 when one rotation explains all."""
-    s = np.linalg.svd(phi_i.T @ phi_l, compute_uv=False)
-    return float(2.0 * s.sum() / ((phi_l**2).sum() + (phi_i**2).sum()))
-
-
 def _alignments(phi_l: np.ndarray, pl: PiecewiseLinear, t_a: np.ndarray, t_b: np.ndarray, dt: np.ndarray,
                 grid: np.ndarray) -> np.ndarray:
-    """``_alignment`` of the gyro's mean rates shifted by each offset of ``grid``, for all offsets at once: the
-    same per-element arithmetic, one 3x3 product and SVD per offset as batched calls (the same bits), in blocks of
-    offsets so memory stays linear in the log whatever the grid."""
+    """For each offset of ``grid``, how well one rotation maps the gyro's mean rates shifted by it (``phi_i``) onto
+    the LiDAR's (``phi_l``): 1 - min_R sum |phi_l - R phi_i|^2 / sum (|phi_l|^2 + |phi_i|^2), 1 when one rotation
+    explains all. One 3x3 product and SVD per offset as batched calls, in blocks of offsets so memory stays linear
+    in the log whatever the grid."""
     n = len(t_a)
     block = max(1, GRID_BLOCK_ROWS // max(n, 1))
     out = []
