@@ -135,8 +135,8 @@ def connection_messages(reader, connections: list, chunks: dict[int, bytes] | No
                         progress: Callable[[int], None] | None = None) -> list[list[bytes]] | None:
     """Per connection, its serialised messages in index order (what ``messages`` yields of it), sliced
     chunk by chunk with the record headers checked for all of a chunk's entries at once (not one message at a
-    time). None when a record is not a message-data record of rosbag's own header layout (time,
-    conn, op): ``messages`` reads those. Each chunk is decompressed once; ``progress`` gets the messages read
+    time). None when a record is not a message-data record of one of the header layouts ``_LAYOUTS``:
+    ``messages`` reads those. Each chunk is decompressed once; ``progress`` gets the messages read
     after each."""
     cols = [reader.index_columns[c.id] for c in connections]
     parts: list[list] = [[None] * c.shape[1] for c in cols]
@@ -163,22 +163,34 @@ def connection_messages(reader, connections: list, chunks: dict[int, bytes] | No
     return parts
 
 
-_HEADER = np.frombuffer(_TIME + b"\0" * 8 + _CONN + b"\0" * 4 + b"\x04\x00\x00\x00op=", np.uint8)
-_HEADER_FIXED = np.ones(len(_HEADER), bool)
-_HEADER_FIXED[9:17] = _HEADER_FIXED[26:30] = False  # the time and conn values
+def _layout(head: bytes, variable: tuple[slice, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """A header's leading bytes up to its op value, and which of them are fixed (not a time or conn value)."""
+    fixed = np.ones(len(head), bool)
+    for v in variable:
+        fixed[v] = False
+    return np.frombuffer(head, np.uint8), fixed
+
+
+# the two layouts ``messages`` reads without its loop: rosbag's time, conn, op; rosbags' (lio's own) op first
+_LAYOUTS = (_layout(_TIME + b"\0" * 8 + _CONN + b"\0" * 4 + _OP_FIRST, (slice(9, 17), slice(26, 30))),
+            _layout(_OP_FIRST))
 
 
 def _data_spans(buf: bytes, offsets: np.ndarray) -> tuple[list[int], list[int]] | None:
     """(start, end) of the message data of the records at ``offsets`` in ``buf``, or None unless every one is a
-    message-data record whose header is rosbag's time, conn, op (what ``messages`` reads without its loop)."""
-    n, k = len(buf), len(_HEADER) + 1
-    if int(offsets.max()) + 4 + k > n:
-        return None
+    message-data record whose header has one of ``_LAYOUTS`` (what ``messages`` reads without its loop)."""
+    n = len(buf)
     u8 = np.frombuffer(buf, np.uint8)
-    head = u8[offsets[:, None] + np.arange(4 + k)]
-    hlen = head[:, :4].copy().view("<u4")[:, 0].astype(np.int64)
-    h = head[:, 4:]
-    if not ((h[:, :-1] == _HEADER)[:, _HEADER_FIXED].all() and (h[:, -1] == _OP_MSGDATA).all() and (hlen >= k).all()):
+    for template, fixed in _LAYOUTS:
+        k = len(template) + 1
+        if int(offsets.max()) + 4 + k > n:
+            continue
+        head = u8[offsets[:, None] + np.arange(4 + k)]
+        hlen = head[:, :4].copy().view("<u4")[:, 0].astype(np.int64)
+        h = head[:, 4:]
+        if (h[:, :-1] == template)[:, fixed].all() and (h[:, -1] == _OP_MSGDATA).all() and (hlen >= k).all():
+            break
+    else:
         return None
     h1 = offsets + 4 + hlen
     if int(h1.max()) + 4 > n:
