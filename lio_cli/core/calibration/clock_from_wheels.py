@@ -18,6 +18,7 @@ import numpy as np
 
 from ...errors import InputError
 from ...minimize import minimize_bounded
+from ..robust import robust_sigma
 from .common import NS_PER_S, CalibrationResult, sandwich_covariance
 from .signals import PiecewiseLinear
 from .time_offset import TimeOffset
@@ -102,7 +103,7 @@ def estimate_clock_from_wheels(wheel_stamps_ns: np.ndarray, yaw_rate_radps: np.n
                                   xatol=1e-6)
         _, x, r = trimmed(off, keep)
         inl = np.abs(r) <= np.quantile(np.abs(r), TRIM) if keep is None else keep
-        mad = 1.4826 * float(np.median(np.abs(r[inl])))
+        mad = robust_sigma(r[inl], centre=False)
         new = np.abs(r) <= OUTLIER_SIGMAS * max(mad, 1e-6)
         if keep is not None and (new == keep).all():
             break

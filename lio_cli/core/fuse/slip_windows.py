@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..robust import robust_sigma
+
 JUMP_S = 0.3  # the wheel minus IMU speed's change over this long finds a slip's onset and end
 DRIFT_S = 3.0  # that change less its running median over this long
 GUARD_S = 1.0  # the first fit leaves out this much around each jump
@@ -44,7 +46,7 @@ def threshold(t: np.ndarray, d: np.ndarray, v: np.ndarray, inside: np.ndarray,
     r[m:] = d[m:] - d[:-m]
     r -= running_median(t, r, DRIFT_S)  # a slowly drifting difference (tilt, bias) is no slip
     ri = r[inside]
-    sigma = max(1.4826 * float(np.median(np.abs(ri - np.median(ri)))), SIGMA_FLOOR_MPS)
+    sigma = max(robust_sigma(ri), SIGMA_FLOOR_MPS)
     return r, np.maximum(z * sigma, MIN_SLIP_REL * np.abs(v))
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ...so3 import so3_exp
+from ..robust import robust_sigma
 from .kalman import chi2_thresholds
 from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard
 from .timeline import Prepared
@@ -166,7 +167,7 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
         sol = P @ (U[:, seen].T @ y) / norm
         r_all = M[:, -1] - M[:, :-1] @ sol
         r = r_all[keep]
-        mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        mad = robust_sigma(r)
         keep = np.abs(r_all - np.median(r)) <= TRIM_Z * max(mad, 1e-9)
     s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
     cov = s2 * (P @ P.T) / np.outer(norm, norm)

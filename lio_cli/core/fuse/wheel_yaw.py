@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..robust import robust_sigma
+
 CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slowly)
 MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
 MIN_SAMPLES = 200
@@ -110,7 +112,7 @@ def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: fl
     d2 = (gz[2:] - 2.0 * gz[1:-1] + gz[:-2])[ok]
     if len(d2) < MIN_SAMPLES:
         return density**2 / float(np.median(np.diff(ti)))
-    return (1.4826 * float(np.median(np.abs(d2)))) ** 2 / 6.0
+    return robust_sigma(d2, centre=False) ** 2 / 6.0
 
 
 def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
@@ -160,7 +162,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
         A, rhs = _normal_equations(inv, tc, gi, d, keep)
         sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
         r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * gi
-        sigma = 1.4826 * float(np.median(np.abs(r[keep])))
+        sigma = robust_sigma(r[keep], centre=False)
         keep = np.abs(r) <= TRIM_Z * max(sigma, 1e-12)
     n = int(keep.sum())
     A, _ = _normal_equations(inv, tc, gi, d, keep)

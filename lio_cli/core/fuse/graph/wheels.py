@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ...robust import robust_sigma
+
 WINDOW_NS = 1_000_000_000  # the pre-pass's windows: a slip lasts one or two, odometry's noise averages within
 GATE_REL = 0.05  # a window's miss beyond this share of its length is a slip (bursts are 20-33 %)
 GATE_K = 3.0  # and beyond this many robust sigmas of the windows' misses (odometry's own noise at low speed)
@@ -65,7 +67,7 @@ def gate(kt: np.ndarray, states: dict[str, np.ndarray], ks: np.ndarray, dps: np.
         s = float(np.median(np.einsum("ni,ni->n", A[moving], D[moving]) / length[moving] ** 2))
         scale = s if SCALE_BOUNDS[0] <= s <= SCALE_BOUNDS[1] else 1.0
     miss = np.linalg.norm(A - scale * D, axis=1)
-    robust = 1.4826 * float(np.median(miss))
+    robust = robust_sigma(miss, centre=False)
     slip = (miss > GATE_REL * scale * length) & (miss > GATE_K * robust)
     for _ in range(GATE_DILATE):  # a slip's edges (its onset and end) in the neighbouring windows
         slip[1:] |= slip[:-1].copy()
@@ -141,5 +143,5 @@ def against_odometry(wheel, odom) -> Spans:
         s = float(np.median(a[moving] / d[moving]))
         scale = s if SCALE_BOUNDS[0] <= s <= SCALE_BOUNDS[1] else 1.0
     miss = np.abs(a - scale * d)
-    slip = moving & (miss > GATE_REL * scale * np.abs(d)) & (miss > GATE_K * 1.4826 * float(np.median(miss)))
+    slip = moving & (miss > GATE_REL * scale * np.abs(d)) & (miss > GATE_K * robust_sigma(miss, centre=False))
     return Spans(scale, np.column_stack([edges[:-1][slip], edges[1:][slip]]))
