@@ -19,6 +19,7 @@ from ..io.files.trajectory import format_tum
 from ..io.files.atomic import check_writable
 from ..io.files.output_paths import check_plot_dir, plot_outputs, refuse_shared_outputs, refuse_stdout
 from ..io.files.point_clouds import check_map_suffix
+from ..jobs.contract import load_reference
 from ..jobs.odom import (TAG, DivergedRun, OdomJob, OdomResult, map_outputs, run_odom, score_odom, write_odom,
                          write_odom_map, write_odom_plots)
 from ..jobs.outputs import check_outputs, default_output, log_stem, run_outputs
@@ -129,11 +130,7 @@ def odom(
     if out is not None:
         check_outputs(out, TAG, force, inputs)
 
-    reference = None
-    if gt is not None:
-        from ..jobs.contract import load_reference  # the evaluation: loaded only when there is a reference
-
-        reference = load_reference(Path(log), gt)
+    reference = load_reference(Path(log), gt) if gt is not None else None
     view = None
     if viz or viz_save is not None:
         from ..plots.live import LiveView
