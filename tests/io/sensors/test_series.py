@@ -78,6 +78,14 @@ def test_a_topic_off_the_standard_layout_goes_through_the_typestore(logs, monkey
                 yield t, mt, rec, (bytes(raw) + b"\0" if t == "/imu" and k == 8 else raw)
 
         monkeypatch.setattr(log, "raw_messages", padded)
+        whole = log.topic_messages
+
+        def padded_whole(topics, *args):  # the same message, where the topics are read whole
+            found = whole(topics, *args)
+            found["/imu"][8] = bytes(found["/imu"][8]) + b"\0"
+            return found
+
+        monkeypatch.setattr(log, "topic_messages", padded_whole)
         cols = series.read_series(log, ["/imu", "/odom"])
     assert calls == ["/imu"]
     assert len(cols["/imu"]) == 30 and len(cols["/odom"]) == 30
@@ -214,12 +222,20 @@ def test_ros1_topics_handed_over_whole_are_what_the_chunk_reader_yields(real_log
     assert len(counts) > 1 and counts == sorted(counts) and counts[-1] == sum(map(len, streamed.values()))
 
 
-def test_ros1_topics_in_another_record_layout_are_streamed(logs):
-    # the rosbags writer orders a message header's fields otherwise: topic_messages declines, read_series
-    # streams the log instead (and a log of another format never hands topics over whole)
+def test_ros1_topics_in_rosbags_record_layout_are_read_whole_and_other_formats_streamed(logs):
+    # the rosbags writer puts a message header's op field first: topic_messages reads it whole as it does
+    # rosbag's layout (bag1_raw._LAYOUTS), the same bytes as streaming; a log of another format never hands topics
+    # over whole, and read_series streams it
     for fmt in ("ros1", "mcap"):
         path = logs.write(fmt, _build)
         with open_log(path) as log:
-            assert log.topic_messages(["/imu", "/odom"]) is None
+            whole = log.topic_messages(["/imu", "/odom"])
+            streamed: dict[str, list[bytes]] = {"/imu": [], "/odom": []}
+            for t, _, _, raw in log.raw_messages(["/imu", "/odom"]):
+                streamed[t].append(bytes(raw))
             imu = series.read_series(log, ["/imu"])["/imu"]
-        assert len(imu) == 30
+        if fmt == "ros1":
+            assert {t: [bytes(m) for m in v] for t, v in whole.items()} == streamed
+        else:
+            assert whole is None
+        assert len(imu) == 30 and len(streamed["/imu"]) == 30
