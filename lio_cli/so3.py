@@ -113,7 +113,7 @@ def _quaternions(R: np.ndarray) -> np.ndarray:
     q[:, 3] = 1 + trace
     diagonal = np.stack([d0, d1, d2, trace], axis=1)
     choice = diagonal.argmax(axis=1)  # the first of equals, as scipy
-    for i in sorted(set(choice.tolist())):  # np.unique's order; np.unique would import numpy.ma
+    for i in np.unique(choice).tolist():
         if i < 3:
             sel = choice == i
             j, k = (i + 1) % 3, (i + 2) % 3

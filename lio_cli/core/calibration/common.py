@@ -13,7 +13,6 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ...errors import InputError
-from ...quantiles import median
 
 NS_PER_S = 1_000_000_000
 
@@ -136,7 +135,7 @@ def sandwich_covariance(H: np.ndarray, scores: np.ndarray, lag: int, prior_info:
 def outliers_3d(norms: np.ndarray, floor: float, sigmas: float = 5.0) -> np.ndarray:
     """Mask of 3-vector residuals whose norm exceeds ``sigmas`` per-axis sigmas, the sigma read robustly from the
     median norm (a 3-D Gaussian's norm has median 1.538 sigma) but never below ``floor`` (noise-free data)."""
-    return norms > sigmas * max(float(median(norms)) / 1.5382, floor)
+    return norms > sigmas * max(float(np.median(norms)) / 1.5382, floor)
 
 
 def time_ranges_text(stamps_ns: np.ndarray, mask: np.ndarray, t0_ns: int, limit: int = 4, join_ns: int = 0) -> str:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 from ...geometry import so3_log
-from ...quantiles import median
 from .signals import GyroOrientation
 
 MAX_INCREMENT_RAD = 2.5  # near pi a rotation vector is ill-defined
@@ -21,7 +20,7 @@ def interval_pairs(stamps_ns: np.ndarray, span: int, gap_factor: float = 2.5) ->
     """Index pairs (i, i + span) of trajectory stamps, leaving out intervals holding a gap (a step longer than
     ``gap_factor`` times the median step)."""
     d = np.diff(stamps_ns)
-    gap = np.concatenate([[0], np.cumsum(d > gap_factor * median(d))])
+    gap = np.concatenate([[0], np.cumsum(d > gap_factor * np.median(d))])
     i = np.arange(len(stamps_ns) - span)
     keep = gap[i + span] == gap[i]
     return i[keep], i[keep] + span

@@ -20,7 +20,6 @@ import numpy as np
 from ...errors import InputError
 from ...geometry import skew
 from ...minimize import minimize_bounded
-from ...quantiles import percentile
 from .common import (NS_PER_S, CalibrationResult, check_imu, check_overlap, check_trajectory, outliers_3d,
                      sandwich_covariance)
 from .handeye import align, imu_increments, interval_pairs, keep_finite_increments, lidar_increments
@@ -74,9 +73,9 @@ def estimate_time_offset(lidar_stamps_ns: np.ndarray, T_world_lidar: np.ndarray,
     ta, tb = ls[ia], ls[ib]
     dt = (tb - ta) / NS_PER_S
     rate = np.linalg.norm(phi_l, axis=1) / dt
-    if percentile(rate, 95) < MIN_PEAK_RATE_RADPS:
+    if np.percentile(rate, 95) < MIN_PEAK_RATE_RADPS:
         raise InputError(f"too little rotation to time the IMU against the LiDAR: the trajectory turns at most "
-                         f"{np.degrees(percentile(rate, 95)):.1f} deg/s; {MOVE_HINT}")
+                         f"{np.degrees(np.percentile(rate, 95)):.1f} deg/s; {MOVE_HINT}")
 
     # coarse: best-rotation alignment of mean gyro rates over a grid of offsets
     pl = PiecewiseLinear((istamps - istamps[0]) / NS_PER_S, gyro - bias0)
@@ -126,7 +125,7 @@ def _rate_change(ta: np.ndarray, phi_l: np.ndarray, window_s: float = 1.0) -> fl
     rate = turned / window_s  # rad/s, each window's mean (intervals of one scan cover it)
     if len(rate) < 2:
         return 0.0
-    return float(percentile(np.linalg.norm(np.diff(rate, axis=0), axis=1) / window_s, 95))
+    return float(np.percentile(np.linalg.norm(np.diff(rate, axis=0), axis=1) / window_s, 95))
 
 
 def _alignments(phi_l: np.ndarray, pl: PiecewiseLinear, t_a: np.ndarray, t_b: np.ndarray, dt: np.ndarray,

@@ -13,7 +13,6 @@ import numpy as np
 from kiss_icp.pybind import kiss_icp_pybind as kiss
 
 from ...config.odom import RegistrationConfig
-from ...quantiles import percentile
 
 _IMU_PRIOR_ITERATIONS = 20
 _KISS_ITERATIONS = 500
@@ -174,5 +173,5 @@ class ScanRegistration:
 
 def auto_voxel_size(ranges_m: np.ndarray) -> float:
     """Map voxel size from the first scan: ~1% of the far ranges (kiss-icp's rule), within [0.5, 1.0] m."""
-    far = float(percentile(ranges_m, 95)) if len(ranges_m) else 100.0
+    far = float(np.percentile(ranges_m, 95)) if len(ranges_m) else 100.0
     return float(np.clip(far / 40.0, 0.5, 1.0))

@@ -14,7 +14,6 @@ from ...errors import ProcessingError
 from ...geometry import inv_pose
 from ...model.calibration import Extrinsics
 from ...model.records import ImuBatch, OdometryRecord, PointCloud
-from ...quantiles import median, percentile
 from ..imu import NavState
 from .bootstrap import Bootstrap
 from .clock_offset import ClockOffsetTracker
@@ -71,7 +70,7 @@ class OdomStats:
         if not self.register_s:
             return {"register_median": None, "register_p90": None}
         ms = np.frombuffer(self.register_s, dtype=np.float64) * 1000.0
-        return {"register_median": round(float(median(ms)), 3), "register_p90": round(float(percentile(ms, 90)), 3)}
+        return {"register_median": round(float(np.median(ms)), 3), "register_p90": round(float(np.percentile(ms, 90)), 3)}
 
 
 @dataclass(frozen=True)

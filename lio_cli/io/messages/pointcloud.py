@@ -14,7 +14,6 @@ import numpy as np
 from ...buffers import ArrayPool
 from ...errors import InputError
 from ...model.records import PointCloud, TimeConvention
-from ...quantiles import median
 
 # sensor_msgs/PointField datatypes -> numpy type codes
 _DATATYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -117,7 +116,7 @@ def _typical(values: np.ndarray) -> float:
     """The median magnitude of the first values of a time field (one absurd value does not make it absolute)."""
     vals = np.abs(np.asarray(values[:256], dtype=np.float64))
     vals = vals[np.isfinite(vals)]
-    return float(median(vals)) if len(vals) else 0.0
+    return float(np.median(vals)) if len(vals) else 0.0
 
 
 def _split_time_fields(fields: dict[str, int]) -> tuple[str, str] | None:
@@ -187,7 +186,7 @@ def _azimuth_offsets_ns(xyz: np.ndarray, period_ns: int, organised_width: int | 
     az = np.arctan2(xyz[:, 1], xyz[:, 0])
     steps = np.diff(az)
     steps = (steps + np.pi) % (2 * np.pi) - np.pi
-    direction = -1.0 if median(steps) < 0 else 1.0  # clockwise spin (Velodyne) gives decreasing azimuth
+    direction = -1.0 if np.median(steps) < 0 else 1.0  # clockwise spin (Velodyne) gives decreasing azimuth
     frac = ((direction * (az - az[0])) % (2 * np.pi)) / (2 * np.pi)
     return (frac * period_ns).astype(np.int64)
 
@@ -311,7 +310,7 @@ def _plausible_times(rel: np.ndarray) -> np.ndarray | None:
         finite = rel[np.isfinite(rel)] if rel.dtype.kind == "f" else rel
         if len(finite) == 0:
             return np.zeros(len(rel), dtype=bool)
-        mid = float(median(finite))
+        mid = float(np.median(finite))
         rel_f = rel.astype(np.float64)
         # near the median, and small enough that the header stamp plus it still fits in int64
         return (np.abs(rel_f - mid) <= MAX_POINT_TIME_SPREAD_NS) & (np.abs(rel_f) < 2.0**62)

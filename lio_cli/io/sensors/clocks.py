@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import InputError
-from ...quantiles import median
 from .peek import peek
 from ..logs.base import LogReader
 
@@ -47,7 +46,7 @@ def check_same_clock(log: LogReader, reference: str, other: str, other_offset_ns
     h_oth, d_oth = _stamp_offsets(log, other)
     if len(h_ref) == 0 or len(h_oth) == 0:
         return
-    apart = float(median(d_oth)) + other_offset_ns - float(median(d_ref))
+    apart = float(np.median(d_oth)) + other_offset_ns - float(np.median(d_ref))
     if abs(apart) <= CLOCK_TOLERANCE_NS or abs(int(h_oth[0]) + other_offset_ns - int(h_ref[0])) <= CLOCK_TOLERANCE_NS:
         return
     shift = -apart * 1e-9
