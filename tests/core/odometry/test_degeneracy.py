@@ -120,7 +120,7 @@ def test_a_corridor_closed_by_a_wall_in_range_is_not_degenerate(yaw_deg):
         assert found.margin > least_margin
 
 
-def test_a_planar_corridor_is_degenerate_along_its_axis_and_an_l_shaped_room_is_not():
+def test_a_planar_corridor_is_degenerate_along_its_axis_and_a_rectangular_room_is_not():
     """2D (a LaserScan's points, planar odometry): two parallel walls leave their direction free; a room with walls
     both ways does not."""
     rng = np.random.default_rng(3)
