@@ -17,10 +17,9 @@ from itertools import chain
 import numpy as np
 
 from ...buffers import ArrayPool
+from .bag1_index import entry_columns
 
 _U32 = struct.Struct("<I")
-_BLOCK = 8_192  # index entries of a connection turned into Python values at a time (about 1 MB of Python ints)
-_FIRST_BLOCK = 256  # the first block's: a peek at a topic's first messages converts a few hundred entries
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 _OP_FIRST = b"\x04\x00\x00\x00op="  # the first field of rosbags' (and so lio's own) message headers: op, conn, time
@@ -60,40 +59,47 @@ def _chunk(reader, pos: int, chunks: dict[int, bytes]) -> bytes | memoryview:
 def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int, int]]]:
     """Blocks of (time, chunk position, offset in chunk, index of the connection in ``connections``) of every
     index entry in the order rosbags' ``heapq.merge`` of its index lists gives (its entries compare by time
-    only: equal times come connection by connection in the order asked, each in its index order), i.e. a
-    stable sort by time. The entries are the reader's index columns (``bag1_index``: each connection's sorted by
-    time), merged and turned into Python values a block at a time: a block is every entry up to a time, so the
-    entries of one time are in one block, sorted there as the whole would be."""
-    parts = [reader.index_columns[conn.id] for conn in connections]
-    starts = [0] * len(parts)
-    size = _FIRST_BLOCK
-    while True:
-        live = [k for k, p in enumerate(parts) if starts[k] < p.shape[1]]
-        if not live:
-            return
-        # up to the earliest of the live connections' size-th next times: at least one entry, at most about size each
-        cut = min(parts[k][0, min(starts[k] + size, parts[k].shape[1]) - 1] for k in live)
-        cols, which = [], []
-        for k in live:
-            p, lo = parts[k], starts[k]
-            hi = lo + int(np.searchsorted(p[0, lo:], cut, side="right"))
-            if hi > lo:
-                cols.append(p[:, lo:hi])
-                which.append(np.full(hi - lo, k, dtype=np.int32))
-            starts[k] = hi
-        size = min(4 * size, _BLOCK)
-        if len(cols) == 1:
-            yield zip(*(cols[0].tolist()), which[0].tolist())
-            continue
-        block, k_of = np.concatenate(cols, axis=1), np.concatenate(which)
-        order = np.argsort(block[0], kind="stable")
-        yield zip(*(block[:, order].tolist()), k_of[order].tolist())
+    only: equal times come connection by connection in the order asked, each in its index order, which is the
+    order the open reads the index records in, stably sorted by time), i.e. a stable sort by time.
+
+    The index is read chunk by chunk (``bag1_index``), the chunks in the order of their entries' first times:
+    once a chunk is read, every entry earlier than the next chunk's first time is known, and those are sorted
+    (by time, connection, read order) and handed on, in Python values; the rest wait for the next chunk. Chunks
+    whose times overlap are so merged, and the index held is about the chunks the stream is in."""
+    ids = [c.id for c in connections]
+    asked = set(ids)
+    chunks, firsts = reader.chunk_order(asked)
+    infos = reader.chunk_infos
+    held = np.zeros((5, 0), np.int64)  # time, connection's place, read order (chunk, entry), chunk position, offset
+    for i, chunk in enumerate(chunks):
+        parts = [held]
+        n = 0
+        for conn_id, raw in reader.chunk_entries(chunk, asked):
+            cols = entry_columns(raw, infos[chunk].pos)
+            m = cols.shape[1]
+            part = np.empty((5, m), np.int64)
+            part[0], part[3], part[4] = cols
+            part[2] = np.arange(n, n + m)
+            part[2] += chunk << 32
+            n += m
+            for j, k in enumerate([k for k, c in enumerate(ids) if c == conn_id]):  # (asked twice: yielded twice)
+                if j:
+                    part = part.copy()
+                part[1] = k
+                parts.append(part)
+        block = np.concatenate(parts, axis=1) if len(parts) > 1 else held
+        until = firsts[i + 1] if i + 1 < len(chunks) else None
+        ready = block[0] < until if until is not None else np.ones(block.shape[1], bool)
+        out, held = block[:, ready], block[:, ~ready]
+        if out.shape[1]:
+            out = out[:, np.lexsort((out[2], out[1], out[0]))]
+            yield zip(out[0].tolist(), out[3].tolist(), out[4].tolist(), out[1].tolist())
 
 
 def messages(reader, connections: list, chunks: dict[int, bytes] | None = None, views: bool = False
              ) -> Iterator[tuple[str, str, int, bytes | memoryview, object]]:
     """(topic, msgtype, record time ns, serialised message, connection) of ``connections`` (rosbags
-    connections of the one ROS 1 ``reader``, a ``bag1_index.ColumnIndexReader``), in the order rosbags'
+    connections of the one ROS 1 ``reader``, a ``bag1_index.ChunkIndexReader``), in the order rosbags'
     ``reader.messages(connections=...)`` yields them. ``views``: a message may be a read-only view of its chunk
     (no copy; it keeps the chunk's buffer from reuse while it lives), else it is bytes.
 
@@ -138,7 +144,8 @@ def connection_messages(reader, connections: list, chunks: dict[int, bytes] | No
     time). None when a record is not a message-data record of one of the header layouts ``_LAYOUTS``:
     ``messages`` reads those. Each chunk is decompressed once; ``progress`` gets the messages read
     after each."""
-    cols = [reader.index_columns[c.id] for c in connections]
+    by_id = reader.columns({c.id for c in connections})
+    cols = [by_id[c.id] for c in connections]
     parts: list[list] = [[None] * c.shape[1] for c in cols]
     by_chunk: dict[int, list[tuple[int, np.ndarray]]] = {}  # chunk position -> (connection, its entries there)
     for ci, c in enumerate(cols):
