@@ -13,6 +13,7 @@ chunk infos and headers) is rosbags' own.
 
 from __future__ import annotations
 
+import struct
 from array import array
 from collections.abc import Collection, Iterator, Mapping
 from itertools import chain, repeat
@@ -20,7 +21,9 @@ from itertools import chain, repeat
 import numpy as np
 from rosbags.rosbag1.reader import Header, IndexData, Reader, ReaderError, RecordType, read_bytes, read_uint32
 
+_U32 = struct.Struct("<I")
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])  # one index entry as stored
+ENTRY_BYTES = _ENTRY.itemsize
 _REC_CONN, _REC_CHUNK, _REC_COUNT, _REC_FIRST, _REC_LAST = range(5)  # the columns of ``records``
 
 
@@ -57,6 +60,7 @@ class ChunkIndexReader(Reader):
     def open(self) -> None:
         self._rows = array("q")  # the records' rows as read, flattened
         self._record_chunks: Iterator[int] | None = None
+        self._index_ends = array("q")  # per chunk, where its index records end in the file
         self.records = np.zeros((5, 0), np.int64)
         self.spans: dict[int, tuple[int, int]] = {}
         super().open()
@@ -78,8 +82,10 @@ class ChunkIndexReader(Reader):
         if self._record_chunks is None:  # the open reads each chunk's records right after it, chunk by chunk
             self._record_chunks = chain.from_iterable(
                 repeat(k, len(c.connection_counts)) for k, c in enumerate(self.chunk_infos))
+            self._index_ends = array("q", bytes(8 * len(self.chunk_infos)))
         conn, raw = self._index_record()
         chunk = next(self._record_chunks)
+        self._index_ends[chunk] = self.bio.tell()  # type: ignore[union-attr]
         if raw:
             times = _times(raw)
             self._rows.extend((conn, chunk, len(times), int(times.min()), int(times.max())))
@@ -111,16 +117,32 @@ class ChunkIndexReader(Reader):
 
     def chunk_entries(self, chunk: int, conn_ids: Collection[int]) -> list[tuple[int, bytes]]:
         """(connection id, stored entries) of the index records of chunk ``chunk`` (its place in
-        ``chunk_infos``) for ``conn_ids``, in the order they are stored."""
+        ``chunk_infos``) for ``conn_ids``, in the order they are stored: one read of the records the open
+        checked, their headers' conn and count fields found by name."""
         assert self.bio
-        info = self.chunk_infos[chunk]
-        head = self.chunks[info.pos]
-        self.bio.seek(head.datapos + head.datasize)
-        out = []
-        for _ in range(len(info.connection_counts)):
-            conn, raw = self._index_record()
-            if conn in conn_ids and raw:
-                out.append((conn, raw))
+        head = self.chunks[self.chunk_infos[chunk].pos]
+        start = head.datapos + head.datasize
+        self.bio.seek(start)
+        buf = read_bytes(self.bio, self._index_ends[chunk] - start)
+        out, pos, unpack = [], 0, _U32.unpack_from
+        for _ in range(len(self.chunk_infos[chunk].connection_counts)):
+            (hlen,) = unpack(buf, pos)
+            conn = count = -1
+            field, h1 = pos + 4, pos + 4 + hlen
+            while field < h1:
+                (n,) = unpack(buf, field)
+                name = buf[field + 4:field + 9]
+                if name == b"conn=":
+                    (conn,) = unpack(buf, field + 9)
+                elif name == b"count":
+                    (count,) = unpack(buf, field + 10)
+                field += 4 + n
+            (size,) = unpack(buf, h1)
+            if count < 0 or conn < 0 or size != count * _ENTRY.itemsize or h1 + 4 + size > len(buf):
+                raise ReaderError("Bag index changed since it was opened.")
+            if conn in conn_ids and size:
+                out.append((conn, buf[h1 + 4:h1 + 4 + size]))
+            pos = h1 + 4 + size
         return out
 
     def columns(self, conn_ids: Collection[int]) -> dict[int, np.ndarray]:
@@ -166,4 +188,4 @@ def _columns(blocks: list[tuple[int, bytes]]) -> np.ndarray:
     return cols
 
 
-__all__ = ["ChunkIndexReader", "entry_columns"]
+__all__ = ["ENTRY_BYTES", "ChunkIndexReader", "entry_columns"]

@@ -17,12 +17,13 @@ from itertools import chain
 import numpy as np
 
 from ...buffers import ArrayPool
-from .bag1_index import entry_columns
+from .bag1_index import ENTRY_BYTES, entry_columns
 
 _U32 = struct.Struct("<I")
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 _OP_FIRST = b"\x04\x00\x00\x00op="  # the first field of rosbags' (and so lio's own) message headers: op, conn, time
+CHUNKS_AT_ONCE = 8  # chunks whose index is read and merged in one go (a few hundred entries on a walk)
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 _POOL = ArrayPool(2 * KEEP_CHUNKS)  # chunks as read, each a read-only view of a pooled buffer
 
@@ -62,34 +63,41 @@ def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int
     only: equal times come connection by connection in the order asked, each in its index order, which is the
     order the open reads the index records in, stably sorted by time), i.e. a stable sort by time.
 
-    The index is read chunk by chunk (``bag1_index``), the chunks in the order of their entries' first times:
-    once a chunk is read, every entry earlier than the next chunk's first time is known, and those are sorted
-    (by time, connection, read order) and handed on, in Python values; the rest wait for the next chunk. Chunks
-    whose times overlap are so merged, and the index held is about the chunks the stream is in."""
+    The index is read chunk by chunk (``bag1_index``; ``CHUNKS_AT_ONCE`` at a time), the chunks in the order of
+    their entries' first times: once chunks are read, every entry earlier than the next chunk's first time is
+    known, and those are sorted (by time, connection, read order) and handed on, in Python values; the rest wait
+    for the next chunks. Chunks whose times overlap are so merged, and the index held is about the chunks the
+    stream is in."""
     ids = [c.id for c in connections]
-    asked = set(ids)
-    chunks, firsts = reader.chunk_order(asked)
+    places: dict[int, list[int]] = {}  # connection id -> its places in ``connections`` (asked twice: yielded twice)
+    for k, conn_id in enumerate(ids):
+        places.setdefault(conn_id, []).append(k)
+    chunks, firsts = reader.chunk_order(places)
     infos = reader.chunk_infos
     held = np.zeros((5, 0), np.int64)  # time, connection's place, read order (chunk, entry), chunk position, offset
-    for i, chunk in enumerate(chunks):
-        parts = [held]
-        n = 0
-        for conn_id, raw in reader.chunk_entries(chunk, asked):
-            cols = entry_columns(raw, infos[chunk].pos)
-            m = cols.shape[1]
-            part = np.empty((5, m), np.int64)
-            part[0], part[3], part[4] = cols
-            part[2] = np.arange(n, n + m)
-            part[2] += chunk << 32
-            n += m
-            for j, k in enumerate([k for k, c in enumerate(ids) if c == conn_id]):  # (asked twice: yielded twice)
-                if j:
-                    part = part.copy()
-                part[1] = k
-                parts.append(part)
-        block = np.concatenate(parts, axis=1) if len(parts) > 1 else held
-        until = firsts[i + 1] if i + 1 < len(chunks) else None
-        ready = block[0] < until if until is not None else np.ones(block.shape[1], bool)
+    for i in range(0, len(chunks), CHUNKS_AT_ONCE):
+        raws, ks, pos, seq = [], [], [], []
+        for chunk in chunks[i:i + CHUNKS_AT_ONCE]:
+            n = 0
+            for conn_id, raw in reader.chunk_entries(chunk, places):
+                m = len(raw) // ENTRY_BYTES
+                for k in places[conn_id]:
+                    raws.append(raw)
+                    ks.append(k)
+                    pos.append(infos[chunk].pos)
+                    seq.append((chunk << 32) + n)
+                n += m
+        counts = [len(r) // ENTRY_BYTES for r in raws]
+        cols = entry_columns(b"".join(raws), 0)
+        part = np.empty((5, cols.shape[1]), np.int64)
+        part[0], part[4] = cols[0], cols[2]
+        part[1] = np.repeat(np.array(ks, np.int64), counts)
+        part[3] = np.repeat(np.array(pos, np.int64), counts)
+        starts = np.repeat(np.array(seq, np.int64) - np.cumsum([0] + counts[:-1]), counts)  # record's first, less its place
+        part[2] = starts + np.arange(cols.shape[1])
+        block = np.concatenate((held, part), axis=1) if held.shape[1] else part
+        nxt = i + CHUNKS_AT_ONCE
+        ready = block[0] < firsts[nxt] if nxt < len(chunks) else np.ones(block.shape[1], bool)
         out, held = block[:, ready], block[:, ~ready]
         if out.shape[1]:
             out = out[:, np.lexsort((out[2], out[1], out[0]))]

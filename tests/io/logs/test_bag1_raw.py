@@ -27,11 +27,12 @@ def _messy_bag(path, seed: int, threshold: int) -> None:
             w.write(conns[int(rng.integers(0, 3))], t, (3).to_bytes(4, "little") + b"%03d" % k)
 
 
-@pytest.mark.parametrize("seed, threshold", [(0, 64), (1, 200), (2, 1), (3, 10_000)])
-def test_index_read_chunk_by_chunk_keeps_rosbags_order(tmp_path, seed, threshold):
-    """The index read again chunk by chunk as the stream reaches each gives the messages of rosbags' whole-index
-    read in the same order (record time; ties connection by connection in the order asked, each in its order in
-    the index), for any connections asked in any order, some twice."""
+@pytest.mark.parametrize("seed, threshold, at_once", [(0, 64, 1), (1, 200, 3), (2, 1, 8), (3, 10_000, 8), (4, 64, 2)])
+def test_index_read_chunk_by_chunk_keeps_rosbags_order(tmp_path, monkeypatch, seed, threshold, at_once):
+    """The index read again chunk by chunk (``at_once`` chunks at a time) as the stream reaches each gives the
+    messages of rosbags' whole-index read in the same order (record time; ties connection by connection in the
+    order asked, each in its order in the index), for any connections asked in any order, some twice."""
+    monkeypatch.setattr(bag1_raw, "CHUNKS_AT_ONCE", at_once)
     path = tmp_path / "messy.bag"
     _messy_bag(path, seed, threshold)
     with Reader(path) as theirs, ChunkIndexReader(path) as ours:
@@ -58,6 +59,7 @@ def test_the_stream_reads_a_chunks_index_only_once_it_is_reached(tmp_path, monke
     read = []
     with ChunkIndexReader(path) as ours:
         entries = ours.chunk_entries
+        monkeypatch.setattr(bag1_raw, "CHUNKS_AT_ONCE", 1)
         monkeypatch.setattr(ours, "chunk_entries", lambda chunk, ids: read.append(chunk) or entries(chunk, ids))
         chunks, firsts = ours.chunk_order({c.id for c in ours.connections})
         first_of = dict(zip(chunks, firsts))
