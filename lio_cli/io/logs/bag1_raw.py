@@ -93,8 +93,8 @@ def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int
         part[0], part[4] = cols[0], cols[2]
         part[1] = np.repeat(np.array(ks, np.int64), counts)
         part[3] = np.repeat(np.array(pos, np.int64), counts)
-        starts = np.repeat(np.array(seq, np.int64) - np.cumsum([0] + counts[:-1]), counts)  # record's first, less its place
-        part[2] = starts + np.arange(cols.shape[1])
+        # read order: each record's first entry's number, less the record's place in ``part``, plus the place
+        part[2] = np.repeat(np.array(seq, np.int64) - np.cumsum([0] + counts[:-1]), counts) + np.arange(cols.shape[1])
         block = np.concatenate((held, part), axis=1) if held.shape[1] else part
         nxt = i + CHUNKS_AT_ONCE
         ready = block[0] < firsts[nxt] if nxt < len(chunks) else np.ones(block.shape[1], bool)
