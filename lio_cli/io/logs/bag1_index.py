@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import struct
 from array import array
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from itertools import chain, repeat
 
 import numpy as np
-from rosbags.rosbag1.reader import Header, IndexData, Reader, ReaderError, RecordType, read_bytes, read_uint32
+from rosbags.rosbag1.reader import (Chunk, ChunkInfo, Header, IndexData, Reader, ReaderError, RecordType, read_bytes,
+                                   read_uint32)
 
 _U32 = struct.Struct("<I")
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])  # one index entry as stored
@@ -51,6 +52,85 @@ class _Indexes(Mapping):
         self._lists = None
 
 
+class _ChunkInfos(Sequence):
+    """rosbags' ``chunk_infos`` held as int64 arrays (a ``ChunkInfo`` with its dict is about 0.5 kB a chunk, for
+    the whole run); each ``ChunkInfo`` is made when asked for."""
+
+    def __init__(self, infos: list[ChunkInfo]) -> None:
+        self.cols = np.array([(c.pos, c.start_time, c.end_time) for c in infos], np.int64).reshape(-1, 3).T.copy()
+        self.bounds = np.cumsum([0] + [len(c.connection_counts) for c in infos]).tolist()
+        self.counts = np.array([kv for c in infos for kv in c.connection_counts.items()], np.int64).reshape(-1, 2)
+
+    def __len__(self) -> int:
+        return self.cols.shape[1]
+
+    def __getitem__(self, i):  # type: ignore[override]
+        if isinstance(i, slice):
+            return [self[k] for k in range(len(self))[i]]
+        i = range(len(self))[i]
+        pos, start, end = self.cols[:, i].tolist()
+        return ChunkInfo(pos, start, end, dict(self.counts[self.bounds[i]:self.bounds[i + 1]].tolist()))
+
+    def __iter__(self) -> Iterator[ChunkInfo]:
+        return (self[i] for i in range(len(self)))
+
+    def records(self, i: int) -> int:
+        """How many index records chunk ``i`` has (its connections)."""
+        return self.bounds[i + 1] - self.bounds[i]
+
+    def clear(self) -> None:
+        self.__init__([])
+
+
+class _Chunks(Mapping):
+    """rosbags' ``chunks`` (chunk position -> ``Chunk``) held as int64 arrays; each ``Chunk`` made when asked for."""
+
+    def __init__(self, chunks: Mapping[int, Chunk]) -> None:
+        self.funcs: list = []  # the decompressors, one each
+        rows = []
+        for pos, c in chunks.items():
+            code = next((k for k, f in enumerate(self.funcs) if f is c.decompressor), len(self.funcs))
+            if code == len(self.funcs):
+                self.funcs.append(c.decompressor)
+            rows.append((pos, c.datasize, c.datapos, code))
+        self.cols = np.array(rows, np.int64).reshape(-1, 4).T.copy()  # in the order rosbags read them
+        self.order = np.argsort(self.cols[0], kind="stable")
+
+    def _find(self, pos: int) -> int:
+        k = int(np.searchsorted(self.cols[0], pos, sorter=self.order))
+        if k == len(self.order) or self.cols[0, self.order[k]] != pos:
+            raise KeyError(pos)
+        return int(self.order[k])
+
+    def __getitem__(self, pos: int) -> Chunk:
+        _, size, data, code = self.cols[:, self._find(pos)].tolist()
+        return Chunk(size, data, self.funcs[code])
+
+    def __setitem__(self, pos: int, chunk: Chunk) -> None:
+        """Replace the chunk at ``pos`` (a chunk the open read)."""
+        k = self._find(pos)
+        code = next((j for j, f in enumerate(self.funcs) if f is chunk.decompressor), len(self.funcs))
+        if code == len(self.funcs):
+            self.funcs.append(chunk.decompressor)
+        self.cols[1:, k] = (chunk.datasize, chunk.datapos, code)
+
+    def __contains__(self, pos: object) -> bool:
+        try:
+            self._find(pos)  # type: ignore[arg-type]
+        except (KeyError, TypeError):
+            return False
+        return True
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.cols[0].tolist())
+
+    def __len__(self) -> int:
+        return self.cols.shape[1]
+
+    def clear(self) -> None:
+        self.__init__({})
+
+
 class ChunkIndexReader(Reader):
     """``rosbags.rosbag1.Reader`` whose index is read again when needed. ``records`` is a (5, r) int64 array, one
     column per index record in the order the open read them: connection id, chunk (its place in
@@ -65,6 +145,7 @@ class ChunkIndexReader(Reader):
         self.spans: dict[int, tuple[int, int]] = {}
         super().open()
         rows, self._rows = np.frombuffer(self._rows, np.int64).reshape(-1, 5).T.copy(), array("q")
+        self._record_chunks = None  # (it refers to rosbags' list of chunk infos)
         if self.chunk_infos:  # (none: a bag without chunks)
             self.records = rows
             ids = [c.id for c in self.connections]
@@ -76,6 +157,34 @@ class ChunkIndexReader(Reader):
                     self.spans[conn] = (int(mine[_REC_FIRST].min()), int(mine[_REC_LAST].max()))
             self.connections = [type(c)(*c[0:5], counts[c.id], *c[6:]) for c in self.connections]
             self.indexes = _Indexes(self)  # type: ignore[assignment]
+            self.chunk_infos = _ChunkInfos(self.chunk_infos)  # type: ignore[assignment]
+            self.chunks = _Chunks(self.chunks)  # type: ignore[assignment]
+
+    # rosbags' own build a ChunkInfo per chunk (per connection and chunk for the count): the same from the arrays
+    @property
+    def start_time(self) -> int:
+        infos = self.chunk_infos
+        if not isinstance(infos, _ChunkInfos) or not len(infos):
+            return super().start_time
+        self._check_open()
+        return int(infos.cols[1].min())
+
+    @property
+    def end_time(self) -> int:
+        infos = self.chunk_infos
+        if not isinstance(infos, _ChunkInfos) or not len(infos):
+            return super().end_time
+        self._check_open()
+        return int(infos.cols[2].max())
+
+    @property
+    def message_count(self) -> int:
+        infos = self.chunk_infos
+        if not isinstance(infos, _ChunkInfos):
+            return super().message_count
+        self._check_open()
+        ids, counts = infos.counts.T if len(infos.counts) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        return sum(int(counts[ids == c.id].sum()) for c in self.connections)
 
     def read_index_data(self, pos: int, indexes: dict) -> None:  # type: ignore[override]
         """One index record (its connection's entries in chunk ``pos``), summarised as a row of ``records``."""
@@ -115,17 +224,18 @@ class ChunkIndexReader(Reader):
         chunks = chunks[np.argsort(first[chunks], kind="stable")]
         return chunks.tolist(), first[chunks].tolist()
 
-    def chunk_entries(self, chunk: int, conn_ids: Collection[int]) -> list[tuple[int, bytes]]:
-        """(connection id, stored entries) of the index records of chunk ``chunk`` (its place in
-        ``chunk_infos``) for ``conn_ids``, in the order they are stored: one read of the records the open
+    def chunk_entries(self, chunk: int, conn_ids: Collection[int]) -> tuple[int, list[tuple[int, bytes]]]:
+        """The position of chunk ``chunk`` (its place in ``chunk_infos``) and (connection id, stored entries) of
+        its index records for ``conn_ids``, in the order they are stored: one read of the records the open
         checked, their headers' conn and count fields found by name."""
         assert self.bio
-        head = self.chunks[self.chunk_infos[chunk].pos]
+        chunk_pos = int(self.chunk_infos.cols[0, chunk])  # type: ignore[attr-defined]
+        head = self.chunks[chunk_pos]
         start = head.datapos + head.datasize
         self.bio.seek(start)
         buf = read_bytes(self.bio, self._index_ends[chunk] - start)
         out, pos, unpack = [], 0, _U32.unpack_from
-        for _ in range(len(self.chunk_infos[chunk].connection_counts)):
+        for _ in range(self.chunk_infos.records(chunk)):  # type: ignore[attr-defined]
             (hlen,) = unpack(buf, pos)
             conn = count = -1
             field, h1 = pos + 4, pos + 4 + hlen
@@ -143,7 +253,7 @@ class ChunkIndexReader(Reader):
             if conn in conn_ids and size:
                 out.append((conn, buf[h1 + 4:h1 + 4 + size]))
             pos = h1 + 4 + size
-        return out
+        return chunk_pos, out
 
     def columns(self, conn_ids: Collection[int]) -> dict[int, np.ndarray]:
         """Per connection id of ``conn_ids``, a (3, m) int64 array: record time (ns), chunk position and offset
@@ -151,8 +261,8 @@ class ChunkIndexReader(Reader):
         wanted = set(conn_ids)
         blocks: dict[int, list[tuple[int, bytes]]] = {c: [] for c in conn_ids}
         for chunk in np.unique(self.records[_REC_CHUNK, np.isin(self.records[_REC_CONN], list(wanted))]).tolist():
-            pos = self.chunk_infos[chunk].pos
-            for conn, raw in self.chunk_entries(chunk, wanted):
+            pos, entries = self.chunk_entries(chunk, wanted)
+            for conn, raw in entries:
                 blocks[conn].append((pos, raw))
         return {c: _columns(b) for c, b in blocks.items()}
 

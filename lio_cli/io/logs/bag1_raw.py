@@ -73,18 +73,18 @@ def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int
     for k, conn_id in enumerate(ids):
         places.setdefault(conn_id, []).append(k)
     chunks, firsts = reader.chunk_order(places)
-    infos = reader.chunk_infos
     held = np.zeros((5, 0), np.int64)  # time, connection's place, read order (chunk, entry), chunk position, offset
     for i in range(0, len(chunks), CHUNKS_AT_ONCE):
         raws, ks, pos, seq = [], [], [], []
         for chunk in chunks[i:i + CHUNKS_AT_ONCE]:
             n = 0
-            for conn_id, raw in reader.chunk_entries(chunk, places):
+            chunk_pos, entries = reader.chunk_entries(chunk, places)
+            for conn_id, raw in entries:
                 m = len(raw) // ENTRY_BYTES
                 for k in places[conn_id]:
                     raws.append(raw)
                     ks.append(k)
-                    pos.append(infos[chunk].pos)
+                    pos.append(chunk_pos)
                     seq.append((chunk << 32) + n)
                 n += m
         counts = [len(r) // ENTRY_BYTES for r in raws]

@@ -19,7 +19,10 @@ def _same_as_rosbags(path) -> None:
     with Reader(path) as theirs, ChunkIndexReader(path) as ours:
         assert [c[:-1] for c in ours.connections] == [c[:-1] for c in theirs.connections]  # all but the owner
         assert [tuple(c) for c in ours.chunk_infos] == [tuple(c) for c in theirs.chunk_infos]
-        assert ours.chunks.keys() == theirs.chunks.keys()
+        assert list(ours.chunks) == list(theirs.chunks) and all(p in ours.chunks for p in theirs.chunks)
+        assert [ours.chunks[p] for p in theirs.chunks] == list(theirs.chunks.values())  # sizes, decompressors
+        assert -1 not in ours.chunks and [tuple(c) for c in ours.chunk_infos[-2:]] == \
+            [tuple(c) for c in theirs.chunk_infos[-2:]]
         assert (ours.start_time, ours.end_time, ours.message_count) == \
             (theirs.start_time, theirs.end_time, theirs.message_count)
         assert ours.topics.keys() == theirs.topics.keys()
