@@ -65,14 +65,15 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_run(out: Path, tag: str, text: str, config, metrics: dict, force: bool) -> list[Path]:
-    """Write ``text`` to ``out`` and the resolved ``config`` and ``metrics`` beside it (each atomically); return
-    the three paths."""
+def write_run(out: Path, tag: str, text: str | Iterable[str], config, metrics: dict, force: bool) -> list[Path]:
+    """Write ``text`` (or its parts one after the other) to ``out`` and the resolved ``config`` and ``metrics``
+    beside it (each atomically); return the three paths."""
     from ..config import dump_model  # pydantic: loaded only by the commands that write a config
 
     traj, metrics_path, config_path = run_outputs(out, tag)
     with atomic_outputs([traj, config_path, metrics_path], force) as (tmp, config_tmp, metrics_tmp):
-        tmp.write_text(text)
+        with tmp.open("w") as f:
+            f.writelines([text] if isinstance(text, str) else text)
         config_tmp.write_text(dump_model(config))
         metrics_tmp.write_text(json_text(metrics))
     return [traj, metrics_path, config_path]

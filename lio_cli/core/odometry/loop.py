@@ -19,6 +19,7 @@ from ...config.odom import OdomConfig
 from ...geometry import gravity_aligned_rotation
 from ...model.calibration import Extrinsics
 from ...model.records import ImuBatch, OdometryRecord, PointCloud
+from ...model.trajectory import Rows
 from ..imu import NavState, gravity_vector
 from .bootstrap import Bootstrap
 from .bridge import bridge
@@ -110,12 +111,12 @@ class LioOdometry:
 
     # ---- outputs ------------------------------------------------------------------------------
     @property
-    def poses(self) -> list[np.ndarray]:
+    def poses(self) -> Rows:
         """T_world_base per used scan (internal world frame)."""
         return self.run.track.poses
 
     @property
-    def stamps_ns(self) -> list[int]:
+    def stamps_ns(self) -> Rows:
         return self.run.track.stamps_ns
 
     @property

@@ -14,6 +14,7 @@ from ...errors import ProcessingError
 from ...geometry import inv_pose
 from ...model.calibration import Extrinsics
 from ...model.records import ImuBatch, OdometryRecord, PointCloud
+from ...model.trajectory import Rows
 from ..imu import NavState
 from .bootstrap import Bootstrap
 from .clock_offset import ClockOffsetTracker
@@ -96,8 +97,8 @@ class Track:
     """The trajectory so far (internal world frame) and its last motion; the start-up window's LiDAR-only poses
     are replaced once the IMU state starts."""
 
-    stamps_ns: list[int] = field(default_factory=list)
-    poses: list[np.ndarray] = field(default_factory=list)
+    stamps_ns: Rows = field(default_factory=lambda: Rows((), np.int64))  # (8 bytes a scan, not a Python int)
+    poses: Rows = field(default_factory=lambda: Rows((4, 4)))  # (128 bytes a scan, not an array object)
     last_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
     last_delta: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_last-before_last, over last_dt_s
     last_ns: int | None = None

@@ -21,6 +21,7 @@ _INT64_MAX = np.iinfo(np.int64).max
 QUAT_NORM_TOL = 1e-3
 # KITTI rotation blocks further than this from orthonormal are rejected.
 KITTI_ORTHO_TOL = 1e-3
+TUM_BLOCK_ROWS = 2048  # lines formatted into one string at a time (about 200 kB)
 STAMP_UNITS_NS = {"s": 1, "ms": 10**3, "us": 10**6, "ns": 10**9}  # divisor applied to the seconds parse
 
 
@@ -49,12 +50,19 @@ def parse_stamp_ns(text: str) -> int:
 
 
 def format_tum(stamps_ns: np.ndarray, poses: np.ndarray) -> str:
+    return "".join(tum_blocks(stamps_ns, poses))
+
+
+def tum_blocks(stamps_ns: np.ndarray, poses: np.ndarray, rows: int = TUM_BLOCK_ROWS) -> Iterator[str]:
+    """TUM lines of poses (N,4,4) at ``stamps_ns``, ``rows`` lines a string: a long trajectory's text is
+    written without being held whole."""
     xyz, q = pose_to_xyz_quat(np.asarray(poses).reshape(-1, 4, 4))
-    lines = [
-        f"{format_stamp(s)} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {r[0]:.9f} {r[1]:.9f} {r[2]:.9f} {r[3]:.9f}"
-        for s, p, r in zip(np.asarray(stamps_ns, dtype=np.int64), xyz, q)
-    ]
-    return "\n".join(lines) + ("\n" if lines else "")
+    stamps = np.asarray(stamps_ns, dtype=np.int64).tolist()
+    for lo in range(0, len(stamps), rows):
+        yield "".join(
+            f"{format_stamp(s)} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {r[0]:.9f} {r[1]:.9f} {r[2]:.9f} {r[3]:.9f}\n"
+            for s, p, r in zip(stamps[lo:lo + rows], xyz[lo:lo + rows].tolist(), q[lo:lo + rows].tolist())
+        )
 
 
 def format_kitti(poses: np.ndarray) -> str:

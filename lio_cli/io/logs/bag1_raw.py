@@ -17,13 +17,13 @@ from itertools import chain
 import numpy as np
 
 from ...buffers import ArrayPool
+from .bag1_index import ENTRY_BYTES, entry_columns
 
 _U32 = struct.Struct("<I")
-_BLOCK = 8_192  # index entries of a connection turned into Python values at a time (about 1 MB of Python ints)
-_FIRST_BLOCK = 256  # the first block's: a peek at a topic's first messages converts a few hundred entries
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 _OP_FIRST = b"\x04\x00\x00\x00op="  # the first field of rosbags' (and so lio's own) message headers: op, conn, time
+CHUNKS_AT_ONCE = 8  # chunks whose index is read and merged in one go (a few hundred entries on a walk)
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 _POOL = ArrayPool(2 * KEEP_CHUNKS)  # chunks as read, each a read-only view of a pooled buffer
 
@@ -60,40 +60,54 @@ def _chunk(reader, pos: int, chunks: dict[int, bytes]) -> bytes | memoryview:
 def _entries(reader, connections: list) -> Iterator[Iterator[tuple[int, int, int, int]]]:
     """Blocks of (time, chunk position, offset in chunk, index of the connection in ``connections``) of every
     index entry in the order rosbags' ``heapq.merge`` of its index lists gives (its entries compare by time
-    only: equal times come connection by connection in the order asked, each in its index order), i.e. a
-    stable sort by time. The entries are the reader's index columns (``bag1_index``: each connection's sorted by
-    time), merged and turned into Python values a block at a time: a block is every entry up to a time, so the
-    entries of one time are in one block, sorted there as the whole would be."""
-    parts = [reader.index_columns[conn.id] for conn in connections]
-    starts = [0] * len(parts)
-    size = _FIRST_BLOCK
-    while True:
-        live = [k for k, p in enumerate(parts) if starts[k] < p.shape[1]]
-        if not live:
-            return
-        # up to the earliest of the live connections' size-th next times: at least one entry, at most about size each
-        cut = min(parts[k][0, min(starts[k] + size, parts[k].shape[1]) - 1] for k in live)
-        cols, which = [], []
-        for k in live:
-            p, lo = parts[k], starts[k]
-            hi = lo + int(np.searchsorted(p[0, lo:], cut, side="right"))
-            if hi > lo:
-                cols.append(p[:, lo:hi])
-                which.append(np.full(hi - lo, k, dtype=np.int32))
-            starts[k] = hi
-        size = min(4 * size, _BLOCK)
-        if len(cols) == 1:
-            yield zip(*(cols[0].tolist()), which[0].tolist())
-            continue
-        block, k_of = np.concatenate(cols, axis=1), np.concatenate(which)
-        order = np.argsort(block[0], kind="stable")
-        yield zip(*(block[:, order].tolist()), k_of[order].tolist())
+    only: equal times come connection by connection in the order asked, each in its index order, which is the
+    order the open reads the index records in, stably sorted by time), i.e. a stable sort by time.
+
+    The index is read chunk by chunk (``bag1_index``; ``CHUNKS_AT_ONCE`` at a time), the chunks in the order of
+    their entries' first times: once chunks are read, every entry earlier than the next chunk's first time is
+    known, and those are sorted (by time, connection, read order) and handed on, in Python values; the rest wait
+    for the next chunks. Chunks whose times overlap are so merged, and the index held is about the chunks the
+    stream is in."""
+    ids = [c.id for c in connections]
+    places: dict[int, list[int]] = {}  # connection id -> its places in ``connections`` (asked twice: yielded twice)
+    for k, conn_id in enumerate(ids):
+        places.setdefault(conn_id, []).append(k)
+    chunks, firsts = reader.chunk_order(places)
+    held = np.zeros((5, 0), np.int64)  # time, connection's place, read order (chunk, entry), chunk position, offset
+    for i in range(0, len(chunks), CHUNKS_AT_ONCE):
+        raws, ks, pos, seq = [], [], [], []
+        for chunk in chunks[i:i + CHUNKS_AT_ONCE]:
+            n = 0
+            chunk_pos, entries = reader.chunk_entries(chunk, places)
+            for conn_id, raw in entries:
+                m = len(raw) // ENTRY_BYTES
+                for k in places[conn_id]:
+                    raws.append(raw)
+                    ks.append(k)
+                    pos.append(chunk_pos)
+                    seq.append((chunk << 32) + n)
+                n += m
+        counts = [len(r) // ENTRY_BYTES for r in raws]
+        cols = entry_columns(b"".join(raws), 0)
+        part = np.empty((5, cols.shape[1]), np.int64)
+        part[0], part[4] = cols[0], cols[2]
+        part[1] = np.repeat(np.array(ks, np.int64), counts)
+        part[3] = np.repeat(np.array(pos, np.int64), counts)
+        # read order: each record's first entry's number, less the record's place in ``part``, plus the place
+        part[2] = np.repeat(np.array(seq, np.int64) - np.cumsum([0] + counts[:-1]), counts) + np.arange(cols.shape[1])
+        block = np.concatenate((held, part), axis=1) if held.shape[1] else part
+        nxt = i + CHUNKS_AT_ONCE
+        ready = block[0] < firsts[nxt] if nxt < len(chunks) else np.ones(block.shape[1], bool)
+        out, held = block[:, ready], block[:, ~ready]
+        if out.shape[1]:
+            out = out[:, np.lexsort((out[2], out[1], out[0]))]
+            yield zip(out[0].tolist(), out[3].tolist(), out[4].tolist(), out[1].tolist())
 
 
 def messages(reader, connections: list, chunks: dict[int, bytes] | None = None, views: bool = False
              ) -> Iterator[tuple[str, str, int, bytes | memoryview, object]]:
     """(topic, msgtype, record time ns, serialised message, connection) of ``connections`` (rosbags
-    connections of the one ROS 1 ``reader``, a ``bag1_index.ColumnIndexReader``), in the order rosbags'
+    connections of the one ROS 1 ``reader``, a ``bag1_index.ChunkIndexReader``), in the order rosbags'
     ``reader.messages(connections=...)`` yields them. ``views``: a message may be a read-only view of its chunk
     (no copy; it keeps the chunk's buffer from reuse while it lives), else it is bytes.
 
@@ -138,7 +152,8 @@ def connection_messages(reader, connections: list, chunks: dict[int, bytes] | No
     time). None when a record is not a message-data record of one of the header layouts ``_LAYOUTS``:
     ``messages`` reads those. Each chunk is decompressed once; ``progress`` gets the messages read
     after each."""
-    cols = [reader.index_columns[c.id] for c in connections]
+    by_id = reader.columns({c.id for c in connections})
+    cols = [by_id[c.id] for c in connections]
     parts: list[list] = [[None] * c.shape[1] for c in cols]
     by_chunk: dict[int, list[tuple[int, np.ndarray]]] = {}  # chunk position -> (connection, its entries there)
     for ci, c in enumerate(cols):

@@ -69,9 +69,9 @@ class RosbagsLog(LogReader):
         """First and last record time per topic, from the bag index read when the bag was opened."""
         spans: dict[str, tuple[int, int]] = {}
         for conn in self._reader.connections:
-            cols = conn.owner.index_columns.get(conn.id)
-            if cols is not None and cols.shape[1]:
-                merge_span(spans, conn.topic, int(cols[0, 0]), int(cols[0, -1]))
+            span = conn.owner.spans.get(conn.id)
+            if span is not None:
+                merge_span(spans, conn.topic, *span)
         return spans
 
     def _iter_raw(self, topics: set[str] | None, views: bool = False):
@@ -140,14 +140,14 @@ class RosbagsLog(LogReader):
 
 
 def _any_reader(paths: list[Path], fmt: str, default_typestore=None):
-    """rosbags' AnyReader; for ROS 1 bags with ``bag1_index``'s reader, whose index is held as columns."""
+    """rosbags' AnyReader; for ROS 1 bags with ``bag1_index``'s reader, which reads the index again when needed."""
     from rosbags.highlevel import AnyReader
 
     reader = AnyReader(paths, default_typestore=default_typestore)
     if fmt == "ros1":
-        from .bag1_index import ColumnIndexReader
+        from .bag1_index import ChunkIndexReader
 
-        reader.readers = [ColumnIndexReader(p) for p in paths]
+        reader.readers = [ChunkIndexReader(p) for p in paths]
     return reader
 
 

@@ -237,7 +237,7 @@ class LidarPass:
         stamps = np.asarray(odo.stamps_ns, np.int64)
         if not with_imu:  # a scan registered without de-skew is where the sensor was in the middle of its sweep
             stamps = np.array([self.mid_ns.get(int(t), int(t)) for t in stamps], np.int64)
-        traj = LidarTrajectory(stamps, np.stack(odo.poses), len(odo.poses),
+        traj = LidarTrajectory(stamps, np.asarray(odo.poses), len(odo.poses),
                                arrays.scans or self.done, f"{how}: {len(odo.poses)} of {self.done} scans")
         return traj, arrays
 

@@ -260,7 +260,7 @@ class _OdomRun:
         wall = time.perf_counter() - self.t_wall
         stamps = odo.stamps_ns
         level = odo.output_alignment()
-        P = level @ np.stack(odo.poses)
+        P = level @ np.asarray(odo.poses)
         if cfg.frame == "lidar":
             P = P @ odo.ext.T_base_lidar
         elif cfg.frame == "imu":

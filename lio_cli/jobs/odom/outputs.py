@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...errors import InputError
-from ...io.files.trajectory import format_tum
+from ...io.files.trajectory import tum_blocks
 from ...model.trajectory import Trajectory
 from ..outputs import write_run
 from .job import OdomResult
@@ -20,8 +20,8 @@ GT_MAX_DIFF_NS = 10_000_000  # pose pairs for the picture's alignment: as the sc
 def write_odom(result: OdomResult, out: Path, force: bool) -> list[Path]:
     """The odom run's TUM trajectory, resolved config and metrics; returns the paths written."""
     result.metrics["output"] = str(out)
-    return write_run(out, TAG, format_tum(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
-              result.metrics, force)
+    return write_run(out, TAG, tum_blocks(result.trajectory.stamps_ns, result.trajectory.poses), result.config,
+                     result.metrics, force)
 
 
 def map_outputs(path: Path) -> list[Path]:

@@ -22,7 +22,7 @@ def test_the_first_scan_starts_the_map_at_the_origin(make_state, make_scan):
     res = lidar_step(o, make_scan(np.eye(4), NS), NS - NS // 10, NS)
     np.testing.assert_array_equal(res.pose, np.eye(4))
     assert not res.failed and o.reg is not None and o.reg.scans == 1
-    assert o.track.stamps_ns == [NS] and o.stats.used == 1 and o.stats.lidar_only_scans == 1
+    assert list(o.track.stamps_ns) == [NS] and o.stats.used == 1 and o.stats.lidar_only_scans == 1
     assert o.startup.scans == [] and not o.startup.due  # no IMU: nothing to start
 
 

@@ -7,7 +7,7 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 from rosbags.rosbag1 import reader as rosbag1_reader
 
-from lio_cli.io.logs.bag1_index import ColumnIndexReader
+from lio_cli.io.logs.bag1_index import ChunkIndexReader
 from lio_cli.io.logs.reader import open_log
 
 from ..sensors.test_series import _build
@@ -16,16 +16,19 @@ MD5 = "992ce8a1687cec8c8bd883ec73ca41d1"
 
 
 def _same_as_rosbags(path) -> None:
-    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
+    with Reader(path) as theirs, ChunkIndexReader(path) as ours:
         assert [c[:-1] for c in ours.connections] == [c[:-1] for c in theirs.connections]  # all but the owner
         assert [tuple(c) for c in ours.chunk_infos] == [tuple(c) for c in theirs.chunk_infos]
-        assert ours.chunks.keys() == theirs.chunks.keys()
+        assert list(ours.chunks) == list(theirs.chunks) and all(p in ours.chunks for p in theirs.chunks)
+        assert [ours.chunks[p] for p in theirs.chunks] == list(theirs.chunks.values())  # sizes, decompressors
+        assert -1 not in ours.chunks and [tuple(c) for c in ours.chunk_infos[-2:]] == \
+            [tuple(c) for c in theirs.chunk_infos[-2:]]
         assert (ours.start_time, ours.end_time, ours.message_count) == \
             (theirs.start_time, theirs.end_time, theirs.message_count)
         assert ours.topics.keys() == theirs.topics.keys()
         for c in theirs.connections:  # IndexData compare by time only: compare them as plain tuples
             assert [tuple(e) for e in ours.indexes[c.id]] == [tuple(e) for e in theirs.indexes[c.id]]
-            assert ours.index_columns[c.id].T.tolist() == [list(e) for e in theirs.indexes[c.id]]
+            assert ours.columns([c.id])[c.id].T.tolist() == [list(e) for e in theirs.indexes[c.id]]
         assert [(c.id, t, bytes(d)) for c, t, d in ours.messages()] == \
             [(c.id, t, bytes(d)) for c, t, d in theirs.messages()]
 
@@ -62,7 +65,7 @@ def test_a_bag_without_messages_opens(tmp_path):
     path = tmp_path / "empty.bag"
     with Writer(path) as w:
         w.add_connection("/a", "std_msgs/msg/String", msgdef="string data", md5sum=MD5)
-    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
+    with Reader(path) as theirs, ChunkIndexReader(path) as ours:
         assert [c[:-1] for c in ours.connections] == [c[:-1] for c in theirs.connections]
         assert ours.message_count == theirs.message_count == 0
         assert list(ours.messages()) == []

@@ -2,30 +2,72 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from rosbags.rosbag1 import Reader, Writer
 
 from lio_cli.io.logs import bag1_raw
-from lio_cli.io.logs.bag1_index import ColumnIndexReader
+from lio_cli.io.logs.bag1_index import ChunkIndexReader
 
 MD5 = "992ce8a1687cec8c8bd883ec73ca41d1"
 
 
-@pytest.mark.parametrize("first, block", [(256, 8192), (2, 5), (1, 1)])
-def test_blocks_of_index_entries_keep_rosbags_order(tmp_path, monkeypatch, first, block):
-    monkeypatch.setattr(bag1_raw, "_FIRST_BLOCK", first)
-    monkeypatch.setattr(bag1_raw, "_BLOCK", block)
-    path = tmp_path / "ties.bag"  # equal times across connections, out-of-order records, several chunks
+def _messy_bag(path, seed: int, threshold: int) -> None:
+    """Three connections (one never written), times with ties within and across connections, written out of
+    order: chunks whose time ranges overlap and chunk infos out of time order."""
+    rng = np.random.default_rng(seed)
     with Writer(path) as w:
-        w.chunk_threshold = 64
-        a = w.add_connection("/a", "std_msgs/msg/String", msgdef="string data", md5sum=MD5)
-        b = w.add_connection("/b", "std_msgs/msg/String", msgdef="string data", md5sum=MD5)
-        for k, (conn, t) in enumerate([(b, 100), (a, 100), (a, 100), (b, 90), (a, 200)] * 8):
-            w.write(conn, t + (k % 3), (3).to_bytes(4, "little") + b"m%02d" % k)
-    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
-        want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=theirs.connections)]
-        got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, ours.connections)]
-    assert len(want) == 40 and got == want
+        w.chunk_threshold = threshold
+        conns = [w.add_connection(f"/{n}", "std_msgs/msg/String", msgdef="string data", md5sum=MD5) for n in "abc"]
+        w.add_connection("/unused", "std_msgs/msg/String", msgdef="string data", md5sum=MD5)
+        times = np.sort(rng.integers(0, 40, 150)) * 1_000 + 10**9  # many equal times
+        times[rng.random(150) < 0.3] -= 25_000  # late records: chunk time ranges overlap
+        times[100:130] = times[100:130][::-1] + 60_000  # a run written newest first
+        for k, t in enumerate(times.tolist()):
+            w.write(conns[int(rng.integers(0, 3))], t, (3).to_bytes(4, "little") + b"%03d" % k)
+
+
+@pytest.mark.parametrize("seed, threshold, at_once", [(0, 64, 1), (1, 200, 3), (2, 1, 8), (3, 10_000, 8), (4, 64, 2)])
+def test_index_read_chunk_by_chunk_keeps_rosbags_order(tmp_path, monkeypatch, seed, threshold, at_once):
+    """The index read again chunk by chunk (``at_once`` chunks at a time) as the stream reaches each gives the
+    messages of rosbags' whole-index read in the same order (record time; ties connection by connection in the
+    order asked, each in its order in the index), for any connections asked in any order, some twice."""
+    monkeypatch.setattr(bag1_raw, "CHUNKS_AT_ONCE", at_once)
+    path = tmp_path / "messy.bag"
+    _messy_bag(path, seed, threshold)
+    with Reader(path) as theirs, ChunkIndexReader(path) as ours:
+        firsts = [min(e.time for c in theirs.connections for e in theirs.indexes[c.id] if e.chunk_pos == i.pos)
+                  for i in theirs.chunk_infos]
+        if threshold < 1_000:  # several chunks, their infos out of time order and their time ranges overlapping
+            assert len(firsts) > 5 and firsts != sorted(firsts)
+            assert any(a.end_time > b.start_time for a, b in zip(theirs.chunk_infos, theirs.chunk_infos[1:]))
+        t_c = {c.topic: c for c in theirs.connections}
+        o_c = {c.topic: c for c in ours.connections}
+        for topics in (["/a", "/b", "/c", "/unused"], ["/c", "/a"], ["/b"], ["/b", "/a", "/b"], ["/unused"]):
+            want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=[t_c[n] for n in topics])]
+            got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, [o_c[n] for n in topics])]
+            assert got == want
+            assert (len(want) > 0) == (topics != ["/unused"])
+        assert sum(c.msgcount for c in ours.connections) == 150
+
+
+def test_the_stream_reads_a_chunks_index_only_once_it_is_reached(tmp_path, monkeypatch):
+    """No chunk's index is read before the stream has handed on every message earlier than that chunk's first:
+    the index held is that of the chunks the stream is in, not the bag's."""
+    path = tmp_path / "messy.bag"
+    _messy_bag(path, 5, 64)
+    read = []
+    with ChunkIndexReader(path) as ours:
+        entries = ours.chunk_entries
+        monkeypatch.setattr(bag1_raw, "CHUNKS_AT_ONCE", 1)
+        monkeypatch.setattr(ours, "chunk_entries", lambda chunk, ids: read.append(chunk) or entries(chunk, ids))
+        chunks, firsts = ours.chunk_order({c.id for c in ours.connections})
+        first_of = dict(zip(chunks, firsts))
+        seen = []
+        for _, _, t, _, _ in bag1_raw.messages(ours, ours.connections):
+            assert all(first_of[c] <= t for c in read)  # every chunk read so far starts at or before it
+            seen.append(t)
+    assert len(read) == len(chunks) > 5 and seen == sorted(seen) and len(seen) == 150
 
 
 def _fields(header: bytes) -> dict[bytes, bytes]:
@@ -62,7 +104,7 @@ def test_message_headers_in_any_field_order(tmp_path, order):
         pos = data.find(b"\x04\x00\x00\x00op=\x02", start + 4 + hlen)
     path.write_bytes(bytes(data))
     assert rewritten == 12
-    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
+    with Reader(path) as theirs, ChunkIndexReader(path) as ours:
         want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=theirs.connections)]
         got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, ours.connections)]
         bulk = bag1_raw.connection_messages(ours, ours.connections, {})
@@ -87,7 +129,7 @@ def test_messages_as_views_of_pooled_chunks_are_rosbags_bytes(tmp_path, compress
         for k in range(200):
             body = bytes([k]) * (1 + 37 * k % 300)
             w.write(conn, 100 + k, len(body).to_bytes(4, "little") + body)
-    with Reader(path) as theirs, ColumnIndexReader(path) as ours:
+    with Reader(path) as theirs, ChunkIndexReader(path) as ours:
         want = [bytes(d) for _, _, d in theirs.messages()]
         views = [d for *_, d, _ in bag1_raw.messages(ours, ours.connections, {}, views=True)]
         copies = [d for *_, d, _ in bag1_raw.messages(ours, ours.connections, {})]
