@@ -23,6 +23,7 @@ _U32 = struct.Struct("<I")
 _OP_MSGDATA, _OP_CONNECTION = 2, 7
 _TIME, _CONN = b"\x0d\x00\x00\x00time=", b"\x09\x00\x00\x00conn="  # a message header's first two fields
 _OP_FIRST = b"\x04\x00\x00\x00op="  # the first field of rosbags' (and so lio's own) message headers: op, conn, time
+_OP_LEN = len(_OP_FIRST)
 CHUNKS_AT_ONCE = 8  # chunks whose index is read and merged in one go (a few hundred entries on a walk)
 KEEP_CHUNKS = 3  # decompressed chunks kept: record times of neighbouring chunks overlap
 _POOL = ArrayPool(2 * KEEP_CHUNKS)  # chunks as read, each a read-only view of a pooled buffer
@@ -128,10 +129,10 @@ def messages(reader, connections: list, chunks: dict[int, bytes] | None = None, 
             (hlen,) = unpack(buf, pos)
             h0, h1 = pos + 4, pos + 4 + hlen
             if buf[h0 + 34:h0 + 37] == b"op=" and buf[h0:h0 + 9] == _TIME and buf[h0 + 17:h0 + 26] == _CONN \
-                    and h0 + 30 < h1:
+                    and h0 + 37 < h1:
                 op = buf[h0 + 37]  # time, conn, op as rosbag writes them: what _op finds, without its loop
-            elif buf[h0:h0 + 8] == _OP_FIRST and h0 + 9 <= h1:
-                op = buf[h0 + 8]  # op first, as rosbags writes them
+            elif buf[h0:h0 + _OP_LEN] == _OP_FIRST and h0 + _OP_LEN < h1:
+                op = buf[h0 + _OP_LEN]  # op first, as rosbags writes them
             else:
                 op = _op(buf, h0, h1)
             (dlen,) = unpack(buf, h1)

@@ -82,10 +82,10 @@ def _fields(header: bytes) -> dict[bytes, bytes]:
 
 
 @pytest.mark.parametrize("order", [(b"time", b"conn", b"op"), (b"op", b"conn", b"time"), (b"conn", b"op", b"time")])
-def test_message_headers_in_any_field_order(tmp_path, order):
+def test_message_headers_in_any_field_order(tmp_path, monkeypatch, order):
     """rosbag writes a message's header fields as time, conn, op; rosbags (so lio's own logs) as op, conn, time;
-    anything else is read field by field: the same messages in every case. The bulk per-topic read knows the
-    first two."""
+    anything else is read field by field: the same messages in every case. Both readers know the first two
+    layouts without walking the fields."""
     path = tmp_path / "order.bag"
     with Writer(path) as w:  # uncompressed chunks: the headers can be rewritten in place
         w.chunk_threshold = 64
@@ -104,10 +104,14 @@ def test_message_headers_in_any_field_order(tmp_path, order):
         pos = data.find(b"\x04\x00\x00\x00op=\x02", start + 4 + hlen)
     path.write_bytes(bytes(data))
     assert rewritten == 12
+    walked = []
+    field_walk = bag1_raw._op
+    monkeypatch.setattr(bag1_raw, "_op", lambda *a: walked.append(1) or field_walk(*a))
     with Reader(path) as theirs, ChunkIndexReader(path) as ours:
         want = [(c.topic, t, bytes(d)) for c, t, d in theirs.messages(connections=theirs.connections)]
         got = [(topic, t, bytes(d)) for topic, _, t, d, _ in bag1_raw.messages(ours, ours.connections)]
         bulk = bag1_raw.connection_messages(ours, ours.connections, {})
+    assert len(walked) == (12 if order == (b"conn", b"op", b"time") else 0)
     assert len(want) == 12 and got == want
     if order == (b"conn", b"op", b"time"):  # no layout it knows: the bulk read declines, messages reads them
         assert bulk is None
