@@ -5,7 +5,9 @@ Predict (lecture, wheel odometry kinematics): ``x += v cos(theta) dt``, ``y += v
 yaw rate ``omega + b_omega`` (each IMU sample, base z axis), wheel speed ``v`` and yaw rate ``omega``,
 odometry poses ``(x, y, theta)`` (absolute, or increments via a clone ``[x_c, y_c, theta_c]``), GPS
 ``(x, y)``, the IMU orientation's yaw. The accelerometer is not used. Output poses are planar (z, roll and
-pitch zero) with covariance only in x, y and yaw.
+pitch zero; a smoothed run's height is set after, ``heave``) with covariance only in x, y and yaw. With the
+gyro, omega's walk is the gyro's (``turn_rate_walk``); smoothed without a position source, the path is the
+smoothed rates integrated again (``reintegrated``).
 """
 
 from __future__ import annotations
