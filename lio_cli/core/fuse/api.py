@@ -13,7 +13,7 @@ from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import graph, shape, wheel_slip
+from . import graph, heave, shape, wheel_slip
 from .graph.keyframes import with_outputs
 from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto, yaw_velocity_onto
 from .initial import Start, initial_state
@@ -107,6 +107,7 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
         prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
     if choice.name == "planar" and not (o.smooth and _graph_smooths(prep, choice.name)):
+        prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
     return prep, choice
 
@@ -130,6 +131,7 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
         if o.smooth:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
                                                              "an accelerometer): its RTS pass"}
+            heave.lift(prep, result)
         return result
     if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
         result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))

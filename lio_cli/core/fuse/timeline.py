@@ -48,6 +48,7 @@ class Prepared:
     notes: list[str] = field(default_factory=list)
     wheel_check: dict | None = None  # wheel_slip.SlipReport.to_dict() where the wheels were checked
     wheel_yaw_weighed: Weighed | None = None  # the wheels' yaw rate weighed against the gyro (FuseOptions.wheel_yaw)
+    heave_accel: bool = False  # the accelerometer selected, though the planar filter leaves it out (heave.py)
 
     @property
     def wheel_yaw_check(self) -> dict | None:
