@@ -50,7 +50,7 @@ def test_a_scan_is_recorded_on_the_track_and_old_wheel_records_dropped(make_stat
     o.wheel = [OdometryRecord(t, "odom", "base", None, np.zeros(3), np.zeros(3)) for t in (0, 2 * NS, 3 * NS)]
     res = finish(o, 3 * NS, np.eye(4), None, None, [np.array([1.0, 0.0, 0.0])], False)
     assert res.degenerate and not res.failed and res.stamp_ns == 3 * NS
-    assert o.track.stamps_ns == [3 * NS] and o.stats.used == 1 and o.stats.degenerate == 1
+    assert list(o.track.stamps_ns) == [3 * NS] and o.stats.used == 1 and o.stats.degenerate == 1
     assert [w.stamp_ns for w in o.wheel] == [3 * NS]  # older than WHEEL_KEEP_NS behind the scan: dropped
     o.startup.scans = [WindowScan(NS, 2 * NS, np.eye(4), np.nan, None, 0)]  # a start-up window holds them
     o.wheel.insert(0, OdometryRecord(NS - WHEEL_KEEP_NS // 2, "odom", "base", None, np.zeros(3), np.zeros(3)))
@@ -100,7 +100,7 @@ def test_the_scan_sink_gets_each_placed_scans_points_and_a_replay_tells_it_again
         odo.process(make_scan(np.eye(4), k * NS // 10))
     assert odo.imu_mode  # the start-up window was aligned with the IMU and replayed
     stamps = [s for s, _ in told]
-    assert sorted(set(stamps)) == odo.stamps_ns == [k * NS // 10 for k in range(1, 21)]
+    assert sorted(set(stamps)) == list(odo.stamps_ns) == [k * NS // 10 for k in range(1, 21)]
     assert len(stamps) > len(set(stamps))  # the window's scans were told again when replayed
     last = dict(told)
     cloud = make_scan(np.eye(4), NS // 10)
