@@ -78,6 +78,8 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
             "refused": [t for t in tries if t]}
     if cg.wheel_info() is not None:
         info["wheel"] = cg.wheel_info()
+    if meas.odom_spin is not None:  # the odometry increments' rotation scatter about the gyro's (odom_spin)
+        info["odom_rotation_scatter_rad"] = float(f"{meas.odom_spin:.3g}")
     if cg.level is not None:
         info["height"] = {"model": height.MODEL, "sigma_m": round(cg.level.sigma_m, 4), "priors": cg.levelled,
                           "evidence": cg.level.evidence}
