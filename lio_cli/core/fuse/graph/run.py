@@ -127,7 +127,7 @@ def _seed_from_odom(states: dict[str, np.ndarray], meas: Measurements, fit: bool
     D[: inside[0]], D[inside[-1] + 1:] = D[inside[0]], D[inside[-1]]
     T = D @ T_f
     states["R"], states["p"] = T[:, :3, :3], T[:, :3, 3]
-    states["v"] = np.gradient(states["p"], kt * 1e-9, axis=0) if len(kt) > 1 else states["v"]
+    states["v"] = np.gradient(states["p"], (kt - kt[0]) * 1e-9, axis=0) if len(kt) > 1 else states["v"]
 
 
 def _yaw_fit(A: np.ndarray, B: np.ndarray) -> np.ndarray:
