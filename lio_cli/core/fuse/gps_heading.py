@@ -7,7 +7,9 @@ heading that may be wrong by up to pi.
 
 A moving start that no wheel or odometry measures starts the pass at zero velocity: its path is then off by
 the unknown start velocity times t (and a tilt's acceleration times t^2 / 2), which the fit then takes as
-unknowns too (``yaw_velocity_onto``): the start velocity in ENU comes from the same fit.
+unknowns too (``yaw_velocity_onto``): the start velocity in ENU comes from the same fit. Those terms take most of
+the path, so its heading is weak (a rotated IMU's 89 deg off on the matrix's seed 9): ``tried_headings`` runs the
+filter with the fixes from it and from headings around it, and keeps the one whose path stays nearest them.
 """
 
 from __future__ import annotations
@@ -114,8 +116,8 @@ def check_end(prep: Prepared, t_end_ns: int) -> int:
 
 
 def miss(prep: Prepared, knots: dict, xy: slice) -> float:
-    """Median horizontal distance of a try's path (GPS-free outputs at the fixes) from the accepted fixes over
-    its second half: a wrong start heading leaves the filter rejecting fixes and drifting off them."""
+    """Median horizontal distance of a try's path (its outputs at the fixes) from the accepted fixes over its
+    second half: a wrong start heading leaves the filter rejecting fixes and drifting off them."""
     k = np.searchsorted(prep.gps.stamps_ns, knots["t_ns"])
     ok = prep.gps.accepted[k] & (np.arange(len(k)) >= len(k) // 2)
     if not ok.any():
