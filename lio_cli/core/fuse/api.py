@@ -15,7 +15,8 @@ from .complementary import run_complementary
 from .ekf3d import Ekf3d
 from . import graph, heave, shape, wheel_slip
 from .graph.keyframes import with_outputs
-from .gps_heading import heading_prefix_end, prefix_without_gps, yaw_onto, yaw_velocity_onto
+from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
+                          yaw_velocity_onto)
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
 from .planar import PlanarEkf, run_planar
@@ -221,14 +222,15 @@ def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
     path, fixes = knots["x_filt"][ok][:, xy], prep.gps.position_enu_m[k[ok], :2]
     if unmeasured:
         yaw, w = yaw_velocity_onto(path, fixes, (knots["t_ns"][ok] - prep.t0_ns) * 1e-9)
+        yaw, w, tried = tried_headings(prep, replace(o, smooth=False), filter_cls, xy, start, t_end,
+                                       (path, fixes, (knots["t_ns"][ok] - prep.t0_ns) * 1e-9), yaw)
     else:
         yaw = yaw_onto(path, fixes)
-    Rz = so3_exp_one(np.array([0.0, 0.0, yaw]))
-    start.R, start.v, start.yaw_from = Rz @ start.R, Rz @ start.v, "gps"
+    turned(start, yaw)
     start.reason += f"; heading {np.degrees(yaw):.1f} deg from GPS over the first {len(k)} fixes"
     if unmeasured:
         start.v[:2] += w
-        start.reason += f", with the start velocity ({np.hypot(*w):.2f} m/s horizontal)"
+        start.reason += f", with the start velocity ({np.hypot(*w):.2f} m/s horizontal){tried}"
     return start
 
 

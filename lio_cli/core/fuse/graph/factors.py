@@ -26,7 +26,7 @@ from gtsam.symbol_shorthand import B, G, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
-from . import gps, height, wheels
+from . import gps, height, odom_spin, wheels
 from .gps import FREE_SIGMA
 from .imu import Segments
 
@@ -41,12 +41,16 @@ FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
+# their rotation sigma at most this many times what their scatter about the gyro's shows (``odom_spin``)
+ODOM_SPIN_MARGIN = 4.0
 # wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES) when their
 # scale is not estimated (``WHEEL_SCALE``), so a wheel scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 30.0
 # beside odometry: the wheel increments times the speed scale a pre-pass finds against the odometry, slips gated
 # out, Huber, ``wheels.SIGMA_SCALE`` times their sigma (``wheels``)
 WHEEL_SCALE = True
+# the wheels' yaw factor's sigma times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES)
+ODOM_YAW_SIGMA_SCALE = 30.0
 ODOM_WHEEL_LOOSE_MODES = ("pose", "delta")
 # odometry poses' position sigma times this in the graph: a scan matcher's poses share their drift, so one
 # independent prior per pose counts them many times over (and pins each keyframe to the pose's noise)
@@ -89,6 +93,15 @@ class Measurements:
                     i = j[k]
                     sig = float(np.sqrt(max(np.trace(imu.orientation_cov[i]) / 3.0, 1e-12)))
                     self.orient[k] = (prep.imu_R_wb[i], sig)
+
+    @cached_property
+    def odom_spin(self) -> float | None:
+        """The odometry increments' rotation sigma their scatter about the gyro's shows (``odom_spin``), where
+        the graph takes them as increments beside the gyro; else None."""
+        if len(self.odom_idx) < 2 or "delta" not in self.prep.use.get("odom", ()) \
+                or "gyro" not in self.prep.use.get("imu", ()):
+            return None
+        return odom_spin.increment_sigma(self.prep, self.odom_idx)
 
     @cached_property
     def level(self) -> height.Level | None:
@@ -154,6 +167,9 @@ class ChunkGraph:
         self.beside_odom = bool(len(meas.odom_k) and od & set(ODOM_WHEEL_LOOSE_MODES))
         self.scaled = self.wheel is not None and WHEEL_SCALE and self.beside_odom
         self.level = meas.level if self.wheel is not None and self.beside_odom else None
+        # beside odometry the wheels' yaw as loose as their speed: their slips' edges and any bias turn the
+        # heading over the whole log, the odometry's by far less
+        self.yaw_loose = ODOM_YAW_SIGMA_SCALE if self.beside_odom else 1.0
         self.levelled = 0
         if self.scaled:  # the forward sigma's share of the speed stood for a scale error: the scale carries it
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
@@ -202,7 +218,7 @@ class ChunkGraph:
             g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
             if self.yaw is not None and self.yaw.ok[s0:s1].all():
                 g.add(self.yaw.factor(X(k), X(k + 1), pim.deltaRij(), seg.w[:, 2], float(self.s["bg"][k][2]), seg.dt,
-                                      slice(s0, s1)))
+                                      slice(s0, s1), self.yaw_loose))
             if wheel and self.scaled:
                 scaled.append((k, dp, sd, pim.deltaRij()))
             elif wheel:
@@ -270,6 +286,8 @@ class ChunkGraph:
             i, j = int(m.odom_idx[a]), int(m.odom_idx[a + 1])
             T = np.linalg.inv(od.poses[i]) @ od.poses[j]
             rs = ODOM_DELTA_SHARE * float(np.hypot(od.rotation_sigma_rad[i], od.rotation_sigma_rad[j]))
+            if m.odom_spin is not None:  # what the log shows they are worth, never looser than the sigmas say
+                rs = min(rs, ODOM_SPIN_MARGIN * m.odom_spin)
             ps = ODOM_DELTA_SHARE * float(np.hypot(od.position_sigma_m[i], od.position_sigma_m[j]))
             noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, rs), np.full(3, ps)])
             g.add(gtsam.BetweenFactorPose3(X(ka), X(kb), gtsam.Pose3(T), noise))

@@ -78,6 +78,8 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
             "refused": [t for t in tries if t]}
     if cg.wheel_info() is not None:
         info["wheel"] = cg.wheel_info()
+    if meas.odom_spin is not None:  # the odometry increments' rotation scatter about the gyro's (odom_spin)
+        info["odom_rotation_scatter_rad"] = float(f"{meas.odom_spin:.3g}")
     if cg.level is not None:
         info["height"] = {"model": height.MODEL, "sigma_m": round(cg.level.sigma_m, 4), "priors": cg.levelled,
                           "evidence": cg.level.evidence}
@@ -125,7 +127,7 @@ def _seed_from_odom(states: dict[str, np.ndarray], meas: Measurements, fit: bool
     D[: inside[0]], D[inside[-1] + 1:] = D[inside[0]], D[inside[-1]]
     T = D @ T_f
     states["R"], states["p"] = T[:, :3, :3], T[:, :3, 3]
-    states["v"] = np.gradient(states["p"], kt * 1e-9, axis=0) if len(kt) > 1 else states["v"]
+    states["v"] = np.gradient(states["p"], (kt - kt[0]) * 1e-9, axis=0) if len(kt) > 1 else states["v"]
 
 
 def _yaw_fit(A: np.ndarray, B: np.ndarray) -> np.ndarray:

@@ -95,10 +95,12 @@ class YawTrack:
         return cls(np.nan_to_num(w.yaw_rate_radps[j]), np.sqrt(w.yaw_rate_var[j]), ok)
 
     def factor(self, ka, kb, dR: gtsam.Rot3, gyro_z: np.ndarray, bias_z: float, dt: np.ndarray,
-               segs: slice) -> gtsam.BetweenFactorPose3:
-        """The interval's rotation with the wheels' yaw (class docstring); its translation free."""
+               segs: slice, loose: float = 1.0) -> gtsam.BetweenFactorPose3:
+        """The interval's rotation with the wheels' yaw (class docstring), its sigma times ``loose``; its
+        translation free."""
         turn = float(np.dot(self.z[segs] - (gyro_z[segs] - bias_z), dt[segs]))
-        sig = np.r_[LOOSE_ROTATION_RAD, LOOSE_ROTATION_RAD, max(float(np.dot(self.sigma[segs], dt[segs])), 1e-9),
+        sz = loose * float(np.dot(self.sigma[segs], dt[segs]))
+        sig = np.r_[LOOSE_ROTATION_RAD, LOOSE_ROTATION_RAD, max(sz, 1e-9),
                     np.full(3, FREE_M)]
         meas = gtsam.Pose3(dR.compose(gtsam.Rot3.Rz(turn)), np.zeros(3))
         return gtsam.BetweenFactorPose3(ka, kb, meas, gtsam.noiseModel.Diagonal.Sigmas(sig))
