@@ -56,23 +56,22 @@ def _wheel_dead_reckoning(log) -> tuple[np.ndarray, np.ndarray]:
     return np.array(stamps, np.int64), np.array(poses)
 
 
-def test_rover_height_follows_the_heave(rover):
-    log, gt = rover
+def _fused_and_wheels(log, gt) -> tuple[float, float, float, float]:
+    """(horizontal, vertical) errors of the default fuse, then of the wheels' dead reckoning."""
     run = run_fuse(FuseJob(log, FuseConfig(rate_hz=50.0)))
     assert run.metrics["estimator"] == "planar"
-    h, z = _errors(gt, run.trajectory.stamps_ns, run.trajectory.poses)
-    h_w, z_w = _errors(gt, *_wheel_dead_reckoning(log))
+    return (*_errors(gt, run.trajectory.stamps_ns, run.trajectory.poses), *_errors(gt, *_wheel_dead_reckoning(log)))
+
+
+def test_rover_height_follows_the_heave(rover):
+    h, z, h_w, z_w = _fused_and_wheels(*rover)
     assert z_w > 0.025  # the ground heaves by centimetres: the flat wheels miss all of it
     assert z < 0.4 * z_w  # a flat output (the planar filter's) has z == z_w
     assert h < 1.2 * h_w + 0.005
 
 
 def test_car_with_exact_wheels_is_as_good_as_their_dead_reckoning(car):
-    log, gt = car
-    run = run_fuse(FuseJob(log, FuseConfig(rate_hz=50.0)))
-    assert run.metrics["estimator"] == "planar"
-    h, z = _errors(gt, run.trajectory.stamps_ns, run.trajectory.poses)
-    h_w, z_w = _errors(gt, *_wheel_dead_reckoning(log))
+    h, z, h_w, z_w = _fused_and_wheels(*car)
     # before: the turn rate followed the gyro's noise between wheel messages and the position lagged the speed
     # by half a step: 2.5x the wheels' horizontal error on such a drive
     assert h < 1.5 * h_w

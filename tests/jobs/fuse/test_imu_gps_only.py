@@ -17,18 +17,23 @@ from .test_consumer_gps import _ate_h
 GPS_RATIO = 1.0  # fused horizontal ATE vs the fixes' own (before the fix 93: 252 m against 2.7)
 
 
-def test_imu_and_consumer_gps_end_near_the_fixes(tmp_path):
-    log = tmp_path / "drone.mcap"
-    simulate("drone", log, duration_s=45.0, seed=7, start="moving", gps=True, gps_model="consumer", lidar=False)
+def _fused_and_gps_alone(log):
+    """The default run, its horizontal ATE and the fixes' own."""
     gt = read_tum(log.with_name("drone.gt.tum"))
     run = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0)))
     gps = run.sources.inputs.gps
     ok = np.isfinite(gps.position_enu_m[:, 0])
-    gps_alone = _ate_h(gt, gps.stamps_ns[ok], gps.position_enu_m[ok])
-    fused = _ate_h(gt, run.trajectory.stamps_ns, run.trajectory.positions)
+    return run, _ate_h(gt, run.trajectory.stamps_ns, run.trajectory.positions), _ate_h(gt, gps.stamps_ns[ok],
+                                                                                       gps.position_enu_m[ok])
+
+
+def test_imu_and_consumer_gps_end_near_the_fixes(tmp_path):
+    log = tmp_path / "drone.mcap"
+    simulate("drone", log, duration_s=45.0, seed=7, start="moving", gps=True, gps_model="consumer", lidar=False)
+    run, fused, gps_alone = _fused_and_gps_alone(log)
     assert fused < GPS_RATIO * gps_alone, (fused, gps_alone)
     g = run.metrics["sources"]["gps"]
-    assert g["updates"] > 0.6 * len(gps)  # the fixes after the jump are used, not held out for 30 s
+    assert g["updates"] > 0.6 * len(run.sources.inputs.gps)  # the fixes after the jump are used, not held out for 30 s
 
 
 def test_a_rotated_imu_at_a_moving_start_finds_the_heading_the_fixes_follow(tmp_path):
@@ -38,11 +43,6 @@ def test_a_rotated_imu_at_a_moving_start_finds_the_heading_the_fixes_follow(tmp_
     log = tmp_path / "drone.mcap"
     simulate("drone", log, duration_s=45.0, seed=9, start="moving", gps=True, gps_model="consumer", lidar=False,
              imu_rotation_deg=(180.0, 0.0, 90.0), imu_lever_arm_m=(0.3, -0.2, 0.25))
-    gt = read_tum(log.with_name("drone.gt.tum"))
-    run = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0)))
-    gps = run.sources.inputs.gps
-    ok = np.isfinite(gps.position_enu_m[:, 0])
-    gps_alone = _ate_h(gt, gps.stamps_ns[ok], gps.position_enu_m[ok])
-    fused = _ate_h(gt, run.trajectory.stamps_ns, run.trajectory.positions)
+    run, fused, gps_alone = _fused_and_gps_alone(log)
     assert fused < 0.8 * gps_alone, (fused, gps_alone)  # measured 1.73 m against 2.83 m; before: 21 m (the matrix, SE(3) fit)
     assert "headings tried with the fixes" in run.metrics["start"]
