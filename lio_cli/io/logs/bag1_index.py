@@ -29,17 +29,19 @@ _REC_CONN, _REC_CHUNK, _REC_COUNT, _REC_FIRST, _REC_LAST = range(5)  # the colum
 
 
 class _Indexes(Mapping):
-    """connection id -> rosbags' sorted list of ``IndexData``, made from the index (all connections' at once) on
-    first use."""
+    """connection id -> rosbags' sorted list of ``IndexData``, made from the index on first use of that
+    connection."""
 
     def __init__(self, reader: ChunkIndexReader) -> None:
         self.reader = reader
-        self._lists: dict[int, list[IndexData]] | None = None
+        self._lists: dict[int, list[IndexData]] = {}
 
     def __getitem__(self, conn_id: int) -> list[IndexData]:
-        if self._lists is None:
-            cols = self.reader.columns([c.id for c in self.reader.connections])
-            self._lists = {k: [IndexData(*e) for e in zip(*c.tolist())] for k, c in cols.items()}
+        if conn_id not in self._lists:
+            if conn_id not in {c.id for c in self.reader.connections}:
+                raise KeyError(conn_id)
+            (c,) = self.reader.columns([conn_id]).values()
+            self._lists[conn_id] = [IndexData(*e) for e in zip(*c.tolist())]
         return self._lists[conn_id]
 
     def __iter__(self) -> Iterator[int]:

@@ -1,8 +1,8 @@
 """Serialised messages of a few topics of one ROS 1 bag, straight from its chunks.
 
 rosbags' ``Reader.messages`` parses every record header into a dict of fields and merges the per-connection
-indexes one entry at a time. Here the same index entries (read into columns when the bag was opened:
-``bag1_index``) are put in the same order (by record time; on equal times connection by connection in the
+indexes one entry at a time. Here the same index entries (read a few chunks' at a time as the stream reaches
+them: ``bag1_index``) are put in the same order (by record time; on equal times connection by connection in the
 order asked, each in its index order: what ``heapq.merge`` yields) and each record is sliced out of its
 decompressed chunk with ``struct``. Same messages, same order, same bytes; anything unexpected raises (the
 caller reports the log as damaged).

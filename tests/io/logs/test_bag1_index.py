@@ -69,3 +69,21 @@ def test_a_bag_without_messages_opens(tmp_path):
         assert [c[:-1] for c in ours.connections] == [c[:-1] for c in theirs.connections]
         assert ours.message_count == theirs.message_count == 0
         assert list(ours.messages()) == []
+
+
+def test_rosbags_messages_of_one_connection_index_only_that_one(tmp_path, monkeypatch):
+    """rosbags' own ``messages`` (lio's path for a bag split into several files) asks the index per connection:
+    only the asked one's entries become ``IndexData``, not every topic's."""
+    path = tmp_path / "three.bag"
+    with Writer(path) as w:
+        w.chunk_threshold = 64
+        conns = [w.add_connection(f"/{n}", "std_msgs/msg/String", msgdef="string data", md5sum=MD5) for n in "abc"]
+        for k in range(30):
+            w.write(conns[k % 3], 100 + k, (3).to_bytes(4, "little") + b"m%02d" % k)
+    built = []
+    entry = rosbag1_reader.IndexData
+    monkeypatch.setattr(rosbag1_reader, "IndexData", lambda *a: built.append(a) or entry(*a))
+    monkeypatch.setattr("lio_cli.io.logs.bag1_index.IndexData", rosbag1_reader.IndexData)
+    with ChunkIndexReader(path) as ours:
+        got = [t for _, t, _ in ours.messages(connections=[ours.connections[2]])]
+    assert got == list(range(102, 130, 3)) and len(built) == 10
