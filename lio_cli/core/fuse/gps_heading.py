@@ -8,7 +8,7 @@ heading that may be wrong by up to pi.
 A moving start that no wheel or odometry measures starts the pass at zero velocity: its path is then off by
 the unknown start velocity times t (and a tilt's acceleration times t^2 / 2), which the fit then takes as
 unknowns too (``yaw_velocity_onto``): the start velocity in ENU comes from the same fit. Those terms take most of
-the path, so its heading is weak (a rotated IMU's 89 deg off on the matrix's seed 9): ``tried_headings`` runs the
+the path, so its heading can be weak (tens of degrees off with a rotated IMU): ``tried_headings`` runs the
 filter with the fixes from it and from headings around it, and keeps the one whose path stays nearest them.
 """
 

@@ -21,7 +21,8 @@ import numpy as np
 from .timeline import Prepared
 
 BLOCK_S = 0.02  # the heights' grid: IMU samples averaged over this long (heave is below a few Hz)
-UP_SMOOTH_BLOCKS = 5  # the up direction averaged over this many blocks (its noise enters times the horizontal acceleration)
+# the up direction averaged over this many blocks (its noise enters times the horizontal acceleration)
+UP_SMOOTH_BLOCKS = 5
 HIGHPASS_S = 10.0  # the vertical acceleration's mean over this long is gravity and bias, not motion
 # below this frequency the level holds the height, above it the accelerometer: lower, the vertical acceleration's
 # slow errors (tilt times horizontal acceleration, the wheels' acceleration, bias) outweigh the heave they carry

@@ -256,8 +256,9 @@ class PlanarEkf:
 def turn_rate_walk(t_ns: np.ndarray, wz: np.ndarray) -> float:
     """The turn rate's random-walk density (rad/s^2/sqrt(Hz)) the gyro shows: the mean square change of its means
     over ``TURN_WINDOW_S`` from one window to the next, less what its white noise (from its second differences)
-    puts there, is 2/3 of the density squared times the window for a random walk. The configured motion model's (a rate up to 1 rad/s^2/sqrt(Hz)) let the turn rate
-    jump between two wheel messages, so the gyro's noise, not the wheels' rate, set the heading there."""
+    puts there, is 2/3 of the density squared times the window for a random walk. The configured motion model's
+    (up to 1 rad/s^2/sqrt(Hz)) let the turn rate jump between two wheel messages, so the gyro's noise, not the
+    wheels' rate, set the heading there."""
     period = median_period_ns(t_ns) * 1e-9 if len(t_ns) > 1 else 0.0
     n = int(round(TURN_WINDOW_S / period)) if period > 0 else 0
     m = len(wz) // n if n else 0
@@ -336,7 +337,7 @@ def _flat(T: np.ndarray) -> np.ndarray:
 def unmeasured_pose(prep: Prepared) -> bool:
     """Nothing measures the position (no GPS, no odometry), the motion sources have no gap, and the IMU verified the
     wheels (their speed scale, ``wheel_slip``, and yaw rate, ``wheel_yaw``): on wheels with a scale error or slips
-    the half step is far below their own error (on the matrix it moved such runs by +-5 mm either way)."""
+    the half step is far below their own error."""
     speed, yaw = prep.wheel_check or {}, prep.wheel_yaw_check or {}
     verified = bool(speed.get("verified")) and bool(yaw.get("used"))
     return verified and not ({"gps", "odom"} & set(prep.use)) and len(prep.coverage) == 1

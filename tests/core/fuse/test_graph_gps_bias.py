@@ -6,6 +6,7 @@ scaled by a state the odometry makes observable), so they cannot pull it either.
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import gtsam
 import numpy as np
@@ -13,8 +14,9 @@ import pytest
 
 from lio_cli.core.fuse import FuseOptions, GpsSeries, fuse
 from lio_cli.core.fuse.graph import factors, gps, run
+from lio_cli.core.fuse.graph.odom_spin import increment_sigma
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
-from lio_cli.geometry import interpolate_poses
+from lio_cli.geometry import interpolate_poses, so3_exp
 from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
 
 
@@ -144,6 +146,24 @@ def test_the_odometry_increments_rotation_sigma_is_measured_against_the_gyro():
     tight = fuse(_odometry_file_case("drone", 3, 0.0002).inputs, o).info["smoother"]
     # measured 0.146 mrad (the gyro's own white noise over 0.1 s is most of it)
     assert tight["odom_rotation_scatter_rad"] < 0.3 * noisy["odom_rotation_scatter_rad"]
+
+
+@pytest.mark.parametrize("rate_hz, measured", [(0.1, False), (0.5, False), (1.0, True), (10.0, True)])
+def test_low_rate_odometry_increments_are_not_measured_as_noise_free(rate_hz, measured):
+    """A 10 s window's median bias taken from one or a few increments takes their scatter with it (one: exactly
+    zero, so the floor, hundreds of times too tight): such windows measure nothing."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 200 * 600) * 5_000_000  # 600 s of an exact gyro at 200 Hz, not turning
+    ot = np.arange(int(590 * rate_hz)) * int(1e9 / rate_hz) + 1
+    P = np.tile(np.eye(4), (len(ot), 1, 1))
+    P[:, :3, :3] = [so3_exp(v) for v in rng.normal(0.0, 0.01, (len(ot), 3))]  # 0.01 rad a pose: 0.014 an increment
+    prep = SimpleNamespace(odom=SimpleNamespace(stamps_ns=ot, poses=P), imu=SimpleNamespace(stamps_ns=t),
+                           imu_w_b=np.zeros((len(t), 3)), imu_gap_ns=0)
+    sigma = increment_sigma(prep, np.arange(len(ot)))
+    if measured:
+        assert sigma == pytest.approx(0.01 * np.sqrt(2), rel=0.2)
+    else:
+        assert sigma is None
 
 
 def test_a_wheel_yaw_bias_does_not_turn_odometry_increments(monkeypatch):

@@ -18,12 +18,14 @@ from ...robust import robust_sigma
 
 WINDOW_S = 10.0  # the gyro's bias: one per this long a stretch (it wanders slowly)
 MIN_INCREMENTS = 50  # fewer pairs with the gyro across them: nothing measured
+MIN_PER_WINDOW = 10  # a window's median bias taken out of fewer increments would take their scatter with it
 MIN_SIGMA_RAD = 5e-5  # the measured sigma is never taken below this (what 0.1 s of a gyro resolves)
 
 
 def increment_sigma(prep, idx: np.ndarray) -> float | None:
     """The rotation sigma (rad, the largest axis's) of the odometry's increments between its poses ``idx``
-    (consecutive), from their scatter about the gyro's, or None without enough of them over gap-free IMU data."""
+    (consecutive), from their scatter about the gyro's, or None without enough of them over gap-free IMU data (at
+    least ``MIN_PER_WINDOW`` in a window)."""
     od, imu = prep.odom, prep.imu
     w = getattr(prep, "imu_w_b", None)
     if imu is None or w is None or len(idx) < MIN_INCREMENTS + 1:
@@ -48,9 +50,15 @@ def increment_sigma(prep, idx: np.ndarray) -> float | None:
         return None
     win = ((a[ok] - a[0]) * 1e-9 // WINDOW_S).astype(np.int64)
     rate = r / dt[ok][:, None]  # the bias's share grows with the interval
+    keep = np.zeros(len(r), bool)
     for j in np.unique(win).tolist():
         sel = win == j
-        r[sel] -= np.median(rate[sel], axis=0) * dt[ok][sel][:, None]
+        if np.count_nonzero(sel) >= MIN_PER_WINDOW:
+            r[sel] -= np.median(rate[sel], axis=0) * dt[ok][sel][:, None]
+            keep |= sel
+    r = r[keep]
+    if len(r) < MIN_INCREMENTS:
+        return None
     # the gyro's own noise is left in: a bound on the increments' (a configured density can overstate it)
     return float(max(max(robust_sigma(r[:, c]) for c in range(3)), MIN_SIGMA_RAD))
 
