@@ -57,11 +57,12 @@ def tum_blocks(stamps_ns: np.ndarray, poses: np.ndarray, rows: int = TUM_BLOCK_R
     """TUM lines of poses (N,4,4) at ``stamps_ns``, ``rows`` lines a string: a long trajectory's text is
     written without being held whole."""
     xyz, q = pose_to_xyz_quat(np.asarray(poses).reshape(-1, 4, 4))
-    stamps = np.asarray(stamps_ns, dtype=np.int64).tolist()
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
     for lo in range(0, len(stamps), rows):
+        hi = lo + rows
         yield "".join(
             f"{format_stamp(s)} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {r[0]:.9f} {r[1]:.9f} {r[2]:.9f} {r[3]:.9f}\n"
-            for s, p, r in zip(stamps[lo:lo + rows], xyz[lo:lo + rows].tolist(), q[lo:lo + rows].tolist())
+            for s, p, r in zip(stamps[lo:hi].tolist(), xyz[lo:hi].tolist(), q[lo:hi].tolist())
         )
 
 
