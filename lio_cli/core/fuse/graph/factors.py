@@ -36,7 +36,6 @@ WHEEL_HUBER_K: float | None = None
 BRIDGE_ACCEL_DENSITY = 1.0  # m/s^2/sqrt(Hz): how far the filter's increment across an IMU gap is trusted
 BRIDGE_ROTATION_DENSITY = 0.1  # rad/sqrt(s)
 ORIENTATION_MAX_DT_NS = 10_000_000
-WHEEL_ROTATION_SIGMA = 1.0  # rad: a wheel increment's rotation is the gyro's (already in the IMU factor)
 FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
 # odometry increments: their sigma this share of the two poses' summed sigmas (those are absolute-pose sigmas;
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
@@ -225,7 +224,7 @@ class ChunkGraph:
                 if self.beside_odom:
                     sd = sd * ODOM_WHEEL_SIGMA_SCALE
                 m.wheel_dp[k] = (dp, sd)
-                sig = np.r_[np.full(3, WHEEL_ROTATION_SIGMA), sd]
+                sig = np.r_[np.full(3, wheels.LOOSE_ROTATION_RAD), sd]
                 model = _sigmas(sig) if wheel_loss is None else gtsam.noiseModel.Robust.Create(wheel_loss, _sigmas(sig))
                 g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(pim.deltaRij(), dp), model))
         for k in range(k0, k1):

@@ -52,8 +52,8 @@ def level(prep: Prepared) -> Level | None:
     found = None
     if prep.odom is not None and len(prep.odom) > 1 and prep.wheel is not None and len(prep.wheel) > 1:
         found = wheels.against_odometry(prep.wheel, prep.odom)
-    ev = (choose.gravity_evidence(prep, SLIP_DILATE, level_fit=True) if found is None else
-          choose.gravity_evidence(prep, SLIP_DILATE, found.scale, found.slips_ns, level_fit=True))
+    scale, slips = (1.0, None) if found is None else (found.scale, found.slips_ns)
+    ev = choose.gravity_evidence(prep, SLIP_DILATE, scale, slips, level_fit=True)
     if ev is None:
         return None
     if found is not None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ....geometry import so3_log_one
+from ....so3 import so3_log_batch
 from ...robust import robust_sigma
 
 WINDOW_S = 10.0  # the gyro's bias: one per this long a stretch (it wanders slowly)
@@ -43,7 +43,7 @@ def increment_sigma(prep, idx: np.ndarray) -> float | None:
     turn = _at(cum, ts, (b - t[0]) * 1e-9, ib) - _at(cum, ts, (a - t[0]) * 1e-9, ia)
     P = od.poses
     R = np.einsum("nji,njk->nik", P[idx[:-1], :3, :3], P[idx[1:], :3, :3])
-    rot = np.array([so3_log_one(r) for r in R])
+    rot = so3_log_batch(R)
     dt = (b - a) * 1e-9
     r = (rot - turn)[ok]
     if len(r) < MIN_INCREMENTS:
