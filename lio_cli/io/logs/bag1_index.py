@@ -73,9 +73,6 @@ class _ChunkInfos(Sequence):
         pos, start, end = self.cols[:, i].tolist()
         return ChunkInfo(pos, start, end, dict(self.counts[self.bounds[i]:self.bounds[i + 1]].tolist()))
 
-    def __iter__(self) -> Iterator[ChunkInfo]:
-        return (self[i] for i in range(len(self)))
-
     def records(self, i: int) -> int:
         """How many index records chunk ``i`` has (its connections)."""
         return self.bounds[i + 1] - self.bounds[i]
@@ -107,14 +104,6 @@ class _Chunks(Mapping):
     def __getitem__(self, pos: int) -> Chunk:
         _, size, data, code = self.cols[:, self._find(pos)].tolist()
         return Chunk(size, data, self.funcs[code])
-
-    def __setitem__(self, pos: int, chunk: Chunk) -> None:
-        """Replace the chunk at ``pos`` (a chunk the open read)."""
-        k = self._find(pos)
-        code = next((j for j, f in enumerate(self.funcs) if f is chunk.decompressor), len(self.funcs))
-        if code == len(self.funcs):
-            self.funcs.append(chunk.decompressor)
-        self.cols[1:, k] = (chunk.datasize, chunk.datapos, code)
 
     def __contains__(self, pos: object) -> bool:
         try:
@@ -185,8 +174,7 @@ class ChunkIndexReader(Reader):
         if not isinstance(infos, _ChunkInfos):
             return super().message_count
         self._check_open()
-        ids, counts = infos.counts.T if len(infos.counts) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-        return sum(int(counts[ids == c.id].sum()) for c in self.connections)
+        return sum(c.msgcount for c in self.connections)  # the index records' counts, summed at open
 
     def read_index_data(self, pos: int, indexes: dict) -> None:  # type: ignore[override]
         """One index record (its connection's entries in chunk ``pos``), summarised as a row of ``records``."""
