@@ -138,21 +138,7 @@ def with_overrides(cfg: M, overrides: dict[str, Any], where: str = "options") ->
 
 
 def dump_model(cfg: BaseModel) -> str:
-    data = cfg.model_dump(mode="json")
-    # libyaml's emitter writes the Python one's bytes for printable ASCII text (it folds escaped text differently)
-    fast = getattr(yaml, "CSafeDumper", None) if _plain_text(data) else None
-    return yaml.dump(data, Dumper=fast or yaml.SafeDumper, sort_keys=False)
-
-
-def _plain_text(value: Any) -> bool:
-    """Whether every string in ``value`` (keys too) is printable ASCII."""
-    if isinstance(value, str):
-        return value.isascii() and value.isprintable()
-    if isinstance(value, dict):
-        return all(_plain_text(k) and _plain_text(v) for k, v in value.items())
-    if isinstance(value, (list, tuple)):
-        return all(_plain_text(v) for v in value)
-    return True
+    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
 
 
 def load_calibration(path: Path) -> Calibration:
