@@ -36,7 +36,8 @@ orientation where the message carries a valid one), wheel odometry (nav_msgs/Odo
 messages are fine), GPS (NavSatFix: fix status and covariance respected, converted to a local ENU frame), and
 an odometry trajectory: --odom FILE (TUM/KITTI, e.g. from lio odom) or --odom-topic. Topics are chosen as the
 other commands do; --use picks which measurement of which source enters (SOURCE or SOURCE:M1,M2; repeat):
-imu:gyro,accel,orientation  wheel:speed|velocity,yaw_rate  odom:pose|delta  gps:position.
+imu:gyro,accel,orientation  wheel:speed|velocity,yaw_rate  odom:pose|delta  gps:position. A bare SOURCE
+takes it as the default does (a bare wheel: speed, and the yaw rate where it agrees with the gyro).
 
 Writes OUT (TUM; default LOG-stem.fuse.tum), OUT-stem.fuse.metrics.json (sources used, updates per source,
 rejected measurements and why, time) and OUT-stem.fuse.config.yaml (the whole run: `lio fuse LOG --config it`
@@ -63,6 +64,12 @@ def _default(field: str):
 def _check_rate(rate: float | None) -> None:
     if rate is not None and not (rate == rate and rate > 0 and rate != float("inf")):
         raise ConfigError(f"--rate must be a positive number of Hz, got {rate:g}")
+
+
+def _bare_wheel(use: list[str] | None, cfg: FuseConfig) -> bool | None:
+    """True where ``--use wheel`` names the wheels bare (and nothing configured otherwise): the wheels as the
+    default selection takes them, their yaw rate weighed against the gyro; else None (not given)."""
+    return True if cfg.weigh_wheel_yaw is None and any(u.strip() == "wheel" for u in use or ()) else None
 
 
 def fuse_cmd(
@@ -102,6 +109,7 @@ def fuse_cmd(
         "smooth": smooth, "rate_hz": rate, "noise.accel_noise_density": accel_noise,
         "noise.gyro_noise_density": gyro_noise, "calibration.imu_time_offset_s": imu_time_offset,
         "max_memory_mb": max_memory,
+        "weigh_wheel_yaw": _bare_wheel(use, cfg),
     })
     to_stdout = output == "-"
     if to_stdout and as_json:

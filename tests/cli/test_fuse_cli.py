@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from lio_cli.cli.app import main
 from lio_cli.io.files.trajectory import read_tum
@@ -215,3 +216,15 @@ def test_a_rate_the_memory_budget_cannot_hold_is_refused_and_writes_nothing(caps
         "and poses between IMU samples carry no measurement of their own: lower --rate to 200 Hz or less, or raise "
         "--max-memory to 1922 (MB) or more")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("wheel, weighed", [("wheel", True), ("wheel:speed", False)])
+def test_bare_use_wheel_weighs_the_yaw_rate_as_the_default_does(capsys, planar, tmp_path, wheel, weighed):
+    out = tmp_path / "w.tum"
+    code, _, err = _run(capsys, planar, "-o", out, "--use", "imu", "--use", wheel, "--quiet")
+    assert code == 0, err
+    m = json.loads(out.with_name("w.fuse.metrics.json").read_text())
+    check = m["core"]["wheel_yaw_check"]  # this log's wheels turn 1.2 % off the gyro: weighed, then left out
+    assert (check is not None) is weighed and (not weighed or check["why"].startswith("the wheels' yaw rate is +1.1"))
+    assert m["sources"]["wheel"]["measurements"] == ["speed"]
+    assert yaml.safe_load(out.with_name("w.fuse.config.yaml").read_text())["weigh_wheel_yaw"] is weighed
