@@ -65,6 +65,14 @@ class Propagation:
     gap: bool  # the interval had an IMU gap or no IMU at all
 
 
+def running_integral(t_s: np.ndarray, x: np.ndarray, skip: np.ndarray | None = None) -> np.ndarray:
+    """The trapezoid integral of ``x`` (samples along the first axis, at seconds ``t_s``) from the first sample to
+    each; steps where ``skip`` (one per step, e.g. an IMU gap) add nothing."""
+    dt = np.diff(t_s) if skip is None else np.where(skip, 0.0, np.diff(t_s))
+    steps = 0.5 * (x[1:] + x[:-1]) * (dt if x.ndim == 1 else dt[:, None])
+    return np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(steps, axis=0)])
+
+
 def interpolate_imu(imu: ImuBatch, t_ns: int) -> tuple[np.ndarray, np.ndarray]:
     """Gyro and accel at ``t_ns`` by linear interpolation (held at the ends)."""
     st = imu.stamps_ns

@@ -116,3 +116,15 @@ def test_a_gap_free_interval_is_one_imu_gap_ns_finds_no_gap_in():
     assert imu_gap_free(stamps, 100_000_000, 200_000_000)
     assert not imu_gap_free(stamps, 900_000_000, 1_100_000_000)  # no sample after the end: imu_gap_ns tells
     assert not imu_gap_free(np.delete(stamps, np.arange(30, 36)), 100_000_000, 200_000_000)  # a 35 ms hole
+
+
+def test_running_integral_is_the_trapezoid_rule_and_skips_the_steps_asked():
+    from lio_cli.core.imu import running_integral
+    t = np.array([0.0, 0.5, 1.0, 3.0, 3.5])
+    x = np.array([0.0, 1.0, 2.0, 4.0, 5.0])
+    np.testing.assert_allclose(running_integral(t, x), [0.0, 0.25, 1.0, 7.0, 9.25])
+    skip = np.array([False, False, True, False])  # the 2 s gap adds nothing
+    np.testing.assert_allclose(running_integral(t, x, skip), [0.0, 0.25, 1.0, 1.0, 3.25])
+    both = running_integral(t, np.column_stack([x, -x]))
+    assert both.shape == (5, 2)
+    np.testing.assert_allclose(both[:, 1], -running_integral(t, x))

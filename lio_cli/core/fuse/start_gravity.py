@@ -28,7 +28,7 @@ import numpy as np
 from ...model.calibration import Extrinsics
 from ...model.records import ImuBatch
 from ..odometry.bootstrap import align
-from ..imu import gyro_rotations
+from ..imu import gyro_rotations, running_integral
 from .timeline import Prepared
 
 MIN_POSES = 4  # poses in the window: three increments at least, or velocity and gravity are not separated
@@ -75,8 +75,7 @@ def _wheel_poses(prep: Prepared, imu: ImuBatch, t_a: int, t_b: int):
     times, Rs, _ = gyro_rotations(np.eye(3), np.zeros(3), imu, t_a, int(stamps[-1]), _BASE)
     R = Rs[np.clip(np.searchsorted(times, stamps), 0, len(Rs) - 1)]
     v = np.einsum("nij,nj->ni", R, np.nan_to_num(w.velocity_mps[sel]))
-    dt = np.diff(stamps) * 1e-9
-    p = np.vstack([np.zeros(3), np.cumsum(0.5 * (v[1:] + v[:-1]) * dt[:, None], axis=0)])
+    p = running_integral((stamps - stamps[0]) * 1e-9, v)
     poses = np.repeat(np.eye(4)[None], len(sel), axis=0)
     poses[:, :3, :3], poses[:, :3, 3] = R, p
     return stamps, poses

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ...so3 import so3_exp
+from ..imu import running_integral
 from ..robust import robust_sigma
 from .kalman import chi2_thresholds
 from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard
@@ -119,11 +120,9 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
 def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
     """The running trapezoid integral of ``x`` (sampled at ``t_s``) at the stamps ``t``; steps across an IMU
     gap (``gap``, one per step) add nothing."""
-    dt = np.where(gap, 0.0, np.diff(t_s))
+    X = running_integral(t_s, x, gap)
     if x.ndim == 1:
-        X = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * dt)])
         return np.interp(t, t_s, X)
-    X = np.vstack([np.zeros(x.shape[1]), np.cumsum(0.5 * (x[1:] + x[:-1]) * dt[:, None], axis=0)])
     return np.column_stack([np.interp(t, t_s, X[:, j]) for j in range(x.shape[1])])
 
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..imu import running_integral
 from ..robust import robust_sigma
 
 CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slowly)
@@ -95,8 +96,7 @@ class Weighed:
 
 def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The gyro's mean over [a, b] (seconds, the IMU's trapezoid integral); NaN across an IMU gap."""
-    dt = np.diff(ti)
-    G = np.concatenate([[0.0], np.cumsum(0.5 * (gz[1:] + gz[:-1]) * dt)])
+    G = running_integral(ti, gz)
     out = (np.interp(b, ti, G) - np.interp(a, ti, G)) / (b - a)
     out[(a < ti[0]) | (b > ti[-1])] = np.nan
     ga = np.cumsum(np.r_[0, gap.astype(np.int64)])  # gaps before each IMU sample

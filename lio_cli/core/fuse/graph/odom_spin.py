@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ....so3 import so3_log_batch
+from ...imu import running_integral
 from ...robust import robust_sigma
 
 WINDOW_S = 10.0  # the gyro's bias: one per this long a stretch (it wanders slowly)
@@ -32,7 +33,7 @@ def increment_sigma(prep, idx: np.ndarray) -> float | None:
         return None
     t = imu.stamps_ns
     ts = (t - t[0]) * 1e-9
-    cum = np.vstack([np.zeros(3), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ts)[:, None], axis=0)])
+    cum = running_integral(ts, w)
     a, b = od.stamps_ns[idx[:-1]], od.stamps_ns[idx[1:]]
     ia, ib = np.searchsorted(t, a), np.searchsorted(t, b)
     ok = (a >= t[0]) & (b <= t[-1]) & (b > a)
