@@ -253,6 +253,9 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
                      velocities_mps=None if first.velocities_mps is None else np.concatenate(
                          [r.velocities_mps for r in kept]),
                      reports=merge_reports([r.reports for r in kept]), info=dict(first.info))
+    for src, series in inputs.present().items():  # the chunks' overlaps received each message twice
+        if src in merged.reports:
+            merged.reports[src].received = len(series)
     if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
         merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
     return merged, infos
