@@ -51,6 +51,7 @@ FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
 TRIM_Z = 4.0
 MIN_BLOCKS = 12  # fewer clean increments: no fit
+WALK_BANDS = (1, 2, 4)  # samples per mean for the gyro's noise density (2 and 4 cancel a vibration at half the rate)
 RCOND = 1e-5  # singular values of the fit's (column-normalised) matrix below this share of the largest: unseen
 
 
@@ -198,12 +199,18 @@ def _walk_variance(spans: np.ndarray) -> np.ndarray:
 
 
 def angle_walk_q(t_s: np.ndarray, w: np.ndarray) -> float:
-    """The white-noise density squared (rad^2/s) of a gyro axis ``w`` sampled at ``t_s``: its second differences'
-    robust variance is 6 times the per-sample variance, which times the period is the density squared."""
-    if len(w) < 3:
-        return 0.0
-    d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]
-    return robust_sigma(d2, centre=False) ** 2 / 6.0 * float(np.median(np.diff(t_s)))
+    """The white-noise density squared (rad^2/s) of a gyro axis ``w`` sampled at ``t_s``: the second differences
+    of its means over n samples have 6 / n times the per-sample variance, which times the period is the density
+    squared. Motion adds to the low bands and vibration to the high ones, white noise is flat: the least over
+    ``WALK_BANDS``."""
+    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
+    q = []
+    for n in WALK_BANDS:
+        m = len(w) // n
+        if m >= 3:
+            y = w[:m * n].reshape(m, n).mean(axis=1)
+            q.append(robust_sigma(y[2:] - 2.0 * y[1:-1] + y[:-2], centre=False) ** 2 / 6.0 * n * dt)
+    return min(q, default=0.0)
 
 
 def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
