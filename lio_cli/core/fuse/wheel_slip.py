@@ -8,20 +8,23 @@ pull it, their scale is what it measures). Its integral is a speed track; the wh
 minus that track is flat but for the accelerometer's forward bias, the gyro's x/y bias and the start's tilt
 (a ramp and slow curves of known shape), and a slip's jump.
 
-``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on
-the speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed; combinations of the terms
-the drive never shows, as on a straight one, left out). Slips: ``slip_windows`` (a jump of the difference
-until it is back at its level). The first fit leaves out the raw difference's jumps (``slip_windows.guard``);
-fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the first second, divides the
-forward acceleration by its cosine.
+``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on the
+speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed; combinations of the terms the drive
+never shows, as on a straight one, left out). The scale's sigma holds, besides the fit's residual, the gyro's
+angle random walk: its white noise (measured from the data) walks the carried gravity direction, an error the
+constant-bias terms cannot take out and the blocks share (``_walk_variance``). Slips: ``slip_windows`` (a jump of
+the difference until it is back at its level). The first fit leaves out the raw difference's jumps
+(``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the
+first second, divides the forward acceleration by its cosine.
 
-The scale is applied where it is measured (sigma at most ``MAX_SCALE_SIGMA``) and off 1 by more than
-``SCALE_Z`` sigmas. Slips are bridged (their wheel speeds replaced by the IMU's speed, integrated from both
-ends of the window and blended) only when the scale is measured: a slip's extra distance is a share of the
-path as a scale error's is, and removing the slips alone made every simulated bad-wheel track worse (3 %
-scale, three slips: 0.21-1.18 m -> 0.48-1.95 m, docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
-kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed
-after it (``_closes``); otherwise it is left in and counted (``left_in``).
+The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``)
+and off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips
+are bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended)
+only when the scale is measured: a slip's extra distance is a share of the path as a scale error's is, and
+removing the slips alone made every simulated bad-wheel track worse (3 % scale, three slips: 0.21-1.18 m ->
+0.48-1.95 m, docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is kept out of the fit whole but bridged only
+when the IMU's speed integrated across it lands on the wheel speed after it (``_closes``); otherwise it is left
+in and counted (``left_in``).
 """
 
 from __future__ import annotations
@@ -49,6 +52,7 @@ FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
 TRIM_Z = 4.0
 MIN_BLOCKS = 12  # fewer clean increments: no fit
+WALK_BANDS = (1, 2, 4)  # samples per mean for the gyro's noise density (2 and 4 cancel a vibration at half the rate)
 RCOND = 1e-5  # singular values of the fit's (column-normalised) matrix below this share of the largest: unseen
 
 
@@ -126,13 +130,16 @@ def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray)
     return np.column_stack([np.interp(t, t_s, X[:, j]) for j in range(x.shape[1])])
 
 
-def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
-               clean: np.ndarray) -> tuple[float, float, np.ndarray] | str:
-    """(scale, its sigma, c) of ``s * dv = dA - c0 dt - dG c[1:]`` over ``BLOCK_S`` increments inside clean
-    stretches: ``c0`` the accelerometer's forward bias, ``c[1:]`` the gyro's x, y bias and the start's tilt
-    error (``G``: their effect on the integrated acceleration, ``forward_accel``); or why not. Combinations of
-    the terms the drive leaves unseen (a straight one: the roll tilt and gyro x bias) are left out (``RCOND``)."""
-    rows = []
+def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray, clean: np.ndarray,
+               walk_q: float = 0.0) -> tuple[float, float, np.ndarray, float] | str:
+    """(scale, its sigma from the residual, c, its sigma from the angle walk) of ``s * dv = dA - c0 dt - dG
+    c[1:]`` over ``BLOCK_S`` increments inside clean stretches: ``c0`` the accelerometer's forward bias,
+    ``c[1:]`` the gyro's x, y bias and the start's tilt error (``G``: their effect on the integrated
+    acceleration, ``forward_accel``); or why not. Combinations of the terms the drive leaves unseen (a straight
+    one: the roll tilt and gyro x bias) are left out (``RCOND``). ``walk_q`` ((m/s^2)^2/s): the forward
+    acceleration's random walk from the carried gravity direction (``_walk_variance``); ``t`` counts from the
+    start of that carry."""
+    rows, spans = [], []
     k = 0
     while k < len(t) - 1:
         j = int(np.searchsorted(t, t[k] + BLOCK_S))
@@ -140,6 +147,7 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
             break
         if clean[k:j + 1].all():
             rows.append(np.concatenate([[v[j] - v[k], t[j] - t[k]], G[j] - G[k], [A[j] - A[k]]]))
+            spans.append((t[k], t[j]))
             k = j
         else:
             k += 1
@@ -152,6 +160,7 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
         return "the wheel speed never changed enough to measure its scale against the accelerometer"
     keep = np.ones(len(M), bool)
     for _ in range(TRIM_PASSES + 1):  # blocks a slip the windows missed are trimmed, then the fit redone
+        fitted = keep
         X, y = M[keep, :-1], M[keep, -1]
         if len(y) < MIN_BLOCKS:
             return (f"{len(M) - len(y)} of {len(M)} speed increments disagree with the accelerometer's beyond "
@@ -170,7 +179,37 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray,
         keep = np.abs(r_all - np.median(r)) <= TRIM_Z * max(mad, 1e-9)
     s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
     cov = s2 * (P @ P.T) / np.outer(norm, norm)
-    return float(sol[0]), float(np.sqrt(cov[0, 0])), sol[1:]
+    a = U[:, seen] @ P[0] / norm[0]  # the scale as a weighted sum of the kept blocks' dA
+    walk = walk_q * float(a @ _walk_variance(np.array(spans)[fitted]) @ a)
+    return float(sol[0]), float(np.sqrt(cov[0, 0])), sol[1:], float(np.sqrt(walk))
+
+
+def _walk_variance(spans: np.ndarray) -> np.ndarray:
+    """(n,n) covariance of the integrals over time-ordered, non-overlapping ``spans`` (n,2) (s from the walk's
+    start) of a unit Wiener process W: ``E[W(s) W(u)] = min(s, u)``, so two spans [a, b] before [c, d] share
+    ``(b^2 - a^2) / 2 * (d - c)`` and one with itself ``a h^2 + h^3 / 3``, h = b - a."""
+    a, b = spans[:, 0], spans[:, 1]
+    h = b - a
+    K = np.outer(0.5 * (b * b - a * a), h)
+    K = np.triu(K, 1)
+    K = K + K.T
+    K[np.diag_indices_from(K)] = a * h * h + h**3 / 3.0
+    return K
+
+
+def angle_walk_q(t_s: np.ndarray, w: np.ndarray) -> float:
+    """The white-noise density squared (rad^2/s) of a gyro axis ``w`` sampled at ``t_s``: the second differences
+    of its means over n samples have 6 / n times the per-sample variance, which times the period is the density
+    squared. Motion adds to the low bands and vibration to the high ones, white noise is flat: the least over
+    ``WALK_BANDS``."""
+    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
+    q = []
+    for n in WALK_BANDS:
+        m = len(w) // n
+        if m >= 3:
+            y = w[:m * n].reshape(m, n).mean(axis=1)
+            q.append(robust_sigma(y[2:] - 2.0 * y[1:-1] + y[:-2], centre=False) ** 2 / 6.0 * n * dt)
+    return min(q, default=0.0)
 
 
 def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
@@ -187,6 +226,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     gap = np.diff(imu.stamps_ns) > prep.imu_gap_ns if prep.imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
     a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2, gap)
     A, G = (_integral_at(tw, ti, x, gap) for x in (a, sens))
+    # the pitch the gyro carries walks with its y axis's white noise: g times that walk is the acceleration's
+    walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1])
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
@@ -194,13 +235,13 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     wins, plain = guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
     fit: tuple | str = ""
     for p in range(FIT_PASSES):
-        fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
+        fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q)
         if isinstance(fit, str) and p == 0 and wins != plain:  # departures kept out left too little: the jumps alone
             wins = plain
-            fit = _fit_scale(tw, vw, A, G, _clean(inside, wins))
+            fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q)
         if isinstance(fit, str):
             break
-        s, s_sigma, c = fit
+        s, s_fit, c, s_walk = fit
         wins = detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
     if isinstance(fit, str):  # no windows reported: none were used
         rep.why = fit
@@ -208,9 +249,10 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     clean = _clean(inside, wins)
     rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
     A = A - c[0] * tw - G @ c[1:]
+    s_sigma = float(np.hypot(s_fit, s_walk))
     rep.scale, rep.scale_sigma = s, s_sigma
-    if s_sigma > MAX_SCALE_SIGMA:
-        rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f}: not measured by the accelerometer to "
+    if s_fit > MAX_SCALE_SIGMA:
+        rep.why = (f"wheel scale {s:.4f} +- {s_fit:.4f} (the fit's): not measured by the accelerometer to "
                    f"{MAX_SCALE_SIGMA:.1%} (the speed changes too little, or the IMU's axes are off), so {len(wins)} "
                    "slip(s) left in")
         return rep

@@ -8,6 +8,7 @@ import pytest
 
 from lio_cli.core.fuse import FuseInputs, FuseOptions, ImuSeries, WheelSeries, fuse
 from lio_cli.core.fuse.report import NOTE_REASONS
+from lio_cli.core.fuse.wheel_slip import angle_walk_q
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.simulation.sensors import smooth_window
 from lio_cli.so3 import so3_exp
@@ -197,3 +198,12 @@ def test_a_slip_lasting_to_the_end_is_left_in_but_out_of_the_fit():
     assert not check["verified"]
     assert check["scale_applied"] and abs(check["scale"] - 0.97) < SCALE_TOL
     assert "1 longer than 5 s left in" in check["why"]
+
+
+def test_the_gyros_angle_walk_is_its_white_noise_density_whatever_the_motion():
+    """0.0002 rad/s/sqrt(Hz) of white noise at 200 Hz on a turn rate swinging by 0.5 rad/s: the second differences
+    see the noise, not the motion (the sigma of a 20000-sample estimate is about 1 %)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 100.0, 0.005)
+    w = 0.5 * np.sin(2 * np.pi * t / 7.0) + rng.normal(0.0, 2e-4 / np.sqrt(0.005), len(t))
+    assert angle_walk_q(t, w) == pytest.approx(2e-4**2, rel=0.05)
