@@ -54,10 +54,6 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
     (``shape``); else the GPS-fused ``fused``."""
     raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
-    # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
-    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have their shape tested too
-    if raised < shape.OPTIMISTIC_SHARE * len(prep.gps) and not _wheels_verified(prep):
-        return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     try:
         free = fuse(replace(inputs, gps=None), replace(o, use=use))
@@ -65,7 +61,11 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
         return fused
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
     test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
-    if test is None:
+    # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
+    # no optimism in its innovations, so the fixes' scatter about the GPS-free track, or wheels the IMU verified
+    # (speed and yaw rate), have the shape tested too
+    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps) or _wheels_verified(prep)
+    if test is None or not (optimistic or test.claim_exceeded):
         return fused
     fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
     if not test.consistent:
