@@ -10,10 +10,11 @@ fixes' claimed sigma and the white noise their own second differences show: cons
 third of their error, most of it slow), and its chi-square against the ``QUANTILE`` of its degrees of
 freedom. That sum spreads a bend over hundreds of fixes' white noise, so the heading drift a gyro bias leaves
 (the track's increments turned by a rate times time) is tested on its own too: the chi-square it removes against
-``DRIFT_QUANTILE`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
+``CHI2_1_99`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
 innovations showed it (``gps_quality.GpsNoise`` raised it for ``OPTIMISTIC_SHARE`` of the fixes or more), or the
 fixes scatter about the GPS-free track beyond their claimed sigma (``ShapeTest.claim_exceeded``: a filter that
-follows a slow error shows no optimism in its innovations); an honest claim is fused as it is. Consistent: the
+follows a slow error shows no optimism in its innovations) where the IMU backs the wheels' speed (``api``: wrong
+wheels beside an honest receiver scatter the fixes too); an honest claim is fused as it is. Consistent: the
 motion sources' shape stands, GPS gives the world's heading and position. Not consistent (wheels that slipped, a
 gyro that drifted): GPS shapes the trajectory.
 """
@@ -31,7 +32,7 @@ TAU_S = 60.0
 SLOW_SHARE = 0.9
 TRUE_OVER_CLAIMED = 3.0
 QUANTILE_Z = 2.326  # one-sided 99 %: chi-square(dof) taken as normal, mean dof, sigma sqrt(2 dof)
-DRIFT_QUANTILE = 6.635  # 99 % of chi-square with one degree of freedom
+CHI2_1_99 = 6.635  # 99 % of chi-square with one degree of freedom
 OPTIMISTIC_SHARE = 0.1
 MIN_FIXES = 10
 MAX_FIXES = 600  # evenly thinned: the covariance is dense
@@ -133,5 +134,5 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     T = np.eye(4)
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[:2, 3] = shift
-    return ShapeTest(_within(chi2, dof) and drift <= DRIFT_QUANTILE, float(chi2), dof, len(idx), T, drift, rate,
+    return ShapeTest(_within(chi2, dof) and drift <= CHI2_1_99, float(chi2), dof, len(idx), T, drift, rate,
                      not _within(claimed, dof))

@@ -107,7 +107,7 @@ def test_fixes_scattered_beyond_their_claim_have_the_shape_tested(unraised):
     res = fuse(unraised.inputs, o)
     assert res.reports["gps"].notes.get("noise_raised", 0) < shape.OPTIMISTIC_SHARE * len(unraised.inputs.gps)
     test = res.info["gps_shape"]
-    assert test["claim_exceeded"] and test["consistent"] and test["drift_chi2"] <= shape.DRIFT_QUANTILE
+    assert test["claim_exceeded"] and test["consistent"] and test["drift_chi2"] <= shape.CHI2_1_99
     without = ate(unraised, fuse(replace(unraised.inputs, gps=None), o))
     # measured: without GPS 0.0013 m, with it the same (the test skipped, fused as they come: 0.096 m)
     assert ate(unraised, res) <= 1.05 * without + 0.002
@@ -130,7 +130,7 @@ def test_a_heading_drift_the_chi_square_misses_is_told_apart():
         th, _, chi2 = shape.rigid_fit(track, fixes, C)
         assert chi2 <= dof + shape.QUANTILE_Z * np.sqrt(2 * dof)
         removed, rate = shape.heading_drift(track, fixes, C, t, th)
-        assert (removed > shape.DRIFT_QUANTILE) == drifts
+        assert (removed > shape.CHI2_1_99) == drifts
     assert abs(rate - 0.0025) < 0.001
 
 
