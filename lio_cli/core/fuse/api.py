@@ -54,6 +54,12 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
     (``shape``); else the GPS-fused ``fused``."""
     raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
+    # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
+    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have the shape tested too,
+    # and so has a track whose speed the accelerometer backs where the fixes scatter about it beyond their claim
+    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps) or _wheels_verified(prep)
+    if not (optimistic or _wheel_speed_backed(prep)):
+        return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     try:
         free = fuse(replace(inputs, gps=None), replace(o, use=use))
@@ -61,11 +67,7 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
         return fused
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
     test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
-    # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
-    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have the shape tested too,
-    # and so has a track whose speed the accelerometer backs where the fixes scatter about it beyond their claim
-    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps) or _wheels_verified(prep)
-    if test is None or not (optimistic or (test.claim_exceeded and _wheel_speed_backed(prep))):
+    if test is None or not (optimistic or test.claim_exceeded):
         return fused
     fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
     if not test.consistent:
