@@ -57,8 +57,10 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     (``shape``); else the GPS-fused ``fused``."""
     raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
     # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
-    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have their shape tested too
-    if raised < shape.OPTIMISTIC_SHARE * len(prep.gps) and not _wheels_verified(prep):
+    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have the shape tested too,
+    # and so has a track whose speed the accelerometer backs where the fixes scatter about it beyond their claim
+    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps) or _wheels_verified(prep)
+    if not (optimistic or _wheel_speed_backed(prep)):
         return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     try:
@@ -67,7 +69,7 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
         return fused
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
     test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
-    if test is None:
+    if test is None or not (optimistic or test.claim_exceeded):
         return fused
     fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
     if not test.consistent:
@@ -95,6 +97,19 @@ def _wheels_verified(prep: Prepared) -> bool:
     agreeing with the gyro (``wheel_yaw``)."""
     speed, yaw = prep.wheel_check or {}, prep.wheel_yaw_check or {}
     return bool(yaw.get("used")) and bool(speed.get("verified"))
+
+
+def _wheel_speed_backed(prep: Prepared) -> bool:
+    """The wheels' speed as the IMU checked it (``wheel_slip``): its scale measured and every slip bridged, or no
+    slip and the accelerometer's scale within 99 % of the one used (a steady speed measures it only roughly)."""
+    speed = prep.wheel_check or {}
+    if speed.get("verified"):
+        return True
+    scale, sigma = speed.get("scale"), speed.get("scale_sigma")
+    if speed.get("slips", 1) or scale is None or not sigma:
+        return False
+    used = scale if speed.get("scale_applied") else 1.0
+    return ((scale - used) / sigma) ** 2 <= shape.CHI2_1_99
 
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:

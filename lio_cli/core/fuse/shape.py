@@ -8,9 +8,15 @@ gives), weighted by the error's covariance (a first-order Gauss-Markov part of `
 correlation time ``TAU_S``, plus white noise; the total sigma ``TRUE_OVER_CLAIMED`` times the larger of the
 fixes' claimed sigma and the white noise their own second differences show: consumer receivers claim about a
 third of their error, most of it slow), and its chi-square against the ``QUANTILE`` of its degrees of
-freedom. Only for a receiver whose claim the filter's innovations showed optimistic (``gps_quality.GpsNoise``
-raised it for ``OPTIMISTIC_SHARE`` of the fixes or more); an honest claim is fused as it is. Consistent: the motion sources' shape stands, GPS gives the world's heading and position (``onto``).
-Not consistent (wheels that slipped, a gyro that drifted over a long log): GPS shapes the trajectory.
+freedom. That sum spreads a bend over hundreds of fixes' white noise, so the heading drift a gyro bias leaves
+(the track's increments turned by a rate times time) is tested on its own too: the chi-square it removes against
+``CHI2_1_99`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
+innovations showed it (``gps_quality.GpsNoise`` raised it for ``OPTIMISTIC_SHARE`` of the fixes or more), or the
+fixes scatter about the GPS-free track beyond their claimed sigma (``ShapeTest.claim_exceeded``: a filter that
+follows a slow error shows no optimism in its innovations) where the IMU backs the wheels' speed (``api``: wrong
+wheels beside an honest receiver scatter the fixes too); an honest claim is fused as it is. Consistent: the
+motion sources' shape stands, GPS gives the world's heading and position. Not consistent (wheels that slipped, a
+gyro that drifted): GPS shapes the trajectory.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ TAU_S = 60.0
 SLOW_SHARE = 0.9
 TRUE_OVER_CLAIMED = 3.0
 QUANTILE_Z = 2.326  # one-sided 99 %: chi-square(dof) taken as normal, mean dof, sigma sqrt(2 dof)
+CHI2_1_99 = 6.635  # 99 % of chi-square with one degree of freedom
 OPTIMISTIC_SHARE = 0.1
 MIN_FIXES = 10
 MAX_FIXES = 600  # evenly thinned: the covariance is dense
@@ -38,9 +45,14 @@ class ShapeTest:
     dof: int
     fixes: int
     T: np.ndarray  # 4x4 moving the GPS-free trajectory onto the fixes (rotation about z, shift)
+    drift_chi2: float = 0.0  # what a heading drift removes from the chi-square (``heading_drift``)
+    drift_radps: float = 0.0  # that drift's rate
+    claim_exceeded: bool = False  # the fixes' scatter about the fitted track beyond their claimed sigma (white)
 
     def to_dict(self) -> dict:
-        return {"consistent": self.consistent, "chi2": round(self.chi2, 1), "dof": self.dof, "fixes": self.fixes}
+        return {"consistent": self.consistent, "chi2": round(self.chi2, 1), "dof": self.dof, "fixes": self.fixes,
+                "drift_chi2": round(self.drift_chi2, 2), "drift_radps": float(f"{self.drift_radps:.3g}"),
+                "claim_exceeded": self.claim_exceeded}
 
 
 def applies(prep: Prepared) -> bool:
@@ -77,6 +89,30 @@ def rigid_fit(p: np.ndarray, z: np.ndarray, C: np.ndarray) -> tuple[float, np.nd
     return th, shift, float(r @ r)
 
 
+def _within(chi2: float, dof: int) -> bool:
+    return chi2 <= dof + QUANTILE_Z * np.sqrt(2.0 * dof)
+
+
+def heading_drift(p: np.ndarray, z: np.ndarray, C: np.ndarray, t_s: np.ndarray, heading: float) -> tuple[float, float]:
+    """(chi-square removed, rate rad/s) by a heading drift of the track ``p`` (N,2) at ``t_s``: its increments turned
+    by ``rate * t`` (linearised), fitted with a small turn and a shift about the rigid fit's ``heading``, each axis's
+    error of covariance ``C``."""
+    c, s = np.cos(heading), np.sin(heading)
+    q = p @ np.array([[c, s], [-s, c]])
+    one, zero = np.ones(len(p)), np.zeros(len(p))
+    u = np.cumsum(t_s[:, None] * np.diff(q, axis=0, prepend=q[:1]), axis=0)  # sum of t dq
+    turn = lambda v: np.column_stack([-v[:, 1], v[:, 0]])  # noqa: E731  90 degrees about z
+    L = np.linalg.cholesky(C)
+    w = lambda M: np.concatenate([np.linalg.solve(L, M[:, 0]), np.linalg.solve(L, M[:, 1])])  # noqa: E731
+    A = np.column_stack([w(np.column_stack([one, zero])), w(np.column_stack([zero, one])), w(turn(q - q[0]))])
+    b = w(z - q)
+    r0 = b - A @ np.linalg.lstsq(A, b, rcond=None)[0]
+    A1 = np.column_stack([A, w(turn(u))])
+    x1 = np.linalg.lstsq(A1, b, rcond=None)[0]
+    r1 = b - A1 @ x1
+    return float(r0 @ r0 - r1 @ r1), -float(x1[3])  # the fit turns the track back: its drift is the opposite
+
+
 def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> ShapeTest | None:
     """The GPS-free trajectory (``poses`` at ``stamps_ns``) against the accepted fixes (module docstring)."""
     g = prep.gps
@@ -89,9 +125,14 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     p = np.column_stack([np.interp(t, stamps_ns, poses[:, 0, 3]), np.interp(t, stamps_ns, poses[:, 1, 3])])
     white = white_sigma_m(g.stamps_ns[ok], g.position_enu_m[ok, :2])
     sigma = TRUE_OVER_CLAIMED * max(float(np.median(g.sigma_h_m[idx])), white)
-    th, shift, chi2 = rigid_fit(p, g.position_enu_m[idx, :2], error_covariance((t - t[0]) * 1e-9, sigma))
+    z, t_s = g.position_enu_m[idx, :2], (t - t[0]) * 1e-9
+    C = error_covariance(t_s, sigma)
+    th, shift, chi2 = rigid_fit(p, z, C)
+    drift, rate = heading_drift(p, z, C, t_s, th)
     dof = 2 * len(idx) - 3
+    claimed = rigid_fit(p, z, np.diag(np.asarray(g.sigma_h_m[idx], float) ** 2))[2]
     T = np.eye(4)
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[:2, 3] = shift
-    return ShapeTest(bool(chi2 <= dof + QUANTILE_Z * np.sqrt(2.0 * dof)), float(chi2), dof, len(idx), T)
+    return ShapeTest(_within(chi2, dof) and drift <= CHI2_1_99, float(chi2), dof, len(idx), T, drift, rate,
+                     not _within(claimed, dof))
