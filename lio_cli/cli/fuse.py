@@ -69,7 +69,8 @@ def _check_rate(rate: float | None) -> None:
 def _bare_wheel(use: list[str] | None, cfg: FuseConfig) -> bool | None:
     """True where ``--use wheel`` names the wheels bare (and nothing configured otherwise): the wheels as the
     default selection takes them, their yaw rate weighed against the gyro; else None (not given)."""
-    return True if cfg.weigh_wheel_yaw is None and any(u.strip() == "wheel" for u in use or ()) else None
+    bare = any(src.strip() == "wheel" and not names.strip() for src, _, names in (u.partition(":") for u in use or ()))
+    return True if cfg.weigh_wheel_yaw is None and bare else None
 
 
 def fuse_cmd(

@@ -69,7 +69,7 @@ def running_integral(t_s: np.ndarray, x: np.ndarray, skip: np.ndarray | None = N
     """The trapezoid integral of ``x`` (samples along the first axis, at seconds ``t_s``) from the first sample to
     each; steps where ``skip`` (one per step, e.g. an IMU gap) add nothing."""
     dt = np.diff(t_s) if skip is None else np.where(skip, 0.0, np.diff(t_s))
-    steps = 0.5 * (x[1:] + x[:-1]) * (dt if x.ndim == 1 else dt[:, None])
+    steps = 0.5 * (x[1:] + x[:-1]) * dt.reshape(-1, *(1,) * (x.ndim - 1))
     return np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(steps, axis=0)])
 
 

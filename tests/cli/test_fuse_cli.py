@@ -218,7 +218,7 @@ def test_a_rate_the_memory_budget_cannot_hold_is_refused_and_writes_nothing(caps
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("wheel, weighed", [("wheel", True), ("wheel:speed", False)])
+@pytest.mark.parametrize("wheel, weighed", [("wheel", True), ("wheel:", True), ("wheel:speed", False)])
 def test_bare_use_wheel_weighs_the_yaw_rate_as_the_default_does(capsys, planar, tmp_path, wheel, weighed):
     out = tmp_path / "w.tum"
     code, _, err = _run(capsys, planar, "-o", out, "--use", "imu", "--use", wheel, "--quiet")

@@ -128,3 +128,5 @@ def test_running_integral_is_the_trapezoid_rule_and_skips_the_steps_asked():
     both = running_integral(t, np.column_stack([x, -x]))
     assert both.shape == (5, 2)
     np.testing.assert_allclose(both[:, 1], -running_integral(t, x))
+    blocks = running_integral(t, np.ones((5, 3, 3)))  # samples of any shape: along the first axis
+    np.testing.assert_allclose(blocks[:, 1, 2], t - t[0])
