@@ -1,22 +1,22 @@
 """Whether GPS has anything to say about the shape of an IMU + wheels trajectory (no odometry).
 
-A consumer receiver's error is mostly slow (metres, correlated over a minute): over a short stretch it moves
-the fixes as much as the wheels and gyro drift in that time, or more, and a fusion that takes it for white
-noise bends a good dead reckoning towards it. So the trajectory fused without GPS is tested against the fixes
-under the receiver's real error (``consistent``): a rigid fit in the plane (heading and shift, which GPS alone
-gives), weighted by the error's covariance (a first-order Gauss-Markov part of ``SLOW_SHARE`` of the variance,
-correlation time ``TAU_S``, plus white noise; the total sigma ``TRUE_OVER_CLAIMED`` times the larger of the
-fixes' claimed sigma and the white noise their own second differences show: consumer receivers claim about a
-third of their error, most of it slow), and its chi-square against the ``QUANTILE`` of its degrees of
-freedom. That sum spreads a bend over hundreds of fixes' white noise, so the heading drift a gyro bias leaves
-(the track's increments turned by a rate times time) is tested on its own too: the chi-square it removes against
-``CHI2_1_99`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
+A consumer receiver's error is mostly slow (metres, correlated over a minute): over a short stretch it moves the
+fixes as much as the wheels and gyro drift in that time, or more, and a fusion that takes it for white noise bends a
+good dead reckoning towards it. So the trajectory fused without GPS is tested against the fixes under the receiver's
+real error (``consistent``): a rigid fit in the plane (heading and shift, which GPS alone gives), weighted by the
+error's covariance (a first-order Gauss-Markov part of ``SLOW_SHARE`` of the variance, correlation time ``TAU_S``,
+plus white noise; the total sigma ``TRUE_OVER_CLAIMED`` times the larger of the fixes' claimed sigma and the white
+noise their own second differences show: consumer receivers claim about a third of their error, most of it slow),
+and its chi-square against the ``QUANTILE`` of its degrees of freedom. That sum spreads a bend over hundreds of
+fixes' white noise, so the heading drift a gyro bias leaves (the track's increments turned by a rate times time) is
+tested on its own too, and so is a scale of the track (an unmeasured wheel radius): the chi-square each removes
+against ``CHI2_1_99`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
 innovations showed it (``gps_quality.GpsNoise`` raised it for ``OPTIMISTIC_SHARE`` of the fixes or more), or the
 fixes scatter about the GPS-free track beyond their claimed sigma (``ShapeTest.claim_exceeded``: a filter that
 follows a slow error shows no optimism in its innovations) where the IMU backs the wheels' speed (``api``: wrong
-wheels beside an honest receiver scatter the fixes too); an honest claim is fused as it is. Consistent: the
-motion sources' shape stands, GPS gives the world's heading and position. Not consistent (wheels that slipped, a
-gyro that drifted): GPS shapes the trajectory.
+wheels beside an honest receiver scatter the fixes too); an honest claim is fused as it is. Consistent: the motion
+sources' shape stands, GPS gives the world's heading and position. Not consistent (wheels that slipped, a gyro that
+drifted): GPS shapes the trajectory.
 """
 
 from __future__ import annotations
@@ -48,11 +48,14 @@ class ShapeTest:
     drift_chi2: float = 0.0  # what a heading drift removes from the chi-square (``heading_drift``)
     drift_radps: float = 0.0  # that drift's rate
     claim_exceeded: bool = False  # the fixes' scatter about the fitted track beyond their claimed sigma (white)
+    scale_chi2: float = 0.0  # what a scale of the track removes from the chi-square (``track_scale``)
+    scale_off: float = 0.0  # that scale less 1
 
     def to_dict(self) -> dict:
         return {"consistent": self.consistent, "chi2": round(self.chi2, 1), "dof": self.dof, "fixes": self.fixes,
                 "drift_chi2": round(self.drift_chi2, 2), "drift_radps": float(f"{self.drift_radps:.3g}"),
-                "claim_exceeded": self.claim_exceeded}
+                "claim_exceeded": self.claim_exceeded, "scale_chi2": round(self.scale_chi2, 2),
+                "scale_off": float(f"{self.scale_off:.3g}")}
 
 
 def applies(prep: Prepared) -> bool:
@@ -97,20 +100,42 @@ def heading_drift(p: np.ndarray, z: np.ndarray, C: np.ndarray, t_s: np.ndarray, 
     """(chi-square removed, rate rad/s) by a heading drift of the track ``p`` (N,2) at ``t_s``: its increments turned
     by ``rate * t`` (linearised), fitted with a small turn and a shift about the rigid fit's ``heading``, each axis's
     error of covariance ``C``."""
+    q, A, b, w = _linearised(p, z, C, heading)
+    u = np.cumsum(t_s[:, None] * np.diff(q, axis=0, prepend=q[:1]), axis=0)  # sum of t dq
+    removed, x = _removed(A, b, w(_turn(u)))
+    return removed, -x  # the fit turns the track back: its drift is the opposite
+
+
+def track_scale(p: np.ndarray, z: np.ndarray, C: np.ndarray, heading: float) -> tuple[float, float]:
+    """(chi-square removed, scale - 1) by a scale of the track ``p`` (N,2) about its start (the wheels' speed scale
+    an unmeasured radius leaves), fitted with a small turn and a shift about the rigid fit's ``heading``."""
+    q, A, b, w = _linearised(p, z, C, heading)
+    return _removed(A, b, w(q - q[0]))
+
+
+def _turn(v: np.ndarray) -> np.ndarray:
+    return np.column_stack([-v[:, 1], v[:, 0]])  # 90 degrees about z
+
+
+def _linearised(p: np.ndarray, z: np.ndarray, C: np.ndarray, heading: float):
+    """The track turned by ``heading``, the whitened design of a shift and a small turn, the whitened residual
+    and the whitening of a (N,2) column."""
     c, s = np.cos(heading), np.sin(heading)
     q = p @ np.array([[c, s], [-s, c]])
     one, zero = np.ones(len(p)), np.zeros(len(p))
-    u = np.cumsum(t_s[:, None] * np.diff(q, axis=0, prepend=q[:1]), axis=0)  # sum of t dq
-    turn = lambda v: np.column_stack([-v[:, 1], v[:, 0]])  # noqa: E731  90 degrees about z
     L = np.linalg.cholesky(C)
     w = lambda M: np.concatenate([np.linalg.solve(L, M[:, 0]), np.linalg.solve(L, M[:, 1])])  # noqa: E731
-    A = np.column_stack([w(np.column_stack([one, zero])), w(np.column_stack([zero, one])), w(turn(q - q[0]))])
-    b = w(z - q)
+    A = np.column_stack([w(np.column_stack([one, zero])), w(np.column_stack([zero, one])), w(_turn(q - q[0]))])
+    return q, A, w(z - q), w
+
+
+def _removed(A: np.ndarray, b: np.ndarray, col: np.ndarray) -> tuple[float, float]:
+    """(chi-square the column ``col`` removes beside ``A``, its coefficient)."""
     r0 = b - A @ np.linalg.lstsq(A, b, rcond=None)[0]
-    A1 = np.column_stack([A, w(turn(u))])
+    A1 = np.column_stack([A, col])
     x1 = np.linalg.lstsq(A1, b, rcond=None)[0]
     r1 = b - A1 @ x1
-    return float(r0 @ r0 - r1 @ r1), -float(x1[3])  # the fit turns the track back: its drift is the opposite
+    return float(r0 @ r0 - r1 @ r1), float(x1[-1])
 
 
 def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> ShapeTest | None:
@@ -129,10 +154,11 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     C = error_covariance(t_s, sigma)
     th, shift, chi2 = rigid_fit(p, z, C)
     drift, rate = heading_drift(p, z, C, t_s, th)
+    scaled, scale_off = track_scale(p, z, C, th)
     dof = 2 * len(idx) - 3
     claimed = rigid_fit(p, z, np.diag(np.asarray(g.sigma_h_m[idx], float) ** 2))[2]
     T = np.eye(4)
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[:2, 3] = shift
-    return ShapeTest(_within(chi2, dof) and drift <= CHI2_1_99, float(chi2), dof, len(idx), T, drift, rate,
-                     not _within(claimed, dof))
+    return ShapeTest(_within(chi2, dof) and drift <= CHI2_1_99 and scaled <= CHI2_1_99, float(chi2), dof, len(idx), T,
+                     drift, rate, not _within(claimed, dof), scaled, scale_off)

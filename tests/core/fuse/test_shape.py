@@ -166,3 +166,21 @@ def test_a_track_the_fixes_contradict_is_told_apart():
     assert chi2 <= dof + shape.QUANTILE_Z * np.sqrt(2 * dof)
     _, _, chi2_long = shape.rigid_fit(1.06 * true, fixes, C)
     assert chi2_long > dof + shape.QUANTILE_Z * np.sqrt(2 * dof)
+
+
+def test_a_track_scaled_by_an_unmeasured_radius_is_told_apart():
+    """340 m at 7.5 m/s against an honest receiver (0.8 m white, as claimed): a track 2 % long (a wheel radius the
+    accelerometer did not measure) passes the chi-square under three times the claim, the scale test does not; the
+    true track passes both."""
+    t = np.arange(0.0, 45.0, 0.2)
+    true = np.column_stack([7.5 * t, 20.0 * np.sin(t / 8.0)])
+    fixes = true + np.random.default_rng(3).normal(0.0, 0.8, true.shape)
+    long = true[0] + 1.02 * (true - true[0])
+    C = shape.error_covariance(t, shape.TRUE_OVER_CLAIMED * 0.8)
+    dof = 2 * len(t) - 3
+    for track, scaled in ((true, False), (long, True)):
+        th, _, chi2 = shape.rigid_fit(track, fixes, C)
+        assert chi2 <= dof + shape.QUANTILE_Z * np.sqrt(2 * dof)
+        removed, off = shape.track_scale(track, fixes, C, th)
+        assert (removed > shape.CHI2_1_99) == scaled
+    assert abs(off + 0.02) < 0.005  # the fit shrinks the long track back
