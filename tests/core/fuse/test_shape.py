@@ -38,12 +38,17 @@ def slow_error(t_s: np.ndarray, seed: int, sigma: float = 2.4, white: float = 0.
 def case():
     """30 s of the planar robot with exact wheels and a GPS whose covariance claims 0.3 m (its white part is 0.8 m,
     its slow one 2.4 m): the filter raises the claim, so the shape test applies."""
+    return _slow_gps_case(0.3)
+
+
+def _slow_gps_case(claim_m: float):
+    """30 s of the planar robot, exact wheels, fixes with a 2.4 m slow error whose covariance claims ``claim_m``."""
     c = simulate_case("planar", 30.0, seed=3, wheel_errors=False, gps_sigma_m=1.0)
     g = c.inputs.gps
     z = interpolate_poses(c.truth_stamps_ns, c.truth_poses, g.stamps_ns)[:, :3, 3]
     z[:, :2] += slow_error((g.stamps_ns - g.stamps_ns[0]) * 1e-9, seed=5)
     z[:, 2] += np.random.default_rng(6).normal(0.0, 1.5, len(z))
-    cov = np.broadcast_to(np.diag([0.3**2, 0.3**2, 1.5**2]), (len(z), 3, 3)).copy()
+    cov = np.broadcast_to(np.diag([claim_m**2, claim_m**2, 1.5**2]), (len(z), 3, 3)).copy()
     return replace(c, inputs=replace(c.inputs, gps=GpsSeries(g.stamps_ns, z, cov, np.ones(len(z), bool))))
 
 
@@ -92,13 +97,7 @@ def test_beside_wheels_the_imu_verified_an_honest_claim_is_tested_too(honest):
 def unraised():
     """The slow error of ``case`` (2.4 m, 60 s) under a claim its white part (0.8 m) matches: the filter's
     innovations raise too few fixes to call it optimistic."""
-    c = simulate_case("planar", 30.0, seed=3, wheel_errors=False, gps_sigma_m=1.0)
-    g = c.inputs.gps
-    z = interpolate_poses(c.truth_stamps_ns, c.truth_poses, g.stamps_ns)[:, :3, 3]
-    z[:, :2] += slow_error((g.stamps_ns - g.stamps_ns[0]) * 1e-9, seed=5)
-    z[:, 2] += np.random.default_rng(6).normal(0.0, 1.5, len(z))
-    cov = np.broadcast_to(np.diag([0.8**2, 0.8**2, 1.5**2]), (len(z), 3, 3)).copy()
-    return replace(c, inputs=replace(c.inputs, gps=GpsSeries(g.stamps_ns, z, cov, np.ones(len(z), bool))))
+    return _slow_gps_case(0.8)
 
 
 def test_fixes_scattered_beyond_their_claim_have_the_shape_tested(unraised):
