@@ -23,6 +23,7 @@ import numpy as np
 
 from ...errors import InputError
 from ...geometry import so3_exp
+from ..imu import running_integral
 from .common import NS_PER_S, CalibrationResult, sandwich_covariance
 
 WINDOW_S = 0.25  # a ground robot's starts and stops: windows of 0.5 s averaged away a share of them
@@ -230,7 +231,7 @@ def _window_means(x: np.ndarray, ts: np.ndarray, edges: np.ndarray) -> np.ndarra
     samples, so a window's mean is centred on the window whatever the samples' phase (a plain mean of the samples
     inside is centred on them, up to half a wheel period off, which moves the lever arm at speed)."""
     x = np.broadcast_to(np.asarray(x, float), np.shape(ts))
-    c = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(ts))])  # integral up to each sample
+    c = running_integral(ts, x)  # integral up to each sample
     e = np.clip(edges, ts[0], ts[-1])
     k = np.clip(np.searchsorted(ts, e, side="right") - 1, 0, len(ts) - 2)
     h = np.maximum(ts[k + 1] - ts[k], 1e-12)

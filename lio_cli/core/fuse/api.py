@@ -54,13 +54,15 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
 
 def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
     """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
-    (``shape``); else the GPS-fused ``fused``."""
+    (``shape``); else the GPS-fused ``fused``.
+
+    An honest claim is fused as it is; but a filter that follows a receiver's slow error shows no optimism in its
+    innovations, so wheels the IMU verified (speed and yaw rate) have the shape tested too, and so has a track
+    whose speed the accelerometer backs where the fixes scatter about it beyond their claim."""
     raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
-    # an honest claim: the fixes' error is what they say; but a filter that follows a receiver's slow error shows
-    # no optimism in its innovations, so wheels the IMU verified (speed and yaw rate) have the shape tested too,
-    # and so has a track whose speed the accelerometer backs where the fixes scatter about it beyond their claim
-    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps) or _wheels_verified(prep)
-    if not (optimistic or _wheel_speed_backed(prep)):
+    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps)
+    verified = _wheels_verified(prep)
+    if not (optimistic or verified or _wheel_speed_backed(prep)):
         return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     try:
@@ -69,7 +71,7 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
         return fused
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
     test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
-    if test is None or not (optimistic or test.claim_exceeded):
+    if test is None or not (optimistic or verified or test.claim_exceeded):
         return fused
     fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
     if not test.consistent:
@@ -101,15 +103,15 @@ def _wheels_verified(prep: Prepared) -> bool:
 
 def _wheel_speed_backed(prep: Prepared) -> bool:
     """The wheels' speed as the IMU checked it (``wheel_slip``): its scale measured and every slip bridged, or no
-    slip and the accelerometer's scale within 99 % of the one used (a steady speed measures it only roughly)."""
+    slip and the accelerometer's scale consistent with 1 at 99 % (one-dof chi-square; a steady speed measures it
+    only roughly, and without a slip an unverified check applied no scale)."""
     speed = prep.wheel_check or {}
     if speed.get("verified"):
         return True
     scale, sigma = speed.get("scale"), speed.get("scale_sigma")
     if speed.get("slips", 1) or scale is None or not sigma:
         return False
-    used = scale if speed.get("scale_applied") else 1.0
-    return ((scale - used) / sigma) ** 2 <= shape.CHI2_1_99
+    return ((scale - 1.0) / sigma) ** 2 <= shape.CHI2_1_99
 
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from ...geometry import inv_pose, yaw_of
-from ..robust import robust_sigma
+from ..robust import white_variance
 from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
@@ -265,8 +265,7 @@ def turn_rate_walk(t_ns: np.ndarray, wz: np.ndarray) -> float:
     if m < 3:
         return math.inf
     means = wz[:m * n].reshape(m, n).mean(axis=1)
-    d2 = wz[2:] - 2.0 * wz[1:-1] + wz[:-2]
-    white = robust_sigma(d2, centre=False) ** 2 / 6.0
+    white = white_variance(wz)
     change = float(np.mean(np.diff(means) ** 2)) - 2.0 * white / n
     return math.sqrt(max(1.5 * change / (n * period), MIN_TURN_WALK**2))
 

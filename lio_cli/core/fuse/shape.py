@@ -11,12 +11,12 @@ and its chi-square against the ``QUANTILE`` of its degrees of freedom. That sum 
 fixes' white noise, so the heading drift a gyro bias leaves (the track's increments turned by a rate times time) is
 tested on its own too, and so is a scale of the track (an unmeasured wheel radius): the chi-square each removes
 against ``CHI2_1_99`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
-innovations showed it (``gps_quality.GpsNoise`` raised it for ``OPTIMISTIC_SHARE`` of the fixes or more), or the
-fixes scatter about the GPS-free track beyond their claimed sigma (``ShapeTest.claim_exceeded``: a filter that
-follows a slow error shows no optimism in its innovations) where the IMU backs the wheels' speed (``api``: wrong
-wheels beside an honest receiver scatter the fixes too); an honest claim is fused as it is. Consistent: the motion
-sources' shape stands, GPS gives the world's heading and position. Not consistent (wheels that slipped, a gyro that
-drifted): GPS shapes the trajectory.
+innovations showed it (``gps_quality.GpsNoise`` raised it for ``OPTIMISTIC_SHARE`` of the fixes or more), the IMU
+verified the wheels' speed and yaw rate (``api``), or the fixes scatter about the GPS-free track beyond their
+claimed sigma (``ShapeTest.claim_exceeded``: a filter that follows a slow error shows no optimism in its
+innovations) where the IMU backs the wheels' speed (``api``: wrong wheels beside an honest receiver scatter the
+fixes too); an honest claim is fused as it is. Consistent: the motion sources' shape stands, GPS gives the world's
+heading and position. Not consistent (wheels that slipped, a gyro that drifted): GPS shapes the trajectory.
 """
 
 from __future__ import annotations
@@ -153,12 +153,13 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     z, t_s = g.position_enu_m[idx, :2], (t - t[0]) * 1e-9
     C = error_covariance(t_s, sigma)
     th, shift, chi2 = rigid_fit(p, z, C)
-    drift, rate = heading_drift(p, z, C, t_s, th)
-    scaled, scale_off = track_scale(p, z, C, th)
+    drift_chi2, rate = heading_drift(p, z, C, t_s, th)
+    scale_chi2, scale_off = track_scale(p, z, C, th)
     dof = 2 * len(idx) - 3
     claimed = rigid_fit(p, z, np.diag(np.asarray(g.sigma_h_m[idx], float) ** 2))[2]
     T = np.eye(4)
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[:2, 3] = shift
-    return ShapeTest(_within(chi2, dof) and drift <= CHI2_1_99 and scaled <= CHI2_1_99, float(chi2), dof, len(idx), T,
-                     drift, rate, not _within(claimed, dof), scaled, scale_off)
+    ok = _within(chi2, dof) and drift_chi2 <= CHI2_1_99 and scale_chi2 <= CHI2_1_99
+    return ShapeTest(ok, float(chi2), dof, len(idx), T, drift_chi2=drift_chi2, drift_radps=rate,
+                     claim_exceeded=not _within(claimed, dof), scale_chi2=scale_chi2, scale_off=scale_off)

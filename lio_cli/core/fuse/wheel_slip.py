@@ -1,30 +1,29 @@
 """Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed, no odometry).
 
-A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of
-a second while the accelerometer feels no such acceleration. ``forward_accel`` gives the forward acceleration
-the IMU feels: the specific force plus gravity's forward share, the gravity direction in the base frame taken
-from the first second and carried by the gyro alone (pitch on uneven ground is taken out; the wheels never
-pull it, their scale is what it measures). Its integral is a speed track; the wheel speed times the scale
-minus that track is flat but for the accelerometer's forward bias, the gyro's x/y bias and the start's tilt
-(a ramp and slow curves of known shape), and a slip's jump.
+A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of a
+second while the accelerometer feels no such acceleration. ``forward_accel`` gives the forward acceleration the IMU
+feels: the specific force plus gravity's forward share, the gravity direction in the base frame taken from the first
+second and carried by the gyro alone (pitch on uneven ground is taken out; the wheels never pull it, their scale is
+what it measures). Its integral is a speed track; the wheel speed times the scale minus that track is flat but for
+the accelerometer's forward bias, the gyro's x/y bias and the start's tilt (a ramp and slow curves of known shape),
+and a slip's jump.
 
 ``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on the
 speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed; combinations of the terms the drive
-never shows, as on a straight one, left out). The scale's sigma holds, besides the fit's residual, the gyro's
-angle random walk: its white noise (measured from the data) walks the carried gravity direction, an error the
+never shows, as on a straight one, left out). The scale's sigma holds, besides the fit's residual, the gyro's angle
+random walk: its white noise (measured from the data) walks the carried gravity direction, an error the
 constant-bias terms cannot take out and the blocks share (``_walk_variance``). Slips: ``slip_windows`` (a jump of
 the difference until it is back at its level). The first fit leaves out the raw difference's jumps
-(``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the
-first second, divides the forward acceleration by its cosine.
+(``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the first
+second, divides the forward acceleration by its cosine.
 
-The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``)
-and off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips
-are bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended)
-only when the scale is measured: a slip's extra distance is a share of the path as a scale error's is, and
-removing the slips alone made every simulated bad-wheel track worse (3 % scale, three slips: 0.21-1.18 m ->
-0.48-1.95 m, docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is kept out of the fit whole but bridged only
-when the IMU's speed integrated across it lands on the wheel speed after it (``_closes``); otherwise it is left
-in and counted (``left_in``).
+The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``) and
+off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips are
+bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended) only
+when the scale is measured: a slip's extra distance is a share of the path as a scale error's is, and removing the
+slips alone made every simulated bad-wheel track worse (docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
+kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed after
+it (``_closes``); otherwise it is left in and counted (``left_in``).
 """
 
 from __future__ import annotations
@@ -35,7 +34,7 @@ import numpy as np
 
 from ...so3 import so3_exp
 from ..imu import running_integral
-from ..robust import robust_sigma
+from ..robust import robust_sigma, white_variance
 from .kalman import chi2_thresholds
 from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard
 from .timeline import Prepared
@@ -131,8 +130,8 @@ def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray)
 
 
 def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray, clean: np.ndarray,
-               walk_q: float = 0.0) -> tuple[float, float, np.ndarray, float] | str:
-    """(scale, its sigma from the residual, c, its sigma from the angle walk) of ``s * dv = dA - c0 dt - dG
+               walk_q: float) -> tuple[float, float, float, np.ndarray] | str:
+    """(scale, its sigma from the residual, its sigma from the angle walk, c) of ``s * dv = dA - c0 dt - dG
     c[1:]`` over ``BLOCK_S`` increments inside clean stretches: ``c0`` the accelerometer's forward bias,
     ``c[1:]`` the gyro's x, y bias and the start's tilt error (``G``: their effect on the integrated
     acceleration, ``forward_accel``); or why not. Combinations of the terms the drive leaves unseen (a straight
@@ -181,7 +180,7 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray, clean
     cov = s2 * (P @ P.T) / np.outer(norm, norm)
     a = U[:, seen] @ P[0] / norm[0]  # the scale as a weighted sum of the kept blocks' dA
     walk = walk_q * float(a @ _walk_variance(np.array(spans)[fitted]) @ a)
-    return float(sol[0]), float(np.sqrt(cov[0, 0])), sol[1:], float(np.sqrt(walk))
+    return float(sol[0]), float(np.sqrt(cov[0, 0])), float(np.sqrt(walk)), sol[1:]
 
 
 def _walk_variance(spans: np.ndarray) -> np.ndarray:
@@ -208,7 +207,7 @@ def angle_walk_q(t_s: np.ndarray, w: np.ndarray) -> float:
         m = len(w) // n
         if m >= 3:
             y = w[:m * n].reshape(m, n).mean(axis=1)
-            q.append(robust_sigma(y[2:] - 2.0 * y[1:-1] + y[:-2], centre=False) ** 2 / 6.0 * n * dt)
+            q.append(white_variance(y) * n * dt)
     return min(q, default=0.0)
 
 
@@ -241,7 +240,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
             fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q)
         if isinstance(fit, str):
             break
-        s, s_fit, c, s_walk = fit
+        s, s_fit, s_walk, c = fit
         wins = detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
     if isinstance(fit, str):  # no windows reported: none were used
         rep.why = fit

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..imu import running_integral
-from ..robust import robust_sigma
+from ..robust import robust_sigma, white_variance
 
 CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slowly)
 MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
@@ -109,10 +109,9 @@ def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: fl
     """The gyro's white noise variance per sample: from its own second differences (``6 sigma^2`` for white noise;
     the motion is smooth at the IMU's rate), robustly; the configured density's where too few samples."""
     ok = ~(gap[1:] | gap[:-1])
-    d2 = (gz[2:] - 2.0 * gz[1:-1] + gz[:-2])[ok]
-    if len(d2) < MIN_SAMPLES:
+    if np.count_nonzero(ok) < MIN_SAMPLES:
         return density**2 / float(np.median(np.diff(ti)))
-    return robust_sigma(d2, centre=False) ** 2 / 6.0
+    return white_variance(gz, ok)
 
 
 def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
