@@ -160,28 +160,28 @@ class ChunkIndexReader(Reader):
             self.chunks = _Chunks(self.chunks)  # type: ignore[assignment]
 
     # rosbags' own build a ChunkInfo per chunk (per connection and chunk for the count): the same from the arrays
+    def _arrays(self, nonempty: bool = True) -> _ChunkInfos | None:
+        """The chunk infos as arrays (the bag checked open), or None where rosbags' own answer (no chunk)."""
+        infos = self.chunk_infos
+        if not isinstance(infos, _ChunkInfos) or (nonempty and not len(infos)):
+            return None
+        self._check_open()
+        return infos
+
     @property
     def start_time(self) -> int:
-        infos = self.chunk_infos
-        if not isinstance(infos, _ChunkInfos) or not len(infos):
-            return super().start_time
-        self._check_open()
-        return int(infos.cols[1].min())
+        infos = self._arrays()
+        return super().start_time if infos is None else int(infos.cols[1].min())
 
     @property
     def end_time(self) -> int:
-        infos = self.chunk_infos
-        if not isinstance(infos, _ChunkInfos) or not len(infos):
-            return super().end_time
-        self._check_open()
-        return int(infos.cols[2].max())
+        infos = self._arrays()
+        return super().end_time if infos is None else int(infos.cols[2].max())
 
     @property
     def message_count(self) -> int:
-        infos = self.chunk_infos
-        if not isinstance(infos, _ChunkInfos):
+        if self._arrays(nonempty=False) is None:
             return super().message_count
-        self._check_open()
         return sum(c.msgcount for c in self.connections)  # the index records' counts, summed at open
 
     def read_index_data(self, pos: int, indexes: dict) -> None:  # type: ignore[override]
