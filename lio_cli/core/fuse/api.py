@@ -61,7 +61,7 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
     whose speed the accelerometer backs where the fixes scatter about it beyond their claim."""
     raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
     optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps)
-    verified = _wheels_verified(prep)
+    verified = prep.wheels_verified
     if not (optimistic or verified or _wheel_speed_backed(prep)):
         return fused
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
@@ -92,13 +92,6 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
                          "slow error explains it): " + str((free.info.get("smoother") or {}).get("why"))},
             "start": free.info.get("start"), "world_yaw_from": "gps"}
     return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
-
-
-def _wheels_verified(prep: Prepared) -> bool:
-    """The wheels' speed scale measured by the accelerometer (``wheel_slip``, no slip left in) and their yaw rate
-    agreeing with the gyro (``wheel_yaw``)."""
-    speed, yaw = prep.wheel_check or {}, prep.wheel_yaw_check or {}
-    return bool(yaw.get("used")) and bool(speed.get("verified"))
 
 
 def _wheel_speed_backed(prep: Prepared) -> bool:

@@ -41,6 +41,19 @@ class EstimatorChoice:
     evidence: dict
 
 
+def wheel_free_force(prep: Prepared, t: np.ndarray,
+                     wheel_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The specific force at the IMU stamps (seconds ``t``) less the base's own acceleration the wheels give
+    (forward ``dv/dt``, centripetal ``v w_z``); the wheel speed ``v`` there and its ``dv/dt``."""
+    speed = wheel_scale * np.nan_to_num(prep.wheel.velocity_mps[:, 0])
+    v = np.interp(prep.imu.stamps_ns, prep.wheel.stamps_ns, speed)
+    f = prep.imu_f_b.copy()
+    a_wheel = np.gradient(v, t)
+    f[:, 0] -= a_wheel  # forward acceleration of the base
+    f[:, 1] -= v * prep.imu_w_b[:, 2]  # centripetal
+    return f, v, a_wheel
+
+
 def gravity_evidence(prep: Prepared, dilate: int = 0, wheel_scale: float = 1.0,
                      slip_spans_ns: np.ndarray | None = None, level_fit: bool = False) -> dict | None:
     """Tilt wander (deg), climb extent and path length (m) from the IMU and the wheels; None without both.
@@ -58,12 +71,7 @@ def gravity_evidence(prep: Prepared, dilate: int = 0, wheel_scale: float = 1.0,
     m = len(t) // n if n else 0
     if m < 2:
         return None
-    speed = wheel_scale * np.nan_to_num(w.velocity_mps[:, 0])
-    v = np.interp(imu.stamps_ns, w.stamps_ns, speed)
-    f = prep.imu_f_b.copy()
-    a_wheel = np.gradient(v, t)
-    f[:, 0] -= a_wheel  # forward acceleration of the base
-    f[:, 1] -= v * prep.imu_w_b[:, 2]  # centripetal
+    f, v, a_wheel = wheel_free_force(prep, t, wheel_scale)
     f_win = f[:m * n].reshape(m, n, 3).mean(axis=1)
     up = f_win / np.maximum(np.linalg.norm(f_win, axis=1, keepdims=True), 1e-9)
     # a wheel slip: the wheels' speed jumps by metres per second in a fraction of one while the IMU feels no

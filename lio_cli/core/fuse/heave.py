@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .choose import wheel_free_force
 from .timeline import Prepared
 
 BLOCK_S = 0.02  # the heights' grid: IMU samples averaged over this long (heave is below a few Hz)
@@ -39,22 +40,16 @@ def applies(prep: Prepared) -> bool:
 
 def heights(prep: Prepared, stamps_ns: np.ndarray) -> np.ndarray | None:
     """The heave (m, about the level, zero mean) at ``stamps_ns``; None without enough data."""
-    imu, w = prep.imu, prep.wheel
-    t_ns = imu.stamps_ns
+    t_ns = prep.imu.stamps_ns
     t = (t_ns - t_ns[0]) * 1e-9
     period = float(np.median(np.diff(t)))
     n = max(1, int(round(BLOCK_S / period))) if period > 0 else 0
     m = len(t) // n if n else 0
     if m < 8:
         return None
-    speed = np.nan_to_num(w.velocity_mps[:, 0])
-    v = np.interp(t_ns, w.stamps_ns, speed)
     f = prep.imu_f_b
-    a_w = np.zeros_like(f)
-    a_w[:, 0] = np.gradient(v, t)
-    a_w[:, 1] = v * prep.imu_w_b[:, 2]
     cut = m * n
-    g_blk = (f[:cut] - a_w[:cut]).reshape(m, n, 3).mean(axis=1)
+    g_blk = wheel_free_force(prep, t)[0][:cut].reshape(m, n, 3).mean(axis=1)
     f_blk = f[:cut].reshape(m, n, 3).mean(axis=1)
     tb = t[:cut].reshape(m, n).mean(axis=1)
     up = _moving_mean(g_blk, UP_SMOOTH_BLOCKS)

@@ -56,6 +56,13 @@ class Prepared:
         return None if self.wheel_yaw_weighed is None else self.wheel_yaw_weighed.check
 
     @property
+    def wheels_verified(self) -> bool:
+        """The IMU verified the wheels: their speed scale measured by the accelerometer (``wheel_slip``, no slip left
+        in) and their yaw rate agreeing with the gyro (``wheel_yaw``)."""
+        speed, yaw = self.wheel_check or {}, self.wheel_yaw_check or {}
+        return bool(speed.get("verified")) and bool(yaw.get("used"))
+
+    @property
     def t0_ns(self) -> int:
         return self.coverage[0][0]
 
