@@ -1,7 +1,7 @@
 """The smoothed trajectory at the output stamps: between keyframes k and k+1, the IMU predicts from keyframe k
 (its smoothed state and bias); what the prediction misses at k+1 (the IMU factor's residual, millimetres) is
 spread linearly over the interval, so the output meets every keyframe exactly and is as smooth as the IMU
-between them. An interval without IMU data (a gap) is interpolated on the poses."""
+between them; after the last keyframe, the IMU's prediction alone. An interval without IMU data (a gap) is interpolated on the poses."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from .imu import Segments
 
 def at_outputs(seg: Segments, kt: np.ndarray, s: dict[str, np.ndarray], params, out_ns: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
-    """(N,4,4) poses and (N,3) velocities at ``out_ns`` (each inside [kt[0], kt[-1]]); ``seg`` is cut at both
-    ``kt`` and ``out_ns``."""
+    """(N,4,4) poses and (N,3) velocities at ``out_ns`` (each at or after ``kt[0]``; after ``kt[-1]`` the IMU's
+    prediction from it); ``seg`` is cut at both ``kt`` and ``out_ns``."""
     N = len(out_ns)
     poses, vel = np.zeros((N, 4, 4)), np.zeros((N, 3))
     k_of = np.clip(np.searchsorted(kt, out_ns, side="right") - 1, 0, len(kt) - 1)
@@ -24,11 +24,26 @@ def at_outputs(seg: Segments, kt: np.ndarray, s: dict[str, np.ndarray], params, 
         sel = np.flatnonzero(k_of == k)
         T0 = nav(s["R"][k], s["p"][k])
         if k + 1 >= len(kt):
-            for n in sel.tolist():
-                poses[n], vel[n] = T0.matrix(), s["v"][k]
+            _after(seg, kt, s, params, k, sel, out_ns, at_seg, poses, vel)
             continue
         _interval(seg, kt, s, params, k, T0, sel, out_ns, at_seg, poses, vel)
     return poses, vel
+
+
+def _after(seg, kt, s, params, k, sel, out_ns, at_seg, poses, vel) -> None:
+    """Outputs after the last keyframe: the IMU's prediction from it, held from an IMU gap on."""
+    bias = gtsam.imuBias.ConstantBias(s["ba"][k], s["bg"][k])
+    ns = gtsam.NavState(gtsam.Rot3(s["R"][k]), s["p"][k], s["v"][k])
+    start, pim = ns, gtsam.PreintegratedCombinedMeasurements(params, bias)
+    cur, held = int(seg.at_cut_of(kt[k])), False
+    for n in sel.tolist():
+        stop = int(at_seg[n])
+        if not held and stop > cur:
+            held = not seg.integrate(pim, cur, stop)
+            cur = stop
+            if not held:
+                ns = pim.predict(start, bias)
+        poses[n], vel[n] = ns.pose().matrix(), ns.velocity()
 
 
 def _interval(seg, kt, s, params, k, T0, sel, out_ns, at_seg, poses, vel) -> None:
