@@ -186,3 +186,24 @@ def test_without_an_accelerometer_the_rts_smoother_stays(gps_case):
     res = fuse(gps_case.inputs, FuseOptions(estimator="ekf", rate_hz=20.0, smooth=True, use=use))
     assert res.info["smoother"]["kind"] == "rts"
     assert ate(gps_case, res) < 0.3
+
+
+def test_the_last_keyframe_interval_is_never_short_and_outputs_after_it_follow_the_imu():
+    from lio_cli.core.fuse.graph import keyframes
+    from lio_cli.core.fuse.timeline import prepare
+
+    case = simulate_case("drive", 10.0, seed=2, odom=OdomNoise())
+    od = case.inputs.odom
+    t1 = int(case.inputs.imu.stamps_ns[-1])
+    late = replace(od, stamps_ns=np.r_[od.stamps_ns[:-1], t1 - 100_000])  # 0.1 ms before the end
+    prep = prepare(replace(case.inputs, odom=late), FuseOptions(estimator="ekf", rate_hz=200.0))
+    kt = keyframes.keyframe_stamps(prep)
+    assert kt[-1] == t1 - 100_000 and np.diff(kt).min() >= keyframes.MIN_SPACING_NS
+    res = fuse(replace(case.inputs, odom=late), FuseOptions(estimator="ekf", rate_hz=200.0, smooth=True))
+    tail = res.stamps_ns > kt[-1]
+    assert tail.sum() == 1 and res.stamps_ns[-1] == t1  # the span's end, predicted from the last keyframe
+    # the last step moves as far as the speed says over its 0.1 ms (held, it would not move at all)
+    step = np.linalg.norm(res.poses[-1, :3, 3] - res.poses[-2, :3, 3])
+    speed = np.linalg.norm(res.velocities_mps[-2])
+    dt = (res.stamps_ns[-1] - res.stamps_ns[-2]) * 1e-9
+    assert step == pytest.approx(speed * dt, rel=0.05)
