@@ -48,6 +48,7 @@ class YawCheck:
     why: str = ""
     scale_off: float | None = None  # c: gyro - wheel = bias + c * gyro
     scale_off_sigma: float | None = None
+    scale_applied: bool = False  # the wheels' yaw rates divided by their scale (1 - c)
     sigma_radps: float | None = None  # the wheels' yaw-rate noise, estimated
     residual_sigma_radps: float | None = None
     far: int = 0
@@ -58,7 +59,7 @@ class YawCheck:
     def to_dict(self) -> dict:
         r = lambda v, n=6: None if v is None else float(f"{v:.{n}g}")  # noqa: E731
         return {"used": self.used, "why": self.why, "scale_off": r(self.scale_off, 4),
-                "scale_off_sigma": r(self.scale_off_sigma, 3), "sigma_radps": r(self.sigma_radps, 3),
+                "scale_off_sigma": r(self.scale_off_sigma, 3), "scale_applied": self.scale_applied, "sigma_radps": r(self.sigma_radps, 3),
                 "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far,
                 "unchecked_samples": self.unchecked}
 
@@ -177,9 +178,9 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
-    if abs(c) + 2.0 * c_sigma > SCALE_TOL:
-        rep.why = (f"the wheels' yaw rate is {-c:+.2%} (+- {c_sigma:.3%}) off the gyro's, beyond {SCALE_TOL:.1%}: "
-                   "the gyro's alone")
+    if 2.0 * c_sigma > SCALE_TOL:
+        rep.why = (f"the wheels' yaw scale is {-c:+.2%} +- {c_sigma:.3%} off the gyro's, not measured to "
+                   f"{SCALE_TOL:.1%}: the gyro's alone")
         return rep, None, None
     if rep.far > MAX_FAR_SHARE * len(idx):
         rep.why = (f"{rep.far} of {len(idx)} wheel yaw rates are further than the gate from the gyro's (more than "
@@ -195,12 +196,13 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
         rep.far = int(far.sum())
     unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
     rep.unchecked = int(unchecked.sum())
-    out = yaw.copy()
+    k = 1.0 - c  # the wheels' yaw scale: wheel = k * gyro - bias
+    out = yaw / k
     out[far | unchecked] = np.nan
-    w = np.nan_to_num(yaw)
-    var = wheel_var + ((abs(c) + c_sigma) * w) ** 2
+    var = (wheel_var + (c_sigma * np.nan_to_num(yaw)) ** 2) / k**2
     rep.used, rep.far_mask, rep.unchecked_mask = True, far, unchecked
-    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, noise "
+    rep.scale_applied = abs(c) > c_sigma
+    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, divided out; noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
                + (f", {rep.far} samples of slips left out" if rep.far else "")
                + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))
