@@ -31,12 +31,16 @@ CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slow
 MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
 MIN_SAMPLES = 200
 MIN_YAW_RATE_RADPS = 0.05  # the drive must turn at least this fast somewhere, or the scale is not seen
-SCALE_TOL = 0.005  # the wheels' yaw scale may differ from the gyro's by this share
+SCALE_TOL = 0.005  # the wheels' yaw scale must be measured to this share (2 sigmas)
+RESOLVED_Z = 2.0  # a scale further than this many sigmas from 1 is divided out
 MAX_FAR_SHARE = 0.2  # more samples further than the gate from the gyro: the wheels' yaw rate stays out
 TRIM_Z = 4.0
 TRIM_PASSES = 3
 RESOLVE_Z = 3.0  # the estimated variance is at least this many standard errors of the residual's variance
 SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and end are below the gate)
+TRIM_EDGE_S = 1.0  # and out of the scale's fit by this (the edges below the trim bias it by tenths of a percent)
+JACKKNIFE_S = 5.0  # the scale's sigma from the fit without each block this long in turn
+MIN_BLOCKS = 5
 ACCEL_WINDOW_S = 0.1  # the gyro's yaw acceleration (the gate's floor) from its means over this long either side
 
 
@@ -133,6 +137,34 @@ def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndar
     return A, rhs
 
 
+def _widened(t: np.ndarray, far: np.ndarray, edge_s: float) -> np.ndarray:
+    """``far`` with every run of two or more far samples widened by ``edge_s`` on each side (sorted ``t``)."""
+    run = np.flatnonzero(far & (np.r_[far[1:], False] | np.r_[False, far[:-1]]))
+    if not len(run):
+        return far
+    edge = np.zeros(len(t) + 1)
+    np.add.at(edge, np.searchsorted(t, t[run] - edge_s), 1)
+    np.add.at(edge, np.searchsorted(t, t[run] + edge_s, side="right"), -1)
+    return far | (np.cumsum(edge)[:-1] > 0)
+
+
+def _jackknife_sigma(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
+                     keep: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> float:
+    """The yaw scale's sigma from the fit repeated without each ``JACKKNIFE_S`` block in turn: a slip's edges and
+    the body's sway are correlated over a block, which the residual's white sigma does not count; 0 where there
+    are fewer than ``MIN_BLOCKS`` blocks."""
+    block = np.floor((tw - tw[0]) / JACKKNIFE_S).astype(np.int64)
+    blocks = np.unique(block[keep])
+    if len(blocks) < MIN_BLOCKS:
+        return 0.0
+    cs = []
+    for b in blocks.tolist():
+        Ab, rb = _normal_equations(inv, tc, g, d, keep & (block == b))
+        cs.append(float(np.linalg.lstsq(A - Ab, rhs - rb, rcond=None)[0][-1]))
+    cs = np.asarray(cs)
+    return float(np.sqrt((len(cs) - 1) / len(cs) * np.sum((cs - cs.mean()) ** 2)))
+
+
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
     """The check (module docstring): (report, the wheel yaw rates with far and unchecked samples NaN, their
@@ -158,17 +190,18 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
     gi, d = g[idx], g[idx] - yaw[idx]
     keep = np.ones(len(idx), bool)
-    for _ in range(TRIM_PASSES):
+    for _ in range(TRIM_PASSES):  # a slip's run widened: its onset and end, below the trim, bias the scale
         A, rhs = _normal_equations(inv, tc, gi, d, keep)
         sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
         r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * gi
         sigma = robust_sigma(r[keep], centre=False)
-        keep = np.abs(r) <= TRIM_Z * max(sigma, 1e-12)
+        keep = ~_widened(tw[idx], np.abs(r) > TRIM_Z * max(sigma, 1e-12), TRIM_EDGE_S)
     n = int(keep.sum())
-    A, _ = _normal_equations(inv, tc, gi, d, keep)
+    A, rhs = _normal_equations(inv, tc, gi, d, keep)
     s2 = float(r[keep] @ r[keep]) / max(n - len(A), 1)
     cov = s2 * np.linalg.pinv(A)
-    c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
+    c = float(sol[-1])
+    c_sigma = max(float(np.sqrt(max(cov[-1, -1], 0.0))), _jackknife_sigma(tw[idx], inv, tc, gi, d, keep, A, rhs))
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
     accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
@@ -187,22 +220,19 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
                    f"{MAX_FAR_SHARE:.0%}): the gyro's alone")
         return rep, None, None
     if rep.far:  # a run of far samples (a slip) widens to its edges; a lone one is left out alone
-        run = far & (np.r_[far[1:], False] | np.r_[False, far[:-1]])
-        edge = np.zeros(len(tw) + 1)
-        for i in np.flatnonzero(run):
-            edge[np.searchsorted(tw, tw[i] - SLIP_EDGE_S)] += 1
-            edge[np.searchsorted(tw, tw[i] + SLIP_EDGE_S, side="right")] -= 1
-        far = (far | (np.cumsum(edge)[:-1] > 0)) & np.isfinite(yaw)
+        far = _widened(tw, far, SLIP_EDGE_S) & np.isfinite(yaw)
         rep.far = int(far.sum())
     unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
     rep.unchecked = int(unchecked.sum())
-    k = 1.0 - c  # the wheels' yaw scale: wheel = k * gyro - bias
+    rep.scale_applied = abs(c) > RESOLVED_Z * c_sigma
+    k = 1.0 - c if rep.scale_applied else 1.0  # the wheels' yaw scale: wheel = k gyro - bias
     out = yaw / k
     out[far | unchecked] = np.nan
-    var = (wheel_var + (c_sigma * np.nan_to_num(yaw)) ** 2) / k**2
+    share = c_sigma if rep.scale_applied else abs(c) + c_sigma
+    var = (wheel_var + (share * np.nan_to_num(yaw)) ** 2) / k**2
     rep.used, rep.far_mask, rep.unchecked_mask = True, far, unchecked
-    rep.scale_applied = abs(c) > c_sigma
-    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, divided out; noise "
+    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale"
+               + (", divided out" if rep.scale_applied else "") + f"; noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
                + (f", {rep.far} samples of slips left out" if rep.far else "")
                + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))
