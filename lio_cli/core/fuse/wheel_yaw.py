@@ -1,17 +1,21 @@
 """The wheels' yaw rate weighed against the gyro from the data (IMU gyro + wheel yaw rate, default selection).
 
 Beside a gyro the wheels' yaw rate is left out by default: skid steering, a radius or baseline error and slips
-bias it. But good wheels measure the yaw rate without the gyro's bias, which a moving start leaves unknown, and
+bias it. But good wheels, or wheels whose scale error the data measure, measure the yaw rate without the gyro's bias, which a moving start leaves unknown, and
 their heading is then the better one. ``weigh`` compares the two over the log: the wheel yaw rate of each message
 against the gyro's z (base frame) averaged over the message's period, ``gyro - wheel = b_j + b'_j t + c gyro``
 (a bias line per ``CHUNK_S``, ``c`` the wheels' yaw scale off the gyro's), fitted by least squares with samples
-further than ``TRIM_Z`` robust sigmas trimmed. The wheels' yaw rate enters when their scale agrees with the
-gyro's (``|c| + 2 sigma_c <= SCALE_TOL``; a 3 % radius error is 0.03) and few samples are far (``MAX_FAR_SHARE``).
-Its variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own
-second differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of
-the residual's variance), plus the
-scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
-pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
+further than ``TRIM_Z`` robust sigmas trimmed (a run of them, a slip, widened by ``TRIM_EDGE_S``: its edges below
+the trim bias ``c``). ``sigma_c`` is the larger of the fit's and a jackknife's over ``JACKKNIFE_S`` blocks (a
+slip's edges and the body's sway are correlated over seconds). The wheels' yaw rate enters when the fit measures
+their scale (``2 sigma_c <= SCALE_TOL``; a skid-steered base's turning is not measured) and few samples are far
+(``MAX_FAR_SHARE``); a scale further than ``RESOLVED_Z`` sigmas from 1 (a radius error of 3 % is measured to
+about 0.02 %) is divided out, so a moving start's gyro bias is learned from the wheels all the same. Its
+variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own second
+differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of the
+residual's variance), plus the scale's share: ``(sigma_c w)^2`` where divided out, else ``((|c| + sigma_c)
+w)^2``; it replaces the message's or the default (a driver's covariance can be pessimistic as well as
+optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
 (rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma is at least what
 the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half a wheel period
 (where in its period a wheel message took its rate). Samples without a gyro mean
