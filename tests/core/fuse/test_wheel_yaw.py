@@ -20,9 +20,11 @@ DURATION_S = 30.0
 GYRO_BIAS_Z = 0.004  # rad/s: 0.12 rad of heading over the run where nothing measures it
 
 
-def _case(yaw_scale: float = 1.0, slip: tuple[float, float, float] | None = None, seed: int = 0):
+def _case(yaw_scale: float = 1.0, slip: tuple[float, float, float] | None = None, seed: int = 0,
+          speed_share: float = 0.0):
     """(inputs, truth) of a winding drive at 3-4.5 m/s from the first sample; wheels exact but for ``yaw_scale``
-    (their yaw rate over the true one) and a ``slip`` (start s, length s, extra yaw rate rad/s)."""
+    (their yaw rate over the true one), ``speed_share`` (rad/m: unequal radii turn a straight drive) and a
+    ``slip`` (start s, length s, extra yaw rate rad/s)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, DURATION_S, 0.005)
     w = 2 * np.pi / 7.0
@@ -33,7 +35,7 @@ def _case(yaw_scale: float = 1.0, slip: tuple[float, float, float] | None = None
     gyro += rng.normal(0.0, 0.0005, gyro.shape)
     st = T0 + np.round(t * NS).astype(np.int64)
     tw = t[::4]  # 50 Hz
-    wheel_yaw = yaw_rate[::4] * yaw_scale
+    wheel_yaw = yaw_rate[::4] * yaw_scale + speed_share * v[::4]
     if slip is not None:
         wheel_yaw = wheel_yaw + slip[2] * smooth_window(tw, slip[0], slip[1])
     wheel = WheelSeries(st[::4], np.column_stack([v[::4], np.full_like(tw, np.nan), np.full_like(tw, np.nan)]),
@@ -90,6 +92,17 @@ def test_a_yaw_scale_off_by_a_radius_error_is_measured_and_divided_out():
     # measured: as good as exact wheels (0.011 m, 0.0011 rad); the gyro alone 0.44 m, 0.034 rad
     assert ate < 0.03 and yaw < 0.003
     assert _errors(truth, old)[0] > 0.3
+
+
+def test_unequal_radii_s_share_of_the_speed_is_fitted_and_taken_out():
+    inputs, truth = _case(yaw_scale=1 / 1.03, speed_share=0.004)  # 0.012-0.018 rad/s of false turning
+    res = fuse(inputs, FuseOptions(rate_hz=20.0))
+    check = res.info["wheel_yaw_check"]
+    assert check["used"] and check["scale_applied"] and check["speed_share_applied"], check
+    # gyro - wheel = bias + c gyro + e v: e is the speed share's negative
+    assert abs(check["speed_share_radpm"] + 0.004) < 5 * check["speed_share_sigma"] < 0.0005, check
+    ate, yaw = _errors(truth, res)
+    assert ate < 0.03 and yaw < 0.003
 
 
 def test_a_yaw_scale_the_fit_cannot_measure_leaves_the_wheels_out():
