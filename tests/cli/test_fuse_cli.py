@@ -224,7 +224,10 @@ def test_bare_use_wheel_weighs_the_yaw_rate_as_the_default_does(capsys, planar, 
     code, _, err = _run(capsys, planar, "-o", out, "--use", "imu", "--use", wheel, "--quiet")
     assert code == 0, err
     m = json.loads(out.with_name("w.fuse.metrics.json").read_text())
-    check = m["core"]["wheel_yaw_check"]  # this log's wheels turn 1.2 % off the gyro: weighed, then left out
-    assert (check is not None) is weighed and (not weighed or check["why"].startswith("the wheels' yaw rate is +1.1"))
+    check = m["core"]["wheel_yaw_check"]
+    assert (check is not None) is weighed
+    # unequal radii (1.01 and 0.99): a share of the speed besides a scale, both fitted and taken out
+    assert not weighed or (check["why"].startswith("the wheels' yaw rate agrees with the gyro's (")
+                           and "of the speed taken out" in check["why"])
     assert m["sources"]["wheel"]["measurements"] == ["speed"]
     assert yaml.safe_load(out.with_name("w.fuse.config.yaml").read_text())["weigh_wheel_yaw"] is weighed

@@ -335,9 +335,11 @@ def _flat(T: np.ndarray) -> np.ndarray:
 
 def unmeasured_pose(prep: Prepared) -> bool:
     """Nothing measures the position (no GPS, no odometry), the motion sources have no gap, and the IMU verified the
-    wheels (their speed scale, ``wheel_slip``, and yaw rate, ``wheel_yaw``): on wheels with a scale error or slips
-    the half step is far below their own error."""
-    return prep.wheels_verified and not ({"gps", "odom"} & set(prep.use)) and len(prep.coverage) == 1
+    wheels (their speed scale, ``wheel_slip``, and yaw rate, ``wheel_yaw``) with no yaw scale to divide out: on
+    wheels with a scale error or slips the half step is far below their own error."""
+    yaw_scaled = bool((prep.wheel_yaw_check or {}).get("scale_applied"))
+    return prep.wheels_verified and not yaw_scaled and not ({"gps", "odom"} & set(prep.use)) \
+        and len(prep.coverage) == 1
 
 
 def reintegrated(t_ns: np.ndarray, x: np.ndarray, heading: bool = True) -> np.ndarray:

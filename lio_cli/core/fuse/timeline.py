@@ -202,7 +202,7 @@ def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
     if weighed is None:
         z = float(np.sqrt(chi2_thresholds(options.gate_probability, 1)[1]))
         check, yaw, var = weigh_yaw(w.stamps_ns, w.yaw_rate_radps, prep.imu.stamps_ns, prep.imu_w_b[:, 2],
-                                    prep.imu_gap_ns, options.noise.gyro_noise_density, z)
+                                    prep.imu_gap_ns, options.noise.gyro_noise_density, z, w.velocity_mps[:, 0])
         weighed = Weighed.of(w.stamps_ns, check, yaw, var)
     prep.wheel_yaw_weighed = weighed
     piece = weighed.on(w.stamps_ns, w.yaw_rate_radps)

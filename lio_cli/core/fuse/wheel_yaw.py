@@ -1,17 +1,21 @@
 """The wheels' yaw rate weighed against the gyro from the data (IMU gyro + wheel yaw rate, default selection).
 
 Beside a gyro the wheels' yaw rate is left out by default: skid steering, a radius or baseline error and slips
-bias it. But good wheels measure the yaw rate without the gyro's bias, which a moving start leaves unknown, and
+bias it. But good wheels, or wheels whose scale error the data measure, measure the yaw rate without the gyro's bias, which a moving start leaves unknown, and
 their heading is then the better one. ``weigh`` compares the two over the log: the wheel yaw rate of each message
 against the gyro's z (base frame) averaged over the message's period, ``gyro - wheel = b_j + b'_j t + c gyro``
 (a bias line per ``CHUNK_S``, ``c`` the wheels' yaw scale off the gyro's), fitted by least squares with samples
-further than ``TRIM_Z`` robust sigmas trimmed. The wheels' yaw rate enters when their scale agrees with the
-gyro's (``|c| + 2 sigma_c <= SCALE_TOL``; a 3 % radius error is 0.03) and few samples are far (``MAX_FAR_SHARE``).
-Its variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own
-second differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of
-the residual's variance), plus the
-scale's share ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a driver's covariance can be
-pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
+further than ``TRIM_Z`` robust sigmas trimmed (a run of them, a slip, widened by ``TRIM_EDGE_S``: its edges below
+the trim bias ``c``). ``sigma_c`` is the larger of the fit's and a jackknife's over ``JACKKNIFE_S`` blocks (a
+slip's edges and the body's sway are correlated over seconds). The wheels' yaw rate enters when the fit measures
+their scale (``2 sigma_c <= SCALE_TOL``; a skid-steered base's turning is not measured) and few samples are far
+(``MAX_FAR_SHARE``); a scale further than ``RESOLVED_Z`` sigmas from 1 (a radius error of 3 % is measured to
+about 0.02 %) is divided out, so a moving start's gyro bias is learned from the wheels all the same. Its
+variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own second
+differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of the
+residual's variance), plus the scale's share: ``(sigma_c w)^2`` where divided out, else ``((|c| + sigma_c)
+w)^2``; it replaces the message's or the default (a driver's covariance can be pessimistic as well as
+optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
 (rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma is at least what
 the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half a wheel period
 (where in its period a wheel message took its rate). Samples without a gyro mean
@@ -31,12 +35,17 @@ CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slow
 MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
 MIN_SAMPLES = 200
 MIN_YAW_RATE_RADPS = 0.05  # the drive must turn at least this fast somewhere, or the scale is not seen
-SCALE_TOL = 0.005  # the wheels' yaw scale may differ from the gyro's by this share
+SCALE_TOL = 0.005  # the wheels' yaw scale must be measured to this share (2 sigmas)
+RESOLVED_Z = 2.0  # a scale further than this many sigmas from 1 is divided out
+SPEED_SHARE_Z = 5.0  # a residual share of the speed beyond this many sigmas is fitted too
 MAX_FAR_SHARE = 0.2  # more samples further than the gate from the gyro: the wheels' yaw rate stays out
 TRIM_Z = 4.0
 TRIM_PASSES = 3
 RESOLVE_Z = 3.0  # the estimated variance is at least this many standard errors of the residual's variance
 SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and end are below the gate)
+TRIM_EDGE_S = 1.0  # and out of the scale's fit by this (the edges below the trim bias it by tenths of a percent)
+JACKKNIFE_S = 5.0  # the scale's sigma from the fit without each block this long in turn
+MIN_BLOCKS = 5
 ACCEL_WINDOW_S = 0.1  # the gyro's yaw acceleration (the gate's floor) from its means over this long either side
 
 
@@ -48,6 +57,10 @@ class YawCheck:
     why: str = ""
     scale_off: float | None = None  # c: gyro - wheel = bias + c * gyro
     scale_off_sigma: float | None = None
+    scale_applied: bool = False  # the wheels' yaw rates divided by their scale (1 - c)
+    speed_share: float | None = None  # e: gyro - wheel = bias + c gyro + e speed (unequal radii), rad/m
+    speed_share_sigma: float | None = None
+    speed_share_applied: bool = False
     sigma_radps: float | None = None  # the wheels' yaw-rate noise, estimated
     residual_sigma_radps: float | None = None
     far: int = 0
@@ -58,7 +71,9 @@ class YawCheck:
     def to_dict(self) -> dict:
         r = lambda v, n=6: None if v is None else float(f"{v:.{n}g}")  # noqa: E731
         return {"used": self.used, "why": self.why, "scale_off": r(self.scale_off, 4),
-                "scale_off_sigma": r(self.scale_off_sigma, 3), "sigma_radps": r(self.sigma_radps, 3),
+                "scale_off_sigma": r(self.scale_off_sigma, 3), "scale_applied": self.scale_applied,
+                "speed_share_radpm": r(self.speed_share, 4), "speed_share_sigma": r(self.speed_share_sigma, 3),
+                "speed_share_applied": self.speed_share_applied, "sigma_radps": r(self.sigma_radps, 3),
                 "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far,
                 "unchecked_samples": self.unchecked}
 
@@ -114,28 +129,107 @@ def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: fl
     return white_variance(gz, ok)
 
 
-def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
+def _normal_equations(inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
                       keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + c g`` (chunk j = ``inv``), summed per
-    chunk: (2m+1)^2 whatever the log's length (the design matrix itself is one row per sample)."""
-    m = int(inv.max()) + 1
-    j, t, gk, dk = inv[keep], tc[keep], g[keep], d[keep]
+    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + Z k`` (chunk j = ``inv``; ``Z`` a
+    column per regressor of the whole log), summed per chunk: (2m+p)^2 whatever the log's length (the design
+    matrix itself is one row per sample)."""
+    m, p = int(inv.max()) + 1, Z.shape[1]
+    j, t, zk, dk = inv[keep], tc[keep], Z[keep], d[keep]
     s = lambda w: np.bincount(j, weights=w, minlength=m)  # noqa: E731
-    A = np.zeros((2 * m + 1, 2 * m + 1))
+    A = np.zeros((2 * m + p, 2 * m + p))
     b, a = np.arange(0, 2 * m, 2), np.arange(1, 2 * m, 2)
     A[b, b], A[b, a], A[a, a] = s(np.ones(len(j))), s(t), s(t * t)
     A[a, b] = A[b, a]
-    A[b, -1], A[a, -1] = s(gk), s(t * gk)
-    A[-1, b], A[-1, a] = A[b, -1], A[a, -1]
-    A[-1, -1] = float(gk @ gk)
-    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), [float(gk @ dk)]])
+    for q in range(p):
+        A[b, 2 * m + q], A[a, 2 * m + q] = s(zk[:, q]), s(t * zk[:, q])
+        A[2 * m + q, b], A[2 * m + q, a] = A[b, 2 * m + q], A[a, 2 * m + q]
+    A[2 * m:, 2 * m:] = zk.T @ zk
+    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), zk.T @ dk])
     return A, rhs
 
 
+def _widened(t: np.ndarray, far: np.ndarray, edge_s: float) -> np.ndarray:
+    """``far`` with every run of two or more far samples widened by ``edge_s`` on each side (sorted ``t``)."""
+    run = np.flatnonzero(far & (np.r_[far[1:], False] | np.r_[False, far[:-1]]))
+    if not len(run):
+        return far
+    edge = np.zeros(len(t) + 1)
+    np.add.at(edge, np.searchsorted(t, t[run] - edge_s), 1)
+    np.add.at(edge, np.searchsorted(t, t[run] + edge_s, side="right"), -1)
+    return far | (np.cumsum(edge)[:-1] > 0)
+
+
+def _jackknife_sigmas(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
+                      keep: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """The regressors' sigmas from the fit repeated without each ``JACKKNIFE_S`` block in turn: a slip's edges
+    and the body's sway are correlated over a block, which the residual's white sigma does not count; zeros where
+    there are fewer than ``MIN_BLOCKS`` blocks."""
+    p = Z.shape[1]
+    block = np.floor((tw - tw[0]) / JACKKNIFE_S).astype(np.int64)
+    blocks = np.unique(block[keep])
+    if len(blocks) < MIN_BLOCKS:
+        return np.zeros(p)
+    ks = []
+    for b in blocks.tolist():
+        Ab, rb = _normal_equations(inv, tc, Z, d, keep & (block == b))
+        ks.append(np.linalg.lstsq(A - Ab, rhs - rb, rcond=None)[0][-p:])
+    ks = np.asarray(ks)
+    return np.sqrt((len(ks) - 1) / len(ks) * np.sum((ks - ks.mean(axis=0)) ** 2, axis=0))
+
+
+@dataclass
+class _Fit:
+    """``d = b_j + b'_j tc + Z k`` fitted with far samples trimmed (a run of them widened by ``TRIM_EDGE_S``):
+    the residual, its robust sigma, the kept samples, ``k`` and its sigmas (the larger of the fit's and the
+    jackknife's)."""
+
+    r: np.ndarray
+    sigma: float
+    keep: np.ndarray
+    k: np.ndarray
+    k_sigma: np.ndarray
+
+    @classmethod
+    def of(cls, tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray) -> _Fit:
+        m, p = int(inv.max()) + 1, Z.shape[1]
+        keep = np.ones(len(d), bool)
+        for _ in range(TRIM_PASSES):  # a slip's run widened: its onset and end, below the trim, bias the scale
+            A, rhs = _normal_equations(inv, tc, Z, d, keep)
+            sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
+            r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - Z @ sol[2 * m:]
+            sigma = robust_sigma(r[keep], centre=False)
+            keep = ~_widened(tw, np.abs(r) > TRIM_Z * max(sigma, 1e-12), TRIM_EDGE_S)
+        A, rhs = _normal_equations(inv, tc, Z, d, keep)
+        s2 = float(r[keep] @ r[keep]) / max(int(keep.sum()) - len(A), 1)
+        formal = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(A))[-p:], 0.0))
+        return cls(r, sigma, keep, sol[-p:], np.maximum(formal, _jackknife_sigmas(tw, inv, tc, Z, d, keep, A, rhs)))
+
+
+def _speed_share(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> tuple[float, float]:
+    """The residual's share of the speed (rad/m) with the speed's mean per chunk taken out (the bias line holds
+    a steady speed's share), and its sigma."""
+    keep = fit.keep
+    vc = v - (np.bincount(inv, v * keep) / np.maximum(np.bincount(inv, keep.astype(float)), 1.0))[inv]
+    ss = float(vc[keep] @ vc[keep])
+    if ss <= 0:
+        return 0.0, np.inf
+    e = float(vc[keep] @ fit.r[keep]) / ss
+    return e, fit.sigma / np.sqrt(ss)
+
+
+def _speed_share_seen(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> bool:
+    """Whether the residual holds a share of the speed beyond ``SPEED_SHARE_Z`` of its sigma (unequal radii)."""
+    e, sigma = _speed_share(inv, v, fit)
+    return abs(e) > SPEED_SHARE_Z * sigma
+
+
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
-          gyro_density: float, gate_z: float) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
+          gyro_density: float, gate_z: float, speed: np.ndarray | None = None
+          ) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
     """The check (module docstring): (report, the wheel yaw rates with far and unchecked samples NaN, their
-    variances), the two arrays None where the wheels' yaw rate stays out."""
+    variances), the two arrays None where the wheels' yaw rate stays out. ``speed``: the wheels' forward speed
+    at their stamps (the yaw rate's share of it, unequal radii, is fitted too)."""
     rep = YawCheck()
     t0 = int(ti_ns[0])
     tw, ti = (tw_ns - t0) * 1e-9, (ti_ns - t0) * 1e-9
@@ -155,19 +249,14 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     chunk = np.floor(tw[idx] / CHUNK_S).astype(np.int64)
     _, inv = np.unique(chunk, return_inverse=True)
     tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
-    gi, d = g[idx], g[idx] - yaw[idx]
-    keep = np.ones(len(idx), bool)
-    for _ in range(TRIM_PASSES):
-        A, rhs = _normal_equations(inv, tc, gi, d, keep)
-        sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
-        r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * gi
-        sigma = robust_sigma(r[keep], centre=False)
-        keep = np.abs(r) <= TRIM_Z * max(sigma, 1e-12)
-    n = int(keep.sum())
-    A, _ = _normal_equations(inv, tc, gi, d, keep)
-    s2 = float(r[keep] @ r[keep]) / max(n - len(A), 1)
-    cov = s2 * np.linalg.pinv(A)
-    c, c_sigma = float(sol[-1]), float(np.sqrt(max(cov[-1, -1], 0.0)))
+    d = g[idx] - yaw[idx]
+    fit = _Fit.of(tw[idx], inv, tc, g[idx, None], d)
+    v = np.zeros(len(yaw)) if speed is None else np.nan_to_num(np.asarray(speed, float))
+    if speed is not None and _speed_share_seen(inv, v[idx], fit):  # unequal radii: refit with the speed's share
+        fit = _Fit.of(tw[idx], inv, tc, np.column_stack([g[idx], v[idx]]), d)
+    r, sigma, n = fit.r, fit.sigma, int(fit.keep.sum())
+    c, c_sigma = float(fit.k[0]), float(fit.k_sigma[0])
+    e, e_sigma = (float(fit.k[1]), float(fit.k_sigma[1])) if len(fit.k) > 1 else (0.0, 0.0)
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
     accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
@@ -177,30 +266,32 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
-    if abs(c) + 2.0 * c_sigma > SCALE_TOL:
-        rep.why = (f"the wheels' yaw rate is {-c:+.2%} (+- {c_sigma:.3%}) off the gyro's, beyond {SCALE_TOL:.1%}: "
-                   "the gyro's alone")
+    if 2.0 * c_sigma > SCALE_TOL:
+        rep.why = (f"the wheels' yaw scale is {-c:+.2%} +- {c_sigma:.3%} off the gyro's, not measured to "
+                   f"{SCALE_TOL:.1%}: the gyro's alone")
         return rep, None, None
     if rep.far > MAX_FAR_SHARE * len(idx):
         rep.why = (f"{rep.far} of {len(idx)} wheel yaw rates are further than the gate from the gyro's (more than "
                    f"{MAX_FAR_SHARE:.0%}): the gyro's alone")
         return rep, None, None
     if rep.far:  # a run of far samples (a slip) widens to its edges; a lone one is left out alone
-        run = far & (np.r_[far[1:], False] | np.r_[False, far[:-1]])
-        edge = np.zeros(len(tw) + 1)
-        for i in np.flatnonzero(run):
-            edge[np.searchsorted(tw, tw[i] - SLIP_EDGE_S)] += 1
-            edge[np.searchsorted(tw, tw[i] + SLIP_EDGE_S, side="right")] -= 1
-        far = (far | (np.cumsum(edge)[:-1] > 0)) & np.isfinite(yaw)
+        far = _widened(tw, far, SLIP_EDGE_S) & np.isfinite(yaw)
         rep.far = int(far.sum())
     unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
     rep.unchecked = int(unchecked.sum())
-    out = yaw.copy()
+    rep.scale_applied = abs(c) > RESOLVED_Z * c_sigma
+    rep.speed_share, rep.speed_share_sigma = e, e_sigma
+    rep.speed_share_applied = abs(e) > RESOLVED_Z * e_sigma
+    k = 1.0 - c if rep.scale_applied else 1.0  # the wheels' yaw scale: wheel = k gyro - bias - e v
+    e_used = e if rep.speed_share_applied else 0.0
+    out = (yaw + e_used * v) / k
     out[far | unchecked] = np.nan
-    w = np.nan_to_num(yaw)
-    var = wheel_var + ((abs(c) + c_sigma) * w) ** 2
+    share = c_sigma if rep.scale_applied else abs(c) + c_sigma
+    var = (wheel_var + (share * np.nan_to_num(yaw)) ** 2 + (e_sigma * v) ** 2 * rep.speed_share_applied) / k**2
     rep.used, rep.far_mask, rep.unchecked_mask = True, far, unchecked
-    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale, noise "
+    rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale"
+               + (", divided out" if rep.scale_applied else "")
+               + (f", and {-e:+.2g} rad/m of the speed taken out" if rep.speed_share_applied else "") + "; noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
                + (f", {rep.far} samples of slips left out" if rep.far else "")
                + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))

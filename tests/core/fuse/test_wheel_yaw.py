@@ -1,6 +1,7 @@
 """The wheels' yaw rate weighed against the gyro from the data (core/fuse/wheel_yaw.py), on a level drive made here
 that is already moving at the start (the gyro's bias cannot be learned standing): exact wheels give the heading,
-wheels with a yaw scale error are left out, a slip's yaw rates are rejected and counted."""
+so do wheels whose yaw scale the fit measures (divided out), wheels whose scale it cannot measure are left out,
+a slip's yaw rates are rejected and counted."""
 
 from __future__ import annotations
 
@@ -19,9 +20,11 @@ DURATION_S = 30.0
 GYRO_BIAS_Z = 0.004  # rad/s: 0.12 rad of heading over the run where nothing measures it
 
 
-def _case(yaw_scale: float = 1.0, slip: tuple[float, float, float] | None = None, seed: int = 0):
+def _case(yaw_scale: float = 1.0, slip: tuple[float, float, float] | None = None, seed: int = 0,
+          speed_share: float = 0.0):
     """(inputs, truth) of a winding drive at 3-4.5 m/s from the first sample; wheels exact but for ``yaw_scale``
-    (their yaw rate over the true one) and a ``slip`` (start s, length s, extra yaw rate rad/s)."""
+    (their yaw rate over the true one), ``speed_share`` (rad/m: unequal radii turn a straight drive) and a
+    ``slip`` (start s, length s, extra yaw rate rad/s)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, DURATION_S, 0.005)
     w = 2 * np.pi / 7.0
@@ -32,7 +35,7 @@ def _case(yaw_scale: float = 1.0, slip: tuple[float, float, float] | None = None
     gyro += rng.normal(0.0, 0.0005, gyro.shape)
     st = T0 + np.round(t * NS).astype(np.int64)
     tw = t[::4]  # 50 Hz
-    wheel_yaw = yaw_rate[::4] * yaw_scale
+    wheel_yaw = yaw_rate[::4] * yaw_scale + speed_share * v[::4]
     if slip is not None:
         wheel_yaw = wheel_yaw + slip[2] * smooth_window(tw, slip[0], slip[1])
     wheel = WheelSeries(st[::4], np.column_stack([v[::4], np.full_like(tw, np.nan), np.full_like(tw, np.nan)]),
@@ -77,13 +80,41 @@ def test_exact_wheels_give_the_heading_and_the_gyro_bias_on_a_moving_start(smoot
     assert rep.rejected["yaw_unchecked"] == check["unchecked_samples"] == 1 and "yaw_unchecked" in REJECT_REASONS
 
 
-def test_wheels_whose_yaw_scale_is_off_are_left_out():
-    inputs, _ = _case(yaw_scale=1 / 1.03)
+def test_a_yaw_scale_off_by_a_radius_error_is_measured_and_divided_out():
+    inputs, truth = _case(yaw_scale=1 / 1.03)  # both radii 3 % large: the yaw rate reads 2.9 % low
+    res = fuse(inputs, FuseOptions(rate_hz=20.0))
+    old = fuse(inputs, FuseOptions(rate_hz=20.0, weigh_wheel_yaw=False))
+    check = res.info["wheel_yaw_check"]
+    assert check["used"], check
+    assert abs(check["scale_off"] - (1 - 1 / 1.03)) < 5 * check["scale_off_sigma"] < 0.001, check
+    assert "divided out" in check["why"] and "yaw_rate" in res.info["use"]["wheel"]
+    ate, yaw = _errors(truth, res)
+    # measured: as good as exact wheels (0.011 m, 0.0011 rad); the gyro alone 0.44 m, 0.034 rad
+    assert ate < 0.03 and yaw < 0.003
+    assert _errors(truth, old)[0] > 0.3
+
+
+def test_unequal_radii_s_share_of_the_speed_is_fitted_and_taken_out():
+    inputs, truth = _case(yaw_scale=1 / 1.03, speed_share=0.004)  # 0.012-0.018 rad/s of false turning
     res = fuse(inputs, FuseOptions(rate_hz=20.0))
     check = res.info["wheel_yaw_check"]
-    assert not check["used"] and abs(check["scale_off"] - 0.03) < 0.003, check
+    assert check["used"] and check["scale_applied"] and check["speed_share_applied"], check
+    # gyro - wheel = bias + c gyro + e v: e is the speed share's negative
+    assert abs(check["speed_share_radpm"] + 0.004) < 5 * check["speed_share_sigma"] < 0.0005, check
+    ate, yaw = _errors(truth, res)
+    assert ate < 0.03 and yaw < 0.003
+
+
+def test_a_yaw_scale_the_fit_cannot_measure_leaves_the_wheels_out():
+    inputs, _ = _case(yaw_scale=1 / 1.03)
+    rng = np.random.default_rng(5)  # a skid-steered base's yaw rate: noise of a few tenths of a rad/s
+    noisy = inputs.wheel.yaw_rate_radps + rng.normal(0.0, 0.4, len(inputs.wheel.stamps_ns))
+    inputs = FuseInputs(imu=inputs.imu, wheel=WheelSeries(inputs.wheel.stamps_ns, inputs.wheel.velocity_mps, noisy))
+    res = fuse(inputs, FuseOptions(rate_hz=20.0))
+    check = res.info["wheel_yaw_check"]
+    assert not check["used"] and 2 * check["scale_off_sigma"] > 0.005, check
+    assert check["why"].startswith("the wheels' yaw scale is") and "not measured to 0.5%" in check["why"]
     assert "yaw_rate" not in res.info["use"]["wheel"]
-    assert "off the gyro's" in check["why"]
     assert "wheel_yaw_rate" not in res.reports["wheel"].by_kind
 
 
