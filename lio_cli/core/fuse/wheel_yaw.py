@@ -37,7 +37,7 @@ MIN_SAMPLES = 200
 MIN_YAW_RATE_RADPS = 0.05  # the drive must turn at least this fast somewhere, or the scale is not seen
 SCALE_TOL = 0.005  # the wheels' yaw scale must be measured to this share (2 sigmas)
 RESOLVED_Z = 2.0  # a scale further than this many sigmas from 1 is divided out
-SPEED_SHARE_Z = 5.0  # a residual share of the speed beyond this many sigmas is fitted too
+SPEED_SHARE_Z = 5.0  # a residual share of the speed beyond this many sigmas: unequal radii, the wheels left out
 MAX_FAR_SHARE = 0.2  # more samples further than the gate from the gyro: the wheels' yaw rate stays out
 TRIM_Z = 4.0
 TRIM_PASSES = 3
@@ -58,9 +58,8 @@ class YawCheck:
     scale_off: float | None = None  # c: gyro - wheel = bias + c * gyro
     scale_off_sigma: float | None = None
     scale_applied: bool = False  # the wheels' yaw rates divided by their scale (1 - c)
-    speed_share: float | None = None  # e: gyro - wheel = bias + c gyro + e speed (unequal radii), rad/m
+    speed_share: float | None = None  # the residual's share of the speed (unequal radii), rad/m
     speed_share_sigma: float | None = None
-    speed_share_applied: bool = False
     sigma_radps: float | None = None  # the wheels' yaw-rate noise, estimated
     residual_sigma_radps: float | None = None
     far: int = 0
@@ -73,7 +72,7 @@ class YawCheck:
         return {"used": self.used, "why": self.why, "scale_off": r(self.scale_off, 4),
                 "scale_off_sigma": r(self.scale_off_sigma, 3), "scale_applied": self.scale_applied,
                 "speed_share_radpm": r(self.speed_share, 4), "speed_share_sigma": r(self.speed_share_sigma, 3),
-                "speed_share_applied": self.speed_share_applied, "sigma_radps": r(self.sigma_radps, 3),
+                "sigma_radps": r(self.sigma_radps, 3),
                 "residual_sigma_radps": r(self.residual_sigma_radps, 3), "far_samples": self.far,
                 "unchecked_samples": self.unchecked}
 
@@ -218,12 +217,6 @@ def _speed_share(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> tuple[float, floa
     return e, fit.sigma / np.sqrt(ss)
 
 
-def _speed_share_seen(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> bool:
-    """Whether the residual holds a share of the speed beyond ``SPEED_SHARE_Z`` of its sigma (unequal radii)."""
-    e, sigma = _speed_share(inv, v, fit)
-    return abs(e) > SPEED_SHARE_Z * sigma
-
-
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float, speed: np.ndarray | None = None
           ) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
@@ -251,12 +244,10 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
     d = g[idx] - yaw[idx]
     fit = _Fit.of(tw[idx], inv, tc, g[idx, None], d)
-    v = np.zeros(len(yaw)) if speed is None else np.nan_to_num(np.asarray(speed, float))
-    if speed is not None and _speed_share_seen(inv, v[idx], fit):  # unequal radii: refit with the speed's share
-        fit = _Fit.of(tw[idx], inv, tc, np.column_stack([g[idx], v[idx]]), d)
     r, sigma, n = fit.r, fit.sigma, int(fit.keep.sum())
     c, c_sigma = float(fit.k[0]), float(fit.k_sigma[0])
-    e, e_sigma = (float(fit.k[1]), float(fit.k_sigma[1])) if len(fit.k) > 1 else (0.0, 0.0)
+    if speed is not None:
+        rep.speed_share, rep.speed_share_sigma = _speed_share(inv, np.nan_to_num(np.asarray(speed, float))[idx], fit)
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
     accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
@@ -266,6 +257,10 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
+    if rep.speed_share is not None and abs(rep.speed_share) > SPEED_SHARE_Z * rep.speed_share_sigma:
+        rep.why = (f"the wheels' yaw rate follows their speed ({-rep.speed_share:+.2g} +- {rep.speed_share_sigma:.1g} "
+                   "rad/m: unequal radii), which a scale does not hold: the gyro's alone")
+        return rep, None, None
     if 2.0 * c_sigma > SCALE_TOL:
         rep.why = (f"the wheels' yaw scale is {-c:+.2%} +- {c_sigma:.3%} off the gyro's, not measured to "
                    f"{SCALE_TOL:.1%}: the gyro's alone")
@@ -280,18 +275,14 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
     rep.unchecked = int(unchecked.sum())
     rep.scale_applied = abs(c) > RESOLVED_Z * c_sigma
-    rep.speed_share, rep.speed_share_sigma = e, e_sigma
-    rep.speed_share_applied = abs(e) > RESOLVED_Z * e_sigma
-    k = 1.0 - c if rep.scale_applied else 1.0  # the wheels' yaw scale: wheel = k gyro - bias - e v
-    e_used = e if rep.speed_share_applied else 0.0
-    out = (yaw + e_used * v) / k
+    k = 1.0 - c if rep.scale_applied else 1.0  # the wheels' yaw scale: wheel = k gyro - bias
+    out = yaw / k
     out[far | unchecked] = np.nan
     share = c_sigma if rep.scale_applied else abs(c) + c_sigma
-    var = (wheel_var + (share * np.nan_to_num(yaw)) ** 2 + (e_sigma * v) ** 2 * rep.speed_share_applied) / k**2
+    var = (wheel_var + (share * np.nan_to_num(yaw)) ** 2) / k**2
     rep.used, rep.far_mask, rep.unchecked_mask = True, far, unchecked
     rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale"
-               + (", divided out" if rep.scale_applied else "")
-               + (f", and {-e:+.2g} rad/m of the speed taken out" if rep.speed_share_applied else "") + "; noise "
+               + (", divided out" if rep.scale_applied else "") + "; noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
                + (f", {rep.far} samples of slips left out" if rep.far else "")
                + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))

@@ -3,8 +3,9 @@
 Keyframes: every odometry and GPS stamp (their factors then act on a state at their own instant), plus a grid
 of ``KEYFRAME_PERIOD_NS`` where those leave longer stretches; grid stamps closer than ``MIN_SPACING_NS`` to a
 measurement stamp are dropped. The span's first and last instants are keyframes, but keyframes closer than
-``END_SPACING_NS`` to the one before them are dropped from the end (the span's end, a measurement there: the
-outputs after the last keyframe are the IMU's prediction from it, the measurements after it are left out).
+``END_SPACING_NS`` (or half the median spacing, where less) to the one before them are dropped from the end (the
+span's end, a measurement there: the outputs after the last keyframe are the IMU's prediction from it, the
+measurements after it are left out).
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from ..timeline import OUT, Prepared
 
 KEYFRAME_PERIOD_NS = 100_000_000  # 0.1 s: the IMU factor's span, short enough for its first-order bias update
 MIN_SPACING_NS = 20_000_000
-# the last keyframe interval never shorter: the last keyframe's states hang on that one IMU factor, and one of a
-# few tens of ms left the solve nearly indeterminate there (LM crawled and stopped centimetres off)
+# the last keyframe interval never shorter (nor than half the keyframes' median spacing, where that is less): the
+# last keyframe's states hang on that one IMU factor, and one of a few tens of ms among 0.1 s ones left the solve
+# nearly indeterminate there (LM crawled and stopped centimetres off)
 END_SPACING_NS = 50_000_000
 
 
@@ -36,8 +38,10 @@ def keyframe_stamps(prep: Prepared, period_ns: int = KEYFRAME_PERIOD_NS) -> np.n
     j = np.clip(np.searchsorted(m, grid), 1, len(m) - 1)
     near = np.minimum(np.abs(grid - m[j - 1]), np.abs(m[j] - grid))
     kt = np.unique(np.concatenate([m, grid[near >= MIN_SPACING_NS]]))
-    while len(kt) > 2 and kt[-1] - kt[-2] < END_SPACING_NS:
-        kt = kt[:-1]
+    if len(kt) > 2:
+        least = min(END_SPACING_NS, int(np.median(np.diff(kt))) // 2)
+        while len(kt) > 2 and kt[-1] - kt[-2] < least:
+            kt = kt[:-1]
     return kt
 
 
