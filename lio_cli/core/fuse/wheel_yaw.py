@@ -1,25 +1,27 @@
 """The wheels' yaw rate weighed against the gyro from the data (IMU gyro + wheel yaw rate, default selection).
 
-Beside a gyro the wheels' yaw rate is left out by default: skid steering, a radius or baseline error and slips
-bias it. But good wheels, or wheels whose scale error the data measure, measure the yaw rate without the gyro's bias, which a moving start leaves unknown, and
-their heading is then the better one. ``weigh`` compares the two over the log: the wheel yaw rate of each message
-against the gyro's z (base frame) averaged over the message's period, ``gyro - wheel = b_j + b'_j t + c gyro``
-(a bias line per ``CHUNK_S``, ``c`` the wheels' yaw scale off the gyro's), fitted by least squares with samples
-further than ``TRIM_Z`` robust sigmas trimmed (a run of them, a slip, widened by ``TRIM_EDGE_S``: its edges below
-the trim bias ``c``). ``sigma_c`` is the larger of the fit's and a jackknife's over ``JACKKNIFE_S`` blocks (a
-slip's edges and the body's sway are correlated over seconds). The wheels' yaw rate enters when the fit measures
-their scale (``2 sigma_c <= SCALE_TOL``; a skid-steered base's turning is not measured) and few samples are far
-(``MAX_FAR_SHARE``); a scale further than ``RESOLVED_Z`` sigmas from 1 (a radius error of 3 % is measured to
-about 0.02 %) is divided out, so a moving start's gyro bias is learned from the wheels all the same. Its
-variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own second
-differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of the
-residual's variance), plus the scale's share: ``(sigma_c w)^2`` where divided out, else ``((|c| + sigma_c)
-w)^2``; it replaces the message's or the default (a driver's covariance can be pessimistic as well as
-optimistic). Samples beyond the gate's sigmas of the residual lose their yaw rate
-(rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma is at least what
-the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half a wheel period
-(where in its period a wheel message took its rate). Samples without a gyro mean
-(an IMU gap, outside its span) are never weighed: left out too (rejected as ``yaw_unchecked``).
+Beside a gyro the wheels' yaw rate is left out by default: skid steering, a radius or baseline error and slips bias
+it. But good wheels, or wheels whose scale error the data measure, measure the yaw rate without the gyro's bias,
+which a moving start leaves unknown, and their heading is then the better one. ``weigh`` compares the two over the
+log: the wheel yaw rate of each message against the gyro's z (base frame) averaged over the message's period,
+``gyro - wheel = b_j + b'_j t + c gyro`` (a bias line per ``CHUNK_S``, ``c`` the wheels' yaw scale off the gyro's),
+fitted by least squares with samples further than ``TRIM_Z`` robust sigmas trimmed (a run of them, a slip, widened
+by ``TRIM_EDGE_S``: its edges below the trim bias ``c``). ``sigma_c`` is the larger of the fit's and a jackknife's
+over ``JACKKNIFE_S`` blocks (at most ``MAX_BLOCKS``; none on a log shorter than ``MIN_BLOCKS`` blocks): a slip's
+edges and the body's sway are correlated over seconds. The wheels' yaw rate enters when the fit measures their
+scale (``2 sigma_c <= SCALE_TOL``; a skid-steered base's turning is not measured), that scale is a radius or
+baseline error's (``|c| <= MAX_SCALE_OFF``), the residual does not follow the speed (unequal radii turn a straight
+drive, which no scale holds; beyond ``SPEED_SHARE_Z`` sigmas) and few samples are far (``MAX_FAR_SHARE``); a scale
+further than ``RESOLVED_Z`` sigmas from 1 (a radius error of 3 % is measured to about 0.02 %) is divided out, so a
+moving start's gyro bias is learned from the wheels all the same. Its variance is the residual's robust variance
+less the averaged gyro's (the gyro's white noise from its own second differences, over the wheel period), at least
+what the samples resolve (``RESOLVE_Z`` standard errors of the residual's variance), plus the scale's share:
+``(sigma_c w)^2`` where divided out, else ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a
+driver's covariance can be pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual
+lose their yaw rate (rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma
+is at least what the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half
+a wheel period (where in its period a wheel message took its rate). Samples without a gyro mean (an IMU gap,
+outside its span) are never weighed: left out too (rejected as ``yaw_unchecked``).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
 MIN_SAMPLES = 200
 MIN_YAW_RATE_RADPS = 0.05  # the drive must turn at least this fast somewhere, or the scale is not seen
 SCALE_TOL = 0.005  # the wheels' yaw scale must be measured to this share (2 sigmas)
+MAX_SCALE_OFF = 0.1  # and lie within this share of the gyro's (a radius or baseline error)
 RESOLVED_Z = 2.0  # a scale further than this many sigmas from 1 is divided out
 SPEED_SHARE_Z = 5.0  # a residual share of the speed beyond this many sigmas: unequal radii, the wheels left out
 MAX_FAR_SHARE = 0.2  # more samples further than the gate from the gyro: the wheels' yaw rate stays out
@@ -46,6 +49,7 @@ SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and
 TRIM_EDGE_S = 1.0  # and out of the scale's fit by this (the edges below the trim bias it by tenths of a percent)
 JACKKNIFE_S = 5.0  # the scale's sigma from the fit without each block this long in turn
 MIN_BLOCKS = 5
+MAX_BLOCKS = 24
 ACCEL_WINDOW_S = 0.1  # the gyro's yaw acceleration (the gate's floor) from its means over this long either side
 
 
@@ -161,11 +165,12 @@ def _widened(t: np.ndarray, far: np.ndarray, edge_s: float) -> np.ndarray:
 
 def _jackknife_sigmas(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
                       keep: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """The regressors' sigmas from the fit repeated without each ``JACKKNIFE_S`` block in turn: a slip's edges
-    and the body's sway are correlated over a block, which the residual's white sigma does not count; zeros where
-    there are fewer than ``MIN_BLOCKS`` blocks."""
+    """The regressors' sigmas from the fit repeated without each ``JACKKNIFE_S`` block in turn (at most
+    ``MAX_BLOCKS``, longer on a long log): a slip's edges and the body's sway are correlated over a block, which
+    the residual's white sigma does not count; zeros where there are fewer than ``MIN_BLOCKS`` blocks."""
     p = Z.shape[1]
-    block = np.floor((tw - tw[0]) / JACKKNIFE_S).astype(np.int64)
+    length = max(JACKKNIFE_S, (tw[-1] - tw[0]) / MAX_BLOCKS)  # each refit costs the whole log
+    block = np.floor((tw - tw[0]) / length).astype(np.int64)
     blocks = np.unique(block[keep])
     if len(blocks) < MIN_BLOCKS:
         return np.zeros(p)
@@ -208,7 +213,8 @@ class _Fit:
 def _speed_share(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> tuple[float, float]:
     """The residual's share of the speed (rad/m) with the speed's mean per chunk taken out (the bias line holds
     a steady speed's share), and its sigma."""
-    keep = fit.keep
+    keep = fit.keep & np.isfinite(v)  # a sanitised (NaN) speed says nothing of its share
+    v = np.nan_to_num(v)
     vc = v - (np.bincount(inv, v * keep) / np.maximum(np.bincount(inv, keep.astype(float)), 1.0))[inv]
     ss = float(vc[keep] @ vc[keep])
     if ss <= 0:
@@ -247,7 +253,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     r, sigma, n = fit.r, fit.sigma, int(fit.keep.sum())
     c, c_sigma = float(fit.k[0]), float(fit.k_sigma[0])
     if speed is not None:
-        rep.speed_share, rep.speed_share_sigma = _speed_share(inv, np.nan_to_num(np.asarray(speed, float))[idx], fit)
+        rep.speed_share, rep.speed_share_sigma = _speed_share(inv, np.asarray(speed, float)[idx], fit)
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
     accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
@@ -260,6 +266,10 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     if rep.speed_share is not None and abs(rep.speed_share) > SPEED_SHARE_Z * rep.speed_share_sigma:
         rep.why = (f"the wheels' yaw rate follows their speed ({-rep.speed_share:+.2g} +- {rep.speed_share_sigma:.1g} "
                    "rad/m: unequal radii), which a scale does not hold: the gyro's alone")
+        return rep, None, None
+    if abs(c) > MAX_SCALE_OFF:
+        rep.why = (f"the wheels' yaw rate is {-c:+.1%} off the gyro's scale, beyond {MAX_SCALE_OFF:.0%}: not a "
+                   "radius or baseline error (a zero, flipped or skid-steered yaw rate): the gyro's alone")
         return rep, None, None
     if 2.0 * c_sigma > SCALE_TOL:
         rep.why = (f"the wheels' yaw scale is {-c:+.2%} +- {c_sigma:.3%} off the gyro's, not measured to "

@@ -207,3 +207,16 @@ def test_the_last_keyframe_interval_is_never_short_and_outputs_after_it_follow_t
     speed = np.linalg.norm(res.velocities_mps[-2])
     dt = (res.stamps_ns[-1] - res.stamps_ns[-2]) * 1e-9
     assert step == pytest.approx(speed * dt, rel=0.05)
+
+
+@pytest.mark.parametrize("rate_hz", [25.0, 30.0, 100.0])
+def test_odometry_faster_than_the_grid_keeps_every_keyframe(rate_hz):
+    from lio_cli.core.fuse.graph import keyframes
+    from lio_cli.core.fuse.timeline import prepare
+
+    case = simulate_case("drive", 10.0, seed=2, odom=OdomNoise(rate_hz=rate_hz))
+    prep = prepare(case.inputs, FuseOptions(estimator="ekf", rate_hz=50.0))
+    kt = keyframes.keyframe_stamps(prep)
+    inside = prep.odom.stamps_ns[(prep.odom.stamps_ns >= prep.t0_ns) & (prep.odom.stamps_ns <= prep.t1_ns)]
+    # every odometry stamp but a last one within half a spacing of the end stays a keyframe
+    assert np.isin(inside[:-1], kt).all() and len(kt) >= len(inside)

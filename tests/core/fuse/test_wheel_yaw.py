@@ -106,6 +106,16 @@ def test_a_yaw_rate_that_follows_the_speed_leaves_the_wheels_out():
     assert exact["used"] and abs(exact["speed_share_radpm"]) < 5 * exact["speed_share_sigma"], exact
 
 
+@pytest.mark.parametrize("yaw_scale", [0.0, -1.0, 0.5])
+def test_a_zero_flipped_or_halved_yaw_rate_is_no_scale_to_divide_out(yaw_scale):
+    inputs, _ = _case(yaw_scale=yaw_scale)  # a driver that fills angular.z with zeros, a sign error, a gear ratio
+    res = fuse(inputs, FuseOptions(rate_hz=20.0))
+    check = res.info["wheel_yaw_check"]
+    assert not check["used"] and "yaw_rate" not in res.info["use"]["wheel"], check
+    assert "beyond 10%: not a radius or baseline error" in check["why"]
+    assert np.isfinite(res.poses).all()
+
+
 def test_a_yaw_scale_the_fit_cannot_measure_leaves_the_wheels_out():
     inputs, _ = _case(yaw_scale=1 / 1.03)
     rng = np.random.default_rng(5)  # a skid-steered base's yaw rate: noise of a few tenths of a rad/s

@@ -1,7 +1,8 @@
 """The smoothed trajectory at the output stamps: between keyframes k and k+1, the IMU predicts from keyframe k
 (its smoothed state and bias); what the prediction misses at k+1 (the IMU factor's residual, millimetres) is
 spread linearly over the interval, so the output meets every keyframe exactly and is as smooth as the IMU
-between them; after the last keyframe, the IMU's prediction alone. An interval without IMU data (a gap) is interpolated on the poses."""
+between them; after the last keyframe, the IMU's prediction alone. An interval without IMU data (a gap) is
+interpolated on the poses."""
 
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ def at_outputs(seg: Segments, kt: np.ndarray, s: dict[str, np.ndarray], params, 
 
 
 def _after(seg, kt, s, params, k, sel, out_ns, at_seg, poses, vel) -> None:
-    """Outputs after the last keyframe: the IMU's prediction from it, held from an IMU gap on."""
+    """Outputs after the last keyframe: the IMU's prediction from it; past an IMU gap, the last output's before it."""
     bias = gtsam.imuBias.ConstantBias(s["ba"][k], s["bg"][k])
     ns = gtsam.NavState(gtsam.Rot3(s["R"][k]), s["p"][k], s["v"][k])
     start, pim = ns, gtsam.PreintegratedCombinedMeasurements(params, bias)
