@@ -11,17 +11,18 @@ over ``JACKKNIFE_S`` blocks (at most ``MAX_BLOCKS``; none on a log shorter than 
 edges and the body's sway are correlated over seconds. The wheels' yaw rate enters when the fit measures their
 scale (``2 sigma_c <= SCALE_TOL``; a skid-steered base's turning is not measured), that scale is a radius or
 baseline error's (``|c| <= MAX_SCALE_OFF``), the residual does not follow the speed (unequal radii turn a straight
-drive, which no scale holds; beyond ``SPEED_SHARE_Z`` sigmas) and few samples are far (``MAX_FAR_SHARE``); a scale
-further than ``RESOLVED_Z`` sigmas from 1 (a radius error of 3 % is measured to about 0.02 %) is divided out, so a
-moving start's gyro bias is learned from the wheels all the same. Its variance is the residual's robust variance
-less the averaged gyro's (the gyro's white noise from its own second differences, over the wheel period), at least
-what the samples resolve (``RESOLVE_Z`` standard errors of the residual's variance), plus the scale's share:
-``(sigma_c w)^2`` where divided out, else ``((|c| + sigma_c) w)^2``; it replaces the message's or the default (a
-driver's covariance can be pessimistic as well as optimistic). Samples beyond the gate's sigmas of the residual
-lose their yaw rate (rejected as ``yaw_slip``); runs of them (a slip) widened by ``SLIP_EDGE_S``. The gate's sigma
-is at least what the comparison cannot resolve: the averaged gyro's noise and the gyro's yaw acceleration over half
-a wheel period (where in its period a wheel message took its rate). Samples without a gyro mean (an IMU gap,
-outside its span) are never weighed: left out too (rejected as ``yaw_unchecked``).
+drive, which no scale holds; beyond ``SPEED_SHARE_Z`` sigmas, and more than ``SCALE_TOL`` of the yaw rate) and few
+samples are far (``MAX_FAR_SHARE``); a scale further than ``RESOLVED_Z`` sigmas from 1 (a radius error of 3 % is
+measured to about 0.02 %) is divided out, so a moving start's gyro bias is learned from the wheels all the same.
+Its variance is the residual's robust variance less the averaged gyro's (the gyro's white noise from its own second
+differences, over the wheel period), at least what the samples resolve (``RESOLVE_Z`` standard errors of the
+residual's variance), plus the scale's share: ``(sigma_c w)^2`` where divided out, else ``((|c| + sigma_c) w)^2``;
+it replaces the message's or the default (a driver's covariance can be pessimistic as well as optimistic). Samples
+beyond the gate's sigmas of the residual lose their yaw rate (rejected as ``yaw_slip``); runs of them (a slip)
+widened by ``SLIP_EDGE_S``. The gate's sigma is at least what the comparison cannot resolve: the averaged gyro's
+noise and the gyro's yaw acceleration over half a wheel period (where in its period a wheel message took its rate).
+Samples without a gyro mean (an IMU gap, outside its span) are never weighed: left out too (rejected as
+``yaw_unchecked``).
 """
 
 from __future__ import annotations
@@ -210,17 +211,17 @@ class _Fit:
         return cls(r, sigma, keep, sol[-p:], np.maximum(formal, _jackknife_sigmas(tw, inv, tc, Z, d, keep, A, rhs)))
 
 
-def _speed_share(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> tuple[float, float]:
+def _speed_share(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> tuple[float, float, float]:
     """The residual's share of the speed (rad/m) with the speed's mean per chunk taken out (the bias line holds
-    a steady speed's share), and its sigma."""
+    a steady speed's share), its sigma, and the yaw rate it makes (rms, rad/s)."""
     keep = fit.keep & np.isfinite(v)  # a sanitised (NaN) speed says nothing of its share
     v = np.nan_to_num(v)
     vc = v - (np.bincount(inv, v * keep) / np.maximum(np.bincount(inv, keep.astype(float)), 1.0))[inv]
     ss = float(vc[keep] @ vc[keep])
     if ss <= 0:
-        return 0.0, np.inf
+        return 0.0, np.inf, 0.0
     e = float(vc[keep] @ fit.r[keep]) / ss
-    return e, fit.sigma / np.sqrt(ss)
+    return e, fit.sigma / np.sqrt(ss), abs(e) * float(np.sqrt(ss / np.count_nonzero(keep)))
 
 
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
@@ -253,7 +254,10 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     r, sigma, n = fit.r, fit.sigma, int(fit.keep.sum())
     c, c_sigma = float(fit.k[0]), float(fit.k_sigma[0])
     if speed is not None:
-        rep.speed_share, rep.speed_share_sigma = _speed_share(inv, np.asarray(speed, float)[idx], fit)
+        rep.speed_share, rep.speed_share_sigma, share_radps = _speed_share(inv, np.asarray(speed, float)[idx], fit)
+        # a share that matters: beyond its noise, and turning more than the scale's tolerance on the yaw rate would
+        follows = abs(rep.speed_share) > SPEED_SHARE_Z * rep.speed_share_sigma \
+            and share_radps > SCALE_TOL * float(np.sqrt(np.mean(g[idx][fit.keep] ** 2)))
     gyro_var = _gyro_white_var(ti, gz, gap, gyro_density) * float(np.median(np.diff(ti))) / period
     wheel_var = max(sigma**2 - gyro_var, RESOLVE_Z * sigma**2 * np.sqrt(2.0 / n))
     accel = (_gyro_mean(ti, gz, gap, tw, tw + win) - _gyro_mean(ti, gz, gap, tw - win, tw)) / win
@@ -263,7 +267,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
-    if rep.speed_share is not None and abs(rep.speed_share) > SPEED_SHARE_Z * rep.speed_share_sigma:
+    if speed is not None and follows:
         rep.why = (f"the wheels' yaw rate follows their speed ({-rep.speed_share:+.2g} +- {rep.speed_share_sigma:.1g} "
                    "rad/m: unequal radii), which a scale does not hold: the gyro's alone")
         return rep, None, None
