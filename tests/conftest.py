@@ -7,6 +7,8 @@ Logs are written through ``LogWriter`` (rosbags' ROS 1 / ROS 2 writers, mcap's w
 from __future__ import annotations
 
 import itertools
+import signal
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -238,6 +240,16 @@ class LogFactory:
                 extra(w)
 
         return self.write(fmt, build, name)
+
+
+@pytest.fixture(autouse=True)
+def _foreground_signals():
+    """Every test starts with Ctrl-C as a terminal's foreground job has it: a test that left SIGINT ignored or
+    blocked in this worker would pass that on to the processes later tests start, which then never see it."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
 
 
 @pytest.fixture
