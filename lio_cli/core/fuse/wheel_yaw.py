@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..imu import running_integral
-from ..robust import robust_sigma, white_variance
+from ..robust import white_variance
+from .yaw_fit import Fit, speed_share, widened
 
 CHUNK_S = 60.0  # the gyro bias: a line per this long a stretch (it wanders slowly)
 MIN_SPAN_S = 10.0  # shorter logs: the wheels' yaw rate stays out
@@ -43,14 +44,8 @@ MAX_SCALE_OFF = 0.1  # and lie within this share of the gyro's (a radius or base
 RESOLVED_Z = 2.0  # a scale further than this many sigmas from 1 is divided out
 SPEED_SHARE_Z = 5.0  # a residual share of the speed beyond this many sigmas: unequal radii, the wheels left out
 MAX_FAR_SHARE = 0.2  # more samples further than the gate from the gyro: the wheels' yaw rate stays out
-TRIM_Z = 4.0
-TRIM_PASSES = 3
 RESOLVE_Z = 3.0  # the estimated variance is at least this many standard errors of the residual's variance
 SLIP_EDGE_S = 0.25  # far samples widen by this on each side (a slip's onset and end are below the gate)
-TRIM_EDGE_S = 1.0  # and out of the scale's fit by this (the edges below the trim bias it by tenths of a percent)
-JACKKNIFE_S = 5.0  # the scale's sigma from the fit without each block this long in turn
-MIN_BLOCKS = 5
-MAX_BLOCKS = 24
 ACCEL_WINDOW_S = 0.1  # the gyro's yaw acceleration (the gate's floor) from its means over this long either side
 
 
@@ -133,97 +128,6 @@ def _gyro_white_var(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, density: fl
     return white_variance(gz, ok)
 
 
-def _normal_equations(inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
-                      keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + Z k`` (chunk j = ``inv``; ``Z`` a
-    column per regressor of the whole log), summed per chunk: (2m+p)^2 whatever the log's length (the design
-    matrix itself is one row per sample)."""
-    m, p = int(inv.max()) + 1, Z.shape[1]
-    j, t, zk, dk = inv[keep], tc[keep], Z[keep], d[keep]
-    s = lambda w: np.bincount(j, weights=w, minlength=m)  # noqa: E731
-    A = np.zeros((2 * m + p, 2 * m + p))
-    b, a = np.arange(0, 2 * m, 2), np.arange(1, 2 * m, 2)
-    A[b, b], A[b, a], A[a, a] = s(np.ones(len(j))), s(t), s(t * t)
-    A[a, b] = A[b, a]
-    for q in range(p):
-        A[b, 2 * m + q], A[a, 2 * m + q] = s(zk[:, q]), s(t * zk[:, q])
-        A[2 * m + q, b], A[2 * m + q, a] = A[b, 2 * m + q], A[a, 2 * m + q]
-    A[2 * m:, 2 * m:] = zk.T @ zk
-    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), zk.T @ dk])
-    return A, rhs
-
-
-def _widened(t: np.ndarray, far: np.ndarray, edge_s: float) -> np.ndarray:
-    """``far`` with every run of two or more far samples widened by ``edge_s`` on each side (sorted ``t``)."""
-    run = np.flatnonzero(far & (np.r_[far[1:], False] | np.r_[False, far[:-1]]))
-    if not len(run):
-        return far
-    edge = np.zeros(len(t) + 1)
-    np.add.at(edge, np.searchsorted(t, t[run] - edge_s), 1)
-    np.add.at(edge, np.searchsorted(t, t[run] + edge_s, side="right"), -1)
-    return far | (np.cumsum(edge)[:-1] > 0)
-
-
-def _jackknife_sigmas(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
-                      keep: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """The regressors' sigmas from the fit repeated without each ``JACKKNIFE_S`` block in turn (at most
-    ``MAX_BLOCKS``, longer on a long log): a slip's edges and the body's sway are correlated over a block, which
-    the residual's white sigma does not count; zeros where there are fewer than ``MIN_BLOCKS`` blocks."""
-    p = Z.shape[1]
-    length = max(JACKKNIFE_S, (tw[-1] - tw[0]) / MAX_BLOCKS)  # each refit costs the whole log
-    block = np.floor((tw - tw[0]) / length).astype(np.int64)
-    blocks = np.unique(block[keep])
-    if len(blocks) < MIN_BLOCKS:
-        return np.zeros(p)
-    ks = []
-    for b in blocks.tolist():
-        Ab, rb = _normal_equations(inv, tc, Z, d, keep & (block == b))
-        ks.append(np.linalg.lstsq(A - Ab, rhs - rb, rcond=None)[0][-p:])
-    ks = np.asarray(ks)
-    return np.sqrt((len(ks) - 1) / len(ks) * np.sum((ks - ks.mean(axis=0)) ** 2, axis=0))
-
-
-@dataclass
-class _Fit:
-    """``d = b_j + b'_j tc + Z k`` fitted with far samples trimmed (a run of them widened by ``TRIM_EDGE_S``):
-    the residual, its robust sigma, the kept samples, ``k`` and its sigmas (the larger of the fit's and the
-    jackknife's)."""
-
-    r: np.ndarray
-    sigma: float
-    keep: np.ndarray
-    k: np.ndarray
-    k_sigma: np.ndarray
-
-    @classmethod
-    def of(cls, tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray) -> _Fit:
-        m, p = int(inv.max()) + 1, Z.shape[1]
-        keep = np.ones(len(d), bool)
-        for _ in range(TRIM_PASSES):  # a slip's run widened: its onset and end, below the trim, bias the scale
-            A, rhs = _normal_equations(inv, tc, Z, d, keep)
-            sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
-            r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - Z @ sol[2 * m:]
-            sigma = robust_sigma(r[keep], centre=False)
-            keep = ~_widened(tw, np.abs(r) > TRIM_Z * max(sigma, 1e-12), TRIM_EDGE_S)
-        A, rhs = _normal_equations(inv, tc, Z, d, keep)
-        s2 = float(r[keep] @ r[keep]) / max(int(keep.sum()) - len(A), 1)
-        formal = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(A))[-p:], 0.0))
-        return cls(r, sigma, keep, sol[-p:], np.maximum(formal, _jackknife_sigmas(tw, inv, tc, Z, d, keep, A, rhs)))
-
-
-def _speed_share(inv: np.ndarray, v: np.ndarray, fit: _Fit) -> tuple[float, float, float]:
-    """The residual's share of the speed (rad/m) with the speed's mean per chunk taken out (the bias line holds
-    a steady speed's share), its sigma, and the yaw rate it makes (rms, rad/s)."""
-    keep = fit.keep & np.isfinite(v)  # a sanitised (NaN) speed says nothing of its share
-    v = np.nan_to_num(v)
-    vc = v - (np.bincount(inv, v * keep) / np.maximum(np.bincount(inv, keep.astype(float)), 1.0))[inv]
-    ss = float(vc[keep] @ vc[keep])
-    if ss <= 0:
-        return 0.0, np.inf, 0.0
-    e = float(vc[keep] @ fit.r[keep]) / ss
-    return e, fit.sigma / np.sqrt(ss), abs(e) * float(np.sqrt(ss / np.count_nonzero(keep)))
-
-
 def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray, imu_gap_ns: int,
           gyro_density: float, gate_z: float, speed: np.ndarray | None = None
           ) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
@@ -250,11 +154,11 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     _, inv = np.unique(chunk, return_inverse=True)
     tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
     d = g[idx] - yaw[idx]
-    fit = _Fit.of(tw[idx], inv, tc, g[idx, None], d)
+    fit = Fit.of(tw[idx], inv, tc, g[idx, None], d)
     r, sigma, n = fit.r, fit.sigma, int(fit.keep.sum())
     c, c_sigma = float(fit.k[0]), float(fit.k_sigma[0])
     if speed is not None:
-        rep.speed_share, rep.speed_share_sigma, share_radps = _speed_share(inv, np.asarray(speed, float)[idx], fit)
+        rep.speed_share, rep.speed_share_sigma, share_radps = speed_share(inv, np.asarray(speed, float)[idx], fit)
         # a share that matters: beyond its noise, and turning more than the scale's tolerance on the yaw rate would
         follows = abs(rep.speed_share) > SPEED_SHARE_Z * rep.speed_share_sigma \
             and share_radps > SCALE_TOL * float(np.sqrt(np.mean(g[idx][fit.keep] ** 2)))
@@ -284,7 +188,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
                    f"{MAX_FAR_SHARE:.0%}): the gyro's alone")
         return rep, None, None
     if rep.far:  # a run of far samples (a slip) widens to its edges; a lone one is left out alone
-        far = _widened(tw, far, SLIP_EDGE_S) & np.isfinite(yaw)
+        far = widened(tw, far, SLIP_EDGE_S) & np.isfinite(yaw)
         rep.far = int(far.sum())
     unchecked = np.isfinite(yaw) & ~np.isfinite(g) & ~far
     rep.unchecked = int(unchecked.sum())

@@ -7,7 +7,7 @@ import tracemalloc
 
 import numpy as np
 
-from lio_cli.core.fuse import wheel_yaw
+from lio_cli.core.fuse import wheel_yaw, yaw_fit
 
 NS = 1_000_000_000
 
@@ -40,11 +40,11 @@ def _dense(tw_ns, yaw, ti_ns, gz):
     X[:, -1] = g[idx]
     d = g[idx] - yaw[idx]
     keep = np.ones(len(idx), bool)
-    for _ in range(wheel_yaw.TRIM_PASSES):
+    for _ in range(yaw_fit.TRIM_PASSES):
         sol = np.linalg.lstsq(X[keep], d[keep], rcond=None)[0]
         r = d - X @ sol
         sigma = 1.4826 * float(np.median(np.abs(r[keep])))
-        keep = np.abs(r) <= wheel_yaw.TRIM_Z * sigma
+        keep = np.abs(r) <= yaw_fit.TRIM_Z * sigma
     s2 = float(r[keep] @ r[keep]) / (int(keep.sum()) - X.shape[1])
     cov = s2 * np.linalg.pinv(X[keep].T @ X[keep])
     return float(sol[-1]), float(np.sqrt(cov[-1, -1])), sigma
@@ -53,8 +53,8 @@ def _dense(tw_ns, yaw, ti_ns, gz):
 def test_the_per_chunk_normal_equations_give_the_dense_fit(monkeypatch):
     tw, yw, ti, gz = _series(3.5)  # four chunks, the last one short
     yw[3000:3040] += 0.2  # trimmed samples too
-    monkeypatch.setattr(wheel_yaw, "TRIM_EDGE_S", 0.0)  # the dense fit below trims sample by sample ...
-    monkeypatch.setattr(wheel_yaw, "MIN_BLOCKS", 10**9)  # ... and has only the fit's own sigma
+    monkeypatch.setattr(yaw_fit, "TRIM_EDGE_S", 0.0)  # the dense fit below trims sample by sample ...
+    monkeypatch.setattr(yaw_fit, "MIN_BLOCKS", 10**9)  # ... and has only the fit's own sigma
     check, _, _ = wheel_yaw.weigh(tw, yw, ti, gz, 0, 1e-3, 3.0)
     c, c_sigma, sigma = _dense(tw, yw, ti, gz)
     assert abs(check.scale_off - c) < 1e-9 and abs(check.scale_off_sigma / c_sigma - 1) < 1e-6

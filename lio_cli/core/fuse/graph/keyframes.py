@@ -19,10 +19,7 @@ from ..timeline import OUT, Prepared
 
 KEYFRAME_PERIOD_NS = 100_000_000  # 0.1 s: the IMU factor's span, short enough for its first-order bias update
 MIN_SPACING_NS = 20_000_000
-# the last keyframe interval never shorter (nor than half the keyframes' median spacing, where that is less): the
-# last keyframe's states hang on that one IMU factor, and one of a few tens of ms among 0.1 s ones left the solve
-# nearly indeterminate there (LM crawled and stopped centimetres off)
-END_SPACING_NS = 50_000_000
+END_SPACING_NS = 50_000_000  # the last interval's least (or half the median): its far states hang on one factor
 
 
 def keyframe_stamps(prep: Prepared, period_ns: int = KEYFRAME_PERIOD_NS) -> np.ndarray:
