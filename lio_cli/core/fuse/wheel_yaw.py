@@ -133,7 +133,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
           ) -> tuple[YawCheck, np.ndarray | None, np.ndarray | None]:
     """The check (module docstring): (report, the wheel yaw rates with far and unchecked samples NaN, their
     variances), the two arrays None where the wheels' yaw rate stays out. ``speed``: the wheels' forward speed
-    at their stamps (the yaw rate's share of it, unequal radii, is fitted too)."""
+    at their stamps (a yaw rate that follows it, unequal radii, leaves the wheels out)."""
     rep = YawCheck()
     t0 = int(ti_ns[0])
     tw, ti = (tw_ns - t0) * 1e-9, (ti_ns - t0) * 1e-9
@@ -154,9 +154,9 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     _, inv = np.unique(chunk, return_inverse=True)
     tc = tw[idx] / CHUNK_S - chunk - 0.5  # each chunk's own time, centred: the normal equations stay well conditioned
     d = g[idx] - yaw[idx]
-    fit = Fit.of(tw[idx], inv, tc, g[idx, None], d)
-    r, sigma, n = fit.r, fit.sigma, int(fit.keep.sum())
-    c, c_sigma = float(fit.k[0]), float(fit.k_sigma[0])
+    fit = Fit.of(tw[idx], inv, tc, g[idx], d)
+    r, sigma, n, c, c_sigma = fit.r, fit.sigma, int(fit.keep.sum()), fit.c, fit.c_sigma
+    follows = False
     if speed is not None:
         rep.speed_share, rep.speed_share_sigma, share_radps = speed_share(inv, np.asarray(speed, float)[idx], fit)
         # a share that matters: beyond its noise, and turning more than the scale's tolerance on the yaw rate would
@@ -171,7 +171,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.scale_off, rep.scale_off_sigma, rep.residual_sigma_radps = c, c_sigma, sigma
     rep.sigma_radps = float(np.sqrt(wheel_var))
     rep.far = int(far.sum())
-    if speed is not None and follows:
+    if follows:
         rep.why = (f"the wheels' yaw rate follows their speed ({-rep.speed_share:+.2g} +- {rep.speed_share_sigma:.1g} "
                    "rad/m: unequal radii), which a scale does not hold: the gyro's alone")
         return rep, None, None

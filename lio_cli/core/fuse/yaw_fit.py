@@ -1,6 +1,6 @@
-"""The fit behind ``wheel_yaw``: ``d = b_j + b'_j tc + Z k`` (a bias line per chunk j, ``k`` the regressors' shares
-over the whole log) by least squares from per-chunk normal equations, far samples trimmed, ``k``'s sigma the
-larger of the fit's and a block jackknife's."""
+"""The fit behind ``wheel_yaw``: ``d = b_j + b'_j tc + c g`` (a bias line per chunk j, ``c`` the wheels' yaw scale
+off the gyro's ``g``) by least squares from per-chunk normal equations, far samples trimmed, ``c``'s sigma the
+larger of the fit's and a block jackknife's; the residual's share of the speed."""
 
 from __future__ import annotations
 
@@ -18,23 +18,21 @@ MIN_BLOCKS = 5
 MAX_BLOCKS = 24
 
 
-def _normal_equations(inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
+def _normal_equations(inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
                       keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + Z k`` (chunk j = ``inv``; ``Z`` a
-    column per regressor of the whole log), summed per chunk: (2m+p)^2 whatever the log's length (the design
-    matrix itself is one row per sample)."""
-    m, p = int(inv.max()) + 1, Z.shape[1]
-    j, t, zk, dk = inv[keep], tc[keep], Z[keep], d[keep]
+    """``X^T X`` and ``X^T d`` over the kept samples of ``d = b_j + b'_j tc + c g`` (chunk j = ``inv``), summed per
+    chunk: (2m+1)^2 whatever the log's length (the design matrix itself is one row per sample)."""
+    m = int(inv.max()) + 1
+    j, t, gk, dk = inv[keep], tc[keep], g[keep], d[keep]
     s = lambda w: np.bincount(j, weights=w, minlength=m)  # noqa: E731
-    A = np.zeros((2 * m + p, 2 * m + p))
+    A = np.zeros((2 * m + 1, 2 * m + 1))
     b, a = np.arange(0, 2 * m, 2), np.arange(1, 2 * m, 2)
     A[b, b], A[b, a], A[a, a] = s(np.ones(len(j))), s(t), s(t * t)
     A[a, b] = A[b, a]
-    for q in range(p):
-        A[b, 2 * m + q], A[a, 2 * m + q] = s(zk[:, q]), s(t * zk[:, q])
-        A[2 * m + q, b], A[2 * m + q, a] = A[b, 2 * m + q], A[a, 2 * m + q]
-    A[2 * m:, 2 * m:] = zk.T @ zk
-    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), zk.T @ dk])
+    A[b, -1], A[a, -1] = s(gk), s(t * gk)
+    A[-1, b], A[-1, a] = A[b, -1], A[a, -1]
+    A[-1, -1] = float(gk @ gk)
+    rhs = np.concatenate([np.column_stack([s(dk), s(t * dk)]).ravel(), [float(gk @ dk)]])
     return A, rhs
 
 
@@ -49,51 +47,49 @@ def widened(t: np.ndarray, far: np.ndarray, edge_s: float) -> np.ndarray:
     return far | (np.cumsum(edge)[:-1] > 0)
 
 
-def _jackknife_sigmas(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray,
-                      keep: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """The regressors' sigmas from the fit repeated without each ``JACKKNIFE_S`` block in turn (at most
-    ``MAX_BLOCKS``, longer on a long log): a slip's edges and the body's sway are correlated over a block, which
-    the residual's white sigma does not count; zeros where there are fewer than ``MIN_BLOCKS`` blocks."""
-    p = Z.shape[1]
+def _jackknife_sigma(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray,
+                     keep: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> float:
+    """The scale's sigma from the fit repeated without each ``JACKKNIFE_S`` block in turn (at most ``MAX_BLOCKS``,
+    longer on a long log): a slip's edges and the body's sway are correlated over a block, which the residual's
+    white sigma does not count; 0 where there are fewer than ``MIN_BLOCKS`` blocks."""
     length = max(JACKKNIFE_S, (tw[-1] - tw[0]) / MAX_BLOCKS)  # each refit costs the whole log
     block = np.floor((tw - tw[0]) / length).astype(np.int64)
     blocks = np.unique(block[keep])
     if len(blocks) < MIN_BLOCKS:
-        return np.zeros(p)
-    ks = []
+        return 0.0
+    cs = []
     for b in blocks.tolist():
-        Ab, rb = _normal_equations(inv, tc, Z, d, keep & (block == b))
-        ks.append(np.linalg.lstsq(A - Ab, rhs - rb, rcond=None)[0][-p:])
-    ks = np.asarray(ks)
-    return np.sqrt((len(ks) - 1) / len(ks) * np.sum((ks - ks.mean(axis=0)) ** 2, axis=0))
+        Ab, rb = _normal_equations(inv, tc, g, d, keep & (block == b))
+        cs.append(float(np.linalg.lstsq(A - Ab, rhs - rb, rcond=None)[0][-1]))
+    cs = np.asarray(cs)
+    return float(np.sqrt((len(cs) - 1) / len(cs) * np.sum((cs - cs.mean()) ** 2)))
 
 
 @dataclass
 class Fit:
-    """``d = b_j + b'_j tc + Z k`` fitted with far samples trimmed (a run of them widened by ``TRIM_EDGE_S``):
-    the residual, its robust sigma, the kept samples, ``k`` and its sigmas (the larger of the fit's and the
+    """``d = b_j + b'_j tc + c g`` fitted with far samples trimmed (a run of them widened by ``TRIM_EDGE_S``): the
+    residual, its robust sigma, the kept samples, ``c`` and its sigma (the larger of the fit's and the
     jackknife's)."""
 
     r: np.ndarray
     sigma: float
     keep: np.ndarray
-    k: np.ndarray
-    k_sigma: np.ndarray
+    c: float
+    c_sigma: float
 
     @classmethod
-    def of(cls, tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, Z: np.ndarray, d: np.ndarray) -> Fit:
-        m, p = int(inv.max()) + 1, Z.shape[1]
+    def of(cls, tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, g: np.ndarray, d: np.ndarray) -> Fit:
         keep = np.ones(len(d), bool)
         for _ in range(TRIM_PASSES):  # a slip's run widened: its onset and end, below the trim, bias the scale
-            A, rhs = _normal_equations(inv, tc, Z, d, keep)
+            A, rhs = _normal_equations(inv, tc, g, d, keep)
             sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
-            r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - Z @ sol[2 * m:]
+            r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * g
             sigma = robust_sigma(r[keep], centre=False)
             keep = ~widened(tw, np.abs(r) > TRIM_Z * max(sigma, 1e-12), TRIM_EDGE_S)
-        A, rhs = _normal_equations(inv, tc, Z, d, keep)
+        A, rhs = _normal_equations(inv, tc, g, d, keep)
         s2 = float(r[keep] @ r[keep]) / max(int(keep.sum()) - len(A), 1)
-        formal = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(A))[-p:], 0.0))
-        return cls(r, sigma, keep, sol[-p:], np.maximum(formal, _jackknife_sigmas(tw, inv, tc, Z, d, keep, A, rhs)))
+        formal = float(np.sqrt(max((s2 * np.linalg.pinv(A))[-1, -1], 0.0)))
+        return cls(r, sigma, keep, float(sol[-1]), max(formal, _jackknife_sigma(tw, inv, tc, g, d, keep, A, rhs)))
 
 
 def speed_share(inv: np.ndarray, v: np.ndarray, fit: Fit) -> tuple[float, float, float]:
