@@ -86,7 +86,10 @@ class Fit:
             r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * g
             sigma = robust_sigma(r[keep], centre=False)
             keep = ~widened(tw, np.abs(r) > TRIM_Z * max(sigma, 1e-12), TRIM_EDGE_S)
-        A, rhs = _normal_equations(inv, tc, g, d, keep)
+        A, rhs = _normal_equations(inv, tc, g, d, keep)  # the last trim's samples solved again: c is theirs
+        sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
+        r = d - sol[2 * inv] - sol[2 * inv + 1] * tc - sol[-1] * g
+        sigma = robust_sigma(r[keep], centre=False)
         s2 = float(r[keep] @ r[keep]) / max(int(keep.sum()) - len(A), 1)
         formal = float(np.sqrt(max((s2 * np.linalg.pinv(A))[-1, -1], 0.0)))
         return cls(r, sigma, keep, float(sol[-1]), max(formal, _jackknife_sigma(tw, inv, tc, g, d, keep, A, rhs)))

@@ -45,6 +45,9 @@ def _dense(tw_ns, yaw, ti_ns, gz):
         r = d - X @ sol
         sigma = 1.4826 * float(np.median(np.abs(r[keep])))
         keep = np.abs(r) <= yaw_fit.TRIM_Z * sigma
+    sol = np.linalg.lstsq(X[keep], d[keep], rcond=None)[0]  # c is the last trim's samples' own
+    r = d - X @ sol
+    sigma = 1.4826 * float(np.median(np.abs(r[keep])))
     s2 = float(r[keep] @ r[keep]) / (int(keep.sum()) - X.shape[1])
     cov = s2 * np.linalg.pinv(X[keep].T @ X[keep])
     return float(sol[-1]), float(np.sqrt(cov[-1, -1])), sigma
