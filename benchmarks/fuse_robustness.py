@@ -4,8 +4,8 @@
 Cells: platform {rover: a ground robot on uneven ground, car: `drive`, drone: 3D flight; `--platforms` adds
 handheld} x start {still, moving} x IMU {aligned (identity rotation, the scenario's lever arm), rotated 180 deg
 roll + 90 deg yaw with a 0.44 m lever arm, given by /tf_static} x wheels {exact, 3 % radius scale + 3 slip
-bursts} (rover and car) x GPS {none, consumer: `--gps-model consumer`} x odometry input {none, `lio odom` of the
-same log}. Seed fixed: 80 cells.
+bursts} (rover and car) x GPS {none, consumer: `--gps-model consumer`; `--gps` adds rtk: 2 cm fixes, where a roof
+antenna's offset shows} x odometry input {none, `lio odom` of the same log}. Seed fixed: 80 cells.
 
 Per cell: `lio fuse` default (smoothed) and `--no-smooth` (the filter; output at every IMU sample, 200 Hz) and
 the baselines of the same log: wheel dead reckoning (the /wheel/odom poses), wheel speed + gyro yaw dead
@@ -62,7 +62,9 @@ IMUS = {"imu-aligned": ["--imu-rotation", "0,0,0"],
         "imu-rotated": ["--imu-rotation", "180,0,90", "--imu-lever-arm", "0.3,-0.2,0.25"]}
 WHEELS = {"wheels-exact": ["--no-wheel-errors"],
           "wheels-bad": ["--no-wheel-errors", "--wheel-radius-scale", "1.03,1.03", "--wheel-slip-bursts", "3"]}
-GPS = {"gps-none": [], "gps-consumer": ["--gps-model", "consumer"]}
+# rtk (--gps rtk, not in the default matrix): centimetre fixes, whose error a roof antenna's offset would dwarf
+GPS = {"gps-none": [], "gps-consumer": ["--gps-model", "consumer"], "gps-rtk": ["--gps", "--gps-noise", "0.02,0.04"]}
+DEFAULT_GPS = ("gps-none", "gps-consumer")
 ODOMS = ("odom-none", "odom-lio")
 SEED = 7
 RPE_DT_S = 0.05
@@ -92,10 +94,10 @@ class Cell:
         return f"{self.platform}-{self.start}-{self.imu}-lidar"
 
 
-def all_cells(quick: bool, platforms: tuple[str, ...] = DEFAULT_PLATFORMS) -> list[Cell]:
+def all_cells(quick: bool, platforms: tuple[str, ...] = DEFAULT_PLATFORMS, gps: tuple[str, ...] = DEFAULT_GPS) -> list[Cell]:
     cells = []
     starts, imus = (("moving",), ("imu-rotated",)) if quick else (STARTS, tuple(IMUS))
-    for platform, start, imu, gps, odom in itertools.product(platforms, starts, imus, GPS, ODOMS):
+    for platform, start, imu, gps, odom in itertools.product(platforms, starts, imus, gps, ODOMS):
         wheels = ("-",) if platform in ("drone", "handheld") else (("wheels-bad",) if quick else tuple(WHEELS))
         cells += [Cell(platform, start, imu, w, gps, odom) for w in wheels]
     return cells
@@ -306,6 +308,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio-fuse-robustness"), help="cache of logs, odometry, fuse outputs")
     ap.add_argument("--quick", action="store_true", help="moving starts, rotated IMU, bad wheels only (12 cells)")
     ap.add_argument("--platforms", default=",".join(DEFAULT_PLATFORMS), help=f"comma-separated, of {', '.join(PLATFORMS)}")
+    ap.add_argument("--gps", default=",".join(g[4:] for g in DEFAULT_GPS),
+                    help="comma-separated, of none, consumer, rtk (2 cm fixes; not in the default matrix)")
     ap.add_argument("--cells", action="append", default=[], help="keep cells whose name holds this (repeat: all of them)")
     ap.add_argument("--duration", type=float, default=45.0, help="seconds per log (cached logs of another length are remade)")
     ap.add_argument("--jobs", type=int, default=1)
@@ -320,7 +324,11 @@ def main(argv: list[str] | None = None) -> int:
     if not set(platforms) <= set(PLATFORMS):
         print(f"--platforms: choose from {', '.join(PLATFORMS)}", file=sys.stderr)
         return 2
-    cells = [c for c in all_cells(a.quick, platforms) if all(s in c.name for s in a.cells)]
+    gps = tuple(f"gps-{g}" for g in a.gps.split(","))
+    if not set(gps) <= set(GPS):
+        print("--gps: choose from none, consumer, rtk", file=sys.stderr)
+        return 2
+    cells = [c for c in all_cells(a.quick, platforms, gps) if all(s in c.name for s in a.cells)]
     if not cells:
         print("no cell matches", file=sys.stderr)
         return 2

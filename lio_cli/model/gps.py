@@ -25,6 +25,7 @@ class GpsTrack:
     no_fix: int  # dropped: status NO_FIX
     bad_coordinates: int  # dropped: NaN, infinite or out-of-range latitude/longitude/altitude
     bad_stamps: int  # dropped: duplicated or backwards header stamps
+    frame_id: str = ""  # the antenna's frame (the first valid fix's header)
 
     def __len__(self) -> int:
         return len(self.stamps_ns)

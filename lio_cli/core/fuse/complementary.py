@@ -155,6 +155,8 @@ class Complementary:
                 if not prep.gps.accepted[i]:  # a multipath jump (gps_quality), counted there
                     continue
                 z = prep.gps.position_enu_m[i]
+                if prep.gps.lever is not None:  # the base under the antenna, at the current attitude
+                    z = z - self.R @ prep.gps.lever
                 if self.gps_offset is None:  # ENU about the first fix, where the state is then
                     self.gps_offset = self.p - z
                     prep.reports["gps"].note("anchor")

@@ -229,12 +229,12 @@ class Ekf3d:
             self.gps_offset = -z
             self.prep.reports["gps"].note("anchor")
         # a multipath jump's fix: used only once the filter says it, not the fix, is off
-        r = (z + self.gps_offset - np.array(x[P_]))[:2]
+        r = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L, g.lever)[0][:2]
         if not self.jumps(i, r, P[DP, DP][:2, :2], self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
             return
         for rows, sigma, noise, kind in ((slice(0, 2), g.sigma_h_m, self.gps_h, "gps"),
                                          (slice(2, 3), g.sigma_v_m, self.gps_v, "gps_vertical")):
-            r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L)
+            r, H, _ = m3.position(np.array(x), z + self.gps_offset, g.cov_m2[i], self.L, g.lever)
             r, H = r[rows], H[rows]
             var = noise_variance(noise, r, H, P, float(sigma[i]) ** 2, self.prep.reports["gps"])
             self._update(t, x, P, r, H, np.eye(len(r)) * var, "gps", kind)

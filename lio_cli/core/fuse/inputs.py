@@ -96,9 +96,16 @@ class GpsSeries:
     sigma_h_m: np.ndarray | None = None
     sigma_v_m: np.ndarray | None = None
     accepted: np.ndarray | None = None
+    antenna_m: np.ndarray | None = None  # (3,) the antenna in base axes (/tf_static); None: at the base origin
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
+
+    @property
+    def lever(self) -> np.ndarray | None:
+        """The antenna's offset from the base origin (base axes), None where it is (within a millimetre)."""
+        a = self.antenna_m
+        return None if a is None or float(np.linalg.norm(a)) < 1e-3 else np.asarray(a, float)
 
 
 @dataclass

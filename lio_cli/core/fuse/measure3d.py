@@ -73,8 +73,13 @@ def pose_delta(x: np.ndarray, T_rel: np.ndarray, pos_var: float, rot_var: float,
     return r, H, np.diag([rot_var] * 3 + [pos_var] * 3)
 
 
-def position(x: np.ndarray, p_meas: np.ndarray, cov: np.ndarray, L: Layout):
-    """A position in the fused world (GPS after the ENU anchor)."""
+def position(x: np.ndarray, p_meas: np.ndarray, cov: np.ndarray, L: Layout, lever: np.ndarray | None = None):
+    """A position in the fused world (GPS after the ENU anchor) of the point ``lever`` (base axes; None: the
+    base origin): ``p + R a``, whose Jacobian on the rotation error is ``-R [a]x``."""
     H = np.zeros((3, L.n))
     H[:, DP] = _EYE3
-    return p_meas - x[P_], H, cov
+    if lever is None:
+        return p_meas - x[P_], H, cov
+    R = rot(x)
+    H[:, TH] = -R @ skew3(lever)
+    return p_meas - x[P_] - R @ lever, H, cov

@@ -207,6 +207,11 @@ class PlanarEkf:
         H = np.zeros((2, self.n))
         H[0, X] = H[1, Y] = 1.0
         r = z + self.gps_offset - x[0:2]
+        if g.lever is not None:  # the antenna turns with the heading (the body's tilt left out)
+            c, s = math.cos(x[TH]), math.sin(x[TH])
+            a = g.lever[:2]
+            r = r - np.array([c * a[0] - s * a[1], s * a[0] + c * a[1]])
+            H[0, TH], H[1, TH] = -s * a[0] - c * a[1], c * a[0] - s * a[1]
         # a multipath jump: used only once the filter says it, not the fix, is off
         if not self.jumps(i, r, P[np.ix_([X, Y], [X, Y])], self.gps_h.variance(float(g.sigma_h_m[i]) ** 2)):
             return P

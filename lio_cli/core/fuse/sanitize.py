@@ -165,7 +165,8 @@ def clean_gps(gps: GpsSeries, noise: NoiseOptions, report: SourceReport) -> GpsS
             good = np.all(np.isfinite(raw), axis=(1, 2)) & np.all(np.einsum("nii->ni", raw) > 0.0, axis=1)
         cov[good] = raw[good]
         report.note("default_noise", int(np.count_nonzero(~good)))
-    return GpsSeries(np.asarray(gps.stamps_ns, np.int64)[keep], pos[keep], cov, np.ones(m, bool))
+    return GpsSeries(np.asarray(gps.stamps_ns, np.int64)[keep], pos[keep], cov, np.ones(m, bool),
+                     antenna_m=gps.antenna_m)
 
 
 def orientation_to_base(imu: ImuSeries) -> np.ndarray:

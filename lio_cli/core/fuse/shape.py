@@ -147,7 +147,8 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
         return None
     idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), MAX_FIXES)).round().astype(int))]
     t = g.stamps_ns[idx]
-    p = np.column_stack([np.interp(t, stamps_ns, poses[:, 0, 3]), np.interp(t, stamps_ns, poses[:, 1, 3])])
+    xy = poses[:, :2, 3] if g.lever is None else poses[:, :2, 3] + (poses[:, :3, :3] @ g.lever)[:, :2]  # antenna
+    p = np.column_stack([np.interp(t, stamps_ns, xy[:, 0]), np.interp(t, stamps_ns, xy[:, 1])])
     white = white_sigma_m(g.stamps_ns[ok], g.position_enu_m[ok, :2])
     sigma = TRUE_OVER_CLAIMED * max(float(np.median(g.sigma_h_m[idx])), white)
     z, t_s = g.position_enu_m[idx, :2], (t - t[0]) * 1e-9
@@ -161,5 +162,5 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
     T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
     T[:2, 3] = shift
     ok = _within(chi2, dof) and drift_chi2 <= CHI2_1_99 and scale_chi2 <= CHI2_1_99
-    return ShapeTest(ok, float(chi2), dof, len(idx), T, drift_chi2=drift_chi2, drift_radps=rate,
+    return ShapeTest(bool(ok), float(chi2), dof, len(idx), T, drift_chi2=drift_chi2, drift_radps=rate,
                      claim_exceeded=not _within(claimed, dof), scale_chi2=scale_chi2, scale_off=scale_off)

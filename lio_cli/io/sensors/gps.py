@@ -43,7 +43,7 @@ def track_from_fixes(topic: str, fixes: list[NavSatFixRecord], origin: EnuFrame 
         covariance_type=np.array([f.covariance_type for f in valid], dtype=np.int64),
         status=np.array([f.status for f in valid], dtype=np.int64),
         origin=origin, origin_source=source, messages=len(fixes) + bad_stamps, no_fix=no_fix,
-        bad_coordinates=bad, bad_stamps=bad_stamps,
+        bad_coordinates=bad, bad_stamps=bad_stamps, frame_id=valid[0].frame_id.lstrip("/"),
     )
 
 

@@ -140,7 +140,7 @@ def _slice(series, a: int, b: int):
     keep = (series.stamps_ns >= a) & (series.stamps_ns <= b)
     out = {}
     for name, value in vars(series).items():
-        if isinstance(value, np.ndarray) and value.shape[:1] == keep.shape and name != "T_base_imu":
+        if isinstance(value, np.ndarray) and value.shape[:1] == keep.shape and name not in ("T_base_imu", "antenna_m"):
             out[name] = value[keep]
         else:
             out[name] = value

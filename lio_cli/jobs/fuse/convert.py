@@ -153,11 +153,12 @@ def trajectory_series(stamps_ns: np.ndarray, poses: np.ndarray) -> PoseSeries:
     return PoseSeries(np.asarray(stamps_ns, np.int64), np.asarray(poses, np.float64))
 
 
-def gps_series(track: GpsTrack) -> GpsSeries:
-    """Valid fixes in ENU; a covariance of type 0 (unknown) is NaN, so the core uses its default."""
+def gps_series(track: GpsTrack, antenna_m: np.ndarray | None = None) -> GpsSeries:
+    """Valid fixes in ENU; a covariance of type 0 (unknown) is NaN, so the core uses its default; ``antenna_m``:
+    the antenna's position on the base (base axes)."""
     cov = track.covariance_m2.copy()
     cov[track.covariance_type == 0] = np.nan
-    return GpsSeries(track.stamps_ns.copy(), track.enu_m.copy(), cov)
+    return GpsSeries(track.stamps_ns.copy(), track.enu_m.copy(), cov, antenna_m=antenna_m)
 
 
 __all__ = ["carries_lateral_speed", "gps_series", "imu_series", "pose_series", "trajectory_series", "twist_frame",

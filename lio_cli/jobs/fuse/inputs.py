@@ -196,12 +196,33 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     if "gps" in roles:
         origin = EnuFrame(*cfg.input.gps_origin) if cfg.input.gps_origin else None
         gps = read_gps_track(reader, roles["gps"].topic, origin)
-        inputs.gps = gps_series(gps)
+        antenna, extrinsics["gps_antenna"] = gps_antenna(tree, base, gps, notes)
+        inputs.gps = gps_series(gps, antenna)
     use = resolved_use(cfg, inputs, notes)
     described = {s: {"topic": c.topic, "why": c.why} for s, c in roles.items()}
     if "odom" in roles and roles["odom"].topic is None:
         described["odom"] = {"file": cfg.input.odom_file, "why": roles["odom"].why}
     return FuseSources(inputs, use, described, base, twist, gps, extrinsics, notes)
+
+
+def gps_antenna(tree: FrameTree, base: str, gps: GpsTrack, notes: list[str]) -> tuple[np.ndarray | None, str]:
+    """The antenna's position on the base (base axes) by the fixes' frame id, and where it came from; None (the
+    base origin, with a note) where /tf_static does not place that frame."""
+    f = gps.frame_id
+    if not f or f == base:
+        return None, f"at the base origin: the fixes' frame {repr(f) if f else '(none)'} is the base's"
+    try:
+        T = tree.lookup(base, f)
+    except TfConflict as err:
+        T, why = None, str(err)
+    else:
+        why = f"/tf_static has no chain {base} -> {f}"
+    if T is None:
+        notes.append(f"GPS {gps.topic}: the antenna taken at the base origin ({why}); a roof antenna's offset "
+                     "then turns with the heading")
+        return None, f"at the base origin ({why})"
+    a = T[:3, 3]
+    return a.copy(), f"{tree.source(base, f)} ({base} -> {f}): {a[0]:.3f}, {a[1]:.3f}, {a[2]:.3f} m"
 
 
 def _child_rotation(tree: FrameTree, base: str, child: str, extrinsics: dict) -> np.ndarray | None:
@@ -253,5 +274,5 @@ def heading_variance(imu) -> float | None:
     return float(np.median(imu.orientation_cov[imu.orientation_valid, 2, 2]))
 
 
-__all__ = ["FuseSources", "base_frame_of", "check_clocks", "choose_sources", "gather_sources", "imu_extrinsic",
-           "resolved_use"]
+__all__ = ["FuseSources", "base_frame_of", "check_clocks", "choose_sources", "gather_sources", "gps_antenna",
+           "imu_extrinsic", "resolved_use"]

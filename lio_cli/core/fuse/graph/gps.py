@@ -39,16 +39,22 @@ def gps_sigmas(g, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(0.5 * (c[:, 0, 0] + c[:, 1, 1])), np.sqrt(c[:, 2, 2])
 
 
-def _fix_axes(z: np.ndarray, axes: slice):
-    """A CustomFactor's error function: the keyframe's position on ``axes`` (horizontal 0:2, vertical 2:3) plus
-    the receiver error there minus the fix."""
+def _fix_axes(z: np.ndarray, axes: slice, lever: np.ndarray | None = None):
+    """A CustomFactor's error function: the antenna's position on ``axes`` (horizontal 0:2, vertical 2:3; the
+    keyframe's pose moved by ``lever``, base axes) plus the receiver error there (a second key) minus the fix."""
+    a = np.zeros(3) if lever is None else np.asarray(lever, float)
+    skew = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
     def error(this, values, H):
-        T = values.atPose3(this.keys()[0])
-        b = values.atPoint3(this.keys()[1])
+        keys = this.keys()
+        T = values.atPose3(keys[0])
+        R = T.rotation().matrix()
+        b = values.atPoint3(keys[1]) if len(keys) > 1 else np.zeros(3)
         if H is not None:
-            H[0] = np.hstack([np.zeros((len(z), 3)), T.rotation().matrix()[axes, :]])
-            H[1] = np.eye(3)[axes, :]
-        return T.translation()[axes] + b[axes] - z
+            H[0] = np.hstack([(-R @ skew)[axes, :], R[axes, :]])
+            if len(keys) > 1:
+                H[1] = np.eye(3)[axes, :]
+        return T.translation()[axes] + (R @ a)[axes] + b[axes] - z
     return error
 
 
@@ -68,6 +74,7 @@ def attach_fixes(m, prep, kt: np.ndarray) -> None:
     guard's window, seconds) and the receiver-error chain's sigmas (zero: no chain on that axis)."""
     m.gps_k = m.gps_j = np.zeros(0, np.int64)
     m.gps_bias_sigma = m.gps_bias_sigma_v = 0.0  # the receiver-error chain's, horizontal and vertical
+    m.gps_lever = None  # the antenna on the base (base axes), None at its origin
     g = prep.gps
     if g is not None and len(g) and "gps" in prep.use:
         ok = (g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]) & _accepted(g)
@@ -80,6 +87,7 @@ def attach_fixes(m, prep, kt: np.ndarray) -> None:
             m.gps_h, m.gps_v = gps_sigmas(g, idx)
             m.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
             m.gps_t_s = (g.stamps_ns[idx] - kt[0]) * 1e-9
+            m.gps_lever = g.lever
             # horizontally only beside odometry: without it the chain measured mixed (docs/benchmarks.md)
             if prep.odom is not None and "odom" in prep.use:
                 m.gps_bias_sigma = GPS_BIAS_RATIO * float(np.median(m.gps_h))
@@ -99,16 +107,24 @@ def add_fixes(g, m, level, nodes: np.ndarray, bias_seam: dict[int, np.ndarray], 
         k, z, h, v = int(m.gps_k[j]), m.gps_z[j], float(m.gps_h[j]), float(m.gps_v[j])
         if m.gps_bias_sigma > 0:  # beside odometry: its increments carry the height, the altitude wanders
             v *= ODOM_GPS_VERTICAL_SCALE
+        a = m.gps_lever
         if m.gps_bias_sigma_v > 0:
             nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
-            g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _fix_axes(z[:2], slice(0, 2))))
+            g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _fix_axes(z[:2], slice(0, 2), a)))
             if level is None:  # with a height prior the vertical fix stays white (below)
                 nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
-                g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3))))
+                g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3), a)))
                 continue
+        elif a is not None:
+            nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
+            g.add(gtsam.CustomFactor(nh, [X(k)], _fix_axes(z[:2], slice(0, 2), a)))
         else:
             nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
             g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
+        if a is not None:  # the vertical fix alone (a white one)
+            nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
+            g.add(gtsam.CustomFactor(nv, [X(k)], _fix_axes(z[2:], slice(2, 3), a)))
+            continue
         nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
         g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
     if not len(nodes):
