@@ -60,8 +60,11 @@ def test_an_antenna_frame_tf_static_does_not_place_is_taken_at_the_base_origin_w
     assert gps_antenna(tree, "base", _track("gps"), notes) == (None, "at the base origin (/tf_static has no "
                                                                      "chain base -> gps)")
     assert notes == ["GPS /gps/fix: the antenna taken at the base origin (/tf_static has no chain base -> gps); a "
-                     "roof antenna's offset then turns with the heading"]
+                     "roof antenna's offset then turns with the heading: give input.gps_antenna (x, y, z in the "
+                     "base frame) in --config"]
     assert gps_antenna(tree, "base", _track("base"), notes)[0] is None and len(notes) == 1
+    a, why = gps_antenna(tree, "base", _track("gps"), notes, [-0.5, 0.0, 1.55])
+    assert a.tolist() == [-0.5, 0.0, 1.55] and why == "input.gps_antenna: -0.500, 0.000, 1.550 m" and len(notes) == 1
 
 
 def test_the_lever_arm_s_jacobian_matches_finite_differences():
@@ -86,3 +89,17 @@ def test_the_lever_arm_s_jacobian_matches_finite_differences():
 
 def test_metrics_with_numpy_booleans_are_written():
     assert json_text({"consistent": np.bool_(False)}) == '{\n  "consistent": false\n}\n'
+
+
+def test_a_log_without_the_antenna_s_transform_takes_it_from_the_config(tmp_path):
+    log = tmp_path / "no_tf.mcap"  # /tf_static left out: the IMU's mounting given, the antenna from the config
+    simulate("drive", log, duration_s=30.0, seed=7, start="moving", lidar=False, wheel_errors=False, gps=True,
+             gps_noise_m=(0.02, 0.04), gps_outage_s=0.0, tf_static=False)
+    T_base_imu = json.loads(log.with_name("no_tf.truth.json").read_text())["T_base_imu"]
+    plain = run_fuse(FuseJob(log, FuseConfig(calibration={"T_base_imu": T_base_imu})))
+    given = run_fuse(FuseJob(log, FuseConfig(calibration={"T_base_imu": T_base_imu},
+                                             input={"gps_antenna": [-0.5, 0.0, 1.55]})))
+    assert any("antenna taken at the base origin" in n for n in plain.notes)
+    assert given.metrics["extrinsics"]["gps_antenna"] == "input.gps_antenna: -0.500, 0.000, 1.550 m"
+    # measured: 0.010 m with the offset given, 0.19 without
+    assert _ate(log, given.trajectory) < 0.03 < 0.1 < _ate(log, plain.trajectory)
