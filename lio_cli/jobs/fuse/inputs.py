@@ -213,18 +213,18 @@ def gps_antenna(tree: FrameTree, base: str, gps: GpsTrack, notes: list[str],
     f = gps.frame_id
     try:
         T = tree.lookup(base, f) if f and f != base else None
-    except TfConflict as err:
-        T, why = None, str(err)
+    except TfConflict:
+        T, why = None, f"/tf_static contradicts itself on {base} -> {f}"
     else:
-        why = f"/tf_static has no chain {base} -> {f}"
+        why = f"/tf_static has no chain {base} -> {f}" if f else "the fixes carry no frame id"
     if given is not None:
         a = np.asarray(given, float)
         if T is not None and np.linalg.norm(T[:3, 3] - a) > 0.01:
             notes.append(f"GPS {gps.topic}: input.gps_antenna used, {np.linalg.norm(T[:3, 3] - a):.3f} m from "
                          f"/tf_static's {base} -> {f}")
         return a, f"input.gps_antenna: {a[0]:.3f}, {a[1]:.3f}, {a[2]:.3f} m"
-    if not f or f == base:
-        return None, f"at the base origin: the fixes' frame {repr(f) if f else '(none)'} is the base's"
+    if f == base:
+        return None, f"at the base origin: the fixes' frame '{f}' is the base's"
     if T is None:
         notes.append(f"GPS {gps.topic}: the antenna taken at the base origin ({why}); a roof antenna's offset "
                      "then turns with the heading: give input.gps_antenna (x, y, z in the base frame) in --config")
