@@ -94,10 +94,11 @@ class Cell:
         return f"{self.platform}-{self.start}-{self.imu}-lidar"
 
 
-def all_cells(quick: bool, platforms: tuple[str, ...] = DEFAULT_PLATFORMS, gps: tuple[str, ...] = DEFAULT_GPS) -> list[Cell]:
+def all_cells(quick: bool, platforms: tuple[str, ...] = DEFAULT_PLATFORMS,
+              receivers: tuple[str, ...] = DEFAULT_GPS) -> list[Cell]:
     cells = []
     starts, imus = (("moving",), ("imu-rotated",)) if quick else (STARTS, tuple(IMUS))
-    for platform, start, imu, gps, odom in itertools.product(platforms, starts, imus, gps, ODOMS):
+    for platform, start, imu, gps, odom in itertools.product(platforms, starts, imus, receivers, ODOMS):
         wheels = ("-",) if platform in ("drone", "handheld") else (("wheels-bad",) if quick else tuple(WHEELS))
         cells += [Cell(platform, start, imu, w, gps, odom) for w in wheels]
     return cells

@@ -46,6 +46,8 @@ class FuseInputConfig(Strict):
                             "decided from the message poses")
     gps_origin: Optional[list[float]] = Field(None, description="ENU origin latitude, longitude (deg), altitude (m); "
                                                                 "default: the first valid fix")
+    gps_antenna: Optional[list[float]] = Field(None, description="the GPS antenna in the base frame, x, y, z (m); "
+                                                                 "default: /tf_static's base -> the fixes' frame")
 
     @model_validator(mode="after")
     def _one_odom(self) -> "FuseInputConfig":
@@ -53,6 +55,8 @@ class FuseInputConfig(Strict):
             raise ValueError("give the odometry as odom_topic or odom_file, not both")
         if self.gps_origin is not None and (len(self.gps_origin) != 3 or not np.isfinite(self.gps_origin).all()):
             raise ValueError("gps_origin must be 3 finite numbers: latitude, longitude, altitude")
+        if self.gps_antenna is not None and (len(self.gps_antenna) != 3 or not np.isfinite(self.gps_antenna).all()):
+            raise ValueError("gps_antenna must be 3 finite numbers: x, y, z in the base frame (m)")
         return self
 
 

@@ -52,7 +52,8 @@ def prefix_without_gps(prep: Prepared, t_end_ns: int) -> Prepared:
 
 
 def yaw_onto(path_xy: np.ndarray, fixes_xy: np.ndarray) -> float:
-    """Rotation angle about z that best maps ``path_xy`` onto ``fixes_xy`` (both (N,2), centred here)."""
+    """Rotation angle about z that best maps ``path_xy`` onto ``fixes_xy`` (both (N,2), centred here; the antenna's
+    offset on the base left out: a fraction of a metre against the metres of track the fit needs)."""
     a = path_xy - path_xy.mean(axis=0)
     b = fixes_xy - fixes_xy.mean(axis=0)
     s = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
@@ -122,6 +123,7 @@ def miss(prep: Prepared, knots: dict, xy: slice) -> float:
     ok = prep.gps.accepted[k] & (np.arange(len(k)) >= len(k) // 2)
     if not ok.any():
         return math.inf
+    # the base's path against the antenna's fixes: the antenna's offset moves every try alike
     d = knots["x_filt"][ok][:, xy] - prep.gps.position_enu_m[k[ok], :2]
     return float(np.median(np.linalg.norm(d, axis=1)))
 

@@ -69,7 +69,7 @@ def _jackknife_sigma(tw: np.ndarray, inv: np.ndarray, tc: np.ndarray, g: np.ndar
 class Fit:
     """``d = b_j + b'_j tc + c g`` fitted with far samples trimmed (a run of them widened by ``TRIM_EDGE_S``): the
     residual, its robust sigma, the kept samples, ``c`` and its sigma (the larger of the fit's and the
-    jackknife's)."""
+    jackknife's). The last trim is judged on the pass before it, so a kept sample may lie just past it after."""
 
     r: np.ndarray
     sigma: float

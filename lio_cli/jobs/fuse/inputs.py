@@ -196,7 +196,7 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     if "gps" in roles:
         origin = EnuFrame(*cfg.input.gps_origin) if cfg.input.gps_origin else None
         gps = read_gps_track(reader, roles["gps"].topic, origin)
-        antenna, extrinsics["gps_antenna"] = gps_antenna(tree, base, gps, notes)
+        antenna, extrinsics["gps_antenna"] = gps_antenna(tree, base, gps, notes, cfg.input.gps_antenna)
         inputs.gps = gps_series(gps, antenna)
     use = resolved_use(cfg, inputs, notes)
     described = {s: {"topic": c.topic, "why": c.why} for s, c in roles.items()}
@@ -205,21 +205,29 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     return FuseSources(inputs, use, described, base, twist, gps, extrinsics, notes)
 
 
-def gps_antenna(tree: FrameTree, base: str, gps: GpsTrack, notes: list[str]) -> tuple[np.ndarray | None, str]:
-    """The antenna's position on the base (base axes) by the fixes' frame id, and where it came from; None (the
-    base origin, with a note) where /tf_static does not place that frame."""
+def gps_antenna(tree: FrameTree, base: str, gps: GpsTrack, notes: list[str],
+                given: list[float] | None = None) -> tuple[np.ndarray | None, str]:
+    """The antenna's position on the base (base axes) and where it came from: ``given`` (the config's
+    ``input.gps_antenna``), else /tf_static by the fixes' frame id; None (the base origin, with a note) where
+    neither places it."""
     f = gps.frame_id
-    if not f or f == base:
-        return None, f"at the base origin: the fixes' frame {repr(f) if f else '(none)'} is the base's"
     try:
-        T = tree.lookup(base, f)
-    except TfConflict as err:
-        T, why = None, str(err)
+        T = tree.lookup(base, f) if f and f != base else None
+    except TfConflict:
+        T, why = None, f"/tf_static contradicts itself on {base} -> {f}"
     else:
-        why = f"/tf_static has no chain {base} -> {f}"
+        why = f"/tf_static has no chain {base} -> {f}" if f else "the fixes carry no frame id"
+    if given is not None:
+        a = np.asarray(given, float)
+        if T is not None and np.linalg.norm(T[:3, 3] - a) > 0.01:
+            notes.append(f"GPS {gps.topic}: input.gps_antenna used, {np.linalg.norm(T[:3, 3] - a):.3f} m from "
+                         f"/tf_static's {base} -> {f}")
+        return a, f"input.gps_antenna: {a[0]:.3f}, {a[1]:.3f}, {a[2]:.3f} m"
+    if f == base:
+        return None, f"at the base origin: the fixes' frame '{f}' is the base's"
     if T is None:
         notes.append(f"GPS {gps.topic}: the antenna taken at the base origin ({why}); a roof antenna's offset "
-                     "then turns with the heading")
+                     "then turns with the heading: give input.gps_antenna (x, y, z in the base frame) in --config")
         return None, f"at the base origin ({why})"
     a = T[:3, 3]
     return a.copy(), f"{tree.source(base, f)} ({base} -> {f}): {a[0]:.3f}, {a[1]:.3f}, {a[2]:.3f} m"
