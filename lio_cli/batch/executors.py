@@ -235,8 +235,9 @@ def _local_cluster(LocalCluster, workers: int):
     cluster = None
     try:
         with _stderr_to_devnull():  # the worker processes inherit it
+            # CRITICAL: a task whose workers died (a signal to the group) is lio's to report, not the scheduler's
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+                                   silence_logs=logging.CRITICAL)
         yield cluster
     except BaseException:
         _silence_dask()
