@@ -37,6 +37,7 @@ class Start:
 
 
 STILL_SPEED_MPS = 0.05  # wheel speed, or odometry displacement over the window per second, of a base at rest
+GPS_SPEED_SIGMAS = 4.0  # the fixes' speed over the start window, in sigmas of its line fit, that says it moves
 
 
 def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | None:
@@ -55,6 +56,32 @@ def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | N
             d = float(np.linalg.norm(od.poses[sel[-1], :3, 3] - od.poses[sel[0], :3, 3]))
             if dt_s > 0 and d / dt_s > STILL_SPEED_MPS:
                 return f"the odometry moves {d / dt_s:.2f} m/s"
+    if "gps" in prep.use and prep.gps is not None and len(prep.gps):
+        return _moving_by_fixes(prep.gps, t0, window_ns)
+    return None
+
+
+def _moving_by_fixes(g, t0: int, window_ns: int) -> str | None:
+    """Why the accepted fixes over the start window (widened to hold 4 of them) say the base moves: their speed
+    by a line fit beyond ``GPS_SPEED_SIGMAS`` of its sigma (the fixes' claimed sigma, or their scatter about the
+    line where larger) and ``STILL_SPEED_MPS``; or None."""
+    ok = np.flatnonzero(np.asarray(g.accepted, bool) & (g.stamps_ns >= t0))
+    if len(ok) < 4:
+        return None
+    end = max(t0 + window_ns, int(g.stamps_ns[ok[3]]))
+    ok = ok[g.stamps_ns[ok] <= end]
+    t = (g.stamps_ns[ok] - g.stamps_ns[ok[0]]) * 1e-9
+    if t[-1] <= 0:
+        return None
+    A = np.column_stack([np.ones(len(t)), t - t.mean()])
+    xy = g.position_enu_m[ok, :2]
+    coef, *_ = np.linalg.lstsq(A, xy, rcond=None)
+    resid = xy - A @ coef
+    scatter = float(np.sqrt(np.sum(resid**2) / max(2 * (len(t) - 2), 1)))
+    sigma = max(float(np.median(g.sigma_h_m[ok])), scatter) / float(np.sqrt(np.sum((t - t.mean()) ** 2)))
+    speed = float(np.hypot(*coef[1]))
+    if speed > max(STILL_SPEED_MPS, GPS_SPEED_SIGMAS * sigma):
+        return f"the GPS fixes move {speed:.2f} m/s"
     return None
 
 
