@@ -38,6 +38,9 @@ class Start:
 
 STILL_SPEED_MPS = 0.05  # wheel speed, or odometry displacement over the window per second, of a base at rest
 GPS_SPEED_SIGMAS = 4.0  # the fixes' speed over the start window, in sigmas of its line fit, that says it moves
+# and at least this: a receiver's step at rest (an RTK fix regained) reads as a slow motion over the window, and a
+# slow start taken as standing costs little where a cruising one taken so diverged
+GPS_MIN_SPEED_MPS = 0.5
 
 
 def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | None:
@@ -62,25 +65,30 @@ def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | N
 
 
 def _moving_by_fixes(g, t0: int, window_ns: int) -> str | None:
-    """Why the accepted fixes over the start window (widened to hold 4 of them) say the base moves: their speed
-    by a line fit beyond ``GPS_SPEED_SIGMAS`` of its sigma (the fixes' claimed sigma, or their scatter about the
-    line where larger) and ``STILL_SPEED_MPS``; or None."""
-    ok = np.flatnonzero(np.asarray(g.accepted, bool) & (g.stamps_ns >= t0))
+    """Why the accepted fixes over the start window (the one the IMU was judged still over) say the base moves:
+    their speed by a line fit beyond ``GPS_MIN_SPEED_MPS`` and ``GPS_SPEED_SIGMAS`` of its sigma (from the claimed
+    sigma; from the scatter about the line where larger, its threshold then as rare under Student's law); None with
+    fewer than 4 fixes there or where they scatter about the line over twice their claim (a step, not a motion)."""
+    ok = np.flatnonzero(np.asarray(g.accepted, bool) & (g.stamps_ns >= t0) & (g.stamps_ns <= t0 + window_ns))
     if len(ok) < 4:
         return None
-    end = max(t0 + window_ns, int(g.stamps_ns[ok[3]]))
-    ok = ok[g.stamps_ns[ok] <= end]
     t = (g.stamps_ns[ok] - g.stamps_ns[ok[0]]) * 1e-9
-    if t[-1] <= 0:
+    sxx = float(np.sum((t - t.mean()) ** 2))
+    if sxx <= 0:
         return None
     A = np.column_stack([np.ones(len(t)), t - t.mean()])
     xy = g.position_enu_m[ok, :2]
     coef, *_ = np.linalg.lstsq(A, xy, rcond=None)
-    resid = xy - A @ coef
-    scatter = float(np.sqrt(np.sum(resid**2) / max(2 * (len(t) - 2), 1)))
-    sigma = max(float(np.median(g.sigma_h_m[ok])), scatter) / float(np.sqrt(np.sum((t - t.mean()) ** 2)))
+    dof = 2 * (len(t) - 2)
+    scatter = float(np.sqrt(np.sum((xy - A @ coef) ** 2) / dof))
+    claim = float(np.median(g.sigma_h_m[ok]))
+    if scatter > 2.0 * claim:
+        return None
+    k = GPS_SPEED_SIGMAS
+    if scatter > claim:  # speed^2 sxx / scatter^2 is 2 F(2, dof): the same tail as 4 sigmas of a known one
+        k = float(np.sqrt(dof * (np.exp(GPS_SPEED_SIGMAS**2 / dof) - 1.0)))
     speed = float(np.hypot(*coef[1]))
-    if speed > max(STILL_SPEED_MPS, GPS_SPEED_SIGMAS * sigma):
+    if speed > max(GPS_MIN_SPEED_MPS, k * max(claim, scatter) / np.sqrt(sxx)):
         return f"the GPS fixes move {speed:.2f} m/s"
     return None
 
