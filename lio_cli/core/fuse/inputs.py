@@ -82,6 +82,12 @@ class PoseSeries:
         return len(self.stamps_ns)
 
 
+def at_antenna(R: np.ndarray, p: np.ndarray, lever: np.ndarray | None) -> np.ndarray:
+    """The antenna's world position ``p + R a`` of base rotations ``R`` ((3,3) or (N,3,3)) and positions ``p``;
+    ``p`` itself where ``lever`` is None (the antenna at the base origin)."""
+    return p if lever is None else p + R @ lever
+
+
 @dataclass
 class GpsSeries:
     """GPS fixes already converted to a local ENU frame (metres): ``position_enu_m`` (N,3), ``cov_m2``

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gps_quality import white_sigma_m
+from .inputs import at_antenna
 from .timeline import Prepared
 
 TAU_S = 60.0
@@ -147,7 +148,7 @@ def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> Shap
         return None
     idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), MAX_FIXES)).round().astype(int))]
     t = g.stamps_ns[idx]
-    xy = poses[:, :2, 3] if g.lever is None else poses[:, :2, 3] + (poses[:, :3, :3] @ g.lever)[:, :2]  # antenna
+    xy = at_antenna(poses[:, :3, :3], poses[:, :3, 3], g.lever)
     p = np.column_stack([np.interp(t, stamps_ns, xy[:, 0]), np.interp(t, stamps_ns, xy[:, 1])])
     white = white_sigma_m(g.stamps_ns[ok], g.position_enu_m[ok, :2])
     sigma = TRUE_OVER_CLAIMED * max(float(np.median(g.sigma_h_m[idx])), white)

@@ -11,6 +11,8 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import G, X
 
+from ..state3d import skew3
+
 HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
 CAUCHY_K = 1.0  # vertical GPS: an altitude wander is a run of outliers
 GPS_BIAS_PERIOD_NS = 5_000_000_000  # the guard's windows of the receiver error (guard.residuals)
@@ -43,7 +45,7 @@ def _fix_axes(z: np.ndarray, axes: slice, lever: np.ndarray | None = None):
     """A CustomFactor's error function: the antenna's position on ``axes`` (horizontal 0:2, vertical 2:3; the
     keyframe's pose moved by ``lever``, base axes) plus the receiver error there (a second key) minus the fix."""
     a = np.zeros(3) if lever is None else np.asarray(lever, float)
-    skew = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    skew = skew3(a)
 
     def error(this, values, H):
         keys = this.keys()
@@ -108,25 +110,20 @@ def add_fixes(g, m, level, nodes: np.ndarray, bias_seam: dict[int, np.ndarray], 
         if m.gps_bias_sigma > 0:  # beside odometry: its increments carry the height, the altitude wanders
             v *= ODOM_GPS_VERTICAL_SCALE
         a = m.gps_lever
-        if m.gps_bias_sigma_v > 0:
+        keys = [X(k), G(j)] if m.gps_bias_sigma_v > 0 else [X(k)]
+        vkeys = keys if level is None else [X(k)]  # with a height prior the vertical fix stays white
+        if len(keys) > 1 or a is not None:
             nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
-            g.add(gtsam.CustomFactor(nh, [X(k), G(j)], _fix_axes(z[:2], slice(0, 2), a)))
-            if level is None:  # with a height prior the vertical fix stays white (below)
-                nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
-                g.add(gtsam.CustomFactor(nv, [X(k), G(j)], _fix_axes(z[2:], slice(2, 3), a)))
-                continue
-        elif a is not None:
-            nh = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, h))
-            g.add(gtsam.CustomFactor(nh, [X(k)], _fix_axes(z[:2], slice(0, 2), a)))
+            g.add(gtsam.CustomFactor(nh, keys, _fix_axes(z[:2], slice(0, 2), a)))
         else:
             nh = gtsam.noiseModel.Diagonal.Sigmas(np.array([h, h, FREE_SIGMA]))
             g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(huber, nh)))
-        if a is not None:  # the vertical fix alone (a white one)
+        if len(vkeys) > 1 or a is not None:
             nv = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Isotropic.Sigma(1, v))
-            g.add(gtsam.CustomFactor(nv, [X(k)], _fix_axes(z[2:], slice(2, 3), a)))
-            continue
-        nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
-        g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
+            g.add(gtsam.CustomFactor(nv, vkeys, _fix_axes(z[2:], slice(2, 3), a)))
+        else:
+            nv = gtsam.noiseModel.Diagonal.Sigmas(np.array([FREE_SIGMA, FREE_SIGMA, v]))
+            g.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Robust.Create(cauchy, nv)))
     if not len(nodes):
         return
     sh = m.gps_bias_sigma if m.gps_bias_sigma > 0 else PINNED_SIGMA_M

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..inputs import at_antenna
 from .factors import Measurements
 
 RATIO = 1.05  # worse than the filter only beyond this: a good smoother's residual sits near the filter's
@@ -26,9 +27,7 @@ def residuals(m: Measurements, s: dict[str, np.ndarray]) -> dict[str, float]:
     """RMS residual per source of the keyframe states ``s`` (R, p, v)."""
     out: dict[str, float] = {}
     if len(m.gps_k):
-        d = s["p"][m.gps_k, :2] - m.gps_z[:, :2]
-        if m.gps_lever is not None:  # the antenna, not the base origin
-            d = d + (s["R"][m.gps_k] @ m.gps_lever)[:, :2]
+        d = at_antenna(s["R"][m.gps_k], s["p"][m.gps_k], m.gps_lever)[:, :2] - m.gps_z[:, :2]
         if m.gps_bias_sigma > 0:  # the slow receiver error apart: each 5 s window's mean residual, the rest
             j, inv = np.unique(m.gps_j, return_inverse=True)
             mean = np.stack([np.bincount(inv, d[:, c]) for c in range(2)], 1) / np.bincount(inv)[:, None]
