@@ -85,13 +85,21 @@ def test_a_dead_batchs_lock_is_taken_over(sim, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["office", "summary.csv", "summary.json"]
 
 
+def _lock_text(out):
+    try:
+        return (out / LOCK_FILE).read_text()
+    except OSError:
+        return ""
+
+
 def test_two_batches_started_together_one_runs_the_other_is_refused(sim, tmp_path):
     argv = ["batch", "odom", str(sim.logs["walk_a"]), str(sim.logs["office"]), "-O", "out", "--resume", "--jobs", "1",
             "-q"]
     first = _start(argv, tmp_path)
     try:
         deadline = time.monotonic() + WAIT_S
-        while not (tmp_path / "out" / LOCK_FILE).exists() and first.poll() is None and time.monotonic() < deadline:
+        # the pid in the file: the first has locked it (a bare file may be a moment before its flock and write)
+        while _lock_text(tmp_path / "out") != f"{first.pid}\n" and first.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
         os.killpg(first.pid, signal.SIGSTOP)  # the first holds the lock, mid-batch, for as long as the second takes
         try:
