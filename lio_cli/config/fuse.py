@@ -147,16 +147,21 @@ class FuseConfig(Strict):
 
 def parse_use(items: list[str]) -> dict[str, list[str]]:
     """``--use`` values (``imu:gyro,accel``, ``wheel``, ``gps:position``) as a selection; a bare source name
-    selects its ``DEFAULT_USE`` measurements."""
+    selects its ``DEFAULT_USE`` measurements, and a bare ``wheel`` without the gyro its yaw rate too."""
     out: dict[str, list[str]] = {}
+    bare = set()
     for item in items:
         src, _, names = item.partition(":")
         src = src.strip()
         if src not in MEASUREMENTS:
             raise ConfigError(f"--use {item}: unknown source '{src}' (choose from {', '.join(SOURCES)})")
         chosen = [n.strip() for n in names.split(",") if n.strip()] if names else list(DEFAULT_USE[src])
+        if not names:
+            bare.add(src)
         out.setdefault(src, [])
         out[src] = sorted(set(out[src]) | set(chosen))
+    if "wheel" in bare and "gyro" not in out.get("imu", ()):  # else nothing turns: a straight line
+        out["wheel"] = sorted(set(out["wheel"]) | {"yaw_rate"})
     return out
 
 

@@ -26,6 +26,11 @@ def test_defaults_are_the_cores():
 def test_use_syntax():
     assert parse_use(["imu:gyro,accel", "wheel", "gps:position", "imu:orientation"]) == {
         "imu": ["accel", "gyro", "orientation"], "wheel": ["speed"], "gps": ["position"]}
+    # a bare wheel without the gyro turns by its own yaw rate (speed alone drew a straight line)
+    assert parse_use(["wheel"]) == {"wheel": ["speed", "yaw_rate"]}
+    assert parse_use(["imu:accel", "wheel", "gps"]) == {"imu": ["accel"], "wheel": ["speed", "yaw_rate"],
+                                                        "gps": ["position"]}
+    assert parse_use(["wheel:speed"]) == {"wheel": ["speed"]}  # named: as named
     with pytest.raises(ConfigError) as err:
         parse_use(["lidar:points"])
     assert str(err.value) == "--use lidar:points: unknown source 'lidar' (choose from imu, wheel, odom, gps)"
