@@ -257,7 +257,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         return rep
     if abs(s - 1.0) > MAX_SCALE_OFF:
         rep.why = (f"wheel scale {s:.4f}: further from 1 than a wheel's radius error ({MAX_SCALE_OFF:.0%}), the "
-                   f"IMU's forward axis is likely not the base's: wheels left as they are")
+                   f"IMU's forward axis is likely not the base's"
+                   + (" or the wheels' speed has its sign reversed" if s < 0 else "") + ": wheels left as they are")
         return rep
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0

@@ -108,6 +108,16 @@ class Weighed:
             int(np.count_nonzero(seen & self.unchecked[i])) + unseen
 
 
+def _in_degrees(ratio: float) -> str:
+    """A hint where the wheels' yaw rate over the gyro's is a radian over a degree (or its inverse), within 5 %."""
+    deg = np.pi / 180.0
+    if abs(ratio / deg - 1.0) < 0.05:
+        return " (the gyro reads 57.3x the wheels: is the IMU's angular velocity in deg/s?)"
+    if abs(ratio * deg - 1.0) < 0.05:
+        return " (the wheels read 57.3x the gyro: is their yaw rate in deg/s?)"
+    return ""
+
+
 def _gyro_mean(ti: np.ndarray, gz: np.ndarray, gap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The gyro's mean over [a, b] (seconds, the IMU's trapezoid integral); NaN across an IMU gap."""
     G = running_integral(ti, gz)
@@ -177,7 +187,8 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
         return rep, None, None
     if abs(c) > MAX_SCALE_OFF:
         rep.why = (f"the wheels' yaw rate is {-c:+.1%} off the gyro's scale, beyond {MAX_SCALE_OFF:.0%}: not a "
-                   "radius or baseline error (a zero, flipped or skid-steered yaw rate): the gyro's alone")
+                   "radius or baseline error (a zero, flipped or skid-steered yaw rate): the gyro's alone"
+                   + _in_degrees(1.0 - c))
         return rep, None, None
     if 2.0 * c_sigma > SCALE_TOL:
         rep.why = (f"the wheels' yaw scale is {-c:+.2%} +- {c_sigma:.3%} off the gyro's, not measured to "

@@ -113,7 +113,17 @@ def test_a_zero_flipped_or_halved_yaw_rate_is_no_scale_to_divide_out(yaw_scale):
     check = res.info["wheel_yaw_check"]
     assert not check["used"] and "yaw_rate" not in res.info["use"]["wheel"], check
     assert "beyond 10%: not a radius or baseline error" in check["why"]
+    assert "deg/s" not in check["why"]
     assert np.isfinite(res.poses).all()
+
+
+@pytest.mark.parametrize("yaw_scale, hint", [
+    (np.pi / 180, " (the gyro reads 57.3x the wheels: is the IMU's angular velocity in deg/s?)"),
+    (180 / np.pi, " (the wheels read 57.3x the gyro: is their yaw rate in deg/s?)")])
+def test_a_yaw_rate_in_degrees_is_named(yaw_scale, hint):
+    inputs, _ = _case(yaw_scale=yaw_scale)  # the wheels' yaw rate over the gyro's: a radian against a degree
+    check = fuse(inputs, FuseOptions(rate_hz=20.0)).info["wheel_yaw_check"]
+    assert not check["used"] and check["why"].endswith(hint), check
 
 
 def test_a_yaw_scale_the_fit_cannot_measure_leaves_the_wheels_out():
