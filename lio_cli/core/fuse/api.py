@@ -171,8 +171,8 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
     if o.estimator == "planar":
         planar_use(use)
     kept = replace(prep, use=use, reports=reports,
-                   notes=notes + [f"smoother: the {o.estimator} filter's trajectory kept, the factor graph's "
-                                  f"explained the measurements worse than the 3D filter ({refused})"])
+                   notes=notes + [f"smoother: the {o.estimator} filter's trajectory kept: the factor graph "
+                                  f"explained the measurements worse than the 3D filter it starts from ({refused})"])
     fallback = _run_filter(kept, o)
     fallback.info["smoother"] = {**info, "kept": fallback.info.get("smoother", {}).get("kind") or "filter"}
     return fallback, kept
