@@ -49,11 +49,15 @@ def check_same_clock(log: LogReader, reference: str, other: str, other_offset_ns
     apart = float(np.median(d_oth)) + other_offset_ns - float(np.median(d_ref))
     if abs(apart) <= CLOCK_TOLERANCE_NS or abs(int(h_oth[0]) + other_offset_ns - int(h_ref[0])) <= CLOCK_TOLERANCE_NS:
         return
-    shift = -apart * 1e-9
+    total = (other_offset_ns - apart) * 1e-9  # the offset that puts them on one clock, the one given included
+    if other_offset_ns and abs(total) * 1e9 <= CLOCK_TOLERANCE_NS:
+        fix = f"they agree without the {other_offset_ns * 1e-9:.3f} s offset given: give {option} 0 or leave it out"
+    else:
+        fix = f"if {other} runs on a shifted clock give {option} {total:.3f}"
     raise InputError(
         f"{log.path}: {other} and {reference} are stamped on different clocks ({other} from "
         f"{_fmt_s(h_oth[0] + other_offset_ns)} s, {reference} from {_fmt_s(h_ref[0])} s: {abs(apart) * 1e-9:.6g} s "
-        f"apart beyond their recording times); if {other} runs on a shifted clock give {option} {shift:.3f}"
+        f"apart beyond their recording times); {fix}"
     )
 
 

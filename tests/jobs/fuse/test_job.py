@@ -169,9 +169,23 @@ def test_sources_on_different_clocks_and_the_offset_that_joins_them(fuse_logs):
         f"{log}: /imu and /wheel/odom are stamped on different clocks (/imu from 1700001000.000 s, /wheel/odom "
         "from 1700000000.000 s: 1000 s apart beyond their recording times); if /imu runs on a shifted clock give "
         "--imu-time-offset -1000.000")
+    with pytest.raises(InputError) as err:  # an offset given short of the shift: the whole offset is suggested
+        run_fuse(FuseJob(log, FuseConfig(calibration={"imu_time_offset_s": -400.0})))
+    assert str(err.value).endswith("600 s apart beyond their recording times); if /imu runs on a shifted clock give "
+                                   "--imu-time-offset -1000.000")
     run = run_fuse(FuseJob(log, FuseConfig(calibration={"imu_time_offset_s": -1000.0})))
     np.testing.assert_allclose(run.trajectory.positions[-1], [2.0, 0.0, 0.0], atol=1e-3)
     assert run.trajectory.stamps_ns[0] == fuse_logs.T0_NS
+
+
+def test_an_offset_given_to_sources_on_one_clock_is_named(fuse_logs):
+    log = fuse_logs.write(duration_s=2.0)
+    with pytest.raises(InputError) as err:
+        run_fuse(FuseJob(log, FuseConfig(calibration={"imu_time_offset_s": 100.0})))
+    assert str(err.value) == (
+        f"{log}: /imu and /wheel/odom are stamped on different clocks (/imu from 1700000100.000 s, /wheel/odom "
+        "from 1700000000.000 s: 100 s apart beyond their recording times); they agree without the 100.000 s offset "
+        "given: give --imu-time-offset 0 or leave it out")
 
 
 def test_resolved_config_repeats_the_run_exactly(fuse_logs):
