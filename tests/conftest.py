@@ -7,6 +7,7 @@ Logs are written through ``LogWriter`` (rosbags' ROS 1 / ROS 2 writers, mcap's w
 from __future__ import annotations
 
 import itertools
+import os
 import signal
 import threading
 from collections.abc import Callable
@@ -15,8 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lio_cli.geometry import make_pose, so3_exp
-from lio_cli.io.logs.writer import LogWriter
+# rich colours or narrows help and usage under these, read when typer is first imported (a CI's own settings)
+for _name in ("GITHUB_ACTIONS", "FORCE_COLOR", "PY_COLORS", "TERMINAL_WIDTH"):
+    os.environ.pop(_name, None)
+
+from lio_cli.geometry import make_pose, so3_exp  # noqa: E402
+from lio_cli.io.logs.writer import LogWriter  # noqa: E402
 
 # Every format LogWriter writes, and the reader format it comes back as.
 WRITE_FORMATS = ("ros1", "ros2", "ros2-mcap", "mcap")

@@ -364,7 +364,7 @@ send = h._send
 def answering_slowly(stream, obj):
     send(stream, obj)
     if obj[0] == "error":
-        time.sleep(5)  # still answering when the parent ends it
+        time.sleep(120)  # still answering when the parent ends it (however slow the machine)
 h._send = answering_slowly
 h.main()
 """
@@ -381,7 +381,7 @@ h.main()
     with pytest.raises(InputError) as err:
         run(walk, tmp_path / "out.bag", True)
     assert str(err.value) == "walk.bag: /points: cannot be written"
-    assert time.perf_counter() - t0 < 4.5  # ended, not waited for
-    assert helpers[0].proc.returncode == -signal.SIGTERM
+    assert time.perf_counter() - t0 < 60  # ended, not waited for: a hang fails here
+    assert helpers[0].proc.returncode == -signal.SIGTERM  # ended by the parent, never out of its sleep
     assert capfd.readouterr().err == ""
     assert leftovers(tmp_path, "out") == []
