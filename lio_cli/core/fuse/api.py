@@ -14,6 +14,7 @@ from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
 from . import graph, heave, shape, wheel_slip
+from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
                           yaw_velocity_onto)
@@ -107,14 +108,23 @@ def _wheel_speed_backed(prep: Prepared) -> bool:
     return ((scale - 1.0) / sigma) ** 2 <= shape.CHI2_1_99
 
 
+def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
+    """``prepare``, and a note where the odometry's scale is off the wheels' beyond a radius error."""
+    prep = prepare(inputs, o)
+    note = graph_wheels.odometry_scale_note(prep.wheel, prep.odom)
+    if note:
+        prep.notes.append(note)
+    return prep
+
+
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). For
     the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied),
     unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
-        return prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
-    prep = prepare(inputs, replace(o, estimator="ekf"))
+        return _prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
+    prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
     if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]

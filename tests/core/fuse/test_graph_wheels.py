@@ -90,3 +90,22 @@ def test_gate_at_rest_keeps_the_scale_one():
     kt, s = _line(50, speed_mps=0.0)
     g = wheels.gate(kt, s, np.arange(50), np.zeros((50, 3)))
     assert g.scale == 1.0 and len(g.rejected) == 0
+
+
+@pytest.mark.parametrize("odom_scale", [1.0, 0.85, 0.5, 1000.0])
+def test_an_odometry_off_the_wheels_by_more_than_a_radius_error_is_told(long_slipping_wheels, odom_scale):
+    """Odometry in millimetres written as metres (or halved) was followed without a word; wheels 5 % long against
+    it (0.952) and 0.81 stay within a radius error's 20 %."""
+    od = long_slipping_wheels.inputs.odom
+    poses = od.poses.copy()
+    poses[:, :3, 3] *= odom_scale
+    inputs = replace(long_slipping_wheels.inputs, odom=replace(od, poses=poses))
+    notes = fuse(inputs, FuseOptions(estimator="ekf", rate_hz=20.0)).info["notes"]
+    told = [n for n in notes if n.startswith("odometry: its path is ")]
+    if abs(odom_scale / LONG - 1.0) <= 0.2:
+        assert told == []
+        return
+    head, _, tail = told[0].partition("x the wheels' distance")
+    assert len(told) == 1 and tail == (", beyond a wheel's radius error (20%): check its units and scale (the fused "
+                                       "trajectory follows it)")
+    assert float(head.rsplit(" ", 1)[1]) == pytest.approx(odom_scale / LONG, rel=0.002)

@@ -31,6 +31,7 @@ GATE_K = 3.0  # and beyond this many robust sigmas of the windows' misses (odome
 GATE_DILATE = 1  # windows left out on each side of a slip's
 MIN_WINDOW_M = 0.05  # windows shorter than this do not vote for the scale
 SCALE_BOUNDS = (0.5, 2.0)  # a pre-pass scale outside these is not a wheel's: 1 is kept
+ODOM_SCALE_OFF = 0.2  # the odometry's path off the wheels' distance by more: its units or scale, told
 MIN_SIGMA_M = 0.001  # a short interval's (a fix beside an odometry pose) increment is no surer than the poses
 # the increments' sigmas times this (as without the scale, ``factors.ODOM_WHEEL_SIGMA_SCALE``): tighter, the
 # rover's wheels drew the graph off beside odometry and GPS, slips gated out or not (docs/benchmarks.md)
@@ -122,14 +123,12 @@ class Spans:
     slips_ns: np.ndarray  # (n, 2) start, end of each window found slipping
 
 
-def against_odometry(wheel, odom) -> Spans:
-    """The wheels' distance per ``WINDOW_NS`` against the odometry's path over it: the scale (median ratio of
-    the moving windows) and the slips (the gate of ``gate``), without the graph's states (the height prior's
-    evidence needs them before the graph is built)."""
+def _windows(wheel, odom) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Window edges, the odometry's forward path and the wheels' distance over each ``WINDOW_NS``, or None."""
     t0, t1 = max(wheel.stamps_ns[0], odom.stamps_ns[0]), min(wheel.stamps_ns[-1], odom.stamps_ns[-1])
     edges = np.arange(t0, t1 + 1, WINDOW_NS)
     if len(edges) < 2:
-        return Spans(1.0, np.zeros((0, 2), np.int64))
+        return None
     P = odom.poses
     # the odometry's forward distance: each increment in its first pose's axes (its noise sideways and vertical
     # would lengthen a path of norms at low speed)
@@ -137,13 +136,38 @@ def against_odometry(wheel, odom) -> Spans:
     path = np.r_[0.0, np.cumsum(fwd)]
     speed = np.nan_to_num(wheel.velocity_mps[:, 0])
     dist = np.r_[0.0, np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(wheel.stamps_ns) * 1e-9)]
-    a = np.diff(np.interp(edges, odom.stamps_ns, path))
-    d = np.diff(np.interp(edges, wheel.stamps_ns, dist))
+    return edges, np.diff(np.interp(edges, odom.stamps_ns, path)), np.diff(np.interp(edges, wheel.stamps_ns, dist))
+
+
+def _ratio(a: np.ndarray, d: np.ndarray) -> float | None:
     moving = np.abs(d) > MIN_WINDOW_M
-    scale = 1.0
-    if moving.any():
-        s = float(np.median(a[moving] / d[moving]))
-        scale = s if SCALE_BOUNDS[0] <= s <= SCALE_BOUNDS[1] else 1.0
+    return float(np.median(a[moving] / d[moving])) if moving.any() else None
+
+
+def odometry_scale_note(wheel, odom) -> str | None:
+    """A note where the odometry's path is further from the wheels' distance than a wheel's radius error: its
+    units or scale are likely off (a millimetre written as a metre), and the fused trajectory follows it."""
+    if wheel is None or odom is None or len(wheel) < 2 or len(odom) < 2:
+        return None
+    found = _windows(wheel, odom)
+    s = None if found is None else _ratio(found[1], found[2])
+    if s is None or abs(s - 1.0) <= ODOM_SCALE_OFF:
+        return None
+    return (f"odometry: its path is {s:.4g}x the wheels' distance, beyond a wheel's radius error "
+            f"({ODOM_SCALE_OFF:.0%}): check its units and scale (the fused trajectory follows it)")
+
+
+def against_odometry(wheel, odom) -> Spans:
+    """The wheels' distance per ``WINDOW_NS`` against the odometry's path over it: the scale (median ratio of
+    the moving windows) and the slips (the gate of ``gate``), without the graph's states (the height prior's
+    evidence needs them before the graph is built)."""
+    found = _windows(wheel, odom)
+    if found is None:
+        return Spans(1.0, np.zeros((0, 2), np.int64))
+    edges, a, d = found
+    moving = np.abs(d) > MIN_WINDOW_M
+    s = _ratio(a, d)
+    scale = s if s is not None and SCALE_BOUNDS[0] <= s <= SCALE_BOUNDS[1] else 1.0
     miss = np.abs(a - scale * d)
     slip = moving & (miss > GATE_REL * scale * np.abs(d)) & (miss > GATE_K * robust_sigma(miss, centre=False))
     return Spans(scale, np.column_stack([edges[:-1][slip], edges[1:][slip]]))
