@@ -90,6 +90,16 @@ def test_a_robot_that_climbs_gets_the_3d_filter_and_a_flat_one_the_planar():
     assert fuse(_ramp_robot(0.0), FuseOptions(rate_hz=10.0, estimator="ekf")).estimator == "ekf"
 
 
+def test_the_planar_filter_given_where_the_data_ask_for_3d_is_run_and_told():
+    hills = fuse(_ramp_robot(1.0), FuseOptions(rate_hz=10.0, estimator="planar"))
+    assert hills.estimator == "planar"
+    told = [n for n in hills.info["notes"] if n.startswith("--estimator planar given")]
+    assert len(told) == 1 and told[0].startswith("--estimator planar given where the data ask for the 3D filter: the "
+                                                 "ground tilts the robot by "), told
+    flat = fuse(_ramp_robot(0.0), FuseOptions(rate_hz=10.0, estimator="planar"))
+    assert not [n for n in flat.info["notes"] if n.startswith("--estimator planar given")]
+
+
 def test_odometry_poses_beside_an_accelerometer_get_the_3d_filter_and_a_smooth_high_rate_output():
     """A car with LiDAR-like odometry and wheels: the planar filter's 200 Hz output was noisier over 0.05 s
     (0.044 m) than the odometry interpolated (0.025 m); the 3D one's is 0.007 m."""
