@@ -19,6 +19,8 @@ REJECT_REASONS = {
     "in_gap": "stamped inside a gap of every motion source",
     "yaw_slip": "a wheel yaw rate far (beyond the gate) from the bias-corrected gyro's, where the wheels' yaw rate "
                 "is otherwise used beside the gyro: a slip, left out",
+    "orientation_unfollowed": "the IMU's own orientation did not follow its gyro (relative rotation over 2 s windows "
+                              "against the integrated gyro): a frozen or broken attitude, left out",
     "yaw_unchecked": "a wheel yaw rate with no gyro mean to weigh it against (an IMU gap, outside the IMU's span), "
                      "where the wheels' yaw rate is otherwise used beside the gyro: left out",
 }
