@@ -12,6 +12,8 @@ REJECT_REASONS = {
     "duplicate_stamp": "another sample had the same stamp (the first one was kept)",
     "invalid_pose": "the pose's rotation was not a rotation (e.g. quaternion 0,0,0,0)",
     "no_fix": "the GPS fix status said invalid",
+    "stale_fix": "a GPS fix repeating the one before it exactly (latitude, longitude, altitude) while the wheels or "
+                 "odometry moved: a receiver repeating its last position, left out",
     "outside_span": "stamped outside the time span of the motion sources",
     "outlier": "innovation beyond the chi-square gate (gate_probability) against the prediction",
     "multipath_jump": "a GPS fix inside a jump of the track its own motion cannot explain (multipath), until the "
