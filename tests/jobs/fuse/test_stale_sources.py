@@ -74,7 +74,7 @@ def test_an_orientation_frozen_at_identity_is_left_out(rover, rewrite_messages, 
     imu = run.metrics["sources"]["imu"]
     assert imu["measurements"] == ["accel", "gyro"]
     assert imu["rejected"]["orientation_unfollowed"]["count"] == imu["received"] == 9001
-    assert "9001 orientation not following the gyro" in imu["summary"]
+    assert "9001 orientations not following the gyro" in imu["summary"]
     check = run.metrics["imu_orientation_check"]
     assert check["disagreeing"] == check["turning_windows"] >= 5
     assert check["median_error_deg"] == check["median_turn_deg"] > 12.0
