@@ -163,3 +163,26 @@ def _without_messages(src, dst, topic: str, t0_ns: int, t1_ns: int):
 def without_messages():
     """``without_messages(src, dst, topic, t0_ns, t1_ns)``: a gap in one topic of a ROS 1 log."""
     return _without_messages
+
+
+def _rewrite_messages(src, dst, topic: str, edit):
+    """A ROS 1 copy of ``src`` with each ``topic`` message passed through ``edit(stamp_ns, msg)`` (returns the
+    message to write)."""
+    from lio_cli.io.logs.reader import open_log
+    from lio_cli.io.logs.writer import LogWriter
+
+    with open_log(src) as reader, LogWriter(dst, "ros1") as w:
+        for name, info in reader.topics.items():
+            w.add_topic(name, info.msgtype, latching=name == "/tf_static")
+        for name, _, t_ns, msg in reader.messages():
+            if name == topic:
+                msg = edit(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg)
+            w.write(name, t_ns, msg)
+    return dst
+
+
+@pytest.fixture(scope="session")
+def rewrite_messages():
+    """``rewrite_messages(src, dst, topic, edit)``: a ROS 1 copy of a log with each ``topic`` message passed through
+    ``edit(stamp_ns, msg)``."""
+    return _rewrite_messages

@@ -16,6 +16,11 @@ the filter's own share ``H P H^T`` is the measurement's variance, and the larger
 used, horizontally and vertically apart (the altitude wanders by tens of metres on consumer receivers and
 must not pull, or gate out, the horizontal).
 
+Stale fixes (``drop_stale``, on the cleaned fixes, before the rest): a fix whose position is exactly the one before
+it while the wheels or the odometry move faster than ``MOVING_MPS`` is a receiver repeating its last fix (a frozen
+output, status still FIX): left out. At rest a repeated fix is still the right position (a receiver's static hold)
+and is kept; without wheels or odometry nothing tells rest from motion and every fix is kept.
+
 The jump test sees only the GPS track, whose velocity is noisy on a turning platform: it can miss a jump's end
 and keep a good track out for ``JUMP_MAX_S``, while the motion sources drift. The filter re-admits a flagged
 fix (``JumpReadmit``) when its own horizontal uncertainty exceeds the jump threshold (it cannot tell a jump
@@ -30,7 +35,7 @@ from collections import deque
 
 import numpy as np
 
-from .inputs import GpsSeries
+from .inputs import GpsSeries, PoseSeries, WheelSeries
 from .report import SourceReport
 
 JUMP_SIGMAS = 5.0  # a step this many robust sigmas beyond the track's own motion is a jump
@@ -45,6 +50,8 @@ RAISE_RATIO = 2.0  # the measured variance replaces the claimed one only above t
 READMIT_RUN = 5  # flagged fixes in a row agreeing with the filter end a jump the track test missed
 READMIT_CHI2 = 4.605  # 90 % quantile of a chi-square variable with 2 degrees of freedom
 BACK_SHARE = 0.75  # a residual this share of the jump threshold from the one before the jump: the track is back
+MOVING_MPS = 0.2  # the wheels or odometry this fast: a fix repeating the one before it is stale
+SPEED_BASE_NS = 500_000_000  # the odometry's speed: its displacement over this long
 MEDIAN_CHI2 = {1: 0.4549, 2: 1.3863}  # median of a chi-square variable with 1 and 2 degrees of freedom
 
 
@@ -140,6 +147,44 @@ def _shift(recent: deque, e: np.ndarray, t: float, p: np.ndarray) -> None:
     recent.clear()
     recent.extend(moved)
     recent.append((t, p))
+
+
+def motion_speed(stamps_ns: np.ndarray, wheel: WheelSeries | None, odom: PoseSeries | None) -> np.ndarray | None:
+    """The platform's speed (m/s) at ``stamps_ns`` by the wheels and the odometry (the larger); None without
+    either."""
+    out = None
+    if wheel is not None and len(wheel):
+        v = wheel.velocity_mps
+        ok = np.any(np.isfinite(v), axis=1)
+        if np.any(ok):
+            out = np.interp(stamps_ns, wheel.stamps_ns[ok], np.sqrt(np.nansum(v[ok] ** 2, axis=1)))
+    if odom is not None and len(odom) > 1:  # over a baseline: a pose's noise over one period would read as speed
+        t, p = odom.stamps_ns, odom.poses[:, :3, 3]
+        ends = [np.stack([np.interp(stamps_ns + d, t, p[:, k]) for k in range(3)], axis=1)
+                for d in (-SPEED_BASE_NS // 2, SPEED_BASE_NS // 2)]
+        s = np.linalg.norm(ends[1] - ends[0], axis=1) / (SPEED_BASE_NS * 1e-9)
+        out = s if out is None else np.maximum(out, s)
+    return out
+
+
+def drop_stale(gps: GpsSeries, wheel: WheelSeries | None, odom: PoseSeries | None, report: SourceReport,
+               notes: list[str]) -> GpsSeries:
+    """``gps`` (cleaned) without its stale fixes (module docstring), rejected as ``stale_fix``, a note saying so."""
+    speed = motion_speed(gps.stamps_ns, wheel, odom) if len(gps) > 1 else None
+    if speed is None:
+        return gps
+    same = np.zeros(len(gps), bool)
+    same[1:] = np.all(gps.position_enu_m[1:] == gps.position_enu_m[:-1], axis=1)
+    stale = same & (speed > MOVING_MPS)
+    n = int(np.count_nonzero(stale))
+    if not n:
+        return gps
+    report.reject("stale_fix", n)
+    notes.append(f"gps: {n} fixes left out: each repeats the fix before it exactly while the wheels or odometry "
+                 f"move (over {MOVING_MPS:g} m/s): a receiver repeating its last position")
+    keep = ~stale
+    return GpsSeries(gps.stamps_ns[keep], gps.position_enu_m[keep], gps.cov_m2[keep], gps.valid[keep],
+                     antenna_m=gps.antenna_m)
 
 
 def assess_gps(gps: GpsSeries, report: SourceReport) -> GpsSeries:

@@ -12,6 +12,8 @@ REJECT_REASONS = {
     "duplicate_stamp": "another sample had the same stamp (the first one was kept)",
     "invalid_pose": "the pose's rotation was not a rotation (e.g. quaternion 0,0,0,0)",
     "no_fix": "the GPS fix status said invalid",
+    "stale_fix": "a GPS fix repeating the one before it exactly (latitude, longitude, altitude) while the wheels or "
+                 "odometry moved: a receiver repeating its last position, left out",
     "outside_span": "stamped outside the time span of the motion sources",
     "outlier": "innovation beyond the chi-square gate (gate_probability) against the prediction",
     "multipath_jump": "a GPS fix inside a jump of the track its own motion cannot explain (multipath), until the "
@@ -19,6 +21,8 @@ REJECT_REASONS = {
     "in_gap": "stamped inside a gap of every motion source",
     "yaw_slip": "a wheel yaw rate far (beyond the gate) from the bias-corrected gyro's, where the wheels' yaw rate "
                 "is otherwise used beside the gyro: a slip, left out",
+    "orientation_unfollowed": "the IMU's own orientation did not follow its gyro (relative rotation over 2 s windows "
+                              "against the integrated gyro): a frozen or broken attitude, left out",
     "yaw_unchecked": "a wheel yaw rate with no gyro mean to weigh it against (an IMU gap, outside the IMU's span), "
                      "where the wheels' yaw rate is otherwise used beside the gyro: left out",
 }

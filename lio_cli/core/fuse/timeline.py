@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ...errors import InputError
-from .gps_quality import assess_gps
+from .gps_quality import assess_gps, drop_stale
 from .kalman import chi2_thresholds
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .lever import imu_in_base
@@ -179,6 +179,7 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
             count_gaps(cleaned.stamps_ns, thr, reports[name])
             runs += _runs(cleaned.stamps_ns, thr)
     if prep.gps is not None:
+        prep.gps = drop_stale(prep.gps, prep.wheel, prep.odom, reports["gps"], prep.notes)
         assess_gps(prep.gps, reports["gps"])
     weigh = options.use is None if options.weigh_wheel_yaw is None else options.weigh_wheel_yaw
     if weigh and prep.wheel is not None and prep.imu is not None and "gyro" in use["imu"] \

@@ -26,6 +26,7 @@ from ...io.sensors.topics import TopicChoice, choose_topic
 from ...geodesy import EnuFrame
 from ...model.gps import GpsTrack
 from ..odom.inputs import prefer_between
+from .orientation import leave_out_orientation
 from .convert import (
     calibrated_wheel, carries_lateral_speed, gps_series, imu_series, pose_series, trajectory_series, twist_frame,
     wheel_series,
@@ -47,6 +48,7 @@ class FuseSources:
     gps: GpsTrack | None
     extrinsics: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    checks: dict = field(default_factory=dict)  # "imu_orientation": the gyro check's figures where it left it out
 
 
 def _wanted(cfg: FuseConfig) -> set[str]:
@@ -198,11 +200,12 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
         gps = read_gps_track(reader, roles["gps"].topic, origin)
         antenna, extrinsics["gps_antenna"] = gps_antenna(tree, base, gps, notes, cfg.input.gps_antenna)
         inputs.gps = gps_series(gps, antenna)
-    use = resolved_use(cfg, inputs, notes)
+    checks: dict = {}
+    use = resolved_use(cfg, inputs, notes, checks)
     described = {s: {"topic": c.topic, "why": c.why} for s, c in roles.items()}
     if "odom" in roles and roles["odom"].topic is None:
         described["odom"] = {"file": cfg.input.odom_file, "why": roles["odom"].why}
-    return FuseSources(inputs, use, described, base, twist, gps, extrinsics, notes)
+    return FuseSources(inputs, use, described, base, twist, gps, extrinsics, notes, checks)
 
 
 def gps_antenna(tree: FrameTree, base: str, gps: GpsTrack, notes: list[str],
@@ -251,11 +254,13 @@ def _odom(cfg: FuseConfig, cols: dict):
     return trajectory_series(traj.stamps_ns, traj.poses)
 
 
-def resolved_use(cfg: FuseConfig, inputs: FuseInputs, notes: list[str] | None = None) -> dict[str, list[str]]:
-    """The selection as given, or the core's default for the sources present, with two io-informed changes
+def resolved_use(cfg: FuseConfig, inputs: FuseInputs, notes: list[str] | None = None,
+                 checks: dict | None = None) -> dict[str, list[str]]:
+    """The selection as given, or the core's default for the sources present, with three io-informed changes
     (each noted): a wheel twist with a real lateral speed (holonomic base, drone) enters as ``velocity``, not
     as a forward ``speed`` with a non-holonomic constraint; an IMU orientation whose yaw variance says the
-    heading is unknown (a disturbed magnetometer) is left out rather than applied at the IMU's rate."""
+    heading is unknown, or that does not follow the gyro, is left out (``orientation``; the gyro check's figures
+    into ``checks``)."""
     if cfg.use is not None:
         return {s: list(m) for s, m in cfg.use.items() if m}
     notes = notes if notes is not None else []
@@ -264,22 +269,11 @@ def resolved_use(cfg: FuseConfig, inputs: FuseInputs, notes: list[str] | None = 
         use["wheel"] = (use["wheel"] - {"speed"}) | {"velocity"}
         notes.append("wheel twist with a lateral speed (holonomic base or drone): its velocity enters as measured, "
                      "without a non-holonomic constraint")
-    yaw_var = heading_variance(inputs.imu) if "orientation" in use.get("imu", ()) else None
-    if yaw_var is not None and yaw_var > UNKNOWN_HEADING_VAR:
-        use["imu"].discard("orientation")
-        notes.append(f"IMU orientation left out: its yaw variance (median {yaw_var:g} rad^2) says the heading is "
-                     "unknown; --use imu:gyro,accel,orientation forces it in")
+    if "orientation" in use.get("imu", ()):
+        checked = leave_out_orientation(inputs.imu, use, notes)
+        if checked is not None and checks is not None:
+            checks["imu_orientation"] = checked
     return {s: sorted(m) for s, m in use.items()}
-
-
-UNKNOWN_HEADING_VAR = 1.0  # rad^2: a yaw sigma over a radian is no heading
-
-
-def heading_variance(imu) -> float | None:
-    """Median yaw variance of the IMU's valid orientations (ROS: covariance about the world z axis)."""
-    if imu is None or imu.orientation_cov is None or imu.orientation_valid is None or not np.any(imu.orientation_valid):
-        return None
-    return float(np.median(imu.orientation_cov[imu.orientation_valid, 2, 2]))
 
 
 __all__ = ["FuseSources", "base_frame_of", "check_clocks", "choose_sources", "gather_sources", "gps_antenna",

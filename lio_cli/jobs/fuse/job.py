@@ -108,6 +108,7 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     result, chunks = fuse_chunked(sources.inputs, options, memory, fuse_step)
     t_fuse = time.perf_counter() - t_fuse
     _add_gps_drops(result, sources)
+    _add_orientation_drop(result, sources)
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     resolved = with_overrides(cfg, {
         "input.imu_topic": _topic(sources, "imu"), "input.wheel_topic": _topic(sources, "wheel"),
@@ -151,6 +152,13 @@ def _add_gps_drops(result: FuseResult, sources: FuseSources) -> None:
     rep.reject("no_fix", g.no_fix)
     rep.reject("nan", g.bad_coordinates)
     rep.reject("duplicate_stamp", g.bad_stamps)
+
+
+def _add_orientation_drop(result: FuseResult, sources: FuseSources) -> None:
+    """The IMU orientations left out for not following the gyro count in the IMU source's report."""
+    check, rep = sources.checks.get("imu_orientation"), result.reports.get("imu")
+    if check is not None and rep is not None:
+        rep.reject("orientation_unfollowed", check["samples"])
 
 
 def _smoother(asked: bool, info: dict | None) -> dict:
@@ -225,6 +233,8 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
     }
     if sources.gps is not None:
         out["gps"] = sources.gps.summary()
+    if "imu_orientation" in sources.checks:
+        out["imu_orientation_check"] = sources.checks["imu_orientation"]
     if chunks:
         out["chunks"] = chunks
     return out

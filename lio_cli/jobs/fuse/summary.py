@@ -12,8 +12,10 @@ KIND_LABEL = {"gyro": "gyro", "orientation": "orientation", "wheel_speed": "spee
               "wheel_yaw_rate": "yaw rate", "odom": "pose", "gps": "horizontal", "gps_vertical": "vertical"}
 REJECT_LABEL = {"no_fix": "no fix", "nan": "NaN", "out_of_range": "out of range", "all_zero": "all zero",
                 "duplicate_stamp": "duplicate stamp", "invalid_pose": "invalid pose", "multipath_jump": "multipath jump",
+                "stale_fix": "stale (repeating the fix before)",
                 "outside_span": "outside the motion sources' span", "in_gap": "in a gap of every motion source",
-                "yaw_slip": "yaw rate far from the gyro's (slip)", "yaw_unchecked": "yaw rate without the gyro"}
+                "yaw_slip": "yaw rate far from the gyro's (slip)", "yaw_unchecked": "yaw rate without the gyro",
+                "orientation_unfollowed": "orientations not following the gyro"}
 NOTE_LABEL = {"slip_bridged": "slip bridged by the IMU"}  # notes of values changed before use: after the used
 
 
