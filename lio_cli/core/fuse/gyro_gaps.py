@@ -67,8 +67,9 @@ def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator
     n, longest = gaps.count, float(gaps.lengths_s.max())
     head = f"imu: {n} gap{'s' if n > 1 else ''} in the gyro (the longest {longest:.1f} s)"
     if gaps.bridging_yaw:
-        turn = f"the heading followed the wheels' yaw rate ({gaps.bridging_yaw} messages" + (
-            f", their speed's share {-gaps.share_radpm:+.2g} rad/m taken out: unequal radii)" if gaps.share_radpm else ")")
+        share = f", their speed's share {-gaps.share_radpm:+.2g} rad/m taken out: unequal radii" \
+            if gaps.share_radpm else ""
+        turn = f"the heading followed the wheels' yaw rate ({gaps.bridging_yaw} messages{share})"
     elif odom:
         turn = "the heading followed the odometry poses"
     elif estimator == "planar":
