@@ -121,10 +121,11 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
     if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
         prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
-    if choice.name == "planar" and not (o.smooth and _graph_smooths(prep, choice.name)):
+    graph_runs = o.smooth and _graph_smooths(prep, choice.name)
+    if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
-    say_gyro_gaps(prep, choice.name)
+    say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
 
 

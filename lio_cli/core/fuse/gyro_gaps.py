@@ -66,15 +66,17 @@ def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator
     """The one line said about the gyro's gaps: how many, the longest, what bridged them."""
     n, longest = gaps.count, float(gaps.lengths_s.max())
     head = f"imu: {n} gap{'s' if n > 1 else ''} in the gyro (the longest {longest:.1f} s)"
-    if gaps.bridging_yaw:
+    if gaps.bridging_yaw and estimator == "planar":
         share = f", their speed's share {-gaps.share_radpm:+.2g} rad/m taken out: unequal radii" \
             if gaps.share_radpm else ""
         turn = f"the heading followed the wheels' yaw rate ({gaps.bridging_yaw} messages{share})"
-    elif odom:
+    elif odom and estimator != "graph":
         turn = "the heading followed the odometry poses"
+    elif estimator == "graph":
+        turn = "the factor graph took the 3D filter's increment (the heading held)"
     elif estimator == "planar":
         turn = "the turn rate decayed to zero (nothing else measures it)"
     else:
         turn = "the heading was held"
-    where = "the wheels' speed" if wheel_speed else "the GPS fixes" if gps else ""
+    where = "the wheels' speed" if wheel_speed and not (gps and estimator == "graph") else "the GPS fixes" if gps else ""
     return f"{head}: {turn}" + (f" and the position {where}" if where else "") + " there"

@@ -243,16 +243,18 @@ def _gyro_gaps(prep: Prepared, raw_wheel: WheelSeries | None) -> None:
     prep.gyro_gaps = gaps
 
 
-def say_gyro_gaps(prep: Prepared, estimator: str) -> None:
+def say_gyro_gaps(prep: Prepared, estimator: str, graph: bool = False) -> None:
     """The gyro's gaps in one note and the wheel yaw rates bridging them counted (the planar filter's alone: the
-    3D filters hold the heading across an IMU gap)."""
+    3D filters hold the heading across an IMU gap; the factor graph bridges it with the 3D filter's increment, its
+    planar seed still follows the wheels)."""
     gaps = prep.gyro_gaps
     if gaps is None:
         return
     if estimator != "planar":
         gaps.yaw_radps = gaps.yaw_var = None
-    elif gaps.bridging_yaw:
+    elif gaps.bridging_yaw and not graph:
         prep.reports["wheel"].note("gyro_gap_yaw", gaps.bridging_yaw)
+    estimator = "graph" if graph else estimator
     speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
     prep.notes.append(gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator))
 
