@@ -7,7 +7,8 @@ odometry poses ``(x, y, theta)`` (absolute, or increments via a clone ``[x_c, y_
 ``(x, y)``, the IMU orientation's yaw. The accelerometer is not used. Output poses are planar (z, roll and
 pitch zero; a smoothed run's height is set after, ``heave``) with covariance only in x, y and yaw. With the
 gyro, omega's walk is the gyro's (``turn_rate_walk``); smoothed without a position source, the path is the
-smoothed rates integrated again (``reintegrated``).
+smoothed rates integrated again (``reintegrated``). Inside a gap of the gyro (``gyro_gaps``) the turn rate decays
+and the wheels' yaw rate, where they have one, updates it.
 """
 
 from __future__ import annotations

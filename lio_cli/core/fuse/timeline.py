@@ -253,7 +253,12 @@ def say_gyro_gaps(prep: Prepared, estimator: str, graph: bool = False) -> None:
     if estimator != "planar":
         gaps.yaw_radps = gaps.yaw_var = None
     elif gaps.bridging_yaw and not graph:
-        prep.reports["wheel"].note("gyro_gap_yaw", gaps.bridging_yaw)
+        rep = prep.reports["wheel"]
+        rep.note("gyro_gap_yaw", gaps.bridging_yaw)
+        if (prep.wheel_yaw_check or {}).get("used"):  # the weighing left them out as unchecked: used after all
+            left = rep.rejected.get("yaw_unchecked", 0) - gaps.bridging_yaw
+            rep.rejected.pop("yaw_unchecked", None)
+            rep.reject("yaw_unchecked", max(left, 0))
     estimator = "graph" if graph else estimator
     speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
     prep.notes.append(gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator))
