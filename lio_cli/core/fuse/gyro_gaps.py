@@ -66,14 +66,15 @@ def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator
     """The one line said about the gyro's gaps: how many, the longest, what bridged them."""
     n, longest = gaps.count, float(gaps.lengths_s.max())
     head = f"imu: {n} gap{'s' if n > 1 else ''} in the gyro (the longest {longest:.1f} s)"
-    if gaps.bridging_yaw and estimator == "planar":
-        share = f", their speed's share {-gaps.share_radpm:+.2g} rad/m taken out: unequal radii" \
-            if gaps.share_radpm else ""
+    share = f", their speed's share {-gaps.share_radpm:+.2g} rad/m taken out: unequal radii" \
+        if gaps.share_radpm else ""
+    if estimator == "graph":
+        turn = "the factor graph took the 3D filter's increment (the heading " + (
+            "following the wheels' yaw rate)" if gaps.bridging_yaw else "held)")
+    elif gaps.bridging_yaw:
         turn = f"the heading followed the wheels' yaw rate ({gaps.bridging_yaw} messages{share})"
-    elif odom and estimator != "graph":
+    elif odom:
         turn = "the heading followed the odometry poses"
-    elif estimator == "graph":
-        turn = "the factor graph took the 3D filter's increment (the heading held)"
     elif estimator == "planar":
         turn = "the turn rate decayed to zero (nothing else measures it)"
     else:

@@ -244,13 +244,13 @@ def _gyro_gaps(prep: Prepared, raw_wheel: WheelSeries | None) -> None:
 
 
 def say_gyro_gaps(prep: Prepared, estimator: str, graph: bool = False) -> None:
-    """The gyro's gaps in one note and the wheel yaw rates bridging them counted (the planar filter's alone: the
-    3D filters hold the heading across an IMU gap; the factor graph bridges it with the 3D filter's increment, its
-    planar seed still follows the wheels)."""
+    """The gyro's gaps in one note and the wheel yaw rates bridging them counted (the planar filter and the 3D EKF
+    follow them; the factor graph bridges the gap with the 3D filter's increment; the complementary filter holds the
+    heading)."""
     gaps = prep.gyro_gaps
     if gaps is None:
         return
-    if estimator != "planar":
+    if estimator not in ("planar", "ekf"):
         gaps.yaw_radps = gaps.yaw_var = None
     elif gaps.bridging_yaw and not graph:
         rep = prep.reports["wheel"]

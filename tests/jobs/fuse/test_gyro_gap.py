@@ -13,6 +13,7 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 
 from lio_cli.config.fuse import FuseConfig
+from lio_cli.io.sensors.sources import load_trajectory
 from lio_cli.jobs.fuse.job import FuseJob, run_fuse
 from lio_cli.simulation.run import simulate
 
@@ -52,6 +53,25 @@ def gap_log(tmp_path_factory) -> Path:
     return _rover_with_gap(tmp_path_factory.mktemp("gyro_gap"))
 
 
+@pytest.fixture(scope="module")
+def good_wheels_gap(tmp_path_factory) -> Path:
+    """A car already moving, wheels 3 % large and without slips, the same gap."""
+    return _rover_with_gap(tmp_path_factory.mktemp("good_wheels"), "drive", start="moving", wheel_errors=False,
+                           wheel_radius_scale=(1.03, 1.03))
+
+
+def _turn_deg(stamps_ns: np.ndarray, poses: np.ndarray) -> float:
+    """The heading's turn from just before the gap to just after it."""
+    yaw = np.unwrap(np.arctan2(poses[:, 1, 0], poses[:, 0, 0]))
+    a, b = (T0_NS + int(t * 1e9) for t in (GAP_S[0] - 0.1, GAP_S[1] + 0.1))
+    return float(np.degrees(np.interp(b, stamps_ns, yaw) - np.interp(a, stamps_ns, yaw)))
+
+
+def _truth_turn_deg(log: Path) -> float:
+    gt = load_trajectory(str(log.with_suffix(".gt.tum")))
+    return _turn_deg(gt.stamps_ns, gt.poses)
+
+
 @pytest.mark.parametrize("smooth", [True, False])
 def test_a_gyro_gap_on_wheels_follows_the_wheels_yaw_rate(gap_log, smooth):
     run = run_fuse(FuseJob(gap_log, FuseConfig(smooth=smooth)))
@@ -69,35 +89,40 @@ def test_a_gyro_gap_on_wheels_follows_the_wheels_yaw_rate(gap_log, smooth):
                                                "gyro gaps")
 
 
-def test_the_3d_filter_holds_the_heading_through_a_gyro_gap(gap_log):
-    run = run_fuse(FuseJob(gap_log, FuseConfig(estimator="ekf", smooth=False)))
-    assert _ate(gap_log, run.trajectory) < 1.0  # measured 0.74
-    assert ("imu: 1 gap in the gyro (the longest 10.0 s): the heading was held and the position the wheels' speed "
-            "there") in run.notes
-    assert "gyro_gap_yaw" not in run.metrics["sources"]["wheel"]["handled"]
+def test_the_3d_filter_follows_the_wheels_yaw_rate_through_a_gyro_gap(good_wheels_gap):
+    """The 3D filter held the heading across the gap (0 deg where the car turns 92 deg; ATE 41 m); it now turns
+    with the wheels' yaw rate (measured 91.3 deg, ATE 16 m)."""
+    log = good_wheels_gap
+    run = run_fuse(FuseJob(log, FuseConfig(estimator="ekf", smooth=False)))
+    assert abs(_turn_deg(run.trajectory.stamps_ns, run.trajectory.poses) - _truth_turn_deg(log)) < 3.0
+    assert _ate(log, run.trajectory) < 25.0
+    assert ("imu: 1 gap in the gyro (the longest 10.0 s): the heading followed the wheels' yaw rate (499 messages) "
+            "and the position the wheels' speed there") in run.notes
+    assert run.metrics["sources"]["wheel"]["handled"]["gyro_gap_yaw"]["count"] == 499
 
 
 def test_the_factor_graph_with_gps_bridges_a_gyro_gap_from_the_wheels_planar_seed(tmp_path):
     """With GPS the factor graph smooths the planar filter's seed: across the gap its IMU factor is the 3D filter's
-    increment; seeded with a turn rate held (as before) its poses in the gap were 0.86 m off (ATE), with one
-    decaying 2.0 m, with the wheels' yaw rate 0.50 m."""
+    increment. Seeded with a held turn rate and the 3D filter's heading held (as before), ATE 0.86 m with the poses
+    in the gap; with a decaying turn rate 2.0 m; both following the wheels' yaw rate 0.47 m."""
     log = _rover_with_gap(tmp_path, gps=True)
     run = run_fuse(FuseJob(log, FuseConfig()))
     assert run.metrics["smoother"]["kind"] == "factor_graph" and run.metrics["estimator"] == "planar"
     assert _ate(log, run.trajectory) < 0.7
     assert ("imu: 1 gap in the gyro (the longest 10.0 s): the factor graph took the 3D filter's increment (the "
-            "heading held) and the position the GPS fixes there") in run.notes
+            "heading following the wheels' yaw rate) and the position the GPS fixes there") in run.notes
     assert "gyro_gap_yaw" not in run.metrics["sources"]["wheel"]["handled"]
 
 
-def test_wheels_the_gyro_vouched_for_carry_the_heading_through_its_gap(tmp_path):
+def test_wheels_the_gyro_vouched_for_carry_the_heading_through_its_gap(good_wheels_gap):
     """A car already moving, wheels 3 % large without slips: their yaw rate, scale divided out, is used beside the
     gyro. Inside the gap it was left out (unchecked) and the held turn rate made the heading 99 deg off, ATE 46 m;
     the wheels' yaw rate turns it through the gap's 92 deg (measured ATE 0.17 m)."""
-    log = _rover_with_gap(tmp_path, "drive", start="moving", wheel_errors=False, wheel_radius_scale=(1.03, 1.03))
+    log = good_wheels_gap
     run = run_fuse(FuseJob(log, FuseConfig()))
     assert run.metrics["estimator"] == "planar" and run.metrics["core"]["wheel_yaw_check"]["used"]
     assert _ate(log, run.trajectory) < 0.5
+    assert abs(_turn_deg(run.trajectory.stamps_ns, run.trajectory.poses) - _truth_turn_deg(log)) < 3.0
     assert ("imu: 1 gap in the gyro (the longest 10.0 s): the heading followed the wheels' yaw rate (499 messages) "
             "and the position the wheels' speed there") in run.notes
     wheel = run.metrics["sources"]["wheel"]
