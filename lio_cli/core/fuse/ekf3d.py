@@ -26,7 +26,7 @@ from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DB, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
+    CP_, CR_, DB, DP, DV, P_, R_, TH, V_, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
     initial_estimate, on_list, pose, rot,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
@@ -143,10 +143,14 @@ class Ekf3d:
                 since = t_a - (self.imu_list[ii] if ii >= 0 else self.prep.t0_ns)
                 rate = float(np.linalg.norm(self.imu_w[ii])) if ii >= 0 else 0.0
                 F = on_list(hold_step, x, dt, L)
-                if self.gap_wz is not None:  # the wheels' yaw rate turns the heading (``gyro_gaps``)
+                if self.gap_wz is not None:  # the wheels' yaw rate turns the heading and the velocity (``gyro_gaps``)
                     dR = so3_exp_one(np.array([0.0, 0.0, self.gap_wz * dt]))
-                    x[R_] = (rot(np.array(x)) @ dR).reshape(9).tolist()
+                    R = rot(np.array(x))
+                    Rw = R @ dR @ R.T
+                    x[R_] = (R @ dR).reshape(9).tolist()
+                    x[V_] = (Rw @ np.array(x[V_])).tolist()
                     F[TH, TH] = dR.T
+                    F[DV, :] = Rw @ F[DV, :]
                 q = gap_noise(L, self.noise, dt, since_s=max(since, 0) * 1e-9, rate_radps=rate)
             else:
                 F, q = on_list(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)

@@ -91,11 +91,11 @@ def test_a_gyro_gap_on_wheels_follows_the_wheels_yaw_rate(gap_log, smooth):
 
 def test_the_3d_filter_follows_the_wheels_yaw_rate_through_a_gyro_gap(good_wheels_gap):
     """The 3D filter held the heading across the gap (0 deg where the car turns 92 deg; ATE 41 m); it now turns
-    with the wheels' yaw rate (measured 91.3 deg, ATE 16 m)."""
+    with the wheels' yaw rate, and its velocity with it (measured 91 deg, ATE 2.1 m; the heading alone 16 m)."""
     log = good_wheels_gap
     run = run_fuse(FuseJob(log, FuseConfig(estimator="ekf", smooth=False)))
     assert abs(_turn_deg(run.trajectory.stamps_ns, run.trajectory.poses) - _truth_turn_deg(log)) < 3.0
-    assert _ate(log, run.trajectory) < 25.0
+    assert _ate(log, run.trajectory) < 4.0
     assert ("imu: 1 gap in the gyro (the longest 10.0 s): the heading followed the wheels' yaw rate (499 messages) "
             "and the position the wheels' speed there") in run.notes
     assert run.metrics["sources"]["wheel"]["handled"]["gyro_gap_yaw"]["count"] == 499
@@ -104,7 +104,7 @@ def test_the_3d_filter_follows_the_wheels_yaw_rate_through_a_gyro_gap(good_wheel
 def test_the_factor_graph_with_gps_bridges_a_gyro_gap_from_the_wheels_planar_seed(tmp_path):
     """With GPS the factor graph smooths the planar filter's seed: across the gap its IMU factor is the 3D filter's
     increment. Seeded with a held turn rate and the 3D filter's heading held (as before), ATE 0.86 m with the poses
-    in the gap; with a decaying turn rate 2.0 m; both following the wheels' yaw rate 0.47 m."""
+    in the gap; with a decaying turn rate 2.0 m; both following the wheels' yaw rate 0.45 m."""
     log = _rover_with_gap(tmp_path, gps=True)
     run = run_fuse(FuseJob(log, FuseConfig()))
     assert run.metrics["smoother"]["kind"] == "factor_graph" and run.metrics["estimator"] == "planar"
