@@ -79,5 +79,6 @@ def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator
         turn = "the turn rate decayed to zero (nothing else measures it)"
     else:
         turn = "the heading was held"
-    where = "the wheels' speed" if wheel_speed and not (gps and estimator == "graph") else "the GPS fixes" if gps else ""
+    wheels = wheel_speed and not (gps and estimator == "graph")  # the graph's position: GPS factors first
+    where = "the wheels' speed" if wheels else "the GPS fixes" if gps else ""
     return f"{head}: {turn}" + (f" and the position {where}" if where else "") + " there"
