@@ -24,7 +24,7 @@ from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
 from .state3d import P_, R_, V_
-from .timeline import Prepared, planar_use, prepare
+from .timeline import Prepared, planar_use, prepare, say_gyro_gaps
 
 _EKF_XY = slice(P_.start, P_.start + 2)  # x, y of the 3D filter's nominal state
 
@@ -123,7 +123,9 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied),
     unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
-        return _prepare(inputs, o), EstimatorChoice(o.estimator, "given with --estimator", {})
+        prep = _prepare(inputs, o)
+        say_gyro_gaps(prep, o.estimator)
+        return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
@@ -131,9 +133,11 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
         prep.notes.append(f"--estimator planar given where the data ask for the 3D filter: {data.reason}")
     if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
         prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
-    if choice.name == "planar" and not (o.smooth and _graph_smooths(prep, choice.name)):
+    graph_runs = o.smooth and _graph_smooths(prep, choice.name)
+    if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
+    say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
 
 
@@ -223,6 +227,7 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
         "covered_s": sum(b - a for a, b in prep.coverage) * 1e-9,
         "motion_gaps": len(prep.coverage) - 1,
         "outputs_dropped_outside_data": prep.out_dropped,
+        "outputs_in_gyro_gaps": prep.gyro_gaps.outputs if prep.gyro_gaps is not None else 0,
         "notes": list(prep.notes),
         "wheel_check": prep.wheel_check,
         "wheel_yaw_check": prep.wheel_yaw_check,

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...geometry import inv_pose
+from ...geometry import inv_pose, so3_exp_one
 from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
@@ -26,8 +26,8 @@ from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
-    CP_, CR_, DB, DP, DV, P_, R_, TH, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
-    initial_estimate, on_list, pose,
+    CP_, CR_, DB, DP, DV, P_, R_, TH, V_, Layout, ProcessNoise, boxminus, cv_step, gap_noise, gyro_step, hold_step,
+    initial_estimate, on_list, pose, rot,
 )
 from .timeline import GPS, IMU, ODOM, WHEEL, Prepared, folded_outputs, gap_free_until, in_coverage_gap
 from .update3d import Updater
@@ -97,6 +97,9 @@ class Ekf3d:
         # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged
         self.gps_anchor = Anchor.of_gps(prep)
         self.ii = -1  # index of the last IMU sample at or before the current time
+        gg = prep.gyro_gaps
+        self.gap_yaw = gg.yaw_radps if gg is not None and self.L.model != "cv" else None
+        self.gap_wz: float | None = None  # the last wheel yaw rate inside the gyro gap being crossed
 
     def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
         """Base rate and specific force (3 floats each) at the midpoint of [t_a, t_b] (inside one IMU
@@ -140,6 +143,14 @@ class Ekf3d:
                 since = t_a - (self.imu_list[ii] if ii >= 0 else self.prep.t0_ns)
                 rate = float(np.linalg.norm(self.imu_w[ii])) if ii >= 0 else 0.0
                 F = on_list(hold_step, x, dt, L)
+                if self.gap_wz is not None:  # the wheels' yaw rate turns the heading and the velocity (``gyro_gaps``)
+                    dR = so3_exp_one(np.array([0.0, 0.0, self.gap_wz * dt]))
+                    R = rot(np.array(x))
+                    Rw = R @ dR @ R.T
+                    x[R_] = (R @ dR).reshape(9).tolist()
+                    x[V_] = (Rw @ np.array(x[V_])).tolist()
+                    F[TH, TH] = dR.T
+                    F[DV, :] = Rw @ F[DV, :]
                 q = gap_noise(L, self.noise, dt, since_s=max(since, 0) * 1e-9, rate_radps=rate)
             else:
                 F, q = on_list(gyro_step, x, dt, np.array(u[0]), L), self.q(dt)
@@ -167,6 +178,8 @@ class Ekf3d:
         if row is not None:
             self._body_velocity(t, x, P, *row)
         w = self.prep.wheel
+        if self.gap_yaw is not None and np.isfinite(self.gap_yaw[i]):
+            self.gap_wz = float(self.gap_yaw[i])
         if self.wheel_yaw_rate and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
@@ -295,6 +308,7 @@ class Ekf3d:
                 t_cur = t
             if kind == IMU:
                 self.ii = i
+                self.gap_wz = None
                 if imu_predicts:
                     imu_rep.predictions += 1
                 if use_orientation and valid_or[i]:

@@ -7,7 +7,8 @@ odometry poses ``(x, y, theta)`` (absolute, or increments via a clone ``[x_c, y_
 ``(x, y)``, the IMU orientation's yaw. The accelerometer is not used. Output poses are planar (z, roll and
 pitch zero; a smoothed run's height is set after, ``heave``) with covariance only in x, y and yaw. With the
 gyro, omega's walk is the gyro's (``turn_rate_walk``); smoothed without a position source, the path is the
-smoothed rates integrated again (``reintegrated``).
+smoothed rates integrated again (``reintegrated``). Inside a gap of the gyro (``gyro_gaps``) the turn rate decays
+and the wheels' yaw rate, where they have one, updates it.
 """
 
 from __future__ import annotations
@@ -67,6 +68,9 @@ class PlanarEkf:
         # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
         # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged
         self.gps_anchor = Anchor.of_gps(prep)
+        gg = prep.gyro_gaps if self.use_gyro else None
+        self.gyro_runs = (gg.run_starts, gg.run_ends) if gg is not None else None
+        self.gap_yaw, self.gap_yaw_var = (gg.yaw_radps, gg.yaw_var) if gg is not None else (None, None)
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -103,9 +107,13 @@ class PlanarEkf:
         d[BW] = s.bg_sigma_radps**2 if self.use_gyro else 1e-6
         return x, np.diag(d)
 
-    def _propagate(self, x: np.ndarray, P: np.ndarray, dt: float, gap: bool = False) -> np.ndarray:
+    def _propagate(self, x: np.ndarray, P: np.ndarray, dt: float, gap: bool = False,
+                   gyro_gap: bool = False) -> np.ndarray:
         if gap:  # no motion data: speed and turn rate decay (Gauss-Markov), as in the 3D filter
             F, q = predict_gap(x, dt, self.n), self._gap_noise(dt)
+        elif gyro_gap:  # the wheels (or odometry) go on without the gyro: the turn rate decays unless they measure it
+            F, q = predict_turn_decay(x, dt, self.n), self.q_rate * dt
+            q[W] = 0.5 * self.nz.cv_angular_accel_density**2 * GAP_TAU_S * (1.0 - math.exp(-2.0 * dt / GAP_TAU_S))
         else:
             F, q = predict(x, dt, self.n), self.q_rate * dt
         P = F @ P @ F.T
@@ -166,6 +174,9 @@ class PlanarEkf:
         if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
             P = self._update(t, x, P, np.array([w.yaw_rate_radps[i] - x[W]]), self._row({W: 1.0}),
                              np.array([[w.yaw_rate_var[i]]]), "wheel", "wheel_yaw_rate", allow_reset=not self.use_gyro)
+        elif self.gap_yaw is not None and np.isfinite(self.gap_yaw[i]):  # inside a gyro gap: the turn rate
+            P = self._update(t, x, P, np.array([self.gap_yaw[i] - x[W]]), self._row({W: 1.0}),
+                             np.array([[self.gap_yaw_var[i]]]), "wheel", "gyro_gap_yaw_rate")
         return P
 
     def _odom(self, t, i, x, P):
@@ -241,7 +252,8 @@ class PlanarEkf:
                     P = self._apply_clone(x, P)
                     self.pending_clone = False
                 gap = in_coverage_gap(starts, ends, t_cur, t)
-                P = self._propagate(x, P, (t - t_cur) * 1e-9, gap)
+                gyro_gap = not gap and self.gyro_runs is not None and in_coverage_gap(*self.gyro_runs, t_cur, t)
+                P = self._propagate(x, P, (t - t_cur) * 1e-9, gap, gyro_gap)
                 t_cur = t
             if kind == IMU:
                 P = self._imu(t, i, x, P)
@@ -289,6 +301,15 @@ def predict(x: np.ndarray, dt: float, n: int) -> np.ndarray:
     x[X] += v * c * dt
     x[Y] += v * s * dt
     x[TH] = wrap(x[TH] + w * dt)
+    return F
+
+
+def predict_turn_decay(x: np.ndarray, dt: float, n: int, tau_s: float = GAP_TAU_S) -> np.ndarray:
+    """``predict``, then the turn rate decays with ``exp(-dt/tau)`` (no gyro holds it); returns F."""
+    F = predict(x, dt, n)
+    e = math.exp(-dt / tau_s)
+    x[W] *= e
+    F[W, :] *= e
     return F
 
 

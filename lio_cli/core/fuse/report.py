@@ -46,6 +46,7 @@ NOTE_REASONS = {
     "slip_left_in": "wheel speeds of a slip longer than 5 s the IMU's speed did not close: used as they are, "
                     "kept out of the wheel scale fit",
     "scale_corrected": "wheel speeds multiplied by the wheel scale the accelerometer measured",
+    "gyro_gap_yaw": "wheel yaw rates used for the turn rate inside gaps of the gyro (no gyro there to prefer)",
     "yaw_noise_estimated": "wheel yaw rates used beside the gyro with the noise their residual against the gyro "
                            "shows (the message's or the default replaced)",
 }

@@ -14,12 +14,13 @@ import numpy as np
 
 from ...errors import InputError
 from .gps_quality import assess_gps, drop_stale
+from .gyro_gaps import GyroGaps, gap_note, gap_yaw_rates, in_gyro_gap
 from .kalman import chi2_thresholds
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .lever import imu_in_base
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
-from .wheel_yaw import Weighed
+from .wheel_yaw import SPEED_SHARE_Z, Weighed
 from .wheel_yaw import weigh as weigh_yaw
 
 IMU, WHEEL, ODOM, GPS, OUT = 0, 1, 2, 3, 4
@@ -49,6 +50,7 @@ class Prepared:
     wheel_check: dict | None = None  # wheel_slip.SlipReport.to_dict() where the wheels were checked
     wheel_yaw_weighed: Weighed | None = None  # the wheels' yaw rate weighed against the gyro (FuseOptions.wheel_yaw)
     heave_accel: bool = False  # the accelerometer selected, though the planar filter leaves it out (heave.py)
+    gyro_gaps: GyroGaps | None = None  # the gyro's gaps inside the coverage, where it has any
 
     @property
     def wheel_yaw_check(self) -> dict | None:
@@ -181,6 +183,7 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     if prep.gps is not None:
         prep.gps = drop_stale(prep.gps, prep.wheel, prep.odom, reports["gps"], prep.notes)
         assess_gps(prep.gps, reports["gps"])
+    raw_wheel = prep.wheel  # before the weighing leaves yaw rates out
     weigh = options.use is None if options.weigh_wheel_yaw is None else options.weigh_wheel_yaw
     if weigh and prep.wheel is not None and prep.imu is not None and "gyro" in use["imu"] \
             and "yaw_rate" not in use["wheel"]:
@@ -188,6 +191,8 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     prep.coverage = _merge(runs)
     if not prep.coverage:
         raise InputError("no usable sample in any motion source")
+    if prep.imu is not None and "gyro" in use["imu"]:
+        _gyro_gaps(prep, raw_wheel)
     _check_clocks(prep)
     _output(prep, options)
     _events(prep, options.snap_ns)
@@ -218,6 +223,48 @@ def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
     prep.use["wheel"].add("yaw_rate")
 
 
+def _gyro_gaps(prep: Prepared, raw_wheel: WheelSeries | None) -> None:
+    """The gyro's gaps and the wheel yaw rates that may bridge them (``gyro_gaps``; ``say_gyro_gaps`` once the
+    estimator is known)."""
+    runs = _runs(prep.imu.stamps_ns, prep.imu_gap_ns)
+    if len(runs) < 2:
+        return
+    gaps = GyroGaps([a for a, _ in runs], [b for _, b in runs])
+    w = prep.wheel
+    if w is not None:
+        check = prep.wheel_yaw_check or {}
+        scale = 1.0 - check["scale_off"] if check.get("scale_applied") else 1.0
+        used = w.yaw_rate_radps if "yaw_rate" in prep.use["wheel"] else None
+        share, share_sigma = check.get("speed_share_radpm"), check.get("speed_share_sigma")
+        if share is not None and abs(share) > SPEED_SHARE_Z * share_sigma:  # unequal radii: measured, taken out
+            gaps.share_radpm = share
+        gaps.yaw_radps, gaps.yaw_var = gap_yaw_rates(prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns,
+                                                     raw_wheel.yaw_rate_radps, raw_wheel.yaw_rate_var, used, scale,
+                                                     gaps.share_radpm, raw_wheel.velocity_mps[:, 0])
+    prep.gyro_gaps = gaps
+
+
+def say_gyro_gaps(prep: Prepared, estimator: str, graph: bool = False) -> None:
+    """The gyro's gaps in one note and the wheel yaw rates bridging them counted (the planar filter and the 3D EKF
+    follow them; the factor graph bridges the gap with the 3D filter's increment; the complementary filter holds the
+    heading)."""
+    gaps = prep.gyro_gaps
+    if gaps is None:
+        return
+    if estimator not in ("planar", "ekf"):
+        gaps.yaw_radps = gaps.yaw_var = None
+    elif gaps.bridging_yaw and not graph:
+        rep = prep.reports["wheel"]
+        rep.note("gyro_gap_yaw", gaps.bridging_yaw)
+        if (prep.wheel_yaw_check or {}).get("used"):  # the weighing left them out as unchecked: used after all
+            left = rep.rejected.get("yaw_unchecked", 0) - gaps.bridging_yaw
+            rep.rejected.pop("yaw_unchecked", None)
+            rep.reject("yaw_unchecked", max(left, 0))
+    estimator = "graph" if graph else estimator
+    speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
+    prep.notes.append(gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator))
+
+
 def _check_clocks(prep: Prepared) -> None:
     """A selected source whose stamps all lie outside the others' span is on another clock: say so."""
     spans = {}
@@ -242,6 +289,12 @@ def _output(prep: Prepared, options: FuseOptions) -> None:
         req = _rate_stamps(prep.coverage, options.rate_hz)
     elif prep.imu is not None and "gyro" in prep.use.get("imu", ()):
         req = prep.imu.stamps_ns
+        if prep.gyro_gaps is not None:  # inside the gyro's gaps: the other motion sources' stamps
+            other = [getattr(prep, s).stamps_ns for s in ("wheel", "odom") if getattr(prep, s) is not None]
+            more = np.unique(np.concatenate(other)) if other else np.zeros(0, np.int64)
+            more = more[in_gyro_gap(req, prep.imu_gap_ns, more)]
+            prep.gyro_gaps.outputs = int(np.count_nonzero(_inside(more, prep.coverage)))
+            req = np.union1d(req, more)
     else:
         req = np.unique(np.concatenate([getattr(prep, s).stamps_ns for s in ("wheel", "odom")
                                         if getattr(prep, s) is not None]))

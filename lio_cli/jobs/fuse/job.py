@@ -218,7 +218,7 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
         "smoothed": result.smoothed,
         "smoother": _smoother(cfg.smooth, result.info.get("smoother")),
         "output": {"frame": "base", "poses": len(stamps),
-                   "stamps": f"{cfg.rate_hz:g} Hz" if cfg.rate_hz else "every IMU sample (exact stamps)"
+                   "stamps": f"{cfg.rate_hz:g} Hz" if cfg.rate_hz else _imu_stamps(result.info)
                    if "imu" in sources.use else "every wheel/odometry message",
                    "first_ns": int(stamps[0]) if len(stamps) else None, "last_ns": int(stamps[-1]) if len(stamps) else None,
                    "world": "z up; the first pose at the origin; heading " + str(result.info.get("world_yaw_from", "start")),
@@ -241,3 +241,9 @@ def _metrics(job: FuseJob, fmt: str, sources: FuseSources, result: FuseResult, m
 
 
 __all__ = ["FuseJob", "FuseRun", "Progress", "core_options", "run_fuse", "score_fuse"]
+
+
+def _imu_stamps(info: dict) -> str:
+    """The default output stamps: the IMU's, and inside its gaps the wheels' or odometry's."""
+    n = info.get("outputs_in_gyro_gaps", 0)
+    return "every IMU sample (exact stamps)" + (f" and {n} wheel/odometry stamps inside gyro gaps" if n else "")

@@ -102,12 +102,15 @@ def test_messy_streams_are_handled_and_counted(fuse_logs):
     assert imu["handled"]["reordered"]["count"] == 2 and imu["handled"]["gaps"]["count"] == 1
     assert {k: v["count"] for k, v in wheel["rejected"].items()} == {"nan": 1, "duplicate_stamp": 1}
     assert wheel["received"] == 82 and wheel["handled"]["default_noise"]["count"] == 80
-    assert wheel["updates"] == 80
+    # 80 speeds, and the 10 yaw rates inside the IMU's gap (no gyro there to prefer)
+    assert wheel["updates"] == 90 and wheel["handled"]["gyro_gap_yaw"]["count"] == 10
+    assert run.notes == ["imu: 1 gap in the gyro (the longest 0.5 s): the heading followed the wheels' yaw rate "
+                         "(10 messages) and the position the wheels' speed there"]
     err = _errors(fuse_logs, run, 1.0, 0.5)
     gap_ns = fuse_logs.T0_NS + 2 * 10**9  # the IMU is missing from 2.0 to 2.5 s
     assert err[run.trajectory.stamps_ns < gap_ns].max() < 2 * POS_TOL_M
-    # no gyro over the gap: its 0.25 rad of turn is lost (the wheels' yaw rate is not used beside an IMU)
-    assert err.max() < 0.5
+    # no gyro over the gap: the wheels' yaw rate turns the heading there (its 0.25 rad of turn was lost without it)
+    assert err.max() < 2 * POS_TOL_M
 
 
 def test_gps_fixes_enter_and_invalid_ones_are_counted(fuse_logs):

@@ -1,0 +1,84 @@
+"""Gaps of the gyro inside the motion sources' coverage, and what bridges them.
+
+Between two IMU samples further apart than the gap threshold the gyro says nothing about the turn rate. Where
+the wheels kept running, their yaw rate (twist.angular.z) measures it there, even where the default selection
+leaves it out beside the gyro (``wheel_yaw``): without the gyro it is the best there is. Where nothing measures
+the turn rate, the planar filter lets it decay (``GAP_TAU_S``) instead of holding its last value: a held rate
+turns the heading without end while the wheels keep the speed up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class GyroGaps:
+    """The gyro's gaps (``starts``/``ends``: its runs of data, as ``Prepared.coverage``) and the wheel yaw rates
+    to use inside them (per wheel sample, NaN outside the gaps or where the selection already uses it)."""
+
+    run_starts: list[int]
+    run_ends: list[int]
+    yaw_radps: np.ndarray | None = None
+    yaw_var: np.ndarray | None = None
+    share_radpm: float = 0.0  # the wheels' yaw rate's share of their speed taken out (unequal radii)
+    outputs: int = 0  # output stamps added inside the gaps (the wheel or odometry stamps there)
+
+    @property
+    def count(self) -> int:
+        return len(self.run_starts) - 1
+
+    @property
+    def lengths_s(self) -> np.ndarray:
+        return (np.array(self.run_starts[1:]) - np.array(self.run_ends[:-1])) * 1e-9
+
+    @property
+    def bridging_yaw(self) -> int:
+        return 0 if self.yaw_radps is None else int(np.count_nonzero(np.isfinite(self.yaw_radps)))
+
+
+def in_gyro_gap(imu_ns: np.ndarray, threshold_ns: int, stamps_ns: np.ndarray) -> np.ndarray:
+    """Stamps strictly between two IMU samples further apart than ``threshold_ns``."""
+    if len(imu_ns) < 2:
+        return np.zeros(len(stamps_ns), bool)
+    k = np.searchsorted(imu_ns, stamps_ns, side="right")
+    inside = (k > 0) & (k < len(imu_ns))
+    kk = np.clip(k, 1, len(imu_ns) - 1)
+    return inside & (imu_ns[kk] - imu_ns[kk - 1] > threshold_ns) & (stamps_ns > imu_ns[kk - 1])
+
+
+def gap_yaw_rates(imu_ns: np.ndarray, threshold_ns: int, wheel_ns: np.ndarray, raw_yaw: np.ndarray,
+                  raw_var: np.ndarray, used_yaw: np.ndarray | None, scale: float, share_radpm: float,
+                  speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The wheels' yaw rates inside the gyro's gaps, NaN elsewhere and where ``used_yaw`` (the selection's) already
+    has a value: plus ``share_radpm`` times the speed (unequal radii, as the weighing measured them), divided by the
+    yaw ``scale`` the weighing found."""
+    gap = in_gyro_gap(imu_ns, threshold_ns, wheel_ns) & np.isfinite(raw_yaw)
+    if used_yaw is not None:
+        gap &= ~np.isfinite(used_yaw)
+    yaw = (raw_yaw + share_radpm * np.nan_to_num(speed_mps)) / scale
+    return np.where(gap, yaw, np.nan), np.where(gap, raw_var / scale**2, np.nan)
+
+
+def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator: str) -> str:
+    """The one line said about the gyro's gaps: how many, the longest, what bridged them."""
+    n, longest = gaps.count, float(gaps.lengths_s.max())
+    head = f"imu: {n} gap{'s' if n > 1 else ''} in the gyro (the longest {longest:.1f} s)"
+    share = f", their speed's share {-gaps.share_radpm:+.2g} rad/m taken out: unequal radii" \
+        if gaps.share_radpm else ""
+    if estimator == "graph":
+        turn = "the factor graph took the 3D filter's increment (the heading " + (
+            "following the wheels' yaw rate)" if gaps.bridging_yaw else "held)")
+    elif gaps.bridging_yaw:
+        turn = f"the heading followed the wheels' yaw rate ({gaps.bridging_yaw} messages{share})"
+    elif odom:
+        turn = "the heading followed the odometry poses"
+    elif estimator == "planar":
+        turn = "the turn rate decayed to zero (nothing else measures it)"
+    else:
+        turn = "the heading was held"
+    wheels = wheel_speed and not (gps and estimator == "graph")  # the graph's position: GPS factors first
+    where = "the wheels' speed" if wheels else "the GPS fixes" if gps else ""
+    return f"{head}: {turn}" + (f" and the position {where}" if where else "") + " there"
