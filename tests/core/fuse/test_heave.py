@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from lio_cli.core.fuse.heave import CROSSOVER_HZ, _solve
-from lio_cli.core.fuse.planar import MIN_TURN_WALK, TH, V, W, X, Y, predict, reintegrated, turn_rate_walk
+from lio_cli.core.fuse.planar import reintegrated
+from lio_cli.core.fuse.planar_model import MIN_TURN_WALK, TH, V, W, X, Y, predict, turn_rate_walk
 
 
 def test_heights_follow_a_heave_above_the_crossover_and_not_a_drift_below():

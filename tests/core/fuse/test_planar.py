@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lio_cli.core.fuse import FuseInputs, FuseOptions, WheelSeries, fuse
-from lio_cli.core.fuse.planar import delta_residual, predict, wrap
+from lio_cli.core.fuse.planar_model import delta_residual, predict, wrap
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.geometry import make_pose, so3_exp, yaw_of
 from lio_cli.simulation.fusion_case import START_NS, OdomNoise, simulate_case
@@ -89,7 +89,7 @@ def test_relative_odometry_gyro_and_smoother_on_a_planar_robot():
 
 
 def test_gap_prediction_jacobian_and_bounded_travel():
-    from lio_cli.core.fuse.planar import predict_gap
+    from lio_cli.core.fuse.planar_model import predict_gap
     from lio_cli.core.fuse.state3d import GAP_TAU_S
 
     x = np.array([0.0, 0.0, 0.3, 1.5, 0.2, 0.0])
