@@ -8,7 +8,7 @@ import pytest
 
 from lio_cli.core.fuse import FuseInputs, FuseOptions, ImuSeries, WheelSeries, fuse
 from lio_cli.core.fuse.report import NOTE_REASONS
-from lio_cli.core.fuse.wheel_slip import angle_walk_q
+from lio_cli.core.fuse.tilt_track import angle_walk_q
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.simulation.sensors import smooth_window
 from lio_cli.so3 import so3_exp
