@@ -36,7 +36,7 @@ import numpy as np
 from ..imu import running_integral
 from ..robust import robust_sigma
 from .kalman import chi2_thresholds
-from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard
+from .slip_windows import DRIFT_S, EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard, running_median
 from .timeline import Prepared
 from .tilt_track import angle_walk_q, forward_accel, walk_variance
 
@@ -52,6 +52,8 @@ FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
 TRIM_Z = 4.0
 MIN_BLOCKS = 12  # fewer clean increments: no fit
+MAX_LAG_S, MIN_LAG_S = 1.0, 0.1  # an IMU clock offset is looked for within this and reported from that
+LAG_CORR, LAG_CORR_GAIN = 0.7, 0.15  # ... when the shifted speed changes correlate this well, this much better
 RCOND = 1e-5  # singular values of the fit's (column-normalised) matrix below this share of the largest: unseen
 
 
@@ -182,7 +184,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         s, s_fit, s_walk, c = fit
         wins = detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
     if isinstance(fit, str):  # no windows reported: none were used
-        rep.why = fit
+        rep.why = fit + _clock_hint(tw, vw, A, inside)
         return rep
     clean = _clean(inside, wins)
     rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
@@ -192,7 +194,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     if s_fit > MAX_SCALE_SIGMA:
         rep.why = (f"wheel scale {s:.4f} +- {s_fit:.4f} (the fit's): not measured by the accelerometer to "
                    f"{MAX_SCALE_SIGMA:.1%} (the speed changes too little, or the IMU's axes are off), so {len(wins)} "
-                   "slip(s) left in")
+                   "slip(s) left in") + _clock_hint(tw, vw, A, inside)
         return rep
     if abs(s - 1.0) > MAX_SCALE_OFF:
         rep.why = (f"wheel scale {s:.4f}: further from 1 than a wheel's radius error ({MAX_SCALE_OFF:.0%}), the "
@@ -227,6 +229,30 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
                + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep
+
+
+def _clock_hint(t: np.ndarray, v: np.ndarray, A: np.ndarray, inside: np.ndarray) -> str:
+    """A hint when the wheel speed's 1 s changes match the IMU speed track's (``A``; both less their running
+    median, a tilt's drift) far better with the IMU stamps shifted (by ``MIN_LAG_S`` to ``MAX_LAG_S``): an IMU
+    clock offset spoils the check."""
+    keep = inside & (t >= t[0] + MAX_LAG_S + 0.5) & (t <= t[-1] - MAX_LAG_S - 0.5)
+    if keep.sum() < 10:
+        return ""
+    tk = t[keep]
+
+    def change(x: np.ndarray, lag: float) -> np.ndarray:
+        d = np.interp(tk + lag + 0.5, t, x) - np.interp(tk + lag - 0.5, t, x)
+        return d - running_median(tk, d, DRIFT_S)
+
+    lags = np.round(np.arange(-MAX_LAG_S, MAX_LAG_S + 1e-9, 0.02), 2)
+    dv = change(v, 0.0)
+    corr = np.array([np.corrcoef(dv, change(A, lag))[0, 1] for lag in lags])
+    k, k0 = int(np.nanargmax(corr)), len(lags) // 2
+    if abs(lags[k]) < MIN_LAG_S or corr[k] < LAG_CORR or corr[k] - corr[k0] < LAG_CORR_GAIN:
+        return ""
+    return (f"; the wheel speed's changes match the accelerometer's {lags[k]:+.2f} s later in its stamps "
+            f"(correlation {corr[k]:.2f}, {corr[k0]:.2f} unshifted): an IMU clock offset? Try --imu-time-offset "
+            f"{-lags[k]:.2f}")
 
 
 def _clean(inside: np.ndarray, wins: list[tuple[int, int]]) -> np.ndarray:

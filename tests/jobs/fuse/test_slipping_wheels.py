@@ -7,6 +7,7 @@ the wheel scale before the planar filter runs (core/fuse/wheel_slip.py)."""
 from __future__ import annotations
 
 import json
+import re
 
 from lio_cli.config.fuse import FuseConfig
 from lio_cli.jobs.fuse.job import FuseJob, run_fuse
@@ -67,3 +68,15 @@ def test_a_long_drive_measures_the_wheel_scale_and_bridges_every_slip(tmp_path):
     assert check["why"] == (f"wheel scale {check['scale']:.4f} +- {check['scale_sigma']:.4f} (applied); "
                             "3 slip(s) bridged by the IMU")
     assert _ate(log, run.trajectory) < LONG_WHEEL_RATIO * _dead_reckoning(log)
+
+
+def test_an_imu_clock_offset_that_spoils_the_check_is_named_with_the_offset_to_give(tmp_path):
+    # IMU stamps 0.5 s late: every wheel speed change looked like a slip, "1 clean 1 s stretches", no hint why
+    log = tmp_path / "rover.mcap"
+    simulate("rover", log, duration_s=30.0, seed=7, lidar=False, imu_time_offset_s=-0.5)
+    check = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0))).metrics["core"]["wheel_check"]
+    assert check["scale"] is None and check["bridged"] == 0
+    assert re.fullmatch(r"1 clean 1 s stretches \(no slip window, no IMU gap\), fewer than 12: scale not measured; "
+                        r"the wheel speed's changes match the accelerometer's \+0\.50 s later in its stamps "
+                        r"\(correlation 0\.8\d, 0\.[0-6]\d unshifted\): an IMU clock offset\? Try --imu-time-offset "
+                        r"-0\.50", check["why"]), check["why"]
