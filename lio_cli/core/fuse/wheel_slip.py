@@ -246,8 +246,11 @@ def _clock_hint(t: np.ndarray, v: np.ndarray, A: np.ndarray, inside: np.ndarray)
 
     lags = np.round(np.arange(-MAX_LAG_S, MAX_LAG_S + 1e-9, 0.02), 2)
     dv = change(v, 0.0)
-    corr = np.array([np.corrcoef(dv, change(A, lag))[0, 1] for lag in lags])
-    k, k0 = int(np.nanargmax(corr)), len(lags) // 2
+    if np.ptp(dv) < SIGMA_FLOOR_MPS:  # a speed that never changes matches nothing
+        return ""
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat IMU track: no correlation, taken as none
+        corr = np.nan_to_num([np.corrcoef(dv, change(A, lag))[0, 1] for lag in lags], nan=0.0)
+    k, k0 = int(np.argmax(corr)), len(lags) // 2
     if abs(lags[k]) < MIN_LAG_S or corr[k] < LAG_CORR or corr[k] - corr[k0] < LAG_CORR_GAIN:
         return ""
     return (f"; the wheel speed's changes match the accelerometer's {lags[k]:+.2f} s later in its stamps "
