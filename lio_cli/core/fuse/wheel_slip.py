@@ -1,21 +1,22 @@
 """Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed, no odometry).
 
 A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of a
-second while the accelerometer feels no such acceleration. ``forward_accel`` gives the forward acceleration the IMU
-feels: the specific force plus gravity's forward share, the gravity direction in the base frame taken from the first
-second and carried by the gyro alone (pitch on uneven ground is taken out; the wheels never pull it, their scale is
-what it measures). Its integral is a speed track; the wheel speed times the scale minus that track is flat but for
-the accelerometer's forward bias, the gyro's x/y bias and the start's tilt (a ramp and slow curves of known shape),
-and a slip's jump.
+second while the accelerometer feels no such acceleration. ``tilt_track.forward_accel`` gives the forward
+acceleration the IMU feels: the specific force plus gravity's forward share, the gravity direction in the base
+frame anchored from the accelerometer at the start of each ``tilt_track.SEGMENT_S`` stretch (a log under two: its
+first second) and carried by the gyro alone within it (pitch on uneven ground is taken out; the wheels never pull
+it, their scale is what it measures; the gyro's bias walk never tilts it for longer than a stretch). Its integral
+is a speed track; the wheel speed times the scale minus that track is flat but for the accelerometer's forward
+bias, each stretch's gyro x/y bias and anchor tilt (a ramp and slow curves of known shape), and a slip's jump.
 
-``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those four terms by least squares on the
+``_fit_scale``: the wheel scale ``s`` (``s * wheel = true speed``) and those terms by least squares on the
 speed increments over ``BLOCK_S`` outside slips (blocks left far off trimmed; combinations of the terms the drive
 never shows, as on a straight one, left out). The scale's sigma holds, besides the fit's residual, the gyro's angle
-random walk: its white noise (measured from the data) walks the carried gravity direction, an error the
-constant-bias terms cannot take out and the blocks share (``_walk_variance``). Slips: ``slip_windows`` (a jump of
-the difference until it is back at its level). The first fit leaves out the raw difference's jumps
-(``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's pitch, from the first
-second, divides the forward acceleration by its cosine.
+random walk: its white noise (measured from the data) walks the carried gravity direction from each anchor, an
+error the constant-bias terms cannot take out and the blocks share (``tilt_track.walk_variance``). Slips:
+``slip_windows`` (a jump of the difference until it is back at its level). The first fit leaves out the raw
+difference's jumps (``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's
+pitch, from each anchor, divides the forward acceleration by its cosine.
 
 The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``) and
 off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips are
@@ -32,12 +33,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ...so3 import so3_exp
 from ..imu import running_integral
-from ..robust import robust_sigma, white_variance
+from ..robust import robust_sigma
 from .kalman import chi2_thresholds
-from .slip_windows import EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard
+from .slip_windows import DRIFT_S, EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard, running_median
 from .timeline import Prepared
+from .tilt_track import angle_walk_q, forward_accel, walk_variance
 
 MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only if the IMU's speed closes it
 CLOSE_REL = 0.05  # ... within this share of the speed (or CLOSE_MPS) of the wheel speed after it
@@ -51,7 +52,8 @@ FIT_PASSES = 3  # fit then detect, this many times
 TRIM_PASSES = 2  # blocks further than TRIM_Z robust sigmas from the fit are left out, this many times
 TRIM_Z = 4.0
 MIN_BLOCKS = 12  # fewer clean increments: no fit
-WALK_BANDS = (1, 2, 4)  # samples per mean for the gyro's noise density (2 and 4 cancel a vibration at half the rate)
+MAX_LAG_S, MIN_LAG_S = 1.0, 0.1  # an IMU clock offset is looked for within this and reported from that
+LAG_CORR, LAG_CORR_GAIN = 0.7, 0.15  # ... when the shifted speed changes correlate this well, this much better
 RCOND = 1e-5  # singular values of the fit's (column-normalised) matrix below this share of the largest: unseen
 
 
@@ -86,40 +88,6 @@ def applies(prep: Prepared) -> bool:
     return (w.stamps_ns[-1] - w.stamps_ns[0]) * 1e-9 >= MIN_SPAN_S and np.isfinite(w.velocity_mps[:, 0]).sum() >= 10
 
 
-def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
-                  g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
-    cosine of the IMU mount's pitch (a pitched x axis feels that share of the forward acceleration): the up
-    direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
-    carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
-    (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
-    with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
-    rotate nothing: the gyro sample after a gap never covers the gap's length."""
-    n0 = max(1, int(np.searchsorted(t_s, t_s[0] + 1.0)))
-    v = np.interp(t_s[:n0], t_w, v_w)
-    a_w = np.interp(t_s[:n0], t_w, np.gradient(v_w, t_w))
-    kin = np.column_stack([a_w, v * w_b[:n0, 2], -v * w_b[:n0, 1]])
-    u = (f_b[:n0] - kin).mean(axis=0)
-    u = u / max(float(np.linalg.norm(u)), 1e-9)
-    dt = np.diff(t_s, prepend=t_s[0])
-    dt[1:][gap] = 0.0
-    dR = so3_exp(w_b * dt[:, None])
-    R = dR  # the base's rotation since the first sample: the running product, in log2(N) batched steps
-    step = 1
-    while step < len(R):
-        R = np.concatenate([R[:step], R[:-step] @ R[step:]])
-        step *= 2
-    ub = np.einsum("nji,j->ni", R, u)  # R^T u
-    B = np.cumsum(R * dt[:, None, None], axis=0)  # integral of R: the gyro bias's rotation error is R^T B b
-    sens = np.empty((len(t_s), 4))
-    for j, e in enumerate(np.eye(3)[:2]):
-        phi = np.einsum("nji,nj->ni", R, B @ e)
-        sens[:, j] = np.cross(ub, phi)[:, 0]
-        sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
-    c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))  # the mount's pitch: the start's, the gyro's drift never in
-    return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
-
-
 def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
     """The running trapezoid integral of ``x`` (sampled at ``t_s``) at the stamps ``t``; steps across an IMU
     gap (``gap``, one per step) add nothing."""
@@ -130,14 +98,14 @@ def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray)
 
 
 def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray, clean: np.ndarray,
-               walk_q: float) -> tuple[float, float, float, np.ndarray] | str:
+               walk_q: float, anchors: np.ndarray) -> tuple[float, float, float, np.ndarray] | str:
     """(scale, its sigma from the residual, its sigma from the angle walk, c) of ``s * dv = dA - c0 dt - dG
     c[1:]`` over ``BLOCK_S`` increments inside clean stretches: ``c0`` the accelerometer's forward bias,
     ``c[1:]`` the gyro's x, y bias and the start's tilt error (``G``: their effect on the integrated
     acceleration, ``forward_accel``); or why not. Combinations of the terms the drive leaves unseen (a straight
     one: the roll tilt and gyro x bias) are left out (``RCOND``). ``walk_q`` ((m/s^2)^2/s): the forward
-    acceleration's random walk from the carried gravity direction (``_walk_variance``); ``t`` counts from the
-    start of that carry."""
+    acceleration's random walk from the carried gravity direction (``walk_variance``), restarted at each of
+    ``anchors``; ``t`` and ``anchors`` count from the first IMU stamp."""
     rows, spans = [], []
     k = 0
     while k < len(t) - 1:
@@ -179,36 +147,8 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray, clean
     s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
     cov = s2 * (P @ P.T) / np.outer(norm, norm)
     a = U[:, seen] @ P[0] / norm[0]  # the scale as a weighted sum of the kept blocks' dA
-    walk = walk_q * float(a @ _walk_variance(np.array(spans)[fitted]) @ a)
+    walk = walk_q * float(a @ walk_variance(np.array(spans)[fitted], anchors) @ a)
     return float(sol[0]), float(np.sqrt(cov[0, 0])), float(np.sqrt(walk)), sol[1:]
-
-
-def _walk_variance(spans: np.ndarray) -> np.ndarray:
-    """(n,n) covariance of the integrals over time-ordered, non-overlapping ``spans`` (n,2) (s from the walk's
-    start) of a unit Wiener process W: ``E[W(s) W(u)] = min(s, u)``, so two spans [a, b] before [c, d] share
-    ``(b^2 - a^2) / 2 * (d - c)`` and one with itself ``a h^2 + h^3 / 3``, h = b - a."""
-    a, b = spans[:, 0], spans[:, 1]
-    h = b - a
-    K = np.outer(0.5 * (b * b - a * a), h)
-    K = np.triu(K, 1)
-    K = K + K.T
-    K[np.diag_indices_from(K)] = a * h * h + h**3 / 3.0
-    return K
-
-
-def angle_walk_q(t_s: np.ndarray, w: np.ndarray) -> float:
-    """The white-noise density squared (rad^2/s) of a gyro axis ``w`` sampled at ``t_s``: the second differences
-    of its means over n samples have 6 / n times the per-sample variance, which times the period is the density
-    squared. Motion adds to the low bands and vibration to the high ones, white noise is flat: the least over
-    ``WALK_BANDS``."""
-    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
-    q = []
-    for n in WALK_BANDS:
-        m = len(w) // n
-        if m >= 3:
-            y = w[:m * n].reshape(m, n).mean(axis=1)
-            q.append(white_variance(y) * n * dt)
-    return min(q, default=0.0)
 
 
 def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
@@ -223,7 +163,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     vw = w.velocity_mps[ok, 0]
     ti = (imu.stamps_ns - t0) * 1e-9
     gap = np.diff(imu.stamps_ns) > prep.imu_gap_ns if prep.imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
-    a, sens = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2, gap)
+    a, sens, starts = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2, gap)
+    anchors = ti[starts] - ti[0]
     A, G = (_integral_at(tw, ti, x, gap) for x in (a, sens))
     # the pitch the gyro carries walks with its y axis's white noise: g times that walk is the acceleration's
     walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1])
@@ -234,16 +175,16 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     wins, plain = guard(tw, vw - A, vw, inside, z)  # first around every jump of the raw IMU speed
     fit: tuple | str = ""
     for p in range(FIT_PASSES):
-        fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q)
+        fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q, anchors)
         if isinstance(fit, str) and p == 0 and wins != plain:  # departures kept out left too little: the jumps alone
             wins = plain
-            fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q)
+            fit = _fit_scale(tw - ti[0], vw, A, G, _clean(inside, wins), walk_q, anchors)
         if isinstance(fit, str):
             break
         s, s_fit, s_walk, c = fit
         wins = detect(tw, s * vw - (A - c[0] * tw - G @ c[1:]), vw, inside, z)
     if isinstance(fit, str):  # no windows reported: none were used
-        rep.why = fit
+        rep.why = fit + _clock_hint(tw, vw, A, inside)
         return rep
     clean = _clean(inside, wins)
     rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
@@ -253,7 +194,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     if s_fit > MAX_SCALE_SIGMA:
         rep.why = (f"wheel scale {s:.4f} +- {s_fit:.4f} (the fit's): not measured by the accelerometer to "
                    f"{MAX_SCALE_SIGMA:.1%} (the speed changes too little, or the IMU's axes are off), so {len(wins)} "
-                   "slip(s) left in")
+                   "slip(s) left in") + _clock_hint(tw, vw, A, inside)
         return rep
     if abs(s - 1.0) > MAX_SCALE_OFF:
         rep.why = (f"wheel scale {s:.4f}: further from 1 than a wheel's radius error ({MAX_SCALE_OFF:.0%}), the "
@@ -289,6 +230,33 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
                + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep
+
+
+def _clock_hint(t: np.ndarray, v: np.ndarray, A: np.ndarray, inside: np.ndarray) -> str:
+    """A hint when the wheel speed's 1 s changes match the IMU speed track's (``A``; both less their running
+    median, a tilt's drift) far better with the IMU stamps shifted (by ``MIN_LAG_S`` to ``MAX_LAG_S``): an IMU
+    clock offset spoils the check."""
+    keep = inside & (t >= t[0] + MAX_LAG_S + 0.5) & (t <= t[-1] - MAX_LAG_S - 0.5)
+    if keep.sum() < 10:
+        return ""
+    tk = t[keep]
+
+    def change(x: np.ndarray, lag: float) -> np.ndarray:
+        d = np.interp(tk + lag + 0.5, t, x) - np.interp(tk + lag - 0.5, t, x)
+        return d - running_median(tk, d, DRIFT_S)
+
+    lags = np.round(np.arange(-MAX_LAG_S, MAX_LAG_S + 1e-9, 0.02), 2)
+    dv = change(v, 0.0)
+    if np.ptp(dv) < SIGMA_FLOOR_MPS:  # a speed that never changes matches nothing
+        return ""
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat IMU track: no correlation, taken as none
+        corr = np.nan_to_num([np.corrcoef(dv, change(A, lag))[0, 1] for lag in lags], nan=0.0)
+    k, k0 = int(np.argmax(corr)), len(lags) // 2
+    if abs(lags[k]) < MIN_LAG_S or corr[k] < LAG_CORR or corr[k] - corr[k0] < LAG_CORR_GAIN:
+        return ""
+    return (f"; the wheel speed's changes match the accelerometer's {lags[k]:+.2f} s later in its stamps "
+            f"(correlation {corr[k]:.2f}, {corr[k0]:.2f} unshifted): an IMU clock offset? Try --imu-time-offset "
+            f"{-lags[k]:.2f}")
 
 
 def _clean(inside: np.ndarray, wins: list[tuple[int, int]]) -> np.ndarray:

@@ -1,0 +1,110 @@
+"""The base's forward acceleration from the IMU for the wheel-scale check (``wheel_slip``), with the up direction
+in the base frame tracked over the log: anchored from the accelerometer at the start of each ``SEGMENT_S``-long
+stretch (the accelerometer less the wheels' acceleration over its first second) and carried by the gyro alone
+within it, so the gyro's bias walk never tilts it for more than one stretch. Each stretch brings its own four
+linear terms (the gyro's x and y bias, the anchor's tilt error about x and y), which the scale fit solves for;
+a log shorter than two stretches is one stretch, anchored at its first second. Also the gyro's angle random walk
+(``angle_walk_q``) and the covariance it gives the speed track's increments (``walk_variance``), restarted at
+each anchor."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...so3 import so3_exp
+from ..robust import white_variance
+
+SEGMENT_S = 30.0  # the up direction is re-anchored from the accelerometer this often (the log split evenly)
+WALK_BANDS = (1, 2, 4)  # samples per mean for the gyro's noise density (2 and 4 cancel a vibration at half the rate)
+
+
+def segment_starts(t_s: np.ndarray) -> np.ndarray:
+    """IMU indices where a stretch starts: the log split into as many equal stretches of at least
+    ``SEGMENT_S`` as fit (one for a log shorter than two)."""
+    n = max(1, int((t_s[-1] - t_s[0]) // SEGMENT_S))
+    return np.searchsorted(t_s, t_s[0] + (t_s[-1] - t_s[0]) * np.arange(n) / n)
+
+
+def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
+                  g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(a, sens, starts): the forward acceleration (``carried``) of each stretch (``segment_starts``), its
+    (N, 4 * stretches) sensitivities (each stretch's four terms, zero outside it), and the stretches' start
+    indices."""
+    starts = segment_starts(t_s)
+    if len(starts) == 1:
+        a, sens = carried(t_s, f_b, w_b, t_w, v_w, g, gap)
+        return a, sens, starts
+    a = np.empty(len(t_s))
+    sens = np.zeros((len(t_s), 4 * len(starts)))
+    ends = np.append(starts[1:], len(t_s))
+    for k, (i, j) in enumerate(zip(starts, ends)):
+        a[i:j], sens[i:j, 4 * k:4 * k + 4] = carried(t_s[i:j], f_b[i:j], w_b[i:j], t_w, v_w, g, gap[i:j - 1])
+    return a, sens, starts
+
+
+def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
+            g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
+    cosine of the IMU mount's pitch (a pitched x axis feels that share of the forward acceleration): the up
+    direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
+    carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
+    (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
+    with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
+    rotate nothing: the gyro sample after a gap never covers the gap's length."""
+    n0 = max(1, int(np.searchsorted(t_s, t_s[0] + 1.0)))
+    v = np.interp(t_s[:n0], t_w, v_w)
+    a_w = np.interp(t_s[:n0], t_w, np.gradient(v_w, t_w))
+    kin = np.column_stack([a_w, v * w_b[:n0, 2], -v * w_b[:n0, 1]])
+    u = (f_b[:n0] - kin).mean(axis=0)
+    u = u / max(float(np.linalg.norm(u)), 1e-9)
+    dt = np.diff(t_s, prepend=t_s[0])
+    dt[1:][gap] = 0.0
+    dR = so3_exp(w_b * dt[:, None])
+    R = dR  # the base's rotation since the first sample: the running product, in log2(N) batched steps
+    step = 1
+    while step < len(R):
+        R = np.concatenate([R[:step], R[:-step] @ R[step:]])
+        step *= 2
+    ub = np.einsum("nji,j->ni", R, u)  # R^T u
+    B = np.cumsum(R * dt[:, None, None], axis=0)  # integral of R: the gyro bias's rotation error is R^T B b
+    sens = np.empty((len(t_s), 4))
+    for j, e in enumerate(np.eye(3)[:2]):
+        phi = np.einsum("nji,nj->ni", R, B @ e)
+        sens[:, j] = np.cross(ub, phi)[:, 0]
+        sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
+    c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))  # the mount's pitch: the start's, the gyro's drift never in
+    return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
+
+
+def walk_variance(spans: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """(n,n) covariance of the integrals over time-ordered, non-overlapping ``spans`` (n,2) of a unit Wiener
+    process W restarted at each of ``anchors`` (s, ascending, the first at or before the first span; a span
+    belongs to the last anchor at or before its start): ``E[W(s) W(u)] = min(s, u)`` from the anchor, so two
+    spans [a, b] before [c, d] of one anchor share ``(b^2 - a^2) / 2 * (d - c)``, one with itself
+    ``a h^2 + h^3 / 3`` (h = b - a), spans of different anchors nothing."""
+    seg = np.maximum(np.searchsorted(anchors, spans[:, 0], side="right") - 1, 0)
+    rel = spans - anchors[seg][:, None]
+    a, b = rel[:, 0], rel[:, 1]
+    h = b - a
+    K = np.outer(0.5 * (b * b - a * a), h)
+    K = np.triu(K, 1)
+    K = K + K.T
+    K[np.diag_indices_from(K)] = a * h * h + h**3 / 3.0
+    if len(anchors) > 1:
+        K[seg[:, None] != seg[None, :]] = 0.0
+    return K
+
+
+def angle_walk_q(t_s: np.ndarray, w: np.ndarray) -> float:
+    """The white-noise density squared (rad^2/s) of a gyro axis ``w`` sampled at ``t_s``: the second differences
+    of its means over n samples have 6 / n times the per-sample variance, which times the period is the density
+    squared. Motion adds to the low bands and vibration to the high ones, white noise is flat: the least over
+    ``WALK_BANDS``."""
+    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
+    q = []
+    for n in WALK_BANDS:
+        m = len(w) // n
+        if m >= 3:
+            y = w[:m * n].reshape(m, n).mean(axis=1)
+            q.append(white_variance(y) * n * dt)
+    return min(q, default=0.0)
