@@ -129,8 +129,9 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
-    if o.estimator == "planar" and (data := choose_estimator(prep)).name != "planar":  # told, as given
-        prep.notes.append(f"--estimator planar given where the data ask for the 3D filter: {data.reason}")
+    if o.estimator == "planar" and (data := choose_estimator(prep)).name != "planar":  # run as given, and told
+        choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
+                                           f"{data.reason}", {})
     if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
         prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
     graph_runs = o.smooth and _graph_smooths(prep, choice.name)

@@ -21,6 +21,7 @@ from . import measure3d as m3
 from . import step3d
 from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
+from .gyro_gaps import in_gyro_gap
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog
 from .result import pose_covariance_index
@@ -100,6 +101,10 @@ class Ekf3d:
         gg = prep.gyro_gaps
         self.gap_yaw = gg.yaw_radps if gg is not None and self.L.model != "cv" else None
         self.gap_wz: float | None = None  # the last wheel yaw rate inside the gyro gap being crossed
+
+    def gyro_gap_at(self, t: int) -> bool:
+        """Inside a gap of the gyro (between two IMU samples further apart than its gap threshold)."""
+        return bool(in_gyro_gap(self.prep.imu.stamps_ns, self.prep.imu_gap_ns, np.array([t], np.int64))[0])
 
     def _imu_at(self, t_a: int, t_b: int) -> tuple[list[float], list[float]] | None:
         """Base rate and specific force (3 floats each) at the midpoint of [t_a, t_b] (inside one IMU
@@ -183,7 +188,11 @@ class Ekf3d:
         if self.wheel_yaw_rate and np.isfinite(w.yaw_rate_radps[i]):
             u = None if self.L.model == "cv" else self._imu_at(t, t)
             if self.L.model != "cv" and u is None:
-                self.wheel_rep.reject("in_gap")
+                if self.gap_yaw is not None and self.gyro_gap_at(t):  # the selection's own rate bridges the gap
+                    self.gap_wz = float(w.yaw_rate_radps[i])
+                    self.wheel_rep.note("gyro_gap_yaw")
+                else:
+                    self.wheel_rep.reject("in_gap")
             else:
                 r, H, Rn = m3.yaw_rate(np.array(x), w.yaw_rate_radps[i], w.yaw_rate_var[i], None if u is None else u[0],
                                        self.gyro_var, self.L)

@@ -24,6 +24,7 @@ class GyroGaps:
     yaw_radps: np.ndarray | None = None
     yaw_var: np.ndarray | None = None
     share_radpm: float = 0.0  # the wheels' yaw rate's share of their speed taken out (unequal radii)
+    selected: int = 0  # wheel yaw rates inside the gaps the selection itself uses
     outputs: int = 0  # output stamps added inside the gaps (the wheel or odometry stamps there)
 
     @property
@@ -38,6 +39,11 @@ class GyroGaps:
     def bridging_yaw(self) -> int:
         return 0 if self.yaw_radps is None else int(np.count_nonzero(np.isfinite(self.yaw_radps)))
 
+    @property
+    def turning_yaw(self) -> int:
+        """Wheel yaw rates that turn the heading inside the gaps: the bridging ones and the selection's own."""
+        return self.bridging_yaw + self.selected
+
 
 def in_gyro_gap(imu_ns: np.ndarray, threshold_ns: int, stamps_ns: np.ndarray) -> np.ndarray:
     """Stamps strictly between two IMU samples further apart than ``threshold_ns``."""
@@ -50,16 +56,18 @@ def in_gyro_gap(imu_ns: np.ndarray, threshold_ns: int, stamps_ns: np.ndarray) ->
 
 
 def gap_yaw_rates(imu_ns: np.ndarray, threshold_ns: int, wheel_ns: np.ndarray, raw_yaw: np.ndarray,
-                  raw_var: np.ndarray, used_yaw: np.ndarray | None, scale: float, share_radpm: float,
-                  speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  raw_var: np.ndarray, used_yaw: np.ndarray | None, scale: float, scale_unsure: float,
+                  share_radpm: float, speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The wheels' yaw rates inside the gyro's gaps, NaN elsewhere and where ``used_yaw`` (the selection's) already
     has a value: plus ``share_radpm`` times the speed (unequal radii, as the weighing measured them), divided by the
-    yaw ``scale`` the weighing found."""
+    yaw ``scale`` the weighing found; their variance widened by ``scale_unsure`` (the scale's |c| + sigma) times the
+    rate, as the weighing widens the rates it lets in."""
     gap = in_gyro_gap(imu_ns, threshold_ns, wheel_ns) & np.isfinite(raw_yaw)
     if used_yaw is not None:
         gap &= ~np.isfinite(used_yaw)
     yaw = (raw_yaw + share_radpm * np.nan_to_num(speed_mps)) / scale
-    return np.where(gap, yaw, np.nan), np.where(gap, raw_var / scale**2, np.nan)
+    var = np.nan_to_num(raw_var, nan=0.0) / scale**2 + (scale_unsure * yaw) ** 2
+    return np.where(gap, yaw, np.nan), np.where(gap, var, np.nan)
 
 
 def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator: str) -> str:
@@ -70,9 +78,9 @@ def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator
         if gaps.share_radpm else ""
     if estimator == "graph":
         turn = "the factor graph took the 3D filter's increment (the heading " + (
-            "following the wheels' yaw rate)" if gaps.bridging_yaw else "held)")
-    elif gaps.bridging_yaw:
-        turn = f"the heading followed the wheels' yaw rate ({gaps.bridging_yaw} messages{share})"
+            "following the wheels' yaw rate)" if gaps.turning_yaw else "held)")
+    elif gaps.turning_yaw:
+        turn = f"the heading followed the wheels' yaw rate ({gaps.turning_yaw} messages{share})"
     elif odom:
         turn = "the heading followed the odometry poses"
     elif estimator == "planar":

@@ -1,12 +1,13 @@
-"""Does the IMU's own orientation follow its gyro? Many drivers without an attitude filter publish a constant
-identity quaternion with a zero (or small) covariance; taken as attitude it pins the heading and the tilt.
+"""Does the IMU's own orientation follow its gyro? Many drivers without an attitude filter publish a constant identity
+quaternion with a zero (or small) covariance; taken as attitude it pins the heading and the tilt.
 
 Over two-second windows (one second apart) of the cleaned IMU series, the relative rotation between the window's
 first and last orientation (``R_world_imu(t0)^T R_world_imu(t1)``, in the IMU frame, whatever the world frame) is
-compared with the gyro integrated over the same samples. A real AHRS follows the gyro to a degree or so over a second; a window
-disagrees when the two differ by more than ``AGREE_RAD`` plus ``AGREE_SHARE`` of the turn. Only windows where the
-gyro turns ``MIN_TURN_RAD`` or more can tell a frozen orientation from a still platform; the orientation fails
-when over ``DISAGREE_SHARE`` of at least ``MIN_WINDOWS`` such windows disagree. Cost is O(N log N).
+compared with the gyro integrated over the same samples. A real AHRS follows the gyro to a degree or so over a
+second; a window disagrees when the two differ by more than ``AGREE_RAD`` plus ``AGREE_SHARE`` of the turn. Only
+windows where the gyro turns ``MIN_TURN_RAD`` or more can tell a frozen orientation from a still platform; the
+orientation fails when over ``DISAGREE_SHARE`` of at least ``MIN_WINDOWS`` such windows disagree. Cost:
+O(N log N).
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, W
 from .lever import imu_in_base
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
+from .wheel_yaw import MAX_SCALE_OFF as MAX_YAW_SCALE_OFF
 from .wheel_yaw import SPEED_SHARE_Z, Weighed
 from .wheel_yaw import weigh as weigh_yaw
 
@@ -233,14 +234,18 @@ def _gyro_gaps(prep: Prepared, raw_wheel: WheelSeries | None) -> None:
     w = prep.wheel
     if w is not None:
         check = prep.wheel_yaw_check or {}
-        scale = 1.0 - check["scale_off"] if check.get("scale_applied") else 1.0
+        c, c_sigma = check.get("scale_off"), check.get("scale_off_sigma") or 0.0
         used = w.yaw_rate_radps if "yaw_rate" in prep.use["wheel"] else None
-        share, share_sigma = check.get("speed_share_radpm"), check.get("speed_share_sigma")
-        if share is not None and abs(share) > SPEED_SHARE_Z * share_sigma:  # unequal radii: measured, taken out
-            gaps.share_radpm = share
-        gaps.yaw_radps, gaps.yaw_var = gap_yaw_rates(prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns,
-                                                     raw_wheel.yaw_rate_radps, raw_wheel.yaw_rate_var, used, scale,
-                                                     gaps.share_radpm, raw_wheel.velocity_mps[:, 0])
+        if used is not None:
+            gaps.selected = int(np.count_nonzero(in_gyro_gap(prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns)
+                                                 & np.isfinite(used)))
+        if c is None or abs(c) <= MAX_YAW_SCALE_OFF:  # a zero, flipped or deg/s yaw rate never bridges
+            share, share_sigma = check.get("speed_share_radpm"), check.get("speed_share_sigma")
+            if share is not None and abs(share) > SPEED_SHARE_Z * share_sigma:  # unequal radii: taken out
+                gaps.share_radpm = share
+            gaps.yaw_radps, gaps.yaw_var = gap_yaw_rates(
+                prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns, raw_wheel.yaw_rate_radps, raw_wheel.yaw_rate_var,
+                used, 1.0 - (c or 0.0), abs(c or 0.0) + c_sigma, gaps.share_radpm, raw_wheel.velocity_mps[:, 0])
     prep.gyro_gaps = gaps
 
 

@@ -183,7 +183,7 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.far = int(far.sum())
     if follows:
         rep.why = (f"the wheels' yaw rate follows their speed ({-rep.speed_share:+.2g} +- {rep.speed_share_sigma:.1g} "
-                   "rad/m: unequal radii), which a scale does not hold: the gyro's alone")
+                   "rad/m: unequal radii), which a scale does not hold: the gyro's alone" + _in_degrees(1.0 - c))
         return rep, None, None
     if abs(c) > MAX_SCALE_OFF:
         rep.why = (f"the wheels' yaw rate is {-c:+.1%} off the gyro's scale, beyond {MAX_SCALE_OFF:.0%}: not a "

@@ -92,7 +92,7 @@ def test_gate_at_rest_keeps_the_scale_one():
     assert g.scale == 1.0 and len(g.rejected) == 0
 
 
-@pytest.mark.parametrize("odom_scale", [1.0, 0.85, 0.5, 1000.0])
+@pytest.mark.parametrize("odom_scale", [1.0, 0.85, 0.5, 1000.0, -1.0])
 def test_an_odometry_off_the_wheels_by_more_than_a_radius_error_is_told(long_slipping_wheels, odom_scale):
     """Odometry in millimetres written as metres (or halved) was followed without a word; wheels 5 % long against
     it (0.952) and 0.81 stay within a radius error's 20 %."""
@@ -101,9 +101,15 @@ def test_an_odometry_off_the_wheels_by_more_than_a_radius_error_is_told(long_sli
     poses[:, :3, 3] *= odom_scale
     inputs = replace(long_slipping_wheels.inputs, odom=replace(od, poses=poses))
     notes = fuse(inputs, FuseOptions(estimator="ekf", rate_hz=20.0)).info["notes"]
-    told = [n for n in notes if n.startswith("odometry: its path is ")]
+    told = [n for n in notes if n.startswith("odometry: its path ")]
     if abs(odom_scale / LONG - 1.0) <= 0.2:
         assert told == []
+        return
+    if odom_scale < 0:  # reversed: a sign, not a scale
+        head, _, tail = told[0].partition("x their distance)")
+        assert len(told) == 1 and head.startswith("odometry: its path runs against the wheels' speed (")
+        assert tail == ": the wheels' speed has its sign reversed, or the odometry's forward axis is not the base's"
+        assert float(head.rsplit("(", 1)[1]) == pytest.approx(odom_scale / LONG, rel=0.002)
         return
     head, _, tail = told[0].partition("x the wheels' distance")
     assert len(told) == 1 and tail == (", beyond a wheel's radius error (20%): check its units and scale (the fused "

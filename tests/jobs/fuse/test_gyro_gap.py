@@ -129,3 +129,46 @@ def test_wheels_the_gyro_vouched_for_carry_the_heading_through_its_gap(good_whee
     assert wheel["handled"]["gyro_gap_yaw"]["count"] == 499
     # the weighing's 503 unchecked less the 499 used inside the gap: 4 at its edges stay out
     assert wheel["rejected"]["yaw_unchecked"]["count"] == 4
+
+
+def _yaw_rate_scaled(src: Path, dst: Path, k: float) -> None:
+    """A copy of a ROS 1 bag with /wheel/odom's yaw rate times ``k`` (a flipped sign, a deg/s driver)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(src) as r, Writer(dst) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, md5sum=c.digest)
+                 for c in r.connections}
+        for c, t, raw in r.messages():
+            if c.topic == "/wheel/odom":
+                m = ts.deserialize_ros1(raw, c.msgtype)
+                m.twist.twist.angular.z *= k
+                raw = ts.serialize_ros1(m, c.msgtype)
+            w.write(conns[c.id], t, raw)
+
+
+@pytest.mark.parametrize("k", [-1.0, 180.0 / np.pi])
+def test_a_yaw_rate_the_gyro_refused_never_bridges_its_gap(good_wheels_gap, tmp_path, k):
+    """A flipped or deg/s wheel yaw rate, refused beside the gyro (beyond 10 % of its scale), bridged the gap all
+    the same: the heading spun (deg/s: -1560 deg in 10 s). Refused, it is left out there too."""
+    log = tmp_path / "gap.bag"
+    _yaw_rate_scaled(good_wheels_gap, log, k)
+    (tmp_path / "gap.gt.tum").write_text(good_wheels_gap.with_suffix(".gt.tum").read_text())
+    run = run_fuse(FuseJob(log, FuseConfig(smooth=False)))
+    assert "beyond 10%" in run.metrics["core"]["wheel_yaw_check"]["why"]
+    assert ("imu: 1 gap in the gyro (the longest 10.0 s): the turn rate decayed to zero (nothing else measures it) "
+            "and the position the wheels' speed there") in run.notes
+    assert "gyro_gap_yaw" not in run.metrics["sources"]["wheel"]["handled"]
+    assert abs(_turn_deg(run.trajectory.stamps_ns, run.trajectory.poses)) < 90.0  # k times the truth's 92: 92, 5300
+
+
+def test_the_selections_own_yaw_rate_turns_the_3d_filter_through_the_gap(good_wheels_gap):
+    """The wheels' yaw rate selected (--use wheel:speed,yaw_rate): the 3D filter rejected it inside the gap as 'in a
+    gap of every motion source' and held the heading (0 deg of the car's 92)."""
+    run = run_fuse(FuseJob(good_wheels_gap, FuseConfig(estimator="ekf", smooth=False,
+                                                       use={"imu": ["gyro", "accel"], "wheel": ["speed", "yaw_rate"]})))
+    assert abs(_turn_deg(run.trajectory.stamps_ns, run.trajectory.poses) - _truth_turn_deg(good_wheels_gap)) < 5.0
+    wheel = run.metrics["sources"]["wheel"]
+    assert wheel["handled"]["gyro_gap_yaw"]["count"] == 499 and "in_gap" not in wheel["rejected"]
+    assert ("imu: 1 gap in the gyro (the longest 10.0 s): the heading followed the wheels' yaw rate (499 messages) "
+            "and the position the wheels' speed there") in run.notes

@@ -153,6 +153,9 @@ def odometry_scale_note(wheel, odom) -> str | None:
     s = None if found is None else _ratio(found[1], found[2])
     if s is None or abs(s - 1.0) <= ODOM_SCALE_OFF:
         return None
+    if s < 0:  # the odometry goes forward where the wheels turn backwards: a sign, not a scale
+        return (f"odometry: its path runs against the wheels' speed ({s:.4g}x their distance): the wheels' speed "
+                "has its sign reversed, or the odometry's forward axis is not the base's")
     return (f"odometry: its path is {s:.4g}x the wheels' distance, beyond a wheel's radius error "
             f"({ODOM_SCALE_OFF:.0%}): check its units and scale (the fused trajectory follows it)")
 
