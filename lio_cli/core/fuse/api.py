@@ -9,7 +9,6 @@ from dataclasses import replace
 import numpy as np
 
 from ...errors import LioError
-from ...geometry import so3_exp_one
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
@@ -24,7 +23,8 @@ from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
 from .state3d import P_, R_, V_
-from .timeline import Prepared, planar_use, prepare, say_gyro_gaps
+from .gyro_gaps import say_gyro_gaps
+from .timeline import Prepared, planar_use, prepare
 
 _EKF_XY = slice(P_.start, P_.start + 2)  # x, y of the 3D filter's nominal state
 

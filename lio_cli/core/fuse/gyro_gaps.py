@@ -13,6 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .wheel_yaw import MAX_SCALE_OFF as MAX_YAW_SCALE_OFF
+from .wheel_yaw import SPEED_SHARE_Z
+
 
 @dataclass
 class GyroGaps:
@@ -90,3 +93,49 @@ def gap_note(gaps: GyroGaps, wheel_speed: bool, odom: bool, gps: bool, estimator
     wheels = wheel_speed and not (gps and estimator == "graph")  # the graph's position: GPS factors first
     where = "the wheels' speed" if wheels else "the GPS fixes" if gps else ""
     return f"{head}: {turn}" + (f" and the position {where}" if where else "") + " there"
+
+
+def find_gyro_gaps(prep, runs: list[tuple[int, int]], raw_wheel) -> None:
+    """``prep.gyro_gaps`` (a ``timeline.Prepared``): the gyro's gaps between its ``runs`` of data and the wheel yaw
+    rates that may bridge them (``raw_wheel``: before the weighing left any out); ``say_gyro_gaps`` once the
+    estimator is known."""
+    if len(runs) < 2:
+        return
+    gaps = GyroGaps([a for a, _ in runs], [b for _, b in runs])
+    w = prep.wheel
+    if w is not None:
+        check = prep.wheel_yaw_check or {}
+        c, c_sigma = check.get("scale_off"), check.get("scale_off_sigma") or 0.0
+        used = w.yaw_rate_radps if "yaw_rate" in prep.use["wheel"] else None
+        if used is not None:
+            gaps.selected = int(np.count_nonzero(in_gyro_gap(prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns)
+                                                 & np.isfinite(used)))
+        if c is None or abs(c) <= MAX_YAW_SCALE_OFF:  # a zero, flipped or deg/s yaw rate never bridges
+            share, share_sigma = check.get("speed_share_radpm"), check.get("speed_share_sigma")
+            if share is not None and abs(share) > SPEED_SHARE_Z * share_sigma:  # unequal radii: taken out
+                gaps.share_radpm = share
+            gaps.yaw_radps, gaps.yaw_var = gap_yaw_rates(
+                prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns, raw_wheel.yaw_rate_radps, raw_wheel.yaw_rate_var,
+                used, 1.0 - (c or 0.0), abs(c or 0.0) + c_sigma, gaps.share_radpm, raw_wheel.velocity_mps[:, 0])
+    prep.gyro_gaps = gaps
+
+
+def say_gyro_gaps(prep, estimator: str, graph: bool = False) -> None:
+    """The gyro's gaps in one note and the wheel yaw rates bridging them counted (the planar filter and the 3D EKF
+    follow them; the factor graph bridges the gap with the 3D filter's increment; the complementary filter holds the
+    heading)."""
+    gaps = prep.gyro_gaps
+    if gaps is None:
+        return
+    if estimator not in ("planar", "ekf"):
+        gaps.yaw_radps = gaps.yaw_var = None
+    elif gaps.bridging_yaw and not graph:
+        rep = prep.reports["wheel"]
+        rep.note("gyro_gap_yaw", gaps.bridging_yaw)
+        if (prep.wheel_yaw_check or {}).get("used"):  # the weighing left them out as unchecked: used after all
+            left = rep.rejected.get("yaw_unchecked", 0) - gaps.bridging_yaw
+            rep.rejected.pop("yaw_unchecked", None)
+            rep.reject("yaw_unchecked", max(left, 0))
+    estimator = "graph" if graph else estimator
+    speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
+    prep.notes.append(gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator))

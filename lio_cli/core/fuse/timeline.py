@@ -14,14 +14,13 @@ import numpy as np
 
 from ...errors import InputError
 from .gps_quality import assess_gps, drop_stale
-from .gyro_gaps import GyroGaps, gap_note, gap_yaw_rates, in_gyro_gap
+from .gyro_gaps import GyroGaps, find_gyro_gaps, in_gyro_gap
 from .kalman import chi2_thresholds
 from .inputs import FuseInputs, FuseOptions, GpsSeries, ImuSeries, PoseSeries, WheelSeries, resolve_use
 from .lever import imu_in_base
 from .report import SourceReport
 from .sanitize import clean_gps, clean_imu, clean_odom, clean_wheel, count_gaps, gap_threshold_ns, orientation_to_base
-from .wheel_yaw import MAX_SCALE_OFF as MAX_YAW_SCALE_OFF
-from .wheel_yaw import SPEED_SHARE_Z, Weighed
+from .wheel_yaw import Weighed
 from .wheel_yaw import weigh as weigh_yaw
 
 IMU, WHEEL, ODOM, GPS, OUT = 0, 1, 2, 3, 4
@@ -193,7 +192,7 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
     if not prep.coverage:
         raise InputError("no usable sample in any motion source")
     if prep.imu is not None and "gyro" in use["imu"]:
-        _gyro_gaps(prep, raw_wheel)
+        find_gyro_gaps(prep, _runs(prep.imu.stamps_ns, prep.imu_gap_ns), raw_wheel)
     _check_clocks(prep)
     _output(prep, options)
     _events(prep, options.snap_ns)
@@ -222,52 +221,6 @@ def _weigh_wheel_yaw(prep: Prepared, options: FuseOptions) -> None:
     rep.note("yaw_noise_estimated", int(np.isfinite(yaw).sum()))
     prep.wheel = replace(w, yaw_rate_radps=yaw, yaw_rate_var=var)
     prep.use["wheel"].add("yaw_rate")
-
-
-def _gyro_gaps(prep: Prepared, raw_wheel: WheelSeries | None) -> None:
-    """The gyro's gaps and the wheel yaw rates that may bridge them (``gyro_gaps``; ``say_gyro_gaps`` once the
-    estimator is known)."""
-    runs = _runs(prep.imu.stamps_ns, prep.imu_gap_ns)
-    if len(runs) < 2:
-        return
-    gaps = GyroGaps([a for a, _ in runs], [b for _, b in runs])
-    w = prep.wheel
-    if w is not None:
-        check = prep.wheel_yaw_check or {}
-        c, c_sigma = check.get("scale_off"), check.get("scale_off_sigma") or 0.0
-        used = w.yaw_rate_radps if "yaw_rate" in prep.use["wheel"] else None
-        if used is not None:
-            gaps.selected = int(np.count_nonzero(in_gyro_gap(prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns)
-                                                 & np.isfinite(used)))
-        if c is None or abs(c) <= MAX_YAW_SCALE_OFF:  # a zero, flipped or deg/s yaw rate never bridges
-            share, share_sigma = check.get("speed_share_radpm"), check.get("speed_share_sigma")
-            if share is not None and abs(share) > SPEED_SHARE_Z * share_sigma:  # unequal radii: taken out
-                gaps.share_radpm = share
-            gaps.yaw_radps, gaps.yaw_var = gap_yaw_rates(
-                prep.imu.stamps_ns, prep.imu_gap_ns, w.stamps_ns, raw_wheel.yaw_rate_radps, raw_wheel.yaw_rate_var,
-                used, 1.0 - (c or 0.0), abs(c or 0.0) + c_sigma, gaps.share_radpm, raw_wheel.velocity_mps[:, 0])
-    prep.gyro_gaps = gaps
-
-
-def say_gyro_gaps(prep: Prepared, estimator: str, graph: bool = False) -> None:
-    """The gyro's gaps in one note and the wheel yaw rates bridging them counted (the planar filter and the 3D EKF
-    follow them; the factor graph bridges the gap with the 3D filter's increment; the complementary filter holds the
-    heading)."""
-    gaps = prep.gyro_gaps
-    if gaps is None:
-        return
-    if estimator not in ("planar", "ekf"):
-        gaps.yaw_radps = gaps.yaw_var = None
-    elif gaps.bridging_yaw and not graph:
-        rep = prep.reports["wheel"]
-        rep.note("gyro_gap_yaw", gaps.bridging_yaw)
-        if (prep.wheel_yaw_check or {}).get("used"):  # the weighing left them out as unchecked: used after all
-            left = rep.rejected.get("yaw_unchecked", 0) - gaps.bridging_yaw
-            rep.rejected.pop("yaw_unchecked", None)
-            rep.reject("yaw_unchecked", max(left, 0))
-    estimator = "graph" if graph else estimator
-    speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
-    prep.notes.append(gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator))
 
 
 def _check_clocks(prep: Prepared) -> None:
