@@ -258,6 +258,11 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
             merged.reports[src].received = len(series)
     if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
         merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
+    if len(kept) > 1:  # what any chunk said (a gap or a stale fix lies in one of them), each once
+        merged.info["notes"] = list(dict.fromkeys(n for r in kept for n in r.info.get("notes", [])))
+        if any(r.info.get("outputs_in_gyro_gaps") for r in kept) and inputs.imu is not None:  # overlaps: once
+            merged.info["outputs_in_gyro_gaps"] = int(np.count_nonzero(~np.isin(merged.stamps_ns,
+                                                                                inputs.imu.stamps_ns)))
     return merged, infos
 
 

@@ -172,3 +172,19 @@ def test_the_selections_own_yaw_rate_turns_the_3d_filter_through_the_gap(good_wh
     assert wheel["handled"]["gyro_gap_yaw"]["count"] == 499 and "in_gap" not in wheel["rejected"]
     assert ("imu: 1 gap in the gyro (the longest 10.0 s): the heading followed the wheels' yaw rate (499 messages) "
             "and the position the wheels' speed there") in run.notes
+
+
+def test_a_chunked_run_keeps_what_its_later_chunks_said(tmp_path):
+    """Fused in chunks, the notes and the gap's output stamps were the first chunk's alone: a gap in a later
+    chunk left its poses in the file but neither the note nor the stamps' count in the metrics."""
+    simulate("rover", tmp_path / "full.bag", duration_s=70.0, seed=7, lidar=False)
+    log = tmp_path / "gap.bag"
+    _without_imu(tmp_path / "full.bag", log, 50.0, 55.0)
+    run = run_fuse(FuseJob(log, FuseConfig(max_memory_mb=40.0)))
+    assert run.metrics["memory"]["chunks"] >= 2, run.metrics["memory"]
+    told = [n for n in run.metrics["notes"] if n.startswith("imu: 1 gap in the gyro (the longest 5.0 s)")]
+    assert len(told) == 1 and told[0] in run.notes, run.metrics["notes"]
+    n = int(run.metrics["output"]["stamps"].split(" and ")[1].split()[0])
+    assert 245 <= n <= 251  # 5 s of 50 Hz wheel stamps, each once (the chunks overlap)
+    stamps = run.trajectory.stamps_ns
+    assert len(np.unique(stamps)) == len(stamps) == 70 * 200 + 1 - 999 + n  # the IMU's samples left, and the gap's
