@@ -187,9 +187,13 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
     use = {k: set(v) for k, v in prep.use.items()}
     if o.estimator == "planar":
         planar_use(use)
+    gap_said = prep.gyro_gaps.said if prep.gyro_gaps is not None else None
     kept = replace(prep, use=use, reports=reports,
-                   notes=notes + [f"smoother: the {o.estimator} filter's trajectory kept: the factor graph "
-                                  f"explained the measurements worse than the 3D filter it starts from ({refused})"])
+                   notes=[n for n in notes if n != gap_said] + [
+                       f"smoother: the {o.estimator} filter's trajectory kept: the factor graph explained the "
+                       f"measurements worse than the 3D filter it starts from ({refused})"])
+    if gap_said is not None:  # the gaps as the kept filter bridged them, not the graph
+        say_gyro_gaps(kept, o.estimator)
     fallback = _run_filter(kept, o)
     fallback.info["smoother"] = {**info, "kept": fallback.info.get("smoother", {}).get("kind") or "filter"}
     return fallback, kept

@@ -28,6 +28,7 @@ class GyroGaps:
     yaw_var: np.ndarray | None = None
     share_radpm: float = 0.0  # the wheels' yaw rate's share of their speed taken out (unequal radii)
     selected: int = 0  # wheel yaw rates inside the gaps the selection itself uses
+    said: str | None = None  # the note said of them (``say_gyro_gaps``)
     outputs: int = 0  # output stamps added inside the gaps (the wheel or odometry stamps there)
 
     @property
@@ -138,4 +139,5 @@ def say_gyro_gaps(prep, estimator: str, graph: bool = False) -> None:
             rep.reject("yaw_unchecked", max(left, 0))
     estimator = "graph" if graph else estimator
     speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
-    prep.notes.append(gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator))
+    gaps.said = gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator)
+    prep.notes.append(gaps.said)

@@ -188,3 +188,18 @@ def test_a_chunked_run_keeps_what_its_later_chunks_said(tmp_path):
     assert 245 <= n <= 251  # 5 s of 50 Hz wheel stamps, each once (the chunks overlap)
     stamps = run.trajectory.stamps_ns
     assert len(np.unique(stamps)) == len(stamps) == 70 * 200 + 1 - 999 + n  # the IMU's samples left, and the gap's
+
+
+def test_when_the_graph_is_refused_the_gap_note_is_the_kept_filters(tmp_path, monkeypatch):
+    """The factor graph refused (its guard), the planar filter's trajectory kept: the gap's note named the graph
+    and the wheel yaw rates the planar filter used there went uncounted."""
+    from lio_cli.core.fuse.graph import guard
+
+    monkeypatch.setattr(guard, "verdict", lambda *a, **k: "forced by the test")
+    log = _rover_with_gap(tmp_path, gps=True)
+    run = run_fuse(FuseJob(log, FuseConfig()))
+    assert run.metrics["estimator"] == "planar"
+    assert run.metrics["smoother"]["why"].startswith("the factor graph refused by its guard (forced by the test)")
+    gap = [n for n in run.notes if n.startswith("imu: 1 gap in the gyro")]
+    assert gap == [NOTE], gap
+    assert run.metrics["sources"]["wheel"]["handled"]["gyro_gap_yaw"]["count"] == 499
