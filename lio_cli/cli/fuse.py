@@ -38,7 +38,7 @@ an odometry trajectory: --odom FILE (TUM/KITTI, e.g. from lio odom) or --odom-to
 other commands do; --use picks which measurement of which source enters (SOURCE or SOURCE:M1,M2; repeat):
 imu:gyro,accel,orientation  wheel:speed|velocity,yaw_rate  odom:pose|delta  gps:position. A bare SOURCE
 takes it as the default does (a bare wheel: speed, and the yaw rate where it agrees with the gyro or
-without one), except that a bare imu takes its orientation unchecked.
+without one; a bare imu: its orientation where it follows the gyro).
 
 Writes OUT (TUM; default LOG-stem.fuse.tum), OUT-stem.fuse.metrics.json (sources used, updates per source,
 rejected measurements and why, time) and OUT-stem.fuse.config.yaml (the whole run: `lio fuse LOG --config it`
@@ -67,11 +67,20 @@ def _check_rate(rate: float | None) -> None:
         raise ConfigError(f"--rate must be a positive number of Hz, got {rate:g}")
 
 
+def _bare(use: list[str] | None, source: str) -> bool:
+    return any(src.strip() == source and not names.strip() for src, _, names in (u.partition(":") for u in use or ()))
+
+
+def _bare_imu(use: list[str] | None, cfg: FuseConfig) -> bool | None:
+    """True where ``--use imu`` names the IMU bare (and nothing configured otherwise): its orientation checked as
+    the default selection checks it; else None (not given)."""
+    return True if cfg.check_orientation is None and _bare(use, "imu") else None
+
+
 def _bare_wheel(use: list[str] | None, cfg: FuseConfig) -> bool | None:
     """True where ``--use wheel`` names the wheels bare (and nothing configured otherwise): the wheels as the
     default selection takes them, their yaw rate weighed against the gyro; else None (not given)."""
-    bare = any(src.strip() == "wheel" and not names.strip() for src, _, names in (u.partition(":") for u in use or ()))
-    return True if cfg.weigh_wheel_yaw is None and bare else None
+    return True if cfg.weigh_wheel_yaw is None and _bare(use, "wheel") else None
 
 
 def fuse_cmd(
@@ -111,7 +120,7 @@ def fuse_cmd(
         "smooth": smooth, "rate_hz": rate, "noise.accel_noise_density": accel_noise,
         "noise.gyro_noise_density": gyro_noise, "calibration.imu_time_offset_s": imu_time_offset,
         "max_memory_mb": max_memory,
-        "weigh_wheel_yaw": _bare_wheel(use, cfg),
+        "weigh_wheel_yaw": _bare_wheel(use, cfg), "check_orientation": _bare_imu(use, cfg),
     })
     to_stdout = output == "-"
     if to_stdout and as_json:

@@ -103,6 +103,9 @@ class FuseConfig(Strict):
     weigh_wheel_yaw: Optional[bool] = Field(
         None, description="beside a gyro, the wheels' yaw rate weighed against it over the log and used with the noise "
                           "it shows where it agrees; default: when use is not given")
+    check_orientation: Optional[bool] = Field(
+        None, description="the IMU's own orientation checked (its yaw variance, and whether it follows the gyro) and "
+                          "left out where it fails; default: when use is not given")
     estimator: Literal["auto", "ekf", "planar", "complementary"] = Field(
         "auto", description="auto (planar for a wheeled robot whose motion stays near a plane, else ekf), ekf (3D "
                             "error-state), planar (SE(2): x, y, theta, v, omega, gyro bias) or complementary")

@@ -261,19 +261,27 @@ def resolved_use(cfg: FuseConfig, inputs: FuseInputs, notes: list[str] | None = 
     as a forward ``speed`` with a non-holonomic constraint; an IMU orientation whose yaw variance says the
     heading is unknown, or that does not follow the gyro, is left out (``orientation``; the gyro check's figures
     into ``checks``)."""
-    if cfg.use is not None:
-        return {s: list(m) for s, m in cfg.use.items() if m}
     notes = notes if notes is not None else []
+    if cfg.use is not None:
+        use = {s: set(m) for s, m in cfg.use.items() if m}
+        if cfg.check_orientation:  # a bare --use imu: its orientation checked as the default selection's
+            _checked_orientation(inputs, use, notes, checks)
+        return {s: sorted(m) for s, m in use.items()}
     use = resolve_use(inputs, FuseOptions())
     if "wheel" in use and carries_lateral_speed(inputs.wheel):
         use["wheel"] = (use["wheel"] - {"speed"}) | {"velocity"}
         notes.append("wheel twist with a lateral speed (holonomic base or drone): its velocity enters as measured, "
                      "without a non-holonomic constraint")
-    if "orientation" in use.get("imu", ()):
+    if cfg.check_orientation is not False:
+        _checked_orientation(inputs, use, notes, checks)
+    return {s: sorted(m) for s, m in use.items()}
+
+
+def _checked_orientation(inputs: FuseInputs, use: dict[str, set[str]], notes: list[str], checks: dict | None) -> None:
+    if "orientation" in use.get("imu", ()) and inputs.imu is not None:
         checked = leave_out_orientation(inputs.imu, use, notes)
         if checked is not None and checks is not None:
             checks["imu_orientation"] = checked
-    return {s: sorted(m) for s, m in use.items()}
 
 
 __all__ = ["FuseSources", "base_frame_of", "check_clocks", "choose_sources", "gather_sources", "gps_antenna",

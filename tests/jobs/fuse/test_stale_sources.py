@@ -164,3 +164,20 @@ def test_repeated_fixes_at_rest_or_without_a_motion_source_are_kept():
     poses[:, 0, 3] = np.arange(11.0)
     rep = SourceReport()
     assert len(drop_stale(_fixes(10, 4), None, PoseSeries(t, poses), rep, [])) == 5 and rep.rejected["stale_fix"] == 5
+
+
+@pytest.mark.parametrize("use, kept", [(["imu", "wheel"], False), (["imu:gyro,accel,orientation", "wheel"], True)])
+def test_a_bare_use_imu_checks_the_orientation_a_named_one_forces_it(rover, rewrite_messages, tmp_path, capsys, use,
+                                                                      kept):
+    """A bare --use imu took a frozen orientation unchecked (the check ran on the default selection only)."""
+    import json
+
+    from lio_cli.cli.app import main
+
+    src = rover["plain"]
+    log = rewrite_messages(src, tmp_path / "ori.bag", "/imu", _identity(0.0))
+    argv = ["fuse", str(log), "-o", str(tmp_path / "f.tum"), "--no-smooth", "-q"]
+    assert main([*argv, *(a for u in use for a in ("--use", u))]) == 0
+    metrics = json.loads((tmp_path / "f.fuse.metrics.json").read_text())
+    assert ("orientation" in metrics["sources"]["imu"]["measurements"]) is kept
+    assert ("IMU orientation left out: it does not follow the gyro" in capsys.readouterr().err) is not kept
