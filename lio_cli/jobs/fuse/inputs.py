@@ -256,11 +256,11 @@ def _odom(cfg: FuseConfig, cols: dict):
 
 def resolved_use(cfg: FuseConfig, inputs: FuseInputs, notes: list[str] | None = None,
                  checks: dict | None = None) -> dict[str, list[str]]:
-    """The selection as given, or the core's default for the sources present, with three io-informed changes
-    (each noted): a wheel twist with a real lateral speed (holonomic base, drone) enters as ``velocity``, not
-    as a forward ``speed`` with a non-holonomic constraint; an IMU orientation whose yaw variance says the
-    heading is unknown, or that does not follow the gyro, is left out (``orientation``; the gyro check's figures
-    into ``checks``)."""
+    """The selection as given (a bare imu's orientation checked: ``check_orientation``), or the core's default for
+    the sources present, with two io-informed changes (each noted): a wheel twist with a real lateral speed
+    (holonomic base, drone) enters as ``velocity``, not as a forward ``speed`` with a non-holonomic constraint; an
+    IMU orientation whose yaw variance says the heading is unknown, or that does not follow the gyro, is left out
+    (``orientation``; the gyro check's figures into ``checks``)."""
     notes = notes if notes is not None else []
     if cfg.use is not None:
         use = {s: set(m) for s, m in cfg.use.items() if m}
