@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...so3 import quat_xyzw_to_rot, so3_exp, so3_log_batch
 from .inputs import ImuSeries, NoiseOptions
 from .report import SourceReport
 from .sanitize import clean_imu
@@ -54,35 +55,17 @@ class OrientationCheck:
                 "median_turn_deg": round(float(np.degrees(self.median_turn_rad)), 2), "follows_gyro": self.follows}
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products of xyzw quaternions (..., 4): the rotation ``R_a R_b``."""
-    ax, ay, az, aw = np.moveaxis(a, -1, 0)
-    bx, by, bz, bw = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz], axis=-1)
+def _compose_rows(R: np.ndarray) -> np.ndarray:
+    """The product along axis 1 of (W, m, 3, 3) rotations, in order, by pairwise halving."""
+    while R.shape[1] > 1:
+        if R.shape[1] % 2:
+            R = np.concatenate([R, np.broadcast_to(np.eye(3), (R.shape[0], 1, 3, 3))], axis=1)
+        R = R[:, 0::2] @ R[:, 1::2]
+    return R[:, 0]
 
 
-def _conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([-1.0, -1.0, -1.0, 1.0])
-
-
-def _angle(q: np.ndarray) -> np.ndarray:
-    return 2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
-
-
-def _exp(rotvec: np.ndarray) -> np.ndarray:
-    th = np.linalg.norm(rotvec, axis=-1, keepdims=True)
-    k = np.where(th > 1e-12, np.sin(0.5 * th) / np.where(th > 1e-12, th, 1.0), 0.5)
-    return np.concatenate([rotvec * k, np.cos(0.5 * th)], axis=-1)
-
-
-def _compose_rows(q: np.ndarray) -> np.ndarray:
-    """The product along axis 1 of (W, m, 4) quaternions, in order, by pairwise halving."""
-    while q.shape[1] > 1:
-        if q.shape[1] % 2:
-            q = np.concatenate([q, np.broadcast_to([0.0, 0.0, 0.0, 1.0], (q.shape[0], 1, 4))], axis=1)
-        q = _qmul(q[:, 0::2], q[:, 1::2])
-    return q[:, 0]
+def _angle(R: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(so3_log_batch(R), axis=-1)
 
 
 def check_orientation(imu: ImuSeries) -> OrientationCheck | None:
@@ -97,18 +80,20 @@ def check_orientation(imu: ImuSeries) -> OrientationCheck | None:
     valid = int(np.count_nonzero(imu.orientation_valid))
     if n < STEPS:
         return OrientationCheck(valid, 0, 0, float("nan"), float("nan"))
-    step_rel = _compose_rows(_exp(0.5 * (w[:-1] + w[1:]) * dt[:, None])[:n * m].reshape(n, m, 4))
+    step_rel = _compose_rows(so3_exp(0.5 * (w[:-1] + w[1:]) * dt[:, None])[:n * m].reshape(n, m, 3, 3))
     step_gap = np.any((dt[:n * m] > GAP_PERIODS * np.median(dt)).reshape(n, m), axis=1)
     gyro_rel, gap = step_rel[:n - STEPS + 1], step_gap[:n - STEPS + 1].copy()
     for k in range(1, STEPS):  # a window: STEPS consecutive steps
-        gyro_rel = _qmul(gyro_rel, step_rel[k:n - STEPS + 1 + k])
+        gyro_rel = gyro_rel @ step_rel[k:n - STEPS + 1 + k]
         gap |= step_gap[k:n - STEPS + 1 + k]
     first = np.arange(n - STEPS + 1) * m
     last = first + STEPS * m
     q = imu.orientation_xyzw
-    ori_rel = _qmul(_conj(q[first]), q[last])
-    turn, err = _angle(gyro_rel), _angle(_qmul(_conj(ori_rel), gyro_rel))
-    judged = ~gap & imu.orientation_valid[first] & imu.orientation_valid[last] & (turn >= MIN_TURN_RAD)
+    ok = imu.orientation_valid[first] & imu.orientation_valid[last]
+    ori_rel = np.broadcast_to(np.eye(3), gyro_rel.shape).copy()  # an invalid end: never judged
+    ori_rel[ok] = np.swapaxes(quat_xyzw_to_rot(q[first[ok]]), 1, 2) @ quat_xyzw_to_rot(q[last[ok]])
+    turn, err = _angle(gyro_rel), _angle(np.swapaxes(ori_rel, 1, 2) @ gyro_rel)
+    judged = ~gap & ok & (turn >= MIN_TURN_RAD)
     if not np.any(judged):
         return OrientationCheck(valid, 0, 0, float("nan"), float("nan"))
     bad = err[judged] > AGREE_RAD + AGREE_SHARE * turn[judged]
