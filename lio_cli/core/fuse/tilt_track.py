@@ -31,9 +31,6 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
     (N, 4 * stretches) sensitivities (each stretch's four terms, zero outside it), and the stretches' start
     indices."""
     starts = segment_starts(t_s)
-    if len(starts) == 1:
-        a, sens = carried(t_s, f_b, w_b, t_w, v_w, g, gap)
-        return a, sens, starts
     a = np.empty(len(t_s))
     sens = np.zeros((len(t_s), 4 * len(starts)))
     ends = np.append(starts[1:], len(t_s))
