@@ -10,7 +10,7 @@ from typing import Annotated, Literal, Optional
 import typer
 
 from ..config import load_config, with_overrides
-from ..config.fuse import DEFAULT_MAX_MEMORY_MB, FuseConfig, parse_use
+from ..config.fuse import DEFAULT_MAX_MEMORY_MB, FuseConfig, bare_sources, parse_use
 from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.files.trajectory import format_tum
@@ -67,20 +67,16 @@ def _check_rate(rate: float | None) -> None:
         raise ConfigError(f"--rate must be a positive number of Hz, got {rate:g}")
 
 
-def _bare(use: list[str] | None, source: str) -> bool:
-    return any(src.strip() == source and not names.strip() for src, _, names in (u.partition(":") for u in use or ()))
-
-
 def _bare_imu(use: list[str] | None, cfg: FuseConfig) -> bool | None:
     """True where ``--use imu`` names the IMU bare (and nothing configured otherwise): its orientation checked as
     the default selection checks it; else None (not given)."""
-    return True if cfg.check_orientation is None and _bare(use, "imu") else None
+    return True if cfg.check_orientation is None and "imu" in bare_sources(use) else None
 
 
 def _bare_wheel(use: list[str] | None, cfg: FuseConfig) -> bool | None:
     """True where ``--use wheel`` names the wheels bare (and nothing configured otherwise): the wheels as the
     default selection takes them, their yaw rate weighed against the gyro; else None (not given)."""
-    return True if cfg.weigh_wheel_yaw is None and _bare(use, "wheel") else None
+    return True if cfg.weigh_wheel_yaw is None and "wheel" in bare_sources(use) else None
 
 
 def fuse_cmd(

@@ -148,19 +148,22 @@ class FuseConfig(Strict):
         return {s: sorted(set(m)) for s, m in v.items()}
 
 
+def bare_sources(items: list[str] | None) -> set[str]:
+    """The sources ``--use`` names without measurements (``wheel``, not ``wheel:speed``)."""
+    return {src.strip() for src, _, names in (u.partition(":") for u in items or ()) if not names.strip()}
+
+
 def parse_use(items: list[str]) -> dict[str, list[str]]:
     """``--use`` values (``imu:gyro,accel``, ``wheel``, ``gps:position``) as a selection; a bare source name
     selects its ``DEFAULT_USE`` measurements, and a bare ``wheel`` without the gyro its yaw rate too."""
     out: dict[str, list[str]] = {}
-    bare = set()
+    bare = bare_sources(items)
     for item in items:
         src, _, names = item.partition(":")
         src = src.strip()
         if src not in MEASUREMENTS:
             raise ConfigError(f"--use {item}: unknown source '{src}' (choose from {', '.join(SOURCES)})")
         chosen = [n.strip() for n in names.split(",") if n.strip()] if names else list(DEFAULT_USE[src])
-        if not names:
-            bare.add(src)
         out.setdefault(src, [])
         out[src] = sorted(set(out[src]) | set(chosen))
     if "wheel" in bare and "gyro" not in out.get("imu", ()):  # else nothing turns: a straight line
@@ -168,4 +171,5 @@ def parse_use(items: list[str]) -> dict[str, list[str]]:
     return out
 
 
-__all__ = ["DEFAULT_USE", "MEASUREMENTS", "FuseConfig", "FuseInputConfig", "FuseNoise", "SOURCES", "parse_use"]
+__all__ = ["DEFAULT_USE", "MEASUREMENTS", "FuseConfig", "FuseInputConfig", "FuseNoise", "SOURCES", "bare_sources",
+           "parse_use"]
