@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .wheel_yaw import MAX_SCALE_OFF as MAX_YAW_SCALE_OFF
-from .wheel_yaw import SPEED_SHARE_Z
+from .wheel_yaw import SPEED_SHARE_Z, unchecked_clause
 
 
 @dataclass
@@ -133,10 +133,13 @@ def say_gyro_gaps(prep, estimator: str, graph: bool = False) -> None:
     elif gaps.bridging_yaw and not graph:
         rep = prep.reports["wheel"]
         rep.note("gyro_gap_yaw", gaps.bridging_yaw)
-        if (prep.wheel_yaw_check or {}).get("used"):  # the weighing left them out as unchecked: used after all
+        check = prep.wheel_yaw_check or {}
+        if check.get("used"):  # the weighing left them out as unchecked: used after all
             left = rep.rejected.get("yaw_unchecked", 0) - gaps.bridging_yaw
             rep.rejected.pop("yaw_unchecked", None)
             rep.reject("yaw_unchecked", max(left, 0))
+            n = check["unchecked_samples"]
+            check["why"] = check["why"].replace(unchecked_clause(n), unchecked_clause(n, min(gaps.bridging_yaw, n)))
     estimator = "graph" if graph else estimator
     speed = prep.wheel is not None and bool({"speed", "velocity"} & prep.use["wheel"])
     gaps.said = gap_note(gaps, speed, prep.odom is not None, prep.gps is not None, estimator)

@@ -213,6 +213,14 @@ def weigh(tw_ns: np.ndarray, yaw: np.ndarray, ti_ns: np.ndarray, gz: np.ndarray,
     rep.why = (f"the wheels' yaw rate agrees with the gyro's ({-c:+.3%} +- {c_sigma:.3%} scale"
                + (", divided out" if rep.scale_applied else "") + "; noise "
                f"{rep.sigma_radps:.2g} rad/s from the residual): used beside it"
-               + (f", {rep.far} samples of slips left out" if rep.far else "")
-               + (f", {rep.unchecked} without the gyro left out" if rep.unchecked else ""))
+               + (f", {rep.far} sample{'s' * (rep.far != 1)} of slips left out" if rep.far else "")
+               + unchecked_clause(rep.unchecked))
     return rep, out, var
+
+
+def unchecked_clause(unchecked: int, bridging: int = 0) -> str:
+    """The check's words for its ``unchecked`` yaw rates, ``bridging`` of them used across the gyro's gaps after
+    all (``gyro_gaps``)."""
+    left = unchecked - bridging
+    return ((f", {bridging} bridging the gyro's gaps" if bridging else "")
+            + (f", {left} without the gyro left out" if left > 0 else ""))

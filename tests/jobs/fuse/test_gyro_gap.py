@@ -129,6 +129,9 @@ def test_wheels_the_gyro_vouched_for_carry_the_heading_through_its_gap(good_whee
     assert wheel["handled"]["gyro_gap_yaw"]["count"] == 499
     # the weighing's 503 unchecked less the 499 used inside the gap: 4 at its edges stay out
     assert wheel["rejected"]["yaw_unchecked"]["count"] == 4
+    # the weighing's own line says so too, not "503 without the gyro left out"
+    assert run.metrics["core"]["wheel_yaw_check"]["why"].endswith(
+        ": used beside it, 499 bridging the gyro's gaps, 4 without the gyro left out")
 
 
 def _yaw_rate_scaled(src: Path, dst: Path, k: float) -> None:
