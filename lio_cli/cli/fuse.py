@@ -53,7 +53,7 @@ With -o - the trajectory goes to stdout and no metrics or config file is written
   lio fuse long.bag --no-smooth -o filtered.tum     # the filter alone
   lio fuse office.bag --estimator planar --use imu:gyro --use wheel -o -
   lio fuse drive.bag --use imu --use wheel --use gps --json > metrics.json
-  lio fuse rover.bag --time-offset gps=-0.3 --time-offset odom=0.05   # fixes stamped 0.3 s late
+  lio fuse rover.bag --time-offset gps=-0.3   # GPS fixes stamped 0.3 s late
 """
 
 Estimator = Literal["auto", "ekf", "planar", "complementary"]
