@@ -10,7 +10,7 @@ from typing import Annotated, Literal, Optional
 import typer
 
 from ..config import load_config, with_overrides
-from ..config.fuse import DEFAULT_MAX_MEMORY_MB, FuseConfig, bare_sources, parse_use
+from ..config.fuse import DEFAULT_MAX_MEMORY_MB, FuseConfig, bare_sources, parse_time_offsets, parse_use
 from ..errors import ConfigError
 from ..io.logs.detect import input_paths
 from ..io.files.trajectory import format_tum
@@ -53,6 +53,7 @@ With -o - the trajectory goes to stdout and no metrics or config file is written
   lio fuse long.bag --no-smooth -o filtered.tum     # the filter alone
   lio fuse office.bag --estimator planar --use imu:gyro --use wheel -o -
   lio fuse drive.bag --use imu --use wheel --use gps --json > metrics.json
+  lio fuse rover.bag --time-offset gps=-0.3   # GPS fixes stamped 0.3 s late
 """
 
 Estimator = Literal["auto", "ekf", "planar", "complementary"]
@@ -65,6 +66,13 @@ def _default(field: str):
 def _check_rate(rate: float | None) -> None:
     if rate is not None and not (rate == rate and rate > 0 and rate != float("inf")):
         raise ConfigError(f"--rate must be a positive number of Hz, got {rate:g}")
+
+
+def _imu_offset(flag: float | None, given: float | None) -> float | None:
+    """--imu-time-offset, or --time-offset imu=S (the same value; both given must agree)."""
+    if flag is not None and given is not None and flag != given:
+        raise ConfigError(f"--imu-time-offset {flag:g} and --time-offset imu={given:g} disagree; give one")
+    return flag if flag is not None else given
 
 
 def _bare_imu(use: list[str] | None, cfg: FuseConfig) -> bool | None:
@@ -96,6 +104,7 @@ def fuse_cmd(
     calib: Annotated[Optional[Path], typer.Option("--calib", help="Calibration YAML (lio calibrate): T_base_imu where /tf_static is silent, imu_time_offset_s, biases.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
     prefer_calib: PreferCalibOpt = False,
     imu_time_offset: Annotated[Optional[float], typer.Option("--imu-time-offset", help="Seconds added to IMU stamps to put them on the other sensors' clock (overrides --calib's imu_time_offset_s).", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
+    time_offset: Annotated[Optional[list[str]], typer.Option("--time-offset", metavar="SOURCE=SECONDS", help="Seconds added to a source's stamps, as --imu-time-offset to the IMU's (repeat; SOURCE: wheel, gps, odom, imu), e.g. gps=-0.3 for fixes stamped 0.3 s late; metrics.json's clocks section measures each.", show_default=False, rich_help_panel=CALIBRATION_PANEL)] = None,
     output: Annotated[Optional[str], typer.Option("-o", "--output", help=shown("TUM trajectory file, or - for stdout.", "LOG-stem.fuse.tum"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     rate: Annotated[Optional[float], typer.Option("--rate", help=shown("Output rate in Hz.", "every IMU sample"), show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
     cov: Annotated[Optional[Path], typer.Option("--cov", help="Also write each pose's 6x6 covariance (text: stamp and 36 values).", show_default=False, rich_help_panel=OUTPUT_PANEL)] = None,
@@ -107,6 +116,8 @@ def fuse_cmd(
     quiet: QuietOpt = False,
 ) -> None:
     _check_rate(rate)
+    offsets = parse_time_offsets(time_offset or [])
+    imu_time_offset = _imu_offset(imu_time_offset, offsets.pop("imu", None))
     cfg = load_config(FuseConfig, config, calib)
     cfg = with_overrides(cfg, {
         "calibration.prefer_file": prefer_calib_override(prefer_calib, calib, config),
@@ -115,7 +126,7 @@ def fuse_cmd(
         "input.base_frame": base_frame, "use": parse_use(use) if use else None, "estimator": estimator,
         "smooth": smooth, "rate_hz": rate, "noise.accel_noise_density": accel_noise,
         "noise.gyro_noise_density": gyro_noise, "calibration.imu_time_offset_s": imu_time_offset,
-        "max_memory_mb": max_memory,
+        "max_memory_mb": max_memory, "time_offsets_s": {**cfg.time_offsets_s, **offsets} if offsets else None,
         "weigh_wheel_yaw": _bare_wheel(use, cfg), "check_orientation": _bare_imu(use, cfg),
     })
     to_stdout = output == "-"

@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from ..errors import ConfigError
-from ..model.calibration import Calibration
+from ..model.calibration import MAX_CLOCK_OFFSET_S, Calibration
 from . import MAX_COUNT, Strict
 
 # measurement names per source, as the core names them (core.fuse.MEASUREMENTS)
@@ -97,6 +97,9 @@ class FuseConfig(Strict):
 
     input: FuseInputConfig = FuseInputConfig()
     calibration: Calibration = Field(Calibration(), description="extrinsics where /tf_static is silent, IMU clock offset")
+    time_offsets_s: dict[Literal["wheel", "gps", "odom"], float] = Field(
+        {}, description="seconds added to each source's stamps to put it on the common clock, as "
+                        "calibration.imu_time_offset_s is added to the IMU's (--time-offset SOURCE=SECONDS)")
     use: Optional[dict[Literal["imu", "wheel", "odom", "gps"], list[str]]] = Field(
         None, description="source -> measurements (imu: gyro, accel, orientation; wheel: speed, velocity, yaw_rate; "
                           "odom: pose or delta; gps: position); default: every source found, the core's selection")
@@ -136,6 +139,14 @@ class FuseConfig(Strict):
             raise ValueError(f"must be a positive number of Hz, got {v}")
         return v
 
+    @field_validator("time_offsets_s")
+    @classmethod
+    def _offsets(cls, v: dict) -> dict:
+        for src, sec in v.items():
+            if not (np.isfinite(sec) and abs(sec) <= MAX_CLOCK_OFFSET_S):
+                raise ValueError(f"{src}: must be a finite number of seconds within +-{MAX_CLOCK_OFFSET_S:g}, got {sec}")
+        return v
+
     @field_validator("use")
     @classmethod
     def _use(cls, v: dict | None) -> dict | None:
@@ -151,6 +162,29 @@ class FuseConfig(Strict):
 def bare_sources(items: list[str] | None) -> set[str]:
     """The sources ``--use`` names without measurements (``wheel``, not ``wheel:speed``)."""
     return {src.strip() for src, _, names in (u.partition(":") for u in items or ()) if not names.strip()}
+
+
+def parse_time_offsets(items: list[str]) -> dict[str, float]:
+    """``--time-offset`` values (``gps=-0.3``, ``wheel=0.05``, ``imu=0.01``) as source -> seconds; one value per
+    source."""
+    out: dict[str, float] = {}
+    for item in items:
+        src, eq, value = (p.strip() for p in item.partition("="))
+        if not eq or not src or not value:
+            raise ConfigError(f"--time-offset {item}: expected SOURCE=SECONDS, e.g. gps=-0.3")
+        if src not in SOURCES:
+            raise ConfigError(f"--time-offset {item}: unknown source '{src}' (choose from {', '.join(SOURCES)})")
+        try:
+            sec = float(value)
+        except ValueError:
+            raise ConfigError(f"--time-offset {item}: '{value}' is not a number of seconds") from None
+        if not (np.isfinite(sec) and abs(sec) <= MAX_CLOCK_OFFSET_S):
+            raise ConfigError(f"--time-offset {item}: must be a finite number of seconds within "
+                              f"+-{MAX_CLOCK_OFFSET_S:g}")
+        if src in out and out[src] != sec:
+            raise ConfigError(f"--time-offset {src} given twice ({out[src]:g} and {sec:g})")
+        out[src] = sec
+    return out
 
 
 def parse_use(items: list[str]) -> dict[str, list[str]]:
@@ -172,4 +206,4 @@ def parse_use(items: list[str]) -> dict[str, list[str]]:
 
 
 __all__ = ["DEFAULT_USE", "MEASUREMENTS", "FuseConfig", "FuseInputConfig", "FuseNoise", "SOURCES", "bare_sources",
-           "parse_use"]
+           "parse_time_offsets", "parse_use"]

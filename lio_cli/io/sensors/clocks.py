@@ -39,24 +39,31 @@ def _fmt_s(ns: float) -> str:
 
 
 def check_same_clock(log: LogReader, reference: str, other: str, other_offset_ns: int = 0,
-                     option: str = "--imu-time-offset") -> None:
+                     option: str = "--imu-time-offset", reference_offset_ns: int = 0,
+                     reference_option: str | None = None) -> None:
     """Refuse (InputError) when ``other``'s stamps (shifted by ``other_offset_ns``) are on another clock than
-    ``reference``'s; the message names both time ranges and ``option``, which fixes it."""
+    ``reference``'s (shifted by ``reference_offset_ns``); the message names both time ranges and ``option`` with
+    the value for ``other`` that fixes it (``option`` ending in ``=`` takes the value without a space), and
+    ``reference_option``'s for ``reference`` where given."""
     h_ref, d_ref = _stamp_offsets(log, reference)
     h_oth, d_oth = _stamp_offsets(log, other)
     if len(h_ref) == 0 or len(h_oth) == 0:
         return
-    apart = float(np.median(d_oth)) + other_offset_ns - float(np.median(d_ref))
-    if abs(apart) <= CLOCK_TOLERANCE_NS or abs(int(h_oth[0]) + other_offset_ns - int(h_ref[0])) <= CLOCK_TOLERANCE_NS:
+    apart = float(np.median(d_oth)) + other_offset_ns - float(np.median(d_ref)) - reference_offset_ns
+    first = int(h_oth[0]) + other_offset_ns - int(h_ref[0]) - reference_offset_ns
+    if abs(apart) <= CLOCK_TOLERANCE_NS or abs(first) <= CLOCK_TOLERANCE_NS:
         return
+    sep = "" if option.endswith("=") else " "
     total = (other_offset_ns - apart) * 1e-9  # the offset that puts them on one clock, the one given included
     if other_offset_ns and abs(total) * 1e9 <= CLOCK_TOLERANCE_NS:
-        fix = f"they agree without the {other_offset_ns * 1e-9:.3f} s offset given: give {option} 0 or leave it out"
+        fix = f"they agree without the {other_offset_ns * 1e-9:.3f} s offset given: give {option}{sep}0 or leave it out"
     else:
-        fix = f"if {other} runs on a shifted clock give {option} {total:.3f}"
+        fix = f"if {other} runs on a shifted clock give {option}{sep}{total:.3f}"
+        if reference_option:
+            fix += f"; if {reference} does, give {reference_option}{(reference_offset_ns + apart) * 1e-9:.3f}"
     raise InputError(
         f"{log.path}: {other} and {reference} are stamped on different clocks ({other} from "
-        f"{_fmt_s(h_oth[0] + other_offset_ns)} s, {reference} from {_fmt_s(h_ref[0])} s: {abs(apart) * 1e-9:.6g} s "
+        f"{_fmt_s(h_oth[0] + other_offset_ns)} s, {reference} from {_fmt_s(h_ref[0] + reference_offset_ns)} s: {abs(apart) * 1e-9:.6g} s "
         f"apart beyond their recording times); {fix}"
     )
 

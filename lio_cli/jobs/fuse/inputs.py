@@ -16,7 +16,6 @@ from ...config.fuse import FuseConfig
 from ...core.fuse import FuseInputs, FuseOptions
 from ...core.fuse.inputs import resolve_use
 from ...errors import InputError
-from ...io.sensors.clocks import check_same_clock
 from ...io.sensors.gps import read_gps_track
 from ...io.logs.base import LogReader
 from ...io.sensors.series import POSE_TYPES, Progress, read_series
@@ -26,6 +25,7 @@ from ...io.sensors.topics import TopicChoice, choose_topic
 from ...geodesy import EnuFrame
 from ...model.gps import GpsTrack
 from ..odom.inputs import prefer_between
+from .clocks import check_clocks, offset_ns, shifted
 from .orientation import leave_out_orientation
 from .convert import (
     calibrated_wheel, carries_lateral_speed, gps_series, imu_series, pose_series, trajectory_series, twist_frame,
@@ -97,20 +97,6 @@ def _check_pose_topic(reader: LogReader, topic: str) -> None:
         raise InputError(f"{reader.path}: topic {topic} has no messages")
 
 
-def check_clocks(reader: LogReader, roles: dict[str, TopicChoice], imu_offset_ns: int) -> None:
-    """Every source topic on one clock: the others among themselves first (no option shifts them), then the
-    IMU, its calibration offset applied, against them (a mismatch names the --imu-time-offset that fixes it)."""
-    topics = {s: c.topic for s, c in roles.items() if c.topic is not None}
-    others = [topics[s] for s in ("wheel", "gps", "odom") if s in topics]
-    for t in others[1:]:
-        try:
-            check_same_clock(reader, others[0], t, 0)
-        except InputError as err:
-            raise InputError(str(err).split("; if ")[0] + "; leave one out with --use") from err
-    if "imu" in topics and others:
-        check_same_clock(reader, others[0], topics["imu"], imu_offset_ns)
-
-
 def base_frame_of(cfg: FuseConfig, tree: FrameTree, wheel_child: str | None, imu_frame: str | None,
                   notes: list[str] | None = None) -> str:
     """--base-frame; else a usual base name in /tf_static; else the wheel twist's child frame; else the IMU's
@@ -158,7 +144,7 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
     """Choose, check, read and convert every source of the run (see the module docstring)."""
     roles = choose_sources(reader, cfg)
     cal = cfg.calibration
-    check_clocks(reader, roles, cal.imu_time_offset_ns)
+    check_clocks(reader, roles, cal.imu_time_offset_ns, cfg.time_offsets_s)
     notes: list[str] = []
     topics = [roles[s].topic for s in ("imu", "wheel", "odom") if s in roles and roles[s].topic is not None]
     cols = read_series(reader, topics, progress)
@@ -185,7 +171,7 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
         if twist == "parent":
             notes.append(f"wheel odometry {wheel_cols.topic}: twist in the parent frame, not the base (REP 105): {why}")
         R = _child_rotation(tree, base, wheel_cols.child_frame_id, extrinsics)
-        inputs.wheel = wheel_series(wheel_cols, twist, R)
+        inputs.wheel = shifted(wheel_series(wheel_cols, twist, R), offset_ns(cfg, "wheel"))
         applies, said = cal.wheel.verdict(wheel_cols.topic) if cal.wheel is not None else (False, "")
         if applies:
             inputs.wheel = calibrated_wheel(inputs.wheel, cal.wheel)
@@ -193,13 +179,13 @@ def gather_sources(reader: LogReader, cfg: FuseConfig, progress: Progress | None
         elif said:
             notes.append(said)
     if "odom" in roles:
-        inputs.odom = _odom(cfg, cols)
+        inputs.odom = shifted(_odom(cfg, cols), offset_ns(cfg, "odom"))
     gps = None
     if "gps" in roles:
         origin = EnuFrame(*cfg.input.gps_origin) if cfg.input.gps_origin else None
         gps = read_gps_track(reader, roles["gps"].topic, origin)
         antenna, extrinsics["gps_antenna"] = gps_antenna(tree, base, gps, notes, cfg.input.gps_antenna)
-        inputs.gps = gps_series(gps, antenna)
+        inputs.gps = shifted(gps_series(gps, antenna), offset_ns(cfg, "gps"))
     checks: dict = {}
     use = resolved_use(cfg, inputs, notes, checks)
     described = {s: {"topic": c.topic, "why": c.why} for s, c in roles.items()}

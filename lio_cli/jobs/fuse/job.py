@@ -27,6 +27,7 @@ from ...io.logs.reader import open_log
 from ...model.trajectory import Trajectory
 from ..contract import score_into
 from .chunks import MemoryPlan, fuse_chunked, plan
+from .clocks import clock_report
 from .inputs import FuseSources, gather_sources
 from .summary import source_summary
 
@@ -95,6 +96,8 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
 
         sources = gather_sources(reader, cfg, read_step)
         fmt = reader.format
+    clocks, clock_notes = clock_report(sources.inputs, cfg)
+    sources.notes.extend(clock_notes)
     t_read = time.perf_counter() - t_wall
     options = core_options(cfg, sources.use, job.covariance)
     choice, options = whole_log_options(sources.inputs, options)  # once for the whole log: every chunk the same
@@ -121,6 +124,8 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
     metrics = _metrics(job, fmt, sources, result, memory, chunks, {"read": t_read, "fuse": t_fuse, "total": wall,
                                                                   "cpu": cpu})
+    if clocks:
+        metrics["clocks"] = clocks
     notes = list(sources.notes) + [n for n in result.info.get("notes", []) if n not in sources.notes]
     metrics["notes"] = notes
     return FuseRun(traj, result.covariances if job.covariance else None, result.velocities_mps, resolved, metrics,

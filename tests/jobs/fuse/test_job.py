@@ -238,7 +238,7 @@ def test_memory_budget_splits_the_run_into_chunks_that_agree_with_the_whole(fuse
     assert _errors(fuse_logs, parts, 1.0, 0.2).max() < _errors(fuse_logs, whole, 1.0, 0.2).max() + 0.001
 
 
-def test_wheels_and_gps_on_different_clocks_name_no_imu_offset(fuse_logs):
+def test_wheels_and_gps_on_different_clocks_name_the_gps_offset_that_fixes_it(fuse_logs):
     def edit(topic, msgs):
         if topic == "/gps/fix":  # a receiver stamping GPS time, 18 s (leap seconds) off the others
             for _, m in msgs:
@@ -250,7 +250,10 @@ def test_wheels_and_gps_on_different_clocks_name_no_imu_offset(fuse_logs):
         run_fuse(FuseJob(log))
     assert str(err.value) == (
         f"{log}: /gps/fix and /wheel/odom are stamped on different clocks (/gps/fix from 1700000018.000 s, "
-        "/wheel/odom from 1700000000.000 s: 18 s apart beyond their recording times); leave one out with --use")
+        "/wheel/odom from 1700000000.000 s: 18 s apart beyond their recording times); if /gps/fix runs on a shifted "
+        "clock give --time-offset gps=-18.000; if /wheel/odom does, give --time-offset wheel=18.000")
+    run = run_fuse(FuseJob(log, FuseConfig(time_offsets_s={"gps": -18.0})))  # the option it names fuses it
+    assert run.metrics["sources"]["gps"]["updates"] > 0
 
 
 def test_a_real_log_fuses_alike_with_the_covariance_symmetrised_at_every_step(real_logs, monkeypatch):

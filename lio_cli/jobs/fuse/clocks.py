@@ -1,0 +1,82 @@
+"""Each source's clock: the offsets given (``--imu-time-offset``, ``--time-offset SOURCE=SECONDS``) applied to its
+stamps, every topic checked to be on one clock with them, and the lags the data show measured and reported."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ...config.fuse import FuseConfig
+from ...core.fuse import FuseInputs
+from ...core.fuse.clock_lag import Lag, measure_lags
+from ...io.logs.base import LogReader
+from ...io.sensors.clocks import check_same_clock
+from ...io.sensors.topics import TopicChoice
+
+OTHERS = ("wheel", "gps", "odom")
+WARN_SIGMAS = 4.0  # a lag this many 1-sigmas from the offset given is beyond noise
+WARN_MIN_S = 0.05  # and this large matters (5 cm at 1 m/s)
+
+
+def offset_ns(cfg: FuseConfig, source: str) -> int:
+    """The offset given for ``source`` (ns; 0 where none)."""
+    if source == "imu":
+        return cfg.calibration.imu_time_offset_ns
+    return int(round(cfg.time_offsets_s.get(source, 0.0) * 1e9))
+
+
+def option(source: str) -> str:
+    """The option that shifts ``source``'s stamps, ready for its value."""
+    return "--imu-time-offset" if source == "imu" else f"--time-offset {source}="
+
+
+def shifted(series, shift_ns: int):
+    """A core input series with ``shift_ns`` added to its stamps (the series itself where 0)."""
+    return series if not shift_ns else replace(series, stamps_ns=series.stamps_ns + np.int64(shift_ns))
+
+
+def check_clocks(reader: LogReader, roles: dict[str, TopicChoice], imu_offset_ns: int,
+                 offsets_s: dict[str, float] | None = None) -> None:
+    """Every source topic on one clock, each with its offset applied: the others against the first of them, then
+    the IMU against it; a mismatch names the option (and value) that fixes it."""
+    offsets_s = offsets_s or {}
+    off = {s: int(round(offsets_s.get(s, 0.0) * 1e9)) for s in OTHERS}
+    topics = {s: c.topic for s, c in roles.items() if c.topic is not None}
+    others = [s for s in OTHERS if s in topics]
+    for s in others[1:]:
+        check_same_clock(reader, topics[others[0]], topics[s], off[s], option(s), off[others[0]], option(others[0]))
+    if "imu" in topics and others:
+        check_same_clock(reader, topics[others[0]], topics["imu"], imu_offset_ns, option("imu"), off[others[0]])
+
+
+def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
+    """(metrics' ``clocks`` section, warnings): each source's measured lag against the IMU (its offsets applied),
+    and a warning naming the option where a lag is beyond noise and large enough to matter."""
+    lags = measure_lags(inputs)
+    out, notes = {}, []
+    for src, lag in lags.items():
+        given = cfg.time_offsets_s.get(src, 0.0)
+        entry = {"given_s": given, **lag.to_dict()}
+        if lag.offset_s is not None:
+            entry["total_s"] = round(given + lag.offset_s, 4)
+            if _matters(lag):
+                notes.append(_warning(lag, given))
+        out[src] = entry
+    if out:
+        out["meaning"] = ("offset_s: seconds to add to the source's stamps (beyond given_s) to line it up with the "
+                          "IMU's gyro; total_s: the value for --time-offset SOURCE=")
+    return out, notes
+
+
+def _matters(lag: Lag) -> bool:
+    return lag.trusted and abs(lag.offset_s) >= max(WARN_SIGMAS * lag.sigma_s, WARN_MIN_S)
+
+
+def _warning(lag: Lag, given: float) -> str:
+    late = "late" if lag.offset_s < 0 else "early"
+    return (f"{lag.source}: stamps {abs(lag.offset_s):.3f} s {late} against the IMU (1-sigma {lag.sigma_s * 1e3:.1f} ms, "
+            f"{lag.against}); give {option(lag.source)}{given + lag.offset_s:.3f}")
+
+
+__all__ = ["check_clocks", "clock_report", "offset_ns", "option", "shifted"]

@@ -1,0 +1,67 @@
+"""Sources stamped late against the IMU: ``time_offsets_s`` (``--time-offset SOURCE=SECONDS``) shifts them back,
+and the clocks section measures the lag to give. A 20 s rover log fused with its own ground truth as the odometry
+input (exact poses), that input stamped 0.3 s late; and its (exact) wheels stamped 0.3 s late."""
+
+from __future__ import annotations
+
+import pytest
+
+from lio_cli.config.fuse import FuseConfig
+from lio_cli.io.files.trajectory import format_tum, read_tum
+from lio_cli.jobs.fuse import FuseJob, run_fuse
+
+from .test_gps_antenna import _ate
+
+LAG_S = 0.3
+LAG_TOL_S = 0.01  # the measured lag within this of the true one
+ATE_TOL_M = 0.005  # shifted back: within this of the run on time (late: 0.05 m and more)
+
+
+@pytest.fixture(scope="module")
+def rover(tmp_path_factory):
+    from lio_cli.simulation.run import simulate
+
+    d = tmp_path_factory.mktemp("clocks")
+    log = d / "rover.bag"
+    simulate("rover", log, duration_s=20.0, seed=7, lidar=False, gps=False, wheel_errors=False)
+    stamps, poses = read_tum(log.with_name("rover.gt.tum"))
+    (d / "late.tum").write_text(format_tum(stamps + int(LAG_S * 1e9), poses))
+    return log, log.with_name("rover.gt.tum"), d / "late.tum"
+
+
+def _run(log, odom, offsets=None):
+    cfg = FuseConfig(input={"odom_file": str(odom)}, time_offsets_s=offsets or {})
+    return run_fuse(FuseJob(log, cfg))
+
+
+def test_odometry_stamped_late_is_measured_and_shifted_back(rover):
+    log, on_time, late = rover
+    clean = _run(log, on_time)
+    lagged = _run(log, late)
+    fixed = _run(log, late, {"odom": -LAG_S})
+    clean_ate, lagged_ate, fixed_ate = (_ate(log, r.trajectory) for r in (clean, lagged, fixed))
+    assert lagged_ate > clean_ate + 10 * ATE_TOL_M
+    assert fixed_ate == pytest.approx(clean_ate, abs=ATE_TOL_M)
+    got = lagged.metrics["clocks"]["odom"]
+    assert got["offset_s"] == pytest.approx(-LAG_S, abs=LAG_TOL_S) and got["total_s"] == got["offset_s"]
+    warned = [n for n in lagged.notes if n.startswith("odom: stamps 0.") and " s late against the IMU" in n]
+    assert len(warned) == 1 and warned[0].endswith(f"give --time-offset odom={got['total_s']:.3f}"), lagged.notes
+    after = fixed.metrics["clocks"]["odom"]  # the residual lag once shifted: none, and no warning
+    assert abs(after["offset_s"]) < LAG_TOL_S and after["given_s"] == -LAG_S
+    assert not any("--time-offset" in n for n in fixed.notes + clean.notes)
+
+
+def test_wheels_stamped_late_are_measured_and_shifted_back(rover, rewrite_messages, tmp_path):
+    log, _, _ = rover
+
+    def late(stamp_ns, msg):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns + int(LAG_S * 1e9), 10**9)
+        return msg
+
+    wheels = rewrite_messages(log, tmp_path / "late.bag", "/wheel/odom", late)
+    wheels.with_name("late.gt.tum").write_bytes(log.with_name("rover.gt.tum").read_bytes())
+    clean, lagged = run_fuse(FuseJob(log)), run_fuse(FuseJob(wheels))
+    fixed = run_fuse(FuseJob(wheels, FuseConfig(time_offsets_s={"wheel": -LAG_S})))
+    got = lagged.metrics["clocks"]["wheel"]
+    assert got["offset_s"] == pytest.approx(-LAG_S, abs=LAG_TOL_S)
+    assert fixed.trajectory.poses == pytest.approx(clean.trajectory.poses, abs=1e-6)
