@@ -29,6 +29,7 @@ from ..timeline import Prepared
 from . import gps, height, odom_spin, wheels
 from .gps import FREE_SIGMA
 from .imu import Segments
+from .keyframes import attach
 
 # wheel increments without a robust loss: a robust one takes a wheel scale error for outliers and lets the graph
 # drift on the IMU
@@ -77,7 +78,7 @@ class Measurements:
         if od is not None and len(od) > 1 and "odom" in prep.use:
             idx = np.flatnonzero((od.stamps_ns >= kt[0]) & (od.stamps_ns <= kt[-1]))
             self.odom_idx = idx
-            self.odom_k = np.searchsorted(kt, od.stamps_ns[idx])
+            self.odom_k = attach(kt, od.stamps_ns[idx])
         else:
             self.odom_idx = np.zeros(0, np.int64)
             self.odom_k = np.zeros(0, np.int64)

@@ -12,6 +12,7 @@ import numpy as np
 from gtsam.symbol_shorthand import G, X
 
 from ..state3d import skew3
+from .keyframes import attach
 
 HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
 CAUCHY_K = 1.0  # vertical GPS: an altitude wander is a run of outliers
@@ -84,7 +85,7 @@ def attach_fixes(m, prep, kt: np.ndarray) -> None:
         first = np.flatnonzero((g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]))
         if len(idx):
             m.gps_idx = idx
-            m.gps_k = np.searchsorted(kt, g.stamps_ns[idx])
+            m.gps_k = attach(kt, g.stamps_ns[idx])
             m.gps_z = g.position_enu_m[idx] - g.position_enu_m[first[0]]  # the filter's anchor
             m.gps_h, m.gps_v = gps_sigmas(g, idx)
             m.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
