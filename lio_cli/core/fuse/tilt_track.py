@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...so3 import so3_exp
+from ..imu import running_integral
 from ..robust import white_variance
 
 SEGMENT_S = 30.0  # the up direction is re-anchored from the accelerometer this often (the log split evenly)
@@ -28,15 +29,53 @@ def segment_starts(t_s: np.ndarray) -> np.ndarray:
 def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
                   g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(a, sens, starts): the forward acceleration (``carried``) of each stretch (``segment_starts``), its
-    (N, 4 * stretches) sensitivities (each stretch's four terms, zero outside it), and the stretches' start
-    indices."""
+    (N, 4) sensitivities to the four terms of the sample's own stretch, and the stretches' start indices."""
     starts = segment_starts(t_s)
-    a = np.empty(len(t_s))
-    sens = np.zeros((len(t_s), 4 * len(starts)))
+    a, sens = np.empty(len(t_s)), np.empty((len(t_s), 4))
     ends = np.append(starts[1:], len(t_s))
-    for k, (i, j) in enumerate(zip(starts, ends)):
-        a[i:j], sens[i:j, 4 * k:4 * k + 4] = carried(t_s[i:j], f_b[i:j], w_b[i:j], t_w, v_w, g, gap[i:j - 1])
+    for i, j in zip(starts, ends):
+        a[i:j], sens[i:j] = carried(t_s[i:j], f_b[i:j], w_b[i:j], t_w, v_w, g, gap[i:j - 1])
     return a, sens, starts
+
+
+class StretchIntegral:
+    """The running trapezoid integral, at stamps ``t``, of the sensitivities ``forward_accel`` gives: as the
+    (n, 4 * stretches) matrix whose stretch-k columns are zero before that stretch and hold its total after it,
+    kept per stretch (memory linear in the log where the matrix grows with its square). ``G[j]`` is row j,
+    ``G @ c`` the matrix times c; steps across an IMU gap (``gap``, one per step) add nothing."""
+
+    def __init__(self, t: np.ndarray, t_s: np.ndarray, sens: np.ndarray, starts: np.ndarray, gap: np.ndarray):
+        ends = np.append(starts[1:], len(t_s))
+        self.n = len(t)
+        self.total = np.zeros((len(starts), 4))
+        self.parts = []  # per stretch: (first stamp after it starts, first stamp at its total, values between)
+        for k, (i, j) in enumerate(zip(starts, ends)):
+            lo, hi = max(int(i) - 1, 0), min(int(j), len(t_s) - 1)
+            x = sens[lo:hi + 1].copy()
+            x[:i - lo] = 0.0  # the sample before the stretch and the one after it belong to its neighbours
+            x[j - lo:] = 0.0
+            X = running_integral(t_s[lo:hi + 1], x, gap[lo:hi])
+            a, b = int(np.searchsorted(t, t_s[lo], "right")), int(np.searchsorted(t, t_s[hi], "left"))
+            vals = np.column_stack([np.interp(t[a:b], t_s[lo:hi + 1], X[:, q]) for q in range(4)])
+            self.total[k] = X[-1]
+            self.parts.append((a, b, vals))
+
+    def __getitem__(self, j: int) -> np.ndarray:
+        row = np.zeros(self.total.size)
+        for k, (a, b, vals) in enumerate(self.parts):
+            if j >= b:
+                row[4 * k:4 * k + 4] = self.total[k]
+            elif j >= a:
+                row[4 * k:4 * k + 4] = vals[j - a]
+        return row
+
+    def __matmul__(self, c: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.n)
+        for k, (a, b, vals) in enumerate(self.parts):
+            ck = c[4 * k:4 * k + 4]
+            out[a:b] += vals @ ck
+            out[b:] += self.total[k] @ ck
+        return out
 
 
 def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,

@@ -38,7 +38,7 @@ from ..robust import robust_sigma
 from .kalman import chi2_thresholds
 from .slip_windows import DRIFT_S, EDGE_S, JUMP_S, SIGMA_FLOOR_MPS, detect, guard, running_median
 from .timeline import Prepared
-from .tilt_track import angle_walk_q, forward_accel, walk_variance
+from .tilt_track import StretchIntegral, angle_walk_q, forward_accel, walk_variance
 
 MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only if the IMU's speed closes it
 CLOSE_REL = 0.05  # ... within this share of the speed (or CLOSE_MPS) of the wheel speed after it
@@ -97,7 +97,7 @@ def _integral_at(t: np.ndarray, t_s: np.ndarray, x: np.ndarray, gap: np.ndarray)
     return np.column_stack([np.interp(t, t_s, X[:, j]) for j in range(x.shape[1])])
 
 
-def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray, clean: np.ndarray,
+def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray | StretchIntegral, clean: np.ndarray,
                walk_q: float, anchors: np.ndarray) -> tuple[float, float, float, np.ndarray] | str:
     """(scale, its sigma from the residual, its sigma from the angle walk, c) of ``s * dv = dA - c0 dt - dG
     c[1:]`` over ``BLOCK_S`` increments inside clean stretches: ``c0`` the accelerometer's forward bias,
@@ -165,7 +165,9 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     gap = np.diff(imu.stamps_ns) > prep.imu_gap_ns if prep.imu_gap_ns > 0 else np.zeros(len(ti) - 1, bool)
     a, sens, starts = forward_accel(ti, prep.imu_f_b, prep.imu_w_b, tw, vw, gravity_mps2, gap)
     anchors = ti[starts] - ti[0]
-    A, G = (_integral_at(tw, ti, x, gap) for x in (a, sens))
+    A = _integral_at(tw, ti, a, gap)
+    # one stretch: its four columns; more: kept per stretch (their matrix grows with the log's length squared)
+    G = _integral_at(tw, ti, sens, gap) if len(starts) == 1 else StretchIntegral(tw, ti, sens, starts, gap)
     # the pitch the gyro carries walks with its y axis's white noise: g times that walk is the acceleration's
     walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1])
     inside = (tw >= ti[0]) & (tw <= ti[-1])
