@@ -19,6 +19,7 @@ from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings
                           yaw_velocity_onto)
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
+from .pieces import CheckedWheels
 from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
@@ -117,11 +118,13 @@ def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
     return prep
 
 
-def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
+def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: str | None = "wheels") -> tuple[Prepared,
+                                                                                             EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). For
-    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied),
-    unless ``check`` is False (the choice alone)."""
+    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied;
+    ``o.wheel_check``: the whole log's check applied), unless ``check`` is None (the choice alone); ``"keep"``:
+    the check's ``CheckedWheels`` in ``prep.wheel_check`` (for ``whole_log_options``)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         prep = _prepare(inputs, o)
         say_gyro_gaps(prep, o.estimator)
@@ -132,8 +135,11 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     if o.estimator == "planar" and (data := choose_estimator(prep)).name != "planar":  # run as given, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
-    if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
-        prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
+    if check and choice.name == "planar" and o.wheel_check is not None and prep.wheel is not None:
+        prep.wheel_check = o.wheel_check.apply(prep)  # the whole log's check, on this piece's wheels
+    elif check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
+        report = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2)
+        prep.wheel_check = CheckedWheels.of(prep.wheel, report) if check == "keep" else report.to_dict()
     graph_runs = o.smooth and _graph_smooths(prep, choice.name)
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
@@ -199,11 +205,14 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
     return fallback, kept
 
 
-def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[EstimatorChoice, FuseOptions]:
+def whole_log_options(inputs: FuseInputs, options: FuseOptions, pieces: bool = False) -> tuple[EstimatorChoice,
+                                                                                             FuseOptions]:
     """The estimator ``fuse`` would run and the options every piece of the log is then fused with: that estimator
-    and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same."""
-    prep, choice = _prepare_and_choose(inputs, options, check=False)
-    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed)
+    and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same;
+    with ``pieces`` (a run fused in chunks) the planar filter's wheel check (``wheel_slip``) too."""
+    prep, choice = _prepare_and_choose(inputs, options, "keep" if pieces else None)
+    checked = prep.wheel_check if isinstance(prep.wheel_check, CheckedWheels) else None
+    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed, wheel_check=checked)
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):
@@ -240,7 +249,10 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
 
 
 def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
-    """The initial state; with GPS and no absolute heading, its yaw from a GPS-free first pass."""
+    """The initial state (the one handed over, ``o.start``); with GPS and no absolute heading, its yaw from a
+    GPS-free first pass."""
+    if o.start is not None:
+        return replace(o.start)
     start = initial_state(prep, o.standing_window_ns, o.gravity_mps2, o.noise)
     if "gps" not in prep.use or start.yaw_from != "start":
         return start

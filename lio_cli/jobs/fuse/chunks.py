@@ -222,14 +222,18 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
     kept: list[FuseResult] = []
     infos: list[dict] = []
     prev: FuseResult | None = None
+    start = None  # the state the chunk before handed over at this chunk's first stamp
     for k, (a, b) in enumerate(memory.chunks):
+        nxt = memory.chunks[k + 1][0] - ov if k + 1 < n else None
         try:
-            res = fuse(slice_inputs(inputs, a - ov, b + ov), options)
+            res = fuse(slice_inputs(inputs, a - ov, b + ov), replace(options, start=start, handover_ns=nxt))
         except InputError as err:  # a chunk inside a long gap of every source holds nothing to fuse
             if "no usable sample" not in str(err) and "no motion source" not in str(err):
                 raise
             infos.append({"span_ns": [a, b], "skipped": str(err)})
+            start = None
             continue
+        start = res.info.pop("handover", None)
         joined = True
         if prev is not None:
             A, joined = align_onto(prev, res, a)
@@ -256,7 +260,11 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
     for src, series in inputs.present().items():  # the chunks' overlaps received each message twice
         if src in merged.reports:
             merged.reports[src].received = len(series)
-    if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
+    if options.wheel_check is not None:  # every chunk used the whole log's check
+        merged.info["wheel_check"] = options.wheel_check.check
+        for i in infos:
+            i.pop("wheel_check", None)
+    elif len(kept) > 1 and any(i.get("wheel_check") for i in infos):
         merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
     if len(kept) > 1:  # what any chunk said (a gap or a stale fix lies in one of them), each once
         merged.info["notes"] = list(dict.fromkeys(n for r in kept for n in r.info.get("notes", [])))
