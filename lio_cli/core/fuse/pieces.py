@@ -78,4 +78,23 @@ def planar_handover(t_ns: np.ndarray, x: np.ndarray, P: np.ndarray, at_ns: int) 
                  float(np.sqrt(P[k, TH, TH])))
 
 
-__all__ = ["CheckedWheels", "planar_handover"]
+def state_handover(t_ns: np.ndarray, states: dict[str, np.ndarray], at_ns: int, v_sigma_mps: float,
+                   bg_sigma_radps: float) -> Start:
+    """The 3D state (``R``, ``v``, ``bg``, ``ba`` per stamp of ``t_ns``: the graph's keyframes or the 3D filter's
+    knots) at the first stamp from ``at_ns`` on, as a ``Start`` in this piece's world (loose velocity and gyro
+    bias sigmas: the next piece's IMU, wheels and GPS find them again)."""
+    k = min(int(np.searchsorted(t_ns, at_ns)), len(t_ns) - 1)
+    v, bg = states["v"][k].copy(), states["bg"][k].copy()
+    start = Start(states["R"][k].copy(), v, bg, v_sigma_mps, bg_sigma_radps, False, "handover",
+                  f"handed over by the chunk before: speed {np.linalg.norm(v):.2f} m/s, gyro bias "
+                  f"{np.linalg.norm(bg):.5f} rad/s")
+    start.ba = states["ba"][k].copy()
+    return start
+
+
+def turned_handover(start: Start | None, R: np.ndarray) -> Start | None:
+    """A handed-over state carried by the world rotation ``R`` (a track placed on the GPS fixes)."""
+    return None if start is None else replace(start, R=R @ start.R, v=R @ start.v)
+
+
+__all__ = ["CheckedWheels", "planar_handover", "state_handover", "turned_handover"]
