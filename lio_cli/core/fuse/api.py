@@ -19,7 +19,7 @@ from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings
                           yaw_velocity_onto)
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
-from .pieces import CheckedWheels, state_handover, turned_handover
+from .pieces import state_handover, turned_handover
 from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
@@ -120,13 +120,11 @@ def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
     return prep
 
 
-def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: str | None = "wheels") -> tuple[Prepared,
-                                                                                             EstimatorChoice]:
+def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). For
-    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied;
-    ``o.wheel_check``: the whole log's check applied), unless ``check`` is None (the choice alone); ``"keep"``:
-    the check's ``CheckedWheels`` in ``prep.wheel_check`` (for ``whole_log_options``)."""
+    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied),
+    unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         prep = _prepare(inputs, o)
         say_gyro_gaps(prep, o.estimator)
@@ -137,11 +135,8 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: str | None = 
     if o.estimator == "planar" and (data := choose_estimator(prep)).name != "planar":  # run as given, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
-    if check and choice.name == "planar" and o.wheel_check is not None and prep.wheel is not None:
-        prep.wheel_check = o.wheel_check.apply(prep)  # the whole log's check, on this piece's wheels
-    elif check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
-        report = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2)
-        prep.wheel_check = CheckedWheels.of(prep.wheel, report) if check == "keep" else report.to_dict()
+    if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
+        prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
     graph_runs = o.smooth and _graph_smooths(prep, choice.name)
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
@@ -207,14 +202,11 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
     return fallback, kept
 
 
-def whole_log_options(inputs: FuseInputs, options: FuseOptions, pieces: bool = False) -> tuple[EstimatorChoice,
-                                                                                             FuseOptions]:
+def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[EstimatorChoice, FuseOptions]:
     """The estimator ``fuse`` would run and the options every piece of the log is then fused with: that estimator
-    and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same;
-    with ``pieces`` (a run fused in chunks) the planar filter's wheel check (``wheel_slip``) too."""
-    prep, choice = _prepare_and_choose(inputs, options, "keep" if pieces else None)
-    checked = prep.wheel_check if isinstance(prep.wheel_check, CheckedWheels) else None
-    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed, wheel_check=checked)
+    and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same."""
+    prep, choice = _prepare_and_choose(inputs, options, check=False)
+    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed)
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):
@@ -310,8 +302,8 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
     if o.smooth:
         info["smoother"] = {"kind": "rts", "why": "no accelerometer in use: the factor graph's IMU factors need it"}
     if o.handover_ns is not None and len(x):  # the next piece's start, at an output
-        info["handover"] = state_handover(knots["t_ns"][sel], {"R": x[:, R_].reshape(-1, 3, 3), "v": x[:, V_], "bg": x[:, B_],
-                                              "ba": x[:, BA_]}, o.handover_ns, o.noise.init_velocity_sigma_mps,
+        states = {"R": x[:, R_].reshape(-1, 3, 3), "v": x[:, V_], "bg": x[:, B_], "ba": x[:, BA_]}
+        info["handover"] = state_handover(knots["t_ns"][sel], states, o.handover_ns, o.noise.init_velocity_sigma_mps,
                                           o.noise.init_gyro_bias_sigma_radps)
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
                       o.smooth, prep.reports, info)

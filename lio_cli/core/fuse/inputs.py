@@ -21,7 +21,6 @@ from .wheel_yaw import Weighed
 
 if TYPE_CHECKING:
     from .initial import Start
-    from .pieces import CheckedWheels
 
 ESTIMATORS = ("auto", "ekf", "planar", "complementary")  # auto: chosen from the data (choose.py)
 
@@ -174,8 +173,8 @@ class FuseOptions:
     poses, or increments (delta) when GPS is used too; GPS position.
     ``weigh_wheel_yaw``: beside a gyro, the wheels' yaw rate weighed against it over the log and used where the
     data show it agrees, with the noise they show (``wheel_yaw``); ``None``: when ``use`` is None. ``wheel_yaw``:
-    a weighing already made over the whole log (a run fused in pieces), used instead of weighing the piece;
-    ``wheel_check`` likewise the whole log's wheel check (``wheel_slip``) for the planar filter.
+    a weighing already made over the whole log (a run fused in pieces), used instead of weighing the piece.
+    ``start``: the first state handed over by the piece before; ``handover_ns``: where to hand the next one its own.
     ``smooth``: the whole log before and after each instant: the factor graph (``graph``) whenever the
     accelerometer is used, whatever the filter (its guard falls back on the chosen filter), else the RTS pass
     over the EKF (the complementary filter has none); ``False``: the filter alone.
@@ -201,7 +200,6 @@ class FuseOptions:
     use: dict[str, set[str]] | None = None
     weigh_wheel_yaw: bool | None = None
     wheel_yaw: Weighed | None = None  # the whole log's weighing (``whole_log_options``), applied here by stamp
-    wheel_check: CheckedWheels | None = None  # the whole log's wheel check (``whole_log_options``), ditto
     start: Start | None = None  # the first state, handed over by the piece before (``pieces``)
     handover_ns: int | None = None  # the stamp whose state goes into ``info["handover"]`` for the next piece
     noise: NoiseOptions = field(default_factory=NoiseOptions)

@@ -1,9 +1,4 @@
-"""A log fused in pieces (``lio fuse --max-memory``): what is decided once over the whole log and handed to
-every piece, so a piece does not decide it again from its own shorter data.
-
-``CheckedWheels``: the whole log's wheel check (``wheel_slip``: scale, slips bridged, the verdict), applied to a
-piece's wheel samples by stamp. The check works on per-sample arrays (a few floats per IMU and wheel sample), so
-the whole log's costs little beside the estimators' records.
+"""A log fused in pieces (``lio fuse --max-memory``): what a piece hands the next one.
 
 ``handover``: a piece's estimated state where the next piece starts (attitude, velocity, gyro bias and their
 sigmas), that piece's ``Start`` in place of one found again from its own first second (a moving start knows no
@@ -12,59 +7,13 @@ gyro bias, and nothing but a standing start measures the planar filter's).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ...geometry import so3_exp_one
 from .initial import Start
-from .inputs import WheelSeries
 from .planar_model import BW, TH, V
-from .timeline import Prepared
-
-
-@dataclass(frozen=True)
-class CheckedWheels:
-    """The wheels as the whole log's check left them, by stamp (``FuseOptions.wheel_check``)."""
-
-    check: dict  # wheel_slip.SlipReport.to_dict()
-    stamps_ns: np.ndarray  # the checked samples (a finite forward speed)
-    speed_mps: np.ndarray  # their forward speed after the check (scaled, slips bridged)
-    var_factor: float  # the scale squared: multiplies the forward speed's variance
-    spans_ns: tuple[tuple[int, int, bool], ...]  # each slip's first and last stamp, and whether it was bridged
-
-    @classmethod
-    def of(cls, checked: WheelSeries, report) -> CheckedWheels:
-        """From the wheels ``wheel_slip.check_wheels`` left in the whole log's ``Prepared`` and its report."""
-        ok = np.isfinite(checked.velocity_mps[:, 0])
-        scale = report.scale if report.scale_applied else 1.0
-        return cls(report.to_dict(), checked.stamps_ns[ok], checked.velocity_mps[ok, 0].copy(), scale**2,
-                   tuple(report.spans_ns))
-
-    def apply(self, prep: Prepared) -> dict:
-        """Put the checked speeds into ``prep.wheel`` where the stamps match, count the piece's notes as
-        ``check_wheels`` does, and return the whole log's check (for ``prep.wheel_check``)."""
-        w = prep.wheel
-        ok = np.isfinite(w.velocity_mps[:, 0])
-        i = np.minimum(np.searchsorted(self.stamps_ns, w.stamps_ns), len(self.stamps_ns) - 1)
-        seen = ok & (self.stamps_ns[i] == w.stamps_ns)
-        vel = w.velocity_mps.copy()
-        vel[seen, 0] = self.speed_mps[i[seen]]
-        var = None
-        if w.velocity_var is not None:
-            var = w.velocity_var.copy()
-            var[seen, 0] *= self.var_factor
-        prep.wheel = replace(w, velocity_mps=vel, velocity_var=var)
-        report = prep.reports["wheel"]
-        for bridged, note in ((True, "slip_bridged"), (False, "slip_left_in")):
-            inside = np.zeros(len(w), bool)
-            for a, b, kind in self.spans_ns:
-                if kind == bridged:
-                    inside |= (w.stamps_ns >= a) & (w.stamps_ns <= b)
-            report.note(note, int(np.count_nonzero(seen & inside)))
-        if self.check.get("scale_applied"):
-            report.note("scale_corrected", int(np.count_nonzero(seen)))
-        return self.check
 
 
 def planar_handover(t_ns: np.ndarray, x: np.ndarray, P: np.ndarray, at_ns: int) -> Start:
@@ -85,11 +34,9 @@ def state_handover(t_ns: np.ndarray, states: dict[str, np.ndarray], at_ns: int, 
     bias sigmas: the next piece's IMU, wheels and GPS find them again)."""
     k = min(int(np.searchsorted(t_ns, at_ns)), len(t_ns) - 1)
     v, bg = states["v"][k].copy(), states["bg"][k].copy()
-    start = Start(states["R"][k].copy(), v, bg, v_sigma_mps, bg_sigma_radps, False, "handover",
-                  f"handed over by the chunk before: speed {np.linalg.norm(v):.2f} m/s, gyro bias "
-                  f"{np.linalg.norm(bg):.5f} rad/s")
-    start.ba = states["ba"][k].copy()
-    return start
+    return Start(states["R"][k].copy(), v, bg, v_sigma_mps, bg_sigma_radps, False, "handover",
+                 f"handed over by the chunk before: speed {np.linalg.norm(v):.2f} m/s, gyro bias "
+                 f"{np.linalg.norm(bg):.5f} rad/s", ba=states["ba"][k].copy())
 
 
 def turned_handover(start: Start | None, R: np.ndarray) -> Start | None:
@@ -97,4 +44,4 @@ def turned_handover(start: Start | None, R: np.ndarray) -> Start | None:
     return None if start is None else replace(start, R=R @ start.R, v=R @ start.v)
 
 
-__all__ = ["CheckedWheels", "planar_handover", "state_handover", "turned_handover"]
+__all__ = ["planar_handover", "state_handover", "turned_handover"]

@@ -69,7 +69,6 @@ class SlipReport:
     left_in: int = 0  # slips longer than MAX_SLIP_S the IMU's speed did not close: out of the fit, not bridged
     verified: bool = False  # the scale measured, near 1, every slip bridged: the speeds can be trusted
     why: str = ""
-    spans_ns: list[tuple[int, int, bool]] = field(default_factory=list)  # each slip's first and last stamp, bridged
 
     def to_dict(self) -> dict:
         return {"slips": len(self.windows), "windows_s": [[round(a, 2), round(b, 2)] for a, b in self.windows],
@@ -210,11 +209,9 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
         if tw[j] - tw[i] > MAX_SLIP_S + 2 * EDGE_S and not _closes(i, j, scale * vw, A, clean):
             rep.left_in += 1
             n_left += j - i + 1
-            rep.spans_ns.append((int(tw_ns[i]), int(tw_ns[j]), False))
             continue
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
-        rep.spans_ns.append((int(tw_ns[i]), int(tw_ns[j]), True))
     rep.bridged = n_bridged
     rep.verified = rep.left_in == 0
     vel = w.velocity_mps.copy()

@@ -11,7 +11,8 @@ chunks, or the shortest chunk alone over it: e.g. ``--rate`` far above the IMU's
 a knot) the run is refused before fusing, naming the estimate, the budget and what to change.
 
 A chunk is fused alone over its span plus ``overlap`` on each side, so every kept instant has data before and
-after it. Each chunk's world starts at its own origin; chunk k is carried onto chunk k-1 by a rotation about
+after it, from the state the chunk before estimated at its first stamp (``core.fuse.pieces``: attitude, velocity,
+biases; only the first chunk finds its start from its own first second). Each chunk's world starts at its own origin; chunk k is carried onto chunk k-1 by a rotation about
 the vertical (mean yaw difference of the orientations over the overlap: gravity fixes the tilt in both) and
 the translation that makes the two agree at the seam. Poses left of the seam come from chunk k-1, the rest
 from chunk k. Covariances and velocities are rotated along; each chunk's covariance is relative to its own
@@ -260,11 +261,7 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
     for src, series in inputs.present().items():  # the chunks' overlaps received each message twice
         if src in merged.reports:
             merged.reports[src].received = len(series)
-    if options.wheel_check is not None:  # every chunk used the whole log's check
-        merged.info["wheel_check"] = options.wheel_check.check
-        for i in infos:
-            i.pop("wheel_check", None)
-    elif len(kept) > 1 and any(i.get("wheel_check") for i in infos):
+    if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
         merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
     if len(kept) > 1:  # what any chunk said (a gap or a stale fix lies in one of them), each once
         merged.info["notes"] = list(dict.fromkeys(n for r in kept for n in r.info.get("notes", [])))

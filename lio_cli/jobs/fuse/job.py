@@ -99,8 +99,6 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     options = core_options(cfg, sources.use, job.covariance)
     choice, options = whole_log_options(sources.inputs, options)  # once for the whole log: every chunk the same
     memory = plan(sources.inputs, options, sources.use, cfg.max_memory_mb)
-    if len(memory.chunks) > 1:  # what a chunk's own data decide worse: once over the whole log
-        _, options = whole_log_options(sources.inputs, options, pieces=True)
 
     def fuse_step(k: int, n: int) -> None:
         if progress:
