@@ -19,10 +19,11 @@ from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings
                           yaw_velocity_onto)
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
+from .pieces import state_handover, turned_handover
 from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
-from .state3d import P_, R_, V_
+from .state3d import B_, BA_, P_, R_, V_
 from .gyro_gaps import say_gyro_gaps
 from .timeline import Prepared, planar_use, prepare
 
@@ -72,6 +73,8 @@ def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused
         return fused
     same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
     test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
+    if test is not None and "handover" in free.info:  # the next piece's start: the motion sources' own, placed
+        fused.info["handover"] = turned_handover(free.info["handover"], test.T[:3, :3])
     if test is None or not (optimistic or verified or test.claim_exceeded):
         return fused
     fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
@@ -240,7 +243,10 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
 
 
 def _start(prep: Prepared, o: FuseOptions, filter_cls, xy: slice) -> Start:
-    """The initial state; with GPS and no absolute heading, its yaw from a GPS-free first pass."""
+    """The initial state (the one handed over, ``o.start``); with GPS and no absolute heading, its yaw from a
+    GPS-free first pass."""
+    if o.start is not None:
+        return replace(o.start)
     start = initial_state(prep, o.standing_window_ns, o.gravity_mps2, o.noise)
     if "gps" not in prep.use or start.yaw_from != "start":
         return start
@@ -295,5 +301,9 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
     if o.smooth:
         info["smoother"] = {"kind": "rts", "why": "no accelerometer in use: the factor graph's IMU factors need it"}
+    if o.handover_ns is not None and len(x):  # the next piece's start, at an output
+        states = {"R": x[:, R_].reshape(-1, 3, 3), "v": x[:, V_], "bg": x[:, B_], "ba": x[:, BA_]}
+        info["handover"] = state_handover(knots["t_ns"][sel], states, o.handover_ns, o.noise.init_velocity_sigma_mps,
+                                          o.noise.init_gyro_bias_sigma_radps)
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
                       o.smooth, prep.reports, info)

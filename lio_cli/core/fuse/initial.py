@@ -32,8 +32,10 @@ class Start:
     v_sigma_mps: float
     bg_sigma_radps: float
     standing: bool
-    yaw_from: str  # "imu_orientation" or "start" (yaw zero at the start)
+    yaw_from: str  # "imu_orientation", "start" (yaw zero at the start) or "handover" (``pieces``)
     reason: str
+    yaw_sigma_rad: float = 0.0  # a handed-over heading's (``pieces``)
+    ba: np.ndarray | None = None  # a handed-over accelerometer bias, base frame (``pieces``)
 
 
 STILL_SPEED_MPS = 0.05  # wheel speed, or odometry displacement over the window per second, of a base at rest

@@ -12,11 +12,15 @@ duplicated stamps and NaN rows and counts each case.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ...errors import ConfigError
 from .wheel_yaw import Weighed
+
+if TYPE_CHECKING:
+    from .initial import Start
 
 ESTIMATORS = ("auto", "ekf", "planar", "complementary")  # auto: chosen from the data (choose.py)
 
@@ -170,6 +174,7 @@ class FuseOptions:
     ``weigh_wheel_yaw``: beside a gyro, the wheels' yaw rate weighed against it over the log and used where the
     data show it agrees, with the noise they show (``wheel_yaw``); ``None``: when ``use`` is None. ``wheel_yaw``:
     a weighing already made over the whole log (a run fused in pieces), used instead of weighing the piece.
+    ``start``: the first state handed over by the piece before; ``handover_ns``: where to hand the next one its own.
     ``smooth``: the whole log before and after each instant: the factor graph (``graph``) whenever the
     accelerometer is used, whatever the filter (its guard falls back on the chosen filter), else the RTS pass
     over the EKF (the complementary filter has none); ``False``: the filter alone.
@@ -195,6 +200,8 @@ class FuseOptions:
     use: dict[str, set[str]] | None = None
     weigh_wheel_yaw: bool | None = None
     wheel_yaw: Weighed | None = None  # the whole log's weighing (``whole_log_options``), applied here by stamp
+    start: Start | None = None  # the first state, handed over by the piece before (``pieces``)
+    handover_ns: int | None = None  # the stamp whose state goes into ``info["handover"]`` for the next piece
     noise: NoiseOptions = field(default_factory=NoiseOptions)
     rate_hz: float | None = None
     stamps_ns: np.ndarray | None = None

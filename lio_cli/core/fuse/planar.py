@@ -26,6 +26,7 @@ from .result import FuseResult, anchor_to_origin
 from .sanitize import median_period_ns
 from .smoother import rts_smooth
 from .state3d import CLONE_DUMMY_VAR, GAP_TAU_S, GPS_HEADING_SIGMA_RAD, GPS_START_POSITION_SIGMA_M
+from .pieces import planar_handover
 from .planar_model import (BW, TH, V, W, X, Y, delta_residual, predict, predict_gap, predict_turn_decay,
                            turn_rate_walk, wrap)
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
@@ -58,6 +59,7 @@ class PlanarEkf:
         self.gps_h = GpsNoise(2)
         self.jumps = JumpReadmit(prep.gps, prep.reports["gps"]) if prep.gps is not None else None
         self.pending_clone = False
+        self.handed: tuple | None = None  # (t_ns, x, P) of one knot: the filter's state at options.handover_ns
         self.anchor = Anchor.of(prep)  # no wheel-speed gate reset while a pose source is being accepted
         # no odometry gate reset while GPS is being accepted: odometry that lost track (tens of metres off) then
         # disagrees with GPS and the IMU, and each reset inflated P until the filter diverged
@@ -93,6 +95,8 @@ class PlanarEkf:
             d[X] = d[Y] = GPS_START_POSITION_SIGMA_M**2
         if s.yaw_from == "gps":
             d[TH] = GPS_HEADING_SIGMA_RAD**2
+        if s.yaw_from == "handover" and "gps" in self.prep.use:  # the world is GPS's: the heading is estimated
+            d[TH] = max(s.yaw_sigma_rad**2, 1e-12)
         if s.yaw_from == "imu_orientation":
             i = int(np.flatnonzero(self.prep.imu.orientation_valid & (self.prep.imu.stamps_ns >= self.prep.t0_ns))[0])
             d[TH] = self.prep.imu.orientation_cov[i][2, 2]
@@ -238,7 +242,11 @@ class PlanarEkf:
         self.Phi = np.eye(self.n)
         t_cur = prep.t0_ns
         starts, ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
+        hand = self.o.handover_ns if not self.o.smooth else None  # smoothed: from the smoothed states
         for t, kind, i in zip(prep.times.tolist(), prep.kinds.tolist(), prep.index.tolist()):
+            if hand is not None and t > hand:  # the filtered state for the next piece
+                self.handed = (np.array([t_cur]), x[None].copy(), P[None].copy())
+                hand = None
             if t > t_cur:
                 P = 0.5 * (P + P.T)
                 self.log.close(x, P)
@@ -261,6 +269,8 @@ class PlanarEkf:
                 self._open(t, x, P)
                 self.log.mark_output()
         self.log.close(x, 0.5 * (P + P.T))
+        if hand is not None:
+            self.handed = (np.array([t_cur]), x[None].copy(), P[None].copy())
         return self.log.arrays()
 
 
@@ -313,6 +323,10 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
         x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
         if unmeasured_pose(prep):
             x = reintegrated(knots["t_ns"], x, heading="orientation" not in prep.use.get("imu", ()))
+    handover = None
+    if o.handover_ns is not None and len(x):
+        handover = planar_handover(knots["t_ns"], x, P, o.handover_ns) if o.smooth else \
+            planar_handover(*ekf.handed, o.handover_ns)
     sel = knots["output"]
     if o.smooth:
         x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
@@ -326,4 +340,6 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
         vel = np.column_stack([x[:, V] * np.cos(x[:, TH]), x[:, V] * np.sin(x[:, TH]), np.zeros(len(x))])
     info = {"model": "planar", "start": ekf.start.reason, "world_yaw_from": ekf.start.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
+    if handover is not None:
+        info["handover"] = handover
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info)

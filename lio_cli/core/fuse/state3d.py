@@ -72,12 +72,15 @@ def initial_estimate(s, L: Layout, nz, prep) -> tuple[list[float], np.ndarray]:
     """The 3D filter's first state (a list of floats) and covariance from its start ``s`` (``initial.Start``),
     the noise options ``nz`` and the prepared run ``prep`` (``timeline.Prepared``)."""
     b = s.bg if L.model != "cv" else np.zeros(3)
-    x = new_state(s.R, np.zeros(3), s.v, b, np.zeros(3) if L.core == 15 else None)
+    ba = (np.zeros(3) if s.ba is None else s.ba) if L.core == 15 else None
+    x = new_state(s.R, np.zeros(3), s.v, b, ba)
     d = np.zeros(L.n)
     d[0:2] = nz.init_tilt_sigma_rad**2
     d[2] = 1e-12  # the start fixes the world's yaw (or the IMU's orientation does, tightly)
     if s.yaw_from == "gps":
         d[2] = GPS_HEADING_SIGMA_RAD**2
+    if s.yaw_from == "handover" and "gps" in prep.use:  # the world is GPS's: the heading is estimated
+        d[2] = max(s.yaw_sigma_rad**2, 1e-12) if s.yaw_sigma_rad else GPS_HEADING_SIGMA_RAD**2
     if s.yaw_from == "imu_orientation":
         imu = prep.imu
         first = int(np.flatnonzero(imu.orientation_valid & (imu.stamps_ns >= prep.t0_ns))[0])

@@ -11,7 +11,8 @@ chunks, or the shortest chunk alone over it: e.g. ``--rate`` far above the IMU's
 a knot) the run is refused before fusing, naming the estimate, the budget and what to change.
 
 A chunk is fused alone over its span plus ``overlap`` on each side, so every kept instant has data before and
-after it. Each chunk's world starts at its own origin; chunk k is carried onto chunk k-1 by a rotation about
+after it, from the state the chunk before estimated at its first stamp (``core.fuse.pieces``: attitude, velocity,
+biases; only the first chunk finds its start from its own first second). Each chunk's world starts at its own origin; chunk k is carried onto chunk k-1 by a rotation about
 the vertical (mean yaw difference of the orientations over the overlap: gravity fixes the tilt in both) and
 the translation that makes the two agree at the seam. Poses left of the seam come from chunk k-1, the rest
 from chunk k. Covariances and velocities are rotated along; each chunk's covariance is relative to its own
@@ -222,14 +223,18 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
     kept: list[FuseResult] = []
     infos: list[dict] = []
     prev: FuseResult | None = None
+    start = None  # the state the chunk before handed over at this chunk's first stamp
     for k, (a, b) in enumerate(memory.chunks):
+        nxt = memory.chunks[k + 1][0] - ov if k + 1 < n else None
         try:
-            res = fuse(slice_inputs(inputs, a - ov, b + ov), options)
+            res = fuse(slice_inputs(inputs, a - ov, b + ov), replace(options, start=start, handover_ns=nxt))
         except InputError as err:  # a chunk inside a long gap of every source holds nothing to fuse
             if "no usable sample" not in str(err) and "no motion source" not in str(err):
                 raise
             infos.append({"span_ns": [a, b], "skipped": str(err)})
+            start = None
             continue
+        start = res.info.pop("handover", None)
         joined = True
         if prev is not None:
             A, joined = align_onto(prev, res, a)

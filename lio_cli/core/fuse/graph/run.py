@@ -12,6 +12,7 @@ from ....geometry import interpolate_poses, yaw_of
 from ..ekf3d import Ekf3d
 from ..initial import Start
 from ..inputs import FuseOptions
+from ..pieces import state_handover
 from ..result import FuseResult, anchor_to_origin
 from ..state3d import BA_, B_, P_, R_, V_, Layout, initial_estimate
 from ..timeline import Prepared
@@ -96,6 +97,9 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
     s = ekf.start
     result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
                    "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
+    if o.handover_ns is not None and len(kt):  # the next piece's start: the graph's state, or the filter's
+        result_info["handover"] = state_handover(kt, smoothed if why is None else filtered, o.handover_ns,
+                                                 SEAM_VELOCITY_SIGMA, o.noise.init_gyro_bias_sigma_radps)
     return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
 
 
