@@ -10,32 +10,18 @@ the wheels (``start_gravity``); the first wheel velocity, when there is one, is 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
 from ...geometry import gravity_aligned_rotation, so3_exp_one, yaw_of
 from .start_gravity import gravity_from_motion
+from .start_state import Start
 from .timeline import Prepared
 
 GYRO_STILL_RADPS = 0.05
 MAX_GYRO_BIAS_RADPS = 0.05  # about 3 deg/s: more than any usable MEMS gyro's bias
 ACCEL_STILL_MPS2 = 0.3
 STANDING_VELOCITY_SIGMA_MPS = 0.02
-
-
-@dataclass
-class Start:
-    R: np.ndarray  # R_world_base
-    v: np.ndarray  # world velocity
-    bg: np.ndarray  # gyro bias, base frame
-    v_sigma_mps: float
-    bg_sigma_radps: float
-    standing: bool
-    yaw_from: str  # "imu_orientation", "start" (yaw zero at the start) or "handover" (``pieces``)
-    reason: str
-    yaw_sigma_rad: float = 0.0  # a handed-over heading's (``pieces``)
-    ba: np.ndarray | None = None  # a handed-over accelerometer bias, base frame (``pieces``)
 
 
 STILL_SPEED_MPS = 0.05  # wheel speed, or odometry displacement over the window per second, of a base at rest

@@ -12,15 +12,12 @@ duplicated stamps and NaN rows and counts each case.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ...errors import ConfigError
+from .start_state import Start
 from .wheel_yaw import Weighed
-
-if TYPE_CHECKING:
-    from .initial import Start
 
 ESTIMATORS = ("auto", "ekf", "planar", "complementary")  # auto: chosen from the data (choose.py)
 
