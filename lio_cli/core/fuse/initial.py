@@ -10,7 +10,6 @@ the wheels (``start_gravity``); the first wheel velocity, when there is one, is 
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ...geometry import gravity_aligned_rotation, so3_exp_one, yaw_of
