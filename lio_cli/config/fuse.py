@@ -95,6 +95,8 @@ class FuseNoise(Strict):
 class FuseConfig(Strict):
     """Everything ``lio fuse`` can be told; flags override the YAML field by field."""
 
+    unbounded_fields = frozenset({"time_offsets_s"})  # bounded by MAX_CLOCK_OFFSET_S below
+
     input: FuseInputConfig = FuseInputConfig()
     calibration: Calibration = Field(Calibration(), description="extrinsics where /tf_static is silent, IMU clock offset")
     time_offsets_s: dict[Literal["wheel", "gps", "odom"], float] = Field(

@@ -153,30 +153,34 @@ def _lag(source: str, fit: tuple[float, float, int], against: str) -> Lag:
     return Lag(source, off, sig, against, samples=kept)
 
 
-def _rate_resid(gyro: _Gyro, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> Residual:
-    """Residual of ``r ~ bias + gain x gyro rate over [a, b] + trial``, fitted on the kept samples."""
+def _rate_resid(gyro: _Gyro, a: np.ndarray, b: np.ndarray, r: np.ndarray, v: np.ndarray | None) -> Residual:
+    """Residual of ``r ~ bias + gain x gyro rate over [a, b] + trial (+ share x speed v)``, fitted on the kept
+    samples (wheels of unequal radii turn in proportion to their speed, which no timing explains)."""
     def resid(tau: float, keep: np.ndarray) -> np.ndarray:
         g = gyro.mean_rate(a + tau, b + tau)
-        gk, rk = g[keep], r[keep]
-        gc = gk - gk.mean()
-        vg = float(gc @ gc)
-        gain = float(gc @ (rk - rk.mean())) / vg if vg > 0 else 0.0
-        return r - rk.mean() - gain * (g - gk.mean())
+        X = g[:, None] if v is None else np.column_stack([g, v])
+        mean = X[keep].mean(axis=0)
+        Xc, rk = X[keep] - mean, r[keep]
+        coef = np.linalg.lstsq(Xc, rk - rk.mean(), rcond=None)[0]
+        return r - rk.mean() - (X - mean) @ coef
     return resid
 
 
 def rate_lag(source: str, gyro: _Gyro, stamps_ns: np.ndarray, rate: np.ndarray, half_ns: np.ndarray | int,
-             against: str) -> Lag:
-    """A yaw-rate source (rate over [stamp - half, stamp + half]) timed against the gyro."""
+             against: str, speed: np.ndarray | None = None) -> Lag:
+    """A yaw-rate source (rate over [stamp - half, stamp + half]) timed against the gyro; ``speed``: the source's
+    own forward speed, a term of the fit."""
     a = gyro.rel(stamps_ns - half_ns)
     b = gyro.rel(stamps_ns + half_ns)
     ok = np.isfinite(rate) & (b > a) & gyro.inside(a, b)
+    if speed is not None:
+        ok &= np.isfinite(speed)
     if np.count_nonzero(ok) < MIN_SAMPLES:
         return Lag(source, None, None, against, f"fewer than {MIN_SAMPLES} {source} yaw rates inside the gyro's span")
     a, b, r = a[ok], b[ok], rate[ok]
     if float(np.std(gyro.mean_rate(a, b))) < MIN_TURN_RADPS:
         return Lag(source, None, None, against, "too little turning to time its yaw rate against the gyro")
-    return _lag(source, _fit(_rate_resid(gyro, a, b, r), _segments(a)), against)
+    return _lag(source, _fit(_rate_resid(gyro, a, b, r, None if speed is None else speed[ok]), _segments(a)), against)
 
 
 def _odom_rates(stamps_ns: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -223,26 +227,27 @@ def _track_resid(track_t: np.ndarray, track_xy: np.ndarray, t: np.ndarray, z: np
     return resid
 
 
-def gps_lag(gyro: _Gyro, inputs: FuseInputs) -> Lag:
+def gps_lag(gyro: _Gyro, inputs: FuseInputs, shifts: dict[str, float]) -> Lag:
     """The fixes against the wheels' dead-reckoned track (their speed turned by the gyro's heading), else the
-    odometry's positions."""
+    odometry's positions; each on the IMU's clock by the offset measured for it (``shifts``, s)."""
     g = inputs.gps
     if inputs.wheel is not None and len(inputs.wheel) and np.isfinite(inputs.wheel.velocity_mps[:, 0]).any():
         w = inputs.wheel
         order = np.argsort(w.stamps_ns, kind="stable")
         st, v = w.stamps_ns[order], np.nan_to_num(w.velocity_mps[order, :2])
-        t = gyro.rel(st)
+        t = gyro.rel(st) + shifts.get("wheel", 0.0)
         keep = np.concatenate([[True], np.diff(t) > 0])
         t, v = t[keep], v[keep]
         vw = (v[:, 0] + 1j * v[:, 1]) * np.exp(1j * gyro.heading(t))
         xy = np.concatenate([[0], np.cumsum(0.5 * (vw[1:] + vw[:-1]) * np.diff(t))])
-        against, heading = "the wheels' track turned by the gyro", gyro.heading
+        against, heading = "the wheels' track turned by the gyro" + (
+            ", their measured lag taken out" if shifts.get("wheel") else ""), gyro.heading
     elif inputs.odom is not None and len(inputs.odom):
         o = inputs.odom
         order = np.argsort(o.stamps_ns, kind="stable")
         st, P = o.stamps_ns[order], o.poses[order]
         ok = np.isfinite(P).all(axis=(1, 2))
-        t, P = gyro.rel(st[ok]), P[ok]
+        t, P = gyro.rel(st[ok]) + shifts.get("odom", 0.0), P[ok]
         keep = np.concatenate([[True], np.diff(t) > 0])
         t, P = t[keep], P[keep]
         xy = P[:, 0, 3] + 1j * P[:, 1, 3]
@@ -263,7 +268,7 @@ def gps_lag(gyro: _Gyro, inputs: FuseInputs) -> Lag:
     antenna = None if lever is None else complex(lever[0], lever[1])
     win = ((tg - tg[0]) // GPS_WINDOW_S).astype(int)
     resid = _track_resid(t, xy, tg, z, win, heading, antenna)
-    off, sig, kept = fit = _fit(resid, np.minimum(win, SEGMENTS - 1))
+    off, sig, kept = fit = _fit(resid, (win * SEGMENTS) // (int(win.max()) + 1))  # windows in equal groups
     if np.isfinite(sig):  # a floor: the fixes' scatter over the track's speed, one independent error per window
         keep = np.ones(len(z), bool)
         r = np.abs(resid(off, keep))
@@ -291,11 +296,12 @@ def measure_lags(inputs: FuseInputs) -> dict[str, Lag]:
         st = np.asarray(w.stamps_ns, np.int64)
         period = int(np.median(np.diff(np.sort(st)))) if len(st) > 1 else 0
         out["wheel"] = rate_lag("wheel", gyro, st, np.asarray(w.yaw_rate_radps, float), max(period // 2, 1),
-                                "its yaw rate against the gyro's")
+                                "its yaw rate against the gyro's", np.asarray(w.velocity_mps[:, 0], float))
     if inputs.odom is not None and len(inputs.odom) > 1:
         out["odom"] = odom_lag(gyro, inputs.odom.stamps_ns, inputs.odom.poses)
     if inputs.gps is not None and len(inputs.gps):
-        out["gps"] = gps_lag(gyro, inputs)
+        shifts = {s: lag.offset_s for s, lag in out.items() if lag.trusted and abs(lag.offset_s) > 4 * lag.sigma_s}
+        out["gps"] = gps_lag(gyro, inputs, shifts)
     return out
 
 

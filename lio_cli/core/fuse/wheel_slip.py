@@ -257,8 +257,8 @@ def _clock_hint(t: np.ndarray, v: np.ndarray, A: np.ndarray, inside: np.ndarray)
     if abs(lags[k]) < MIN_LAG_S or corr[k] < LAG_CORR or corr[k] - corr[k0] < LAG_CORR_GAIN:
         return ""
     return (f"; the wheel speed's changes match the accelerometer's {lags[k]:+.2f} s later in its stamps "
-            f"(correlation {corr[k]:.2f}, {corr[k0]:.2f} unshifted): an IMU clock offset? Try --imu-time-offset "
-            f"{-lags[k]:.2f}")
+            f"(correlation {corr[k]:.2f}, {corr[k0]:.2f} unshifted): a clock offset? Try --imu-time-offset "
+            f"{-lags[k]:.2f} if the IMU is off, --time-offset wheel={lags[k]:.2f} if the wheels are")
 
 
 def _clean(inside: np.ndarray, wins: list[tuple[int, int]]) -> np.ndarray:

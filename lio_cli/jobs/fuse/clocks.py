@@ -15,6 +15,7 @@ from ...io.sensors.clocks import check_same_clock
 from ...io.sensors.topics import TopicChoice
 
 OTHERS = ("wheel", "gps", "odom")
+SOURCE_NAME = {"wheel": "wheel odometry", "gps": "GPS", "odom": "odometry"}
 WARN_SIGMAS = 4.0  # a lag this many 1-sigmas from the offset given is beyond noise
 WARN_MIN_S = 0.05  # and this large matters (5 cm at 1 m/s)
 
@@ -47,7 +48,8 @@ def check_clocks(reader: LogReader, roles: dict[str, TopicChoice], imu_offset_ns
     for s in others[1:]:
         check_same_clock(reader, topics[others[0]], topics[s], off[s], option(s), off[others[0]], option(others[0]))
     if "imu" in topics and others:
-        check_same_clock(reader, topics[others[0]], topics["imu"], imu_offset_ns, option("imu"), off[others[0]])
+        check_same_clock(reader, topics[others[0]], topics["imu"], imu_offset_ns, option("imu"), off[others[0]],
+                         option(others[0]))
 
 
 def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
@@ -55,6 +57,9 @@ def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
     and a warning naming the option where a lag is beyond noise and large enough to matter."""
     lags = measure_lags(inputs)
     out, notes = {}, []
+    for src, sec in cfg.time_offsets_s.items():
+        if getattr(inputs, src) is None:
+            notes.append(f"{option(src)}{sec:g} given, but the run has no {SOURCE_NAME[src]}: not used")
     for src, lag in lags.items():
         given = cfg.time_offsets_s.get(src, 0.0)
         entry = {"given_s": given, **lag.to_dict()}

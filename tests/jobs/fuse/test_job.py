@@ -171,11 +171,14 @@ def test_sources_on_different_clocks_and_the_offset_that_joins_them(fuse_logs):
     assert str(err.value) == (
         f"{log}: /imu and /wheel/odom are stamped on different clocks (/imu from 1700001000.000 s, /wheel/odom "
         "from 1700000000.000 s: 1000 s apart beyond their recording times); if /imu runs on a shifted clock give "
-        "--imu-time-offset -1000.000")
+        "--imu-time-offset -1000.000; if /wheel/odom does, give --time-offset wheel=1000.000")
     with pytest.raises(InputError) as err:  # an offset given short of the shift: the whole offset is suggested
         run_fuse(FuseJob(log, FuseConfig(calibration={"imu_time_offset_s": -400.0})))
     assert str(err.value).endswith("600 s apart beyond their recording times); if /imu runs on a shifted clock give "
-                                   "--imu-time-offset -1000.000")
+                                   "--imu-time-offset -1000.000; if /wheel/odom does, give --time-offset wheel=600.000")
+    # the other way round: the wheels shifted onto the IMU's clock
+    run = run_fuse(FuseJob(log, FuseConfig(time_offsets_s={"wheel": 1000.0})))
+    np.testing.assert_allclose(run.trajectory.positions[-1], [2.0, 0.0, 0.0], atol=1e-3)
     run = run_fuse(FuseJob(log, FuseConfig(calibration={"imu_time_offset_s": -1000.0})))
     np.testing.assert_allclose(run.trajectory.positions[-1], [2.0, 0.0, 0.0], atol=1e-3)
     assert run.trajectory.stamps_ns[0] == fuse_logs.T0_NS

@@ -76,3 +76,5 @@ def test_measurement_stamps_closer_than_the_merge_share_a_keyframe():
     assert np.diff(kt).min() >= keyframes.MERGE_NS
     k = keyframes.attach(kt, odom.stamps_ns)
     assert kt[k[0]] == t0 + 200_000_000 and kt[k[1]] == t0 + 300_000_000 and kt[k[2]] == t0 + 400_060_000
+    # a stamp just after the last keyframe (merged into it) is that keyframe's
+    assert keyframes.attach(kt, np.array([kt[-1] + 10_000]))[0] == len(kt) - 1

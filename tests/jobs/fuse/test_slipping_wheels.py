@@ -78,5 +78,6 @@ def test_an_imu_clock_offset_that_spoils_the_check_is_named_with_the_offset_to_g
     assert check["scale"] is None and check["bridged"] == 0
     assert re.fullmatch(r"1 clean 1 s stretches \(no slip window, no IMU gap\), fewer than 12: scale not measured; "
                         r"the wheel speed's changes match the accelerometer's \+0\.50 s later in its stamps "
-                        r"\(correlation 0\.8\d, 0\.[0-6]\d unshifted\): an IMU clock offset\? Try --imu-time-offset "
-                        r"-0\.50", check["why"]), check["why"]
+                        r"\(correlation 0\.8\d, 0\.[0-6]\d unshifted\): a clock offset\? Try --imu-time-offset "
+                        r"-0\.50 if the IMU is off, --time-offset wheel=0\.50 if the wheels are", check["why"]), \
+        check["why"]

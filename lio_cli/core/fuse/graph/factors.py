@@ -29,7 +29,7 @@ from ..timeline import Prepared
 from . import gps, height, odom_spin, wheels
 from .gps import FREE_SIGMA
 from .imu import Segments
-from .keyframes import attach
+from .keyframes import MERGE_NS, attach
 
 # wheel increments without a robust loss: a robust one takes a wheel scale error for outliers and lets the graph
 # drift on the IMU
@@ -76,7 +76,7 @@ class Measurements:
         self.odom_pairs = np.zeros((0, 2), np.int64)
         od = prep.odom
         if od is not None and len(od) > 1 and "odom" in prep.use:
-            idx = np.flatnonzero((od.stamps_ns >= kt[0]) & (od.stamps_ns <= kt[-1]))
+            idx = np.flatnonzero((od.stamps_ns >= kt[0]) & (od.stamps_ns < kt[-1] + MERGE_NS))
             self.odom_idx = idx
             self.odom_k = attach(kt, od.stamps_ns[idx])
         else:

@@ -12,7 +12,7 @@ import numpy as np
 from gtsam.symbol_shorthand import G, X
 
 from ..state3d import skew3
-from .keyframes import attach
+from .keyframes import MERGE_NS, attach
 
 HUBER_K = 2.5  # whitened norm of a 2D residual: about its 95th percentile, so good fixes keep their weight
 CAUCHY_K = 1.0  # vertical GPS: an altitude wander is a run of outliers
@@ -80,9 +80,9 @@ def attach_fixes(m, prep, kt: np.ndarray) -> None:
     m.gps_lever = None  # the antenna on the base (base axes), None at its origin
     g = prep.gps
     if g is not None and len(g) and "gps" in prep.use:
-        ok = (g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]) & _accepted(g)
+        ok = (g.stamps_ns >= kt[0]) & (g.stamps_ns < kt[-1] + MERGE_NS) & _accepted(g)
         idx = np.flatnonzero(ok)
-        first = np.flatnonzero((g.stamps_ns >= kt[0]) & (g.stamps_ns <= kt[-1]))
+        first = np.flatnonzero((g.stamps_ns >= kt[0]) & (g.stamps_ns < kt[-1] + MERGE_NS))
         if len(idx):
             m.gps_idx = idx
             m.gps_k = attach(kt, g.stamps_ns[idx])
