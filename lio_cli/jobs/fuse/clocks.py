@@ -9,7 +9,8 @@ import numpy as np
 
 from ...config.fuse import FuseConfig
 from ...core.fuse import FuseInputs
-from ...core.fuse.clock_lag import Lag, measure_lags
+from ...core.fuse.clock_lag import Lag
+from ...core.fuse.clock_lags import measure_lags
 from ...io.logs.base import LogReader
 from ...io.sensors.clocks import check_same_clock
 from ...io.sensors.topics import TopicChoice

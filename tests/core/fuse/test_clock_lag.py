@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lio_cli.core.fuse import FuseInputs, GpsSeries, ImuSeries, PoseSeries, WheelSeries
-from lio_cli.core.fuse.clock_lag import measure_lags
+from lio_cli.core.fuse.clock_lags import measure_lags
 from lio_cli.geometry import make_pose, so3_exp
 
 T0_NS = 1_700_000_000 * 10**9
