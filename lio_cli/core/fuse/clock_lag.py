@@ -5,7 +5,7 @@ rate averaged over the same instants shifted by a trial offset; the GPS fixes wi
 wheels' or the odometry's positions, turned by the gyro's heading) at the shifted instants (``clock_lags``,
 which measures every source). Each comparison
 fits its own gain and bias (a complex gain and origin per window for the track: scale, heading and drift), so
-only the timing is measured. The offset is the trial (coarse grid, then a parabola) that leaves the least
+only the timing is measured. The offset is the trial (coarse grids, then a parabola) that leaves the least
 residual; its 1-sigma comes from a delete-one-segment jackknife over ``SEGMENTS`` stretches of the log, so slow
 correlated errors (slip, multipath) count.
 
@@ -22,6 +22,7 @@ import numpy as np
 
 SEARCH_S = 2.0  # trial offsets within +-this
 COARSE_STEP_S = 0.01
+SCAN_STEP_S = 0.05  # the whole search's grid, then COARSE_STEP_S around its least (a yaw rate's cost is this smooth)
 SEGMENTS = 8  # jackknife stretches
 MIN_SAMPLES = 50  # rate samples (or fixes) a measurement needs
 MIN_TURN_RADPS = 0.02  # the gyro's yaw rate must vary by this (std) to time a rate against it
@@ -131,16 +132,24 @@ def _costs(resid: Residual, seg: np.ndarray, keep: np.ndarray, trials: np.ndarra
     return out
 
 
+def _coarse(resid: Residual, seg: np.ndarray, keep: np.ndarray) -> float:
+    """The least residual over the whole search on a ``SCAN_STEP_S`` grid, then ``COARSE_STEP_S`` around it."""
+    scan = np.arange(-SEARCH_S, SEARCH_S + SCAN_STEP_S / 2, SCAN_STEP_S)
+    k = int(np.nanargmin(_costs(resid, seg, keep, scan).sum(axis=0)))
+    lo, hi = scan[max(k - 1, 0)], scan[min(k + 1, len(scan) - 1)]
+    coarse = np.arange(lo, hi + COARSE_STEP_S / 2, COARSE_STEP_S)
+    return _minimum(coarse, _costs(resid, seg, keep, coarse).sum(axis=0))
+
+
 def fit_lag(resid: Residual, seg: np.ndarray) -> tuple[float, float, int]:
     """(offset, jackknife 1-sigma, samples kept): the least residual over a coarse grid, outliers (slips,
     multipath) left out at it, then again on the coarse and a fine grid."""
     keep = np.ones(len(seg), bool)
-    coarse = np.arange(-SEARCH_S, SEARCH_S + COARSE_STEP_S / 2, COARSE_STEP_S)
-    best = _minimum(coarse, _costs(resid, seg, keep, coarse).sum(axis=0))
+    best = _coarse(resid, seg, keep)
     for _ in range(2):  # a fit pulled by outliers leaves some of them in: once more from the cleaner fit
         r = np.abs(resid(best, keep))
         keep = r <= max(OUTLIER_MADS * 1.4826 * float(np.median(r)), 1e-12)
-        best = _minimum(coarse, _costs(resid, seg, keep, coarse).sum(axis=0))
+        best = _coarse(resid, seg, keep)
     if abs(best) > SEARCH_S - 2 * COARSE_STEP_S:
         return best, float("inf"), int(np.count_nonzero(keep))
     fine = best + np.arange(-FINE_HALF_S, FINE_HALF_S + FINE_STEP_S / 2, FINE_STEP_S)
