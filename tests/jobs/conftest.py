@@ -167,7 +167,7 @@ def without_messages():
 
 def _rewrite_messages(src, dst, topic: str, edit):
     """A ROS 1 copy of ``src`` with each ``topic`` message passed through ``edit(stamp_ns, msg)`` (returns the
-    message to write)."""
+    message to write, or None to leave it out)."""
     from lio_cli.io.logs.reader import open_log
     from lio_cli.io.logs.writer import LogWriter
 
@@ -177,6 +177,8 @@ def _rewrite_messages(src, dst, topic: str, edit):
         for name, _, t_ns, msg in reader.messages():
             if name == topic:
                 msg = edit(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg)
+                if msg is None:  # left out
+                    continue
             w.write(name, t_ns, msg)
     return dst
 

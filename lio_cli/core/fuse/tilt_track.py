@@ -23,7 +23,8 @@ def segment_starts(t_s: np.ndarray) -> np.ndarray:
     """IMU indices where a stretch starts: the log split into as many equal stretches of at least
     ``SEGMENT_S`` as fit (one for a log shorter than two)."""
     n = max(1, int((t_s[-1] - t_s[0]) // SEGMENT_S))
-    return np.searchsorted(t_s, t_s[0] + (t_s[-1] - t_s[0]) * np.arange(n) / n)
+    # an IMU gap longer than a stretch puts two starts on one sample: the empty stretch goes
+    return np.unique(np.searchsorted(t_s, t_s[0] + (t_s[-1] - t_s[0]) * np.arange(n) / n))
 
 
 def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,

@@ -12,7 +12,8 @@ a knot) the run is refused before fusing, naming the estimate, the budget and wh
 
 A chunk is fused alone over its span plus ``overlap`` on each side, so every kept instant has data before and
 after it, from the state the chunk before estimated at its first stamp (``core.fuse.pieces``: attitude,
-velocity, biases; only the first chunk finds its start from its own first second). Each chunk's world starts at
+velocity, biases; the planar and 3D filters and the factor graph hand it over, the complementary filter does not:
+its chunks find their start again). Each chunk's world starts at
 its own origin; chunk k is carried onto chunk k-1 by a rotation about the vertical (mean yaw difference of the orientations over the overlap: gravity fixes the tilt in both) and
 the translation that makes the two agree at the seam. Poses left of the seam come from chunk k-1, the rest
 from chunk k. Covariances and velocities are rotated along; each chunk's covariance is relative to its own

@@ -13,6 +13,7 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 
 from lio_cli.config.fuse import FuseConfig
+from lio_cli.io.files.trajectory import read_tum
 from lio_cli.io.sensors.sources import load_trajectory
 from lio_cli.jobs.fuse.job import FuseJob, run_fuse
 from lio_cli.simulation.run import simulate
@@ -206,3 +207,16 @@ def test_when_the_graph_is_refused_the_gap_note_is_the_kept_filters(tmp_path, mo
     gap = [n for n in run.notes if n.startswith("imu: 1 gap in the gyro")]
     assert gap == [NOTE], gap
     assert run.metrics["sources"]["wheel"]["handled"]["gyro_gap_yaw"]["count"] == 499
+
+
+def test_an_imu_gap_longer_than_a_wheel_check_stretch_is_fused(tmp_path, rewrite_messages):
+    """The wheel check re-anchors its tilt every 30 s stretch of the IMU's samples; a 50 s gap put two stretches'
+    starts on one sample and the empty stretch raised IndexError (a traceback, exit 1)."""
+    simulate("rover", tmp_path / "full.bag", duration_s=100.0, seed=7, lidar=False)
+    t0 = read_tum(tmp_path / "full.gt.tum")[0][0]
+    log = rewrite_messages(tmp_path / "full.bag", tmp_path / "gap.bag", "/imu",
+                           lambda ns, msg: None if 25e9 < ns - t0 < 75e9 else msg)
+    (tmp_path / "gap.gt.tum").write_bytes((tmp_path / "full.gt.tum").read_bytes())
+    run = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0)))
+    assert run.metrics["core"]["wheel_check"] is not None
+    assert any(n.startswith("imu: 1 gap in the gyro (the longest 50.0 s)") for n in run.notes), run.notes
