@@ -19,7 +19,7 @@ from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings
                           yaw_velocity_onto)
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
-from .pieces import state_handover, turned_handover
+from .pieces import bias_sigma, filtered_handover, state_handover, turned_handover
 from .planar import PlanarEkf, run_planar
 from .result import FuseResult, anchor_to_origin
 from .smoother import rts_smooth
@@ -301,9 +301,12 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
     if o.smooth:
         info["smoother"] = {"kind": "rts", "why": "no accelerometer in use: the factor graph's IMU factors need it"}
-    if o.handover_ns is not None and len(x):  # the next piece's start, at an output
+    bg_sigma = bias_sigma(ekf.handed, "gps" in prep.use, o.noise.init_gyro_bias_sigma_radps)
+    if ekf.handed is not None and not o.smooth:  # the next piece's start: the filter's state there
+        info["handover"] = filtered_handover(ekf.handed, o.noise.init_velocity_sigma_mps, bg_sigma)
+    elif ekf.handed is not None and len(x):  # smoothed: its state at the output there
         states = {"R": x[:, R_].reshape(-1, 3, 3), "v": x[:, V_], "bg": x[:, B_], "ba": x[:, BA_]}
         info["handover"] = state_handover(knots["t_ns"][sel], states, o.handover_ns, o.noise.init_velocity_sigma_mps,
-                                          o.noise.init_gyro_bias_sigma_radps)
+                                          bg_sigma)
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
                       o.smooth, prep.reports, info)

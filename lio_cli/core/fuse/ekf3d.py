@@ -48,6 +48,7 @@ class Ekf3d:
 
     def __init__(self, prep: Prepared, options: FuseOptions, start: Start | None = None):
         self.prep, self.o, self.noise = prep, options, options.noise
+        self.handed: tuple | None = None  # (t_ns, x, P): the filtered state at options.handover_ns (``pieces``)
         self.L = Layout(model_for(prep.use), clone="delta" in prep.use.get("odom", ()))
         self.q = ProcessNoise(self.L, self.noise)
         self.cover_starts, self.cover_ends = [a for a, _ in prep.coverage], [b for _, b in prep.coverage]
@@ -293,7 +294,11 @@ class Ekf3d:
         steps = 0
         ins, st, last_imu, imu_gap, q_rate = self.ins, self.imu_list, len(self.imu_list) - 1, self.imu_gap, self.q.rate
         mid_w, mid_f, P_diag = (*self.imu_mid, self._P_diag) if self.imu_mid is not None else (None, None, None)
+        hand = self.o.handover_ns
         for t, kind, i, out in zip(*folded_outputs(prep)):
+            if hand is not None and t > hand:  # the filtered state for the next piece, with its covariance
+                self.handed = (t_cur, np.array(x), P.copy())
+                hand = None
             if t > t_cur:
                 steps += 1
                 if steps % sym_every == 0:

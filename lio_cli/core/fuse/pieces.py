@@ -14,6 +14,7 @@ import numpy as np
 from ...geometry import so3_exp_one
 from .initial import Start
 from .planar_model import BW, TH, V
+from .state3d import B_, BA_, DB, R_, V_
 
 
 def planar_handover(t_ns: np.ndarray, x: np.ndarray, P: np.ndarray, at_ns: int) -> Start:
@@ -39,9 +40,25 @@ def state_handover(t_ns: np.ndarray, states: dict[str, np.ndarray], at_ns: int, 
                  f"{np.linalg.norm(bg):.5f} rad/s", ba=states["ba"][k].copy())
 
 
+def filtered_handover(handed: tuple, v_sigma_mps: float, bg_sigma_radps: float) -> Start:
+    """The 3D filter's state where the next piece starts (``Ekf3d.handed``)."""
+    t_ns, x, _ = handed
+    states = {"R": x[R_].reshape(1, 3, 3), "v": x[None, V_], "bg": x[None, B_], "ba": x[None, BA_]}
+    return state_handover(np.array([t_ns]), states, t_ns, v_sigma_mps, bg_sigma_radps)
+
+
+def bias_sigma(handed: tuple | None, gps: bool, start_sigma: float) -> float:
+    """The handed gyro bias's sigma: without GPS the 3D filter's own (``Ekf3d.handed``; nothing in a moving piece
+    observes the bias again, and at the start-up sigma a rover in 3 pieces re-fitted it wrongly: 2.75 m, whole
+    0.61); with GPS the start-up one (the fixes find it again, and a tight wrong bias was held: 0.58 -> 1.99 m)."""
+    if gps or handed is None:
+        return start_sigma
+    return float(np.sqrt(np.max(np.diag(handed[2][DB, DB]))))
+
+
 def turned_handover(start: Start | None, R: np.ndarray) -> Start | None:
     """A handed-over state carried by the world rotation ``R`` (a track placed on the GPS fixes)."""
     return None if start is None else replace(start, R=R @ start.R, v=R @ start.v)
 
 
-__all__ = ["planar_handover", "state_handover", "turned_handover"]
+__all__ = ["bias_sigma", "filtered_handover", "planar_handover", "state_handover", "turned_handover"]

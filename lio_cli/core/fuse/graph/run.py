@@ -12,7 +12,7 @@ from ....geometry import interpolate_poses, yaw_of
 from ..ekf3d import Ekf3d
 from ..initial import Start
 from ..inputs import FuseOptions
-from ..pieces import state_handover
+from ..pieces import bias_sigma, state_handover
 from ..result import FuseResult, anchor_to_origin
 from ..state3d import BA_, B_, P_, R_, V_, Layout, initial_estimate
 from ..timeline import Prepared
@@ -98,8 +98,9 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
     result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
                    "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
     if o.handover_ns is not None and len(kt):  # the next piece's start: the graph's state, or the filter's
+        bg_sigma = bias_sigma(ekf.handed, "gps" in prep.use, o.noise.init_gyro_bias_sigma_radps)  # the filter's
         result_info["handover"] = state_handover(kt, smoothed if why is None else filtered, o.handover_ns,
-                                                 SEAM_VELOCITY_SIGMA, o.noise.init_gyro_bias_sigma_radps)
+                                                 SEAM_VELOCITY_SIGMA, bg_sigma)
     return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
 
 
