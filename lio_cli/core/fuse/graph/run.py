@@ -98,7 +98,7 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
     result_info = {"model": ekf.L.model, "start": s.reason, "world_yaw_from": s.yaw_from,
                    "odom_mode": next(iter(prep.use.get("odom", ())), None), "smoother": info}
     if o.handover_ns is not None and len(kt):  # the next piece's start: the graph's state, or the filter's
-        bg_sigma = bias_sigma(ekf.handed, "gps" in prep.use, o.noise.init_gyro_bias_sigma_radps)  # the filter's
+        bg_sigma = bias_sigma(ekf.handed, "gps" in prep.use, o.noise.init_gyro_bias_sigma_radps)
         result_info["handover"] = state_handover(kt, smoothed if why is None else filtered, o.handover_ns,
                                                  SEAM_VELOCITY_SIGMA, bg_sigma)
     return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
