@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..imu import running_integral
+
 SEARCH_S = 2.0  # trial offsets within +-this
 COARSE_STEP_S = 0.01
 SCAN_STEP_S = 0.05  # the whole search's grid, then COARSE_STEP_S around its least (a yaw rate's cost is this smooth)
@@ -29,9 +31,9 @@ MIN_TURN_RADPS = 0.02  # the gyro's yaw rate must vary by this (std) to time a r
 OUTLIER_MADS = 4.0  # a residual this many robust sigmas out is a slip or a multipath fix: left out
 FINE_HALF_S, FINE_STEP_S = 0.05, 0.002
 SIGMA_FLOOR_S = 1e-4
-GPS_TIMING_SCATTER_M = 0.5  # simulated: RTK fixes scatter 0.03-0.22 m about the track, consumer ones 1.7-1.9 m
-# a yaw rate timed against the gyro must follow it: the share of its variance the fit explains (simulated 0.99+,
-# groovy's wheels 0.989; jackal's skid-steered ones 0.30, whose "lag" of 0.48 s moved the end 1 m off)
+GPS_TIMING_SCATTER_M = 0.5  # fixes scattered more about the track (a consumer receiver's wander) time nothing
+# a yaw rate timed against the gyro must follow it: the share of its variance the fit explains (skid-steered
+# wheels fall far below; docs/benchmarks.md, sources on other clocks)
 MIN_EXPLAINED = 0.9
 
 Residual = Callable[[float, np.ndarray], np.ndarray]  # (trial offset, kept samples) -> every sample's residual
@@ -88,7 +90,7 @@ class Gyro:
         self.t0 = int(st[0]) if len(st) else 0
         self.t = (st[keep] - self.t0) * 1e-9
         w = w[keep]
-        self.angle = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(self.t))]) if len(w) else w
+        self.angle = running_integral(self.t, w) if len(w) else w
 
     def __len__(self) -> int:
         return len(self.t)

@@ -48,9 +48,9 @@ def filtered_handover(handed: tuple, v_sigma_mps: float, bg_sigma_radps: float) 
 
 
 def bias_sigma(handed: tuple | None, gps: bool, start_sigma: float) -> float:
-    """The handed gyro bias's sigma: without GPS the 3D filter's own (``Ekf3d.handed``; nothing in a moving piece
-    observes the bias again, and at the start-up sigma a rover in 3 pieces re-fitted it wrongly: 2.75 m, whole
-    0.61); with GPS the start-up one (the fixes find it again, and a tight wrong bias was held: 0.58 -> 1.99 m)."""
+    """The handed gyro bias's sigma: without GPS the 3D filter's own (``Ekf3d.handed``: nothing in a moving piece
+    observes the bias again, and at the start-up sigma the piece re-fitted it wrongly); with GPS the start-up one
+    (the fixes find it again, and a tight wrong bias would be held). Measured in docs/benchmarks.md."""
     if gps or handed is None:
         return start_sigma
     return float(np.sqrt(np.max(np.diag(handed[2][DB, DB]))))
