@@ -35,6 +35,9 @@ GPS_TIMING_SCATTER_M = 0.5  # fixes scattered more about the track (a consumer r
 # a yaw rate timed against the gyro must follow it: the share of its variance the fit explains (skid-steered
 # wheels fall far below; docs/benchmarks.md, sources on other clocks)
 MIN_EXPLAINED = 0.9
+# a warning needs the offset to explain the data clearly better than none: the track's or the rate's own errors
+# (a slip burst) can pull a jackknife-tight offset that hardly lowers the residual
+MIN_GAIN = 1.2
 
 Residual = Callable[[float, np.ndarray], np.ndarray]  # (trial offset, kept samples) -> every sample's residual
 
@@ -52,6 +55,7 @@ class Lag:
     samples: int = 0
     scatter_m: float | None = None  # GPS: the fixes' rms residual about the fitted track
     explained: float | None = None  # a yaw rate: the share of its variance the gyro's explains at the offset
+    gain: float = 1.0  # the residual unshifted over that at the offset (squared sums)
 
     @property
     def trusted(self) -> bool:
@@ -59,6 +63,11 @@ class Lag:
         or a yaw rate that follows the gyro's (``MIN_EXPLAINED``)."""
         return self.offset_s is not None and (self.scatter_m is None or self.scatter_m <= GPS_TIMING_SCATTER_M) \
             and (self.explained is None or self.explained >= MIN_EXPLAINED)
+
+    @property
+    def clear(self) -> bool:
+        """Trusted, and the offset explains the data clearly better than none (``MIN_GAIN``): worth a warning."""
+        return self.trusted and self.gain >= MIN_GAIN
 
     def to_dict(self) -> dict:
         if self.offset_s is None:
@@ -70,6 +79,7 @@ class Lag:
             if not self.trusted:
                 out["indicative"] = (f"the fixes scatter {self.scatter_m:.2f} m about the track (beyond "
                                      f"{GPS_TIMING_SCATTER_M:g} m their slow wander can pass for a timing)")
+        out["gain"] = round(self.gain, 3)
         if self.explained is not None:
             out["explained"] = round(self.explained, 3)
             if self.explained < MIN_EXPLAINED:
@@ -143,9 +153,10 @@ def _coarse(resid: Residual, seg: np.ndarray, keep: np.ndarray) -> float:
     return _minimum(coarse, _costs(resid, seg, keep, coarse).sum(axis=0))
 
 
-def fit_lag(resid: Residual, seg: np.ndarray) -> tuple[float, float, int]:
-    """(offset, jackknife 1-sigma, samples kept): the least residual over a coarse grid, outliers (slips,
-    multipath) left out at it, then again on the coarse and a fine grid."""
+def fit_lag(resid: Residual, seg: np.ndarray) -> tuple[float, float, int, float]:
+    """(offset, jackknife 1-sigma, samples kept, gain): the least residual over a coarse grid, outliers (slips,
+    multipath) left out at it, then again on the coarse and a fine grid; gain, the kept samples' squared residual
+    unshifted over that at the offset."""
     keep = np.ones(len(seg), bool)
     best = _coarse(resid, seg, keep)
     for _ in range(2):  # a fit pulled by outliers leaves some of them in: once more from the cleaner fit
@@ -153,7 +164,7 @@ def fit_lag(resid: Residual, seg: np.ndarray) -> tuple[float, float, int]:
         keep = r <= max(OUTLIER_MADS * 1.4826 * float(np.median(r)), 1e-12)
         best = _coarse(resid, seg, keep)
     if abs(best) > SEARCH_S - 2 * COARSE_STEP_S:
-        return best, float("inf"), int(np.count_nonzero(keep))
+        return best, float("inf"), int(np.count_nonzero(keep)), 1.0
     fine = best + np.arange(-FINE_HALF_S, FINE_HALF_S + FINE_STEP_S / 2, FINE_STEP_S)
     per = _costs(resid, seg, keep, fine)
     best = _minimum(fine, per.sum(axis=0))
@@ -161,16 +172,17 @@ def fit_lag(resid: Residual, seg: np.ndarray) -> tuple[float, float, int]:
     held = np.array([_minimum(fine, per.sum(axis=0) - per[k]) for k in filled])
     n = len(held)
     sigma = float(np.sqrt((n - 1) / n * np.sum((held - held.mean()) ** 2))) if n > 1 else float("nan")
-    return best, max(sigma, SIGMA_FLOOR_S), int(np.count_nonzero(keep))
+    cost = [float(np.sum(np.abs(resid(tau, keep)[keep]) ** 2)) for tau in (0.0, best)]
+    return best, max(sigma, SIGMA_FLOOR_S), int(np.count_nonzero(keep)), cost[0] / max(cost[1], 1e-300)
 
 
-def lag_of(source: str, fit: tuple[float, float, int], against: str) -> Lag:
-    off, sig, kept = fit
+def lag_of(source: str, fit: tuple[float, float, int, float], against: str) -> Lag:
+    off, sig, kept, gain = fit
     if not np.isfinite(sig):
         return Lag(source, None, None, against, f"not determined: the best fit lies at the edge of the "
                                                 f"+-{SEARCH_S:g} s searched (the data too noisy to time it, or the "
                                                 "clocks further apart)")
-    return Lag(source, off, sig, against, samples=kept)
+    return Lag(source, off, sig, against, samples=kept, gain=gain)
 
 
 def _rate_resid(gyro: Gyro, a: np.ndarray, b: np.ndarray, r: np.ndarray, v: np.ndarray | None) -> Residual:

@@ -83,14 +83,14 @@ def gps_lag(gyro: Gyro, inputs: FuseInputs, shifts: dict[str, float]) -> Lag:
     antenna = None if lever is None else complex(lever[0], lever[1])
     win = ((tg - tg[0]) // GPS_WINDOW_S).astype(int)
     resid = _track_resid(t, xy, tg, z, win, heading, antenna)
-    off, sig, kept = fit = fit_lag(resid, (win * SEGMENTS) // (int(win.max()) + 1))  # windows in equal groups
+    off, sig, kept, gain = fit = fit_lag(resid, (win * SEGMENTS) // (int(win.max()) + 1))  # windows in equal groups
     if np.isfinite(sig):  # a floor: the fixes' scatter over the track's speed, one independent error per window
         keep = np.ones(len(z), bool)
         r = np.abs(resid(off, keep))
         r = r[r <= OUTLIER_MADS * 1.4826 * float(np.median(r))]
         speed = np.abs(np.diff(xy)) / np.diff(t)
         floor = float(np.sqrt(np.mean(r**2)) / max(float(np.sqrt(np.mean(speed**2))), 1e-3) / np.sqrt(win.max() + 1))
-        lag = lag_of("gps", (off, max(sig, floor), kept), against)
+        lag = lag_of("gps", (off, max(sig, floor), kept, gain), against)
         lag.scatter_m = float(np.sqrt(np.mean(r**2)))
         return lag
     return lag_of("gps", fit, against)

@@ -71,12 +71,13 @@ def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
         out[src] = entry
     if out:
         out["meaning"] = ("offset_s: seconds to add to the source's stamps (beyond given_s) to line it up with the "
-                          "IMU's gyro; total_s: the value for --time-offset SOURCE=")
+                          "IMU's gyro; total_s: the value for --time-offset SOURCE=; gain: the residual unshifted "
+                          "over that at offset_s (a warning needs 1.2)")
     return out, notes
 
 
 def _matters(lag: Lag) -> bool:
-    return lag.trusted and abs(lag.offset_s) >= max(WARN_SIGMAS * lag.sigma_s, WARN_MIN_S)
+    return lag.clear and abs(lag.offset_s) >= max(WARN_SIGMAS * lag.sigma_s, WARN_MIN_S)
 
 
 def _warning(lag: Lag, given: float) -> str:

@@ -94,7 +94,7 @@ def test_the_fixes_are_timed_against_the_wheels_on_the_imus_clock(rover_gps, rew
     wheels = rewrite_messages(rover_gps, tmp_path / "late.bag", "/wheel/odom", late)
     run = run_fuse(FuseJob(wheels))
     clocks = run.metrics["clocks"]
-    assert clocks["wheel"]["offset_s"] == pytest.approx(-LAG_S, abs=LAG_TOL_S)
+    assert clocks["wheel"]["offset_s"] == pytest.approx(-LAG_S, abs=LAG_TOL_S) and clocks["wheel"]["gain"] > 1.2
     assert abs(clocks["gps"]["offset_s"]) < 0.1 and "their measured lag taken out" in clocks["gps"]["against"]
     assert [n for n in run.notes if "--time-offset" in n] == [n for n in run.notes if n.startswith("wheel: stamps")]
 
@@ -117,3 +117,19 @@ def test_a_yaw_rate_the_gyro_hardly_explains_is_reported_not_warned(rover, rewri
     assert not any("--time-offset" in n for n in run.notes)
     clean = run_fuse(FuseJob(log)).metrics["clocks"]["wheel"]
     assert clean["explained"] > 0.99 and "indicative" not in clean
+
+
+def test_wheels_slipping_beside_2_cm_fixes_read_no_gps_lag(tmp_path):
+    """The matrix's rover, seed 8: wheels 3 % large with slip bursts, fixes of 2-4 cm, every stamp on time. The
+    slips bend the wheels' track the fixes are timed against, and the jackknife held a 0.29 s 'lag' at 4.3 sigmas
+    that lowered the residual by 2 %: a warning needs the offset to explain the fixes clearly better (gain)."""
+    from lio_cli.simulation.run import simulate
+
+    log = tmp_path / "rover.mcap"
+    simulate("rover", log, duration_s=45.0, seed=8, lidar=False, start="moving", wheel_errors=False,
+             wheel_radius_scale=[1.03, 1.03], wheel_slip_bursts=3, gps=True, gps_noise_m=[0.02, 0.04],
+             gps_invalid_fraction=0.02)
+    run = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0)))
+    gps = run.metrics["clocks"]["gps"]
+    assert gps["measured"] and gps["gain"] < 1.2
+    assert not any("--time-offset" in n for n in run.notes), run.notes
