@@ -22,7 +22,8 @@ class TrueMotion:
         truth = json.loads(Path(truth_path).read_text())
         conditions = truth.get("conditions", {})
         self.scenario = build_scenario(truth["scenario"], start=conditions.get("start", "still"),
-                                       tilt_scale=conditions.get("tilt_scale", 1.0))
+                                       tilt_scale=conditions.get("tilt_scale", 1.0),
+                                       stops=tuple((s["start_s"], s["duration_s"]) for s in truth.get("stops", ())))
         self.T_base_lidar = np.asarray(truth["T_base_lidar"], dtype=np.float64)
         self.start_ns = int(truth["start_ns"])
 

@@ -11,9 +11,11 @@ import math
 from dataclasses import asdict, dataclass, fields
 
 from ..errors import ConfigError
+from .stops import check_stops
 
 TIME_CONVENTIONS = ("velodyne", "ouster", "livox", "hesai")
 STARTS = ("still", "moving", "accelerating")
+STILL_REST_S = 1.5  # --start still: at rest this long before the platform moves off
 GT_TYPES = ("pose", "odometry", "none")
 MAX_TILT_SCALE = 5.0  # the handheld's sway then reaches +-26 deg of pitch
 MAX_DURATION_S = 3600.0  # ray-cast scenarios: simulate longer runs in pieces
@@ -79,6 +81,7 @@ class SimulationOptions:
     gps_covariance: str | None = None
     wheel_slip_bursts: int = 0  # slip bursts on top of the error model's one episode (drawn from the seed)
     lidar: bool = True  # False: no LiDAR topic (a cheap log for IMU, wheel and GPS work)
+    stops: tuple[tuple[float, float], ...] = ()  # (at_s, seconds) of each standstill mid-log, in time order
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -87,7 +90,7 @@ class SimulationOptions:
 CONDITION_DEFAULTS = {
     "start": "still", "tilt_scale": 1.0, "imu_rotation_deg": None, "imu_lever_arm_m": None, "imu_start_delay_s": 0.0,
     "gt_type": None, "gt_topic": "/ground_truth", "gt_twist": False, "tf_static": True, "wheel": None, "gps": False,
-    "lidar": True,
+    "lidar": True, "stops": (),
 }
 
 
@@ -116,11 +119,12 @@ _FLAGS = {"imu_rate_hz": "--imu-rate", "imu_time_offset_s": "--imu-time-offset",
           "gyro_bias_radps": "--gyro-bias", "imu_rotation_deg": "--imu-rotation", "imu_lever_arm_m": "--imu-lever-arm",
           "imu_start_delay_s": "--imu-start-delay", "gps_rate_hz": "--gps-rate", "gps_noise_m": "--gps-noise",
           "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid", "tilt_scale": "--tilt-scale",
-          "gps_alt_wander_m": "--gps-alt-wander", "gps_jump_m": "--gps-jump", "wheel_slip_bursts": "--wheel-slip-bursts"}
+          "gps_alt_wander_m": "--gps-alt-wander", "gps_jump_m": "--gps-jump", "wheel_slip_bursts": "--wheel-slip-bursts",
+          "stops": "--stop"}
 
 
 def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
-    """One ConfigError line for the first option that cannot work."""
+    """One ConfigError line for the first option that cannot work; puts ``opts.stops`` in time order."""
     static = scenario == "static"
     limit = MAX_STATIC_DURATION_S if static else MAX_DURATION_S
     if not (duration_s > 0 and math.isfinite(duration_s)):
@@ -211,7 +215,7 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
                       "--imu-start-delay": opts.imu_start_delay_s or None, "--start": None if opts.start == "still" else opts.start,
                       "--tilt-scale": None if opts.tilt_scale == 1.0 else opts.tilt_scale,
                       "--wheel": opts.wheel or None, "--gps": opts.gps or None,
-                      "--no-lidar": None if opts.lidar else True}
+                      "--no-lidar": None if opts.lidar else True, "--stop": opts.stops or None}
         used = [flag for flag, v in lidar_only.items() if v is not None]
         if used:
             raise ConfigError(f"{used[0]} does not apply to the static scenario (an IMU at rest, no LiDAR, wheels or GPS)")
@@ -219,3 +223,5 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
         raise ConfigError(f"--wheel: the {scenario} scenario has no wheels")
     if opts.wheel_slip_bursts and (scenario in ("handheld", "drone", "static") or opts.wheel is False):
         raise ConfigError("--wheel-slip-bursts needs wheels (drive, corridor, planar or rover, without --no-wheel)")
+    if opts.stops:
+        opts.stops = check_stops(opts.stops, STILL_REST_S if opts.start == "still" else 0.0, duration_s)

@@ -21,7 +21,9 @@ import numpy as np
 
 from ..geometry import make_pose
 from .motion import Path2D, Progress, Sines, Trajectory, ypr_to_matrix
+from .options import STILL_REST_S
 from .sensors import LaserSpec, LidarSpec, WheelSpec
+from .stops import StoppedTrajectory
 from .world import World, footprint_clearance
 
 SCENARIOS = ("handheld", "drive", "corridor", "planar", "rover", "drone")  # the LiDAR scenarios
@@ -36,7 +38,7 @@ class Scenario:
     name: str
     description: str
     world: World
-    trajectory: Trajectory
+    trajectory: Trajectory | StoppedTrajectory
     T_base_imu: np.ndarray
     T_base_lidar: np.ndarray | None
     lidar: LidarSpec | LaserSpec | None
@@ -246,7 +248,7 @@ def _start_times(start: str, ramp_s: float = 1.5, fade_s: float = 1.5) -> tuple[
     """(Progress.t_rest_s, Trajectory.t_rest_s, Scenario.rest_s): 1.5 s at rest, or (moving) the speed ramp,
     the progress wobble's fade-in (2 ramps long) and the sway fade-in all over by t = 0."""
     if start == "still":
-        return 1.5, 1.5, 1.5
+        return STILL_REST_S, STILL_REST_S, STILL_REST_S
     if start == "moving":
         return -3.0 * ramp_s, -fade_s, 0.0
     if start == "accelerating":  # mid-ramp at t = 0: half the speed, the ramp's largest acceleration
@@ -255,14 +257,17 @@ def _start_times(start: str, ramp_s: float = 1.5, fade_s: float = 1.5) -> tuple[
 
 
 def build_scenario(name: str, beams: int | None = None, columns: int | None = None, start: str = "still",
-                   tilt_scale: float = 1.0) -> Scenario:
+                   tilt_scale: float = 1.0, stops: tuple[tuple[float, float], ...] = ()) -> Scenario:
     """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``, starting ``start``
-    (still, moving or accelerating), its roll and pitch sway scaled by ``tilt_scale``."""
+    (still, moving or accelerating), its roll and pitch sway scaled by ``tilt_scale``, standing still at
+    ``stops`` ((at_s, seconds) pairs, checked and in time order: see :mod:`.stops`)."""
     sc = _scenario(name, beams, columns, start)
     if tilt_scale != 1.0 and sc.trajectory is not None:
         traj = sc.trajectory
         traj.roll, traj.pitch = (replace(sig, amps=tuple(tilt_scale * a for a in sig.amps))
                                  for sig in (traj.roll, traj.pitch))
+    if stops:
+        sc.trajectory = StoppedTrajectory(sc.trajectory, tuple(stops))
     return sc
 
 
