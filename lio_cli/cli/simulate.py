@@ -10,6 +10,7 @@ import typer
 
 from ..simulation import ALL_SCENARIOS, FORMATS, STARTS, TIME_CONVENTIONS, simulate
 from ..simulation.options import GPS_COVARIANCES, GPS_MODELS, GT_TYPES, parse_floats
+from ..simulation.stops import RAMP_S, parse_stop
 from .common import (CALIBRATION_PANEL, FLAG, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, ForceOpt, JsonOpt, LioCommand,
                      QuietOpt, note, one_of, print_json, progress_bar, shown)
 
@@ -31,8 +32,9 @@ errors, GPS georeference) and x.sim.metrics.json (resolved options, topics, wall
 
 Topics: /points or /scan (frame lidar), /imu, /wheel/odom (not handheld, drone), /ground_truth, /tf_static
 (base -> imu, lidar, gps), /gps/fix with --gps. The platform stands still for the first 1.5 s unless
---start moving. The same arguments and --seed give the same bytes. The conditions of real recordings
-(moving start, any IMU mounting, clock offsets, no /tf_static...) are described in docs/commands/simulate.md.
+--start moving, and mid-log where --stop says. The same arguments and --seed give the same bytes. The
+conditions of real recordings (moving start, any IMU mounting, clock offsets, no /tf_static...) are described
+in docs/commands/simulate.md.
 
 The error model has options of its own, left out below and described there: --range-noise, --dropout,
 --max-range, --accel-noise, --gyro-noise, --accel-walk, --gyro-walk, --accel-bias, --gyro-bias,
@@ -48,6 +50,7 @@ wander, a multipath jump, optimistic covariance), --gps-alt-wander, --gps-jump a
   lio simulate handheld upside.mcap --imu-rotation 180,0,90 --no-tf-static
   lio simulate corridor corridor_ros2 --format ros2 --gps
   lio simulate rover field.mcap --start moving --gps-model consumer
+  lio simulate drive lights.mcap --duration 45 --stop 20:5 --stop 37:10
   lio simulate static allan.mcap --duration 7200
   lio simulate planar office.mcap --noise-scale 0 --json   # ideal sensors
 """
@@ -68,6 +71,7 @@ def simulate_cmd(
     out: Annotated[Path, typer.Argument(metavar="OUT", help="Output log: x.bag, x.mcap or a ROS 2 folder.", show_default=False)],
     start: Annotated[Start, typer.Option("--start", metavar=one_of(Start), help="still: at rest for 1.5 s; moving: in motion at every sensor's first sample; accelerating: half-way up its speed ramp (drive).", rich_help_panel=MOTION_PANEL)] = "still",
     tilt_scale: Annotated[float, typer.Option("--tilt-scale", help="Scale of the roll and pitch sway (0..5; 0: level).", rich_help_panel=MOTION_PANEL)] = 1.0,
+    stop: Annotated[Optional[list[str]], typer.Option("--stop", metavar="AT:SECONDS", help=f"Stand exactly still for SECONDS from AT (seconds since the start), braking over the {RAMP_S:g} s before AT and driving off over the {RAMP_S:g} s after (repeat); may run past the end: the log ends parked.", show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     beams: Annotated[Optional[int], typer.Option("--beams", help=shown("LiDAR beams: 16, 32, 64 or 128.", "16; drive 32"), show_default=False, rich_help_panel=SENSORS_PANEL)] = None,
     columns: Annotated[Optional[int], typer.Option("--columns", help=shown("LiDAR columns per turn (planar: LaserScan beams).", "1024; planar 720"), show_default=False, rich_help_panel=SENSORS_PANEL)] = None,
     imu_rate: Annotated[float, typer.Option("--imu-rate", help="IMU rate in Hz.", rich_help_panel=SENSORS_PANEL)] = 200.0,
@@ -129,6 +133,7 @@ def simulate_cmd(
                        ("gps_covariance", gps_covariance)):
         if value is not None:
             gps_opts[key] = value
+    stops = tuple(parse_stop(text) for text in stop or ())
     t0 = time.perf_counter()
     with progress_bar(f"simulating {scenario}", duration, quiet) as advance:
         res = simulate(
@@ -145,7 +150,8 @@ def simulate_cmd(
             imu_rotation_deg=parse_floats(imu_rotation, 3, "--imu-rotation"),
             imu_lever_arm_m=parse_floats(imu_lever_arm, 3, "--imu-lever-arm"), imu_start_delay_s=imu_start_delay,
             gt_type=gt_type, gt_topic=gt_topic, gt_twist=gt_twist, tf_static=tf_static, wheel=wheel,
-            gps=gps or bool(gps_opts), wheel_slip_bursts=wheel_slip_bursts, lidar=lidar, **gps_opts,
+            gps=gps or bool(gps_opts), wheel_slip_bursts=wheel_slip_bursts, lidar=lidar, stops=stops,
+            **gps_opts,
         )
     wall = time.perf_counter() - t0
     summary = res.to_dict()
