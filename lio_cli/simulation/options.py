@@ -2,7 +2,7 @@
 
 Every field has a default that reproduces the logs made before the field existed, byte for byte; the
 fields added for real-log conditions (start state, IMU mounting, ground-truth topic, start order of the
-drivers, extrinsics in the log, wheels, GPS) are listed in :data:`CONDITION_DEFAULTS`.
+drivers, extrinsics in the log, wheels, GPS, stops mid-log) are listed in :data:`CONDITION_DEFAULTS`.
 """
 
 from __future__ import annotations
