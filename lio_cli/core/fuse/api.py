@@ -12,7 +12,7 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import graph, heave, shape, wheel_slip
+from . import graph, heave, rest, shape, wheel_slip
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
@@ -114,6 +114,7 @@ def _wheel_speed_backed(prep: Prepared) -> bool:
 def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
     """``prepare``, and a note where the odometry's scale is off the wheels' beyond a radius error."""
     prep = prepare(inputs, o)
+    prep.rest = rest.rest_spans(prep, o.gravity_mps2)
     note = graph_wheels.odometry_scale_note(prep.wheel, prep.odom)
     if note:
         prep.notes.append(note)
@@ -234,6 +235,7 @@ def _common_info(prep: Prepared, o: FuseOptions) -> dict:
         "span_ns": [prep.t0_ns, prep.t1_ns],
         "covered_s": sum(b - a for a, b in prep.coverage) * 1e-9,
         "motion_gaps": len(prep.coverage) - 1,
+        "rest": rest.summary(prep.rest),
         "outputs_dropped_outside_data": prep.out_dropped,
         "outputs_in_gyro_gaps": prep.gyro_gaps.outputs if prep.gyro_gaps is not None else 0,
         "notes": list(prep.notes),

@@ -51,6 +51,7 @@ class Prepared:
     wheel_yaw_weighed: Weighed | None = None  # the wheels' yaw rate weighed against the gyro (FuseOptions.wheel_yaw)
     heave_accel: bool = False  # the accelerometer selected, though the planar filter leaves it out (heave.py)
     gyro_gaps: GyroGaps | None = None  # the gyro's gaps inside the coverage, where it has any
+    rest: np.ndarray | None = None  # (n, 2) ns spans at rest after the start (``rest``)
 
     @property
     def wheel_yaw_check(self) -> dict | None:

@@ -1,0 +1,109 @@
+"""Where the base stands still after the start: a car at a light, a robot pausing, a log that ends parked.
+
+A span is at rest where, over every ``WINDOW_S`` window of it, the IMU reads as at rest (the thresholds the
+standing start uses, ``initial``) and the wheels (or, without them, the odometry) report no motion; at least
+``MIN_REST_S`` long, ``EDGE_S`` trimmed from each end. At constant velocity an IMU reads exactly as at rest, so a
+log with neither wheels nor odometry has no rest spans. The span the log starts in is the standing start's, which
+``initial_state`` measured already, and is left out. There the true turn rate is zero, so the gyro's reading is
+its bias: the filters take a zero turn rate, the graph zero motion between keyframes, and the smoother carries a
+bias measured at a stop back over the whole log (a moving start measures none).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .initial import ACCEL_STILL_MPS2, GYRO_STILL_RADPS, MAX_GYRO_BIAS_RADPS, STILL_SPEED_MPS
+from .timeline import Prepared
+
+WINDOW_S = 0.5
+MIN_REST_S = 0.5
+EDGE_S = 0.25  # the last of the braking and the first of the pull-away, left out
+STILL_YAW_RADPS = 0.01  # the wheels' yaw rate of a base at rest (a slow turn on the spot is not rest)
+# the turn rate at rest is zero but for what an idling engine or a gust turns the base by: the zero-rate
+# pseudo-measurement's sigma (its many samples, not this, measure the bias)
+REST_RATE_SIGMA_RADPS = 1e-2
+REST_POSITION_SIGMA_M = 1e-3  # the graph's zero motion between two keyframes at rest
+REST_VELOCITY_SIGMA_MPS = 1e-3
+
+
+def rest_spans(prep: Prepared, gravity_mps2: float) -> np.ndarray:
+    """(n, 2) int64 [start, end] ns of the spans at rest after the start (module docstring); (0, 2) where none."""
+    none = np.zeros((0, 2), np.int64)
+    imu = prep.imu
+    wheel = prep.wheel if "wheel" in prep.use and prep.wheel is not None and len(prep.wheel) else None
+    odom = prep.odom if "odom" in prep.use and prep.odom is not None and len(prep.odom) > 1 else None
+    if imu is None or prep.imu_w_b is None or "gyro" not in prep.use.get("imu", ()) or (wheel is None and odom is None):
+        return none
+    t = imu.stamps_ns
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    n = int(round(WINDOW_S * 1e9 / period)) if period > 0 else 0
+    m = len(t) // n if n >= 10 else 0
+    if m < 2:
+        return none
+    w = prep.imu_w_b[:m * n].reshape(m, n, 3)
+    f = imu.accel_mps2[:m * n].reshape(m, n, 3)
+    a, b = t[:m * n:n], t[n - 1:m * n:n]
+    w_mean = w.mean(axis=1)
+    still = ((np.linalg.norm(w - w_mean[:, None], axis=2).max(axis=1) < GYRO_STILL_RADPS)
+             & (np.abs(np.linalg.norm(f, axis=2) - gravity_mps2).max(axis=1) < ACCEL_STILL_MPS2)
+             & (np.linalg.norm(w_mean, axis=1) < MAX_GYRO_BIAS_RADPS)
+             & (b - a <= 1.5 * WINDOW_S * 1e9))  # no IMU gap inside
+    still &= _wheels_still(wheel, a, b) if wheel is not None else _odom_still(odom, a, b)
+    spans = []
+    k = 0
+    while k < m:
+        if not still[k]:
+            k += 1
+            continue
+        j = k
+        while j + 1 < m and still[j + 1] and a[j + 1] - b[j] <= 2.0 * period:  # no IMU gap between
+            j += 1
+        if k > 0:  # the start's own: ``initial_state`` measured it
+            spans.append((int(a[k]), int(b[j])))
+        k = j + 1
+    edge = int(EDGE_S * 1e9)
+    out = [(s + edge, e - edge) for s, e in spans if (e - s) - 2 * edge >= MIN_REST_S * 1e9]
+    return np.array(out, np.int64).reshape(-1, 2)
+
+
+def _wheels_still(wheel, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per window [a, b]: at least one wheel message inside, every one at rest (speed, and yaw rate where given)."""
+    speed = np.abs(np.nan_to_num(wheel.velocity_mps[:, 0], nan=np.inf))
+    yaw = np.abs(np.nan_to_num(wheel.yaw_rate_radps, nan=0.0))
+    moving = np.cumsum(np.r_[0, (speed >= STILL_SPEED_MPS) | (yaw >= STILL_YAW_RADPS)])
+    i0, i1 = np.searchsorted(wheel.stamps_ns, a, "left"), np.searchsorted(wheel.stamps_ns, b, "right")
+    return (i1 > i0) & (moving[i1] == moving[i0])
+
+
+def _odom_still(odom, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per window [a, b]: the odometry's poses within it (two at least) moved and turned less than a base at rest."""
+    i0, i1 = np.searchsorted(odom.stamps_ns, a, "left"), np.searchsorted(odom.stamps_ns, b, "right") - 1
+    ok = i1 > i0
+    i0c, i1c = np.minimum(i0, len(odom) - 1), np.clip(i1, 0, len(odom) - 1)
+    d = np.linalg.norm(odom.poses[i1c, :3, 3] - odom.poses[i0c, :3, 3], axis=1)
+    dR = np.einsum("nji,njk->nik", odom.poses[i0c, :3, :3], odom.poses[i1c, :3, :3])
+    angle = np.arccos(np.clip((np.trace(dR, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    dt = np.maximum((odom.stamps_ns[i1c] - odom.stamps_ns[i0c]) * 1e-9, 1e-9)
+    return ok & (d / dt < STILL_SPEED_MPS) & (angle / dt < STILL_YAW_RADPS)
+
+
+def at_rest(spans: np.ndarray | None, stamps_ns: np.ndarray) -> np.ndarray:
+    """Per stamp: inside one of ``spans``."""
+    if spans is None or not len(spans):
+        return np.zeros(len(stamps_ns), bool)
+    j = np.searchsorted(spans[:, 0], stamps_ns, "right") - 1
+    return (j >= 0) & (stamps_ns <= spans[np.maximum(j, 0), 1])
+
+
+def summary(spans: np.ndarray | None) -> dict | None:
+    """The spans for the metrics, or None without any."""
+    if spans is None or not len(spans):
+        return None
+    seconds = float(np.sum(spans[:, 1] - spans[:, 0])) * 1e-9
+    return {"spans": len(spans), "seconds": round(seconds, 2), "span_ns": spans.tolist(),
+            "why": f"{len(spans)} stop{'s' if len(spans) > 1 else ''} after the start ({seconds:.1f} s) where the "
+                   f"wheels (or odometry) and the IMU stood still: the gyro's reading there taken as its bias"}
+
+
+__all__ = ["at_rest", "rest_spans", "summary"]
