@@ -23,7 +23,8 @@ from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .gyro_gaps import in_gyro_gap
 from .inputs import FuseOptions
-from .kalman import Anchor, Gate, KnotLog
+from .kalman import Anchor, Gate, KnotLog, consider_update
+from .rest import REST_RATE_SIGMA_RADPS, at_rest
 from .result import pose_covariance_index
 from .sanitize import median_period_ns
 from .state3d import (
@@ -67,6 +68,9 @@ class Ekf3d:
         self.imu_gap = prep.imu_gap_ns
         period = median_period_ns(imu.stamps_ns) if imu is not None else 0
         self.gyro_var = self.noise.gyro_noise_density**2 / (period * 1e-9) if period > 0 else 0.0
+        self.resting = at_rest(prep.rest, prep.imu.stamps_ns) if self.L.model != "cv" and prep.imu is not None \
+            else None
+        self.bias_states = np.isin(np.arange(self.L.n), np.arange(self.L.n)[DB])  # what a filtered rest update changes
         self.smooth = options.smooth
         self.cov_index = pose_covariance_index(TH, DP)
         self.log = KnotLog(options.smooth, self.cov_index if options.want_covariance else None)
@@ -178,6 +182,16 @@ class Ekf3d:
     def _open(self, t: int, x, P) -> None:
         if self.log.open(t, x, P, self.Phi if self.smooth else None) and self.smooth:
             self.Phi = np.eye(self.L.n)
+
+    def _rest(self, t: int, i: int, x, P) -> None:
+        """A zero rate: smoothed, an update like any; filtered, only the gyro bias takes it (``consider_update``),
+        so the pose does not jump when the robot stops."""
+        r, H, Rn = m3.zero_rate(np.array(x), self.prep.imu_w_b[i], self.gyro_var, REST_RATE_SIGMA_RADPS**2, self.L)
+        if self.smooth:
+            return self._update(t, x, P, r, H, Rn, "imu", "zero_rate")
+        self._open(t, x, P)
+        P[...] = consider_update(x, P, r, H, Rn, self.inject, self.bias_states)
+        self.imu_rep.outcome("zero_rate", "ok")
 
     def _wheel(self, t: int, i: int, x, P) -> None:
         row = self.wheel_rows[i]
@@ -327,6 +341,8 @@ class Ekf3d:
                     imu_rep.predictions += 1
                 if use_orientation and valid_or[i]:
                     self._orientation(t, i, x, P)
+                if self.resting is not None and self.resting[i]:  # no turn: the gyro reads its bias (``rest``)
+                    self._rest(t, i, x, P)
             elif kind == WHEEL:
                 self._wheel(t, i, x, P)
             elif kind == ODOM:

@@ -162,6 +162,19 @@ def kalman_update(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn
     return P - K @ PHt.T, status  # symmetric up to rounding; callers symmetrise once per time step
 
 
+def consider_update(x, P: np.ndarray, r: np.ndarray, H: np.ndarray, Rn: np.ndarray,
+                    inject: Callable[[np.ndarray, np.ndarray], None], keep: np.ndarray) -> np.ndarray:
+    """A Schmidt ("consider") update: the error states ``keep`` (a mask) take the measurement, the others keep
+    their value (their gain zeroed); the returned P, by the Joseph form, is that estimate's covariance. A filter's
+    pose then does not jump where a measurement is about its biases (``rest``)."""
+    PHt = P @ H.T
+    K = PHt @ small_inv(H @ PHt + Rn)
+    K[~keep] = 0.0
+    inject(x, K @ r)
+    A = np.eye(len(P)) - K @ H
+    return A @ P @ A.T + K @ Rn @ K.T
+
+
 class KnotLog:
     """Filter states at knots. With ``for_smoother`` every knot keeps predicted and filtered state and
     covariance and ``Phi``; without, only output knots keep their filtered state and the block

@@ -44,6 +44,13 @@ def yaw_rate(x: np.ndarray, z: float, var: float, w_b: np.ndarray | None, gyro_v
     return np.array([z - (w_b[2] - x[B_][2])]), H, np.array([[var + gyro_var]])
 
 
+def zero_rate(x: np.ndarray, w_b: np.ndarray, gyro_var: float, rest_var: float, L: Layout):
+    """At rest (``rest``): the true rate ``w_b - b`` is zero, so the gyro's reading measures its bias (3 axes)."""
+    H = np.zeros((3, L.n))
+    H[:, DB] = -_EYE3
+    return x[B_] - w_b, H, np.eye(3) * (gyro_var + rest_var)
+
+
 def pose_absolute(x: np.ndarray, T_meas: np.ndarray, pos_var: float, rot_var: float, L: Layout):
     """A pose ``T_world_base`` in the fused world: residual ``[rotation (3), position (3)]``."""
     H = np.zeros((6, L.n))

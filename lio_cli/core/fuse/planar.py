@@ -21,12 +21,13 @@ from ...geometry import inv_pose, yaw_of
 from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
-from .kalman import Anchor, Gate, KnotLog, kalman_update
+from .kalman import Anchor, Gate, KnotLog, consider_update, kalman_update
 from .result import FuseResult, anchor_to_origin
 from .sanitize import median_period_ns
 from .smoother import rts_smooth
 from .state3d import CLONE_DUMMY_VAR, GAP_TAU_S, GPS_HEADING_SIGMA_RAD, GPS_START_POSITION_SIGMA_M
 from .pieces import planar_handover
+from .rest import REST_RATE_SIGMA_RADPS, at_rest
 from .planar_model import (BW, TH, V, W, X, Y, delta_residual, predict, predict_gap, predict_turn_decay,
                            turn_rate_walk, wrap)
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
@@ -67,6 +68,8 @@ class PlanarEkf:
         gg = prep.gyro_gaps if self.use_gyro else None
         self.gyro_runs = (gg.run_starts, gg.run_ends) if gg is not None else None
         self.gap_yaw, self.gap_yaw_var = (gg.yaw_radps, gg.yaw_var) if gg is not None else (None, None)
+        self.resting = at_rest(prep.rest, prep.imu.stamps_ns) if self.use_gyro else None
+        self.rate_states = np.isin(np.arange(self.n), [W, BW])  # what a filtered rest update changes
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -155,13 +158,27 @@ class PlanarEkf:
         prep = self.prep
         if self.use_gyro:
             z = prep.imu_w_b[i][2]
-            P = self._update(t, x, P, np.array([z - x[W] - x[BW]]), self._row({W: 1.0, BW: 1.0}),
-                             np.array([[self.gyro_var]]), "imu", "gyro")
+            r, H, Rn = np.array([z - x[W] - x[BW]]), self._row({W: 1.0, BW: 1.0}), np.array([[self.gyro_var]])
+            if not self.resting[i]:
+                P = self._update(t, x, P, r, H, Rn, "imu", "gyro")
+            else:  # at rest (``rest``): no turn, so the gyro reads its bias
+                P = self._rest(t, x, P, r, H, Rn, "gyro")
+                P = self._rest(t, x, P, np.array([-x[W]]), self._row({W: 1.0}),
+                               np.array([[REST_RATE_SIGMA_RADPS**2]]), "zero_rate")
         if prep.imu_R_wb is not None and prep.imu.orientation_valid[i]:
             z = float(yaw_of(prep.imu_R_wb[i]))
             P = self._update(t, x, P, np.array([wrap(z - x[TH])]), self._row({TH: 1.0}),
                              np.array([[prep.imu.orientation_cov[i][2, 2]]]), "imu", "orientation")
         return P
+
+    def _rest(self, t, x, P, r, H, Rn, kind):
+        """An update at rest. Smoothed, like any (the smoother carries the bias back); filtered, only the rates
+        take it (``consider_update``): the filter's pose does not jump when the robot stops."""
+        if self.o.smooth:
+            return self._update(t, x, P, r, H, Rn, "imu", kind)
+        self._open(t, x, P)
+        self.prep.reports["imu"].outcome(kind, "ok")
+        return consider_update(x, P, r, H, Rn, self.boxplus, self.rate_states)
 
     def _wheel(self, t, i, x, P):
         w, use = self.prep.wheel, self.prep.use["wheel"]

@@ -26,7 +26,7 @@ from gtsam.symbol_shorthand import B, G, V, X
 
 from ..step3d import wheel_velocity_rows
 from ..timeline import Prepared
-from . import gps, height, odom_spin, wheels
+from . import gps, height, odom_spin, rest, wheels
 from .gps import FREE_SIGMA
 from .imu import Segments
 from .keyframes import MERGE_NS, attach
@@ -171,6 +171,7 @@ class ChunkGraph:
         # heading over the whole log, the odometry's by far less
         self.yaw_loose = ODOM_YAW_SIGMA_SCALE if self.beside_odom else 1.0
         self.levelled = 0
+        self.rested = 0  # keyframe intervals held still (``rest``)
         if self.scaled:  # the forward sigma's share of the speed stood for a scale error: the scale carries it
             self.wheel = self.wheel.without_speed_share(meas.noise.wheel_speed_sigma_mps**2)
         self.scale_start: dict[int, float] = {}  # chunk's first keyframe -> its wheel scale from the pre-pass
@@ -239,6 +240,7 @@ class ChunkGraph:
             self._scaled_wheels(g, k0, scaled)
         if self.level is not None:
             self.levelled += height.add(g, self.level, float(self.s["p"][0, 2]), k0, k1)
+        self.rested += rest.add(g, m.kt, m.prep.rest, k0, k1)
         return g
 
     def _scaled_wheels(self, g, k0: int, incs: list[tuple[int, np.ndarray, np.ndarray, gtsam.Rot3]]) -> None:

@@ -77,6 +77,8 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
             "iterations": iterations, "initial_error": stats.initial_error, "final_error": stats.final_error,
             "imu_bridged": cg.bridged, "accel_noise_scale": scale, "residuals_filter": before, "residuals_smoothed": after, "fallback": why,
             "refused": [t for t in tries if t]}
+    if cg.rested:
+        info["rest_intervals"] = cg.rested
     if cg.wheel_info() is not None:
         info["wheel"] = cg.wheel_info()
     if meas.odom_spin is not None:  # the odometry increments' rotation scatter about the gyro's (odom_spin)

@@ -1,0 +1,28 @@
+"""The graph at rest (``core.fuse.rest``): zero motion between consecutive keyframes inside one span at rest, and
+zero velocity at each, so the IMU factors there explain the gyro's and accelerometer's readings as their biases."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import V, X
+
+from ..rest import REST_POSITION_SIGMA_M, REST_RATE_SIGMA_RADPS, REST_VELOCITY_SIGMA_MPS
+
+
+def add(g: gtsam.NonlinearFactorGraph, kt: np.ndarray, spans: np.ndarray | None, k0: int, k1: int) -> int:
+    """The rest factors of keyframes [k0, k1) (their count)."""
+    if spans is None or not len(spans):
+        return 0
+    j = np.searchsorted(spans[:, 0], kt[k0:k1], "right") - 1
+    inside = (j >= 0) & (kt[k0:k1] <= spans[np.maximum(j, 0), 1])
+    vel = gtsam.noiseModel.Isotropic.Sigma(3, REST_VELOCITY_SIGMA_MPS)
+    n = 0
+    for a in np.flatnonzero(inside[:-1] & inside[1:] & (j[:-1] == j[1:])).tolist():
+        k = k0 + a
+        dt = (kt[k + 1] - kt[k]) * 1e-9
+        sig = np.r_[np.full(3, REST_RATE_SIGMA_RADPS * dt), np.full(3, REST_POSITION_SIGMA_M)]
+        g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        g.add(gtsam.PriorFactorVector(V(k), np.zeros(3), vel))
+        n += 1
+    return n
