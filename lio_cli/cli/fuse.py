@@ -173,6 +173,9 @@ def _report(run: FuseRun, written: list[Path], quiet: bool) -> None:
     yaw = (m.get("core") or {}).get("wheel_yaw_check")
     if yaw:
         note(f"wheel yaw rate: {yaw['why']}", quiet)
+    rest = (m.get("core") or {}).get("rest")
+    if rest:
+        note(f"at rest: {rest['why']}", quiet)
     if written:
         note(f"wrote {', '.join(str(p) for p in written)}", quiet)
 
