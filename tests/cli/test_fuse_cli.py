@@ -230,3 +230,19 @@ def test_bare_use_wheel_weighs_the_yaw_rate_as_the_default_does(capsys, planar, 
     assert not weighed or check["why"].startswith("the wheels' yaw rate follows their speed (")
     assert m["sources"]["wheel"]["measurements"] == ["speed"]
     assert yaml.safe_load(out.with_name("w.fuse.config.yaml").read_text())["weigh_wheel_yaw"] is weighed
+
+
+def test_a_stop_after_a_moving_start_is_said(capsys, tmp_path):
+    """A car already moving at its first sample stops from 8 to 12 s: the summary says where it stood still, the
+    IMU's line counts the zero-rate updates, and metrics.json holds the span inside the stop."""
+    log = tmp_path / "lights.mcap"
+    simulate("drive", log, duration_s=20.0, seed=8, lidar=False, start="moving", stops=((8.0, 4.0),))
+    out = tmp_path / "fused.tum"
+    code, _, err = _run(capsys, log, "-o", out, "--rate", 50)
+    assert code == 0, err
+    assert "at rest: 1 stop after the start (3.5 s) where the wheels (or odometry) and the IMU stood still" in err
+    assert " zero rate updates" in err
+    m = json.loads((tmp_path / "fused.fuse.metrics.json").read_text())
+    (a, b), = (np.array(m["core"]["rest"]["span_ns"]) - json.loads(log.with_suffix(".truth.json").read_text())
+               ["start_ns"]) * 1e-9
+    assert 8.0 <= a < 8.8 and 11.2 < b <= 12.0
