@@ -23,7 +23,8 @@ STILL_YAW_RADPS = 0.01  # the wheels' yaw rate of a base at rest (a slow turn on
 # the turn rate at rest is zero but for what an idling engine or a gust turns the base by: the zero-rate
 # pseudo-measurement's sigma (its many samples, not this, measure the bias)
 REST_RATE_SIGMA_RADPS = 1e-2
-REST_POSITION_SIGMA_M = 1e-3  # the graph's zero motion between two keyframes at rest
+REST_POSITION_SIGMA_M = 1e-3  # the graph's zero motion between two keyframes at rest ...
+REST_ROTATION_SIGMA_RAD = 1e-4  # ... and zero turn (a vibration's turns average out over a keyframe interval)
 REST_VELOCITY_SIGMA_MPS = 1e-3
 
 

@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from ..rest import REST_POSITION_SIGMA_M, REST_RATE_SIGMA_RADPS, REST_VELOCITY_SIGMA_MPS
+from ..rest import REST_POSITION_SIGMA_M, REST_ROTATION_SIGMA_RAD, REST_VELOCITY_SIGMA_MPS
 
 
 def add(g: gtsam.NonlinearFactorGraph, kt: np.ndarray, spans: np.ndarray | None, k0: int, k1: int) -> int:
@@ -20,8 +20,7 @@ def add(g: gtsam.NonlinearFactorGraph, kt: np.ndarray, spans: np.ndarray | None,
     n = 0
     for a in np.flatnonzero(inside[:-1] & inside[1:] & (j[:-1] == j[1:])).tolist():
         k = k0 + a
-        dt = (kt[k + 1] - kt[k]) * 1e-9
-        sig = np.r_[np.full(3, REST_RATE_SIGMA_RADPS * dt), np.full(3, REST_POSITION_SIGMA_M)]
+        sig = np.r_[np.full(3, REST_ROTATION_SIGMA_RAD), np.full(3, REST_POSITION_SIGMA_M)]
         g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(sig)))
         g.add(gtsam.PriorFactorVector(V(k), np.zeros(3), vel))
         n += 1
