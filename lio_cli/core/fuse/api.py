@@ -47,6 +47,8 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     if o.smooth and shape.applies(prep):
         result = _shape_without_gps(inputs, given, prep, result)
     result.info.update(_common_info(prep, o))
+    if result.estimator == "complementary":  # it takes no zero rate at rest
+        result.info["rest"] = None
     if "heave" in result.info:  # the planar filter leaves the accelerometer out; its height came from it
         result.info["use"]["imu"] = sorted({*result.info["use"].get("imu", ()), "accel"})
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)

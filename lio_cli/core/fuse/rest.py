@@ -1,10 +1,11 @@
 """Where the base stands still after the start: a car at a light, a robot pausing, a log that ends parked.
 
 A span is at rest where, over every ``WINDOW_S`` window of it, the IMU reads as at rest (the thresholds the
-standing start uses, ``initial``) and the wheels (or, without them, the odometry) report no motion; at least
-``MIN_REST_S`` long, ``EDGE_S`` trimmed from each end. At constant velocity an IMU reads exactly as at rest, so a
-log with neither wheels nor odometry has no rest spans. The span the log starts in is the standing start's, which
-``initial_state`` measured already, and is left out. There the true turn rate is zero, so the gyro's reading is
+standing start uses, ``initial``) and the wheels report no speed in any direction they give and a measured yaw
+rate of none (without wheels, the odometry neither moves nor turns); at least ``MIN_REST_S`` long, ``EDGE_S``
+trimmed from each end. At constant velocity an IMU reads exactly as at rest, and a wheel message without a yaw
+rate cannot tell a turn on the spot from rest: those witness none. The spans before the base first moves are
+the start's, which ``initial_state`` measured already, and are left out. There the true turn rate is zero, so the gyro's reading is
 its bias: the filters take a zero turn rate, the graph zero motion between keyframes, and the smoother carries a
 bias measured at a stop back over the whole log (a moving start measures none).
 """
@@ -50,7 +51,11 @@ def rest_spans(prep: Prepared, gravity_mps2: float) -> np.ndarray:
              & (np.abs(np.linalg.norm(f, axis=2) - gravity_mps2).max(axis=1) < ACCEL_STILL_MPS2)
              & (np.linalg.norm(w_mean, axis=1) < MAX_GYRO_BIAS_RADPS)
              & (b - a <= 1.5 * WINDOW_S * 1e9))  # no IMU gap inside
-    still &= _wheels_still(wheel, a, b) if wheel is not None else _odom_still(odom, a, b)
+    still_base, moved = _wheels_still(wheel, a, b) if wheel is not None else _odom_still(odom, a, b)
+    still &= still_base
+    # the spans before the base first moves are the start's: ``initial_state`` measured them (or a driver that
+    # started late kept them from it)
+    first_move = int(np.argmax(moved)) if moved.any() else m
     spans = []
     k = 0
     while k < m:
@@ -60,7 +65,7 @@ def rest_spans(prep: Prepared, gravity_mps2: float) -> np.ndarray:
         j = k
         while j + 1 < m and still[j + 1] and a[j + 1] - b[j] <= 2.0 * period:  # no IMU gap between
             j += 1
-        if k > 0:  # the start's own: ``initial_state`` measured it
+        if k > first_move:
             spans.append((int(a[k]), int(b[j])))
         k = j + 1
     edge = int(EDGE_S * 1e9)
@@ -68,17 +73,24 @@ def rest_spans(prep: Prepared, gravity_mps2: float) -> np.ndarray:
     return np.array(out, np.int64).reshape(-1, 2)
 
 
-def _wheels_still(wheel, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per window [a, b]: at least one wheel message inside, every one at rest (speed, and yaw rate where given)."""
-    speed = np.abs(np.nan_to_num(wheel.velocity_mps[:, 0], nan=np.inf))
-    yaw = np.abs(np.nan_to_num(wheel.yaw_rate_radps, nan=0.0))
-    moving = np.cumsum(np.r_[0, (speed >= STILL_SPEED_MPS) | (yaw >= STILL_YAW_RADPS)])
+def _wheels_still(wheel, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per window [a, b]: (at rest: wheel messages inside, every one with no speed in any direction it gives and
+    a yaw rate, measured, of none; moved: one of them reports motion). A message without a yaw rate cannot tell a
+    turn on the spot from rest, so it witnesses no rest."""
+    v = wheel.velocity_mps
+    speed = np.hypot(np.nan_to_num(v[:, 0], nan=np.inf), np.hypot(np.nan_to_num(v[:, 1]), np.nan_to_num(v[:, 2])))
+    yaw = np.abs(wheel.yaw_rate_radps)
+    moving = (speed >= STILL_SPEED_MPS) | (yaw >= STILL_YAW_RADPS)  # NaN compares False: not seen moving
+    unsure = np.isnan(yaw) | np.isinf(speed)
     i0, i1 = np.searchsorted(wheel.stamps_ns, a, "left"), np.searchsorted(wheel.stamps_ns, b, "right")
-    return (i1 > i0) & (moving[i1] == moving[i0])
+    n_moving, n_unsure = np.cumsum(np.r_[0, moving]), np.cumsum(np.r_[0, moving | unsure])
+    moved = n_moving[i1] > n_moving[i0]
+    return (i1 > i0) & (n_unsure[i1] == n_unsure[i0]), moved
 
 
-def _odom_still(odom, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per window [a, b]: the odometry's poses within it (two at least) moved and turned less than a base at rest."""
+def _odom_still(odom, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per window [a, b]: (at rest: the odometry's poses within it, two at least, moved and turned less than a
+    base at rest; moved: they moved or turned more)."""
     i0, i1 = np.searchsorted(odom.stamps_ns, a, "left"), np.searchsorted(odom.stamps_ns, b, "right") - 1
     ok = i1 > i0
     i0c, i1c = np.minimum(i0, len(odom) - 1), np.clip(i1, 0, len(odom) - 1)
@@ -86,7 +98,8 @@ def _odom_still(odom, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     dR = np.einsum("nji,njk->nik", odom.poses[i0c, :3, :3], odom.poses[i1c, :3, :3])
     angle = np.arccos(np.clip((np.trace(dR, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
     dt = np.maximum((odom.stamps_ns[i1c] - odom.stamps_ns[i0c]) * 1e-9, 1e-9)
-    return ok & (d / dt < STILL_SPEED_MPS) & (angle / dt < STILL_YAW_RADPS)
+    still = (d / dt < STILL_SPEED_MPS) & (angle / dt < STILL_YAW_RADPS)
+    return ok & still, ok & ~still
 
 
 def at_rest(spans: np.ndarray | None, stamps_ns: np.ndarray) -> np.ndarray:

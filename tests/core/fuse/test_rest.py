@@ -37,7 +37,8 @@ def _motion(t: np.ndarray, stop: bool):
 
 def _drive(stop: bool = True, seed: int = 3, wheel_scale: float = 1.0):
     """(inputs, truth) of a level drive along a winding road; turns only while it moves (the turn rate is the
-    speed times the road's curvature)."""
+    speed times the road's curvature). The wheels give their yaw rate (what tells rest from a turn on the spot);
+    the runs below fuse their speed only (``USE``), so the gyro's bias is measured at the stop or nowhere."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, DURATION_S, 0.005)
     s, v, dv = _motion(t, stop)
@@ -51,12 +52,15 @@ def _drive(stop: bool = True, seed: int = 3, wheel_scale: float = 1.0):
     st = T0 + np.round(t * NS).astype(np.int64)
     tw = t[::4]
     wheel = WheelSeries(st[::4], np.column_stack([v[::4] / wheel_scale, np.full_like(tw, np.nan),
-                                                  np.full_like(tw, np.nan)]), np.full_like(tw, np.nan))
+                                                  np.full_like(tw, np.nan)]), yaw_rate[::4].copy())
     x, y = np.cumsum(v * np.cos(yaw) * dt), np.cumsum(v * np.sin(yaw) * dt)
     T = np.tile(np.eye(4), (len(t), 1, 1))
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw)
     T[:, 0, 3], T[:, 1, 3] = x, y
     return FuseInputs(imu=ImuSeries(st, gyro, f), wheel=wheel), Trajectory(st, T, "truth")
+
+
+USE = {"imu": {"gyro", "accel"}, "wheel": {"speed"}}
 
 
 def _ate(truth: Trajectory, res) -> float:
@@ -70,7 +74,7 @@ def _without_rest(monkeypatch):
 
 def test_the_stop_is_found_and_the_moving_start_left_alone():
     inputs, _ = _drive()
-    res = fuse(inputs, FuseOptions(rate_hz=50.0))
+    res = fuse(inputs, FuseOptions(rate_hz=50.0, use=USE))
     rest = res.info["rest"]
     assert rest["spans"] == 1
     (a, b), = (np.array(rest["span_ns"]) - T0) * 1e-9
@@ -83,7 +87,7 @@ def test_the_stop_is_found_and_the_moving_start_left_alone():
 
 def test_no_stop_no_rest():
     inputs, _ = _drive(stop=False)
-    assert fuse(inputs, FuseOptions(rate_hz=50.0)).info["rest"] is None
+    assert fuse(inputs, FuseOptions(rate_hz=50.0, use=USE)).info["rest"] is None
 
 
 @pytest.mark.parametrize("estimator, smooth, most", [
@@ -94,7 +98,7 @@ def test_no_stop_no_rest():
 ])
 def test_a_stop_measures_the_gyro_bias(monkeypatch, estimator, smooth, most):
     inputs, truth = _drive()
-    o = FuseOptions(estimator=estimator, smooth=smooth, rate_hz=50.0)
+    o = FuseOptions(estimator=estimator, smooth=smooth, rate_hz=50.0, use=USE)
     with_rest = _ate(truth, fuse(inputs, o))
     _without_rest(monkeypatch)
     without = _ate(truth, fuse(inputs, o))
@@ -107,7 +111,7 @@ def test_a_filter_does_not_jump_when_the_robot_stops(monkeypatch, estimator, mos
     one without them (the smoothers move it, over the whole log). The 3D filter's wheel updates at rest then move
     it by their correlations with the bias, by a centimetre (a full update: 0.39 m; the planar filter 0.55)."""
     inputs, _ = _drive()
-    o = FuseOptions(estimator=estimator, smooth=False, rate_hz=50.0)
+    o = FuseOptions(estimator=estimator, smooth=False, rate_hz=50.0, use=USE)
     res = fuse(inputs, o)
     a, b = res.info["rest"]["span_ns"][0]
     _without_rest(monkeypatch)
@@ -119,7 +123,7 @@ def test_a_filter_does_not_jump_when_the_robot_stops(monkeypatch, estimator, mos
 
 def test_the_graph_holds_the_base_still_at_rest():
     inputs, truth = _drive()
-    res = fuse(inputs, FuseOptions(estimator="ekf", smooth=True, rate_hz=50.0))
+    res = fuse(inputs, FuseOptions(estimator="ekf", smooth=True, rate_hz=50.0, use=USE))
     assert res.info["smoother"]["kind"] == "factor_graph" and res.info["smoother"]["rest_intervals"] > 40
     a, b = (np.array(res.info["rest"]["span_ns"][0]))
     inside = (res.stamps_ns >= a) & (res.stamps_ns <= b)
@@ -159,6 +163,12 @@ def test_rest_needs_the_wheels_still_not_turning_on_the_spot():
     p = _prep()
     p.wheel.velocity_mps[:, 0] = 0.2  # at constant velocity the IMU reads as at rest
     assert _span_s(p) == []
+    p = _prep()
+    p.wheel.velocity_mps[p.wheel.stamps_ns > T0 + NS, 1] = 0.5  # a holonomic base strafing
+    assert _span_s(p) == []
+    p = _prep()
+    p.wheel.yaw_rate_radps[:] = np.nan  # no yaw rate: a turn on the spot would read so
+    assert _span_s(p) == []
 
 
 def test_rest_by_the_odometry_without_wheels():
@@ -175,6 +185,20 @@ def test_the_start_rest_is_the_standing_start_s():
     p = _prep()
     p.wheel.velocity_mps[:, 0] = 0.0  # at rest from the first window: ``initial_state`` measured it
     assert _span_s(p) == []
+
+
+def test_a_wheel_driver_starting_late_is_still_the_start():
+    p = _prep()
+    p.wheel.velocity_mps[:, 0] = 0.0
+    late = p.wheel.stamps_ns >= T0 + 2 * NS  # at rest throughout, the wheels heard from 2 s on
+    p.wheel = _Series(stamps_ns=p.wheel.stamps_ns[late], velocity_mps=p.wheel.velocity_mps[late],
+                      yaw_rate_radps=p.wheel.yaw_rate_radps[late])
+    assert _span_s(p) == []
+
+
+def test_the_complementary_filter_claims_no_rest():
+    inputs, _ = _drive()
+    assert fuse(inputs, FuseOptions(estimator="complementary", rate_hz=50.0, use=USE)).info["rest"] is None
 
 
 def test_an_imu_gap_is_not_rest():
