@@ -110,6 +110,22 @@ def at_rest(spans: np.ndarray | None, stamps_ns: np.ndarray) -> np.ndarray:
     return (j >= 0) & (stamps_ns <= spans[np.maximum(j, 0), 1])
 
 
+def pieces_joined(pieces: list[tuple[dict | None, int, int]]) -> np.ndarray:
+    """The spans of a log fused in pieces: each piece's ``info["rest"]`` clipped to the span [a, b] it kept,
+    a stop cut by a seam joined again."""
+    out: list[list[int]] = []
+    for info, a, b in pieces:
+        for s, e in (info or {}).get("span_ns", []):
+            s, e = max(int(s), a), min(int(e), b)
+            if s >= e:
+                continue
+            if out and s <= out[-1][1] + 1:
+                out[-1][1] = max(out[-1][1], e)
+            else:
+                out.append([s, e])
+    return np.array(out, np.int64).reshape(-1, 2)
+
+
 def summary(spans: np.ndarray | None) -> dict | None:
     """The spans for the metrics, or None without any."""
     if spans is None or not len(spans):
@@ -120,4 +136,4 @@ def summary(spans: np.ndarray | None) -> dict | None:
                    f"wheels (or odometry) and the IMU stood still: the gyro's reading there taken as its bias"}
 
 
-__all__ = ["at_rest", "rest_spans", "summary"]
+__all__ = ["at_rest", "pieces_joined", "rest_spans", "summary"]
