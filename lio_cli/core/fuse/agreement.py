@@ -78,11 +78,12 @@ def judged(gps: GpsSeries, notes: list[str], fused: FuseResult, free: FuseResult
 @dataclass
 class GpsJudge:
     """The GPS agreement of a log fused in pieces, judged on the whole log: its fixes as the whole log's timeline
-    assessed them (``accepted``, sigmas) and its wheel check (``wheels``: (verified, speed backed), computed only
-    when asked: the check runs over the whole log)."""
+    assessed them (``accepted``, sigmas), its wheel check (``wheels``: (verified, speed backed), computed only
+    when asked: the check runs over the whole log) and whether the agreement is tested at all (``tests``)."""
 
     gps: GpsSeries
     wheels: Callable[[], tuple[bool, bool]]
+    tests: bool
 
     def asks(self, fused: FuseResult) -> tuple[bool, bool]:
         """(whether the GPS-free pieces are needed, whether the test counts whatever it finds) for the stitched

@@ -176,16 +176,17 @@ def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[Estimat
 
 def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | None:
     """The whole log's judge of the GPS agreement for a log fused in pieces with ``options`` (``whole_log_options``'):
-    None where ``fuse`` would not test it (no smoothing, or not GPS beside IMU + wheels without odometry)."""
+    its fixes as the whole log assesses them, and whether ``fuse`` would test them (``tests``: smoothing GPS beside
+    IMU + wheels without odometry). None without GPS in use."""
     prep, _ = _prepare_and_choose(inputs, options, check=False)
-    if not (options.smooth and options.test_gps_shape and shape.applies(prep)):
+    if prep.gps is None or "gps" not in prep.use:
         return None
 
     def wheels() -> tuple[bool, bool]:  # the wheel check ``fuse`` makes on the whole log (planar filter)
         checked, _ = _prepare_and_choose(inputs, options)
         return checked.wheels_verified, agreement.wheel_speed_backed(checked.wheel_check)
 
-    return agreement.GpsJudge(prep.gps, wheels)
+    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep)))
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):

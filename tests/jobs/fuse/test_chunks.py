@@ -9,8 +9,9 @@ from lio_cli.config.fuse import FuseConfig
 from lio_cli.core.fuse import FuseInputs, FuseOptions, FuseResult, ImuSeries, SourceReport, WheelSeries
 from lio_cli.geometry import make_pose, so3_exp
 from lio_cli.jobs.fuse import FuseJob, run_fuse
-from lio_cli.jobs.fuse.chunks import (align_onto, bytes_per_knot, knot_count, merge_reports, merge_wheel_checks, plan,
-                                      slice_inputs)
+from lio_cli.jobs.fuse.chunks import slice_inputs
+from lio_cli.jobs.fuse.memory import bytes_per_knot, knot_count, plan
+from lio_cli.jobs.fuse.stitch import align_onto, merge_reports, merge_wheel_checks
 from lio_cli.simulation.run import simulate
 
 from .test_simulated import _ate
