@@ -18,7 +18,7 @@ import numpy as np
 from . import shape
 from .inputs import GpsSeries
 from .pieces import turned_handover
-from .result import FuseResult, anchor_to_origin
+from .result import FuseResult, anchor_to_origin, enu_origin
 
 
 def optimistic(gps: GpsSeries, fused: FuseResult) -> bool:
@@ -59,7 +59,8 @@ def judged(gps: GpsSeries, notes: list[str], fused: FuseResult, free: FuseResult
         notes.append("gps: the fixes disagree with the motion sources beyond their slow error: GPS shapes the track")
         return fused
     R = test.T[:3, :3]
-    poses = anchor_to_origin(test.T @ free.poses)
+    on_fixes = test.T @ free.poses
+    poses = anchor_to_origin(on_fixes)
     vel = None if free.velocities_mps is None else free.velocities_mps @ R.T
     cov = free.covariances
     if cov is not None:
@@ -72,7 +73,8 @@ def judged(gps: GpsSeries, notes: list[str], fused: FuseResult, free: FuseResult
             "smoother": {**(free.info.get("smoother") or {}), "why": "the run without GPS, placed on the fixes (their "
                          "slow error explains it): " + str((free.info.get("smoother") or {}).get("why"))},
             "start": free.info.get("start"), "world_yaw_from": "gps"}
-    return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
+    return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info,
+                      enu_origin(on_fixes, np.zeros(2)))
 
 
 @dataclass

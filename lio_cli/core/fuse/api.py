@@ -21,7 +21,7 @@ from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
 from .pieces import bias_sigma, filtered_handover, state_handover
 from .planar import PlanarEkf, run_planar
-from .result import FuseResult, anchor_to_origin
+from .result import FuseResult, anchor_to_origin, enu_origin
 from .smoother import rts_smooth
 from .state3d import B_, BA_, P_, R_, V_
 from .gyro_gaps import say_gyro_gaps
@@ -289,4 +289,4 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
         info["handover"] = state_handover(knots["t_ns"][sel], states, o.handover_ns, o.noise.init_velocity_sigma_mps,
                                           bg_sigma)
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
-                      o.smooth, prep.reports, info)
+                      o.smooth, prep.reports, info, enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset))

@@ -22,11 +22,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...core.fuse import FuseInputs, FuseOptions, FuseResult, GpsSeries, fuse, judge_gps
+from ...core.fuse import FuseInputs, FuseOptions, FuseResult, fuse, judge_gps
 from ...errors import InputError, LioError
 from .memory import MemoryPlan
-from .stitch import (align_onto, carried, cross_fade, enu_shift, kept_shares, merge_reports, merge_wheel_checks,
-                     on_fixes, taken)
+from .stitch import (align_onto, carried, cross_fade, enu_shift, from_enu, kept_shares, merge_reports,
+                     merge_wheel_checks, taken)
 
 Step = Callable[[int, int], None]
 
@@ -58,18 +58,17 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
             step(1, 1)
         return res, []
     judge = judge_gps(inputs, options)
-    fixes = None if judge is None else judge.gps
     if judge is None or not judge.tests:
-        return _fuse_pieces(inputs, options, memory, fixes, step)
+        return _fuse_pieces(inputs, options, memory, step)
     half = None if step is None else (lambda k, n: step(k, 2 * n))
-    fused, infos = _fuse_pieces(inputs, replace(options, test_gps_shape=False), memory, fixes, half)
+    fused, infos = _fuse_pieces(inputs, replace(options, test_gps_shape=False), memory, half)
     wanted, asked = judge.asks(fused)
     free = None
     if wanted:
         rest = None if step is None else (lambda k, n: step(n + k, 2 * n))
         use = None if options.use is None else {k: set(v) for k, v in options.use.items() if k != "gps"}
         try:
-            free, free_infos = _fuse_pieces(replace(inputs, gps=None), replace(options, use=use), memory, None, rest)
+            free, free_infos = _fuse_pieces(replace(inputs, gps=None), replace(options, use=use), memory, rest)
         except LioError:  # the sources without GPS do not make a run: the GPS-fused one stands
             free = None
     if step:
@@ -80,17 +79,16 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
     return result, (free_infos if result.info.get("gps_shape", {}).get("kept", "").startswith("motion") else infos)
 
 
-def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan, fixes: GpsSeries | None,
+def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
                  step: Step | None) -> tuple[FuseResult, list[dict]]:
-    """Every chunk fused and stitched (``fixes``: the whole log's assessed GPS, where chunks fusing it are placed
-    on it)."""
+    """Every chunk fused and stitched (``stitch``)."""
     ov, n = memory.overlap_ns, len(memory.chunks)
     kept: list[FuseResult] = []
     shares: list[dict[str, float]] = []
     infos: list[dict] = []
     prev: FuseResult | None = None
     prev_placed = False
-    ref = None  # the first placed chunk's shift onto the fixes: the stitched world is the fixes' less it
+    enu = None  # (4,4) the fixes' ENU frame into the stitched world (from the first chunk placed on them)
     start = None  # the state the chunk before handed over at this chunk's first stamp
     for k, (a, b) in enumerate(memory.chunks):
         nxt = memory.chunks[k + 1][0] - ov if k + 1 < n else None
@@ -104,28 +102,26 @@ def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan, f
             start = None
             continue
         start = res.info.pop("handover", None)
-        joined, placed = True, None
-        if fixes is not None and "gps" in res.info.get("use", {}):
-            placed = on_fixes(res, fixes)
+        placed, joined, A = res.origin_enu_xy_m is not None, True, np.eye(4)
         if prev is not None:
-            A, joined = (enu_shift(prev, res, placed - ref, a), True) if placed is not None and ref is not None \
-                else align_onto(prev, res, a)
+            A, joined = (enu_shift(prev, res, enu @ from_enu(res.origin_enu_xy_m), a), True) \
+                if placed and enu is not None else align_onto(prev, res, a)
             res = carried(res, A)
-        if placed is not None and ref is None:
-            ref = on_fixes(res, fixes)
+        if placed and enu is None:
+            enu = A @ np.linalg.inv(from_enu(res.origin_enu_xy_m))
         last = k == n - 1
         keep = (res.stamps_ns >= a) & ((res.stamps_ns <= b) if last else (res.stamps_ns < b))
         if kept and len(kept[-1]):  # never repeat a stamp the previous chunk already gave
             keep &= res.stamps_ns > kept[-1].stamps_ns[-1]
         cur = taken(res, keep)
-        if placed is not None and prev_placed and kept:  # both on the fixes: faded from one to the other
+        if placed and prev_placed and kept:  # both on the fixes: faded from one to the other
             kept[-1], cur = cross_fade(kept[-1], cur, prev, res, a, ov // 2)
         kept.append(cur)
         shares.append(kept_shares({s: v.stamps_ns for s, v in piece.present().items()}, (a, b, last)))
         infos.append({"span_ns": [a, b], "poses": int(np.count_nonzero(keep)), "joined_on_overlap": joined,
-                      "placed_on_fixes": placed is not None, "start": res.info.get("start"),
+                      "placed_on_fixes": placed, "start": res.info.get("start"),
                       "wheel_check": res.info.get("wheel_check")})
-        prev, prev_placed = res, placed is not None
+        prev, prev_placed = res, placed
         if step:
             step(k + 1, n)
     if not kept:

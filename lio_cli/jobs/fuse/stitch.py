@@ -4,12 +4,12 @@ the seams joined, the counters merged.
 A chunk fused without GPS has a world of its own: ``align_onto`` carries it onto the chunk before by a rotation
 about the vertical (mean yaw difference of the orientations over the overlap: gravity fixes the tilt in both) and
 the translation that makes the two agree at the seam. A chunk that fused GPS is already in the fixes' ENU world,
-but for its position (every run's first pose is put at the origin, ``anchor_to_origin``): ``on_fixes`` finds its
-placement again (the horizontal shift putting its antenna track on the fixes), and ``enu_shift`` moves it there,
-never turned: joined onto the chunk before instead, it would carry that chunk's heading and position errors on,
-and the chunks' own placement on the fixes would be lost. Its height is joined at the seam. Two such chunks then
-differ where they overlap by what each made of its own data; ``cross_fade`` passes from one to the other over the
-middle half of the overlap, so the trajectory does not jump at the seam.
+but for its position (every run's first pose is put at the origin, ``anchor_to_origin``; where it lay is
+``FuseResult.origin_enu_xy_m``): it is put back there (``from_enu``), never turned. Joined onto the chunk before
+instead, it would carry that chunk's heading and position errors on, and lose its own placement on the fixes.
+Its height is joined at the seam (``enu_shift``). Two such chunks differ where they overlap by what each made of
+its own data; ``cross_fade`` passes from one to the other over the middle half of the overlap, so the trajectory
+does not jump at the seam.
 """
 
 from __future__ import annotations
@@ -18,13 +18,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...core.fuse import FuseResult, GpsSeries, SourceReport
-from ...core.fuse.inputs import at_antenna
-from ...core.robust import robust_sigma
+from ...core.fuse import FuseResult, SourceReport
 from ...geometry import interpolate_poses, so3_exp, so3_exp_one, so3_log, yaw_of
 
-MIN_FIXES = 10  # fewer accepted fixes in a chunk's span: it is joined onto the chunk before, not placed on them
-TRIM_Z = 3.0  # fixes further than this many robust sigmas from the placement are left out of it (once)
 PER_CHUNK_NOTES = ("anchor",)  # notes each chunk makes once whatever its span (it ties its own world)
 
 
@@ -46,36 +42,25 @@ def align_onto(prev: FuseResult, nxt: FuseResult, seam_ns: int) -> tuple[np.ndar
     return A, True
 
 
-def on_fixes(res: FuseResult, gps: GpsSeries) -> np.ndarray | None:
-    """The horizontal shift (2,) that puts ``res``'s antenna track on the accepted fixes of its span (their
-    inverse-variance mean residual, fixes beyond ``TRIM_Z`` robust sigmas left out): where the chunk lies in the
-    fixes' world. None with fewer than ``MIN_FIXES`` fixes there."""
-    if len(res) < 2:
-        return None
-    ok = np.asarray(gps.accepted, bool) & (gps.stamps_ns >= res.stamps_ns[0]) & (gps.stamps_ns <= res.stamps_ns[-1])
-    if np.count_nonzero(ok) < MIN_FIXES:
-        return None
-    t = gps.stamps_ns[ok]
-    xy = at_antenna(res.poses[:, :3, :3], res.poses[:, :3, 3], gps.lever)
-    d = gps.position_enu_m[ok, :2] - np.column_stack([np.interp(t, res.stamps_ns, xy[:, c]) for c in range(2)])
-    w = 1.0 / np.asarray(gps.sigma_h_m, float)[ok] ** 2
-    e = np.linalg.norm(d - np.median(d, axis=0), axis=1)
-    keep = e <= TRIM_Z * max(robust_sigma(e, centre=False), 1e-9)
-    return (w[keep, None] * d[keep]).sum(axis=0) / w[keep].sum()
-
-
-def enu_shift(prev: FuseResult, nxt: FuseResult, shift_xy: np.ndarray, seam_ns: int) -> np.ndarray:
-    """``A`` (4,4) moving ``nxt`` by ``shift_xy`` horizontally and joining its height onto ``prev``'s at the
-    seam (the instant they share nearest to ``seam_ns``; none shared: prev's last and nxt's first)."""
-    A = np.eye(4)
-    A[:2, 3] = shift_xy
+def enu_shift(prev: FuseResult, nxt: FuseResult, A: np.ndarray, seam_ns: int) -> np.ndarray:
+    """``A`` (4,4: placing ``nxt`` by where it lies on the fixes) with ``nxt``'s height joined onto ``prev``'s at
+    the seam (the instant they share nearest to ``seam_ns``; none shared: prev's last and nxt's first)."""
+    A = A.copy()
     common, ip, inx = np.intersect1d(prev.stamps_ns, nxt.stamps_ns, return_indices=True)
+    i, j = -1, 0
     if len(common):
         k = int(np.argmin(np.abs(common - seam_ns)))
-        A[2, 3] = prev.poses[ip[k], 2, 3] - nxt.poses[inx[k], 2, 3]
-    else:
-        A[2, 3] = prev.poses[-1, 2, 3] - nxt.poses[0, 2, 3]
+        i, j = ip[k], inx[k]
+    A[2, 3] += prev.poses[i, 2, 3] - (A @ nxt.poses[j])[2, 3]
     return A
+
+
+def from_enu(origin_enu_xy_m: np.ndarray) -> np.ndarray:
+    """(4,4) the translation taking a result whose first pose lies at ``origin_enu_xy_m`` (``FuseResult``) into
+    the fixes' ENU frame, horizontally."""
+    T = np.eye(4)
+    T[:2, 3] = origin_enu_xy_m
+    return T
 
 
 def cross_fade(before: FuseResult, after: FuseResult, prev: FuseResult, nxt: FuseResult, seam_ns: int,
@@ -195,5 +180,5 @@ def merge_wheel_checks(checks: list[dict | None]) -> dict:
                    + ", ".join(f"{v:.4f}" for v in scales)}
 
 
-__all__ = ["align_onto", "carried", "cross_fade", "enu_shift", "kept_shares", "merge_reports", "merge_wheel_checks",
-           "on_fixes", "taken"]
+__all__ = ["align_onto", "carried", "cross_fade", "enu_shift", "from_enu", "kept_shares", "merge_reports",
+           "merge_wheel_checks", "taken"]
