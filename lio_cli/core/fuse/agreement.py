@@ -20,6 +20,8 @@ from .inputs import GpsSeries
 from .pieces import turned_handover
 from .result import FuseResult, anchor_to_origin, enu_origin
 
+WHOLE_LOG_NOTES = ("jumps", "jump_kept", "dropouts")  # GPS notes of the whole log's fixes, not of a piece's fusion
+
 
 def optimistic(gps: GpsSeries, fused: FuseResult) -> bool:
     """The GPS-fused run raised the fixes' claimed noise for ``shape.OPTIMISTIC_SHARE`` of them or more."""
@@ -81,11 +83,18 @@ def judged(gps: GpsSeries, notes: list[str], fused: FuseResult, free: FuseResult
 class GpsJudge:
     """The GPS agreement of a log fused in pieces, judged on the whole log: its fixes as the whole log's timeline
     assessed them (``accepted``, sigmas), its wheel check (``wheels``: (verified, speed backed), computed only
-    when asked: the check runs over the whole log) and whether the agreement is tested at all (``tests``)."""
+    when asked: the check runs over the whole log), whether the agreement is tested at all (``tests``) and the
+    counts of the whole log's own GPS notes, which its pieces cannot add up (a jump across a seam)."""
 
     gps: GpsSeries
     wheels: Callable[[], tuple[bool, bool]]
     tests: bool
+    counts: dict[str, int]  # the whole log's GPS notes of its own (``WHOLE_LOG_NOTES``)
+
+    @property
+    def jumps_ns(self) -> np.ndarray:
+        """The stamps of the fixes the whole log's jump test left out (``FuseOptions.gps_jumps_ns``)."""
+        return self.gps.stamps_ns[~np.asarray(self.gps.accepted, bool)]
 
     def asks(self, fused: FuseResult) -> tuple[bool, bool]:
         """(whether the GPS-free pieces are needed, whether the test counts whatever it finds) for the stitched
@@ -101,4 +110,4 @@ class GpsJudge:
         return judged(self.gps, notes, fused, free, asked)
 
 
-__all__ = ["GpsJudge", "judged", "optimistic", "wheel_speed_backed"]
+__all__ = ["WHOLE_LOG_NOTES", "GpsJudge", "judged", "optimistic", "wheel_speed_backed"]

@@ -186,7 +186,9 @@ def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | 
         checked, _ = _prepare_and_choose(inputs, options)
         return checked.wheels_verified, agreement.wheel_speed_backed(checked.wheel_check)
 
-    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep)))
+    notes = prep.reports["gps"].notes
+    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep)),
+                              {k: notes[k] for k in agreement.WHOLE_LOG_NOTES if k in notes})
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):

@@ -7,12 +7,14 @@ its chunks find their start again). Each chunk is carried into the first one's w
 joined onto the chunk before; with GPS placed on the fixes, its world being theirs). Poses left of the seam come
 from chunk k-1, the rest from chunk k (faded from one to the other about the seam where both are on the fixes).
 Covariances and velocities are rotated along; each chunk's covariance is relative to its own start (its position
-was pinned there). The counters are those of the kept spans (each chunk's by its share of the samples there).
+was pinned there). Updates and notes are counted over the kept spans (``stitch.merge_reports``).
 
 Decisions on the whole log are taken once and given to every chunk (``whole_log_options``: the estimator, the
-wheels' yaw weighing), and so is whether the GPS fixes agree with the motion sources (``core.fuse.agreement``):
-with GPS beside IMU + wheels the chunks fuse the fixes without testing them, the log is fused in chunks without
-GPS too where the whole log asks for the test, and the two stitched trajectories are judged on the whole log.
+wheels' yaw weighing), and so are those on the GPS fixes (``judge_gps``): which fixes lie in multipath jumps (a
+chunk sees no jump that opened before it, and takes the track's return for one), and whether the fixes agree
+with the motion sources (``core.fuse.agreement``): with GPS beside IMU + wheels the chunks fuse the fixes without
+testing them, the log is fused in chunks without GPS too where the whole log asks for the test, and the two
+stitched trajectories are judged on the whole log.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from ...core.fuse import FuseInputs, FuseOptions, FuseResult, fuse, judge_gps
+from ...core.fuse.agreement import WHOLE_LOG_NOTES, GpsJudge
 from ...errors import InputError, LioError
 from .memory import MemoryPlan
 from .stitch import (align_onto, carried, cross_fade, enu_shift, from_enu, kept_shares, merge_reports,
@@ -58,10 +61,13 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
             step(1, 1)
         return res, []
     judge = judge_gps(inputs, options)
-    if judge is None or not judge.tests:
+    if judge is None:
         return _fuse_pieces(inputs, options, memory, step)
+    if not judge.tests:
+        return _with_gps(judge, *_fuse_pieces(inputs, replace(options, gps_jumps_ns=judge.jumps_ns), memory, step))
     half = None if step is None else (lambda k, n: step(k, 2 * n))
-    fused, infos = _fuse_pieces(inputs, replace(options, test_gps_shape=False), memory, half)
+    fused, infos = _with_gps(judge, *_fuse_pieces(
+        inputs, replace(options, test_gps_shape=False, gps_jumps_ns=judge.jumps_ns), memory, half))
     wanted, asked = judge.asks(fused)
     free = None
     if wanted:
@@ -77,6 +83,16 @@ def fuse_chunked(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
         return fused, infos
     result = judge.judge(fused, free, asked)
     return result, (free_infos if result.info.get("gps_shape", {}).get("kept", "").startswith("motion") else infos)
+
+
+def _with_gps(judge: GpsJudge, result: FuseResult, infos: list[dict]) -> tuple[FuseResult, list[dict]]:
+    """The stitched result with the whole log's own GPS counts (jumps, dropouts: a piece sees a part of one)."""
+    if "gps" in result.reports:
+        notes = result.reports["gps"].notes
+        for k in WHOLE_LOG_NOTES:
+            notes.pop(k, None)
+        notes.update(judge.counts)
+    return result, infos
 
 
 def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,

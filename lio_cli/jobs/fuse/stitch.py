@@ -118,9 +118,10 @@ def taken(res: FuseResult, keep: np.ndarray) -> FuseResult:
 
 def merge_reports(parts: list[dict[str, SourceReport]], shares: list[dict[str, float]] | None = None
                   ) -> dict[str, SourceReport]:
-    """The chunks' counters summed; ``shares`` (per chunk, per source): the part of each chunk's counts that fell
-    in its kept span (the share of the source's samples there), so the overlaps are not counted twice
-    (``PER_CHUNK_NOTES`` whole)."""
+    """The chunks' counters summed; ``shares`` (per chunk, per source): the part of each chunk's samples in its
+    kept span, by which its updates, predictions and notes are counted, so the overlaps' are not counted twice
+    (``PER_CHUNK_NOTES`` whole). Rejections are summed as they are: they gather where a source misbehaves (a
+    slip, a jump), which a share of the samples does not follow; one in an overlap is counted by both chunks."""
     out: dict[str, dict] = {}
     for i, reports in enumerate(parts):
         for src, r in reports.items():
@@ -129,19 +130,19 @@ def merge_reports(parts: list[dict[str, SourceReport]], shares: list[dict[str, f
             m["updates"] += f * r.updates
             m["predictions"] += f * r.predictions
             for k, v in r.rejected.items():
-                m["rejected"][k] = m["rejected"].get(k, 0.0) + f * v
+                m["rejected"][k] = m["rejected"].get(k, 0) + v
             for k, v in r.notes.items():
                 m["notes"][k] = m["notes"].get(k, 0.0) + (v if k in PER_CHUNK_NOTES else f * v)
             for kind, c in r.by_kind.items():
-                t = m["by_kind"].setdefault(kind, {"updates": 0.0, "outlier": 0.0})
+                t = m["by_kind"].setdefault(kind, {"updates": 0.0, "outlier": 0})
                 for key, v in c.items():
-                    t[key] = t.get(key, 0.0) + f * v
+                    t[key] = t.get(key, 0.0) + (f * v if key == "updates" else v)
     merged: dict[str, SourceReport] = {}
     for src, m in out.items():
         r = merged[src] = SourceReport(received=sum(p[src].received for p in parts if src in p),
                                        updates=_count(m["updates"]), predictions=_count(m["predictions"]))
         for k, v in m["rejected"].items():
-            r.reject(k, _count(v))
+            r.reject(k, v)
         for k, v in m["notes"].items():
             r.note(k, _count(v))
         r.by_kind = {kind: {key: _count(v) for key, v in c.items()} for kind, c in m["by_kind"].items()}
