@@ -18,5 +18,6 @@ from .result import COVARIANCE_LAYOUT, FuseResult
 __all__ = [
     "COVARIANCE_LAYOUT", "ESTIMATORS", "EstimatorChoice", "MEASUREMENTS", "NOTE_REASONS", "REJECT_REASONS", "FuseInputs",
     "FuseOptions", "FuseResult", "GpsSeries", "ImuSeries", "NoiseOptions", "PoseSeries", "SourceReport",
-    "WheelSeries", "fuse", "graph_smooths", "judge_gps", "whole_log_options",
+    "WheelSeries", "fuse", "graph_smooths", "judge_gps",
+    "whole_log_options",
 ]

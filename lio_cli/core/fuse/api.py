@@ -175,9 +175,9 @@ def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[Estimat
 
 
 def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | None:
-    """The whole log's judge of the GPS agreement for a log fused in pieces with ``options`` (``whole_log_options``'):
-    its fixes as the whole log assesses them, and whether ``fuse`` would test them (``tests``: smoothing GPS beside
-    IMU + wheels without odometry). None without GPS in use."""
+    """The whole log's judge of the GPS fixes for a log fused in pieces with ``options`` (those of
+    ``whole_log_options``): the fixes as the whole log assesses them (its jumps), and whether ``fuse`` would test
+    their agreement (``tests``: smoothing GPS beside IMU + wheels without odometry). None without GPS in use."""
     prep, _ = _prepare_and_choose(inputs, options, check=False)
     if prep.gps is None or "gps" not in prep.use:
         return None
@@ -290,5 +290,6 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
         states = {"R": x[:, R_].reshape(-1, 3, 3), "v": x[:, V_], "bg": x[:, B_], "ba": x[:, BA_]}
         info["handover"] = state_handover(knots["t_ns"][sel], states, o.handover_ns, o.noise.init_velocity_sigma_mps,
                                           bg_sigma)
+    origin = enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset)
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
-                      o.smooth, prep.reports, info, enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset))
+                      o.smooth, prep.reports, info, origin)

@@ -81,19 +81,19 @@ def _faded(res: FuseResult, other: FuseResult, lo: int, hi: int, own_first: bool
     if not len(sel):
         return res
     t = res.stamps_ns[sel]
-    w = (t - lo) / float(hi - lo)  # the share of the later chunk
+    w = ((t - lo) / float(hi - lo))[:, None]  # the later chunk's share
     own, theirs = res.poses[sel], interpolate_poses(other.stamps_ns, other.poses, t)
-    a, b, wa = (own, theirs, w) if own_first else (theirs, own, w)
+    a, b = (own, theirs) if own_first else (theirs, own)
     poses = res.poses.copy()
     rel = np.einsum("nji,njk->nik", a[:, :3, :3], b[:, :3, :3])
-    poses[sel, :3, :3] = a[:, :3, :3] @ so3_exp(so3_log(rel) * wa[:, None])
-    poses[sel, :3, 3] = (1.0 - wa)[:, None] * a[:, :3, 3] + wa[:, None] * b[:, :3, 3]
+    poses[sel, :3, :3] = a[:, :3, :3] @ so3_exp(so3_log(rel) * w)
+    poses[sel, :3, 3] = (1.0 - w) * a[:, :3, 3] + w * b[:, :3, 3]
     vel = res.velocities_mps
     if vel is not None and other.velocities_mps is not None:
         vo = np.column_stack([np.interp(t, other.stamps_ns, other.velocities_mps[:, c]) for c in range(3)])
         va, vb = (vel[sel], vo) if own_first else (vo, vel[sel])
         vel = vel.copy()
-        vel[sel] = (1.0 - wa)[:, None] * va + wa[:, None] * vb
+        vel[sel] = (1.0 - w) * va + w * vb
     return replace(res, poses=poses, velocities_mps=vel)
 
 
