@@ -7,7 +7,7 @@ accelerometer is used (but for the planar filter on IMU + wheels alone), else th
 stamps (``inputs``); nothing here reads files (``lio_cli.io`` is never imported).
 """
 
-from .api import fuse, graph_smooths, whole_log_options
+from .api import fuse, graph_smooths, judge_gps, whole_log_options
 from .choose import EstimatorChoice
 from .inputs import (
     ESTIMATORS, MEASUREMENTS, FuseInputs, FuseOptions, GpsSeries, ImuSeries, NoiseOptions, PoseSeries, WheelSeries,
@@ -18,5 +18,6 @@ from .result import COVARIANCE_LAYOUT, FuseResult
 __all__ = [
     "COVARIANCE_LAYOUT", "ESTIMATORS", "EstimatorChoice", "MEASUREMENTS", "NOTE_REASONS", "REJECT_REASONS", "FuseInputs",
     "FuseOptions", "FuseResult", "GpsSeries", "ImuSeries", "NoiseOptions", "PoseSeries", "SourceReport",
-    "WheelSeries", "fuse", "graph_smooths", "whole_log_options",
+    "WheelSeries", "fuse", "graph_smooths", "judge_gps",
+    "whole_log_options",
 ]

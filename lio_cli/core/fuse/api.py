@@ -12,16 +12,16 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import graph, heave, rest, shape, wheel_slip
+from . import agreement, graph, heave, rest, shape, wheel_slip
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
                           yaw_velocity_onto)
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
-from .pieces import bias_sigma, filtered_handover, state_handover, turned_handover
+from .pieces import bias_sigma, filtered_handover, state_handover
 from .planar import PlanarEkf, run_planar
-from .result import FuseResult, anchor_to_origin
+from .result import FuseResult, anchor_to_origin, enu_origin
 from .smoother import rts_smooth
 from .state3d import B_, BA_, P_, R_, V_
 from .gyro_gaps import say_gyro_gaps
@@ -44,7 +44,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
         result, prep = _run_graph(prep, o)
     else:
         result = _run_filter(prep, o)
-    if o.smooth and shape.applies(prep):
+    if o.smooth and o.test_gps_shape and shape.applies(prep):
         result = _shape_without_gps(inputs, given, prep, result)
     result.info.update(_common_info(prep, o))
     if result.estimator == "complementary":  # it takes no zero rate at rest
@@ -57,60 +57,25 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
 
 
 def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
-    """The run without GPS, placed on the fixes, where the fixes' real error explains what it leaves
-    (``shape``); else the GPS-fused ``fused``.
-
-    An honest claim is fused as it is; but a filter that follows a receiver's slow error shows no optimism in its
-    innovations, so wheels the IMU verified (speed and yaw rate) have the shape tested too, and so has a track
-    whose speed the accelerometer backs where the fixes scatter about it beyond their claim."""
-    raised = fused.reports["gps"].notes.get("noise_raised", 0) if "gps" in fused.reports else 0
-    optimistic = raised >= shape.OPTIMISTIC_SHARE * len(prep.gps)
+    """The run without GPS placed on the fixes, or the GPS-fused ``fused``, as ``agreement`` judges them: asked
+    where the claim looks optimistic, the IMU verified the wheels or backs their speed."""
+    optimistic = agreement.optimistic(prep.gps, fused)
     verified = prep.wheels_verified
-    if not (optimistic or verified or _wheel_speed_backed(prep)):
+    if not (optimistic or verified or agreement.wheel_speed_backed(prep.wheel_check)):
         return fused
+    free = _without_gps(inputs, o)
+    if free is None:  # the sources without GPS do not make a run: the GPS-fused one stands
+        return fused
+    return agreement.judged(prep.gps, prep.notes, fused, free, optimistic or verified)
+
+
+def _without_gps(inputs: FuseInputs, o: FuseOptions) -> FuseResult | None:
+    """The run on the same options without GPS; None where the other sources do not make one."""
     use = None if o.use is None else {k: set(v) for k, v in o.use.items() if k != "gps"}
     try:
-        free = fuse(replace(inputs, gps=None), replace(o, use=use))
-    except LioError:  # the sources without GPS do not make a run: the GPS-fused one stands
-        return fused
-    same = len(free) == len(fused) and np.array_equal(free.stamps_ns, fused.stamps_ns)
-    test = shape.consistent(prep, free.stamps_ns, free.poses) if same and len(free) else None
-    if test is not None and "handover" in free.info:  # the next piece's start: the motion sources' own, placed
-        fused.info["handover"] = turned_handover(free.info["handover"], test.T[:3, :3])
-    if test is None or not (optimistic or verified or test.claim_exceeded):
-        return fused
-    fused.info["gps_shape"] = {**test.to_dict(), "kept": "gps fused"}
-    if not test.consistent:
-        prep.notes.append("gps: the fixes disagree with the motion sources beyond their slow error: GPS shapes the track")
-        return fused
-    R = test.T[:3, :3]
-    poses = anchor_to_origin(test.T @ free.poses)
-    vel = None if free.velocities_mps is None else free.velocities_mps @ R.T
-    cov = free.covariances
-    if cov is not None:
-        cov = cov.copy()
-        cov[:, :3, :3] = R @ cov[:, :3, :3] @ R.T
-        cov[:, :3, 3:] = R @ cov[:, :3, 3:]
-        cov[:, 3:, :3] = cov[:, 3:, :3] @ R.T
-    prep.notes.append("gps: the motion sources' track kept and placed on the fixes (their slow error explains the rest)")
-    info = {**fused.info, "gps_shape": {**test.to_dict(), "kept": "motion sources, placed on GPS"},
-            "smoother": {**(free.info.get("smoother") or {}), "why": "the run without GPS, placed on the fixes (their "
-                         "slow error explains it): " + str((free.info.get("smoother") or {}).get("why"))},
-            "start": free.info.get("start"), "world_yaw_from": "gps"}
-    return FuseResult(free.stamps_ns, poses, cov, vel, free.estimator, free.smoothed, fused.reports, info)
-
-
-def _wheel_speed_backed(prep: Prepared) -> bool:
-    """The wheels' speed as the IMU checked it (``wheel_slip``): its scale measured and every slip bridged, or no
-    slip and the accelerometer's scale consistent with 1 at 99 % (one-dof chi-square; a steady speed measures it
-    only roughly, and without a slip an unverified check applied no scale)."""
-    speed = prep.wheel_check or {}
-    if speed.get("verified"):
-        return True
-    scale, sigma = speed.get("scale"), speed.get("scale_sigma")
-    if speed.get("slips", 1) or scale is None or not sigma:
-        return False
-    return ((scale - 1.0) / sigma) ** 2 <= shape.CHI2_1_99
+        return fuse(replace(inputs, gps=None), replace(o, use=use))
+    except LioError:
+        return None
 
 
 def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
@@ -210,6 +175,23 @@ def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[Estimat
     and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same."""
     prep, choice = _prepare_and_choose(inputs, options, check=False)
     return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed)
+
+
+def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | None:
+    """The whole log's judge of the GPS fixes for a log fused in pieces with ``options`` (those of
+    ``whole_log_options``): the fixes as the whole log assesses them (its jumps), and whether ``fuse`` would test
+    their agreement (``tests``: smoothing GPS beside IMU + wheels without odometry). None without GPS in use."""
+    prep, _ = _prepare_and_choose(inputs, options, check=False)
+    if prep.gps is None or "gps" not in prep.use:
+        return None
+
+    def wheels() -> tuple[bool, bool]:  # the wheel check ``fuse`` makes on the whole log (planar filter)
+        checked, _ = _prepare_and_choose(inputs, options)
+        return checked.wheels_verified, agreement.wheel_speed_backed(checked.wheel_check)
+
+    notes = prep.reports["gps"].notes
+    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep)),
+                              {k: notes[k] for k in agreement.WHOLE_LOG_NOTES if k in notes})
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):
@@ -312,5 +294,6 @@ def _run_ekf3d(prep: Prepared, o: FuseOptions) -> FuseResult:
         states = {"R": x[:, R_].reshape(-1, 3, 3), "v": x[:, V_], "bg": x[:, B_], "ba": x[:, BA_]}
         info["handover"] = state_handover(knots["t_ns"][sel], states, o.handover_ns, o.noise.init_velocity_sigma_mps,
                                           bg_sigma)
+    origin = enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset)
     return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, x[:, V_] if len(x) else None, "ekf",
-                      o.smooth, prep.reports, info)
+                      o.smooth, prep.reports, info, origin)

@@ -20,7 +20,7 @@ import numpy as np
 from ...geometry import inv_pose, so3_exp_one, so3_log_one
 from .initial import Start, initial_state
 from .inputs import FuseOptions
-from .result import FuseResult, anchor_to_origin
+from .result import FuseResult, anchor_to_origin, enu_origin
 from .state3d import GAP_TAU_S
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
@@ -175,4 +175,5 @@ def run_complementary(prep: Prepared, o: FuseOptions, start: Start | None = None
     info = {"model": "complementary", "start": cf.start.reason, "world_yaw_from": cf.start.yaw_from,
             "odom_mode": next(iter(prep.use.get("odom", ())), None),
             "alpha": {"odom": o.alpha_odom, "orientation": o.alpha_orientation, "gps": o.alpha_gps}}
-    return FuseResult(stamps, anchor_to_origin(poses), None, vels, "complementary", False, prep.reports, info)
+    origin = enu_origin(poses, None if cf.gps_offset is None else -cf.gps_offset)
+    return FuseResult(stamps, anchor_to_origin(poses), None, vels, "complementary", False, prep.reports, info, origin)

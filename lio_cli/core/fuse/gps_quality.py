@@ -187,11 +187,16 @@ def drop_stale(gps: GpsSeries, wheel: WheelSeries | None, odom: PoseSeries | Non
                      antenna_m=gps.antenna_m)
 
 
-def assess_gps(gps: GpsSeries, report: SourceReport) -> GpsSeries:
+def assess_gps(gps: GpsSeries, report: SourceReport, jumps_ns: np.ndarray | None = None) -> GpsSeries:
     """``gps`` (cleaned) with ``sigma_h_m``, ``sigma_v_m`` and ``accepted`` filled in; jumps and dropouts
-    counted."""
+    counted. ``jumps_ns``: the stamps of the fixes a whole log's test found in jumps (a piece of it sees no jump
+    that opened before it), instead of testing these fixes."""
     gps.sigma_h_m, gps.sigma_v_m = sigmas(gps)
-    jump, opened, kept = find_jumps(gps.stamps_ns, gps.position_enu_m[:, :2])
+    if jumps_ns is None:
+        jump, opened, kept = find_jumps(gps.stamps_ns, gps.position_enu_m[:, :2])
+    else:
+        jump = np.isin(gps.stamps_ns, jumps_ns)
+        opened, kept = int(np.count_nonzero(jump & ~np.r_[False, jump[:-1]])), 0
     gps.accepted = ~jump
     report.reject("multipath_jump", int(np.count_nonzero(jump)))
     report.note("jumps", opened)

@@ -172,6 +172,10 @@ class FuseOptions:
     data show it agrees, with the noise they show (``wheel_yaw``); ``None``: when ``use`` is None. ``wheel_yaw``:
     a weighing already made over the whole log (a run fused in pieces), used instead of weighing the piece.
     ``start``: the first state handed over by the piece before; ``handover_ns``: where to hand the next one its own.
+    ``test_gps_shape``: whether the GPS-free track is tested against the fixes (``agreement``); a log fused in
+    pieces is tested once, whole (``judge_gps``), never piece by piece. ``gps_jumps_ns``: the stamps of the fixes
+    in multipath jumps as the whole log's jump test found them, used instead of a piece's own test (which sees
+    no jump that opened before the piece, and takes the track's return for one).
     ``smooth``: the whole log before and after each instant: the factor graph (``graph``) whenever the
     accelerometer is used, whatever the filter (its guard falls back on the chosen filter), else the RTS pass
     over the EKF (the complementary filter has none); ``False``: the filter alone.
@@ -199,6 +203,8 @@ class FuseOptions:
     wheel_yaw: Weighed | None = None  # the whole log's weighing (``whole_log_options``), applied here by stamp
     start: Start | None = None  # the first state, handed over by the piece before (``pieces``)
     handover_ns: int | None = None  # the stamp whose state goes into ``info["handover"]`` for the next piece
+    test_gps_shape: bool = True  # False: a piece of a log whose whole is tested (``api.judge_gps``)
+    gps_jumps_ns: np.ndarray | None = None  # the fixes in jumps, as the whole log's test found them (``judge_gps``)
     noise: NoiseOptions = field(default_factory=NoiseOptions)
     rate_hz: float | None = None
     stamps_ns: np.ndarray | None = None

@@ -22,7 +22,7 @@ from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog, consider_update, kalman_update
-from .result import FuseResult, anchor_to_origin
+from .result import FuseResult, anchor_to_origin, enu_origin
 from .sanitize import median_period_ns
 from .smoother import rts_smooth
 from .state3d import CLONE_DUMMY_VAR, GAP_TAU_S, GPS_HEADING_SIGMA_RAD, GPS_START_POSITION_SIGMA_M
@@ -359,4 +359,6 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
     if handover is not None:
         info["handover"] = handover
-    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info)
+    origin = enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset)
+    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info,
+                      origin)

@@ -28,6 +28,9 @@ class FuseResult:
     smoothed: bool
     reports: dict[str, SourceReport]
     info: dict = field(default_factory=dict)
+    # where the first pose lies horizontally in the fixes' ENU frame (``GpsSeries.position_enu_m``), before
+    # ``anchor_to_origin`` moved it to the origin; None where no fix placed the world
+    origin_enu_xy_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
@@ -44,6 +47,14 @@ def anchor_to_origin(poses: np.ndarray) -> np.ndarray:
     if len(out):
         out[:, :3, 3] -= poses[0, :3, 3]
     return out
+
+
+def enu_origin(poses: np.ndarray, world_enu_xy_m: np.ndarray | None) -> np.ndarray | None:
+    """``FuseResult.origin_enu_xy_m`` of ``poses`` in an estimator's world (before ``anchor_to_origin``) whose origin
+    lies at ``world_enu_xy_m`` in the fixes' ENU frame (None: no fix placed it)."""
+    if world_enu_xy_m is None or not len(poses):
+        return None
+    return poses[0, :2, 3] + np.asarray(world_enu_xy_m, float)[:2]
 
 
 def pose_covariance_index(rot_idx: slice, pos_idx: slice) -> np.ndarray:

@@ -12,9 +12,9 @@ fixes' white noise, so the heading drift a gyro bias leaves (the track's increme
 tested on its own too, and so is a scale of the track (an unmeasured wheel radius): the chi-square each removes
 against ``CHI2_1_99`` of one degree of freedom. Only for a receiver whose claim looks optimistic: the filter's
 innovations showed it (``gps_quality.GpsNoise`` raised it for ``OPTIMISTIC_SHARE`` of the fixes or more), the IMU
-verified the wheels' speed and yaw rate (``api``), or the fixes scatter about the GPS-free track beyond their
+verified the wheels' speed and yaw rate (``agreement``), or the fixes scatter about the GPS-free track beyond their
 claimed sigma (``ShapeTest.claim_exceeded``: a filter that follows a slow error shows no optimism in its
-innovations) where the IMU backs the wheels' speed (``api``: wrong wheels beside an honest receiver scatter the
+innovations) where the IMU backs the wheels' speed (``agreement``: wrong wheels beside an honest receiver scatter the
 fixes too); an honest claim is fused as it is. Consistent: the motion sources' shape stands, GPS gives the world's
 heading and position. Not consistent (wheels that slipped, a gyro that drifted): GPS shapes the trajectory.
 """
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gps_quality import white_sigma_m
-from .inputs import at_antenna
+from .inputs import GpsSeries, at_antenna
 from .timeline import Prepared
 
 TAU_S = 60.0
@@ -139,9 +139,9 @@ def _removed(A: np.ndarray, b: np.ndarray, col: np.ndarray) -> tuple[float, floa
     return float(r0 @ r0 - r1 @ r1), float(x1[-1])
 
 
-def consistent(prep: Prepared, stamps_ns: np.ndarray, poses: np.ndarray) -> ShapeTest | None:
-    """The GPS-free trajectory (``poses`` at ``stamps_ns``) against the accepted fixes (module docstring)."""
-    g = prep.gps
+def consistent(g: GpsSeries, stamps_ns: np.ndarray, poses: np.ndarray) -> ShapeTest | None:
+    """The GPS-free trajectory (``poses`` at ``stamps_ns``) against the accepted fixes ``g`` (assessed:
+    ``Prepared.gps``; module docstring)."""
     ok = np.asarray(g.accepted, bool) & (g.stamps_ns >= stamps_ns[0]) & (g.stamps_ns <= stamps_ns[-1])
     idx = np.flatnonzero(ok)
     if len(idx) < MIN_FIXES or len(stamps_ns) < 2:

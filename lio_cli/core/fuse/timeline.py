@@ -183,7 +183,7 @@ def prepare(inputs: FuseInputs, options: FuseOptions) -> Prepared:
             runs += _runs(cleaned.stamps_ns, thr)
     if prep.gps is not None:
         prep.gps = drop_stale(prep.gps, prep.wheel, prep.odom, reports["gps"], prep.notes)
-        assess_gps(prep.gps, reports["gps"])
+        assess_gps(prep.gps, reports["gps"], options.gps_jumps_ns)
     raw_wheel = prep.wheel  # before the weighing leaves yaw rates out
     weigh = options.use is None if options.weigh_wheel_yaw is None else options.weigh_wheel_yaw
     if weigh and prep.wheel is not None and prep.imu is not None and "gyro" in use["imu"] \

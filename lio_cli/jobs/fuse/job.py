@@ -26,7 +26,8 @@ from ...gc_pause import cyclic_gc_paused
 from ...io.logs.reader import open_log
 from ...model.trajectory import Trajectory
 from ..contract import score_into
-from .chunks import MemoryPlan, fuse_chunked, plan
+from .chunks import fuse_chunked
+from .memory import MemoryPlan, plan
 from .clocks import clock_report
 from .inputs import FuseSources, gather_sources
 from .summary import source_summary

@@ -36,6 +36,27 @@ def test_a_jump_that_lasts_is_kept_as_the_new_level():
     assert abs((st[out[-1]] - st[100]) / NS - JUMP_MAX_S) <= 0.21 and not jump[out[-1] + 1:].any()
 
 
+def test_a_piece_of_a_log_takes_the_whole_logs_jumps():
+    """A piece starting inside a jump takes the jumped level for the track and its return for a jump, kept out
+    for the rest of the piece; given the whole log's jumps it leaves out those of its own span."""
+    from lio_cli.core.fuse.gps_quality import assess_gps
+    from lio_cli.core.fuse.inputs import GpsSeries
+    from lio_cli.core.fuse.report import SourceReport
+
+    st, p = _track(300)
+    p[100:150] += [7.5, -2.7]  # 8 m for 10 s
+    whole, _, _ = find_jumps(st, p)
+    alone, _, _ = find_jumps(st[120:], p[120:])
+    assert np.array_equal(np.flatnonzero(whole), np.arange(100, 150))
+    assert alone[30:].sum() > 50 and not alone[:30].any()  # the good track after the jump left out, the jump kept
+
+    gps = GpsSeries(st[120:], np.column_stack([p[120:], np.zeros(180)]), np.tile(np.eye(3), (180, 1, 1)))
+    report = SourceReport()
+    assess_gps(gps, report, st[whole])
+    assert np.array_equal(np.flatnonzero(~gps.accepted), np.arange(30))
+    assert report.rejected == {"multipath_jump": 30} and report.notes["jumps"] == 1
+
+
 def test_an_optimistic_sigma_is_raised_to_what_the_innovations_show():
     rng = np.random.default_rng(1)
     noise = GpsNoise(2)

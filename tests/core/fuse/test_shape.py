@@ -4,13 +4,12 @@ bend a good dead reckoning (``shape``), and a track the fixes contradict beyond 
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from lio_cli.core.fuse import FuseOptions, GpsSeries, fuse
-from lio_cli.core.fuse import api, shape
+from lio_cli.core.fuse import agreement, api, shape
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.geometry import interpolate_poses
 from lio_cli.simulation.fusion_case import simulate_case
@@ -146,7 +145,7 @@ def test_the_scatter_opens_the_test_only_where_the_imu_backs_the_wheel_speed(che
     """Measured scale, or no slip and the accelerometer's rough scale within 99 % of the one used (the matrix's
     seed 8 rovers: exact wheels at a steady speed 0.9836 +- 0.0105 backed, a rotated IMU's 0.9585 +- 0.0116 not;
     three slips nothing bridged not); nothing checked (the 3D filter chosen), not."""
-    assert api._wheel_speed_backed(SimpleNamespace(wheel_check=check)) is backed
+    assert agreement.wheel_speed_backed(check) is backed
 
 
 def test_a_track_the_fixes_contradict_is_told_apart():

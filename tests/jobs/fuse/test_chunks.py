@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -9,8 +11,9 @@ from lio_cli.config.fuse import FuseConfig
 from lio_cli.core.fuse import FuseInputs, FuseOptions, FuseResult, ImuSeries, SourceReport, WheelSeries
 from lio_cli.geometry import make_pose, so3_exp
 from lio_cli.jobs.fuse import FuseJob, run_fuse
-from lio_cli.jobs.fuse.chunks import (align_onto, bytes_per_knot, knot_count, merge_reports, merge_wheel_checks, plan,
-                                      slice_inputs)
+from lio_cli.jobs.fuse.chunks import slice_inputs
+from lio_cli.jobs.fuse.memory import bytes_per_knot, knot_count, plan
+from lio_cli.jobs.fuse.stitch import align_onto, kept_shares, merge_reports, merge_wheel_checks
 from lio_cli.simulation.run import simulate
 
 from .test_simulated import _ate
@@ -85,6 +88,21 @@ def test_merged_reports_add_up():
     m = merge_reports([{"wheel": a}, {"wheel": b}])["wheel"]
     assert (m.received, m.updates, m.rejected) == (7, 4, {"nan": 3, "outlier": 1})
     assert m.by_kind == {"wheel_velocity": {"updates": 1, "outlier": 1}}
+
+
+def test_merged_reports_count_each_chunks_kept_share():
+    """Two chunks that each fused 100 wheel messages, 60 of them in the span each keeps (40 in the overlap): the
+    kept spans' 120 updates, not 200; each chunk's anchor (it ties its own world) counted whole, and its
+    rejections (a slip's, a jump's: where they are, not spread) as they are."""
+    a, b = SourceReport(received=100, updates=100), SourceReport(received=100, updates=100)
+    a.note("anchor")
+    b.note("anchor")
+    a.reject("outlier", 10)
+    st = np.arange(100)
+    shares = [kept_shares({"wheel": st}, (0, 60, False)), kept_shares({"wheel": st}, (40, 99, True))]
+    assert shares == [{"wheel": 0.6}, {"wheel": 0.6}]
+    m = merge_reports([{"wheel": a}, {"wheel": b}], shares)["wheel"]
+    assert (m.received, m.updates, m.rejected, m.notes) == (200, 120, {"outlier": 10}, {"anchor": 2})
 
 
 def test_plan_refuses_a_short_log_over_budget_naming_the_rate_far_above_the_imu():
@@ -175,3 +193,91 @@ def test_the_3d_filters_chunks_keep_the_gyro_bias_they_were_handed(rover100, smo
     assert chunked.metrics["memory"]["chunks"] == 3, chunked.metrics["memory"]
     a, b = _ate(log, whole.trajectory), _ate(log, chunked.trajectory)
     assert b < CHUNKED_ATE_RATIO * a, (a, b)
+
+
+GPS_CHUNKED_ATE_RATIO = 1.1  # a log with GPS fused in chunks against the same log fused whole
+GPS_USE = {"imu": ["gyro"], "wheel": ["speed"], "gps": ["position"]}  # smoothed by the planar RTS pass: fast
+CHUNKED_SHARE = 0.85  # of the whole log's memory estimate: two chunks of the 66 s log below
+
+
+@pytest.fixture(scope="module")
+def rover_gps(tmp_path_factory):
+    """A consumer receiver (slow error, a multipath jump, optimistic covariance) whose fixes the whole log finds
+    agreeing with the wheels and gyro, fused whole and in two chunks."""
+    log = tmp_path_factory.mktemp("rover_gps") / "rover_gps.mcap"
+    simulate("rover", log, duration_s=66.0, seed=1, lidar=False, gps=True, gps_model="consumer", imu_rate_hz=50.0)
+    cfg = {"use": GPS_USE, "rate_hz": 10.0}
+    whole = run_fuse(FuseJob(log, FuseConfig(**cfg)))
+    budget = CHUNKED_SHARE * whole.metrics["memory"]["estimate_mb"]
+    chunked = run_fuse(FuseJob(log, FuseConfig(**cfg, max_memory_mb=budget)))
+    assert chunked.metrics["memory"]["chunks"] == 2, chunked.metrics["memory"]
+    return log, whole, chunked
+
+
+def test_gps_agreement_is_judged_on_the_whole_log(rover_gps):
+    # each chunk judged its own fixes, and its chunks were turned onto each other by their yaw difference on the
+    # overlap: measured 0.116 m whole, 0.482 m in 2 chunks (seed 2: 0.212 m, 1.049 m)
+    log, whole, chunked = rover_gps
+    a, b = _ate(log, whole.trajectory), _ate(log, chunked.trajectory)
+    assert b < GPS_CHUNKED_ATE_RATIO * a, (a, b)
+    assert chunked.metrics["core"]["gps_shape"]["kept"] == whole.metrics["core"]["gps_shape"]["kept"]
+    w, c = whole.metrics["core"]["sources"]["gps"]["notes"], chunked.metrics["core"]["sources"]["gps"]["notes"]
+    assert (c.get("jumps"), c.get("jump_kept")) == (w.get("jumps"), w.get("jump_kept"))
+
+
+def test_a_chunked_run_counts_the_updates_of_its_kept_spans_once(rover_gps):
+    """Both chunks fused the 20 s of overlap, and both counted it: 4302 wheel updates of 3301 messages."""
+    _, whole, chunked = rover_gps
+    for src in ("wheel", "gps"):
+        w, c = whole.metrics["core"]["sources"][src], chunked.metrics["core"]["sources"][src]
+        assert c["received"] == w["received"]
+        assert abs(c["updates"] - w["updates"]) <= 0.02 * w["updates"], (src, w["updates"], c["updates"])
+
+
+def _enu_track(t_s: np.ndarray) -> np.ndarray:
+    """(N,4,4) a base driving a slow left curve at 2 m/s in ENU, well away from the origin."""
+    yaw = 0.02 * t_s
+    poses = np.stack([make_pose(so3_exp(np.array([0.0, 0.0, y])), np.zeros(3)) for y in yaw])
+    poses[:, 0, 3] = 300.0 + np.cumsum(np.r_[0.0, 2.0 * np.cos(yaw[:-1]) * np.diff(t_s)])
+    poses[:, 1, 3] = -200.0 + np.cumsum(np.r_[0.0, 2.0 * np.sin(yaw[:-1]) * np.diff(t_s)])
+    return poses
+
+
+def test_chunks_that_fused_gps_stay_where_the_fixes_put_them(monkeypatch):
+    """Each chunk's track is right in ENU (up to a few cm) but its heading 4 deg off, one way or the other, as the
+    heading a consumer receiver gives a minute of track can be (a 300 s log's GPS-fused chunks differed by up to
+    14 deg on their overlaps): turned onto the chunk before by their yaw difference on the overlap, the chunks
+    ended 13.6 m off. Placed where their fixes put them: neither turned nor moved, the seams faded without a
+    jump."""
+    from lio_cli.core.fuse import FuseOptions
+    from lio_cli.jobs.fuse import chunks
+
+    span_s, rate = 120.0, 10
+    st = T0 + np.arange(0, int(span_s * rate) + 1) * (10**9 // rate)
+    truth = _enu_track((st - T0) * 1e-9)
+    inp = FuseInputs(imu=ImuSeries(st, np.zeros((len(st), 3)), np.zeros((len(st), 3))))
+    calls = []
+
+    def fake_fuse(piece, options):  # chunk k: its poses with a heading error of +-4 deg, anchored at the origin
+        k = len(calls)
+        calls.append(options)
+        sel = np.isin(st, piece.imu.stamps_ns)
+        poses = truth[sel].copy()
+        poses[:, :3, :3] = so3_exp(np.array([0.0, 0.0, np.radians(4.0 * (-1) ** k)])) @ poses[:, :3, :3]
+        poses[:, :2, 3] += 0.03 * (-1) ** k
+        origin = poses[0, :2, 3].copy()
+        poses[:, :3, 3] -= poses[0, :3, 3]
+        return FuseResult(st[sel], poses, None, np.zeros((len(poses), 3)), "planar", True, {},
+                          {"use": {"imu": ["gyro"], "gps": ["position"]}}, origin)
+
+    monkeypatch.setattr(chunks, "fuse", fake_fuse)
+    monkeypatch.setattr(chunks, "judge_gps", lambda inputs, options: None)
+    memory = plan(inp, FuseOptions(estimator="ekf", smooth=True), {"imu": ["gyro"]}, 5.0)
+    assert len(memory.chunks) >= 3, memory
+    res, infos = chunks.fuse_chunked(inp, FuseOptions(estimator="ekf", smooth=True), memory)
+    assert all(i["placed_on_fixes"] for i in infos)
+    expected = truth[:, :3, 3] - truth[0, :3, 3]
+    np.testing.assert_array_equal(res.stamps_ns, st)
+    assert np.max(np.abs(res.poses[:, :3, 3] - expected)) < 0.07  # the chunks' own 3 cm each way
+    step = np.linalg.norm(np.diff(res.poses[:, :3, 3], axis=0), axis=1)
+    assert np.max(np.abs(step - 0.2)) < 0.01  # 2 m/s at 10 Hz: no jump at a seam

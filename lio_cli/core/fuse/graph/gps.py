@@ -86,7 +86,8 @@ def attach_fixes(m, prep, kt: np.ndarray) -> None:
         if len(idx):
             m.gps_idx = idx
             m.gps_k = attach(kt, g.stamps_ns[idx])
-            m.gps_z = g.position_enu_m[idx] - g.position_enu_m[first[0]]  # the filter's anchor
+            m.gps_origin_m = g.position_enu_m[first[0]]  # the filter's anchor
+            m.gps_z = g.position_enu_m[idx] - m.gps_origin_m
             m.gps_h, m.gps_v = gps_sigmas(g, idx)
             m.gps_j = (g.stamps_ns[idx] - kt[0]) // GPS_BIAS_PERIOD_NS  # the guard's window per fix
             m.gps_t_s = (g.stamps_ns[idx] - kt[0]) * 1e-9

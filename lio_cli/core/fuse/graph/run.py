@@ -13,7 +13,7 @@ from ..ekf3d import Ekf3d
 from ..initial import Start
 from ..inputs import FuseOptions
 from ..pieces import bias_sigma, state_handover
-from ..result import FuseResult, anchor_to_origin
+from ..result import FuseResult, anchor_to_origin, enu_origin
 from ..state3d import BA_, B_, P_, R_, V_, Layout, initial_estimate
 from ..timeline import Prepared
 from . import guard, height
@@ -103,7 +103,12 @@ def smooth_graph(prep: Prepared, o: FuseOptions, start: Start, seed: Seed | None
         bg_sigma = bias_sigma(ekf.handed, "gps" in prep.use, o.noise.init_gyro_bias_sigma_radps)
         result_info["handover"] = state_handover(kt, smoothed if why is None else filtered, o.handover_ns,
                                                  SEAM_VELOCITY_SIGMA, bg_sigma)
-    return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info)
+    if why is None:  # the fixes' world about the first fix of the keyframes' span (``gps.attach_fixes``)
+        world = meas.gps_origin_m if len(meas.gps_k) else None
+    else:
+        world = None if ekf.gps_offset is None else -ekf.gps_offset
+    return FuseResult(out, anchor_to_origin(poses), cov, vel, "ekf", True, prep.reports, result_info,
+                      enu_origin(poses, world))
 
 
 def _reseed(states: dict[str, np.ndarray], planar: np.ndarray) -> None:
