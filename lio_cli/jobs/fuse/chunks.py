@@ -25,6 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from ...core.fuse import FuseInputs, FuseOptions, FuseResult, fuse, judge_gps
+from ...core.fuse import rest
 from ...core.fuse.agreement import WHOLE_LOG_NOTES, GpsJudge
 from ...errors import InputError, LioError
 from .memory import MemoryPlan
@@ -136,7 +137,7 @@ def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
         shares.append(kept_shares({s: v.stamps_ns for s, v in piece.present().items()}, (a, b, last)))
         infos.append({"span_ns": [a, b], "poses": int(np.count_nonzero(keep)), "joined_on_overlap": joined,
                       "placed_on_fixes": placed, "start": res.info.get("start"),
-                      "wheel_check": res.info.get("wheel_check")})
+                      "wheel_check": res.info.get("wheel_check"), "rest": res.info.get("rest")})
         prev, prev_placed = res, placed
         if step:
             step(k + 1, n)
@@ -162,6 +163,7 @@ def _merged(inputs: FuseInputs, kept: list[FuseResult], shares: list[dict[str, f
     if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
         merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
     if len(kept) > 1:  # what any chunk said (a gap or a stale fix lies in one of them), each once
+        merged.info["rest"] = rest.summary(rest.pieces_joined([(i.get("rest"), *i["span_ns"]) for i in infos]))
         merged.info["notes"] = list(dict.fromkeys(n for r in kept for n in r.info.get("notes", [])))
         if any(r.info.get("outputs_in_gyro_gaps") for r in kept) and inputs.imu is not None:  # overlaps: once
             merged.info["outputs_in_gyro_gaps"] = int(np.count_nonzero(~np.isin(merged.stamps_ns,

@@ -281,3 +281,15 @@ def test_chunks_that_fused_gps_stay_where_the_fixes_put_them(monkeypatch):
     assert np.max(np.abs(res.poses[:, :3, 3] - expected)) < 0.07  # the chunks' own 3 cm each way
     step = np.linalg.norm(np.diff(res.poses[:, :3, 3], axis=0), axis=1)
     assert np.max(np.abs(step - 0.2)) < 0.01  # 2 m/s at 10 Hz: no jump at a seam
+
+
+def test_a_chunked_run_reports_every_stop_once(tmp_path):
+    """Stops in different chunks, one cut by a seam: the metrics hold each once, as the whole log's run does."""
+    log = tmp_path / "lights.mcap"
+    simulate("drive", log, duration_s=100.0, seed=8, lidar=False, start="moving", stops=((20.0, 6.0), (62.0, 6.0)))
+    whole = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0)))
+    chunked = run_fuse(FuseJob(log, FuseConfig(rate_hz=20.0, max_memory_mb=38.0)))
+    assert chunked.metrics["memory"]["chunks"] >= 3, chunked.metrics["memory"]
+    w, c = whole.metrics["core"]["rest"], chunked.metrics["core"]["rest"]
+    assert w["spans"] == c["spans"] == 2
+    assert np.allclose(np.array(c["span_ns"]), np.array(w["span_ns"]), atol=0.5e9)
