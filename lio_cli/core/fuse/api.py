@@ -20,7 +20,8 @@ from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings
 from .initial import Start, initial_state
 from .inputs import FuseInputs, FuseOptions
 from .pieces import bias_sigma, filtered_handover, state_handover
-from .planar import PlanarEkf, run_planar
+from .planar import PlanarEkf
+from .rts_planar import run_planar
 from .result import FuseResult, anchor_to_origin, enu_origin
 from .smoother import rts_smooth
 from .state3d import B_, BA_, P_, R_, V_

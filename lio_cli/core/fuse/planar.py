@@ -22,11 +22,8 @@ from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog, consider_update, kalman_update
-from .result import FuseResult, anchor_to_origin, enu_origin
 from .sanitize import median_period_ns
-from .smoother import rts_smooth
 from .state3d import CLONE_DUMMY_VAR, GAP_TAU_S, GPS_HEADING_SIGMA_RAD, GPS_START_POSITION_SIGMA_M
-from .pieces import planar_handover
 from .rest import REST_RATE_SIGMA_RADPS, at_rest
 from .planar_model import (BW, TH, V, W, X, Y, delta_residual, predict, predict_gap, predict_turn_decay,
                            turn_rate_walk, wrap)
@@ -200,7 +197,7 @@ class PlanarEkf:
         pv, rv = od.position_sigma_m[i] ** 2, od.rotation_sigma_rad[i] ** 2
         if not self.clone:
             if self.T_world_odom is None:
-                self.T_world_odom = _se2(x[X], x[Y], x[TH]) @ inv_pose(_flat(T))
+                self.T_world_odom = se2(x[X], x[Y], x[TH]) @ inv_pose(_flat(T))
                 rep.note("anchor")
                 return P
             Z = self.T_world_odom @ _flat(T)
@@ -291,7 +288,7 @@ class PlanarEkf:
         return self.log.arrays()
 
 
-def _se2(x: float, y: float, th: float) -> np.ndarray:
+def se2(x: float, y: float, th: float) -> np.ndarray:
     c, s = math.cos(th), math.sin(th)
     T = np.eye(4)
     T[0, 0], T[0, 1], T[1, 0], T[1, 1], T[0, 3], T[1, 3] = c, -s, s, c, x, y
@@ -299,66 +296,4 @@ def _se2(x: float, y: float, th: float) -> np.ndarray:
 
 
 def _flat(T: np.ndarray) -> np.ndarray:
-    return _se2(T[0, 3], T[1, 3], float(yaw_of(T[:3, :3])))
-
-
-def unmeasured_pose(prep: Prepared) -> bool:
-    """Nothing measures the position (no GPS, no odometry), the motion sources have no gap, and the IMU verified the
-    wheels (their speed scale, ``wheel_slip``, and yaw rate, ``wheel_yaw``) with no yaw scale to divide out: on
-    wheels with a scale error or slips the half step is far below their own error."""
-    yaw_scaled = bool((prep.wheel_yaw_check or {}).get("scale_applied"))
-    return prep.wheels_verified and not yaw_scaled and not ({"gps", "odom"} & set(prep.use)) \
-        and len(prep.coverage) == 1
-
-
-def reintegrated(t_ns: np.ndarray, x: np.ndarray, heading: bool = True) -> np.ndarray:
-    """Smoothed states with x, y (and, ``heading``, theta) integrated again from the smoothed speed and turn rate
-    by the trapezoid rule. The model's step takes the speed and turn rate at the step's start, so its positions
-    lag the speed by half a step (along the track wherever it turns); where no measurement holds the position,
-    the smoothed rates integrated without that lag are the better path."""
-    out = x.copy()
-    dt = np.diff(t_ns) * 1e-9
-    if heading:
-        d_th = 0.5 * (x[1:, W] + x[:-1, W]) * dt
-        th = x[0, TH] + np.concatenate([[0.0], np.cumsum(d_th)])
-    else:
-        th = np.unwrap(x[:, TH])
-        d_th = np.diff(th)
-    mid = th[:-1] + 0.5 * d_th
-    ds = 0.5 * (x[1:, V] + x[:-1, V]) * dt
-    out[:, X] = x[0, X] + np.concatenate([[0.0], np.cumsum(ds * np.cos(mid))])
-    out[:, Y] = x[0, Y] + np.concatenate([[0.0], np.cumsum(ds * np.sin(mid))])
-    out[:, TH] = (th + np.pi) % (2.0 * np.pi) - np.pi
-    return out
-
-
-def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> FuseResult:
-    ekf = PlanarEkf(prep, o, start)
-    knots = ekf.run()
-    x, P = knots["x_filt"], knots["P_filt"]
-    if o.smooth and len(x):
-        x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
-        if unmeasured_pose(prep):
-            x = reintegrated(knots["t_ns"], x, heading="orientation" not in prep.use.get("imu", ()))
-    handover = None
-    if o.handover_ns is not None and len(x):
-        handover = planar_handover(knots["t_ns"], x, P, o.handover_ns) if o.smooth else \
-            planar_handover(*ekf.handed, o.handover_ns)
-    sel = knots["output"]
-    if o.smooth:
-        x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
-    poses = np.stack([_se2(a[X], a[Y], a[TH]) for a in x]) if len(x) else np.zeros((0, 4, 4))
-    cov = None
-    if o.want_covariance:  # x, y, yaw into the 6x6 layout; z, roll, pitch are exactly known (planar)
-        cov = np.zeros((len(x), 6, 6))
-        cov[np.ix_(np.arange(len(x)), [0, 1, 5], [0, 1, 5])] = P
-    vel = None
-    if len(x):
-        vel = np.column_stack([x[:, V] * np.cos(x[:, TH]), x[:, V] * np.sin(x[:, TH]), np.zeros(len(x))])
-    info = {"model": "planar", "start": ekf.start.reason, "world_yaw_from": ekf.start.yaw_from,
-            "odom_mode": next(iter(prep.use.get("odom", ())), None)}
-    if handover is not None:
-        info["handover"] = handover
-    origin = enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset)
-    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info,
-                      origin)
+    return se2(T[0, 3], T[1, 3], float(yaw_of(T[:3, :3])))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lio_cli.core.fuse.heave import CROSSOVER_HZ, _solve
-from lio_cli.core.fuse.planar import reintegrated
+from lio_cli.core.fuse.rts_planar import reintegrated
 from lio_cli.core.fuse.planar_model import MIN_TURN_WALK, TH, V, W, X, Y, predict, turn_rate_walk
 
 
