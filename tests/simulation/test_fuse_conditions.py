@@ -183,8 +183,13 @@ def test_same_arguments_same_bytes(tmp_path):
                                 "or GPS)"),
 ])
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, monkeypatch, scenario, argv, message):
+    assert_refused(tmp_path, capsys, monkeypatch, ["simulate", scenario, "x.bag", "--duration", "2", *argv], message)
+
+
+def assert_refused(tmp_path, capsys, monkeypatch, argv: list[str], message: str) -> None:
+    """``lio ARGV`` run in ``tmp_path``: exit 2, ``message`` as the one line on stderr, nothing written."""
     monkeypatch.chdir(tmp_path)
-    rc = main(["simulate", scenario, "x.bag", "--duration", "2", *argv])
+    rc = main(argv)
     out, err = capsys.readouterr()
     assert (rc, out, err) == (2, "", f"lio: error: {message}\n")
     assert not any(tmp_path.iterdir())

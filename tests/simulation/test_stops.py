@@ -18,6 +18,7 @@ from lio_cli.simulation import SCENARIOS, build_scenario, metrics_path_for, outp
 from lio_cli.simulation.sensors import GRAVITY_MPS2, ImuSpec, synthesize_imu, wheel_odometry
 from lio_cli.simulation.stops import RAMP_S
 
+from .test_fuse_conditions import assert_refused
 from .test_physics import POS_TOL_M, ROT_TOL_DEG, _integrate_imu, _rot_err_deg
 
 NS = 1_000_000_000
@@ -150,11 +151,7 @@ def test_same_stops_same_bytes_and_the_warp_moves_only_what_follows(tmp_path):
                                    "or GPS)"),
 ])
 def test_bad_stops_exit_2_with_one_line(tmp_path, capsys, monkeypatch, scenario, argv, message):
-    monkeypatch.chdir(tmp_path)
-    rc = main(["simulate", scenario, "x.bag", "--duration", "45", *argv])
-    out, err = capsys.readouterr()
-    assert (rc, out, err) == (2, "", f"lio: error: {message}\n")
-    assert not any(tmp_path.iterdir())
+    assert_refused(tmp_path, capsys, monkeypatch, ["simulate", scenario, "x.bag", "--duration", "45", *argv], message)
 
 
 def test_a_moving_start_may_brake_from_the_first_sample(tmp_path):
