@@ -131,7 +131,7 @@ def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
         if kept and len(kept[-1]):  # never repeat a stamp the previous chunk already gave
             keep &= res.stamps_ns > kept[-1].stamps_ns[-1]
         cur = taken(res, keep)
-        if placed and prev_placed and kept:  # both on the fixes: faded from one to the other
+        if placed and kept:  # on the fixes: faded from the chunk before (on them too, or joined onto one)
             kept[-1], cur = cross_fade(kept[-1], cur, prev, res, a, ov // 2)
         kept.append(cur)
         shares.append(kept_shares({s: v.stamps_ns for s, v in piece.present().items()}, (a, b, last)))

@@ -293,3 +293,38 @@ def test_a_chunked_run_reports_every_stop_once(tmp_path):
     w, c = whole.metrics["core"]["rest"], chunked.metrics["core"]["rest"]
     assert w["spans"] == c["spans"] == 2
     assert np.allclose(np.array(c["span_ns"]), np.array(w["span_ns"]), atol=0.5e9)
+
+
+def test_a_chunk_on_the_fixes_after_one_without_them_fades_in(monkeypatch):
+    """The middle chunk had no fix (an outage): joined onto the chunk before, it carries its own drift (here a
+    10 % scale error, metres by its end); the next chunk is placed on the fixes. It jumped there by the whole
+    drift in one step (15.6 m on a rover with a 60 s outage); now the seam fades over the overlap's middle."""
+    from lio_cli.core.fuse import FuseOptions
+    from lio_cli.jobs.fuse import chunks
+
+    span_s, rate = 120.0, 10
+    st = T0 + np.arange(0, int(span_s * rate) + 1) * (10**9 // rate)
+    truth = _enu_track((st - T0) * 1e-9)
+    inp = FuseInputs(imu=ImuSeries(st, np.zeros((len(st), 3)), np.zeros((len(st), 3))))
+    calls = []
+
+    def fake_fuse(piece, options):
+        k = len(calls)
+        calls.append(options)
+        sel = np.isin(st, piece.imu.stamps_ns)
+        poses = truth[sel].copy()
+        origin = poses[0, :2, 3].copy()
+        poses[:, :3, 3] -= poses[0, :3, 3]
+        if k == 1:  # no fix: the dead reckoning's scale 10 % off
+            poses[:, :3, 3] *= 1.1
+            origin = None
+        return FuseResult(st[sel], poses, None, np.zeros((len(poses), 3)), "planar", True, {},
+                          {"use": {"imu": ["gyro"], "gps": ["position"]}}, origin)
+
+    monkeypatch.setattr(chunks, "fuse", fake_fuse)
+    monkeypatch.setattr(chunks, "judge_gps", lambda inputs, options: None)
+    memory = plan(inp, FuseOptions(estimator="ekf", smooth=True), {"imu": ["gyro"]}, 5.0)
+    res, infos = chunks.fuse_chunked(inp, FuseOptions(estimator="ekf", smooth=True), memory)
+    assert [i["placed_on_fixes"] for i in infos][:3] == [True, False, True]
+    step = np.linalg.norm(np.diff(res.poses[:, :3, 3], axis=0), axis=1)
+    assert np.max(step) < 0.6  # 0.2 m a step at 2 m/s, the drift spread over the fade
