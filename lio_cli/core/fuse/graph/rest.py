@@ -7,18 +7,17 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from ..rest import REST_POSITION_SIGMA_M, REST_ROTATION_SIGMA_RAD, REST_VELOCITY_SIGMA_MPS
+from ..rest import REST_POSITION_SIGMA_M, REST_ROTATION_SIGMA_RAD, REST_VELOCITY_SIGMA_MPS, at_rest
 
 
 def add(g: gtsam.NonlinearFactorGraph, kt: np.ndarray, spans: np.ndarray | None, k0: int, k1: int) -> int:
     """The rest factors of keyframes [k0, k1) (their count)."""
     if spans is None or not len(spans):
         return 0
-    j = np.searchsorted(spans[:, 0], kt[k0:k1], "right") - 1
-    inside = (j >= 0) & (kt[k0:k1] <= spans[np.maximum(j, 0), 1])
+    inside = at_rest(spans, kt[k0:k1])  # two spans lie a window apart: consecutive keyframes share one
     vel = gtsam.noiseModel.Isotropic.Sigma(3, REST_VELOCITY_SIGMA_MPS)
     n = 0
-    for a in np.flatnonzero(inside[:-1] & inside[1:] & (j[:-1] == j[1:])).tolist():
+    for a in np.flatnonzero(inside[:-1] & inside[1:]).tolist():
         k = k0 + a
         sig = np.r_[np.full(3, REST_ROTATION_SIGMA_RAD), np.full(3, REST_POSITION_SIGMA_M)]
         g.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(sig)))
