@@ -30,6 +30,18 @@ GPS_SPEED_SIGMAS = 4.0  # the fixes' speed over the start window, in sigmas of i
 GPS_MIN_SPEED_MPS = 0.5
 
 
+def imu_quiet(w: np.ndarray, f: np.ndarray, gravity_mps2: float):
+    """Whether IMU samples (..., n, 3: base rate, specific force) read as at rest, with the gyro's and the
+    accelerometer's largest deviation; a steady turn looks like a gyro bias, so a "bias" above
+    ``MAX_GYRO_BIAS_RADPS`` is taken as motion. Arrays over the leading axes (``rest``'s windows)."""
+    w_mean = w.mean(axis=-2)
+    gyro_dev = np.linalg.norm(w - w_mean[..., None, :], axis=-1).max(axis=-1)
+    acc_dev = np.abs(np.linalg.norm(f, axis=-1) - gravity_mps2).max(axis=-1)
+    quiet = (gyro_dev < GYRO_STILL_RADPS) & (acc_dev < ACCEL_STILL_MPS2) \
+        & (np.linalg.norm(w_mean, axis=-1) < MAX_GYRO_BIAS_RADPS)
+    return quiet, gyro_dev, acc_dev
+
+
 def _moving_by_other_sources(prep: Prepared, t0: int, window_ns: int) -> str | None:
     """Why the wheels or the odometry say the base moves during the start window, or None."""
     w = prep.wheel
@@ -129,11 +141,8 @@ def initial_state(prep: Prepared, window_ns: int, gravity_mps2: float, noise) ->
         # base vanish at rest, and the angular acceleration in them only adds the gyro's noise (lever.py)
         w, f_imu = prep.imu_w_b[sel], imu.accel_mps2[sel]
         if len(w) >= 10:
-            gyro_dev = float(np.linalg.norm(w - w.mean(axis=0), axis=1).max())
-            acc_dev = float(np.abs(np.linalg.norm(f_imu, axis=1) - gravity_mps2).max())
-            # a steady turn looks like a gyro bias: a "bias" above MAX_GYRO_BIAS_RADPS is taken as motion
-            standing = (gyro_dev < GYRO_STILL_RADPS and acc_dev < ACCEL_STILL_MPS2
-                        and float(np.linalg.norm(w.mean(axis=0))) < MAX_GYRO_BIAS_RADPS)
+            quiet, gyro_dev, acc_dev = imu_quiet(w, f_imu, gravity_mps2)
+            standing = bool(quiet)
             moving = _moving_by_other_sources(prep, t0, window_ns) if standing else None
             if moving:  # at constant velocity an IMU reads exactly as at rest: the wheels or odometry tell
                 standing = False

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .initial import ACCEL_STILL_MPS2, GYRO_STILL_RADPS, MAX_GYRO_BIAS_RADPS, STILL_SPEED_MPS
+from .initial import STILL_SPEED_MPS, imu_quiet
 from .timeline import Prepared
 
 WINDOW_S = 0.5
@@ -46,11 +46,7 @@ def rest_spans(prep: Prepared, gravity_mps2: float) -> np.ndarray:
     w = prep.imu_w_b[:m * n].reshape(m, n, 3)
     f = imu.accel_mps2[:m * n].reshape(m, n, 3)
     a, b = t[:m * n:n], t[n - 1:m * n:n]
-    w_mean = w.mean(axis=1)
-    still = ((np.linalg.norm(w - w_mean[:, None], axis=2).max(axis=1) < GYRO_STILL_RADPS)
-             & (np.abs(np.linalg.norm(f, axis=2) - gravity_mps2).max(axis=1) < ACCEL_STILL_MPS2)
-             & (np.linalg.norm(w_mean, axis=1) < MAX_GYRO_BIAS_RADPS)
-             & (b - a <= 1.5 * WINDOW_S * 1e9))  # no IMU gap inside
+    still = imu_quiet(w, f, gravity_mps2)[0] & (b - a <= 1.5 * WINDOW_S * 1e9)  # and no IMU gap inside
     still_base, moved = _wheels_still(wheel, a, b) if wheel is not None else _odom_still(odom, a, b)
     still &= still_base
     # the spans before the base first moves are the start's: ``initial_state`` measured them (or a driver that
