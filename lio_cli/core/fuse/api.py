@@ -96,6 +96,8 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         prep = _prepare(inputs, o)
+        if check and o.estimator == "ekf":
+            _check_wheels(prep, o, "ekf")
         say_gyro_gaps(prep, o.estimator)
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
@@ -104,14 +106,22 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     if o.estimator == "planar" and (data := choose_estimator(prep)).name != "planar":  # run as given, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
-    if check and choice.name == "planar" and wheel_slip.applies(prep):  # reported in info["wheel_check"]
-        prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
+    if check:
+        _check_wheels(prep, o, choice.name)
     graph_runs = o.smooth and _graph_smooths(prep, choice.name)
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
     say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
+
+
+def _check_wheels(prep: Prepared, o: FuseOptions, estimator: str) -> None:
+    """The accelerometer checks the wheels (``wheel_slip``: slips bridged, scale applied; ``info["wheel_check"]``)
+    for the planar filter, and for the 3D one without odometry (beside odometry the graph measures the wheels'
+    scale and slips against it instead)."""
+    if (estimator == "planar" or (estimator == "ekf" and "odom" not in prep.use)) and wheel_slip.applies(prep):
+        prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
 
 
 def graph_smooths(use: dict, estimator: str) -> bool:
