@@ -32,8 +32,8 @@ class _Console:
         return getattr(self.console, name)
 
 
-err_console = _Console(stderr=True, highlight=False, soft_wrap=True)
-out_console = _Console(highlight=False, soft_wrap=True)
+err_console = _Console(stderr=True, highlight=False, soft_wrap=True, emoji=False)  # ":100:" stays as typed
+out_console = _Console(highlight=False, soft_wrap=True, emoji=False)
 
 # The option panels of every command's --help, in this order; options of one concern share a panel.
 INPUT_PANEL = "Input and topics"

@@ -11,6 +11,7 @@ import typer
 from ..simulation import ALL_SCENARIOS, FORMATS, STARTS, TIME_CONVENTIONS, simulate
 from ..simulation.options import GPS_COVARIANCES, GPS_MODELS, GT_TYPES, parse_floats
 from ..simulation.stops import RAMP_S, parse_stop
+from ..simulation.terrain import parse_hills
 from .common import (CALIBRATION_PANEL, FLAG, MOTION_PANEL, OUTPUT_PANEL, RUN_PANEL, ForceOpt, JsonOpt, LioCommand,
                      QuietOpt, note, one_of, print_json, progress_bar, shown)
 
@@ -51,6 +52,7 @@ wander, a multipath jump, optimistic covariance), --gps-alt-wander, --gps-jump a
   lio simulate corridor corridor_ros2 --format ros2 --gps
   lio simulate rover field.mcap --start moving --gps-model consumer
   lio simulate drive lights.mcap --duration 45 --stop 20:5 --stop 37:10
+  lio simulate rover hills.mcap --no-lidar --hills 2:150 --gps
   lio simulate static allan.mcap --duration 7200
   lio simulate planar office.mcap --noise-scale 0 --json   # ideal sensors
 """
@@ -71,6 +73,7 @@ def simulate_cmd(
     out: Annotated[Path, typer.Argument(metavar="OUT", help="Output log: x.bag, x.mcap or a ROS 2 folder.", show_default=False)],
     start: Annotated[Start, typer.Option("--start", metavar=one_of(Start), help="still: at rest for 1.5 s; moving: in motion at every sensor's first sample; accelerating: half-way up its speed ramp (drive).", rich_help_panel=MOTION_PANEL)] = "still",
     tilt_scale: Annotated[float, typer.Option("--tilt-scale", help="Scale of the roll and pitch sway (0..5; 0: level).", rich_help_panel=MOTION_PANEL)] = 1.0,
+    hills: Annotated[Optional[str], typer.Option("--hills", metavar="AMPLITUDE:WAVELENGTH", help="Ground height AMPLITUDE sin(2 pi s / WAVELENGTH) along the path, m; the base pitches with the grade (needs --no-lidar).", show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     stop: Annotated[Optional[list[str]], typer.Option("--stop", metavar="AT:SECONDS", help=f"Stand exactly still for SECONDS from AT (seconds since the start), braking over the {RAMP_S:g} s before AT and driving off over the {RAMP_S:g} s after (repeat); may run past the end: the log ends parked.", show_default=False, rich_help_panel=MOTION_PANEL)] = None,
     beams: Annotated[Optional[int], typer.Option("--beams", help=shown("LiDAR beams: 16, 32, 64 or 128.", "16; drive 32"), show_default=False, rich_help_panel=SENSORS_PANEL)] = None,
     columns: Annotated[Optional[int], typer.Option("--columns", help=shown("LiDAR columns per turn (planar: LaserScan beams).", "1024; planar 720"), show_default=False, rich_help_panel=SENSORS_PANEL)] = None,
@@ -134,6 +137,7 @@ def simulate_cmd(
         if value is not None:
             gps_opts[key] = value
     stops = tuple(parse_stop(text) for text in stop or ())
+    terrain = None if hills is None else parse_hills(hills)
     t0 = time.perf_counter()
     with progress_bar(f"simulating {scenario}", duration, quiet) as advance:
         res = simulate(
@@ -151,7 +155,7 @@ def simulate_cmd(
             imu_lever_arm_m=parse_floats(imu_lever_arm, 3, "--imu-lever-arm"), imu_start_delay_s=imu_start_delay,
             gt_type=gt_type, gt_topic=gt_topic, gt_twist=gt_twist, tf_static=tf_static, wheel=wheel,
             gps=gps or bool(gps_opts), wheel_slip_bursts=wheel_slip_bursts, lidar=lidar, stops=stops,
-            **gps_opts,
+            hills=terrain, **gps_opts,
         )
     wall = time.perf_counter() - t0
     summary = res.to_dict()

@@ -23,7 +23,8 @@ class TrueMotion:
         conditions = truth.get("conditions", {})
         self.scenario = build_scenario(truth["scenario"], start=conditions.get("start", "still"),
                                        tilt_scale=conditions.get("tilt_scale", 1.0),
-                                       stops=tuple((s["start_s"], s["duration_s"]) for s in truth.get("stops", ())))
+                                       stops=tuple((s["start_s"], s["duration_s"]) for s in truth.get("stops", ())),
+                                       hills=_hills(truth.get("hills")))
         self.T_base_lidar = np.asarray(truth["T_base_lidar"], dtype=np.float64)
         self.start_ns = int(truth["start_ns"])
 
@@ -36,3 +37,7 @@ class TrueMotion:
         T_ref = self.poses(np.array([t_ref_ns]))[0] @ self.T_base_lidar
         rel = inv_pose(T_ref)[None] @ self.poses(stamps_ns) @ self.T_base_lidar
         return np.einsum("nij,nj->ni", rel[:, :3, :3], points_lidar) + rel[:, :3, 3]
+
+
+def _hills(entry: dict | None) -> tuple[float, float] | None:
+    return None if entry is None else (entry["amplitude_m"], entry["wavelength_m"])

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from .terrain import Hills
+
 # A scalar signal evaluated at times: (value, first derivative, second derivative), each shaped like t.
 Signal3 = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -175,7 +177,8 @@ class Trajectory:
     """Base motion: x-y along ``path`` by ``progress``; height, yaw offset, pitch and roll as signals.
 
     ``heading_follows_path``: yaw = path tangent heading + ``yaw_offset`` (wheeled platforms keep
-    ``yaw_offset`` zero so they never move sideways).
+    ``yaw_offset`` zero so they never move sideways). ``terrain``: hills along the path (see :mod:`.terrain`),
+    their height added to the base's and their grade to its pitch; None: flat ground.
     """
 
     path: Path2D
@@ -187,6 +190,7 @@ class Trajectory:
     roll: Sines = field(default_factory=Sines)
     fade_in_s: float = 1.5  # sway signals fade in after the rest period
     t_rest_s: float = 1.5
+    terrain: Hills | None = None
 
     def _envelope(self, t: np.ndarray) -> Signal3:
         return smoothstep(t, self.t_rest_s, self.fade_in_s)
@@ -211,11 +215,14 @@ class Trajectory:
         s, sd, sdd = self.progress(t)
         d1, d2 = self.path.derivs(s, 1), self.path.derivs(s, 2)
         z = add((np.full_like(t, self.z0_m), np.zeros_like(t), np.zeros_like(t)), self._faded(self.z_wobble, t))
+        pitch, roll = self._faded(self.pitch, t), self._faded(self.roll, t)
+        if self.terrain is not None:
+            lift, grade = self.terrain.along((s, sd, sdd))
+            z, pitch = add(z, lift), add(pitch, grade)
         pos = np.column_stack([self.path.derivs(s, 0), z[0]])
         vel = np.column_stack([d1 * sd[:, None], z[1]])
         acc = np.column_stack([d2 * (sd * sd)[:, None] + d1 * sdd[:, None], z[2]])
         yaw = add(self.heading(t), self._faded(self.yaw_offset, t))
-        pitch, roll = self._faded(self.pitch, t), self._faded(self.roll, t)
         R = ypr_to_matrix(yaw[0], pitch[0], roll[0])
         omega, alpha = ypr_rates_to_body((yaw, pitch, roll))
         return MotionState(t, pos, vel, acc, R, omega, alpha)

@@ -2,7 +2,7 @@
 
 Every field has a default that reproduces the logs made before the field existed, byte for byte; the
 fields added for real-log conditions (start state, IMU mounting, ground-truth topic, start order of the
-drivers, extrinsics in the log, wheels, GPS, stops mid-log) are listed in :data:`CONDITION_DEFAULTS`.
+drivers, extrinsics in the log, wheels, GPS, stops mid-log, hills) are listed in :data:`CONDITION_DEFAULTS`.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, fields
 
 from ..errors import ConfigError
 from .stops import check_stops
+from .terrain import check_hills
 
 TIME_CONVENTIONS = ("velodyne", "ouster", "livox", "hesai")
 STARTS = ("still", "moving", "accelerating")
@@ -82,6 +83,7 @@ class SimulationOptions:
     wheel_slip_bursts: int = 0  # slip bursts on top of the error model's one episode (drawn from the seed)
     lidar: bool = True  # False: no LiDAR topic (a cheap log for IMU, wheel and GPS work)
     stops: tuple[tuple[float, float], ...] = ()  # (at_s, seconds) of each standstill mid-log, in time order
+    hills: tuple[float, float] | None = None  # (amplitude_m, wavelength_m) of the ground along the path
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -90,7 +92,7 @@ class SimulationOptions:
 CONDITION_DEFAULTS = {
     "start": "still", "tilt_scale": 1.0, "imu_rotation_deg": None, "imu_lever_arm_m": None, "imu_start_delay_s": 0.0,
     "gt_type": None, "gt_topic": "/ground_truth", "gt_twist": False, "tf_static": True, "wheel": None, "gps": False,
-    "lidar": True, "stops": (),
+    "lidar": True, "stops": (), "hills": None,
 }
 
 
@@ -120,11 +122,12 @@ _FLAGS = {"imu_rate_hz": "--imu-rate", "imu_time_offset_s": "--imu-time-offset",
           "imu_start_delay_s": "--imu-start-delay", "gps_rate_hz": "--gps-rate", "gps_noise_m": "--gps-noise",
           "gps_outage_s": "--gps-outage", "gps_invalid_fraction": "--gps-invalid", "tilt_scale": "--tilt-scale",
           "gps_alt_wander_m": "--gps-alt-wander", "gps_jump_m": "--gps-jump", "wheel_slip_bursts": "--wheel-slip-bursts",
-          "stops": "--stop"}
+          "stops": "--stop", "hills": "--hills"}
 
 
 def validate(opts: SimulationOptions, scenario: str, duration_s: float) -> None:
-    """One ConfigError line for the first option that cannot work; puts ``opts.stops`` in time order."""
+    """One ConfigError line for the first option that cannot work; puts ``opts.stops`` in time order and
+    makes ``opts.hills`` a float pair."""
     static = scenario == "static"
     limit = MAX_STATIC_DURATION_S if static else MAX_DURATION_S
     if not (duration_s > 0 and math.isfinite(duration_s)):
@@ -215,7 +218,8 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
                       "--imu-start-delay": opts.imu_start_delay_s or None, "--start": None if opts.start == "still" else opts.start,
                       "--tilt-scale": None if opts.tilt_scale == 1.0 else opts.tilt_scale,
                       "--wheel": opts.wheel or None, "--gps": opts.gps or None,
-                      "--no-lidar": None if opts.lidar else True, "--stop": opts.stops or None}
+                      "--no-lidar": None if opts.lidar else True, "--stop": opts.stops or None,
+                      "--hills": opts.hills}
         used = [flag for flag, v in lidar_only.items() if v is not None]
         if used:
             raise ConfigError(f"{used[0]} does not apply to the static scenario (an IMU at rest, no LiDAR, wheels or GPS)")
@@ -225,3 +229,5 @@ def _validate_conditions(opts: SimulationOptions, scenario: str, duration_s: flo
         raise ConfigError("--wheel-slip-bursts needs wheels (drive, corridor, planar or rover, without --no-wheel)")
     if opts.stops:
         opts.stops = check_stops(opts.stops, STILL_REST_S if opts.start == "still" else 0.0, duration_s)
+    if opts.hills is not None:
+        opts.hills = check_hills(opts.hills, scenario, opts.lidar)

@@ -176,7 +176,7 @@ def simulate(scenario: str, out: str | Path, fmt: str | None = None, duration_s:
     for p in (out, gt_path, truth_path, metrics_path):
         check_writable(p, force)
 
-    sc = build_scenario(scenario, opts.beams, opts.columns, opts.start, opts.tilt_scale, opts.stops)
+    sc = build_scenario(scenario, opts.beams, opts.columns, opts.start, opts.tilt_scale, opts.stops, opts.hills)
     _mount_imu(sc, opts)
     if opts.wheel is False:
         sc.wheels = None

@@ -24,6 +24,7 @@ from .motion import Path2D, Progress, Sines, Trajectory, ypr_to_matrix
 from .options import STILL_REST_S
 from .sensors import LaserSpec, LidarSpec, WheelSpec
 from .stops import StoppedTrajectory
+from .terrain import Hills
 from .world import World, footprint_clearance
 
 SCENARIOS = ("handheld", "drive", "corridor", "planar", "rover", "drone")  # the LiDAR scenarios
@@ -257,15 +258,19 @@ def _start_times(start: str, ramp_s: float = 1.5, fade_s: float = 1.5) -> tuple[
 
 
 def build_scenario(name: str, beams: int | None = None, columns: int | None = None, start: str = "still",
-                   tilt_scale: float = 1.0, stops: tuple[tuple[float, float], ...] = ()) -> Scenario:
+                   tilt_scale: float = 1.0, stops: tuple[tuple[float, float], ...] = (),
+                   hills: tuple[float, float] | None = None) -> Scenario:
     """The scenario ``name`` (one of SCENARIOS) with a LiDAR of ``beams`` x ``columns``, starting ``start``
     (still, moving or accelerating), its roll and pitch sway scaled by ``tilt_scale``, standing still at
-    ``stops`` ((at_s, seconds) pairs, checked and in time order: see :mod:`.stops`)."""
+    ``stops`` ((at_s, seconds) pairs, checked and in time order: see :mod:`.stops`), over ``hills``
+    ((amplitude_m, wavelength_m), checked: see :mod:`.terrain`; the world's ground stays flat)."""
     sc = _scenario(name, beams, columns, start)
     if tilt_scale != 1.0 and sc.trajectory is not None:
         traj = sc.trajectory
         traj.roll, traj.pitch = (replace(sig, amps=tuple(tilt_scale * a for a in sig.amps))
                                  for sig in (traj.roll, traj.pitch))
+    if hills is not None:
+        sc.trajectory.terrain = Hills(*(float(v) for v in hills))
     if stops:
         sc.trajectory = StoppedTrajectory(sc.trajectory, tuple(stops))
     return sc

@@ -2,9 +2,9 @@
 
 A run without any real-log condition writes the base keys only. A run with any condition (``--start moving``,
 ``--tilt-scale``, ``--imu-rotation``, ``--gt-type``, ``--imu-start-delay``, ``--no-tf-static``,
-``--wheel/--no-wheel``, ``--gps``, ``--stop``) and every static run add a complete ``conditions`` block; GPS
-runs add ``gps``, runs with stops ``stops``, static runs ``allan``. ``imu.imu_time_offset_s`` is added to IMU
-stamps to put them on the LiDAR's clock, as in a calibration.
+``--wheel/--no-wheel``, ``--gps``, ``--stop``, ``--hills``) and every static run add a complete ``conditions``
+block; GPS runs add ``gps``, runs with stops ``stops``, runs over hills ``hills``, static runs ``allan``.
+``imu.imu_time_offset_s`` is added to IMU stamps to put them on the LiDAR's clock, as in a calibration.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from .options import SimulationOptions, has_conditions
 from .record import TOPIC_GPS, TOPIC_IMU, TOPIC_POINTS, TOPIC_SCAN, TOPIC_WHEEL
 from .scenarios import Scenario
 from .sensors import NS, ImuData, ImuSpec, LidarSpec, beam_elevations_deg
-from .stops import STOPS_MEANING, stops_truth
+from .stops import STOPS_MEANING, StoppedTrajectory, stops_truth
+from .terrain import hills_truth
 
 
 @dataclass
@@ -203,6 +204,9 @@ def truth_dict(sc: Scenario, opts: SimulationOptions, imu_spec: ImuSpec, bias: d
         truth["ground_truth"].update(type=facts.gt_type, file="pose of base in world at rate_hz (x.gt.tum)")
     if opts.stops:
         truth.update(stops=stops_truth(opts.stops, start_ns), stops_meaning=STOPS_MEANING)
+    if opts.hills is not None:
+        motion = sc.trajectory.motion if isinstance(sc.trajectory, StoppedTrajectory) else sc.trajectory
+        truth["hills"] = hills_truth(motion.terrain, float(motion.progress(np.array([0.0]))[0][0]))
     if facts.gps is not None:
         truth["gps"] = _gps(sc, *facts.gps, start_ns)
     if static:
