@@ -31,7 +31,9 @@ WINDOW_S = 1.0  # gravity is averaged over this long a window (vibration and sho
 SLIP_MPS2 = 3.0  # wheel acceleration the IMU did not feel, beyond which a window is a slip
 MAX_TILT_DEG = 8.0  # 95th percentile of the gravity direction's wander a planar platform may show
 MIN_CLIMB_M = 0.5  # vertical extent always taken as planar (bumps, the estimate's own noise) ...
-CLIMB_SHARE = 0.01  # ... or this share of the distance travelled, whichever is larger
+# ... or this share of the distance travelled, whichever is larger: flat simulated drives read at most 0.56 m over
+# 320 m and 0.49 m over 2.2 km; a car over 2 m hills reads 2-2.9 m over 320-340 m, which a 1 % share took as flat
+CLIMB_SHARE = 0.003
 
 
 @dataclass(frozen=True)
