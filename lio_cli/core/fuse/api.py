@@ -91,13 +91,12 @@ def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
 
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
-    smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). For
-    the planar filter the accelerometer first checks the wheels (``wheel_slip``: slips bridged, scale applied),
-    unless ``check`` is False (the choice alone)."""
+    smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). The
+    accelerometer first checks the wheels (``_check_wheels``), unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         prep = _prepare(inputs, o)
-        if check and o.estimator == "ekf":
-            _check_wheels(prep, o, "ekf")
+        if check:
+            _check_wheels(prep, o, o.estimator)
         say_gyro_gaps(prep, o.estimator)
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
@@ -196,7 +195,7 @@ def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | 
     if prep.gps is None or "gps" not in prep.use:
         return None
 
-    def wheels() -> tuple[bool, bool]:  # the wheel check ``fuse`` makes on the whole log (planar filter)
+    def wheels() -> tuple[bool, bool]:  # the wheel check ``fuse`` makes on the whole log
         checked, _ = _prepare_and_choose(inputs, options)
         return checked.wheels_verified, agreement.wheel_speed_backed(checked.wheel_check)
 

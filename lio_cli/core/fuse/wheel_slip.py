@@ -1,4 +1,4 @@
-"""Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed, no odometry).
+"""Wheel slip and wheel scale from the accelerometer, before the planar or 3D filter (IMU + wheel speed, no odometry).
 
 A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of a
 second while the accelerometer feels no such acceleration. ``tilt_track.forward_accel`` gives the forward
@@ -16,7 +16,8 @@ random walk: its white noise (measured from the data) walks the carried gravity 
 error the constant-bias terms cannot take out and the blocks share (``tilt_track.walk_variance``). Slips:
 ``slip_windows`` (a jump of the difference until it is back at its level). The first fit leaves out the raw
 difference's jumps (``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's
-pitch, from each anchor, divides the forward acceleration by its cosine.
+pitch (the log's median up direction, ``tilt_track.mount_cosine``: a start on a slope is the ground's, not the
+mount's) divides the forward acceleration by its cosine.
 
 The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``) and
 off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips are
