@@ -49,3 +49,21 @@ def test_the_3d_filter_bridges_a_slip_the_accelerometer_finds():
     check = res.info["wheel_check"]
     assert check["slips"] == 1 and check["bridged"] > 0 and check["verified"]
     assert res.reports["wheel"].notes["slip_bridged"] == check["bridged"]
+
+
+def test_a_car_over_long_gentle_hills_gets_the_3d_filter_and_is_not_flattened():
+    # 2 m up and down over 330 m: under 1 % of the distance (which the choice once allowed), far above a flat
+    # drive's evidence (at most 0.56 m over 320 m on the robustness matrix)
+    case = simulate_case("drive", 45.0, seed=1, wheel_errors=False, hills=(1.0, 150.0))
+    res = fuse(case.inputs, FuseOptions(rate_hz=20.0))
+    ev = res.info["estimator_evidence"]
+    assert res.estimator == "ekf" and res.info["estimator_reason"].startswith("wheels and IMU climb ")
+    assert ev["climb_m"] < 0.01 * ev["path_m"]
+    planar = fuse(case.inputs, FuseOptions(rate_hz=20.0, estimator="planar"))
+    assert _ate(case, res) < 0.3 * _ate(case, planar)  # measured 0.124 against the flattened 0.652 m
+
+
+def test_a_flat_drive_of_the_same_length_stays_planar():
+    case = simulate_case("drive", 45.0, seed=1, wheel_errors=False)
+    res = fuse(case.inputs, FuseOptions(rate_hz=20.0, smooth=False))
+    assert res.estimator == "planar", res.info["estimator_reason"]  # climb 0.22 m over 322 m
