@@ -101,8 +101,9 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
-    choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep)
-    if o.estimator == "planar" and (data := choose_estimator(prep)).name != "planar":  # run as given, and told
+    measured = _scale_measured(prep, o) if o.estimator in ("auto", "planar") else False
+    choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep, measured)
+    if o.estimator == "planar" and (data := choose_estimator(prep, measured)).name != "planar":  # run, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
     if check:
@@ -113,6 +114,16 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
         planar_use(prep.use)
     say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
+
+
+def _scale_measured(prep: Prepared, o: FuseOptions) -> bool:
+    """Whether the accelerometer measures the wheels' scale (a trial ``wheel_slip`` check on a copy, nothing
+    counted): where it cannot, its axes may not be the base's and the climb it reads is no evidence (``choose``).
+    Beside odometry, or without an accelerometer and wheel speed, False."""
+    if "odom" in prep.use or not wheel_slip.applies(prep):
+        return False
+    trial = replace(prep, reports=copy.deepcopy(prep.reports))
+    return wheel_slip.check_wheels(trial, o.gate_probability, o.gravity_mps2).measured
 
 
 def _check_wheels(prep: Prepared, o: FuseOptions, estimator: str) -> None:

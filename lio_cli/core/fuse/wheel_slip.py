@@ -70,6 +70,7 @@ class SlipReport:
     left_in: int = 0  # slips longer than MAX_SLIP_S the IMU's speed did not close: out of the fit, not bridged
     verified: bool = False  # the scale measured, near 1, every slip bridged: the speeds can be trusted
     why: str = ""
+    measured: bool = False  # the fit knew the scale (MAX_SCALE_SIGMA) and found it near 1 (MAX_SCALE_OFF)
 
     def to_dict(self) -> dict:
         return {"slips": len(self.windows), "windows_s": [[round(a, 2), round(b, 2)] for a, b in self.windows],
@@ -204,6 +205,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
                    f"IMU's forward axis is likely not the base's"
                    + (" or the wheels' speed has its sign reversed" if s < 0 else "") + ": wheels left as they are")
         return rep
+    rep.measured = True
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0
     v_new = scale * vw
