@@ -12,7 +12,7 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import agreement, graph, heave, rest, shape, wheel_slip
+from . import agreement, graph, heave, rest, shape, wheel_check
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
@@ -92,46 +92,28 @@ def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). The
-    accelerometer first checks the wheels (``_check_wheels``), unless ``check`` is False (the choice alone)."""
+    accelerometer first checks the wheels (``wheel_check.check``), unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         prep = _prepare(inputs, o)
         if check:
-            _check_wheels(prep, o, o.estimator)
+            wheel_check.check(prep, o, o.estimator)
         say_gyro_gaps(prep, o.estimator)
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
-    measured = _scale_measured(prep, o) if o.estimator in ("auto", "planar") else False
+    measured = wheel_check.scale_measured(prep, o) if o.estimator in ("auto", "planar") else False
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep, measured)
     if o.estimator == "planar" and (data := choose_estimator(prep, measured)).name != "planar":  # run, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
     if check:
-        _check_wheels(prep, o, choice.name)
+        wheel_check.check(prep, o, choice.name)
     graph_runs = o.smooth and _graph_smooths(prep, choice.name)
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
     say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
-
-
-def _scale_measured(prep: Prepared, o: FuseOptions) -> bool:
-    """Whether the accelerometer measures the wheels' scale (a trial ``wheel_slip`` check on a copy, nothing
-    counted): where it cannot, its axes may not be the base's and the climb it reads is no evidence (``choose``).
-    Beside odometry, or without an accelerometer and wheel speed, False."""
-    if "odom" in prep.use or not wheel_slip.applies(prep):
-        return False
-    trial = replace(prep, reports=copy.deepcopy(prep.reports))
-    return wheel_slip.check_wheels(trial, o.gate_probability, o.gravity_mps2).measured
-
-
-def _check_wheels(prep: Prepared, o: FuseOptions, estimator: str) -> None:
-    """The accelerometer checks the wheels (``wheel_slip``: slips bridged, scale applied; ``info["wheel_check"]``)
-    for the planar filter, and for the 3D one without odometry (beside odometry the graph measures the wheels'
-    scale and slips against it instead)."""
-    if (estimator == "planar" or (estimator == "ekf" and "odom" not in prep.use)) and wheel_slip.applies(prep):
-        prep.wheel_check = wheel_slip.check_wheels(prep, o.gate_probability, o.gravity_mps2).to_dict()
 
 
 def graph_smooths(use: dict, estimator: str) -> bool:
