@@ -46,7 +46,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     else:
         result = _run_filter(prep, o)
     if o.smooth and o.test_gps_shape and shape.applies(prep):
-        result = _shape_without_gps(inputs, given, prep, result)
+        result = _shape_without_gps(inputs, given, prep, result, o.estimator)
     result.info.update(_common_info(prep, o))
     if result.estimator == "complementary":  # it takes no zero rate at rest
         result.info["rest"] = None
@@ -57,12 +57,15 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     return result
 
 
-def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
+def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult,
+                       estimator: str) -> FuseResult:
     """The run without GPS placed on the fixes, or the GPS-fused ``fused``, as ``agreement`` judges them: asked
-    where the claim looks optimistic, the IMU verified the wheels or backs their speed."""
+    where the claim looks optimistic, or the IMU verified the wheels or backs their speed for the planar filter
+    (the 3D filter's wheel check is not asked: measured for the planar one only)."""
     optimistic = agreement.optimistic(prep.gps, fused)
-    verified = prep.wheels_verified
-    if not (optimistic or verified or agreement.wheel_speed_backed(prep.wheel_check)):
+    planar = estimator == "planar"
+    verified = planar and prep.wheels_verified
+    if not (optimistic or verified or (planar and agreement.wheel_speed_backed(prep.wheel_check))):
         return fused
     free = _without_gps(inputs, o)
     if free is None:  # the sources without GPS do not make a run: the GPS-fused one stands
@@ -101,7 +104,7 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
-    measured = wheel_check.scale_measured(prep, o) if o.estimator in ("auto", "planar") else False
+    measured = lambda: wheel_check.scale_measured(prep, o)  # noqa: E731 (asked only where it decides)
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep, measured)
     if o.estimator == "planar" and (data := choose_estimator(prep, measured)).name != "planar":  # run, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "

@@ -42,9 +42,11 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
 
 
 def mount_cosine(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray) -> float:
-    """The cosine of the IMU mount's pitch: the median over ``MOUNT_WINDOW_S`` windows of the up direction's
-    forward share (the accelerometer less the wheels' acceleration). The ground's grade at any one moment is not
-    the mount's: over a drive up and down hills it averages out, where the first second's would stay in."""
+    """The cosine of the IMU mount's pitch: the median, weighted by the distance driven in each, over
+    ``MOUNT_WINDOW_S`` windows of the up direction's forward share (the accelerometer less the wheels'
+    acceleration). The ground's grade at any one moment is not the mount's: over a drive up and down hills it
+    averages out along the distance, where the first second's (or a long wait parked on a slope) would stay in.
+    A log that hardly moves: every window alike."""
     dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
     n = max(1, int(round(MOUNT_WINDOW_S / dt))) if dt > 0 else 1
     m = len(t_s) // n
@@ -54,7 +56,14 @@ def mount_cosine(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndar
     kin = np.column_stack([np.interp(t_s, t_w, np.gradient(v_w, t_w)), v * w_b[:, 2], -v * w_b[:, 1]])
     up = (f_b - kin)[:m * n].reshape(m, n, 3).mean(axis=1)
     up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
-    ux = float(np.median(up[:, 0]))
+    w = np.abs(v[:m * n]).reshape(m, n).mean(axis=1)
+    if not np.isfinite(w).all() or w.sum() <= 0.0:
+        w = np.ones(m)
+    keep = w > 0.0
+    x, w = up[keep, 0], w[keep]
+    order = np.argsort(x)
+    mid = np.cumsum(w[order]) - 0.5 * w[order]  # each window's middle along the sorted weight
+    ux = float(np.interp(0.5 * w.sum(), mid, x[order]))  # equal weights: np.median's value
     return float(np.sqrt(max(1.0 - ux**2, 1e-6)))
 
 
@@ -99,10 +108,11 @@ class StretchIntegral:
 
 
 def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
-            g: float, gap: np.ndarray, c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+            g: float, gap: np.ndarray, c: float) -> tuple[np.ndarray, np.ndarray]:
     """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
-    cosine of the IMU mount's pitch (a pitched x axis feels that share of the forward acceleration): the up
-    direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
+    cosine ``c`` of the IMU mount's pitch (``mount_cosine``: a pitched x axis feels that share of the forward
+    acceleration): the up direction in the base frame from the first second (the accelerometer less the wheels'
+    acceleration),
     carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
     (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
     with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
@@ -128,8 +138,6 @@ def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, 
         phi = np.einsum("nji,nj->ni", R, B @ e)
         sens[:, j] = np.cross(ub, phi)[:, 0]
         sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
-    if c is None:  # the mount's pitch: the start's, the gyro's drift never in
-        c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))
     return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
 
 

@@ -12,13 +12,14 @@ from .timeline import Prepared
 
 
 def scale_measured(prep: Prepared, o: FuseOptions) -> bool:
-    """Whether the accelerometer measures the wheels' scale (a trial check on a copy, nothing counted): where it
-    cannot, its axes may not be the base's and the climb it reads is no evidence (``choose``). Beside odometry, or
-    without an accelerometer and wheel speed, False."""
+    """Whether the accelerometer measures the wheels' scale (a trial check on a copy, nothing counted, without the
+    angle walk's share of the scale's sigma, which ``measured`` does not ask and whose matrix grows with the log's
+    length squared): where it cannot, its axes may not be the base's and the climb it reads is no evidence
+    (``choose``). Beside odometry, or without an accelerometer and wheel speed, False."""
     if "odom" in prep.use or not wheel_slip.applies(prep):
         return False
     trial = replace(prep, reports=copy.deepcopy(prep.reports))
-    return wheel_slip.check_wheels(trial, o.gate_probability, o.gravity_mps2).measured
+    return wheel_slip.check_wheels(trial, o.gate_probability, o.gravity_mps2, walk=False).measured
 
 
 def check(prep: Prepared, o: FuseOptions, estimator: str) -> None:

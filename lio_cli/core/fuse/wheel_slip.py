@@ -149,13 +149,14 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray | Stre
     s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
     cov = s2 * (P @ P.T) / np.outer(norm, norm)
     a = U[:, seen] @ P[0] / norm[0]  # the scale as a weighted sum of the kept blocks' dA
-    walk = walk_q * float(a @ walk_variance(np.array(spans)[fitted], anchors) @ a)
+    walk = walk_q * float(a @ walk_variance(np.array(spans)[fitted], anchors) @ a) if walk_q else 0.0
     return float(sol[0]), float(np.sqrt(cov[0, 0])), float(np.sqrt(walk)), sol[1:]
 
 
-def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
+def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, walk: bool = True) -> SlipReport:
     """Find slips and the wheel scale; replace ``prep.wheel`` by the corrected copy where they are measured
-    (module docstring). Counts ``slip_bridged`` / ``slip_left_in`` / ``scale_corrected`` notes."""
+    (module docstring). Counts ``slip_bridged`` / ``slip_left_in`` / ``scale_corrected`` notes. ``walk``: the angle
+    walk's share of the scale's sigma (False: left out, for a trial asking only whether it is ``measured``)."""
     rep = SlipReport()
     w, imu = prep.wheel, prep.imu
     ok = np.isfinite(w.velocity_mps[:, 0])
@@ -171,7 +172,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     # one stretch: its four columns; more: kept per stretch (their matrix grows with the log's length squared)
     G = _integral_at(tw, ti, sens, gap) if len(starts) == 1 else StretchIntegral(tw, ti, sens, starts, gap)
     # the pitch the gyro carries walks with its y axis's white noise: g times that walk is the acceleration's
-    walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1])
+    walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1]) if walk else 0.0
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)

@@ -13,7 +13,7 @@ from lio_cli.core.fuse.timeline import prepare
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.simulation.fusion_case import simulate_case
 
-HILLS = (2.0, 150.0)  # the drive starts on the steepest grade, 4.8 deg
+HILLS = (2.0, 150.0)  # 2 m high, the drive starting on the steepest grade, 4.8 deg
 SCALE_TOL = 0.003  # exact wheels: the check's scale off 1 by at most this (the start's pitch read 1.005)
 ATE_M = 0.25  # the 3D filter on exact wheels over the hills (measured 0.141; the start's pitch: 0.344)
 
@@ -54,8 +54,8 @@ def test_the_3d_filter_bridges_a_slip_the_accelerometer_finds():
 
 
 def test_a_car_over_long_gentle_hills_gets_the_3d_filter_and_is_not_flattened():
-    # 2 m up and down over 330 m: under 1 % of the distance (which the choice once allowed), far above a flat
-    # drive's evidence (at most 0.56 m over 320 m on the robustness matrix)
+    # 1 m high (2 m peak to peak) over 320 m: under 1 % of the distance (which the choice once allowed), far above
+    # a flat drive's evidence (at most 0.56 m over 320 m on the robustness matrix)
     case = simulate_case("drive", 45.0, seed=1, wheel_errors=False, hills=(1.0, 150.0))
     res = fuse(case.inputs, FuseOptions(rate_hz=20.0))
     ev = res.info["estimator_evidence"]
@@ -76,6 +76,15 @@ def test_a_climb_the_imu_could_not_check_keeps_the_one_percent_allowance():
     # then says nothing of the ground (groovy.bag, its IMU's extrinsic unsure, reads 1.6 m over 517 m)
     case = simulate_case("drive", 45.0, seed=1, wheel_errors=False, hills=(1.0, 150.0))
     prep = prepare(case.inputs, FuseOptions())
-    assert choose.choose_estimator(prep, scale_measured=True).name == "ekf"
-    unchecked = choose.choose_estimator(prep, scale_measured=False)
+    assert choose.choose_estimator(prep, scale_measured=lambda: True).name == "ekf"
+    unchecked = choose.choose_estimator(prep, scale_measured=lambda: False)
     assert unchecked.name == "planar" and unchecked.reason.startswith("a wheeled robot near a plane")
+
+
+def test_a_long_wait_parked_on_a_slope_is_not_the_mounts_pitch():
+    t = np.arange(0.0, 60.0, 0.005)
+    moving = t >= 35.0  # parked 35 s on a 6 deg slope, then 25 s on the flat at 5 m/s
+    pitch = np.where(moving, 0.0, np.radians(6.0))
+    f = 9.81 * np.column_stack([-np.sin(pitch), np.zeros_like(t), np.cos(pitch)])
+    c = tilt_track.mount_cosine(t, f, np.zeros_like(f), t, np.where(moving, 5.0, 0.0))
+    assert c == pytest.approx(1.0, abs=1e-4)  # the time median: cos 6 deg = 0.9945
