@@ -12,7 +12,7 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import agreement, graph, heave, rest, shape, wheel_check
+from . import accel_check, agreement, graph, heave, rest, shape
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
@@ -94,22 +94,22 @@ def _prepare(inputs: FuseInputs, o: FuseOptions) -> Prepared:
 def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) -> tuple[Prepared, EstimatorChoice]:
     """The prepared sources and the estimator: the one given, or (``auto``) the one the data asks for. When
     smoothing with an accelerometer the selection keeps it whatever the filter (the factor graph uses it). The
-    accelerometer first checks the wheels (``wheel_check.check``), unless ``check`` is False (the choice alone)."""
+    accelerometer first checks the wheels (``accel_check.check``), unless ``check`` is False (the choice alone)."""
     if o.estimator not in ("auto", "planar") and not o.smooth:
         prep = _prepare(inputs, o)
         if check:
-            wheel_check.check(prep, o, o.estimator)
+            accel_check.check(prep, o, o.estimator)
         say_gyro_gaps(prep, o.estimator)
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
-    measured = lambda: wheel_check.scale_measured(prep, o)  # noqa: E731 (asked only where it decides)
+    measured = lambda: accel_check.scale_measured(prep, o)  # noqa: E731 (asked only where it decides)
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep, measured)
     if o.estimator == "planar" and (data := choose_estimator(prep, measured)).name != "planar":  # run, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
     if check:
-        wheel_check.check(prep, o, choice.name)
+        accel_check.check(prep, o, choice.name)
     graph_runs = o.smooth and _graph_smooths(prep, choice.name)
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
