@@ -26,6 +26,12 @@ cheap log). A re-run only re-runs fuse.
     python benchmarks/fuse_robustness.py --work /tmp/fuse-rob --jobs 2          # the whole matrix, 45 s logs
     python benchmarks/fuse_robustness.py --work /tmp/fuse-rob --quick            # 12 cells
     python benchmarks/fuse_robustness.py --work /tmp/fuse-rob --cells rover/moving --cells gps-consumer
+    python benchmarks/fuse_robustness.py --work /tmp/fuse-rob --hills 2:150     # over hills: rover and car
+
+``--hills A:L`` drives the ground platforms over hills (`lio simulate --hills`, height A sin(2 pi s / L) along the
+path): the simulated world's ground is flat, so there is no LiDAR and no `lio odom` cell; the rows also hold the
+baselines' horizontal ATE (``wheel_h``, ``wheel_gyro_h``: they are 2D), and the summary counts T1 on horizontal
+ATE too (fused_h <= 0.8x the best baseline's horizontal).
 """
 
 from __future__ import annotations
@@ -70,6 +76,7 @@ SEED = 7
 RPE_DT_S = 0.05
 EXACT_NS = 1_000_000  # ground truth at 100 Hz: only the IMU stamps that fall on it are paired
 SMOOTH_SLACK_M = 0.001
+HILLS: str | None = None  # "A:L" for `lio simulate --hills` (--hills)
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,8 @@ def lio(*args: str) -> tuple[int, str]:
 
 def simulate_args(cell: Cell, lidar: bool, duration: float) -> list[str]:
     args = ["--duration", str(duration), "--seed", str(SEED), "--start", cell.start, *IMUS[cell.imu], "--quiet"]
+    if HILLS:
+        args += ["--hills", HILLS]
     if not lidar:
         return args + ["--no-lidar", *WHEELS.get(cell.wheels, []), *GPS[cell.gps]]
     return args + ["--no-wheel"]  # lio odom from LiDAR and IMU: fuse adds the wheels once, not twice
@@ -235,9 +244,9 @@ def run_cell(work: Path, cell: Cell) -> dict:
             row["estimator"] = m.get("estimator", {}).get("name") if isinstance(m.get("estimator"), dict) else m.get("estimator")
     d = read_log(log)
     if len(d["wheel_t"]):
-        row["wheel"] = ate(gt, _traj(d["wheel_t"], d["wheel_T"], "wheel"))[0]
+        row["wheel"], row["wheel_h"] = ate(gt, _traj(d["wheel_t"], d["wheel_T"], "wheel"))
         R_bi = np.asarray(truth["T_base_imu"])[:3, :3]  # what /tf_static holds
-        row["wheel_gyro"] = ate(gt, wheel_gyro_dr(d, R_bi, cell.start == "still"))[0]
+        row["wheel_gyro"], row["wheel_gyro_h"] = ate(gt, wheel_gyro_dr(d, R_bi, cell.start == "still"))
     if odom is not None:
         o_t, o_T = read_tum(odom)
         row["odom"] = ate(gt, _traj(o_t, o_T, "odom"))[0]
@@ -298,13 +307,18 @@ def summary(rows: list[dict]) -> str:
         res = [targets(r)[k] for r in rows]
         n = sum(v is not None for v in res)
         out.append(f"{k} {what}: {sum(v is True for v in res)}/{n} pass")
+    hb = [(r, [r[k] for k in ("wheel_h", "wheel_gyro_h") if r.get(k) is not None]) for r in rows]
+    hb = [(r, b) for r, b in hb if b]
+    if HILLS and hb:  # the baselines are 2D: over hills their vertical error is the terrain's
+        ok = sum(r.get("default_h") is not None and r["default_h"] <= 0.8 * min(b) for r, b in hb)
+        out.append(f"T1h horizontal: fused_h <= 0.8x best baseline's horizontal: {ok}/{len(hb)} pass")
     errors = [r[k] for r in rows for k in ("default_error", "filter_error") if k in r]
     out.append(f"fuse failed in {len(errors)} run(s)" + "".join(f"\n  {e}" for e in errors))
     return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> int:
-    global SEED
+    global SEED, HILLS
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/lio-fuse-robustness"), help="cache of logs, odometry, fuse outputs")
     ap.add_argument("--quick", action="store_true", help="moving starts, rotated IMU, bad wheels only (12 cells)")
@@ -316,9 +330,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--seed", type=int, default=SEED, help=f"simulation seed (default {SEED}; another seed: a held-out check)")
     ap.add_argument("--json", type=Path, help="also write the rows here")
+    ap.add_argument("--hills", metavar="A:L", help="over hills (lio simulate --hills A:L): rover and car, no odometry")
     a = ap.parse_args(argv)
-    SEED = a.seed
-    work = a.work / (f"{a.duration:g}s" + ("" if a.seed == 7 else f"-seed{a.seed}"))  # the cache is per seed
+    SEED, HILLS = a.seed, a.hills
+    work = a.work / (f"{a.duration:g}s" + ("" if a.seed == 7 else f"-seed{a.seed}")
+                     + (f"-hills{a.hills.replace(':', 'x')}" if a.hills else ""))  # the cache is per seed and terrain
     for sub in ("logs", "odom", "fuse"):
         (work / sub).mkdir(parents=True, exist_ok=True)
     platforms = tuple(a.platforms.split(","))
@@ -329,7 +345,10 @@ def main(argv: list[str] | None = None) -> int:
     if not set(gps) <= set(GPS):
         print("--gps: choose from none, consumer, rtk", file=sys.stderr)
         return 2
-    cells = [c for c in all_cells(a.quick, platforms, gps) if all(s in c.name for s in a.cells)]
+    if a.hills:  # the simulated world's ground is flat: no LiDAR, so no odometry cell; ground platforms only
+        platforms = tuple(p for p in platforms if p in ("rover", "car"))
+    cells = [c for c in all_cells(a.quick, platforms, gps) if all(s in c.name for s in a.cells)
+             and not (a.hills and c.odom == "odom-lio")]
     if not cells:
         print("no cell matches", file=sys.stderr)
         return 2
@@ -346,7 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.perf_counter() - t0
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     print(f"lio fuse robustness matrix, {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
-          f"commit {commit}, {a.duration:g} s logs, seed {SEED}, {len(cells)} cells; ATE m (SE(3) fit), "
+          f"commit {commit}, {a.duration:g} s logs, seed {SEED}" + (f", hills {HILLS}" if HILLS else "")
+          + f", {len(cells)} cells; ATE m (SE(3) fit), "
           f"_h horizontal, .05 RPE over 0.05 s")
     print(table(rows))
     print(summary(rows))

@@ -50,11 +50,13 @@ def _wheel_spec(spec: WheelSpec, duration_s: float, errors: bool) -> WheelSpec:
 def simulate_case(scenario: str, duration_s: float, seed: int = 0, *, imu_rate_hz: float = 200.0,
                   imu_noise_scale: float = 1.0, wheels: bool = True, wheel_errors: bool = True,
                   odom: OdomNoise | None = None, gps_sigma_m: float | None = None,
-                  gps_rate_hz: float = 5.0, imu_lever_arm_m: tuple[float, float, float] | None = None) -> FusionCase:
+                  gps_rate_hz: float = 5.0, imu_lever_arm_m: tuple[float, float, float] | None = None,
+                  hills: tuple[float, float] | None = None) -> FusionCase:
     """A scenario's first ``duration_s`` as fusion inputs (IMU always; wheels, odometry, GPS on request).
-    ``imu_lever_arm_m``: the IMU origin in base instead of the scenario's (its mounting rotation kept)."""
+    ``imu_lever_arm_m``: the IMU origin in base instead of the scenario's (its mounting rotation kept);
+    ``hills``: (amplitude, wavelength) m of ground height along the path (``terrain``)."""
     rng = np.random.default_rng(seed)
-    sc = build_scenario(scenario)
+    sc = build_scenario(scenario, hills=hills)
     if imu_lever_arm_m is not None:
         sc.T_base_imu = sc.T_base_imu.copy()
         sc.T_base_imu[:3, 3] = imu_lever_arm_m

@@ -21,11 +21,10 @@ from lio_cli.simulation.deskew_truth import TrueMotion
 from lio_cli.simulation.sensors import GRAVITY_MPS2, ImuSpec, synthesize_imu
 
 from .test_fuse_conditions import assert_refused
-from .test_physics import POS_TOL_M, ROT_TOL_DEG, _integrate_imu, _rot_err_deg
+from .test_physics import POS_TOL_M, ROT_TOL_DEG, _integrate_imu, _rot_err_deg, assert_derivatives_match
 
 NS = 1_000_000_000
 START_NS = 1_700_000_000 * NS
-FD_H_S = 1e-5
 A_M, L_M = 5.0, 110.0  # a grade of up to 0.286 (16 deg): the steepest allowed, so every effect is large
 HILLS = f"{A_M:g}:{L_M:g}"
 
@@ -52,14 +51,7 @@ def _grade(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def test_derivatives_match_finite_differences_over_hills_and_through_a_stop():
     traj = build_scenario("drive", stops=((9.0, 2.0),), hills=(A_M, L_M)).trajectory
-    t = np.linspace(0.5, 20.0, 700)
-    st, sp, sm = (traj.state(x) for x in (t, t + FD_H_S, t - FD_H_S))
-    h2 = 2 * FD_H_S
-    np.testing.assert_allclose(st.velocity_mps, (sp.position_m - sm.position_m) / h2, atol=1e-6)
-    np.testing.assert_allclose(st.accel_mps2, (sp.velocity_mps - sm.velocity_mps) / h2, atol=1e-4)
-    W = np.einsum("nji,njk->nik", st.R_world_base, (sp.R_world_base - sm.R_world_base) / h2)
-    np.testing.assert_allclose(st.omega_base_radps, np.stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]], axis=1), atol=1e-6)
-    np.testing.assert_allclose(st.alpha_base_radps2, (sp.omega_base_radps - sm.omega_base_radps) / h2, atol=1e-4)
+    st = assert_derivatives_match(traj, np.linspace(0.5, 20.0, 700), alpha_atol=1e-4)
     assert np.abs(st.velocity_mps[:, 2]).max() > 1.5  # it did climb and sink
 
 

@@ -298,3 +298,16 @@ def test_imu_read_back_from_the_log_integrates_to_the_tum_ground_truth(tmp_path)
     T_wb = T_wi @ inv_pose(T_bi)
     assert np.linalg.norm(T_wb[:3, 3] - gt_poses[-1][:3, 3]) < POS_TOL_M
     assert _rot_err_deg(T_wb, gt_poses[-1]) < ROT_TOL_DEG
+
+
+def assert_derivatives_match(traj, t: np.ndarray, alpha_atol: float, h_s: float = 1e-5):
+    """The trajectory's velocity, acceleration, body rate and angular acceleration at ``t`` against central
+    differences of its positions, velocities, attitudes and rates; the state at ``t`` for further checks."""
+    st, sp, sm = (traj.state(x) for x in (t, t + h_s, t - h_s))
+    h2 = 2 * h_s
+    np.testing.assert_allclose(st.velocity_mps, (sp.position_m - sm.position_m) / h2, atol=1e-6)
+    np.testing.assert_allclose(st.accel_mps2, (sp.velocity_mps - sm.velocity_mps) / h2, atol=1e-4)
+    W = np.einsum("nji,njk->nik", st.R_world_base, (sp.R_world_base - sm.R_world_base) / h2)
+    np.testing.assert_allclose(st.omega_base_radps, np.stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]], axis=1), atol=1e-6)
+    np.testing.assert_allclose(st.alpha_base_radps2, (sp.omega_base_radps - sm.omega_base_radps) / h2, atol=alpha_atol)
+    return st

@@ -19,12 +19,11 @@ from lio_cli.simulation.sensors import GRAVITY_MPS2, ImuSpec, synthesize_imu, wh
 from lio_cli.simulation.stops import RAMP_S
 
 from .test_fuse_conditions import assert_refused
-from .test_physics import POS_TOL_M, ROT_TOL_DEG, _integrate_imu, _rot_err_deg
+from .test_physics import POS_TOL_M, ROT_TOL_DEG, _integrate_imu, _rot_err_deg, assert_derivatives_match
 
 NS = 1_000_000_000
 START_NS = 1_700_000_000 * NS
 STILL_TOL = 1e-9  # "exactly still": velocities and rates (they are exact zeros; poses agree to rounding)
-FD_H_S = 1e-5
 
 
 def _stamp(msg) -> int:
@@ -51,14 +50,7 @@ def test_ground_truth_stands_still_inside_a_stop_and_resumes_where_it_paused(nam
 
 def test_warped_derivatives_match_finite_differences_through_the_ramps():
     traj = build_scenario("handheld", stops=((6.0, 1.0), (13.0, 2.0))).trajectory
-    t = np.linspace(2.0, 20.0, 700)
-    st, sp, sm = (traj.state(x) for x in (t, t + FD_H_S, t - FD_H_S))
-    h2 = 2 * FD_H_S
-    np.testing.assert_allclose(st.velocity_mps, (sp.position_m - sm.position_m) / h2, atol=1e-6)
-    np.testing.assert_allclose(st.accel_mps2, (sp.velocity_mps - sm.velocity_mps) / h2, atol=1e-4)
-    W = np.einsum("nji,njk->nik", st.R_world_base, (sp.R_world_base - sm.R_world_base) / h2)
-    np.testing.assert_allclose(st.omega_base_radps, np.stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]], axis=1), atol=1e-6)
-    np.testing.assert_allclose(st.alpha_base_radps2, (sp.omega_base_radps - sm.omega_base_radps) / h2, atol=1e-3)
+    assert_derivatives_match(traj, np.linspace(2.0, 20.0, 700), alpha_atol=1e-3)
 
 
 @pytest.mark.parametrize("name", ["handheld", "drive"])

@@ -15,6 +15,7 @@ from ...so3 import so3_exp
 from ..imu import running_integral
 from ..robust import white_variance
 
+MOUNT_WINDOW_S = 1.0  # the up direction's windows for the mount's pitch (``mount_cosine``)
 SEGMENT_S = 30.0  # the up direction is re-anchored from the accelerometer this often (the log split evenly)
 WALK_BANDS = (1, 2, 4)  # samples per mean for the gyro's noise density (2 and 4 cancel a vibration at half the rate)
 
@@ -34,9 +35,36 @@ def forward_accel(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.nda
     starts = segment_starts(t_s)
     a, sens = np.empty(len(t_s)), np.empty((len(t_s), 4))
     ends = np.append(starts[1:], len(t_s))
+    c = mount_cosine(t_s, f_b, w_b, t_w, v_w)
     for i, j in zip(starts, ends):
-        a[i:j], sens[i:j] = carried(t_s[i:j], f_b[i:j], w_b[i:j], t_w, v_w, g, gap[i:j - 1])
+        a[i:j], sens[i:j] = carried(t_s[i:j], f_b[i:j], w_b[i:j], t_w, v_w, g, gap[i:j - 1], c)
     return a, sens, starts
+
+
+def mount_cosine(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray) -> float:
+    """The cosine of the IMU mount's pitch: the median, weighted by the distance driven in each, over
+    ``MOUNT_WINDOW_S`` windows of the up direction's forward share (the accelerometer less the wheels'
+    acceleration). The ground's grade at any one moment is not the mount's: over a drive up and down hills it
+    averages out along the distance, where the first second's (or a long wait parked on a slope) would stay in.
+    A log that hardly moves: every window alike."""
+    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
+    n = max(1, int(round(MOUNT_WINDOW_S / dt))) if dt > 0 else 1
+    m = len(t_s) // n
+    if m < 1:
+        return 1.0
+    v = np.interp(t_s, t_w, v_w)
+    kin = np.column_stack([np.interp(t_s, t_w, np.gradient(v_w, t_w)), v * w_b[:, 2], -v * w_b[:, 1]])
+    up = (f_b - kin)[:m * n].reshape(m, n, 3).mean(axis=1)
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+    w = np.abs(v[:m * n]).reshape(m, n).mean(axis=1)
+    if not np.isfinite(w).all() or w.sum() <= 0.0:
+        w = np.ones(m)
+    keep = w > 0.0
+    x, w = up[keep, 0], w[keep]
+    order = np.argsort(x)
+    mid = np.cumsum(w[order]) - 0.5 * w[order]  # each window's middle along the sorted weight
+    ux = float(np.interp(0.5 * w.sum(), mid, x[order]))  # equal weights: np.median's value
+    return float(np.sqrt(max(1.0 - ux**2, 1e-6)))
 
 
 class StretchIntegral:
@@ -80,10 +108,11 @@ class StretchIntegral:
 
 
 def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, v_w: np.ndarray,
-            g: float, gap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            g: float, gap: np.ndarray, c: float) -> tuple[np.ndarray, np.ndarray]:
     """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
-    cosine of the IMU mount's pitch (a pitched x axis feels that share of the forward acceleration): the up
-    direction in the base frame from the first second (the accelerometer less the wheels' acceleration),
+    cosine ``c`` of the IMU mount's pitch (``mount_cosine``: a pitched x axis feels that share of the forward
+    acceleration): the up direction in the base frame from the first second (the accelerometer less the wheels'
+    acceleration),
     carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
     (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
     with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
@@ -109,7 +138,6 @@ def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, 
         phi = np.einsum("nji,nj->ni", R, B @ e)
         sens[:, j] = np.cross(ub, phi)[:, 0]
         sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
-    c = float(np.sqrt(max(1.0 - u[0] ** 2, 1e-6)))  # the mount's pitch: the start's, the gyro's drift never in
     return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
 
 

@@ -1,4 +1,4 @@
-"""Wheel slip and wheel scale from the accelerometer, before the planar filter (IMU + wheel speed, no odometry).
+"""Wheel slip and wheel scale from the accelerometer, before the planar or 3D filter (IMU + wheel speed, no odometry).
 
 A slip (wet grass, gravel, a spinning wheel) makes the wheel speed jump by a share of itself in a fraction of a
 second while the accelerometer feels no such acceleration. ``tilt_track.forward_accel`` gives the forward
@@ -16,7 +16,8 @@ random walk: its white noise (measured from the data) walks the carried gravity 
 error the constant-bias terms cannot take out and the blocks share (``tilt_track.walk_variance``). Slips:
 ``slip_windows`` (a jump of the difference until it is back at its level). The first fit leaves out the raw
 difference's jumps (``slip_windows.guard``); fit and detection then alternate ``FIT_PASSES`` times. The mount's
-pitch, from each anchor, divides the forward acceleration by its cosine.
+pitch (the log's median up direction, ``tilt_track.mount_cosine``: a start on a slope is the ground's, not the
+mount's) divides the forward acceleration by its cosine.
 
 The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``) and
 off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips are
@@ -69,6 +70,7 @@ class SlipReport:
     left_in: int = 0  # slips longer than MAX_SLIP_S the IMU's speed did not close: out of the fit, not bridged
     verified: bool = False  # the scale measured, near 1, every slip bridged: the speeds can be trusted
     why: str = ""
+    measured: bool = False  # the fit knew the scale (MAX_SCALE_SIGMA) and found it near 1 (MAX_SCALE_OFF)
 
     def to_dict(self) -> dict:
         return {"slips": len(self.windows), "windows_s": [[round(a, 2), round(b, 2)] for a, b in self.windows],
@@ -147,13 +149,14 @@ def _fit_scale(t: np.ndarray, v: np.ndarray, A: np.ndarray, G: np.ndarray | Stre
     s2 = float(r @ r) / max(len(r) - int(seen.sum()), 1)
     cov = s2 * (P @ P.T) / np.outer(norm, norm)
     a = U[:, seen] @ P[0] / norm[0]  # the scale as a weighted sum of the kept blocks' dA
-    walk = walk_q * float(a @ walk_variance(np.array(spans)[fitted], anchors) @ a)
+    walk = walk_q * float(a @ walk_variance(np.array(spans)[fitted], anchors) @ a) if walk_q else 0.0
     return float(sol[0]), float(np.sqrt(cov[0, 0])), float(np.sqrt(walk)), sol[1:]
 
 
-def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -> SlipReport:
+def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, walk: bool = True) -> SlipReport:
     """Find slips and the wheel scale; replace ``prep.wheel`` by the corrected copy where they are measured
-    (module docstring). Counts ``slip_bridged`` / ``slip_left_in`` / ``scale_corrected`` notes."""
+    (module docstring). Counts ``slip_bridged`` / ``slip_left_in`` / ``scale_corrected`` notes. ``walk``: the angle
+    walk's share of the scale's sigma (False: left out, for a trial asking only whether it is ``measured``)."""
     rep = SlipReport()
     w, imu = prep.wheel, prep.imu
     ok = np.isfinite(w.velocity_mps[:, 0])
@@ -169,7 +172,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
     # one stretch: its four columns; more: kept per stretch (their matrix grows with the log's length squared)
     G = _integral_at(tw, ti, sens, gap) if len(starts) == 1 else StretchIntegral(tw, ti, sens, starts, gap)
     # the pitch the gyro carries walks with its y axis's white noise: g times that walk is the acceleration's
-    walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1])
+    walk_q = gravity_mps2**2 * angle_walk_q(ti, prep.imu_w_b[:, 1]) if walk else 0.0
     inside = (tw >= ti[0]) & (tw <= ti[-1])
     for k in np.flatnonzero(gap):  # the IMU's speed is unknown across its gaps: no slip test or fit there
         inside &= (tw < ti[k]) | (tw > ti[k + 1] + JUMP_S)
@@ -203,6 +206,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float) -
                    f"IMU's forward axis is likely not the base's"
                    + (" or the wheels' speed has its sign reversed" if s < 0 else "") + ": wheels left as they are")
         return rep
+    rep.measured = True
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0
     v_new = scale * vw
