@@ -112,11 +112,10 @@ def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, 
     """The base's forward acceleration (m/s^2) at the IMU stamps, ``f_x`` plus gravity's forward share, over the
     cosine ``c`` of the IMU mount's pitch (``mount_cosine``: a pitched x axis feels that share of the forward
     acceleration): the up direction in the base frame from the first second (the accelerometer less the wheels'
-    acceleration),
-    carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it measures. Also
-    (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y (propagated
-    with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one per step)
-    rotate nothing: the gyro sample after a gap never covers the gap's length."""
+    acceleration), carried by the gyro alone (``du/dt = -w x u``), never pulled by the wheels whose scale it
+    measures. Also (N,4) its sensitivities to the gyro's x and y bias and to a start tilt error about x and y
+    (propagated with the same rotation), which ``_fit_scale`` solves for. Steps across an IMU gap (``gap``, one
+    per step) rotate nothing: the gyro sample after a gap never covers the gap's length."""
     n0 = max(1, int(np.searchsorted(t_s, t_s[0] + 1.0)))
     v = np.interp(t_s[:n0], t_w, v_w)
     a_w = np.interp(t_s[:n0], t_w, np.gradient(v_w, t_w))
