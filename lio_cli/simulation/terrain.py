@@ -41,6 +41,7 @@ HILLS_MEANING = ("the ground's height along the path: h(s) = amplitude_m * sin(2
                  "horizontal progress is the scenario's, so the speed along the slope (what the wheels measure) is "
                  "the horizontal speed * sqrt(1 + h'(s)^2)")
 
+_NEEDS = "--hills needs AMPLITUDE:WAVELENGTH, two numbers of metres such as 2:150"
 # (value, first derivative, second derivative) of a signal in time, as motion.Signal3
 _Signal3 = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -59,8 +60,9 @@ class Hills:
 
     def height(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``h`` and its first three derivatives in ``s`` at ``s``."""
+        ks = 2.0 * np.pi / self.wavelength_m * np.asarray(s, dtype=np.float64)
         k = 2.0 * np.pi / self.wavelength_m
-        sn, cs = np.sin(k * np.asarray(s, dtype=np.float64)), np.cos(k * np.asarray(s, dtype=np.float64))
+        sn, cs = np.sin(ks), np.cos(ks)
         a = self.amplitude_m
         return a * sn, a * k * cs, -a * k * k * sn, -a * k**3 * cs
 
@@ -83,7 +85,7 @@ def parse_hills(text: str) -> tuple[float, float]:
     except ValueError:
         amplitude = wavelength = math.nan
     if not (math.isfinite(amplitude) and math.isfinite(wavelength)):
-        raise ConfigError(f"--hills needs AMPLITUDE:WAVELENGTH, two numbers of metres such as 2:150 (got '{text}')")
+        raise ConfigError(f"{_NEEDS} (got '{text}')")
     return amplitude, wavelength
 
 
@@ -94,12 +96,10 @@ def check_hills(hills, scenario: str, lidar: bool) -> tuple[float, float]:
     try:
         amplitude, wavelength = (float(v) for v in hills)
     except (TypeError, ValueError):
-        raise ConfigError(f"--hills needs AMPLITUDE:WAVELENGTH, two numbers of metres such as 2:150 "
-                          f"(got {hills!r})") from None
+        raise ConfigError(f"{_NEEDS} (got {hills!r})") from None
     name = f"--hills {amplitude:g}:{wavelength:g}"
     if not (math.isfinite(amplitude) and math.isfinite(wavelength)):
-        raise ConfigError(f"--hills needs AMPLITUDE:WAVELENGTH, two numbers of metres such as 2:150 (got "
-                          f"{amplitude:g}:{wavelength:g})")
+        raise ConfigError(f"{_NEEDS} (got {amplitude:g}:{wavelength:g})")
     if scenario not in HILL_SCENARIOS:
         raise ConfigError(f"--hills: the {scenario} scenario does not drive on the ground (hills apply to "
                           f"{', '.join(HILL_SCENARIOS[:-1])} and {HILL_SCENARIOS[-1]})")

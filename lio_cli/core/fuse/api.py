@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import time
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -60,8 +61,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
 def _shape_without_gps(inputs: FuseInputs, o: FuseOptions, prep: Prepared, fused: FuseResult) -> FuseResult:
     """The run without GPS placed on the fixes, or the GPS-fused ``fused``, as ``agreement`` judges them: asked
     where the claim looks optimistic, the IMU verified the wheels or backs their speed (for the planar filter or,
-    without odometry, the 3D one: a car over hills with a consumer receiver 0.55 -> 0.30 m, at the cost of the
-    second, GPS-free run)."""
+    without odometry, the 3D one, at the cost of the second, GPS-free run)."""
     optimistic = agreement.optimistic(prep.gps, fused)
     verified = prep.wheels_verified
     if not (optimistic or verified or agreement.wheel_speed_backed(prep.wheel_check)):
@@ -103,7 +103,7 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
         return prep, EstimatorChoice(o.estimator, "given with --estimator", {})
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
-    measured = lambda: accel_check.scale_measured(prep, o)  # noqa: E731 (asked only where it decides)
+    measured = partial(accel_check.scale_measured, prep, o)  # asked only where it decides
     choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep, measured)
     if o.estimator == "planar" and (data := choose_estimator(prep, measured)).name != "planar":  # run, and told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "

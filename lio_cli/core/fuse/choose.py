@@ -33,11 +33,11 @@ SLIP_MPS2 = 3.0  # wheel acceleration the IMU did not feel, beyond which a windo
 MAX_TILT_DEG = 8.0  # 95th percentile of the gravity direction's wander a planar platform may show
 MIN_CLIMB_M = 0.5  # vertical extent always taken as planar (bumps, the estimate's own noise) ...
 # ... or this share of the distance travelled, whichever is larger, where the accelerometer measured the wheels'
-# scale (its axes agree with the wheels'): flat simulated drives read at most 0.17 % (0.56 m over 320 m; 0.49 m
-# over 2.2 km), a car over hills 1 m high 0.6-0.9 % (2-2.9 m over 320-340 m), which 1 % took as flat
+# scale (its axes agree with the wheels'): above a flat drive's evidence, below a car's over hills a metre high
+# (docs/benchmarks.md, "Hills")
 CLIMB_SHARE = 0.004
-# ... this share where it could not (the pitch it reads is then no evidence: groovy.bag, 0.31 %), and for the
-# odometry's height (a scan matcher's drifts with its pitch)
+# ... this share where it could not (the pitch it reads is then no evidence), and for the odometry's height (a
+# scan matcher's drifts with its pitch)
 UNCHECKED_CLIMB_SHARE = 0.01
 
 
