@@ -13,7 +13,7 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import accel_check, agreement, graph, heave, rest, shape
+from . import accel_check, agreement, graph, heave, level, rest, shape
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
@@ -138,6 +138,7 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
                                                              "an accelerometer): its RTS pass"}
             heave.lift(prep, result)
+            level.lift(prep, result)
         return result
     if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
         result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))

@@ -1,0 +1,127 @@
+"""The roll and pitch of a ground robot the planar estimator tracks, from the IMU: the planar filter's poses are
+level, but a car on its suspension or a robot on uneven ground tilts by tenths of a degree to degrees, and a level
+pose turns its own forward motion into a vertical one (over 0.05 s at 10 m/s, 0.4 deg is 3.4 mm).
+
+The up direction in the base frame, carried by the gyro (``du/dt = -w x u``) from the start, is exact over short
+spans but drifts with the gyro's bias; the accelerometer less the wheels' own acceleration (``wheel_free_force``)
+points up on average but is noisy. In the gyro's start frame the drift is slow, so the accelerometer's up there,
+less the start's, is fitted by a smoothing spline (``CROSSOVER_HZ``): the fit carries the drift and the spans
+between, the gyro the rest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...so3 import so3_exp
+from .choose import wheel_free_force
+from .timeline import Prepared
+
+BLOCK_S = 0.1  # the accelerometer's up averaged over this long for the fit (its crossover is far below 10 Hz)
+# below this frequency the accelerometer holds the tilt, above it the gyro: higher, the accelerometer's noise and
+# the accelerations the wheels do not see (lateral slip, vibration) tilt the output; lower, the gyro bias's drift
+CROSSOVER_HZ = 0.1
+START_S = 1.0  # the start's up: the accelerometer over this long
+CHUNK = 20000  # IMU samples per running product (memory flat in log length)
+
+
+def applies(prep: Prepared) -> bool:
+    """Gyro, accelerometer and wheel speed all there."""
+    return (prep.imu is not None and prep.imu_f_b is not None and prep.imu_w_b is not None
+            and prep.wheel is not None and len(prep.wheel) > 1 and len(prep.imu) > 4)
+
+
+def running_rotation(w_b: np.ndarray, dt: np.ndarray, R0: np.ndarray | None = None) -> np.ndarray:
+    """(N,3,3) rotations of the base since before the first sample (``R0`` then, identity without it): the running
+    product of ``exp(w dt)``, in log2(N) batched steps."""
+    R = so3_exp(w_b * dt[:, None])
+    step = 1
+    while step < len(R):
+        R = np.concatenate([R[:step], R[:-step] @ R[step:]])
+        step *= 2
+    return R if R0 is None else R0 @ R
+
+
+def up_directions(prep: Prepared) -> np.ndarray | None:
+    """(N,3) unit up direction in the base frame at the IMU stamps; None with too little data."""
+    t = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
+    period = float(np.median(np.diff(t)))
+    n = max(1, int(round(BLOCK_S / period))) if period > 0 else 0
+    m = len(t) // n if n else 0
+    if m < 8:
+        return None
+    f = wheel_free_force(prep, t)[0]
+    acc_up = f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-9)
+    u0 = acc_up[:max(1, int(np.searchsorted(t, START_S)))].mean(axis=0)
+    u0 /= max(float(np.linalg.norm(u0)), 1e-9)
+    dt = np.diff(t, prepend=t[0])
+    dt[dt > 5.0 * period] = 0.0  # across an IMU gap the gyro says nothing: the fit bridges it
+    resid = np.empty_like(acc_up)
+    R0 = np.eye(3)
+    for a in range(0, len(t), CHUNK):
+        R = running_rotation(prep.imu_w_b[a:a + CHUNK], dt[a:a + CHUNK], R0)
+        R0 = R[-1]
+        resid[a:a + CHUNK] = np.einsum("nij,nj->ni", R, acc_up[a:a + CHUNK]) - u0  # in the start frame
+    tb = t[:m * n].reshape(m, n).mean(axis=1)
+    rb = resid[:m * n].reshape(m, n, 3).mean(axis=1)
+    c = _spline(tb, rb, _smoothing(n * period))
+    corr = np.column_stack([np.interp(t, tb, c[:, k]) for k in range(3)])
+    up = np.empty_like(acc_up)
+    R0 = np.eye(3)
+    for a in range(0, len(t), CHUNK):  # the corrected start-frame up, back into the base frame
+        R = running_rotation(prep.imu_w_b[a:a + CHUNK], dt[a:a + CHUNK], R0)
+        R0 = R[-1]
+        up[a:a + CHUNK] = np.einsum("nji,nj->ni", R, u0 + corr[a:a + CHUNK])
+    return up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+
+
+def _smoothing(block_s: float) -> float:
+    """The spline's weight on the second difference that puts its half-power point at ``CROSSOVER_HZ``: the
+    penalty ``lam (2 pi f dt)^4`` (per block, ``dt`` the block) against 1 for the data."""
+    return 1.0 / (2.0 * np.pi * CROSSOVER_HZ * block_s) ** 4
+
+
+def _spline(tb: np.ndarray, y: np.ndarray, lam: float) -> np.ndarray:
+    """Columns of ``y`` at ``tb`` smoothed: minimise sum (c - y)^2 + lam sum (D2 c)^2 (D2 the plain second
+    difference of consecutive blocks: the grid is even but for gaps, which only stiffen the fit there)."""
+    from scipy.linalg import solveh_banded
+
+    m = len(tb)
+    ab = np.zeros((3, m))  # upper form: ab[2] diagonal, ab[1] first super-diagonal, ab[0] second
+    ab[2] = 1.0
+    d = np.array([1.0, -2.0, 1.0])
+    # D2^T D2: each row k of D2 touches blocks k, k+1, k+2
+    for i in range(3):
+        ab[2, i:m - 2 + i] += lam * d[i] ** 2
+    ab[1, 1:m - 1] += lam * d[0] * d[1]
+    ab[1, 2:m] += lam * d[1] * d[2]
+    ab[0, 2:m] += lam * d[0] * d[2]
+    return solveh_banded(ab, y)
+
+
+def lift(prep: Prepared, result) -> None:
+    """The planar ``result``'s roll and pitch set from the IMU's up direction (``up_directions``), its yaw kept,
+    in place, where it applies."""
+    if not applies(prep) or not len(result.stamps_ns):
+        return
+    up_imu = up_directions(prep)
+    if up_imu is None:
+        return
+    t = (np.asarray(result.stamps_ns) - prep.imu.stamps_ns[0]) * 1e-9
+    ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
+    up = np.column_stack([np.interp(t, ti, up_imu[:, k]) for k in range(3)])
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+    pitch = -np.arcsin(np.clip(up[:, 0], -1.0, 1.0))
+    roll = np.arctan2(up[:, 1], up[:, 2])
+    # the planar estimator was chosen because the motion stays near a level plane: the median tilt is the IMU's
+    # (its accelerometer bias, its mount's error), not the ground's
+    pitch, roll = pitch - np.median(pitch), roll - np.median(roll)
+    R = result.poses[:, :3, :3]
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    result.poses[:, :3, :3] = np.stack([  # Rz(yaw) Ry(pitch) Rx(roll)
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=1),
+        np.stack([-sp, cp * sr, cp * cr], axis=1)], axis=1)
+    result.info["level"] = {"model": "gyro carried, accelerometer below a crossover", "crossover_hz": CROSSOVER_HZ,
+                            "tilt_rms_deg": round(float(np.degrees(np.sqrt(np.mean(roll**2 + pitch**2)))), 3)}
