@@ -6,7 +6,8 @@ The up direction in the base frame, carried by the gyro (``du/dt = -w x u``) fro
 spans but drifts with the gyro's bias; the accelerometer less the wheels' own acceleration (``wheel_free_force``)
 points up on average but is noisy. In the gyro's start frame the drift is slow, so the accelerometer's up there,
 less the start's, is fitted by a smoothing spline (``CROSSOVER_HZ``): the fit carries the drift and the spans
-between, the gyro the rest.
+between, the gyro the rest. A pitch slower than the heave's crossover is then left level, as the height is (``heave``):
+a flat path under a pitched pose would climb between two poses what the path does not.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...so3 import so3_exp
+from . import heave
 from .choose import wheel_free_force
 from .timeline import Prepared
 
@@ -64,7 +66,7 @@ def up_directions(prep: Prepared) -> np.ndarray | None:
         resid[a:a + CHUNK] = np.einsum("nij,nj->ni", R, acc_up[a:a + CHUNK]) - u0  # in the start frame
     tb = t[:m * n].reshape(m, n).mean(axis=1)
     rb = resid[:m * n].reshape(m, n, 3).mean(axis=1)
-    c = _spline(tb, rb, _smoothing(n * period))
+    c = _spline(tb, rb, _smoothing(n * period, CROSSOVER_HZ))
     corr = np.column_stack([np.interp(t, tb, c[:, k]) for k in range(3)])
     up = np.empty_like(acc_up)
     R0 = np.eye(3)
@@ -75,10 +77,10 @@ def up_directions(prep: Prepared) -> np.ndarray | None:
     return up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
 
 
-def _smoothing(block_s: float) -> float:
-    """The spline's weight on the second difference that puts its half-power point at ``CROSSOVER_HZ``: the
+def _smoothing(block_s: float, crossover_hz: float) -> float:
+    """The spline's weight on the second difference that puts its half-power point at ``crossover_hz``: the
     penalty ``lam (2 pi f dt)^4`` (per block, ``dt`` the block) against 1 for the data."""
-    return 1.0 / (2.0 * np.pi * CROSSOVER_HZ * block_s) ** 4
+    return 1.0 / (2.0 * np.pi * crossover_hz * block_s) ** 4
 
 
 def _spline(tb: np.ndarray, y: np.ndarray, lam: float) -> np.ndarray:
@@ -107,15 +109,21 @@ def lift(prep: Prepared, result) -> None:
     up_imu = up_directions(prep)
     if up_imu is None:
         return
-    t = (np.asarray(result.stamps_ns) - prep.imu.stamps_ns[0]) * 1e-9
     ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
-    up = np.column_stack([np.interp(t, ti, up_imu[:, k]) for k in range(3)])
-    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
-    pitch = -np.arcsin(np.clip(up[:, 0], -1.0, 1.0))
-    roll = np.arctan2(up[:, 1], up[:, 2])
-    # the planar estimator was chosen because the motion stays near a level plane: the median tilt is the IMU's
-    # (its accelerometer bias, its mount's error), not the ground's
-    pitch, roll = pitch - np.median(pitch), roll - np.median(roll)
+    rp = np.column_stack([np.arctan2(up_imu[:, 1], up_imu[:, 2]), -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))])
+    # the planar estimator was chosen because the motion stays near a level plane, and its height holds that level
+    # below the heave's crossover: so does the pitch (slower, it is a grade the flat path does not climb, and
+    # would tilt the path's own forward motion); the roll tilts nothing the path does, so only the log's median
+    # is taken out of both (the IMU's own tilt: its accelerometer bias, its mount's error)
+    n = max(1, int(round(BLOCK_S / float(np.median(np.diff(ti))))))
+    m = len(ti) // n
+    tb = ti[:m * n].reshape(m, n).mean(axis=1)
+    slow = _spline(tb, rp[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
+                   _smoothing(float(np.median(np.diff(tb))), heave.CROSSOVER_HZ))[:, 0]
+    rp[:, 0] -= np.median(rp[:, 0])
+    rp[:, 1] -= np.interp(ti, tb, slow)
+    t = (np.asarray(result.stamps_ns) - prep.imu.stamps_ns[0]) * 1e-9
+    roll, pitch = np.interp(t, ti, rp[:, 0]), np.interp(t, ti, rp[:, 1])
     R = result.poses[:, :3, :3]
     yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
     cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
@@ -123,5 +131,6 @@ def lift(prep: Prepared, result) -> None:
         np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=1),
         np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=1),
         np.stack([-sp, cp * sr, cp * cr], axis=1)], axis=1)
-    result.info["level"] = {"model": "gyro carried, accelerometer below a crossover", "crossover_hz": CROSSOVER_HZ,
+    result.info["level"] = {"model": "gyro carried, accelerometer below a crossover, level below the heave's",
+                            "crossover_hz": CROSSOVER_HZ, "level_hz": heave.CROSSOVER_HZ,
                             "tilt_rms_deg": round(float(np.degrees(np.sqrt(np.mean(roll**2 + pitch**2)))), 3)}
