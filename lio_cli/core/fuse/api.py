@@ -51,7 +51,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     result.info.update(_common_info(prep, o))
     if result.estimator == "complementary":  # it takes no zero rate at rest
         result.info["rest"] = None
-    if "heave" in result.info:  # the planar filter leaves the accelerometer out; its height came from it
+    if {"heave", "level"} & set(result.info):  # the planar filter leaves the accelerometer out; these came from it
         result.info["use"]["imu"] = sorted({*result.info["use"].get("imu", ()), "accel"})
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     result.info["run_time_s"] = time.perf_counter() - t_start

@@ -2,13 +2,14 @@
 level, but a car on its suspension or a robot on uneven ground tilts by tenths of a degree to degrees, and a level
 pose turns its own forward motion into a vertical one (over 0.05 s at 10 m/s, 0.4 deg is 3.4 mm).
 
-The up direction in the base frame, carried by the gyro (``du/dt = -w x u``) from the start, is exact over short
-spans but drifts with the gyro's bias; the accelerometer less the wheels' own acceleration (``wheel_free_force``)
-points up on average but is noisy. In the gyro's start frame the drift is slow, so the accelerometer's up there,
-less the start's, is fitted by a smoothing spline (``CROSSOVER_HZ``): the fit carries the drift and the spans
-between, the gyro the rest. A pitch slower than the heave's crossover is then left level, as the height is (``heave``):
-a flat path under a pitched pose would climb between two poses what the path does not.
-"""
+The up direction in the base frame, carried by the gyro (``du/dt = -w x u``), is exact over short spans but
+drifts with the gyro's bias; the accelerometer less the wheels' own acceleration (``wheel_free_force``) points up
+on average but is noisy. In the gyro's start frame the drift is slow, so the accelerometer's up there is fitted by
+a smoothing spline (``CROSSOVER_HZ``), carried back into the base frame by the gyro: the fit holds the slow part,
+the gyro the rest. The roll is then taken about its median over the log (the IMU's own tilt: its accelerometer
+bias, its mount's error); the pitch slower than the heave's crossover is left level, as the height is (``heave``):
+a flat path under a pitched pose would climb between two poses what the path does not. So the pitch is the gyro's
+above that crossover."""
 
 from __future__ import annotations
 
@@ -23,14 +24,12 @@ BLOCK_S = 0.1  # the accelerometer's up averaged over this long for the fit (its
 # below this frequency the accelerometer holds the tilt, above it the gyro: higher, the accelerometer's noise and
 # the accelerations the wheels do not see (lateral slip, vibration) tilt the output; lower, the gyro bias's drift
 CROSSOVER_HZ = 0.1
-START_S = 1.0  # the start's up: the accelerometer over this long
 CHUNK = 20000  # IMU samples per running product (memory flat in log length)
 
 
 def applies(prep: Prepared) -> bool:
-    """Gyro, accelerometer and wheel speed all there."""
-    return (prep.imu is not None and prep.imu_f_b is not None and prep.imu_w_b is not None
-            and prep.wheel is not None and len(prep.wheel) > 1 and len(prep.imu) > 4)
+    """Where the heave does (accelerometer selected, wheel speed), with the gyro."""
+    return heave.applies(prep) and prep.imu_w_b is not None
 
 
 def running_rotation(w_b: np.ndarray, dt: np.ndarray, R0: np.ndarray | None = None) -> np.ndarray:
@@ -45,7 +44,9 @@ def running_rotation(w_b: np.ndarray, dt: np.ndarray, R0: np.ndarray | None = No
 
 
 def up_directions(prep: Prepared) -> np.ndarray | None:
-    """(N,3) unit up direction in the base frame at the IMU stamps; None with too little data."""
+    """(N,3) unit up direction in the base frame at the IMU stamps; None with too little data. The accelerometer's
+    up is left out of the fit where the wheel speed is unknown (its acceleration could not be taken out), and the
+    fit is cut at each IMU gap (the gyro carries nothing across one)."""
     t = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
     period = float(np.median(np.diff(t)))
     n = max(1, int(round(BLOCK_S / period))) if period > 0 else 0
@@ -54,51 +55,56 @@ def up_directions(prep: Prepared) -> np.ndarray | None:
         return None
     f = wheel_free_force(prep, t)[0]
     acc_up = f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-9)
-    u0 = acc_up[:max(1, int(np.searchsorted(t, START_S)))].mean(axis=0)
-    u0 /= max(float(np.linalg.norm(u0)), 1e-9)
+    w = prep.wheel
+    known = np.interp(prep.imu.stamps_ns, w.stamps_ns, np.isfinite(w.velocity_mps[:, 0]).astype(float)) == 1.0
+    gap = np.diff(prep.imu.stamps_ns) > (prep.imu_gap_ns if prep.imu_gap_ns > 0 else 5.0 * period * 1e9)
     dt = np.diff(t, prepend=t[0])
-    dt[dt > 5.0 * period] = 0.0  # across an IMU gap the gyro says nothing: the fit bridges it
-    resid = np.empty_like(acc_up)
+    dt[1:][gap] = 0.0
+    seen = np.empty_like(acc_up)  # the accelerometer's up in the gyro's start frame
     R0 = np.eye(3)
     for a in range(0, len(t), CHUNK):
         R = running_rotation(prep.imu_w_b[a:a + CHUNK], dt[a:a + CHUNK], R0)
         R0 = R[-1]
-        resid[a:a + CHUNK] = np.einsum("nij,nj->ni", R, acc_up[a:a + CHUNK]) - u0  # in the start frame
+        seen[a:a + CHUNK] = np.einsum("nij,nj->ni", R, acc_up[a:a + CHUNK])
     tb = t[:m * n].reshape(m, n).mean(axis=1)
-    rb = resid[:m * n].reshape(m, n, 3).mean(axis=1)
-    c = _spline(tb, rb, _smoothing(n * period, CROSSOVER_HZ))
-    corr = np.column_stack([np.interp(t, tb, c[:, k]) for k in range(3)])
+    weight = known[:m * n].reshape(m, n).all(axis=1).astype(float)
+    piece = np.concatenate([[0], np.cumsum(gap)])[:m * n:n]  # the stretch between IMU gaps each block starts in
+    cut = piece[2:] != piece[:-2]  # a second difference over blocks of two stretches
+    c = _spline(seen[:m * n].reshape(m, n, 3).mean(axis=1), _smoothing(n * period, CROSSOVER_HZ), weight, cut)
+    fit = np.column_stack([np.interp(t, tb, c[:, k]) for k in range(3)])
     up = np.empty_like(acc_up)
     R0 = np.eye(3)
-    for a in range(0, len(t), CHUNK):  # the corrected start-frame up, back into the base frame
+    for a in range(0, len(t), CHUNK):  # the fitted start-frame up, back into the base frame
         R = running_rotation(prep.imu_w_b[a:a + CHUNK], dt[a:a + CHUNK], R0)
         R0 = R[-1]
-        up[a:a + CHUNK] = np.einsum("nji,nj->ni", R, u0 + corr[a:a + CHUNK])
+        up[a:a + CHUNK] = np.einsum("nji,nj->ni", R, fit[a:a + CHUNK])
     return up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
 
 
 def _smoothing(block_s: float, crossover_hz: float) -> float:
-    """The spline's weight on the second difference that puts its half-power point at ``crossover_hz``: the
+    """The spline's weight on the second difference that halves a sine's amplitude at ``crossover_hz``: the
     penalty ``lam (2 pi f dt)^4`` (per block, ``dt`` the block) against 1 for the data."""
     return 1.0 / (2.0 * np.pi * crossover_hz * block_s) ** 4
 
 
-def _spline(tb: np.ndarray, y: np.ndarray, lam: float) -> np.ndarray:
-    """Columns of ``y`` at ``tb`` smoothed: minimise sum (c - y)^2 + lam sum (D2 c)^2 (D2 the plain second
-    difference of consecutive blocks: the grid is even but for gaps, which only stiffen the fit there)."""
+def _spline(y: np.ndarray, lam: float, weight: np.ndarray | None = None, cut: np.ndarray | None = None) -> np.ndarray:
+    """Columns of ``y`` (one row per block) smoothed: minimise sum weight (c - y)^2 + lam sum (D2 c)^2, D2 the
+    second difference of consecutive blocks, its rows where ``cut`` left out (the fit is free across them)."""
     from scipy.linalg import solveh_banded
 
-    m = len(tb)
+    m = len(y)
+    w = np.ones(m) if weight is None else weight
+    keep = np.full(m - 2, lam) if cut is None else np.where(cut, 0.0, lam)
     ab = np.zeros((3, m))  # upper form: ab[2] diagonal, ab[1] first super-diagonal, ab[0] second
-    ab[2] = 1.0
+    ab[2] = w + 1e-9  # a block of no weight between two cuts: held near zero, not singular
     d = np.array([1.0, -2.0, 1.0])
     # D2^T D2: each row k of D2 touches blocks k, k+1, k+2
     for i in range(3):
-        ab[2, i:m - 2 + i] += lam * d[i] ** 2
-    ab[1, 1:m - 1] += lam * d[0] * d[1]
-    ab[1, 2:m] += lam * d[1] * d[2]
-    ab[0, 2:m] += lam * d[0] * d[2]
-    return solveh_banded(ab, y)
+        ab[2, i:m - 2 + i] += keep * d[i] ** 2
+    ab[1, 1:m - 1] += keep * d[0] * d[1]
+    ab[1, 2:m] += keep * d[1] * d[2]
+    ab[0, 2:m] += keep * d[0] * d[2]
+    return solveh_banded(ab, w[:, None] * y)
 
 
 def lift(prep: Prepared, result) -> None:
@@ -111,14 +117,12 @@ def lift(prep: Prepared, result) -> None:
         return
     ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
     rp = np.column_stack([np.arctan2(up_imu[:, 1], up_imu[:, 2]), -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))])
-    # the planar estimator was chosen because the motion stays near a level plane, and its height holds that level
-    # below the heave's crossover: so does the pitch (slower, it is a grade the flat path does not climb, and
-    # would tilt the path's own forward motion); the roll tilts nothing the path does, so only the log's median
-    # is taken out of both (the IMU's own tilt: its accelerometer bias, its mount's error)
+    # the planar estimator was chosen because the motion stays near a level plane: the roll about its median, the
+    # pitch level below the heave's crossover (module docstring)
     n = max(1, int(round(BLOCK_S / float(np.median(np.diff(ti))))))
     m = len(ti) // n
     tb = ti[:m * n].reshape(m, n).mean(axis=1)
-    slow = _spline(tb, rp[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
+    slow = _spline(rp[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
                    _smoothing(float(np.median(np.diff(tb))), heave.CROSSOVER_HZ))[:, 0]
     rp[:, 0] -= np.median(rp[:, 0])
     rp[:, 1] -= np.interp(ti, tb, slow)

@@ -23,7 +23,7 @@ The scale is applied where it is measured (the fit's own sigma, from its residua
 ``LOOSE_SCALE_SIGMA`` for a scale off 1 by a few percent) and off 1 by more than ``SCALE_Z`` sigmas of its whole
 uncertainty, the angle random walk's share included. Slips are
 bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended) only
-when the scale is measured: a slip's extra distance is a share of the path as a scale error's is, and removing the
+when the scale is measured or applied (only then are the wheels ``verified``, and only to ``MAX_SCALE_SIGMA``): a slip's extra distance is a share of the path as a scale error's is, and removing the
 slips alone made every simulated bad-wheel track worse (docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
 kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed after
 it (``_closes``); otherwise it is left in and counted (``left_in``).
@@ -79,7 +79,7 @@ class SlipReport:
                 "scale": None if self.scale is None else round(self.scale, 4),
                 "scale_sigma": None if self.scale_sigma is None else round(self.scale_sigma, 4),
                 "scale_applied": self.scale_applied, "bridged": self.bridged, "left_in": self.left_in,
-                "verified": self.verified, "why": self.why}
+                "measured": self.measured, "verified": self.verified, "why": self.why}
 
 
 def applies(prep: Prepared) -> bool:
@@ -224,7 +224,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
     rep.bridged = n_bridged
-    rep.verified = rep.left_in == 0
+    rep.verified = rep.left_in == 0 and not loose  # trusted where the scale is known to MAX_SCALE_SIGMA
     vel = w.velocity_mps.copy()
     vel[ok, 0] = v_new
     var = None
@@ -237,7 +237,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
     report.note("slip_left_in", n_left)
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
-    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "
+    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}"
+               f"{', known to ' + format(LOOSE_SCALE_SIGMA, '.0%') + ' only' if loose else ''}); "
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
                + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep

@@ -136,7 +136,9 @@ def test_a_scale_known_loosely_is_applied_only_when_it_is_far_off():
     res = fuse(inputs, FuseOptions(smooth=True, rate_hz=20.0))
     check = res.info["wheel_check"]
     assert MAX_SCALE_SIGMA < check["scale_sigma"] <= LOOSE_SCALE_SIGMA, check
-    assert check["scale_applied"] and abs(check["scale"] - 0.97) < 2 * check["scale_sigma"] and check["verified"]
+    assert check["scale_applied"] and abs(check["scale"] - 0.97) < 2 * check["scale_sigma"]
+    assert not check["measured"] and not check["verified"]  # the estimator choice and GPS tests ask for 0.5 %
+    assert "(applied, known to 1% only)" in check["why"]
     assert check["slips"] == len(BURSTS) and check["bridged"] > 0
     assert _ate(truth, res.stamps_ns, res.poses) < FUSED_OVER_DR * _ate(truth, dr.stamps_ns, dr.poses)
     inputs, _, _ = _case(scale=1.0, slips=True, swing=0.05)

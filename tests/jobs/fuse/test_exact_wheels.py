@@ -107,9 +107,10 @@ def test_roll_and_pitch_follow_the_body(name, request):
     # the ground tilts the rover by degrees, the suspension the car by tenths of one; a level pose (the planar
     # filter's own) misses all of it
     assert (truth.std(axis=0) > 0.4).all()
-    # the roll followed to a tenth (measured: rover 0.016 deg, car 0.078 of 1.38 and 0.58); the pitch above the
-    # heave's crossover, where the flat path is level too (rover 0.17 of 1.22, car 0.13 of 0.48) ...
-    assert err[:, 0].std() < 0.15 * truth[:, 0].std() and err[:, 1].std() < 0.35 * truth[:, 1].std(), err.std(axis=0)
+    # the roll followed (measured: rover 0.016 deg, car 0.078 of 1.38 and 0.58; the gyro alone, without the
+    # accelerometer's fit, 0.65 and 0.70); the pitch above the heave's crossover, where the flat path is level too
+    # (rover 0.17 of 1.22, car 0.13 of 0.48: the gyro's there) ...
+    assert err[:, 0].std() < 0.2 * truth[:, 0].std() and err[:, 1].std() < 0.35 * truth[:, 1].std(), err.std(axis=0)
     # ... about the log's median: the truth's own mean tilt over 20 s (0.05-0.16 deg here) and the accelerometer's
     # bias are one to the data
     assert (np.abs(err.mean(axis=0)) < 0.25).all(), err.mean(axis=0)
