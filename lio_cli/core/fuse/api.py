@@ -13,7 +13,7 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import accel_check, agreement, graph, heave, rest, shape
+from . import accel_check, agreement, graph, heave, level, rest, shape
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
@@ -51,7 +51,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
     result.info.update(_common_info(prep, o))
     if result.estimator == "complementary":  # it takes no zero rate at rest
         result.info["rest"] = None
-    if "heave" in result.info:  # the planar filter leaves the accelerometer out; its height came from it
+    if {"heave", "level"} & set(result.info):  # the planar filter leaves the accelerometer out; these came from it
         result.info["use"]["imu"] = sorted({*result.info["use"].get("imu", ()), "accel"})
     result.info.update(estimator_reason=choice.reason, estimator_evidence=choice.evidence)
     result.info["run_time_s"] = time.perf_counter() - t_start
@@ -138,6 +138,7 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
                                                              "an accelerometer): its RTS pass"}
             heave.lift(prep, result)
+            level.lift(prep, result)
         return result
     if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
         result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))

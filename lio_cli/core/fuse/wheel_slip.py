@@ -19,10 +19,11 @@ difference's jumps (``slip_windows.guard``); fit and detection then alternate ``
 pitch (the log's median up direction, ``tilt_track.mount_cosine``: a start on a slope is the ground's, not the
 mount's) divides the forward acceleration by its cosine.
 
-The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``) and
-off 1 by more than ``SCALE_Z`` sigmas of its whole uncertainty, the angle random walk's share included. Slips are
+The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``, or
+``LOOSE_SCALE_SIGMA`` for a scale off 1 by a few percent) and off 1 by more than ``SCALE_Z`` sigmas of its whole
+uncertainty, the angle random walk's share included. Slips are
 bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended) only
-when the scale is measured: a slip's extra distance is a share of the path as a scale error's is, and removing the
+when the scale is measured or applied (only then are the wheels ``verified``, and only to ``MAX_SCALE_SIGMA``): a slip's extra distance is a share of the path as a scale error's is, and removing the
 slips alone made every simulated bad-wheel track worse (docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
 kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed after
 it (``_closes``); otherwise it is left in and counted (``left_in``).
@@ -45,7 +46,8 @@ MAX_SLIP_S = 5.0  # a slip longer than this is kept out of the fit, bridged only
 CLOSE_REL = 0.05  # ... within this share of the speed (or CLOSE_MPS) of the wheel speed after it
 CLOSE_MPS = 0.05
 BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
-MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are
+MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are ...
+LOOSE_SCALE_SIGMA = 0.01  # ... unless known to this and off 1 by SCALE_Z sigmas
 SCALE_Z = 3.0  # sigmas off 1 before the scale is applied
 MAX_SCALE_OFF = 0.2  # a fitted scale further from 1 than this says the IMU's axes are wrong, not the wheels
 MIN_SPAN_S = 10.0  # shorter logs: nothing is estimated
@@ -77,7 +79,7 @@ class SlipReport:
                 "scale": None if self.scale is None else round(self.scale, 4),
                 "scale_sigma": None if self.scale_sigma is None else round(self.scale_sigma, 4),
                 "scale_applied": self.scale_applied, "bridged": self.bridged, "left_in": self.left_in,
-                "verified": self.verified, "why": self.why}
+                "measured": self.measured, "verified": self.verified, "why": self.why}
 
 
 def applies(prep: Prepared) -> bool:
@@ -196,7 +198,10 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
     A = A - c[0] * tw - G @ c[1:]
     s_sigma = float(np.hypot(s_fit, s_walk))
     rep.scale, rep.scale_sigma = s, s_sigma
-    if s_fit > MAX_SCALE_SIGMA:
+    # known only to LOOSE_SCALE_SIGMA, a scale far enough off 1 is still applied: its error is then a third of
+    # the wheels' (not ``measured``: the estimator choice asks for MAX_SCALE_SIGMA)
+    loose = MAX_SCALE_SIGMA < s_fit <= LOOSE_SCALE_SIGMA and abs(s - 1.0) > SCALE_Z * s_sigma
+    if s_fit > MAX_SCALE_SIGMA and not loose:
         rep.why = (f"wheel scale {s:.4f} +- {s_fit:.4f} (the fit's): not measured by the accelerometer to "
                    f"{MAX_SCALE_SIGMA:.1%} (the speed changes too little, or the IMU's axes are off), so {len(wins)} "
                    "slip(s) left in") + _clock_hint(tw, vw, A, inside)
@@ -206,7 +211,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
                    f"IMU's forward axis is likely not the base's"
                    + (" or the wheels' speed has its sign reversed" if s < 0 else "") + ": wheels left as they are")
         return rep
-    rep.measured = True
+    rep.measured = not loose
     rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
     scale = s if rep.scale_applied else 1.0
     v_new = scale * vw
@@ -219,7 +224,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
         v_new[i:j + 1] = _bridge(i, j, tw, scale * vw, A, clean)
         n_bridged += j - i + 1
     rep.bridged = n_bridged
-    rep.verified = rep.left_in == 0
+    rep.verified = rep.left_in == 0 and not loose  # trusted where the scale is known to MAX_SCALE_SIGMA
     vel = w.velocity_mps.copy()
     vel[ok, 0] = v_new
     var = None
@@ -232,7 +237,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
     report.note("slip_left_in", n_left)
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
-    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}); "
+    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}"
+               f"{', known to ' + format(LOOSE_SCALE_SIGMA, '.0%') + ' only' if loose else ''}); "
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
                + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep
