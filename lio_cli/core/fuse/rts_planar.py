@@ -49,7 +49,10 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
     ekf = PlanarEkf(prep, o, start)
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
-    if o.smooth and len(x):
+    # the odometry's clone is an exact copy of the pose when taken: the RTS pass's predicted covariance is then
+    # singular (or nearly, and its gains blow up), so a run with odometry increments keeps the filter's states
+    smooth = o.smooth and not ekf.clone
+    if smooth and len(x):
         x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
         if unmeasured_pose(prep):
             x = reintegrated(knots["t_ns"], x, heading="orientation" not in prep.use.get("imu", ()))
@@ -58,7 +61,7 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
         handover = planar_handover(knots["t_ns"], x, P, o.handover_ns) if o.smooth else \
             planar_handover(*ekf.handed, o.handover_ns)
     sel = knots["output"]
-    if o.smooth:
+    if o.smooth:  # every knot was kept for the pass
         x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
     poses = np.stack([se2(a[X], a[Y], a[TH]) for a in x]) if len(x) else np.zeros((0, 4, 4))
     cov = None
@@ -72,6 +75,8 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
     if handover is not None:
         info["handover"] = handover
+    if o.smooth and not smooth:
+        info["rts_skipped"] = "odometry increments (odom:delta): the planar filter's RTS pass cannot take its clone"
     origin = enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset)
-    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info,
+    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", smooth, prep.reports, info,
                       origin)

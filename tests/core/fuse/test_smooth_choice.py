@@ -9,7 +9,7 @@ import pytest
 
 from lio_cli.core.fuse import FuseOptions, fuse, graph_smooths
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
-from lio_cli.simulation.fusion_case import simulate_case
+from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
 
 
 def ate(case, res) -> float:
@@ -57,3 +57,19 @@ def test_graph_smooths_by_selection_and_filter():
     assert not graph_smooths(iw, "planar")
     assert graph_smooths({**iw, "gps": ["position"]}, "planar") and graph_smooths({**iw, "odom": ["delta"]}, "planar")
     assert not graph_smooths({"imu": ["gyro"], "wheel": ["speed"], "gps": ["position"]}, "ekf")
+
+
+def test_the_planar_filter_with_odometry_increments_and_no_accelerometer_keeps_the_filter():
+    # the odometry's clone made the RTS pass's predicted covariance singular: the run stopped with a
+    # ProcessingError (or, with GPS, nearly singular gains sent it 1e26 m off); now the filter's states are kept,
+    # and said so
+    case = simulate_case("planar", 20.0, seed=1, gps_sigma_m=1.0, odom=OdomNoise())
+    use = {"imu": {"gyro"}, "wheel": {"speed"}, "odom": {"delta"}, "gps": {"position"}}
+    filt = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use))
+    kept = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use, smooth=True))
+    assert not graph_smooths(kept.info["use"], "planar")  # no accelerometer: the RTS pass was the smoother asked
+    assert kept.info["smoother"] == {"kind": None, "why": "odometry increments (odom:delta): the planar filter's "
+                                                          "RTS pass cannot take its clone"}
+    assert not kept.smoothed and any(n.startswith("smoother: none, the filter's trajectory kept") for n in kept.info["notes"])
+    np.testing.assert_array_equal(kept.poses[:, :2, 3], filt.poses[:, :2, 3])
+    assert ate(case, kept) < 1.0
