@@ -3,6 +3,9 @@ nothing measures the position, the next piece's start, the poses as the fusion's
 
 from __future__ import annotations
 
+import copy
+from dataclasses import replace
+
 import numpy as np
 
 from .inputs import FuseOptions
@@ -10,7 +13,7 @@ from .pieces import planar_handover
 from .planar import PlanarEkf, se2
 from .planar_model import TH, V, W, X, Y
 from .result import FuseResult, anchor_to_origin, enu_origin
-from .smoother import rts_smooth
+from .smoother import SingularPrediction, rts_smooth
 from .start_state import Start
 from .timeline import Prepared
 
@@ -46,13 +49,26 @@ def reintegrated(t_ns: np.ndarray, x: np.ndarray, heading: bool = True) -> np.nd
 
 
 def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> FuseResult:
+    """The planar filter, smoothed under ``o.smooth``. Where the RTS pass finds its predicted covariance singular
+    (odometry increments: their clone is an exact copy of the pose when taken, and a knot can follow before time
+    tells them apart), the run is the filter's alone, as ``--no-smooth`` gives it, with a note."""
+    if not o.smooth:
+        return _run(prep, o, start)
+    counted = copy.deepcopy(prep.reports)
+    try:
+        return _run(prep, o, start)
+    except SingularPrediction as err:
+        prep.reports = counted  # the smoothing run's counts go with it
+        result = _run(prep, replace(o, smooth=False), start)
+        result.info["rts_refused"] = str(err)
+        return result
+
+
+def _run(prep: Prepared, o: FuseOptions, start: Start | None) -> FuseResult:
     ekf = PlanarEkf(prep, o, start)
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
-    # the odometry's clone is an exact copy of the pose when taken: the RTS pass's predicted covariance is then
-    # singular (or nearly, and its gains blow up), so a run with odometry increments keeps the filter's states
-    smooth = o.smooth and not ekf.clone
-    if smooth and len(x):
+    if o.smooth and len(x):
         x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
         if unmeasured_pose(prep):
             x = reintegrated(knots["t_ns"], x, heading="orientation" not in prep.use.get("imu", ()))
@@ -61,7 +77,7 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
         handover = planar_handover(knots["t_ns"], x, P, o.handover_ns) if o.smooth else \
             planar_handover(*ekf.handed, o.handover_ns)
     sel = knots["output"]
-    if o.smooth:  # every knot was kept for the pass
+    if o.smooth:
         x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
     poses = np.stack([se2(a[X], a[Y], a[TH]) for a in x]) if len(x) else np.zeros((0, 4, 4))
     cov = None
@@ -75,8 +91,6 @@ def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> Fu
             "odom_mode": next(iter(prep.use.get("odom", ())), None)}
     if handover is not None:
         info["handover"] = handover
-    if o.smooth and not smooth:
-        info["rts_skipped"] = "odometry increments (odom:delta): the planar filter's RTS pass cannot take its clone"
     origin = enu_origin(poses, None if ekf.gps_offset is None else -ekf.gps_offset)
-    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", smooth, prep.reports, info,
+    return FuseResult(knots["t_ns"][sel], anchor_to_origin(poses), cov, vel, "planar", o.smooth, prep.reports, info,
                       origin)
