@@ -134,7 +134,12 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
     """The chosen filter (with the RTS pass under ``smooth`` for the two EKFs)."""
     if o.estimator == "planar":
         result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
-        if o.smooth:
+        if o.smooth and "rts_refused" in result.info:
+            why = result.info.pop("rts_refused").removeprefix("smoother: ")
+            result.info["smoother"] = {"kind": None, "why": why}
+            prep.notes.append(f"smoother: {why}: the planar filter's trajectory kept, unsmoothed (odometry increments, "
+                              "odom:delta, can do this; as poses, odom:pose, they smooth)")
+        elif o.smooth:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
                                                              "an accelerometer): its RTS pass"}
             heave.lift(prep, result)

@@ -3,6 +3,9 @@ nothing measures the position, the next piece's start, the poses as the fusion's
 
 from __future__ import annotations
 
+import copy
+from dataclasses import replace
+
 import numpy as np
 
 from .inputs import FuseOptions
@@ -10,7 +13,7 @@ from .pieces import planar_handover
 from .planar import PlanarEkf, se2
 from .planar_model import TH, V, W, X, Y
 from .result import FuseResult, anchor_to_origin, enu_origin
-from .smoother import rts_smooth
+from .smoother import SingularPrediction, rts_smooth
 from .start_state import Start
 from .timeline import Prepared
 
@@ -46,6 +49,22 @@ def reintegrated(t_ns: np.ndarray, x: np.ndarray, heading: bool = True) -> np.nd
 
 
 def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> FuseResult:
+    """The planar filter, smoothed under ``o.smooth``. Where the RTS pass finds its predicted covariance singular
+    (odometry increments: their clone is an exact copy of the pose when taken, and a knot can follow before time
+    tells them apart), the run is the filter's alone, as ``--no-smooth`` gives it, with a note."""
+    if not o.smooth:
+        return _run(prep, o, start)
+    counted = copy.deepcopy(prep.reports)
+    try:
+        return _run(prep, o, start)
+    except SingularPrediction as err:
+        prep.reports = counted  # the smoothing run's counts go with it
+        result = _run(prep, replace(o, smooth=False), start)
+        result.info["rts_refused"] = str(err)
+        return result
+
+
+def _run(prep: Prepared, o: FuseOptions, start: Start | None) -> FuseResult:
     ekf = PlanarEkf(prep, o, start)
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]

@@ -15,6 +15,10 @@ import numpy as np
 from ...errors import ProcessingError
 
 
+class SingularPrediction(ProcessingError):
+    """A knot's predicted covariance cannot be inverted."""
+
+
 def rts_smooth(knots: dict[str, np.ndarray], boxplus: Callable[[np.ndarray, np.ndarray], None],
                boxminus: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Smoothed states and covariances at every knot of a ``KnotLog(for_smoother=True).arrays()``."""
@@ -25,7 +29,7 @@ def rts_smooth(knots: dict[str, np.ndarray], boxplus: Callable[[np.ndarray, np.n
         try:
             G = np.linalg.solve(Pp[k + 1], Phi[k + 1] @ Pf[k]).T
         except np.linalg.LinAlgError as err:
-            raise ProcessingError(f"smoother: predicted covariance singular at knot {k + 1} of {K}") from err
+            raise SingularPrediction(f"smoother: predicted covariance singular at knot {k + 1} of {K}") from err
         d = boxminus(xs[k + 1], xp[k + 1])
         x = xf[k].copy()
         boxplus(x, G @ d)

@@ -9,7 +9,7 @@ import pytest
 
 from lio_cli.core.fuse import FuseOptions, fuse, graph_smooths
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
-from lio_cli.simulation.fusion_case import simulate_case
+from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
 
 
 def ate(case, res) -> float:
@@ -57,3 +57,22 @@ def test_graph_smooths_by_selection_and_filter():
     assert not graph_smooths(iw, "planar")
     assert graph_smooths({**iw, "gps": ["position"]}, "planar") and graph_smooths({**iw, "odom": ["delta"]}, "planar")
     assert not graph_smooths({"imu": ["gyro"], "wheel": ["speed"], "gps": ["position"]}, "ekf")
+
+
+def test_the_planar_filter_where_its_rts_pass_cannot_invert_keeps_the_filter():
+    # odometry increments: their clone is an exact copy of the pose when taken, and here a knot follows before
+    # time tells them apart (knot 6). The run stopped with a ProcessingError; it is now the filter's, as
+    # --no-smooth gives it, counted once, and says so
+    case = simulate_case("planar", 20.0, seed=1, gps_sigma_m=1.0, odom=OdomNoise())
+    use = {"imu": {"gyro"}, "wheel": {"speed"}, "odom": {"delta"}, "gps": {"position"}}
+    filt = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use))
+    kept = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use, smooth=True))
+    assert not graph_smooths(kept.info["use"], "planar")  # no accelerometer: the RTS pass was the smoother asked
+    sm = kept.info["smoother"]
+    assert sm["kind"] is None and sm["why"].startswith("predicted covariance singular at knot ")
+    assert not kept.smoothed and f"smoother: {sm['why']}: the planar filter's trajectory kept, unsmoothed (odometry " \
+        "increments, odom:delta, can do this; as poses, odom:pose, they smooth)" in kept.info["notes"]
+    np.testing.assert_array_equal(kept.poses, filt.poses)
+    for s in ("odom", "gps", "wheel"):
+        assert kept.reports[s].updates == filt.reports[s].updates > 0
+    assert ate(case, kept) < 1.0
