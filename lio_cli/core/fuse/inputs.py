@@ -56,13 +56,15 @@ class WheelSeries:
     """Wheel odometry twist of the base frame (nav_msgs/Odometry or TwistStamped; twist-only is normal).
 
     ``velocity_mps`` (N,3) body-frame linear velocity, NaN where a component is absent; ``yaw_rate_radps``
-    (N,) NaN where absent; optional variances ``velocity_var`` (N,3) and ``yaw_rate_var`` (N,)."""
+    (N,) NaN where absent; optional variances ``velocity_var`` (N,3) and ``yaw_rate_var`` (N,);
+    ``speed_scale_sigma``: how well a calibration knows the speed's scale (relative), where one scaled it."""
 
     stamps_ns: np.ndarray
     velocity_mps: np.ndarray
     yaw_rate_radps: np.ndarray
     velocity_var: np.ndarray | None = None
     yaw_rate_var: np.ndarray | None = None
+    speed_scale_sigma: float | None = None
 
     def __len__(self) -> int:
         return len(self.stamps_ns)

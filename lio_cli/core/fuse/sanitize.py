@@ -120,7 +120,8 @@ def clean_wheel(wheel: WheelSeries, use: set[str], noise: NoiseOptions, report: 
     velocity_var = _variance(vvar, m, 3, default_vvar, noise.use_message_covariance, report, relevant_v)
     yaw_var = _variance(yvar, m, 1, noise.wheel_yaw_rate_sigma_radps**2, noise.use_message_covariance,
                         report, (np.isfinite(yaw) & ("yaw_rate" in use))[:, None])[:, 0]
-    return WheelSeries(np.asarray(wheel.stamps_ns, np.int64)[keep], vel, yaw, velocity_var, yaw_var)
+    return WheelSeries(np.asarray(wheel.stamps_ns, np.int64)[keep], vel, yaw, velocity_var, yaw_var,
+                       wheel.speed_scale_sigma)
 
 
 def clean_odom(odom: PoseSeries, noise: NoiseOptions, report: SourceReport) -> PoseSeries:

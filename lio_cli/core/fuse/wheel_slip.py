@@ -48,6 +48,7 @@ CLOSE_MPS = 0.05
 BLOCK_S = 1.0  # speed increments over this long fit the scale and bias
 MAX_SCALE_SIGMA = 0.005  # a scale known no better than this leaves the wheels as they are ...
 LOOSE_SCALE_SIGMA = 0.01  # ... unless known to this and off 1 by SCALE_Z sigmas
+MIN_CALIBRATION_SIGMA = 0.001  # a calibration's scale is trusted no further (a sigma of 0 is a claim, not a fact)
 SCALE_Z = 3.0  # sigmas off 1 before the scale is applied
 MAX_SCALE_OFF = 0.2  # a fitted scale further from 1 than this says the IMU's axes are wrong, not the wheels
 MIN_SPAN_S = 10.0  # shorter logs: nothing is estimated
@@ -197,6 +198,8 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
     rep.windows = [(float(tw[i]), float(tw[j])) for i, j in wins]
     A = A - c[0] * tw - G @ c[1:]
     s_sigma = float(np.hypot(s_fit, s_walk))
+    if w.speed_scale_sigma is not None:  # a calibration scaled the wheels: its scale, 1 now, weighed in
+        s, s_fit, s_sigma = _with_calibration(s, s_fit, s_sigma, w.speed_scale_sigma)
     rep.scale, rep.scale_sigma = s, s_sigma
     # known only to LOOSE_SCALE_SIGMA, a scale far enough off 1 is still applied: its error is then a third of
     # the wheels' (not ``measured``: the estimator choice asks for MAX_SCALE_SIGMA)
@@ -212,7 +215,7 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
                    + (" or the wheels' speed has its sign reversed" if s < 0 else "") + ": wheels left as they are")
         return rep
     rep.measured = not loose
-    rep.scale_applied = abs(s - 1.0) > SCALE_Z * s_sigma
+    rep.scale_applied = bool(abs(s - 1.0) > SCALE_Z * s_sigma)
     scale = s if rep.scale_applied else 1.0
     v_new = scale * vw
     n_bridged = n_left = 0
@@ -238,10 +241,20 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
     rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}"
-               f"{', known to ' + format(LOOSE_SCALE_SIGMA, '.0%') + ' only' if loose else ''}); "
+               f"{', known to ' + format(LOOSE_SCALE_SIGMA, '.0%') + ' only' if loose else ''}"
+               f"{', with the calibration' + chr(39) + 's' if w.speed_scale_sigma is not None else ''}); "
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
                + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep
+
+
+def _with_calibration(s: float, s_fit: float, s_sigma: float, cal_sigma: float) -> tuple[float, float, float]:
+    """The fitted scale and its sigmas (the fit's, the whole) beside a calibration's: 1 (it scaled the wheels
+    already) within ``cal_sigma``, at least ``MIN_CALIBRATION_SIGMA``; inverse-variance weighted."""
+    c = max(cal_sigma, MIN_CALIBRATION_SIGMA)
+    k = c**2 / (c**2 + s_sigma**2)  # the fit's share
+    shrink = float(np.sqrt(k))
+    return 1.0 + k * (s - 1.0), s_fit * shrink, s_sigma * shrink
 
 
 def _clock_hint(t: np.ndarray, v: np.ndarray, A: np.ndarray, inside: np.ndarray) -> str:

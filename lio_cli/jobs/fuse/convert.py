@@ -112,7 +112,8 @@ def calibrated_wheel(wheel: WheelSeries, scales: WheelCalibration) -> WheelSerie
     sv, sw = scales.speed_scale, scales.yaw_rate_scale
     return WheelSeries(wheel.stamps_ns, wheel.velocity_mps * sv, wheel.yaw_rate_radps * sw,
                        None if wheel.velocity_var is None else wheel.velocity_var * sv**2,
-                       None if wheel.yaw_rate_var is None else wheel.yaw_rate_var * sw**2)
+                       None if wheel.yaw_rate_var is None else wheel.yaw_rate_var * sw**2,
+                       scales.speed_scale_sigma / sv)
 
 
 def carries_lateral_speed(wheel: WheelSeries) -> bool:
