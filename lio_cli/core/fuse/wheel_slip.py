@@ -21,9 +21,10 @@ mount's) divides the forward acceleration by its cosine.
 
 The scale is applied where it is measured (the fit's own sigma, from its residual, at most ``MAX_SCALE_SIGMA``, or
 ``LOOSE_SCALE_SIGMA`` for a scale off 1 by a few percent) and off 1 by more than ``SCALE_Z`` sigmas of its whole
-uncertainty, the angle random walk's share included. Slips are
-bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the window and blended) only
-when the scale is measured or applied (only then are the wheels ``verified``, and only to ``MAX_SCALE_SIGMA``): a slip's extra distance is a share of the path as a scale error's is, and removing the
+uncertainty, the angle random walk's share included; a calibration that scaled the wheels (``speed_scale_sigma``)
+is weighed in. Slips are bridged (their wheel speeds replaced by the IMU's speed, integrated from both ends of the
+window and blended) only when the scale is measured or applied (the wheels are ``verified`` only where it is known
+to ``MAX_SCALE_SIGMA``): a slip's extra distance is a share of the path as a scale error's is, and removing the
 slips alone made every simulated bad-wheel track worse (docs/benchmarks.md). A slip longer than ``MAX_SLIP_S`` is
 kept out of the fit whole but bridged only when the IMU's speed integrated across it lands on the wheel speed after
 it (``_closes``); otherwise it is left in and counted (``left_in``).
@@ -240,9 +241,9 @@ def check_wheels(prep: Prepared, gate_probability: float, gravity_mps2: float, w
     report.note("slip_left_in", n_left)
     if rep.scale_applied:
         report.note("scale_corrected", int(ok.sum()))
-    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({'applied' if rep.scale_applied else 'taken as 1'}"
-               f"{', known to ' + format(LOOSE_SCALE_SIGMA, '.0%') + ' only' if loose else ''}"
-               f"{', with the calibration' + chr(39) + 's' if w.speed_scale_sigma is not None else ''}); "
+    how = ["applied" if rep.scale_applied else "taken as 1"] + [f"known to {LOOSE_SCALE_SIGMA:.0%} only"] * loose \
+        + ["with the calibration's"] * (w.speed_scale_sigma is not None)
+    rep.why = (f"wheel scale {s:.4f} +- {s_sigma:.4f} ({', '.join(how)}); "
                f"{len(wins) - rep.left_in} slip(s) bridged by the IMU"
                + (f", {rep.left_in} longer than {MAX_SLIP_S:g} s left in (out of the scale fit)" * bool(rep.left_in)))
     return rep

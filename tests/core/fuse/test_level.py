@@ -93,7 +93,8 @@ def test_an_imu_gap_cuts_the_fit(rover):
     imu = rover.inputs.imu
     t = (imu.stamps_ns - imu.stamps_ns[0]) / NS
     keep = (t < 12.0) | (t > 13.5)
-    gapped = replace(imu, stamps_ns=imu.stamps_ns[keep], gyro_radps=imu.gyro_radps[keep], accel_mps2=imu.accel_mps2[keep])
+    gapped = replace(imu, stamps_ns=imu.stamps_ns[keep], gyro_radps=imu.gyro_radps[keep],
+                     accel_mps2=imu.accel_mps2[keep])
     res = fuse(replace(rover.inputs, imu=gapped), FuseOptions(smooth=True, rate_hz=50.0))
     ts = (res.stamps_ns - imu.stamps_ns[0]) / NS
     outside = (ts < 11.9) | (ts > 13.6)
