@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...so3 import so3_exp
 from . import heave
 from .choose import wheel_free_force
+from .tilt_track import running_rotation
 from .timeline import Prepared
 
 BLOCK_S = 0.1  # the accelerometer's up averaged over this long for the fit (its crossover is far below 10 Hz)
@@ -32,25 +32,13 @@ def applies(prep: Prepared) -> bool:
     return heave.applies(prep) and prep.imu_w_b is not None
 
 
-def running_rotation(w_b: np.ndarray, dt: np.ndarray, R0: np.ndarray | None = None) -> np.ndarray:
-    """(N,3,3) rotations of the base since before the first sample (``R0`` then, identity without it): the running
-    product of ``exp(w dt)``, in log2(N) batched steps."""
-    R = so3_exp(w_b * dt[:, None])
-    step = 1
-    while step < len(R):
-        R = np.concatenate([R[:step], R[:-step] @ R[step:]])
-        step *= 2
-    return R if R0 is None else R0 @ R
-
-
 def up_directions(prep: Prepared) -> np.ndarray | None:
     """(N,3) unit up direction in the base frame at the IMU stamps; None with too little data. The accelerometer's
     up is left out of the fit where the wheel speed is unknown (its acceleration could not be taken out), and the
     fit is cut at each IMU gap (the gyro carries nothing across one)."""
     t = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
     period = float(np.median(np.diff(t)))
-    n = max(1, int(round(BLOCK_S / period))) if period > 0 else 0
-    m = len(t) // n if n else 0
+    n, m, tb = _blocks(t)
     if m < 8:
         return None
     f = wheel_free_force(prep, t)[0]
@@ -66,7 +54,6 @@ def up_directions(prep: Prepared) -> np.ndarray | None:
         R = running_rotation(prep.imu_w_b[a:a + CHUNK], dt[a:a + CHUNK], R0)
         R0 = R[-1]
         seen[a:a + CHUNK] = np.einsum("nij,nj->ni", R, acc_up[a:a + CHUNK])
-    tb = t[:m * n].reshape(m, n).mean(axis=1)
     weight = known[:m * n].reshape(m, n).all(axis=1).astype(float)
     piece = np.concatenate([[0], np.cumsum(gap)])[:m * n:n]  # the stretch between IMU gaps each block starts in
     cut = piece[2:] != piece[:-2]  # a second difference over blocks of two stretches
@@ -79,6 +66,14 @@ def up_directions(prep: Prepared) -> np.ndarray | None:
         R0 = R[-1]
         up[a:a + CHUNK] = np.einsum("nji,nj->ni", R, fit[a:a + CHUNK])
     return up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+
+
+def _blocks(t: np.ndarray) -> tuple[int, int, np.ndarray]:
+    """Samples per ``BLOCK_S`` block, whole blocks, and their mean times, of the sample times ``t`` (s)."""
+    period = float(np.median(np.diff(t)))
+    n = max(1, int(round(BLOCK_S / period))) if period > 0 else 1
+    m = len(t) // n
+    return n, m, t[:m * n].reshape(m, n).mean(axis=1)
 
 
 def _smoothing(block_s: float, crossover_hz: float) -> float:
@@ -119,9 +114,7 @@ def lift(prep: Prepared, result) -> None:
     rp = np.column_stack([np.arctan2(up_imu[:, 1], up_imu[:, 2]), -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))])
     # the planar estimator was chosen because the motion stays near a level plane: the roll about its median, the
     # pitch level below the heave's crossover (module docstring)
-    n = max(1, int(round(BLOCK_S / float(np.median(np.diff(ti))))))
-    m = len(ti) // n
-    tb = ti[:m * n].reshape(m, n).mean(axis=1)
+    n, m, tb = _blocks(ti)
     slow = _spline(rp[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
                    _smoothing(float(np.median(np.diff(tb))), heave.CROSSOVER_HZ))[:, 0]
     rp[:, 0] -= np.median(rp[:, 0])

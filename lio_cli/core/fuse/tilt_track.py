@@ -124,12 +124,7 @@ def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, 
     u = u / max(float(np.linalg.norm(u)), 1e-9)
     dt = np.diff(t_s, prepend=t_s[0])
     dt[1:][gap] = 0.0
-    dR = so3_exp(w_b * dt[:, None])
-    R = dR  # the base's rotation since the first sample: the running product, in log2(N) batched steps
-    step = 1
-    while step < len(R):
-        R = np.concatenate([R[:step], R[:-step] @ R[step:]])
-        step *= 2
+    R = running_rotation(w_b, dt)  # the base's rotation since the first sample
     ub = np.einsum("nji,j->ni", R, u)  # R^T u
     B = np.cumsum(R * dt[:, None, None], axis=0)  # integral of R: the gyro bias's rotation error is R^T B b
     sens = np.empty((len(t_s), 4))
@@ -138,6 +133,17 @@ def carried(t_s: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, t_w: np.ndarray, 
         sens[:, j] = np.cross(ub, phi)[:, 0]
         sens[:, 2 + j] = np.einsum("nji,j->ni", R, np.cross(e, u))[:, 0]
     return (f_b[:, 0] - g * ub[:, 0]) / c, -g * sens / c
+
+
+def running_rotation(w_b: np.ndarray, dt: np.ndarray, R0: np.ndarray | None = None) -> np.ndarray:
+    """(N,3,3) rotations of the base since before the first sample (``R0`` then, identity without it): the running
+    product of ``exp(w dt)``, in log2(N) batched steps."""
+    R = so3_exp(w_b * dt[:, None])
+    step = 1
+    while step < len(R):
+        R = np.concatenate([R[:step], R[:-step] @ R[step:]])
+        step *= 2
+    return R if R0 is None else R0 @ R
 
 
 def walk_variance(spans: np.ndarray, anchors: np.ndarray) -> np.ndarray:
