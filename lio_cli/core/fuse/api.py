@@ -133,6 +133,8 @@ def _graph_smooths(prep: Prepared, estimator: str) -> bool:
 def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
     """The chosen filter (with the RTS pass under ``smooth`` for the two EKFs)."""
     if o.estimator == "planar":
+        up = level.up_directions(prep) if o.smooth and level.applies(prep) else None
+        prep.heading_offset = None if up is None else level.heading_rate_offset(prep, up)
         result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
         if o.smooth and "rts_refused" in result.info:
             why = result.info.pop("rts_refused").removeprefix("smoother: ")
@@ -143,7 +145,7 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
                                                              "an accelerometer): its RTS pass"}
             heave.lift(prep, result)
-            level.lift(prep, result)
+            level.lift(prep, result, up)
         return result
     if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
         result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))

@@ -25,6 +25,8 @@ BLOCK_S = 0.1  # the accelerometer's up averaged over this long for the fit (its
 # the accelerations the wheels do not see (lateral slip, vibration) tilt the output; lower, the gyro bias's drift
 CROSSOVER_HZ = 0.1
 CHUNK = 20000  # IMU samples per running product (memory flat in log length)
+# the gyro's roll and pitch rates slower than this are taken as its bias (a ground robot's tilt stays bounded)
+BIAS_HZ = 0.01
 
 
 def applies(prep: Prepared) -> bool:
@@ -68,6 +70,21 @@ def up_directions(prep: Prepared) -> np.ndarray | None:
     return up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
 
 
+def heading_rate_offset(prep: Prepared, up: np.ndarray) -> np.ndarray:
+    """(N,) what turns the gyro's base-z rate into the heading's, ``(sin(roll) w_y + cos(roll) w_z) / cos(pitch)``
+    (Z-Y-X angles), at the IMU stamps, from the base-frame ``up`` (``up_directions``). On a base that tilts the base z
+    axis is not the vertical, and its rate integrated is not the heading: a car's sway alone turned a drive's path
+    (docs/benchmarks.md). The pitch rate's bias is taken out first (below ``BIAS_HZ``): times the accelerometer's
+    error in the roll it would be a yaw rate bias, and added to the wheels' yaw rate too, no source could tell."""
+    w = prep.imu_w_b
+    t = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
+    n, m, tb = _blocks(t)
+    slow = _spline(w[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
+                   _smoothing(float(np.median(np.diff(tb))), BIAS_HZ))[:, 0]
+    w_y = w[:, 1] - np.interp(t, tb, slow)
+    return (up[:, 1] * w_y + up[:, 2] * w[:, 2]) / np.maximum(up[:, 1] ** 2 + up[:, 2] ** 2, 1e-6) - w[:, 2]
+
+
 def _blocks(t: np.ndarray) -> tuple[int, int, np.ndarray]:
     """Samples per ``BLOCK_S`` block, whole blocks, and their mean times, of the sample times ``t`` (s)."""
     period = float(np.median(np.diff(t)))
@@ -102,12 +119,12 @@ def _spline(y: np.ndarray, lam: float, weight: np.ndarray | None = None, cut: np
     return solveh_banded(ab, w[:, None] * y)
 
 
-def lift(prep: Prepared, result) -> None:
-    """The planar ``result``'s roll and pitch set from the IMU's up direction (``up_directions``), its yaw kept,
-    in place, where it applies."""
+def lift(prep: Prepared, result, up_imu: np.ndarray | None = None) -> None:
+    """The planar ``result``'s roll and pitch set from the IMU's up direction (``up_imu``, else ``up_directions``),
+    its yaw kept, in place, where it applies."""
     if not applies(prep) or not len(result.stamps_ns):
         return
-    up_imu = up_directions(prep)
+    up_imu = up_directions(prep) if up_imu is None else up_imu
     if up_imu is None:
         return
     ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9

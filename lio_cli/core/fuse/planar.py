@@ -67,6 +67,11 @@ class PlanarEkf:
         self.gap_yaw, self.gap_yaw_var = (gg.yaw_radps, gg.yaw_var) if gg is not None else (None, None)
         self.resting = at_rest(prep.rest, prep.imu.stamps_ns) if self.use_gyro else None
         self.rate_states = np.isin(np.arange(self.n), [W, BW])  # what a filtered rest update changes
+        # smoothed, the turn rate is the heading's, not the base z axis's (``level.heading_rate_offset``)
+        self.heading_offset = prep.heading_offset if options.smooth and self.use_gyro else None
+        self.wheel_heading_offset = None
+        if self.heading_offset is not None and prep.wheel is not None:
+            self.wheel_heading_offset = np.interp(prep.wheel.stamps_ns, prep.imu.stamps_ns, self.heading_offset)
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -154,7 +159,7 @@ class PlanarEkf:
     def _imu(self, t, i, x, P):
         prep = self.prep
         if self.use_gyro:
-            z = prep.imu_w_b[i][2]
+            z = prep.imu_w_b[i][2] + (0.0 if self.heading_offset is None else self.heading_offset[i])
             r, H, Rn = np.array([z - x[W] - x[BW]]), self._row({W: 1.0, BW: 1.0}), np.array([[self.gyro_var]])
             if not self.resting[i]:
                 P = self._update(t, x, P, r, H, Rn, "imu", "gyro")
@@ -184,7 +189,8 @@ class PlanarEkf:
                              np.array([[w.velocity_var[i, 0]]]), "wheel", "wheel_speed",
                              allow_reset=self.anchor.allows_reset(t))
         if "yaw_rate" in use and np.isfinite(w.yaw_rate_radps[i]):
-            P = self._update(t, x, P, np.array([w.yaw_rate_radps[i] - x[W]]), self._row({W: 1.0}),
+            z = w.yaw_rate_radps[i] + (0.0 if self.wheel_heading_offset is None else self.wheel_heading_offset[i])
+            P = self._update(t, x, P, np.array([z - x[W]]), self._row({W: 1.0}),
                              np.array([[w.yaw_rate_var[i]]]), "wheel", "wheel_yaw_rate", allow_reset=not self.use_gyro)
         elif self.gap_yaw is not None and np.isfinite(self.gap_yaw[i]):  # inside a gyro gap: the turn rate
             P = self._update(t, x, P, np.array([self.gap_yaw[i] - x[W]]), self._row({W: 1.0}),

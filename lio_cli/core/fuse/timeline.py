@@ -52,6 +52,7 @@ class Prepared:
     heave_accel: bool = False  # the accelerometer selected, though the planar filter leaves it out (heave.py)
     gyro_gaps: GyroGaps | None = None  # the gyro's gaps inside the coverage, where it has any
     rest: np.ndarray | None = None  # (n, 2) ns spans at rest after the start (``rest``)
+    heading_offset: np.ndarray | None = None  # (N,) base-z rate -> heading rate at the IMU stamps (``level``)
 
     @property
     def wheel_yaw_check(self) -> dict | None:
