@@ -67,8 +67,8 @@ class PlanarEkf:
         self.gap_yaw, self.gap_yaw_var = (gg.yaw_radps, gg.yaw_var) if gg is not None else (None, None)
         self.resting = at_rest(prep.rest, prep.imu.stamps_ns) if self.use_gyro else None
         self.rate_states = np.isin(np.arange(self.n), [W, BW])  # what a filtered rest update changes
-        # smoothed, the turn rate is the heading's, not the base z axis's (``level.heading_rate_offset``)
-        self.heading_offset = prep.heading_offset if options.smooth and self.use_gyro else None
+        # the turn rate is the heading's, not the base z axis's (``level.heading_rate_offset``)
+        self.heading_offset = prep.heading_offset if self.use_gyro else None
         self.wheel_heading_offset = None
         if self.heading_offset is not None and prep.wheel is not None:
             self.wheel_heading_offset = np.interp(prep.wheel.stamps_ns, prep.imu.stamps_ns, self.heading_offset)

@@ -13,6 +13,7 @@ from .pieces import planar_handover
 from .planar import PlanarEkf, se2
 from .planar_model import TH, V, W, X, Y
 from .result import FuseResult, anchor_to_origin, enu_origin
+from .sanitize import median_period_ns
 from .smoother import SingularPrediction, rts_smooth
 from .start_state import Start
 from .timeline import Prepared
@@ -48,6 +49,18 @@ def reintegrated(t_ns: np.ndarray, x: np.ndarray, heading: bool = True) -> np.nd
     return out
 
 
+def advanced(x: np.ndarray, lag_s: float) -> np.ndarray:
+    """States with x, y and theta moved ``lag_s`` on by their own speed and turn rate. The model's step takes the
+    rates at its start (a left sum), so its pose is the one half a gyro period before the knot's stamp: advanced by
+    that half period, the pose is the stamp's."""
+    out = x.copy()
+    mid = x[:, TH] + 0.5 * x[:, W] * lag_s
+    out[:, X] += x[:, V] * np.cos(mid) * lag_s
+    out[:, Y] += x[:, V] * np.sin(mid) * lag_s
+    out[:, TH] = (x[:, TH] + x[:, W] * lag_s + np.pi) % (2.0 * np.pi) - np.pi
+    return out
+
+
 def run_planar(prep: Prepared, o: FuseOptions, start: Start | None = None) -> FuseResult:
     """The planar filter, smoothed under ``o.smooth``. Where the RTS pass finds its predicted covariance singular
     (odometry increments: their clone is an exact copy of the pose when taken, and a knot can follow before time
@@ -68,10 +81,12 @@ def _run(prep: Prepared, o: FuseOptions, start: Start | None) -> FuseResult:
     ekf = PlanarEkf(prep, o, start)
     knots = ekf.run()
     x, P = knots["x_filt"], knots["P_filt"]
+    lag_s = 0.5 * median_period_ns(prep.imu.stamps_ns) * 1e-9 if ekf.use_gyro else 0.0
     if o.smooth and len(x):
         x, P = rts_smooth(knots, ekf.boxplus, ekf.boxminus)
         if unmeasured_pose(prep):
             x = reintegrated(knots["t_ns"], x, heading="orientation" not in prep.use.get("imu", ()))
+            lag_s = 0.0
     handover = None
     if o.handover_ns is not None and len(x):
         handover = planar_handover(knots["t_ns"], x, P, o.handover_ns) if o.smooth else \
@@ -79,6 +94,8 @@ def _run(prep: Prepared, o: FuseOptions, start: Start | None) -> FuseResult:
     sel = knots["output"]
     if o.smooth:
         x, P = x[sel], P[sel][:, [X, Y, TH]][:, :, [X, Y, TH]] if o.want_covariance else None
+    if lag_s > 0.0 and len(x):
+        x = advanced(x, lag_s)
     poses = np.stack([se2(a[X], a[Y], a[TH]) for a in x]) if len(x) else np.zeros((0, 4, 4))
     cov = None
     if o.want_covariance:  # x, y, yaw into the 6x6 layout; z, roll, pitch are exactly known (planar)

@@ -1,6 +1,5 @@
 """The planar output's roll and pitch (``level``): its spline, and the tilt where the wheels' speed is unknown or
-the IMU has a gap (the accelerometer's up cannot be trusted there, the gyro carries nothing across a gap); the
-heading's rate from the gyro and that tilt."""
+the IMU has a gap (the accelerometer's up cannot be trusted there, the gyro carries nothing across a gap)."""
 
 from __future__ import annotations
 
@@ -10,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lio_cli.core.fuse import FuseOptions, fuse, level
+from lio_cli.core.fuse import FuseOptions, fuse
 from lio_cli.core.fuse.inputs import ImuSeries, WheelSeries
-from lio_cli.core.fuse.level import _smoothing, _spline, heading_rate_offset, up_directions
+from lio_cli.core.fuse.level import _smoothing, _spline, up_directions
 from lio_cli.core.fuse.timeline import Prepared
 from lio_cli.simulation.fusion_case import simulate_case
 
@@ -101,35 +100,3 @@ def test_an_imu_gap_cuts_the_fit(rover):
     outside = (ts < 11.9) | (ts > 13.6)
     err, tilt = _roll_errors(rover, replace(res, stamps_ns=res.stamps_ns[outside], poses=res.poses[outside]))
     assert err < 0.025 * tilt, (err, tilt)  # measured 0.018 of 1.41
-
-
-def _horizontal_error(case, res) -> float:
-    """RMS of the result's x, y against the truth after the best 2D rotation and shift, m."""
-    i = np.searchsorted(case.truth_stamps_ns, res.stamps_ns).clip(0, len(case.truth_stamps_ns) - 1)
-    P, Q = res.poses[:, :2, 3], case.truth_poses[i][:, :2, 3]
-    P, Q = P - P.mean(axis=0), Q - Q.mean(axis=0)
-    U, _, Vt = np.linalg.svd(P.T @ Q)
-    d = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
-    return float(np.sqrt(np.mean(np.sum((P @ (U @ d @ Vt) - Q) ** 2, axis=1))))
-
-
-def test_the_heading_rate_comes_from_the_tilted_gyro():
-    # the synthetic drive's heading rate is known: the base z rate is off it by the sway's cross terms
-    prep, _ = _synthetic_drive(0.0, 0.0)
-    prep.imu_w_b[:, 1] += 0.01  # the pitch rate biased: times the roll, a yaw bias of 2.9e-5 rad/s if kept
-    yaw_rate = 0.3 * np.sin(2 * np.pi * np.arange(0.0, 60.0, 0.005) / 11)
-    base_z = prep.imu_w_b[:, 2] - 0.001 - yaw_rate  # the z bias taken out
-    heading = base_z + heading_rate_offset(prep, up_directions(prep))
-    assert np.std(heading) < 0.5 * np.std(base_z), (np.std(heading), np.std(base_z))  # 3.4e-4 against 7.4e-4
-    assert abs(np.mean(heading)) < 1e-5, np.mean(heading)  # 4.8e-6
-
-
-def test_a_swaying_car_turns_about_the_vertical(monkeypatch):
-    # a car's sway turned the base z axis off the vertical: its rate integrated as the heading bent the path
-    case = simulate_case("drive", 30.0, seed=4, wheel_errors=False)
-    res = fuse(case.inputs, FuseOptions(smooth=True, rate_hz=50.0))
-    assert res.estimator == "planar"
-    monkeypatch.setattr(level, "heading_rate_offset", lambda prep, up: np.zeros(len(up)))
-    base_z = fuse(case.inputs, FuseOptions(smooth=True, rate_hz=50.0))
-    err, err_base_z = _horizontal_error(case, res), _horizontal_error(case, base_z)
-    assert err < 0.005 and err < 0.6 * err_base_z, (err, err_base_z)  # measured 0.0030 against 0.0084
