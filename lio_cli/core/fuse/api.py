@@ -46,7 +46,7 @@ def fuse(inputs: FuseInputs, options: FuseOptions | None = None) -> FuseResult:
         result, prep = _run_graph(prep, o)
     else:
         result = _run_filter(prep, o)
-    if o.smooth and o.test_gps_shape and shape.applies(prep):
+    if o.smooth and o.test_gps_shape and shape.applies(prep, o.estimator):
         result = _shape_without_gps(inputs, given, prep, result)
     result.info.update(_common_info(prep, o))
     if result.estimator == "complementary":  # it takes no zero rate at rest
@@ -104,8 +104,10 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     prep = _prepare(inputs, replace(o, estimator="ekf"))
     given = o.estimator != "auto"
     measured = partial(accel_check.scale_measured, prep, o)  # asked only where it decides
-    choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else choose_estimator(prep, measured)
-    if o.estimator == "planar" and (data := choose_estimator(prep, measured)).name != "planar":  # run, and told
+    agrees = partial(graph_wheels.odometry_agreement, prep.wheel, prep.odom)
+    choice = EstimatorChoice(o.estimator, "given with --estimator", {}) if given else \
+        choose_estimator(prep, measured, agrees)
+    if o.estimator == "planar" and (data := choose_estimator(prep, measured, agrees)).name != "planar":  # told
         choice = EstimatorChoice("planar", f"given with --estimator, where the data ask for the 3D filter: "
                                            f"{data.reason}", {})
     if check:
@@ -114,16 +116,19 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
+        if (o.use is None or o.default_use) and prep.use.get("odom") == {"pose"}:  # the wheels hold the path
+            prep.use["odom"] = {"delta"}
     say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
 
 
 def graph_smooths(use: dict, estimator: str) -> bool:
     """Whether smoothing runs the factor graph for this selection: with the accelerometer, whatever the filter,
-    except the planar filter on IMU + wheels alone, where the graph measured no better than the planar filter
-    itself and its RTS pass (docs/benchmarks.md); the planar RTS pass smooths those."""
+    except the planar filter without GPS (IMU + wheels, and odometry the wheels agree with: ``choose``), where the
+    graph measured no better than the planar filter itself and its RTS pass (docs/benchmarks.md); the planar RTS
+    pass smooths those."""
     imu_ok = {"gyro", "accel"} <= set(use.get("imu", ()))
-    return imu_ok and (estimator != "planar" or bool({"gps", "odom"} & set(use)))
+    return imu_ok and (estimator != "planar" or "gps" in use)
 
 
 def _graph_smooths(prep: Prepared, estimator: str) -> bool:
@@ -133,7 +138,7 @@ def _graph_smooths(prep: Prepared, estimator: str) -> bool:
 def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
     """The chosen filter (with the RTS pass under ``smooth`` for the two EKFs)."""
     if o.estimator == "planar":
-        up = level.up_directions(prep) if o.smooth and level.applies(prep) else None
+        up = level.up_directions(prep) if level.applies(prep) else None
         prep.heading_offset = None if up is None else level.heading_rate_offset(prep, up)
         result = run_planar(prep, o, _start(prep, o, PlanarEkf, slice(0, 2)))
         if o.smooth and "rts_refused" in result.info:
@@ -187,7 +192,10 @@ def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[Estimat
     """The estimator ``fuse`` would run and the options every piece of the log is then fused with: that estimator
     and the wheels' yaw rate weighed on the whole log (``wheel_yaw``), so every piece uses and reports the same."""
     prep, choice = _prepare_and_choose(inputs, options, check=False)
-    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed)
+    use = options.use
+    if use is not None and "odom" in use and "odom" in prep.use:  # the mode the estimator took (increments)
+        use = {**use, "odom": set(prep.use["odom"])}
+    return choice, replace(options, estimator=choice.name, wheel_yaw=prep.wheel_yaw_weighed, use=use)
 
 
 def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | None:
@@ -203,7 +211,7 @@ def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | 
         return checked.wheels_verified, agreement.wheel_speed_backed(checked.wheel_check)
 
     notes = prep.reports["gps"].notes
-    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep)),
+    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep, options.estimator)),
                               {k: notes[k] for k in agreement.WHOLE_LOG_NOTES if k in notes})
 
 

@@ -13,10 +13,13 @@ all from the motion sources (never the GPS altitude, which wanders by tens of me
   its extent is how far the motion leaves a plane;
 - odometry poses: their vertical extent.
 
+Beside odometry and an accelerometer, ``planar`` only where the wheels agree with the odometry (their scale within
+its standard error of 1, no slip: ``graph.wheels.odometry_agreement``): the data cannot then tell which is off, and
+the planar filter keeps the wheels' speed. Where they disagree, the 3D filter, whose factor graph weighs the wheels'
+scale and slips against the odometry.
+
 Everything else is ``ekf``: no wheels (handheld, drone), a wheel twist with lateral speed (drone, holonomic
-base), odometry poses beside an accelerometer (the 3D filter follows their attitude; on a car with LiDAR-like
-odometry the planar one's 200 Hz output was noisier over 0.05 s than the odometry interpolated), or a ground
-robot whose tilt or climb exceeds the thresholds below.
+base), or a ground robot whose tilt or climb exceeds the thresholds below.
 """
 
 from __future__ import annotations
@@ -116,19 +119,25 @@ def _odom_evidence(prep: Prepared) -> dict | None:
             "odom_path_m": round(float(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum()), 1)}
 
 
-def choose_estimator(prep: Prepared, scale_measured: Callable[[], bool] = lambda: False) -> EstimatorChoice:
+def choose_estimator(prep: Prepared, scale_measured: Callable[[], bool] = lambda: False,
+                     odometry_agrees: Callable[[], tuple[bool, str]] = lambda: (False, "not weighed")
+                     ) -> EstimatorChoice:
     """``planar`` or ``ekf`` for the prepared sources, with a one-line reason (module docstring).
     ``scale_measured``: whether the accelerometer measures the wheels' scale (``wheel_slip``), so that the climb it
     reads is held to ``CLIMB_SHARE`` of the distance, not ``UNCHECKED_CLIMB_SHARE``; asked only where that
-    decides."""
+    decides. ``odometry_agrees``: whether, and why, the wheels agree with the odometry; asked beside one."""
     wheel_use = prep.use.get("wheel", set())
     if "wheel" not in prep.use or prep.wheel is None:
         return EstimatorChoice("ekf", "no wheel odometry: the motion is taken as 3D (handheld, drone)", {})
     if "velocity" in wheel_use or "speed" not in wheel_use:
         return EstimatorChoice("ekf", "the wheel twist carries lateral speed (a drone or holonomic base): 3D", {})
+    beside = ""
     if "odom" in prep.use and "accel" in prep.use.get("imu", ()):
-        return EstimatorChoice("ekf", "odometry poses and an accelerometer: the 3D filter follows the odometry's "
-                                      "attitude (the planar one cannot, and is noisier between its poses)", {})
+        agrees, why = odometry_agrees()
+        if not agrees:
+            return EstimatorChoice("ekf", f"odometry poses and an accelerometer, {why}: the 3D filter, whose graph "
+                                          "weighs the wheels' scale and slips against the odometry", {})
+        beside = f"; beside the odometry, the wheels agreeing with it ({why})"
     ev: dict = {}
     g, od = gravity_evidence(prep), _odom_evidence(prep)
     ev.update(g or {})
@@ -149,9 +158,9 @@ def choose_estimator(prep: Prepared, scale_measured: Callable[[], bool] = lambda
             return EstimatorChoice("ekf", f"wheels and IMU climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m "
                                           f"(more than {limit:.2f} m): 3D", ev)
         return EstimatorChoice("planar", f"a wheeled robot near a plane: tilt {g['tilt_p95_deg']:.1f} deg (95th "
-                                         f"percentile), climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m", ev)
+                                         f"percentile), climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m{beside}", ev)
     if od is not None:
         return EstimatorChoice("planar", f"a wheeled robot near a plane: the odometry climbs "
-                                         f"{od['odom_vertical_m']:.2f} m over {od['odom_path_m']:.0f} m", ev)
+                                         f"{od['odom_vertical_m']:.2f} m over {od['odom_path_m']:.0f} m{beside}", ev)
     return EstimatorChoice("planar", "a wheeled robot without an accelerometer or odometry: nothing measures 3D "
                                      "motion", ev)

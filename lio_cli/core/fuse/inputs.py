@@ -201,6 +201,7 @@ class FuseOptions:
     estimator: str = "auto"
     smooth: bool = False  # the core's default is the filter alone; lio fuse and its config default to smoothing
     use: dict[str, set[str]] | None = None
+    default_use: bool = False  # ``use`` is the default selection resolved (no --use): odometry's mode may follow
     weigh_wheel_yaw: bool | None = None
     wheel_yaw: Weighed | None = None  # the whole log's weighing (``whole_log_options``), applied here by stamp
     start: Start | None = None  # the first state, handed over by the piece before (``pieces``)

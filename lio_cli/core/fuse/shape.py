@@ -59,11 +59,12 @@ class ShapeTest:
                 "scale_off": float(f"{self.scale_off:.3g}")}
 
 
-def applies(prep: Prepared) -> bool:
-    """IMU + wheels + GPS without odometry (odometry beside GPS has the graph's receiver chain)."""
+def applies(prep: Prepared, estimator: str) -> bool:
+    """IMU + wheels + GPS, without odometry unless the planar filter runs beside it (the wheels agree with it:
+    ``choose``); odometry beside GPS and the 3D filter has the graph's receiver chain."""
     use = prep.use
     return (prep.gps is not None and prep.wheel is not None and "gps" in use and "wheel" in use
-            and "odom" not in use and bool(use.get("imu")))
+            and ("odom" not in use or estimator == "planar") and bool(use.get("imu")))
 
 
 def error_covariance(t_s: np.ndarray, sigma: float, tau_s: float = TAU_S, slow_share: float = SLOW_SHARE) -> np.ndarray:

@@ -61,7 +61,7 @@ def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: 
     """The estimation core's options for a configuration and a resolved measurement selection."""
     return FuseOptions(
         estimator=cfg.estimator, smooth=cfg.smooth,
-        use=None if use is None else {s: set(m) for s, m in use.items()},
+        use=None if use is None else {s: set(m) for s, m in use.items()}, default_use=cfg.use is None,
         weigh_wheel_yaw=None if use is None and cfg.weigh_wheel_yaw is None else weighs_wheel_yaw(cfg),
         noise=NoiseOptions(**cfg.noise.model_dump()), rate_hz=cfg.rate_hz,
         gate_probability=cfg.gate_probability, gate_max_rejects=cfg.gate_max_rejects, gap_periods=cfg.gap_periods,
@@ -102,6 +102,8 @@ def _run_fuse(job: FuseJob, progress: Progress | None) -> FuseRun:
     t_read = time.perf_counter() - t_wall
     options = core_options(cfg, sources.use, job.covariance)
     choice, options = whole_log_options(sources.inputs, options)  # once for the whole log: every chunk the same
+    if options.use is not None:  # as the estimator took it (odometry as increments beside the planar filter)
+        sources.use = {s: sorted(m) for s, m in options.use.items()}
     memory = plan(sources.inputs, options, sources.use, cfg.max_memory_mb)
 
     def fuse_step(k: int, n: int) -> None:

@@ -115,3 +115,29 @@ def test_an_odometry_off_the_wheels_by_more_than_a_radius_error_is_told(long_sli
     assert len(told) == 1 and tail == (", beyond a wheel's radius error (20%): check its units and scale (the fused "
                                        "trajectory follows it)")
     assert float(head.rsplit(" ", 1)[1]) == pytest.approx(odom_scale / LONG, rel=0.002)
+
+
+def _straight(scale: float, odom_sigma_m: float = 0.002):
+    """30 s at 2 m/s with a sway in speed: wheels at 50 Hz reading ``scale`` times it, odometry at 10 Hz."""
+    from lio_cli.core.fuse.inputs import PoseSeries, WheelSeries
+
+    rng = np.random.default_rng(3)
+    tw = np.arange(0.0, 30.0, 0.02)
+    speed = 2.0 + 0.5 * np.sin(tw / 3.0)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * 0.02)])
+    to = tw[::5]
+    P = np.tile(np.eye(4), (len(to), 1, 1))
+    P[:, 0, 3] = x[::5] + rng.normal(0.0, odom_sigma_m, len(to))
+    ns = (1_700_000_000 + tw * 1e9).astype(np.int64)
+    wheel = WheelSeries(ns, np.column_stack([scale * speed, np.zeros_like(tw), np.zeros_like(tw)]), np.zeros_like(tw))
+    return wheel, PoseSeries(ns[::5], P)
+
+
+def test_the_wheels_agree_with_the_odometry_within_its_standard_error():
+    agrees, why = wheels.odometry_agreement(*_straight(1.0))
+    assert agrees and why.startswith("the odometry's path 1.0000x the wheels' distance (+- 0.000")
+    agrees, why = wheels.odometry_agreement(*_straight(1.01))  # a radius 1 % long, no slip
+    assert not agrees and why.startswith("the odometry's path 0.9901x the wheels' distance")
+    wheel, odom = _straight(1.0)
+    agrees, why = wheels.odometry_agreement(wheel, replace(odom, stamps_ns=odom.stamps_ns[:3], poses=odom.poses[:3]))
+    assert (agrees, why) == (False, "too little motion to weigh the wheels against the odometry")

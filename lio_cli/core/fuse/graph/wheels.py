@@ -32,6 +32,7 @@ GATE_DILATE = 1  # windows left out on each side of a slip's
 MIN_WINDOW_M = 0.05  # windows shorter than this do not vote for the scale
 SCALE_BOUNDS = (0.5, 2.0)  # a pre-pass scale outside these is not a wheel's: 1 is kept
 ODOM_SCALE_OFF = 0.2  # the odometry's path off the wheels' distance by more: its units or scale, told
+AGREE_SIGMAS = 3.0  # the wheels agree with the odometry where their ratio is within this many standard errors of 1
 MIN_SIGMA_M = 0.001  # a short interval's (a fix beside an odometry pose) increment is no surer than the poses
 # the increments' sigmas times this (as without the scale, ``factors.ODOM_WHEEL_SIGMA_SCALE``): tighter, the
 # rover's wheels drew the graph off beside odometry and GPS, slips gated out or not (docs/benchmarks.md)
@@ -158,6 +159,23 @@ def odometry_scale_note(wheel, odom) -> str | None:
                 "has its sign reversed, or the odometry's forward axis is not the base's")
     return (f"odometry: its path is {s:.4g}x the wheels' distance, beyond a wheel's radius error "
             f"({ODOM_SCALE_OFF:.0%}): check its units and scale (the fused trajectory follows it)")
+
+
+def odometry_agreement(wheel, odom) -> tuple[bool, str]:
+    """Whether the wheels' distance agrees with the odometry's path, and why: no window slipped (``against_odometry``)
+    and their ratio, the median over the moving windows, within ``AGREE_SIGMAS`` of its standard error of 1 (the
+    data cannot then tell which of the two is off)."""
+    found = None if wheel is None or odom is None or len(wheel) < 2 or len(odom) < 2 else _windows(wheel, odom)
+    moving = np.abs(found[2]) > MIN_WINDOW_M if found is not None else np.zeros(0, bool)
+    if moving.sum() < 5:
+        return False, "too little motion to weigh the wheels against the odometry"
+    slips = len(against_odometry(wheel, odom).slips_ns)
+    if slips:
+        return False, f"the wheels slip against the odometry ({slips} {WINDOW_NS / 1e9:g} s windows)"
+    r = found[1][moving] / found[2][moving]
+    s, se = float(np.median(r)), 1.25 * robust_sigma(r) / np.sqrt(moving.sum())  # a median's standard error
+    said = f"the odometry's path {s:.4f}x the wheels' distance (+- {se:.4f})"
+    return abs(s - 1.0) <= AGREE_SIGMAS * se, said
 
 
 def against_odometry(wheel, odom) -> Spans:
