@@ -211,8 +211,8 @@ def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | 
         return checked.wheels_verified, agreement.wheel_speed_backed(checked.wheel_check)
 
     notes = prep.reports["gps"].notes
-    return agreement.GpsJudge(prep.gps, wheels, bool(options.smooth and options.test_gps_shape and shape.applies(prep, options.estimator)),
-                              {k: notes[k] for k in agreement.WHOLE_LOG_NOTES if k in notes})
+    tests = bool(options.smooth and options.test_gps_shape and shape.applies(prep, options.estimator))
+    return agreement.GpsJudge(prep.gps, wheels, tests, {k: notes[k] for k in agreement.WHOLE_LOG_NOTES if k in notes})
 
 
 def _planar_seed(prep: Prepared, o: FuseOptions):

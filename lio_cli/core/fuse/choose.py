@@ -158,7 +158,8 @@ def choose_estimator(prep: Prepared, scale_measured: Callable[[], bool] = lambda
             return EstimatorChoice("ekf", f"wheels and IMU climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m "
                                           f"(more than {limit:.2f} m): 3D", ev)
         return EstimatorChoice("planar", f"a wheeled robot near a plane: tilt {g['tilt_p95_deg']:.1f} deg (95th "
-                                         f"percentile), climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m{beside}", ev)
+                                         f"percentile), climb {g['climb_m']:.2f} m over {g['path_m']:.0f} m"
+                                         f"{beside}", ev)
     if od is not None:
         return EstimatorChoice("planar", f"a wheeled robot near a plane: the odometry climbs "
                                          f"{od['odom_vertical_m']:.2f} m over {od['odom_path_m']:.0f} m{beside}", ev)
