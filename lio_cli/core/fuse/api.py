@@ -116,7 +116,8 @@ def _prepare_and_choose(inputs: FuseInputs, o: FuseOptions, check: bool = True) 
     if choice.name == "planar" and not graph_runs:
         prep.heave_accel = "accel" in prep.use.get("imu", ())
         planar_use(prep.use)
-        if (o.use is None or o.default_use) and prep.use.get("odom") == {"pose"}:  # the wheels hold the path
+        if choice.evidence.get("wheels_agree_with_odometry") and (o.use is None or o.default_use) \
+                and prep.use.get("odom") == {"pose"}:  # its increments: the wheels it agrees with hold the path
             prep.use["odom"] = {"delta"}
     say_gyro_gaps(prep, choice.name, graph_runs)
     return prep, choice
@@ -181,6 +182,7 @@ def _run_graph(prep: Prepared, o: FuseOptions) -> tuple[FuseResult, Prepared]:
                    notes=[n for n in notes if n != gap_said] + [
                        f"smoother: the {o.estimator} filter's trajectory kept: the factor graph explained the "
                        f"measurements worse than the 3D filter it starts from ({refused})"])
+    kept.heave_accel = "accel" in prep.use.get("imu", ())  # the planar filter's heading, heave and tilt (level)
     if gap_said is not None:  # the gaps as the kept filter bridged them, not the graph
         say_gyro_gaps(kept, o.estimator)
     fallback = _run_filter(kept, o)
@@ -201,7 +203,8 @@ def whole_log_options(inputs: FuseInputs, options: FuseOptions) -> tuple[Estimat
 def judge_gps(inputs: FuseInputs, options: FuseOptions) -> agreement.GpsJudge | None:
     """The whole log's judge of the GPS fixes for a log fused in pieces with ``options`` (those of
     ``whole_log_options``): the fixes as the whole log assesses them (its jumps), and whether ``fuse`` would test
-    their agreement (``tests``: smoothing GPS beside IMU + wheels without odometry). None without GPS in use."""
+    their agreement (``tests``: smoothing GPS beside IMU + wheels, without odometry or beside odometry the planar
+    filter runs with, ``shape.applies``). None without GPS in use."""
     prep, _ = _prepare_and_choose(inputs, options, check=False)
     if prep.gps is None or "gps" not in prep.use:
         return None

@@ -14,8 +14,8 @@ all from the motion sources (never the GPS altitude, which wanders by tens of me
 - odometry poses: their vertical extent.
 
 Beside odometry and an accelerometer, ``planar`` only where the wheels agree with the odometry (their scale within
-its standard error of 1, no slip: ``graph.wheels.odometry_agreement``): the data cannot then tell which is off, and
-the planar filter keeps the wheels' speed. Where they disagree, the 3D filter, whose factor graph weighs the wheels'
+three standard errors of 1, no slip: ``graph.wheels.odometry_agreement``): the data cannot then tell which is off,
+and the planar filter keeps the wheels' speed (``wheels_agree_with_odometry`` in the evidence). Where they disagree, the 3D filter, whose factor graph weighs the wheels'
 scale and slips against the odometry.
 
 Everything else is ``ekf``: no wheels (handheld, drone), a wheel twist with lateral speed (drone, holonomic
@@ -138,7 +138,7 @@ def choose_estimator(prep: Prepared, scale_measured: Callable[[], bool] = lambda
             return EstimatorChoice("ekf", f"odometry poses and an accelerometer, {why}: the 3D filter, whose graph "
                                           "weighs the wheels' scale and slips against the odometry", {})
         beside = f"; beside the odometry, the wheels agreeing with it ({why})"
-    ev: dict = {}
+    ev: dict = {"wheels_agree_with_odometry": True} if beside else {}
     g, od = gravity_evidence(prep), _odom_evidence(prep)
     ev.update(g or {})
     ev.update(od or {})

@@ -41,6 +41,8 @@ def test_knots_and_bytes():
     assert bytes_per_knot(FuseOptions(estimator="ekf", smooth=True), use) == 1600
     assert bytes_per_knot(FuseOptions(estimator="planar", smooth=True), {**use, "gps": ["position"]}) == 1600
     assert bytes_per_knot(FuseOptions(estimator="planar", smooth=True), use) == 3000  # IMU + wheels: planar RTS
+    # beside odometry the wheels agree with: the planar RTS pass with the increments' clone
+    assert bytes_per_knot(FuseOptions(estimator="planar", smooth=True), {**use, "odom": ["delta"]}) == 5500
 
 
 def test_plan_keeps_one_chunk_within_budget_and_splits_beyond():
