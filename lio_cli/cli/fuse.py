@@ -38,7 +38,8 @@ an odometry trajectory: --odom FILE (TUM/KITTI, e.g. from lio odom) or --odom-to
 other commands do; --use picks which measurement of which source enters (SOURCE or SOURCE:M1,M2; repeat):
 imu:gyro,accel,orientation  wheel:speed|velocity,yaw_rate  odom:pose|delta  gps:position. A bare SOURCE
 takes it as the default does (a bare wheel: speed, and the yaw rate where it agrees with the gyro or
-without one; a bare imu: its orientation where it follows the gyro).
+without one; a bare imu: its orientation where it follows the gyro), but a bare odom is its poses (increments
+beside GPS): without --use, the planar filter takes increments beside wheels that agree with the odometry.
 
 Writes OUT (TUM; default LOG-stem.fuse.tum), OUT-stem.fuse.metrics.json (sources used, updates per source,
 rejected measurements and why, time) and OUT-stem.fuse.config.yaml (the whole run: `lio fuse LOG --config it`
