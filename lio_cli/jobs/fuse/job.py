@@ -61,7 +61,8 @@ def core_options(cfg: FuseConfig, use: dict[str, list[str]] | None, covariance: 
     """The estimation core's options for a configuration and a resolved measurement selection."""
     return FuseOptions(
         estimator=cfg.estimator, smooth=cfg.smooth,
-        use=None if use is None else {s: set(m) for s, m in use.items()}, default_use=cfg.use is None,
+        use=None if use is None else {s: set(m) for s, m in use.items()},
+        default_use=use is not None and cfg.use is None,  # the default selection, resolved
         weigh_wheel_yaw=None if use is None and cfg.weigh_wheel_yaw is None else weighs_wheel_yaw(cfg),
         noise=NoiseOptions(**cfg.noise.model_dump()), rate_hz=cfg.rate_hz,
         gate_probability=cfg.gate_probability, gate_max_rejects=cfg.gate_max_rejects, gap_periods=cfg.gap_periods,
