@@ -148,8 +148,9 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
             prep.notes.append(f"smoother: {why}: the planar filter's trajectory kept, unsmoothed (odometry increments, "
                               "odom:delta, can do this; as poses, odom:pose, they smooth)")
         elif o.smooth:
-            result.info["smoother"] = {"kind": "rts", "why": "the planar filter on IMU + wheels alone (or without "
-                                                             "an accelerometer): its RTS pass"}
+            result.info["smoother"] = {"kind": "rts", "why": "the planar filter without GPS (IMU + wheels, beside "
+                                                             "odometry they agree with, or without an "
+                                                             "accelerometer): its RTS pass"}
             heave.lift(prep, result)
             level.lift(prep, result, up)
         return result

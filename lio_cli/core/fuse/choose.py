@@ -15,8 +15,8 @@ all from the motion sources (never the GPS altitude, which wanders by tens of me
 
 Beside odometry and an accelerometer, ``planar`` only where the wheels agree with the odometry (their scale within
 three standard errors of 1, no slip: ``graph.wheels.odometry_agreement``): the data cannot then tell which is off,
-and the planar filter keeps the wheels' speed (``wheels_agree_with_odometry`` in the evidence). Where they disagree, the 3D filter, whose factor graph weighs the wheels'
-scale and slips against the odometry.
+and the planar filter keeps the wheels' speed (``wheels_agree_with_odometry`` in the evidence). Where they
+disagree, the 3D filter, whose factor graph weighs the wheels' scale and slips against the odometry.
 
 Everything else is ``ekf``: no wheels (handheld, drone), a wheel twist with lateral speed (drone, holonomic
 base), or a ground robot whose tilt or climb exceeds the thresholds below.
