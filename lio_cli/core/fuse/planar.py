@@ -20,6 +20,7 @@ import numpy as np
 from ...geometry import inv_pose, yaw_of
 from .initial import Start, initial_state
 from .gps_quality import GpsNoise, JumpReadmit, noise_variance
+from .graph import odom_spin
 from .inputs import FuseOptions
 from .kalman import Anchor, Gate, KnotLog, consider_update, kalman_update
 from .sanitize import median_period_ns
@@ -72,6 +73,9 @@ class PlanarEkf:
         self.wheel_heading_offset = None
         if self.heading_offset is not None and prep.wheel is not None:
             self.wheel_heading_offset = np.interp(prep.wheel.stamps_ns, prep.imu.stamps_ns, self.heading_offset)
+        # odometry increments turn no looser than their scatter about the gyro's shows, as in the graph
+        spin = odom_spin.increment_sigma(prep, np.arange(len(prep.odom))) if self.clone and self.use_gyro else None
+        self.odom_turn_var = None if spin is None else (odom_spin.MARGIN * spin) ** 2
 
     # -- manifold (vector with wrapped angles) ------------------------------------------------------
     def boxplus(self, x: np.ndarray, dx: np.ndarray) -> None:
@@ -219,6 +223,8 @@ class PlanarEkf:
             j = self.odom_prev
             r, H = delta_residual(x, inv_pose(_flat(od.poses[j])) @ _flat(T))
             var_p, var_r = pv + od.position_sigma_m[j] ** 2, rv + od.rotation_sigma_rad[j] ** 2
+            if self.odom_turn_var is not None:
+                var_r = min(var_r, self.odom_turn_var)
             P = self._update(t, x, P, r, H, np.diag([var_p, var_p, var_r]), "odom", "odom",
                              allow_reset=self.gps_anchor.allows_reset(t))
         self.odom_prev = i

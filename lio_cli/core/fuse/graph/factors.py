@@ -42,7 +42,7 @@ FREE_VAR = 1e8  # (m/s)^2: a velocity component a wheel message does not give
 # consecutive poses of a scan matcher are far closer to each other than to the truth)
 ODOM_DELTA_SHARE = 0.1
 # their rotation sigma at most this many times what their scatter about the gyro's shows (``odom_spin``)
-ODOM_SPIN_MARGIN = 4.0
+ODOM_SPIN_MARGIN = odom_spin.MARGIN
 # wheel increments' sigmas times this beside odometry (poses or increments: ODOM_WHEEL_LOOSE_MODES) when their
 # scale is not estimated (``WHEEL_SCALE``), so a wheel scale error or a slip cannot pull it off
 ODOM_WHEEL_SIGMA_SCALE = 30.0

@@ -21,6 +21,7 @@ WINDOW_S = 10.0  # the gyro's bias: one per this long a stretch (it wanders slow
 MIN_INCREMENTS = 50  # fewer pairs with the gyro across them: nothing measured
 MIN_PER_WINDOW = 10  # a window's median bias taken out of fewer increments would take their scatter with it
 MIN_SIGMA_RAD = 5e-5  # the measured sigma is never taken below this (what 0.1 s of a gyro resolves)
+MARGIN = 4.0  # an increment's rotation sigma at most this many times the measured one (graph and planar filter)
 
 
 def increment_sigma(prep, idx: np.ndarray) -> float | None:
