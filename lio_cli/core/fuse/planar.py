@@ -31,6 +31,8 @@ from .planar_model import (BW, TH, V, W, X, Y, delta_residual, predict, predict_
 from .timeline import GPS, IMU, ODOM, OUT, WHEEL, Prepared, in_coverage_gap
 
 OMEGA0_SIGMA_RADPS = 0.5
+CLONE_JITTER = 1e-9  # of the pose's variance, the clone's own (relative) ...
+CLONE_JITTER_FLOOR = 1e-14  # ... and at least this (m^2, rad^2)
 
 
 class PlanarEkf:
@@ -258,9 +260,12 @@ class PlanarEkf:
         J[6:9, :] = 0.0
         J[6, X] = J[7, Y] = J[8, TH] = 1.0
         x[6:9] = x[0:3]
+        P = J @ P @ J.T
         if self.o.smooth:
             self.Phi = J @ self.Phi
-        return J @ P @ J.T
+            # an exact copy leaves the covariance singular, which the RTS pass must invert: the clone a hair apart
+            P[6:9, 6:9] += np.diag(CLONE_JITTER * np.diag(P)[0:3] + CLONE_JITTER_FLOOR)
+        return P
 
     def run(self) -> dict[str, np.ndarray]:
         prep = self.prep

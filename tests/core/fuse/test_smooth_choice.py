@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lio_cli.core.fuse import FuseOptions, fuse, graph_smooths
+from lio_cli.core.fuse import FuseOptions, fuse, graph_smooths, planar
 from lio_cli.evaluation import EvalOptions, Trajectory, evaluate
 from lio_cli.simulation.fusion_case import OdomNoise, simulate_case
 
@@ -60,13 +60,18 @@ def test_graph_smooths_by_selection_and_filter():
     assert not graph_smooths({"imu": ["gyro"], "wheel": ["speed"], "gps": ["position"]}, "ekf")
 
 
-def test_the_planar_filter_where_its_rts_pass_cannot_invert_keeps_the_filter():
+def test_the_planar_filter_where_its_rts_pass_cannot_invert_keeps_the_filter(monkeypatch):
     # odometry increments: their clone is an exact copy of the pose when taken, and here a knot follows before
-    # time tells them apart (knot 6). The run stopped with a ProcessingError; it is now the filter's, as
-    # --no-smooth gives it, counted once, and says so
+    # time tells them apart (knot 6). The run stopped with a ProcessingError; then it was the filter's, as
+    # --no-smooth gives it, counted once, and said so. The clone now starts a hair apart and the pass smooths
     case = simulate_case("planar", 20.0, seed=1, gps_sigma_m=1.0, odom=OdomNoise())
     use = {"imu": {"gyro"}, "wheel": {"speed"}, "odom": {"delta"}, "gps": {"position"}}
     filt = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use))
+    smoothed = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use, smooth=True))
+    assert smoothed.smoothed and smoothed.info["smoother"]["kind"] == "rts"
+    assert ate(case, smoothed) < ate(case, filt)
+    monkeypatch.setattr(planar, "CLONE_JITTER", 0.0)  # an exact copy: the fallback
+    monkeypatch.setattr(planar, "CLONE_JITTER_FLOOR", 0.0)
     kept = fuse(case.inputs, FuseOptions(estimator="planar", rate_hz=20.0, use=use, smooth=True))
     assert not graph_smooths(kept.info["use"], "planar")  # no accelerometer: the RTS pass was the smoother asked
     sm = kept.info["smoother"]
