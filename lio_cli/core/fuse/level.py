@@ -77,11 +77,7 @@ def heading_rate_offset(prep: Prepared, up: np.ndarray) -> np.ndarray:
     (docs/benchmarks.md). The pitch rate's bias is taken out first (below ``BIAS_HZ``): times the accelerometer's
     error in the roll it would be a yaw rate bias, and added to the wheels' yaw rate too, no source could tell."""
     w = prep.imu_w_b
-    t = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
-    n, m, tb = _blocks(t)
-    slow = _spline(w[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
-                   _smoothing(float(np.median(np.diff(tb))), BIAS_HZ))[:, 0]
-    w_y = w[:, 1] - np.interp(t, tb, slow)
+    w_y = w[:, 1] - _slow((prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9, w[:, 1], BIAS_HZ)
     return (up[:, 1] * w_y + up[:, 2] * w[:, 2]) / np.maximum(up[:, 1] ** 2 + up[:, 2] ** 2, 1e-6) - w[:, 2]
 
 
@@ -91,6 +87,14 @@ def _blocks(t: np.ndarray) -> tuple[int, int, np.ndarray]:
     n = max(1, int(round(BLOCK_S / period))) if period > 0 else 1
     m = len(t) // n
     return n, m, t[:m * n].reshape(m, n).mean(axis=1)
+
+
+def _slow(t: np.ndarray, y: np.ndarray, crossover_hz: float) -> np.ndarray:
+    """The part of the samples ``y`` at times ``t`` (s) slower than ``crossover_hz``: their block means fitted by
+    the spline, at ``t``."""
+    n, m, tb = _blocks(t)
+    lam = _smoothing(float(np.median(np.diff(tb))), crossover_hz)
+    return np.interp(t, tb, _spline(y[:m * n].reshape(m, n).mean(axis=1)[:, None], lam)[:, 0])
 
 
 def _smoothing(block_s: float, crossover_hz: float) -> float:
@@ -131,11 +135,8 @@ def lift(prep: Prepared, result, up_imu: np.ndarray | None = None) -> None:
     rp = np.column_stack([np.arctan2(up_imu[:, 1], up_imu[:, 2]), -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))])
     # the planar estimator was chosen because the motion stays near a level plane: the roll about its median, the
     # pitch level below the heave's crossover (module docstring)
-    n, m, tb = _blocks(ti)
-    slow = _spline(rp[:m * n, 1].reshape(m, n).mean(axis=1)[:, None],
-                   _smoothing(float(np.median(np.diff(tb))), heave.CROSSOVER_HZ))[:, 0]
     rp[:, 0] -= np.median(rp[:, 0])
-    rp[:, 1] -= np.interp(ti, tb, slow)
+    rp[:, 1] -= _slow(ti, rp[:, 1], heave.CROSSOVER_HZ)
     t = (np.asarray(result.stamps_ns) - prep.imu.stamps_ns[0]) * 1e-9
     roll, pitch = np.interp(t, ti, rp[:, 0]), np.interp(t, ti, rp[:, 1])
     R = result.poses[:, :3, :3]

@@ -169,7 +169,7 @@ def odometry_agreement(wheel, odom) -> tuple[bool, str]:
     moving = np.abs(found[2]) > MIN_WINDOW_M if found is not None else np.zeros(0, bool)
     if moving.sum() < 5:
         return False, "too little motion to weigh the wheels against the odometry"
-    slips = len(against_odometry(wheel, odom).slips_ns)
+    slips = len(_spans(*found).slips_ns)
     if slips:
         return False, f"the wheels slip against the odometry ({slips} {WINDOW_NS / 1e9:g} s windows)"
     r = found[1][moving] / found[2][moving]
@@ -183,9 +183,11 @@ def against_odometry(wheel, odom) -> Spans:
     the moving windows) and the slips (the gate of ``gate``), without the graph's states (the height prior's
     evidence needs them before the graph is built)."""
     found = _windows(wheel, odom)
-    if found is None:
-        return Spans(1.0, np.zeros((0, 2), np.int64))
-    edges, a, d = found
+    return Spans(1.0, np.zeros((0, 2), np.int64)) if found is None else _spans(*found)
+
+
+def _spans(edges: np.ndarray, a: np.ndarray, d: np.ndarray) -> Spans:
+    """``against_odometry`` on its windows (edges, the odometry's path and the wheels' distance over each)."""
     moving = np.abs(d) > MIN_WINDOW_M
     s = _ratio(a, d)
     scale = s if s is not None and SCALE_BOUNDS[0] <= s <= SCALE_BOUNDS[1] else 1.0
