@@ -18,7 +18,10 @@ from ...io.sensors.topics import TopicChoice
 OTHERS = ("wheel", "gps", "odom")
 SOURCE_NAME = {"wheel": "wheel odometry", "gps": "GPS", "odom": "odometry"}
 WARN_SIGMAS = 4.0  # a lag this many 1-sigmas from the offset given is beyond noise
-WARN_MIN_S = 0.05  # and this large matters (5 cm at 1 m/s)
+WARN_MIN_S = 0.05  # and this large matters (5 cm at 1 m/s) ...
+WARN_MIN_M = 0.05  # ... or less where the base moves this far in it at its median moving speed ...
+WARN_FLOOR_S = 0.005  # ... but never under this (one IMU period at 200 Hz)
+MOVING_MPS = 0.2  # speeds above this count for that median
 
 
 def offset_ns(cfg: FuseConfig, source: str) -> int:
@@ -57,6 +60,7 @@ def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
     """(metrics' ``clocks`` section, warnings): each source's measured lag against the IMU (its offsets applied),
     and a warning naming the option where a lag is beyond noise and large enough to matter."""
     lags = measure_lags(inputs)
+    min_s = min(WARN_MIN_S, max(WARN_MIN_M / _speed_mps(inputs), WARN_FLOOR_S))
     out, notes = {}, []
     for src, sec in cfg.time_offsets_s.items():
         if getattr(inputs, src) is None:
@@ -66,8 +70,8 @@ def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
         entry = {"given_s": given, **lag.to_dict()}
         if lag.offset_s is not None:
             entry["total_s"] = round(given + lag.offset_s, 4)
-            if _matters(lag):
-                notes.append(_warning(lag, given))
+            if _matters(lag, min_s):
+                notes.append(_warning(lag, given, cfg.calibration.imu_time_offset_s))
         out[src] = entry
     if out:
         out["meaning"] = ("offset_s: seconds to add to the source's stamps (beyond given_s) to line it up with the "
@@ -76,14 +80,28 @@ def clock_report(inputs: FuseInputs, cfg: FuseConfig) -> tuple[dict, list[str]]:
     return out, notes
 
 
-def _matters(lag: Lag) -> bool:
-    return lag.clear and abs(lag.offset_s) >= max(WARN_SIGMAS * lag.sigma_s, WARN_MIN_S)
+def _speed_mps(inputs: FuseInputs) -> float:
+    """The base's median speed while it moves (the wheels', else the odometry's), m/s; 1 where neither tells."""
+    v = np.zeros(0)
+    if inputs.wheel is not None and len(inputs.wheel):
+        v = np.abs(np.nan_to_num(inputs.wheel.velocity_mps[:, 0]))
+    elif inputs.odom is not None and len(inputs.odom) > 1:
+        od = inputs.odom
+        v = np.linalg.norm(np.diff(od.poses[:, :3, 3], axis=0), axis=1) / np.maximum(np.diff(od.stamps_ns) * 1e-9, 1e-9)
+    v = v[v > MOVING_MPS]
+    return float(np.median(v)) if len(v) else 1.0
 
 
-def _warning(lag: Lag, given: float) -> str:
+def _matters(lag: Lag, min_s: float) -> bool:
+    return lag.clear and abs(lag.offset_s) >= max(WARN_SIGMAS * lag.sigma_s, min_s)
+
+
+def _warning(lag: Lag, given: float, imu_given: float) -> str:
+    """The lag and both ways out: the data tell only which clock runs late against which, not which is off."""
     late = "late" if lag.offset_s < 0 else "early"
-    return (f"{lag.source}: stamps {abs(lag.offset_s):.3f} s {late} against the IMU (1-sigma {lag.sigma_s * 1e3:.1f} ms, "
-            f"{lag.against}); give {option(lag.source)}{given + lag.offset_s:.3f}")
+    return (f"{lag.source}: stamps {abs(lag.offset_s):.3f} s {late} against the IMU (1-sigma "
+            f"{lag.sigma_s * 1e3:.1f} ms, {lag.against}); if the IMU's clock is the one off give --imu-time-offset {imu_given - lag.offset_s:.3f}, "
+            f"else give {option(lag.source)}{given + lag.offset_s:.3f}")
 
 
 __all__ = ["check_clocks", "clock_report", "offset_ns", "option", "shifted"]
