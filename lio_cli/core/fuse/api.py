@@ -151,8 +151,11 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter without GPS (IMU + wheels, beside "
                                                              "odometry they agree with, or without an "
                                                              "accelerometer): its RTS pass"}
-            heave.lift(prep, result)
-            level.lift(prep, result, up)
+            pitch_grade, grade_info = (None, None) if up is None else level.grade(prep, up)
+            heave.lift(prep, result, pitch_grade)
+            level.lift(prep, result, up, pitch_grade)
+            if grade_info is not None and "level" in result.info:
+                result.info["level"]["grade"] = grade_info
         return result
     if o.estimator == "complementary":  # the GPS heading pass needs a filter with knots: the EKF's
         result = run_complementary(prep, replace(o, smooth=False), _start(prep, o, Ekf3d, _EKF_XY))

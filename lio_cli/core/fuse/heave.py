@@ -11,7 +11,8 @@ The heights at the blocks are the least-squares fit of ``z'' = a`` (the block's 
 mean over ``HIGHPASS_S``: gravity's magnitude and the accelerometer's bias) beside a prior holding the height to
 a level (the estimator was chosen because the motion stays near a plane, ``choose``), with the sigma that puts
 the two's crossover at ``CROSSOVER_HZ``: heights faster than that come from the accelerometer, slower ones stay at
-the level. A linear, pentadiagonal system: solved in one banded Cholesky.
+the level. A linear, pentadiagonal system: solved in one banded Cholesky. Over hills the level is the path's
+climb (``climb``: its forward distance times the grade ``level.grade`` finds) instead of a flat one.
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ def applies(prep: Prepared) -> bool:
             and prep.wheel is not None and len(prep.wheel) > 1 and len(prep.imu) > 4)
 
 
-def heights(prep: Prepared, stamps_ns: np.ndarray) -> np.ndarray | None:
-    """The heave (m, about the level, zero mean) at ``stamps_ns``; None without enough data."""
+def heights(prep: Prepared, stamps_ns: np.ndarray, climb: np.ndarray | None = None) -> np.ndarray | None:
+    """The heave (m, about the level) at ``stamps_ns``; None without enough data. ``climb`` (m, at ``stamps_ns``):
+    the height the level follows (``climb``), else zero."""
     t_ns = prep.imu.stamps_ns
     t = (t_ns - t_ns[0]) * 1e-9
     period = float(np.median(np.diff(t)))
@@ -58,7 +60,8 @@ def heights(prep: Prepared, stamps_ns: np.ndarray) -> np.ndarray | None:
     a = a - _moving_mean(a[:, None], max(1, int(round(HIGHPASS_S / (n * period)))))[:, 0]
     # with the block's acceleration noise as the unit (the heights do not depend on its size), the level's sigma
     # per second that puts the crossover at CROSSOVER_HZ
-    z = _solve(tb, a, 1.0, np.sqrt(n * period) / (2.0 * np.pi * CROSSOVER_HZ) ** 2)
+    level = None if climb is None else np.interp(tb, (np.asarray(stamps_ns) - t_ns[0]) * 1e-9, climb)
+    z = _solve(tb, a, 1.0, np.sqrt(n * period) / (2.0 * np.pi * CROSSOVER_HZ) ** 2, level)
     return np.interp((np.asarray(stamps_ns) - t_ns[0]) * 1e-9, tb, z)
 
 
@@ -72,9 +75,10 @@ def _moving_mean(x: np.ndarray, k: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)[:, None]
 
 
-def _solve(tb: np.ndarray, a: np.ndarray, sigma_a: float, level_sigma: float) -> np.ndarray:
-    """Heights z at ``tb`` minimising sum ((D2 z - a) / sigma_a)^2 + sum dt z^2 / level_sigma^2 (D2: the second
-    difference on the grid, not across gaps)."""
+def _solve(tb: np.ndarray, a: np.ndarray, sigma_a: float, level_sigma: float,
+           level: np.ndarray | None = None) -> np.ndarray:
+    """Heights z at ``tb`` minimising sum ((D2 z - a) / sigma_a)^2 + sum dt (z - level)^2 / level_sigma^2 (D2: the
+    second difference on the grid, not across gaps; ``level`` zero if None)."""
     from scipy.linalg import solveh_banded
 
     m = len(tb)
@@ -88,6 +92,8 @@ def _solve(tb: np.ndarray, a: np.ndarray, sigma_a: float, level_sigma: float) ->
     ab = np.zeros((3, m))  # upper form: ab[2] diagonal, ab[1] first super-diagonal, ab[0] second
     rhs = np.zeros(m)
     ab[2] += dt / level_sigma**2
+    if level is not None:
+        rhs += dt * level / level_sigma**2
     cs = (c0, c1, c2)
     for i in range(3):
         ab[2, i:m - 2 + i] += wa * cs[i] ** 2
@@ -98,13 +104,26 @@ def _solve(tb: np.ndarray, a: np.ndarray, sigma_a: float, level_sigma: float) ->
     return solveh_banded(ab, rhs)
 
 
-def lift(prep: Prepared, result) -> None:
-    """The planar ``result``'s heights set to the heave (``heights``) where it applies, in place."""
+def climb(prep: Prepared, result, pitch_grade: np.ndarray) -> np.ndarray:
+    """(M,) the height (m) the planar ``result``'s path climbs at its stamps: each step's forward distance times the
+    grade (``pitch_grade``, a pitch in rad at the IMU stamps, ``level.grade``)."""
+    p = result.poses
+    step = np.diff(p[:, :2, 3], axis=0)
+    forward = step[:, 0] * p[:-1, 0, 0] + step[:, 1] * p[:-1, 1, 0]
+    mid = 0.5 * (np.asarray(result.stamps_ns[1:], float) + np.asarray(result.stamps_ns[:-1], float))
+    pitch = np.interp(mid, prep.imu.stamps_ns.astype(float), pitch_grade)
+    return np.concatenate([[0.0], np.cumsum(-forward * np.sin(pitch))])
+
+
+def lift(prep: Prepared, result, pitch_grade: np.ndarray | None = None) -> None:
+    """The planar ``result``'s heights set to the heave (``heights``) where it applies, in place: about the path's
+    climb (``climb``) where ``pitch_grade`` is given, else about a level."""
     if not applies(prep) or not len(result.stamps_ns):
         return
-    z = heights(prep, result.stamps_ns)
+    z = heights(prep, result.stamps_ns, None if pitch_grade is None else climb(prep, result, pitch_grade))
     if z is None:
         return
     result.poses[:, 2, 3] = z - z[0]
-    result.info["heave"] = {"model": "accelerometer about a level", "crossover_hz": CROSSOVER_HZ,
+    about = "a level" if pitch_grade is None else "the grade's climb"
+    result.info["heave"] = {"model": f"accelerometer about {about}", "crossover_hz": CROSSOVER_HZ,
                             "rms_m": round(float(np.std(z)), 4)}

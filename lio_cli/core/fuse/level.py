@@ -9,13 +9,14 @@ a smoothing spline (``CROSSOVER_HZ``), carried back into the base frame by the g
 the gyro the rest. The roll is then taken about its median over the log (the IMU's own tilt: its accelerometer
 bias, its mount's error); the pitch slower than the heave's crossover is left level, as the height is (``heave``):
 a flat path under a pitched pose would climb between two poses what the path does not. So the pitch is the gyro's
-above that crossover."""
+above that crossover. Over hills (``grade``: the slow pitch's climb well above what the sway alone would climb)
+the height follows the grade and the pitch keeps it."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from . import heave
+from . import heave, wheel_slip
 from .choose import wheel_free_force
 from .tilt_track import running_rotation
 from .timeline import Prepared
@@ -27,6 +28,7 @@ CROSSOVER_HZ = 0.1
 CHUNK = 20000  # IMU samples per running product (memory flat in log length)
 # the gyro's roll and pitch rates slower than this are taken as its bias (a ground robot's tilt stays bounded)
 BIAS_HZ = 0.01
+GRADE_SIGNIFICANCE = 2.0  # a grade's climb over the sway's that makes the height follow it (``grade``)
 
 
 def applies(prep: Prepared) -> bool:
@@ -123,9 +125,43 @@ def _spline(y: np.ndarray, lam: float, weight: np.ndarray | None = None, cut: np
     return solveh_banded(ab, w[:, None] * y)
 
 
-def lift(prep: Prepared, result, up_imu: np.ndarray | None = None) -> None:
+def grade(prep: Prepared, up_imu: np.ndarray) -> tuple[np.ndarray | None, dict]:
+    """(N,) the ground's grade as a pitch (rad, Z-Y-X) at the IMU stamps where the data show one, else None; and
+    what decided. The grade is the up direction's pitch below the heave's crossover less its mean over the distance
+    driven (the IMU's mount and its accelerometer's bias are one to the data with a grade held over the whole log:
+    the net climb is taken as zero). The body's pitch on its suspension leaks into that slow part (a sway's start,
+    the filter's ends): a grade is followed where its climb is ``GRADE_SIGNIFICANCE`` times what the faster pitch
+    alone would climb, and where the IMU's forward axis was checked against the wheels."""
+    ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
+    pitch = -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))
+    slow = _slow(ti, pitch, heave.CROSSOVER_HZ)
+    v = np.interp(prep.imu.stamps_ns, prep.wheel.stamps_ns, np.nan_to_num(prep.wheel.velocity_mps[:, 0]))
+    step = v * np.gradient(ti)
+    ds = float(np.sum(np.abs(step)))
+    g = slow - (float(np.sum(np.abs(step) * slow)) / ds if ds > 0 else float(np.median(slow)))
+    climb, sway = np.cumsum(-step * np.sin(g)), np.cumsum(-step * np.sin(pitch - slow))
+    info = {"climb_rms_m": round(float(np.std(climb)), 4), "sway_climb_rms_m": round(float(np.std(sway)), 4),
+            "imu_forward_checked": _forward_axis_checked(prep)}
+    info["followed"] = bool(info["imu_forward_checked"]
+                            and info["climb_rms_m"] > GRADE_SIGNIFICANCE * info["sway_climb_rms_m"])
+    return (g if info["followed"] else None), info
+
+
+def _forward_axis_checked(prep: Prepared) -> bool:
+    """Whether the IMU's pitch can be the ground's: the accelerometer's forward acceleration matched the wheels'
+    (``wheel_slip``) with their scale measured, or fitted within ``SCALE_Z`` sigmas of 1. A fit far off 1 (groovy.bag
+    with its IMU's extrinsic unknown: 0.83 +- 0.02) says the IMU's forward axis may not be the base's."""
+    wc = prep.wheel_check or {}
+    if wc.get("measured"):
+        return True
+    scale, sigma = wc.get("scale"), wc.get("scale_sigma")
+    return scale is not None and sigma is not None and abs(scale - 1.0) <= wheel_slip.SCALE_Z * sigma
+
+
+def lift(prep: Prepared, result, up_imu: np.ndarray | None = None, pitch_grade: np.ndarray | None = None) -> None:
     """The planar ``result``'s roll and pitch set from the IMU's up direction (``up_imu``, else ``up_directions``),
-    its yaw kept, in place, where it applies."""
+    its yaw kept, in place, where it applies. ``pitch_grade`` (``grade``): the pitch keeps the grade the path climbs
+    (``heave.lift``); else it is level below the heave's crossover."""
     if not applies(prep) or not len(result.stamps_ns):
         return
     up_imu = up_directions(prep) if up_imu is None else up_imu
@@ -134,9 +170,11 @@ def lift(prep: Prepared, result, up_imu: np.ndarray | None = None) -> None:
     ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
     rp = np.column_stack([np.arctan2(up_imu[:, 1], up_imu[:, 2]), -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))])
     # the planar estimator was chosen because the motion stays near a level plane: the roll about its median, the
-    # pitch level below the heave's crossover (module docstring)
+    # pitch's slow part the grade the height climbs, or level with a level height (module docstring)
     rp[:, 0] -= np.median(rp[:, 0])
     rp[:, 1] -= _slow(ti, rp[:, 1], heave.CROSSOVER_HZ)
+    if pitch_grade is not None:
+        rp[:, 1] += pitch_grade
     t = (np.asarray(result.stamps_ns) - prep.imu.stamps_ns[0]) * 1e-9
     roll, pitch = np.interp(t, ti, rp[:, 0]), np.interp(t, ti, rp[:, 1])
     R = result.poses[:, :3, :3]
@@ -146,6 +184,7 @@ def lift(prep: Prepared, result, up_imu: np.ndarray | None = None) -> None:
         np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=1),
         np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=1),
         np.stack([-sp, cp * sr, cp * cr], axis=1)], axis=1)
-    result.info["level"] = {"model": "gyro carried, accelerometer below a crossover, level below the heave's",
+    slow = "level" if pitch_grade is None else "the grade"
+    result.info["level"] = {"model": f"gyro carried, accelerometer below a crossover, {slow} below the heave's",
                             "crossover_hz": CROSSOVER_HZ, "level_hz": heave.CROSSOVER_HZ,
                             "tilt_rms_deg": round(float(np.degrees(np.sqrt(np.mean(roll**2 + pitch**2)))), 3)}
