@@ -13,7 +13,7 @@ from ...errors import LioError
 from .choose import EstimatorChoice, choose_estimator
 from .complementary import run_complementary
 from .ekf3d import Ekf3d
-from . import accel_check, agreement, graph, heave, level, rest, shape
+from . import accel_check, agreement, grade, graph, heave, level, rest, shape
 from .graph import wheels as graph_wheels
 from .graph.keyframes import with_outputs
 from .gps_heading import (heading_prefix_end, prefix_without_gps, tried_headings, turned, yaw_onto,
@@ -151,7 +151,7 @@ def _run_filter(prep: Prepared, o: FuseOptions) -> FuseResult:
             result.info["smoother"] = {"kind": "rts", "why": "the planar filter without GPS (IMU + wheels, beside "
                                                              "odometry they agree with, or without an "
                                                              "accelerometer): its RTS pass"}
-            pitch_grade, grade_info = (None, None) if up is None else level.grade(prep, up)
+            pitch_grade, grade_info = (None, None) if up is None else grade.estimate(prep, up, o.gravity_mps2)
             heave.lift(prep, result, pitch_grade)
             level.lift(prep, result, up, pitch_grade)
             if grade_info is not None and "level" in result.info:

@@ -12,7 +12,7 @@ mean over ``HIGHPASS_S``: gravity's magnitude and the accelerometer's bias) besi
 a level (the estimator was chosen because the motion stays near a plane, ``choose``), with the sigma that puts
 the two's crossover at ``CROSSOVER_HZ``: heights faster than that come from the accelerometer, slower ones stay at
 the level. A linear, pentadiagonal system: solved in one banded Cholesky. Over hills the level is the path's
-climb (``climb``: its forward distance times the grade ``level.grade`` finds) instead of a flat one.
+climb (``climb``: its forward distance times the grade ``grade.estimate`` finds) instead of a flat one.
 """
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ def _solve(tb: np.ndarray, a: np.ndarray, sigma_a: float, level_sigma: float,
 
 def climb(prep: Prepared, result, pitch_grade: np.ndarray) -> np.ndarray:
     """(M,) the height (m) the planar ``result``'s path climbs at its stamps: each step's forward distance times the
-    grade (``pitch_grade``, a pitch in rad at the IMU stamps, ``level.grade``)."""
+    grade (``pitch_grade``, a pitch in rad at the IMU stamps, ``grade.estimate``)."""
     p = result.poses
     step = np.diff(p[:, :2, 3], axis=0)
     forward = step[:, 0] * p[:-1, 0, 0] + step[:, 1] * p[:-1, 1, 0]
@@ -120,10 +120,11 @@ def lift(prep: Prepared, result, pitch_grade: np.ndarray | None = None) -> None:
     climb (``climb``) where ``pitch_grade`` is given, else about a level."""
     if not applies(prep) or not len(result.stamps_ns):
         return
-    z = heights(prep, result.stamps_ns, None if pitch_grade is None else climb(prep, result, pitch_grade))
+    level = None if pitch_grade is None else climb(prep, result, pitch_grade)
+    z = heights(prep, result.stamps_ns, level)
     if z is None:
         return
     result.poses[:, 2, 3] = z - z[0]
-    about = "a level" if pitch_grade is None else "the grade's climb"
+    about = "a level" if level is None else "the grade's climb"
     result.info["heave"] = {"model": f"accelerometer about {about}", "crossover_hz": CROSSOVER_HZ,
-                            "rms_m": round(float(np.std(z)), 4)}
+                            "rms_m": round(float(np.std(z if level is None else z - level)), 4)}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import heave, wheel_slip
+from . import heave
 from .choose import wheel_free_force
 from .tilt_track import running_rotation
 from .timeline import Prepared
@@ -28,7 +28,6 @@ CROSSOVER_HZ = 0.1
 CHUNK = 20000  # IMU samples per running product (memory flat in log length)
 # the gyro's roll and pitch rates slower than this are taken as its bias (a ground robot's tilt stays bounded)
 BIAS_HZ = 0.01
-GRADE_SIGNIFICANCE = 2.0  # a grade's climb over the sway's that makes the height follow it (``grade``)
 
 
 def applies(prep: Prepared) -> bool:
@@ -79,7 +78,7 @@ def heading_rate_offset(prep: Prepared, up: np.ndarray) -> np.ndarray:
     (docs/benchmarks.md). The pitch rate's bias is taken out first (below ``BIAS_HZ``): times the accelerometer's
     error in the roll it would be a yaw rate bias, and added to the wheels' yaw rate too, no source could tell."""
     w = prep.imu_w_b
-    w_y = w[:, 1] - _slow((prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9, w[:, 1], BIAS_HZ)
+    w_y = w[:, 1] - slow_part((prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9, w[:, 1], BIAS_HZ)
     return (up[:, 1] * w_y + up[:, 2] * w[:, 2]) / np.maximum(up[:, 1] ** 2 + up[:, 2] ** 2, 1e-6) - w[:, 2]
 
 
@@ -91,7 +90,7 @@ def _blocks(t: np.ndarray) -> tuple[int, int, np.ndarray]:
     return n, m, t[:m * n].reshape(m, n).mean(axis=1)
 
 
-def _slow(t: np.ndarray, y: np.ndarray, crossover_hz: float) -> np.ndarray:
+def slow_part(t: np.ndarray, y: np.ndarray, crossover_hz: float) -> np.ndarray:
     """The part of the samples ``y`` at times ``t`` (s) slower than ``crossover_hz``: their block means fitted by
     the spline, at ``t``."""
     n, m, tb = _blocks(t)
@@ -125,43 +124,10 @@ def _spline(y: np.ndarray, lam: float, weight: np.ndarray | None = None, cut: np
     return solveh_banded(ab, w[:, None] * y)
 
 
-def grade(prep: Prepared, up_imu: np.ndarray) -> tuple[np.ndarray | None, dict]:
-    """(N,) the ground's grade as a pitch (rad, Z-Y-X) at the IMU stamps where the data show one, else None; and
-    what decided. The grade is the up direction's pitch below the heave's crossover less its mean over the distance
-    driven (the IMU's mount and its accelerometer's bias are one to the data with a grade held over the whole log:
-    the net climb is taken as zero). The body's pitch on its suspension leaks into that slow part (a sway's start,
-    the filter's ends): a grade is followed where its climb is ``GRADE_SIGNIFICANCE`` times what the faster pitch
-    alone would climb, and where the IMU's forward axis was checked against the wheels."""
-    ti = (prep.imu.stamps_ns - prep.imu.stamps_ns[0]) * 1e-9
-    pitch = -np.arcsin(np.clip(up_imu[:, 0], -1.0, 1.0))
-    slow = _slow(ti, pitch, heave.CROSSOVER_HZ)
-    v = np.interp(prep.imu.stamps_ns, prep.wheel.stamps_ns, np.nan_to_num(prep.wheel.velocity_mps[:, 0]))
-    step = v * np.gradient(ti)
-    ds = float(np.sum(np.abs(step)))
-    g = slow - (float(np.sum(np.abs(step) * slow)) / ds if ds > 0 else float(np.median(slow)))
-    climb, sway = np.cumsum(-step * np.sin(g)), np.cumsum(-step * np.sin(pitch - slow))
-    info = {"climb_rms_m": round(float(np.std(climb)), 4), "sway_climb_rms_m": round(float(np.std(sway)), 4),
-            "imu_forward_checked": _forward_axis_checked(prep)}
-    info["followed"] = bool(info["imu_forward_checked"]
-                            and info["climb_rms_m"] > GRADE_SIGNIFICANCE * info["sway_climb_rms_m"])
-    return (g if info["followed"] else None), info
-
-
-def _forward_axis_checked(prep: Prepared) -> bool:
-    """Whether the IMU's pitch can be the ground's: the accelerometer's forward acceleration matched the wheels'
-    (``wheel_slip``) with their scale measured, or fitted within ``SCALE_Z`` sigmas of 1. A fit far off 1 (groovy.bag
-    with its IMU's extrinsic unknown: 0.83 +- 0.02) says the IMU's forward axis may not be the base's."""
-    wc = prep.wheel_check or {}
-    if wc.get("measured"):
-        return True
-    scale, sigma = wc.get("scale"), wc.get("scale_sigma")
-    return scale is not None and sigma is not None and abs(scale - 1.0) <= wheel_slip.SCALE_Z * sigma
-
-
 def lift(prep: Prepared, result, up_imu: np.ndarray | None = None, pitch_grade: np.ndarray | None = None) -> None:
     """The planar ``result``'s roll and pitch set from the IMU's up direction (``up_imu``, else ``up_directions``),
-    its yaw kept, in place, where it applies. ``pitch_grade`` (``grade``): the pitch keeps the grade the path climbs
-    (``heave.lift``); else it is level below the heave's crossover."""
+    its yaw kept, in place, where it applies. ``pitch_grade`` (``grade.estimate``): the pitch keeps the grade the
+    path climbs (``heave.lift``); else it is level below the heave's crossover."""
     if not applies(prep) or not len(result.stamps_ns):
         return
     up_imu = up_directions(prep) if up_imu is None else up_imu
@@ -172,7 +138,7 @@ def lift(prep: Prepared, result, up_imu: np.ndarray | None = None, pitch_grade: 
     # the planar estimator was chosen because the motion stays near a level plane: the roll about its median, the
     # pitch's slow part the grade the height climbs, or level with a level height (module docstring)
     rp[:, 0] -= np.median(rp[:, 0])
-    rp[:, 1] -= _slow(ti, rp[:, 1], heave.CROSSOVER_HZ)
+    rp[:, 1] -= slow_part(ti, rp[:, 1], heave.CROSSOVER_HZ)
     if pitch_grade is not None:
         rp[:, 1] += pitch_grade
     t = (np.asarray(result.stamps_ns) - prep.imu.stamps_ns[0]) * 1e-9

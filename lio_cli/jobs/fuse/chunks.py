@@ -137,7 +137,8 @@ def _fuse_pieces(inputs: FuseInputs, options: FuseOptions, memory: MemoryPlan,
         shares.append(kept_shares({s: v.stamps_ns for s, v in piece.present().items()}, (a, b, last)))
         infos.append({"span_ns": [a, b], "poses": int(np.count_nonzero(keep)), "joined_on_overlap": joined,
                       "placed_on_fixes": placed, "start": res.info.get("start"),
-                      "wheel_check": res.info.get("wheel_check"), "rest": res.info.get("rest")})
+                      "wheel_check": res.info.get("wheel_check"), "rest": res.info.get("rest"),
+                      "grade": (res.info.get("level") or {}).get("grade")})
         prev, prev_placed = res, placed
         if step:
             step(k + 1, n)
@@ -162,6 +163,11 @@ def _merged(inputs: FuseInputs, kept: list[FuseResult], shares: list[dict[str, f
             merged.reports[src].received = len(series)
     if len(kept) > 1 and any(i.get("wheel_check") for i in infos):
         merged.info["wheel_check"] = merge_wheel_checks([i.get("wheel_check") for i in infos])
+    grades = [i.get("grade") for i in infos if i.get("grade") is not None]
+    if len(kept) > 1 and grades and "level" in merged.info:  # each chunk followed its own grade, or none
+        k = sum(bool(g["followed"]) for g in grades)
+        merged.info["level"] = {**merged.info["level"], "grade": {"followed": k > 0, "followed_chunks": k,
+                                                                  "chunks": len(grades)}}
     if len(kept) > 1:  # what any chunk said (a gap or a stale fix lies in one of them), each once
         merged.info["rest"] = rest.summary(rest.pieces_joined([(i.get("rest"), *i["span_ns"]) for i in infos]))
         merged.info["notes"] = list(dict.fromkeys(n for r in kept for n in r.info.get("notes", [])))
