@@ -39,9 +39,12 @@ def applies(prep: Prepared) -> bool:
             and prep.wheel is not None and len(prep.wheel) > 1 and len(prep.imu) > 4)
 
 
-def heights(prep: Prepared, stamps_ns: np.ndarray, climb: np.ndarray | None = None) -> np.ndarray | None:
+def heights(prep: Prepared, stamps_ns: np.ndarray, climb: np.ndarray | None = None,
+            wheels: bool = True) -> np.ndarray | None:
     """The heave (m, about the level) at ``stamps_ns``; None without enough data. ``climb`` (m, at ``stamps_ns``):
-    the height the level follows (``climb``), else zero."""
+    the height the level follows (``climb``), else zero. ``wheels`` False: the up direction is the specific
+    force's own, the wheels' acceleration left in (the vertical then takes ``a_h^2 / 2g`` of a horizontal one, but
+    no slip of the wheels)."""
     t_ns = prep.imu.stamps_ns
     t = (t_ns - t_ns[0]) * 1e-9
     period = float(np.median(np.diff(t)))
@@ -51,7 +54,7 @@ def heights(prep: Prepared, stamps_ns: np.ndarray, climb: np.ndarray | None = No
         return None
     f = prep.imu_f_b
     cut = m * n
-    g_blk = wheel_free_force(prep, t)[0][:cut].reshape(m, n, 3).mean(axis=1)
+    g_blk = (wheel_free_force(prep, t)[0] if wheels else f)[:cut].reshape(m, n, 3).mean(axis=1)
     f_blk = f[:cut].reshape(m, n, 3).mean(axis=1)
     tb = t[:cut].reshape(m, n).mean(axis=1)
     up = _moving_mean(g_blk, UP_SMOOTH_BLOCKS)
