@@ -24,7 +24,7 @@ from .timeline import Prepared
 SIGNIFICANCE = 2.0  # a grade's climb over the sway's that makes the height follow it
 # the wheels' fitted scale further from 1 than this (and than SCALE_Z of its sigmas) says the IMU's forward axis
 # may not be the base's: groovy.bag with an identity extrinsic fits 0.83 +- 0.02
-MAX_SCALE_OFF = 0.05
+MAX_SCALE_OFF = 0.1
 SCALE_Z = 3.0
 WHEEL_HOLE_S = 0.5  # wheel messages further apart than this (and 5 periods) leave the speed unknown between them
 
