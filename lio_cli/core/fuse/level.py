@@ -9,8 +9,8 @@ a smoothing spline (``CROSSOVER_HZ``), carried back into the base frame by the g
 the gyro the rest. The roll is then taken about its median over the log (the IMU's own tilt: its accelerometer
 bias, its mount's error); the pitch slower than the heave's crossover is left level, as the height is (``heave``):
 a flat path under a pitched pose would climb between two poses what the path does not. So the pitch is the gyro's
-above that crossover. Over hills (``grade``: the slow pitch's climb well above what the sway alone would climb)
-the height follows the grade and the pitch keeps it."""
+above that crossover. Over hills (``grade.estimate``: the slow pitch's climb well above what the sway alone would
+climb) the height follows the grade and the pitch keeps it."""
 
 from __future__ import annotations
 
